@@ -1,0 +1,94 @@
+#include "client/cli/report_json.h"
+
+#include <cmath>
+
+#include "client/sdk/params_json.h"
+#include "nlohmann/json.hpp"
+
+namespace imucal::cli {
+namespace {
+
+using nlohmann::json;
+
+json Num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+json Vec(const Eigen::Vector3d& v) { return json::array({Num(v.x()), Num(v.y()), Num(v.z())}); }
+
+json PoseJson(const core::PoseReport& p) {
+  const core::StaticInterval& s = p.interval;
+  return {{"index", p.index},
+          {"t_start", s.t_start_s},
+          {"t_end", s.t_end_s},
+          {"samples", s.samples()},
+          {"accel_mean", Vec(s.accel_mean)},
+          {"gyro_mean", Vec(s.gyro_mean)},
+          {"temp_mean", Num(s.temp_mean)},
+          {"used", s.used},
+          {"reason", s.reason},
+          {"face", p.face},
+          {"up", Vec(p.up)},
+          {"residual", Num(p.residual_m_s2)},
+          {"residual_heldout", Num(p.heldout_m_s2)}};
+}
+
+}  // namespace
+
+std::string ReportToJson(const core::CalibrationReport& r) {
+  json j;
+  j["format"] = "imucal-report v1";
+  j["device"] = r.device;
+  j["gravity"] = r.gravity_m_s2;
+  j["protocol"] = std::string(core::ProtocolKindName(r.protocol));
+  j["protocol_detected"] = r.protocol_detected;
+  j["noise"] = {{"accel_std", Vec(r.noise.accel_std)},
+                {"gyro_std", Vec(r.noise.gyro_std)},
+                {"units", "input units per sample"},
+                {"source", r.noise.source},
+                {"static_threshold_multiplier", r.threshold_multiplier}};
+  j["poses"] = json::array();
+  for (const auto& p : r.poses) j["poses"].push_back(PoseJson(p));
+  j["pairs"] = json::array();
+  for (const auto& p : r.pairs) {
+    j["pairs"].push_back({{"poses", {p.pose_a, p.pose_b}},
+                          {"status", p.ok ? "ok" : "rejected"},
+                          {"face", p.face},
+                          {"tilt_deg", p.tilt_deg},
+                          {"rotation_deg", p.rotation_deg},
+                          {"reason", p.reason}});
+  }
+  j["moves"] = json::array();
+  for (const auto& m : r.moves) {
+    j["moves"].push_back({{"poses", {m.from_pose, m.to_pose}},
+                          {"rotation_deg", m.rotation_deg},
+                          {"gravity_error_deg", m.error_deg},
+                          {"gravity_error_heldout_deg", Num(m.heldout_error_deg)}});
+  }
+  j["stages"] = json::array();
+  for (const auto& s : r.stages) {
+    j["stages"].push_back({{"name", s.name},
+                           {"accel_rms", s.accel_rms_m_s2},
+                           {"iterations", s.iterations},
+                           {"evaluations", s.evaluations},
+                           {"ms", s.ms}});
+  }
+  const core::Residuals& res = r.residual;
+  j["residual"] = {{"accel_rms", res.accel_rms_m_s2},
+                   {"accel_max", res.accel_max_m_s2},
+                   {"accel_heldout_rms", Num(res.accel_heldout_rms_m_s2)},
+                   {"accel_heldout_max", Num(res.accel_heldout_max_m_s2)},
+                   {"accel_chi2_reduced", r.accel_chi2_reduced},
+                   {"gyro_static_rms", res.gyro_static_rms_rad_s},
+                   {"gravity_direction_rms_deg", Num(res.move_rms_deg)},
+                   {"gravity_direction_max_deg", Num(res.move_max_deg)},
+                   {"gravity_direction_heldout_rms_deg", Num(res.move_heldout_rms_deg)},
+                   {"gravity_direction_heldout_max_deg", Num(res.move_heldout_max_deg)}};
+  json params = json::parse(sdk::ParamSetToJson(r.params));
+  j["effects"] = params.contains("effects") ? params["effects"] : json::array();
+  j["parameters"] = std::move(params);
+  j["verdict"] = r.verdict;
+  j["warnings"] = r.warnings;
+  j["ms"] = r.total_ms;
+  return j.dump(2) + "\n";
+}
+
+}  // namespace imucal::cli

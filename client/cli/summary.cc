@@ -1,0 +1,86 @@
+#include "client/cli/summary.h"
+
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+
+namespace imucal::cli {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+
+// m/s^2 with its equivalent in micro-g (what accelerometer datasheets use).
+std::string Accel(double v, double g) {
+  if (!std::isfinite(v)) return "n/a";
+  return absl::StrFormat("%.6f m/s^2 (%.1f ug)", v, 1e6 * v / g);
+}
+
+std::string Vec(const Eigen::Vector3d& v, int digits) {
+  return absl::StrFormat("[%.*g, %.*g, %.*g]", digits, v.x(), digits, v.y(), digits, v.z());
+}
+
+}  // namespace
+
+std::string FormatSummary(const core::CalibrationReport& r) {
+  const double g = r.gravity_m_s2;
+  const core::ParamSet& p = r.params;
+  std::string s;
+  int used = 0;
+  for (const auto& pose : r.poses) used += pose.interval.used;
+  absl::StrAppendFormat(&s, "device      %s\n", r.device.empty() ? "(unnamed)" : r.device);
+  absl::StrAppendFormat(&s, "protocol    %s%s\n", core::ProtocolKindName(r.protocol),
+                        r.protocol_detected ? " (detected)" : " (declared)");
+  absl::StrAppendFormat(&s, "noise       accel %s %s, gyro %s %s per sample; from the %s\n",
+                        Vec(r.noise.accel_std, 3), core::AccelUnitName(p.accel_unit),
+                        Vec(r.noise.gyro_std, 3), core::GyroUnitName(p.gyro_unit),
+                        r.noise.source);
+  absl::StrAppendFormat(&s, "poses       %d static intervals, %d used (threshold %.0fx noise)\n",
+                        static_cast<int>(r.poses.size()), used, r.threshold_multiplier);
+  for (const auto& pose : r.poses) {
+    if (pose.interval.used) continue;
+    absl::StrAppendFormat(&s, "  pose %-3d  %6.1f-%6.1f s  not used: %s\n", pose.index,
+                          pose.interval.t_start_s, pose.interval.t_end_s, pose.interval.reason);
+  }
+  for (const auto& pair : r.pairs) {
+    absl::StrAppendFormat(&s, "  pair %2d+%-2d %-3s %-8s turn %6.1f deg, tilt %.2f deg %s\n",
+                          pair.pose_a, pair.pose_b, pair.face, pair.ok ? "ok" : "REJECTED",
+                          pair.rotation_deg, pair.tilt_deg, pair.reason);
+  }
+  s += "stages      ";
+  for (const auto& st : r.stages)
+    absl::StrAppendFormat(&s, "%s %.1f ug (%.1f ms)   ", st.name, 1e6 * st.accel_rms_m_s2 / g, st.ms);
+  s += "\n";
+  const core::Residuals& res = r.residual;
+  absl::StrAppendFormat(&s, "accel       |a|-g RMS %s, max %s\n", Accel(res.accel_rms_m_s2, g),
+                        Accel(res.accel_max_m_s2, g));
+  absl::StrAppendFormat(&s, "            held out (leave one pose out) RMS %s, max %s\n",
+                        Accel(res.accel_heldout_rms_m_s2, g), Accel(res.accel_heldout_max_m_s2, g));
+  absl::StrAppendFormat(&s, "gyro        static rate RMS %.3g deg/s\n",
+                        res.gyro_static_rms_rad_s * kRadToDeg);
+  if (std::isfinite(res.move_rms_deg)) {
+    absl::StrAppendFormat(
+        &s, "            gravity direction after %d moves: RMS %.3f deg, max %.3f deg; held out "
+            "RMS %.3f deg, max %.3f deg\n",
+        static_cast<int>(r.moves.size()), res.move_rms_deg, res.move_max_deg,
+        res.move_heldout_rms_deg, res.move_heldout_max_deg);
+  }
+  absl::StrAppendFormat(&s, "parameters  (inverse model raw -> SI; see `model` in the JSON)\n");
+  absl::StrAppendFormat(&s, "  accel bias     %s %s\n", Vec(p.accel.bias, 6),
+                        core::AccelUnitName(p.accel_unit));
+  absl::StrAppendFormat(&s, "  accel scale    %s m/s^2 per %s\n", Vec(p.accel.scale, 6),
+                        core::AccelUnitName(p.accel_unit));
+  absl::StrAppendFormat(&s, "  accel t_yx,t_zx,t_zy %s rad; frame %s rad; quadratic %s 1/(m/s^2)\n",
+                        Vec(p.accel.tri_angles, 3), Vec(p.accel.frame_angles, 3),
+                        Vec(p.accel.quadratic, 3));
+  absl::StrAppendFormat(&s, "  gyro bias      %s %s\n", Vec(p.gyro.bias, 6),
+                        core::GyroUnitName(p.gyro_unit));
+  absl::StrAppendFormat(&s, "  gyro scale     %s rad/s per %s%s\n",
+                        Vec(p.gyro.matrix.diagonal(), 6), core::GyroUnitName(p.gyro_unit),
+                        p.gyro_calibrated ? "" : " (NOT calibrated: nominal)");
+  absl::StrAppendFormat(&s, "verdict     %s   (%.0f ms)\n", r.verdict, r.total_ms);
+  for (const auto& w : r.warnings) absl::StrAppendFormat(&s, "warning     %s\n", w);
+  return s;
+}
+
+}  // namespace imucal::cli

@@ -1,0 +1,206 @@
+#include "client/sdk/corrector.h"
+
+#include <cmath>
+#include <optional>
+#include <string>
+#include <utility>
+
+#include "Eigen/SVD"
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "client/sdk/params_json.h"
+#include "core/model.h"
+#include "core/regressor.h"
+
+namespace imucal::sdk {
+namespace {
+
+// Beyond this condition number the gyro matrix is singular for practical purposes: inverting
+// it (the model's Invert, or a reader of the export) would lose all precision.
+constexpr double kMaxConditionNumber = 1e12;
+
+absl::Status PathError(const std::string& path, const std::string& what) {
+  return absl::InvalidArgumentError(path + ": " + what);
+}
+
+std::string Element(const std::string& path, int index) {
+  return path + "[" + std::to_string(index) + "]";
+}
+
+absl::Status AllFinite(const Eigen::Vector3d& v, const std::string& path) {
+  for (int i = 0; i < 3; ++i) {
+    if (!std::isfinite(v(i))) return PathError(Element(path, i), "not finite");
+  }
+  return absl::OkStatus();
+}
+
+absl::Status AllFinite(const Eigen::Matrix3d& m, const std::string& path) {
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      if (!std::isfinite(m(r, c))) return PathError(Element(Element(path, r), c), "not finite");
+    }
+  }
+  return absl::OkStatus();
+}
+
+// The misalignment R(frame_angles) L(tri_angles) is a rotation times a unit lower-triangular
+// matrix (determinant 1), so finite angles always make it invertible; only the scales can
+// make the accel model singular.
+absl::Status AccelParamsAreValid(const core::AccelParams& a) {
+  for (const auto& [v, path] : {std::pair{&a.bias, "accel.bias"}, {&a.scale, "accel.scale"},
+                                {&a.tri_angles, "accel.tri_angles"},
+                                {&a.frame_angles, "accel.frame_angles"},
+                                {&a.quadratic, "accel.quadratic"}}) {
+    if (absl::Status s = AllFinite(*v, path); !s.ok()) return s;
+  }
+  for (int i = 0; i < 3; ++i) {
+    if (a.scale(i) == 0.0) return PathError(Element("accel.scale", i), "zero (not invertible)");
+  }
+  return absl::OkStatus();
+}
+
+absl::Status GyroParamsAreValid(const core::GyroParams& g) {
+  if (absl::Status s = AllFinite(g.bias, "gyro.bias"); !s.ok()) return s;
+  if (absl::Status s = AllFinite(g.matrix, "gyro.matrix"); !s.ok()) return s;
+  if (absl::Status s = AllFinite(g.accel_coupling, "gyro.accel_coupling"); !s.ok()) return s;
+  const Eigen::Vector3d sv = Eigen::JacobiSVD<Eigen::Matrix3d>(g.matrix).singularValues();
+  if (!(sv(2) > 0.0) || sv(0) / sv(2) > kMaxConditionNumber) {
+    return PathError("gyro.matrix", "not invertible (condition number " +
+                                        std::to_string(sv(0) / sv(2)) + ")");
+  }
+  return absl::OkStatus();
+}
+
+bool UsesSignal(const core::Regressor& r, core::Signal signal) {
+  for (int i = 0; i < r.num_factors; ++i) {
+    if (r.factors[i] == static_cast<int>(signal)) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
+                                            std::optional<double> time_origin_s) {
+  if (absl::Status s = AccelParamsAreValid(params.accel); !s.ok()) return s;
+  if (absl::Status s = GyroParamsAreValid(params.gyro); !s.ok()) return s;
+  if (time_origin_s.has_value() && !std::isfinite(*time_origin_s)) {
+    return absl::InvalidArgumentError("time origin: not finite");
+  }
+
+  Corrector c;
+  c.accel_misalignment_ = params.accel.Misalignment();
+  c.accel_linear_ = c.accel_misalignment_ * params.accel.scale.asDiagonal();
+  c.accel_bias_ = params.accel.bias;
+  c.accel_scale_ = params.accel.scale;
+  c.accel_quadratic_ = params.accel.quadratic;
+  c.accel_has_quadratic_ = !params.accel.quadratic.isZero(0.0);
+  c.gyro_matrix_ = params.gyro.matrix;
+  c.gyro_bias_ = params.gyro.bias;
+  c.gyro_accel_coupling_ = params.gyro.accel_coupling;
+  c.time_origin_s_ = time_origin_s;
+  c.time_origin_or_zero_s_ = time_origin_s.value_or(0.0);
+  c.accel_unit_ = params.accel_unit;
+  c.gyro_unit_ = params.gyro_unit;
+
+  // Every effect is checked, applied or not: a malformed one means a malformed parameter set.
+  for (size_t i = 0; i < params.effects.size(); ++i) {
+    const core::Effect& e = params.effects[i];
+    const std::string path = "effects[" + std::to_string(i) + "]";
+    if (e.axis < 0 || e.axis > 2) return PathError(path + ".axis", "not 0, 1 or 2 (x, y, z)");
+    if (!std::isfinite(e.coefficient)) return PathError(path + ".coefficient", "not finite");
+    const std::optional<core::Regressor> regressor = core::ParseRegressor(e.regressor);
+    if (!regressor.has_value()) {
+      return PathError(path + ".regressor", "unknown regressor \"" + e.regressor + "\"");
+    }
+    if (!e.applied) continue;
+    CompiledEffect compiled;
+    compiled.regressor = *regressor;
+    compiled.output = (e.sensor == core::Sensor::kGyro ? 3 : 0) + e.axis;
+    compiled.coefficient = e.coefficient;
+    compiled.uses_temperature = UsesSignal(*regressor, core::Signal::kTemperature);
+    if (UsesSignal(*regressor, core::Signal::kTime)) {
+      if (!time_origin_s.has_value()) {
+        return PathError(path, "applied effect on \"" + e.regressor +
+                                   "\" needs a time origin (Create's time_origin_s, e.g. the "
+                                   "first sample's t_s)");
+      }
+      c.needs_time_ = true;
+    }
+    c.needs_temperature_ = c.needs_temperature_ || compiled.uses_temperature;
+    c.effects_.push_back(compiled);
+  }
+  return c;
+}
+
+absl::StatusOr<Corrector> Corrector::WithTimeOrigin(double time_origin_s) const {
+  if (!std::isfinite(time_origin_s)) return absl::InvalidArgumentError("time origin: not finite");
+  Corrector c = *this;
+  c.time_origin_s_ = time_origin_s;
+  c.time_origin_or_zero_s_ = time_origin_s;
+  return c;
+}
+
+void Corrector::Apply(const RawSample& in, CalibratedSample* out) const noexcept {
+  const Eigen::Map<const Eigen::Vector3d> u_accel(in.accel);
+  const Eigen::Map<const Eigen::Vector3d> u_gyro(in.gyro);
+  Eigen::Vector3d a;
+  if (accel_has_quadratic_) {
+    const Eigen::Vector3d y = accel_scale_.cwiseProduct(u_accel - accel_bias_);
+    a = accel_misalignment_ * (y + accel_quadratic_.cwiseProduct(y.cwiseProduct(y)));
+  } else {
+    a.noalias() = accel_linear_ * (u_accel - accel_bias_);
+  }
+  Eigen::Vector3d w;
+  w.noalias() = gyro_matrix_ * (u_gyro - gyro_bias_);
+  w.noalias() -= gyro_accel_coupling_ * a;
+
+  double values[6] = {a(0), a(1), a(2), w(0), w(1), w(2)};
+  int skipped = 0;
+  if (!effects_.empty()) {
+    const core::SignalArray signals = {in.temp_c, in.t_s - time_origin_or_zero_s_,
+                                       a(0),      a(1),
+                                       a(2),      w(0),
+                                       w(1),      w(2)};
+    const bool no_temperature = std::isnan(in.temp_c);
+    for (const CompiledEffect& e : effects_) {
+      if (e.uses_temperature && no_temperature) {
+        ++skipped;
+        continue;
+      }
+      values[e.output] -= e.coefficient * e.regressor.Evaluate(signals);
+    }
+  }
+  for (int i = 0; i < 3; ++i) {
+    out->accel_m_s2[i] = values[i];
+    out->gyro_rad_s[i] = values[3 + i];
+  }
+  out->effects_skipped = skipped;
+}
+
+absl::Status Corrector::ApplyBatch(std::span<const RawSample> in,
+                                   std::span<CalibratedSample> out) const {
+  if (in.size() != out.size()) {
+    return absl::InvalidArgumentError("ApplyBatch: " + std::to_string(in.size()) +
+                                      " input samples but " + std::to_string(out.size()) +
+                                      " output slots");
+  }
+  for (size_t i = 0; i < in.size(); ++i) Apply(in[i], &out[i]);
+  return absl::OkStatus();
+}
+
+absl::Status Corrector::CheckInputUnits(core::AccelUnit accel, core::GyroUnit gyro) const {
+  if (accel != accel_unit_) {
+    return absl::InvalidArgumentError("accel unit " + std::string(UnitName(accel)) +
+                                      " but the parameters expect " +
+                                      std::string(UnitName(accel_unit_)));
+  }
+  if (gyro != gyro_unit_) {
+    return absl::InvalidArgumentError("gyro unit " + std::string(UnitName(gyro)) +
+                                      " but the parameters expect " +
+                                      std::string(UnitName(gyro_unit_)));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace imucal::sdk

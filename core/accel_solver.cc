@@ -1,0 +1,450 @@
+// The only translation unit of imucal that instantiates Ceres autodiff (build time on 2 cores).
+#include "core/accel_solver.h"
+
+#include <chrono>
+#include <cmath>
+
+#include "Eigen/Cholesky"
+#include "Eigen/Dense"
+#include "absl/strings/str_format.h"
+#include "ceres/ceres.h"
+#include "core/bsas.h"
+
+namespace imucal::core {
+namespace {
+
+// Residual of one static pose:  r = (|a(u)| - g) / sigma,  a(u) = L(tri) * z(u), where
+// z_i = y_i + q_i y_i^2 and y = diag(scale) (u - bias) (core/model.h). frame_angles drop out.
+struct MagnitudeError {
+  MagnitudeError(const Eigen::Vector3d& u, double g, double inv_sigma)
+      : u_(u), g_(g), inv_sigma_(inv_sigma) {}
+
+  template <typename T>
+  bool operator()(const T* bias, const T* scale, const T* tri, const T* quad, T* r) const {
+    const Eigen::Map<const Vec3<T>> b(bias), s(scale), t(tri), q(quad);
+    const Vec3<T> y = s.cwiseProduct(u_.cast<T>() - b);
+    const Vec3<T> z = y + q.cwiseProduct(y.cwiseProduct(y));
+    const Vec3<T> a = LowerMisalignment<T>(Vec3<T>(t)) * z;
+    r[0] = (a.norm() - T(g_)) * T(inv_sigma_);
+    return true;
+  }
+
+  static ceres::CostFunction* Create(const Eigen::Vector3d& u, double g, double inv_sigma) {
+    return new ceres::AutoDiffCostFunction<MagnitudeError, 1, 3, 3, 3, 3>(
+        new MagnitudeError(u, g, inv_sigma));
+  }
+
+ private:
+  Eigen::Vector3d u_;
+  double g_;
+  double inv_sigma_;
+};
+
+// Lower-triangular M with positive diagonal and M^T M = Q (Cholesky of the index-reversed Q).
+std::optional<Eigen::Matrix3d> ReversedCholesky(const Eigen::Matrix3d& q) {
+  const Eigen::Matrix3d j = Eigen::Matrix3d::Identity().rowwise().reverse();
+  Eigen::LLT<Eigen::Matrix3d> llt(j * q * j);
+  if (llt.info() != Eigen::Success) return std::nullopt;
+  const Eigen::Matrix3d l = llt.matrixL();
+  return Eigen::Matrix3d(j * l * j).transpose();
+}
+
+// Splits a lower-triangular M = L * diag(scale) into the model's scale and tri_angles.
+void SetFromLower(const Eigen::Matrix3d& lower, AccelParams* p) {
+  p->scale = lower.diagonal();
+  const Eigen::Matrix3d l = lower * p->scale.cwiseInverse().asDiagonal();
+  p->tri_angles = Eigen::Vector3d(l(1, 0), l(2, 0), l(2, 1));
+}
+
+double Seconds(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// Weighted Jacobian rows (d r_i / d theta with r_i = (|a_i| - g)/sigma_i) restricted to `free`.
+Eigen::MatrixXd WeightedJacobian(const AccelParams& p, const std::vector<AccelPose>& poses,
+                                 const std::vector<double>& sigma, const AccelMask& free) {
+  const Eigen::MatrixXd j = MagnitudeJacobian(p, poses);
+  int n_free = 0;
+  for (bool f : free) n_free += f;
+  Eigen::MatrixXd out(j.rows(), n_free);
+  for (int c = 0, k = 0; c < kAccelParams; ++c)
+    if (free[c]) out.col(k++) = j.col(c);
+  for (Eigen::Index i = 0; i < out.rows(); ++i) out.row(i) /= sigma[static_cast<size_t>(i)];
+  return out;
+}
+
+Eigen::VectorXd WeightedResiduals(const AccelParams& p, const std::vector<AccelPose>& poses,
+                                  const std::vector<double>& sigma, double g) {
+  const std::vector<double> r = MagnitudeResiduals(p, poses, g);
+  Eigen::VectorXd out(static_cast<Eigen::Index>(r.size()));
+  for (size_t i = 0; i < r.size(); ++i) out(static_cast<Eigen::Index>(i)) = r[i] / sigma[i];
+  return out;
+}
+
+const char* kGroupNames[4] = {"bias", "scale", "tri", "quadratic"};
+
+}  // namespace
+
+AccelVector PackAccel(const AccelParams& p) {
+  AccelVector v;
+  v << p.bias, p.scale, p.tri_angles, p.quadratic;
+  return v;
+}
+
+AccelParams UnpackAccel(const AccelVector& v, const Eigen::Vector3d& frame_angles) {
+  AccelParams p;
+  p.bias = v.segment<3>(0);
+  p.scale = v.segment<3>(3);
+  p.tri_angles = v.segment<3>(6);
+  p.quadratic = v.segment<3>(9);
+  p.frame_angles = frame_angles;
+  return p;
+}
+
+std::string AccelParamName(int index) {
+  static const char* kTri[3] = {"t_yx", "t_zx", "t_zy"};
+  const int group = index / 3, axis = index % 3;
+  if (group == 2) return kTri[axis];
+  return absl::StrFormat("%s_%c", kGroupNames[group], "xyz"[axis]);
+}
+
+std::vector<double> MagnitudeResiduals(const AccelParams& p, const std::vector<AccelPose>& poses,
+                                       double gravity_m_s2) {
+  std::vector<double> r;
+  r.reserve(poses.size());
+  const Eigen::Matrix3d l = LowerMisalignment<double>(p.tri_angles);
+  for (const AccelPose& pose : poses) r.push_back((l * p.PerAxis(pose.mean)).norm() - gravity_m_s2);
+  return r;
+}
+
+double Rms(const std::vector<double>& v) {
+  if (v.empty()) return 0.0;
+  double s = 0;
+  for (double x : v) s += x * x;
+  return std::sqrt(s / static_cast<double>(v.size()));
+}
+
+absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses,
+                                         double gravity_m_s2) {
+  const size_t n = poses.size();
+  if (n < 9) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "too few static poses: %d found, the accelerometer needs at least 9 (12 or more spread "
+        "over the sphere recommended)",
+        static_cast<int>(n)));
+  }
+  // Centre and normalise the means so raw counts (~32768) and m/s^2 condition the same.
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (const auto& p : poses) c += p.mean;
+  c /= static_cast<double>(n);
+  double spread = 0;
+  for (const auto& p : poses) spread += (p.mean - c).squaredNorm();
+  spread = std::sqrt(spread / static_cast<double>(n));
+  if (!(spread > 0)) return absl::FailedPreconditionError("all static poses read the same value");
+  const double k = 1.0 / spread;
+  // Quadric v^T A v + beta^T v = 1 in the normalised coordinates v = k (u - c).
+  Eigen::MatrixXd x(static_cast<Eigen::Index>(n), 9);
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3d v = k * (poses[i].mean - c);
+    x.row(static_cast<Eigen::Index>(i)) << v.x() * v.x(), v.y() * v.y(), v.z() * v.z(),
+        2 * v.x() * v.y(), 2 * v.x() * v.z(), 2 * v.y() * v.z(), v.x(), v.y(), v.z();
+  }
+  const Eigen::VectorXd theta =
+      x.colPivHouseholderQr().solve(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(n)));
+  Eigen::Matrix3d a;
+  a << theta(0), theta(3), theta(4), theta(3), theta(1), theta(5), theta(4), theta(5), theta(2);
+  const Eigen::Vector3d beta = theta.segment<3>(6);
+  const Eigen::Vector3d v0 = -0.5 * a.ldlt().solve(beta);
+  const double rho = 1.0 + v0.dot(a * v0);
+  const auto lower = ReversedCholesky(a / rho);
+  if (!(rho > 0) || !lower) {
+    return absl::FailedPreconditionError(
+        "the static poses do not determine the accelerometer: their readings do not lie on an "
+        "ellipsoid (poses too similar, or all in one plane); add poses with each axis up and down");
+  }
+  AccelParams p;
+  p.bias = c + v0 / k;
+  SetFromLower(gravity_m_s2 * k * *lower, &p);
+  return p;
+}
+
+absl::StatusOr<AccelParams> FitKnownReferences(const std::vector<Eigen::Vector3d>& means,
+                                               const std::vector<Eigen::Vector3d>& references) {
+  const size_t n = means.size();
+  if (n < 4 || references.size() != n) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "the affine least-squares fit needs at least 4 reference poses, got %d",
+        static_cast<int>(n)));
+  }
+  Eigen::MatrixXd x(static_cast<Eigen::Index>(n), 4), y(static_cast<Eigen::Index>(n), 3);
+  for (size_t i = 0; i < n; ++i) {
+    x.row(static_cast<Eigen::Index>(i)) << means[i].transpose(), 1.0;
+    y.row(static_cast<Eigen::Index>(i)) = references[i].transpose();
+  }
+  // P = (X^T X)^-1 X^T Y (seeds/000), via QR for conditioning.
+  const Eigen::Matrix<double, 4, 3> pm = x.colPivHouseholderQr().solve(y);
+  const Eigen::Matrix3d m = pm.topRows<3>().transpose();
+  const auto lower = ReversedCholesky(m.transpose() * m);
+  if (!lower || std::abs(m.determinant()) < 1e-300) {
+    return absl::FailedPreconditionError("the reference poses do not determine the 3x3 matrix");
+  }
+  Eigen::Matrix3d r = m * lower->inverse();  // rotation (frame) part: M = R * Lower
+  if (r.determinant() < 0) {
+    return absl::FailedPreconditionError(
+        "the face readings imply a mirrored axis: check the axis signs of the capture");
+  }
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(r, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  r = svd.matrixU() * svd.matrixV().transpose();
+  AccelParams p;
+  p.bias = -m.inverse() * pm.row(3).transpose();
+  SetFromLower(*lower, &p);
+  const Eigen::AngleAxisd aa(r);
+  p.frame_angles = aa.angle() * aa.axis();
+  return p;
+}
+
+Eigen::MatrixXd MagnitudeJacobian(const AccelParams& p, const std::vector<AccelPose>& poses) {
+  Eigen::MatrixXd j(static_cast<Eigen::Index>(poses.size()), kAccelParams);
+  const double* params[4] = {p.bias.data(), p.scale.data(), p.tri_angles.data(),
+                             p.quadratic.data()};
+  for (size_t i = 0; i < poses.size(); ++i) {
+    std::unique_ptr<ceres::CostFunction> cost(MagnitudeError::Create(poses[i].mean, 0.0, 1.0));
+    double r;
+    double jb[3], js[3], jt[3], jq[3];
+    double* jac[4] = {jb, js, jt, jq};
+    cost->Evaluate(params, &r, jac);
+    for (int k = 0; k < 3; ++k) {
+      const auto row = static_cast<Eigen::Index>(i);
+      j(row, k) = jb[k];
+      j(row, 3 + k) = js[k];
+      j(row, 6 + k) = jt[k];
+      j(row, 9 + k) = jq[k];
+    }
+  }
+  return j;
+}
+
+std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<AccelPose>& poses) {
+  // d|a|/du = (a/|a|)^T L diag(1 + 2 q y) diag(scale); the mean's per-axis std propagates.
+  std::vector<double> out;
+  out.reserve(poses.size());
+  const Eigen::Matrix3d l = LowerMisalignment<double>(p.tri_angles);
+  for (const AccelPose& pose : poses) {
+    const Eigen::Vector3d y = p.scale.cwiseProduct(pose.mean - p.bias);
+    const Eigen::Vector3d a = l * (y + p.quadratic.cwiseProduct(y.cwiseProduct(y)));
+    const Eigen::Vector3d d = Eigen::Vector3d(
+        (a.normalized().transpose() * l).transpose().cwiseProduct(
+            (Eigen::Vector3d::Ones() + 2 * p.quadratic.cwiseProduct(y)).cwiseProduct(p.scale)));
+    out.push_back(std::max(1e-12, d.cwiseProduct(pose.mean_std).norm()));
+  }
+  return out;
+}
+
+AccelObservability AnalyseAccelObservability(const AccelParams& p,
+                                             const std::vector<AccelPose>& poses,
+                                             double gravity_m_s2, const AccelMask& candidates) {
+  AccelObservability out;
+  out.determined = candidates;
+  // Broad physical prior, in parameter units (see header).
+  AccelVector prior;
+  for (int k = 0; k < 3; ++k) {
+    prior(k) = 0.2 * gravity_m_s2 / std::abs(p.scale(k));
+    prior(3 + k) = 0.1 * std::abs(p.scale(k));
+    prior(6 + k) = 0.03;
+    prior(9 + k) = 1e-3;
+  }
+  const std::vector<double> sigma = MagnitudeSigmas(p, poses);
+  static const char* kFix[12] = {
+      "add poses with the x axis pointing up and pointing down",
+      "add poses with the y axis pointing up and pointing down",
+      "add poses with the z axis pointing up and pointing down",
+      "add poses with the x axis pointing up and pointing down",
+      "add poses with the y axis pointing up and pointing down",
+      "add poses with the z axis pointing up and pointing down",
+      "add poses with gravity between the x and y axes (45 degrees in the x-y plane)",
+      "add poses with gravity between the x and z axes (45 degrees in the x-z plane)",
+      "add poses with gravity between the y and z axes (45 degrees in the y-z plane)",
+      "add poses with the x axis about 45 degrees from vertical",
+      "add poses with the y axis about 45 degrees from vertical",
+      "add poses with the z axis about 45 degrees from vertical"};
+  // Release undetermined parameters from the highest order down, re-checking after each group.
+  for (int group = 3; group >= 0; --group) {
+    AccelMask free = out.determined;
+    int n_free = 0;
+    for (bool f : free) n_free += f;
+    if (n_free == 0) break;
+    const Eigen::MatrixXd jw = WeightedJacobian(p, poses, sigma, free);
+    Eigen::VectorXd d(n_free);
+    for (int c = 0, k = 0; c < kAccelParams; ++c)
+      if (free[c]) d(k++) = prior(c);
+    const Eigen::MatrixXd info = d.asDiagonal() * (jw.transpose() * jw) * d.asDiagonal();
+    const Eigen::MatrixXd post =
+        (info + Eigen::MatrixXd::Identity(n_free, n_free)).ldlt().solve(
+            Eigen::MatrixXd::Identity(n_free, n_free));
+    bool released = false;
+    for (int c = 0, k = 0; c < kAccelParams; ++c) {
+      if (!free[c]) continue;
+      const double ratio = std::sqrt(post(k, k));
+      ++k;
+      if (c / 3 == group && ratio > 0.5) {
+        out.determined[c] = false;
+        released = true;
+        out.warnings.push_back(absl::StrFormat(
+            "accel %s: not determined by these poses (the data leaves %.0f%% of the prior "
+            "uncertainty); held at its %s value. To determine it, %s",
+            AccelParamName(c), 100 * ratio, group >= 2 ? "neutral (0)" : "stage-1", kFix[c]));
+      }
+    }
+    if (!released && group == 0) break;
+  }
+  return out;
+}
+
+AccelParams RefineAccelBsas(const AccelParams& start, const std::vector<AccelPose>& poses,
+                            double gravity_m_s2, const AccelMask& free, const AccelVector& unit,
+                            const BsasStageOptions& options, StageReport* report) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const AccelVector theta0 = PackAccel(start);
+  std::vector<int> index;  // free parameter indices
+  for (int c = 0; c < kAccelParams; ++c)
+    if (free[c]) index.push_back(c);
+  const std::vector<double> sigma = MagnitudeSigmas(start, poses);
+  auto to_params = [&](const Eigen::VectorXd& x) {
+    AccelVector theta = theta0;
+    for (size_t k = 0; k < index.size(); ++k)
+      theta(index[k]) += unit(index[k]) * x(static_cast<Eigen::Index>(k));
+    return UnpackAccel(theta, start.frame_angles);
+  };
+  auto cost = [&](const Eigen::VectorXd& x) {
+    const std::vector<double> r = MagnitudeResiduals(to_params(x), poses, gravity_m_s2);
+    double s = 0;
+    for (size_t i = 0; i < r.size(); ++i) s += (r[i] / sigma[i]) * (r[i] / sigma[i]);
+    return s;
+  };
+  // seeds/002's schedule: scale, bias, installation angles, second-order terms, repeated.
+  std::vector<std::vector<int>> groups;
+  for (int group : {1, 0, 2, 3}) {
+    std::vector<int> g;
+    for (size_t k = 0; k < index.size(); ++k)
+      if (index[k] / 3 == group) g.push_back(static_cast<int>(k));
+    if (!g.empty()) groups.push_back(g);
+  }
+  const auto n = static_cast<Eigen::Index>(index.size());
+  BsasOptions bo;
+  bo.seed = options.seed;
+  bo.max_iterations = options.iterations_per_stage;
+  const BsasResult r =
+      MinimizeBsasStaged(cost, Eigen::VectorXd::Zero(n), Eigen::VectorXd::Constant(n, -50.0),
+                         Eigen::VectorXd::Constant(n, 50.0), groups, options.max_rounds, 1e-4, bo);
+  const AccelParams out = to_params(r.x);
+  if (report) {
+    report->name = "bsas";
+    report->accel_rms_m_s2 = Rms(MagnitudeResiduals(out, poses, gravity_m_s2));
+    report->iterations = r.iterations;
+    report->evaluations = r.evaluations;
+    report->ms = 1e3 * Seconds(t0);
+  }
+  return out;
+}
+
+absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
+                                       const std::vector<AccelPose>& poses, double gravity_m_s2,
+                                       const AccelMask& free, StageReport* report) {
+  const auto t0 = std::chrono::steady_clock::now();
+  int n_free = 0;
+  for (bool f : free) n_free += f;
+  if (static_cast<int>(poses.size()) <= n_free) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "%d static poses cannot determine %d accelerometer parameters; add poses",
+        static_cast<int>(poses.size()), n_free));
+  }
+  LmResult out;
+  out.params = start;
+  AccelParams& p = out.params;
+  const std::vector<double> sigma = MagnitudeSigmas(start, poses);
+  ceres::Problem problem;
+  double* blocks[4] = {p.bias.data(), p.scale.data(), p.tri_angles.data(), p.quadratic.data()};
+  for (size_t i = 0; i < poses.size(); ++i) {
+    problem.AddResidualBlock(MagnitudeError::Create(poses[i].mean, gravity_m_s2, 1.0 / sigma[i]),
+                             nullptr, blocks[0], blocks[1], blocks[2], blocks[3]);
+  }
+  for (int b = 0; b < 4; ++b) {
+    std::vector<int> fixed;
+    for (int k = 0; k < 3; ++k)
+      if (!free[3 * b + k]) fixed.push_back(k);
+    if (fixed.size() == 3) {
+      problem.SetParameterBlockConstant(blocks[b]);
+    } else if (!fixed.empty()) {
+      problem.SetManifold(blocks[b], new ceres::SubsetManifold(3, fixed));
+    }
+  }
+  ceres::Solver::Options options;
+  options.linear_solver_type = ceres::DENSE_QR;
+  options.max_num_iterations = 100;
+  options.function_tolerance = 1e-14;
+  options.gradient_tolerance = 1e-14;
+  options.parameter_tolerance = 1e-14;
+  options.num_threads = 1;
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, &problem, &summary);
+  if (!summary.IsSolutionUsable()) {
+    return absl::InternalError("accelerometer LM failed: " + summary.message);
+  }
+  // Covariance = (J^T W J)^-1 over the free parameters, scaled by chi^2/dof when the residual
+  // exceeds the noise (model misfit), so standard errors never claim more than the data shows.
+  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free);
+  const Eigen::VectorXd rw = WeightedResiduals(p, poses, MagnitudeSigmas(p, poses), gravity_m_s2);
+  const int dof = static_cast<int>(poses.size()) - n_free;
+  out.chi2_reduced = rw.squaredNorm() / dof;
+  Eigen::MatrixXd cov = (jw.transpose() * jw).ldlt().solve(Eigen::MatrixXd::Identity(n_free, n_free));
+  if (out.chi2_reduced > 1) {
+    cov *= out.chi2_reduced;
+    out.covariance_scaled = true;
+  }
+  std::vector<int> index;
+  for (int c = 0; c < kAccelParams; ++c)
+    if (free[c]) index.push_back(c);
+  for (size_t a = 0; a < index.size(); ++a)
+    for (size_t b = 0; b < index.size(); ++b)
+      out.covariance(index[a], index[b]) =
+          cov(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b));
+  if (report) {
+    report->name = "lm";
+    report->accel_rms_m_s2 = Rms(MagnitudeResiduals(p, poses, gravity_m_s2));
+    report->iterations = static_cast<int>(summary.iterations.size());
+    report->evaluations = summary.num_residual_evaluations;
+    report->ms = 1e3 * Seconds(t0);
+  }
+  return out;
+}
+
+std::vector<double> HeldOutMagnitudeResiduals(const AccelParams& fit,
+                                              const std::vector<AccelPose>& poses,
+                                              double gravity_m_s2, const AccelMask& free) {
+  std::vector<double> out(poses.size(), std::numeric_limits<double>::quiet_NaN());
+  for (size_t i = 0; i < poses.size(); ++i) {
+    std::vector<AccelPose> rest = poses;
+    rest.erase(rest.begin() + static_cast<long>(i));
+    const auto r = RefineAccelLm(fit, rest, gravity_m_s2, free, nullptr);
+    if (r.ok()) out[i] = MagnitudeResiduals(r->params, {poses[i]}, gravity_m_s2)[0];
+  }
+  return out;
+}
+
+double PressRms(const AccelParams& fit, const std::vector<AccelPose>& poses, double gravity_m_s2,
+                const AccelMask& free) {
+  const std::vector<double> sigma = MagnitudeSigmas(fit, poses);
+  const Eigen::MatrixXd jw = WeightedJacobian(fit, poses, sigma, free);
+  const Eigen::MatrixXd jtj = jw.transpose() * jw;
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(jtj);
+  const std::vector<double> r = MagnitudeResiduals(fit, poses, gravity_m_s2);
+  double s = 0;
+  for (Eigen::Index i = 0; i < jw.rows(); ++i) {
+    const double h = jw.row(i).dot(ldlt.solve(jw.row(i).transpose()));
+    const double loo = r[static_cast<size_t>(i)] / std::max(1e-6, 1.0 - h);
+    s += loo * loo;
+  }
+  return std::sqrt(s / static_cast<double>(jw.rows()));
+}
+
+}  // namespace imucal::core

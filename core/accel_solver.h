@@ -1,0 +1,117 @@
+// Accelerometer calibration from static poses, in the stages of the issue:
+//   1. linear least squares: with known orientations (six-face, seeds/000) the 12-parameter
+//      affine fit against +-g; otherwise an ellipsoid fit of |a| = g (9 parameters);
+//   2. BSAS refinement (seeds/002) of the 12 magnitude parameters on the |a| = g cost, staged
+//      (scale, bias, angles, quadratic) in units of the stage-1 standard errors;
+//   3. Levenberg-Marquardt (Ceres) on the same cost, weighted by each pose's measured noise, with
+//      the parameter covariance.
+// The model is AccelModel of core/model.h. |a| does not depend on frame_angles, so stages 2-3
+// keep the frame angles of stage 1 (zero when no orientation was known).
+//
+// The 12 "magnitude" parameters, in this order everywhere (vectors, covariance, masks):
+//   0-2 bias (input units), 3-5 scale (m/s^2 per input unit), 6-8 tri_angles (rad),
+//   9-11 quadratic (1/(m/s^2)).
+#ifndef IMUCAL_CORE_ACCEL_SOLVER_H_
+#define IMUCAL_CORE_ACCEL_SOLVER_H_
+
+#include <array>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "Eigen/Core"
+#include "absl/status/statusor.h"
+#include "core/model.h"
+
+namespace imucal::core {
+
+inline constexpr int kAccelParams = 12;
+using AccelVector = Eigen::Matrix<double, kAccelParams, 1>;
+using AccelMatrix = Eigen::Matrix<double, kAccelParams, kAccelParams>;
+using AccelMask = std::array<bool, kAccelParams>;  // true = estimated, false = held fixed
+
+// A static pose as the accelerometer solver sees it.
+struct AccelPose {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();  // mean raw reading, input units
+  Eigen::Vector3d mean_std = Eigen::Vector3d::Ones();  // std of that mean per axis, input units
+};
+
+AccelVector PackAccel(const AccelParams& p);
+AccelParams UnpackAccel(const AccelVector& v, const Eigen::Vector3d& frame_angles);
+std::string AccelParamName(int index);  // "bias_x", "scale_y", "t_zx", "quadratic_z", ...
+
+// |a_i| - g for every pose.
+std::vector<double> MagnitudeResiduals(const AccelParams& p, const std::vector<AccelPose>& poses,
+                                       double gravity_m_s2);
+double Rms(const std::vector<double>& v);
+
+// Stage 1 without orientations: the ellipsoid through the pose means, in the triangular gauge.
+// Needs at least 9 poses spread over the sphere. Data-driven start: no nominal scale needed.
+absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses,
+                                         double gravity_m_s2);
+
+// Stage 1 with known orientations (seeds/000): a = P^T [u; 1] by least squares against the
+// reference specific forces (m/s^2). Returns the full 12-parameter affine model, decomposed into
+// frame rotation * lower-triangular * scale (quadratic 0).
+absl::StatusOr<AccelParams> FitKnownReferences(const std::vector<Eigen::Vector3d>& means,
+                                               const std::vector<Eigen::Vector3d>& references);
+
+// Jacobian d(|a_i| - g)/d(params), one row per pose.
+Eigen::MatrixXd MagnitudeJacobian(const AccelParams& p, const std::vector<AccelPose>& poses);
+// Standard deviation of |a_i| from the pose's mean_std, m/s^2.
+std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<AccelPose>& poses);
+
+// Which parameters the poses determine. Information is compared with a broad physical prior
+// (bias 0.2 g, scale 10 %, angles 30 mrad, quadratic 1e-3 per m/s^2): a parameter whose posterior
+// std is not at least halved by the data is undetermined. Higher-order parameters are released
+// first (quadratic, then angles), so a confounded pair keeps its lower-order member.
+struct AccelObservability {
+  AccelMask determined{};
+  std::vector<std::string> warnings;  // "quadratic_x: not determined by these poses; ..."
+};
+AccelObservability AnalyseAccelObservability(const AccelParams& p,
+                                             const std::vector<AccelPose>& poses,
+                                             double gravity_m_s2, const AccelMask& candidates);
+
+struct StageReport {
+  std::string name;  // "ls", "bsas", "lm"
+  double accel_rms_m_s2 = 0;
+  int iterations = 0;
+  int evaluations = 0;
+  double ms = 0;
+};
+
+struct BsasStageOptions {
+  uint64_t seed = 1;
+  int max_rounds = 4;
+  int iterations_per_stage = 200;
+};
+// Stage 2. `unit` is the normalisation (one unit per parameter), typically stage-1 std errors.
+AccelParams RefineAccelBsas(const AccelParams& start, const std::vector<AccelPose>& poses,
+                            double gravity_m_s2, const AccelMask& free,
+                            const AccelVector& unit, const BsasStageOptions& options,
+                            StageReport* report);
+
+struct LmResult {
+  AccelParams params;
+  AccelMatrix covariance = AccelMatrix::Zero();  // zero rows/cols for fixed parameters
+  double chi2_reduced = 0;  // weighted residual^2 / dof; >1: model misfit beyond noise
+  bool covariance_scaled = false;  // covariance multiplied by chi2_reduced (> 1)
+};
+// Stage 3. Fails (FailedPrecondition) when there are fewer poses than free parameters, and
+// (Internal) when Ceres reports an unusable solution.
+absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
+                                       const std::vector<AccelPose>& poses, double gravity_m_s2,
+                                       const AccelMask& free, StageReport* report);
+
+// Leave-one-pose-out: for each pose, refit (LM, from `fit`) without it and return its |a| - g.
+std::vector<double> HeldOutMagnitudeResiduals(const AccelParams& fit,
+                                              const std::vector<AccelPose>& poses,
+                                              double gravity_m_s2, const AccelMask& free);
+// The same, to first order (PRESS: r_i / (1 - h_ii)); cheap enough for a parameter sweep.
+double PressRms(const AccelParams& fit, const std::vector<AccelPose>& poses, double gravity_m_s2,
+                const AccelMask& free);
+
+}  // namespace imucal::core
+
+#endif  // IMUCAL_CORE_ACCEL_SOLVER_H_

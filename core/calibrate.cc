@@ -1,0 +1,484 @@
+#include "core/calibrate.h"
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+#include "Eigen/Dense"
+#include "absl/strings/str_format.h"
+#include "core/gyro_solver.h"
+
+namespace imucal::core {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// Quality gates (verdict). A few mg is what a field calibration of a MEMS unit should reach;
+// a gravity-direction error above a degree after a move ruins a heading within minutes.
+constexpr double kAccelPassRms = 0.02;  // m/s^2, about 2 mg
+constexpr double kAccelFailRms = 0.05;  // m/s^2, about 5 mg
+constexpr double kMovePassDeg = 1.0;
+constexpr double kMoveFailDeg = 5.0;
+// Two poses whose up directions agree within this are the same orientation (not a new pose).
+constexpr double kDuplicateDeg = 2.0;
+
+double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return kRadToDeg * std::atan2(a.cross(b).norm(), a.dot(b));
+}
+
+std::vector<AccelPose> ToAccelPoses(const std::vector<StaticInterval>& ivs,
+                                    const std::vector<int>& used, const NoiseLevel& noise) {
+  std::vector<AccelPose> out;
+  out.reserve(used.size());
+  for (int i : used) {
+    const StaticInterval& s = ivs[static_cast<size_t>(i)];
+    AccelPose p;
+    p.mean = s.accel_mean;
+    p.mean_std = s.accel_std.cwiseMax(noise.accel_std) / std::sqrt(static_cast<double>(s.samples()));
+    out.push_back(p);
+  }
+  return out;
+}
+
+std::vector<int> UsedIndices(const std::vector<StaticInterval>& ivs) {
+  std::vector<int> out;
+  for (size_t i = 0; i < ivs.size(); ++i)
+    if (ivs[i].used) out.push_back(static_cast<int>(i));
+  return out;
+}
+
+AccelMask LinearMask() {
+  AccelMask m{};
+  for (int i = 0; i < 9; ++i) m[static_cast<size_t>(i)] = true;
+  return m;
+}
+
+// One threshold multiplier of the sweep, scored by its leave-one-pose-out (PRESS) error.
+struct SweepResult {
+  double multiplier = 0;
+  std::vector<StaticInterval> intervals;
+  AccelParams accel;
+  double press = std::numeric_limits<double>::infinity();
+  size_t poses = 0;
+};
+
+SweepResult SweepThreshold(const Capture& cap, const MotionSignal& motion, const NoiseLevel& noise,
+                           const CalibrateOptions& opt, size_t* most_poses) {
+  SweepResult best;
+  const double g = cap.gravity_m_s2;
+  for (double m : opt.multipliers) {
+    std::vector<StaticInterval> ivs = DetectStatic(cap, motion, noise, m, opt.detector);
+    const std::vector<AccelPose> poses = ToAccelPoses(ivs, UsedIndices(ivs), noise);
+    *most_poses = std::max(*most_poses, poses.size());
+    if (poses.size() < 10) continue;
+    const auto e = FitEllipsoid(poses, g);
+    if (!e.ok()) continue;
+    const auto lm = RefineAccelLm(*e, poses, g, LinearMask(), nullptr);
+    if (!lm.ok()) continue;
+    const double press = PressRms(lm->params, poses, g, LinearMask());
+    if (press < best.press) {
+      best.multiplier = m;
+      best.intervals = std::move(ivs);
+      best.accel = lm->params;
+      best.press = press;
+      best.poses = poses.size();
+    }
+  }
+  return best;
+}
+
+// Body rotation (rotation vector, rad) over samples [begin, end] with the calibrated gyro.
+Eigen::Vector3d IntegrateRotation(const Capture& cap, size_t begin, size_t end,
+                                  const GyroParams& gyro) {
+  Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
+  for (size_t k = begin; k < end; ++k) {
+    const Eigen::Vector3d w = 0.5 * gyro.matrix * (cap.gyro[k] + cap.gyro[k + 1] - 2 * gyro.bias);
+    r = r * ExpSo3<double>(w * (cap.t_s[k + 1] - cap.t_s[k]));
+  }
+  const Eigen::AngleAxisd aa(r);
+  return aa.angle() * aa.axis();
+}
+
+std::vector<GyroMove> MovesBetween(const std::vector<StaticInterval>& ivs,
+                                   const std::vector<int>& used, const AccelParams& accel) {
+  std::vector<GyroMove> moves;
+  for (size_t k = 0; k + 1 < used.size(); ++k) {
+    const StaticInterval& a = ivs[static_cast<size_t>(used[k])];
+    const StaticInterval& b = ivs[static_cast<size_t>(used[k + 1])];
+    GyroMove m;
+    m.begin = a.end - 1;
+    m.end = b.begin;
+    m.up_before = accel.Apply(a.accel_mean).normalized();
+    m.up_after = accel.Apply(b.accel_mean).normalized();
+    m.bias_before = a.gyro_mean;
+    m.bias_after = b.gyro_mean;
+    moves.push_back(m);
+  }
+  return moves;
+}
+
+// Sample-weighted mean of the static gyro readings: the constant bias of the model.
+Eigen::Vector3d StaticGyroBias(const std::vector<StaticInterval>& ivs,
+                               const std::vector<int>& used) {
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  double n = 0;
+  for (int i : used) {
+    const StaticInterval& s = ivs[static_cast<size_t>(i)];
+    sum += s.gyro_mean * static_cast<double>(s.samples());
+    n += static_cast<double>(s.samples());
+  }
+  return n > 0 ? Eigen::Vector3d(sum / n) : Eigen::Vector3d::Zero();
+}
+
+struct GyroStage {
+  GyroParams params;
+  bool calibrated = false;
+  std::optional<GyroSolveResult> result;
+  std::vector<std::string> warnings;
+};
+
+GyroStage SolveGyro(const Capture& cap, const std::vector<StaticInterval>& ivs,
+                    const std::vector<int>& used, const AccelParams& accel,
+                    const Eigen::Matrix3d* start) {
+  GyroStage out;
+  out.params.bias = StaticGyroBias(ivs, used);
+  const double nominal = NominalGyroToSi(cap.gyro_unit);
+  out.params.matrix = Eigen::Matrix3d::Identity() * (std::isnan(nominal) ? 1.0 : nominal);
+  const std::vector<GyroMove> moves = MovesBetween(ivs, used, accel);
+  GyroSolveOptions go;
+  go.bias = out.params.bias;
+  // Each move uses the bias measured at the poses on either side of it (a drifting bias is
+  // followed); the stored model keeps the constant mean bias.
+  go.interpolate_bias = true;
+  if (start) {
+    go.initial_matrix = *start;
+  } else {
+    go.scale_unknown = std::isnan(nominal);
+    go.initial_matrix = out.params.matrix;
+  }
+  auto r = moves.size() >= 3 ? SolveGyroFromMoves(cap.t_s, cap.gyro, moves, go)
+                             : absl::StatusOr<GyroSolveResult>(absl::FailedPreconditionError(
+                                   "fewer than 3 moves between static poses"));
+  if (!r.ok()) {
+    out.warnings.push_back(absl::StrFormat(
+        "gyroscope: only the bias was calibrated (%s). Scale and misalignment need rotations "
+        "between static poses%s",
+        r.status().message(),
+        std::isnan(nominal) ? "; the gyro is in raw counts, so its output stays in counts" : ""));
+    return out;
+  }
+  if (r->rank_deficient) {
+    for (const auto& u : r->undetermined)
+      out.warnings.push_back("gyroscope: " + u +
+                             " is not determined by the moves; add rotations about that axis");
+  }
+  out.params.matrix = r->matrix;
+  out.calibrated = !r->rank_deficient;
+  out.result = std::move(*r);
+  return out;
+}
+
+double Max(const std::vector<double>& v) {
+  double m = 0;
+  for (double x : v)
+    if (std::isfinite(x)) m = std::max(m, std::abs(x));
+  return m;
+}
+
+double RmsFinite(const std::vector<double>& v) {
+  std::vector<double> f;
+  for (double x : v)
+    if (std::isfinite(x)) f.push_back(x);
+  return f.empty() ? kNaN : Rms(f);
+}
+
+std::vector<double> ToDeg(const std::vector<double>& rad) {
+  std::vector<double> out;
+  for (double x : rad) out.push_back(x * kRadToDeg);
+  return out;
+}
+
+// Marks poses that repeat an earlier orientation (except a verified six-face pair partner).
+void MarkDuplicates(std::vector<StaticInterval>* ivs, const std::vector<Eigen::Vector3d>& ups,
+                    const std::vector<PairCheck>& pairs) {
+  auto partners = [&](int a, int b) {
+    for (const auto& p : pairs)
+      if (p.ok && ((p.pose_a == a && p.pose_b == b) || (p.pose_a == b && p.pose_b == a)))
+        return true;
+    return false;
+  };
+  for (size_t i = 0; i < ivs->size(); ++i) {
+    if (!(*ivs)[i].used) continue;
+    for (size_t j = 0; j < i; ++j) {
+      if (!(*ivs)[j].used || partners(static_cast<int>(j), static_cast<int>(i))) continue;
+      const double angle = AngleDeg(ups[i], ups[j]);
+      if (angle < kDuplicateDeg) {
+        (*ivs)[i].used = false;
+        (*ivs)[i].reason = absl::StrFormat(
+            "duplicate of pose %d (same orientation within %.1f degrees); place the robot in a "
+            "new orientation", static_cast<int>(j), angle);
+        break;
+      }
+    }
+  }
+}
+
+// Six-face stage 1 (seeds/000): pair-averaged face readings against +-g on the face axis.
+absl::StatusOr<AccelParams> FitVerifiedFaces(const std::vector<StaticInterval>& ivs,
+                                             const std::vector<PairCheck>& pairs,
+                                             const std::vector<Eigen::Vector3d>& ups, double g) {
+  std::vector<Eigen::Vector3d> means, refs;
+  for (const PairCheck& p : pairs) {
+    if (!p.ok) continue;
+    const Face f = ClassifyFace(ups[static_cast<size_t>(p.pose_a)]);
+    Eigen::Vector3d ref = Eigen::Vector3d::Zero();
+    ref(f.axis) = f.sign * g;
+    means.push_back(0.5 * (ivs[static_cast<size_t>(p.pose_a)].accel_mean +
+                           ivs[static_cast<size_t>(p.pose_b)].accel_mean));
+    refs.push_back(ref);
+  }
+  if (means.size() < 6) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "only %d of 6 faces have a verified 180-degree pair", static_cast<int>(means.size())));
+  }
+  return FitKnownReferences(means, refs);
+}
+
+AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& poses,
+                          const AccelMask& free) {
+  // One BSAS unit = the stage-1 standard error of the parameter (seeds/002 needs parameters of
+  // similar magnitude; standard errors make every coordinate equally uncertain).
+  const Eigen::MatrixXd j = MagnitudeJacobian(p, poses);
+  const std::vector<double> sigma = MagnitudeSigmas(p, poses);
+  Eigen::MatrixXd jw = j;
+  for (Eigen::Index i = 0; i < jw.rows(); ++i) jw.row(i) /= sigma[static_cast<size_t>(i)];
+  AccelVector unit = AccelVector::Ones();
+  std::vector<int> idx;
+  for (int c = 0; c < kAccelParams; ++c)
+    if (free[static_cast<size_t>(c)]) idx.push_back(c);
+  Eigen::MatrixXd info(idx.size(), idx.size());
+  for (size_t a = 0; a < idx.size(); ++a)
+    for (size_t b = 0; b < idx.size(); ++b)
+      info(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b)) =
+          jw.col(idx[a]).dot(jw.col(idx[b]));
+  const Eigen::MatrixXd cov =
+      info.ldlt().solve(Eigen::MatrixXd::Identity(info.rows(), info.cols()));
+  for (size_t a = 0; a < idx.size(); ++a) {
+    const double s = std::sqrt(std::abs(cov(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(a))));
+    if (std::isfinite(s) && s > 0) unit(idx[a]) = s;
+  }
+  return unit;
+}
+
+std::string Verdict(const CalibrationReport& r, bool degraded) {
+  const double move = r.residual.move_rms_deg;
+  if (r.residual.accel_rms_m_s2 > kAccelFailRms || (std::isfinite(move) && move > kMoveFailDeg))
+    return "fail";
+  if (degraded || r.residual.accel_rms_m_s2 > kAccelPassRms ||
+      (std::isfinite(move) && move > kMovePassDeg))
+    return "warn";
+  return "pass";
+}
+
+}  // namespace
+
+absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateOptions& opt) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (absl::Status s = ValidateCapture(cap); !s.ok()) return s;
+  CalibrationReport rep;
+  rep.device = cap.device;
+  rep.gravity_m_s2 = cap.gravity_m_s2;
+  const double g = cap.gravity_m_s2;
+
+  // 1. Noise and static intervals.
+  const MotionSignal motion = ComputeMotionSignal(cap, opt.detector);
+  rep.noise = EstimateNoise(cap, motion);
+  size_t most_poses = 0;
+  SweepResult sweep = SweepThreshold(cap, motion, rep.noise, opt, &most_poses);
+  if (sweep.poses == 0) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "too few static poses: found at most %d usable, the accelerometer needs at least 10 "
+        "distinct orientations held still for %.1f s or more",
+        static_cast<int>(most_poses), opt.detector.min_static_s));
+  }
+  rep.threshold_multiplier = sweep.multiplier;
+  std::vector<StaticInterval>& ivs = sweep.intervals;
+
+  // 2. Rough gyroscope (for pair checks), from the sweep's accelerometer.
+  std::vector<int> used = UsedIndices(ivs);
+  GyroStage gyro = SolveGyro(cap, ivs, used, sweep.accel, nullptr);
+  std::vector<Eigen::Vector3d> ups(ivs.size(), Eigen::Vector3d::Zero());
+  for (size_t i = 0; i < ivs.size(); ++i) ups[i] = sweep.accel.Apply(ivs[i].accel_mean).normalized();
+
+  // 3. Protocol and its checks.
+  std::vector<Eigen::Vector3d> used_ups;
+  for (int i : used) used_ups.push_back(ups[static_cast<size_t>(i)]);
+  rep.protocol = opt.protocol;
+  if (opt.protocol == ProtocolKind::kAuto) {
+    rep.protocol = DetectProtocol(used_ups);
+    rep.protocol_detected = true;
+  }
+  if (rep.protocol == ProtocolKind::kSixFace) {
+    std::vector<FacePose> fps;
+    for (size_t k = 0; k < used.size(); ++k) {
+      FacePose fp;
+      fp.index = used[k];
+      fp.up = ups[static_cast<size_t>(used[k])];
+      if (k > 0) {
+        fp.rotation_from_previous = IntegrateRotation(
+            cap, ivs[static_cast<size_t>(used[k - 1])].end - 1,
+            ivs[static_cast<size_t>(used[k])].begin, gyro.params);
+      }
+      fps.push_back(fp);
+    }
+    SixFaceCheck check = CheckSixFacePairs(fps);
+    rep.pairs = check.pairs;
+    for (const auto& p : rep.pairs)
+      if (!p.ok)
+        rep.warnings.push_back(absl::StrFormat("pair of poses %d and %d (%s) rejected: %s",
+                                               p.pose_a, p.pose_b, p.face, p.reason));
+    for (const auto& m : check.missing) rep.warnings.push_back(m);
+  }
+  MarkDuplicates(&ivs, ups, rep.pairs);
+  used = UsedIndices(ivs);
+  const std::vector<AccelPose> poses = ToAccelPoses(ivs, used, rep.noise);
+
+  // 4. Accelerometer stage 1: linear least squares.
+  auto s1_time = std::chrono::steady_clock::now();
+  absl::StatusOr<AccelParams> s1 = absl::UnknownError("unset");
+  if (rep.protocol == ProtocolKind::kSixFace) {
+    s1 = FitVerifiedFaces(ivs, rep.pairs, ups, g);
+    if (!s1.ok()) {
+      rep.warnings.push_back("six-face least squares not possible (" +
+                             std::string(s1.status().message()) +
+                             "); used the ellipsoid fit instead, frame alignment unknown");
+    }
+  }
+  if (!s1.ok()) s1 = FitEllipsoid(poses, g);
+  if (!s1.ok()) return s1.status();
+  StageReport ls;
+  ls.name = "ls";
+  ls.iterations = 1;
+  ls.accel_rms_m_s2 = Rms(MagnitudeResiduals(*s1, poses, g));
+  ls.ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - s1_time).count();
+  rep.stages.push_back(ls);
+
+  // 5. What the poses determine; undetermined parameters stay at neutral values.
+  AccelMask all{};
+  all.fill(true);
+  const AccelObservability obs = AnalyseAccelObservability(*s1, poses, g, all);
+  for (const auto& w : obs.warnings) rep.warnings.push_back(w);
+
+  // 6. BSAS, then LM.
+  AccelParams start = *s1;
+  if (opt.use_bsas) {
+    StageReport bs;
+    start = RefineAccelBsas(*s1, poses, g, obs.determined, StageOneUnits(*s1, poses, obs.determined),
+                            BsasStageOptions{.seed = opt.seed}, &bs);
+    rep.stages.push_back(bs);
+  }
+  StageReport lm_report;
+  auto lm = RefineAccelLm(start, poses, g, obs.determined, &lm_report);
+  if (!lm.ok()) return lm.status();
+  rep.stages.push_back(lm_report);
+  rep.accel_chi2_reduced = lm->chi2_reduced;
+  const AccelParams& accel = lm->params;
+
+  // 7. Final gyroscope with the final accelerometer.
+  gyro = SolveGyro(cap, ivs, used, accel, gyro.result ? &gyro.params.matrix : nullptr);
+  for (const auto& w : gyro.warnings) rep.warnings.push_back(w);
+
+  // 8. Residuals, in-sample and held out.
+  const std::vector<double> r = MagnitudeResiduals(accel, poses, g);
+  rep.residual.accel_rms_m_s2 = Rms(r);
+  rep.residual.accel_max_m_s2 = Max(r);
+  std::vector<double> held(poses.size(), kNaN);
+  if (opt.heldout) {
+    held = HeldOutMagnitudeResiduals(accel, poses, g, obs.determined);
+    rep.residual.accel_heldout_rms_m_s2 = RmsFinite(held);
+    rep.residual.accel_heldout_max_m_s2 = Max(held);
+  }
+  double gyro_ss = 0;
+  for (int i : used) {
+    const StaticInterval& s = ivs[static_cast<size_t>(i)];
+    gyro_ss += (gyro.params.matrix * (s.gyro_mean - gyro.params.bias)).squaredNorm();
+  }
+  rep.residual.gyro_static_rms_rad_s = used.empty() ? 0 : std::sqrt(gyro_ss / used.size());
+  if (gyro.result) {
+    const auto& gr = *gyro.result;
+    rep.residual.move_rms_deg = Rms(gr.move_error_rad) * kRadToDeg;
+    rep.residual.move_max_deg = Max(gr.move_error_rad) * kRadToDeg;
+    if (!gr.heldout_error_rad.empty()) {
+      rep.residual.move_heldout_rms_deg = RmsFinite(gr.heldout_error_rad) * kRadToDeg;
+      rep.residual.move_heldout_max_deg = Max(gr.heldout_error_rad) * kRadToDeg;
+    }
+    const std::vector<double> in = ToDeg(gr.move_error_rad), out = ToDeg(gr.heldout_error_rad);
+    for (size_t k = 0; k + 1 < used.size() && k < in.size(); ++k) {
+      MoveReport m;
+      m.from_pose = used[k];
+      m.to_pose = used[k + 1];
+      m.error_deg = in[k];
+      if (k < out.size()) m.heldout_error_deg = out[k];
+      m.rotation_deg =
+          IntegrateRotation(cap, ivs[static_cast<size_t>(used[k])].end - 1,
+                            ivs[static_cast<size_t>(used[k + 1])].begin, gyro.params)
+              .norm() * kRadToDeg;
+      rep.moves.push_back(m);
+    }
+  }
+
+  // 9. Poses for the report.
+  for (size_t i = 0, k = 0; i < ivs.size(); ++i) {
+    PoseReport pr;
+    pr.index = static_cast<int>(i);
+    pr.interval = ivs[i];
+    pr.up = accel.Apply(ivs[i].accel_mean).normalized();
+    const Face f = ClassifyFace(pr.up);
+    if (f.off_axis_deg <= kFaceToleranceDeg) pr.face = f.Label();
+    if (ivs[i].used) {
+      pr.residual_m_s2 = r[k];
+      pr.heldout_m_s2 = held[k];
+      ++k;
+    }
+    rep.poses.push_back(pr);
+  }
+
+  // 10. The parameter set.
+  ParamSet& ps = rep.params;
+  ps.device = cap.device;
+  ps.accel_unit = cap.accel_unit;
+  ps.gyro_unit = cap.gyro_unit;
+  ps.gravity_m_s2 = g;
+  ps.accel = accel;
+  ps.gyro = gyro.params;
+  ps.gyro_calibrated = gyro.calibrated;
+  const AccelVector se = lm->covariance.diagonal().cwiseSqrt();
+  AccelVector se_or_nan = se;
+  for (int c = 0; c < kAccelParams; ++c)
+    if (!obs.determined[static_cast<size_t>(c)]) se_or_nan(c) = kNaN;
+  ps.stderrs.accel = UnpackAccel(se_or_nan, Eigen::Vector3d::Constant(
+                                                rep.protocol == ProtocolKind::kSixFace ? kNaN : 0.0));
+  if (gyro.result) {
+    for (int c = 0; c < 9; ++c) ps.stderrs.gyro_matrix(c % 3, c / 3) = std::sqrt(gyro.result->covariance(c, c));
+  } else {
+    ps.stderrs.gyro_matrix.setConstant(kNaN);
+  }
+  // Gyro bias standard error from the scatter of the pose means (includes slow drift).
+  if (used.size() >= 2) {
+    Eigen::Vector3d ss = Eigen::Vector3d::Zero();
+    for (int i : used) ss += (ivs[static_cast<size_t>(i)].gyro_mean - gyro.params.bias).cwiseAbs2();
+    ps.stderrs.gyro_bias = (ss / static_cast<double>(used.size() - 1) / static_cast<double>(used.size())).cwiseSqrt();
+  }
+  ps.quality_accel_rms_m_s2 = rep.residual.accel_rms_m_s2;
+  ps.quality_gyro_static_rms_rad_s = rep.residual.gyro_static_rms_rad_s;
+
+  bool degraded = !gyro.calibrated;
+  for (bool d : obs.determined) degraded |= !d;
+  for (const auto& p : rep.pairs) degraded |= !p.ok;
+  rep.verdict = Verdict(rep, degraded);
+  rep.total_ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return rep;
+}
+
+}  // namespace imucal::core

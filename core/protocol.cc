@@ -1,0 +1,205 @@
+#include "core/protocol.h"
+
+#include <array>
+#include <cmath>
+
+#include "Eigen/Geometry"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+
+namespace imucal::core {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+
+double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return kRadToDeg * std::atan2(a.cross(b).norm(), a.dot(b));
+}
+
+// Rotation angle (deg) and the angle (deg) between its axis and the vertical `up`.
+struct Turn {
+  double angle_deg = 0;
+  double axis_off_vertical_deg = 90;
+};
+Turn TurnAbout(const Eigen::Vector3d& rotation, const Eigen::Vector3d& up) {
+  Turn t;
+  const double angle = rotation.norm();
+  t.angle_deg = angle * kRadToDeg;
+  if (angle > 1e-9) {
+    const double c = std::abs(rotation.normalized().dot(up.normalized()));
+    t.axis_off_vertical_deg = std::acos(std::min(1.0, c)) * kRadToDeg;
+  }
+  return t;
+}
+
+Eigen::Vector3d Compose(const Eigen::Vector3d& r1, const Eigen::Vector3d& r2) {
+  auto exp = [](const Eigen::Vector3d& r) {
+    const double a = r.norm();
+    return a > 0 ? Eigen::Matrix3d(Eigen::AngleAxisd(a, r / a)) : Eigen::Matrix3d::Identity();
+  };
+  const Eigen::AngleAxisd aa(exp(r1) * exp(r2));
+  return aa.angle() * aa.axis();
+}
+
+// Verifies one candidate pair; fills everything but the indices.
+PairCheck VerifyPair(const FacePose& a, const FacePose& b, const Eigen::Vector3d& rotation,
+                     double tolerance_deg) {
+  PairCheck p;
+  const Face fa = ClassifyFace(a.up), fb = ClassifyFace(b.up);
+  p.face = fa.Label();
+  p.tilt_deg = 0.5 * AngleDeg(a.up, b.up);
+  const Turn turn = TurnAbout(rotation, a.up);
+  p.rotation_deg = turn.angle_deg;
+  Eigen::Vector3d axis = Eigen::Vector3d::Zero();
+  axis(fa.axis) = fa.sign;
+  // Mirrored horizontal components: the pair's mean up is the face axis up to the (small)
+  // installation misalignment; a pair that is not mirrored leaves the floor tilt in it.
+  const double misalignment_deg = AngleDeg((a.up + b.up).normalized(), axis);
+  if (!(fa == fb)) {
+    p.reason = absl::StrFormat("wrong face: %s was up, then %s; turn about the vertical only",
+                               fa.Label(), fb.Label());
+  } else if (turn.angle_deg < 20) {
+    p.reason = absl::StrFormat(
+        "not turned: only %.0f degrees between the placements; turn it half a turn about the "
+        "vertical", turn.angle_deg);
+  } else if (std::abs(turn.angle_deg - 180) > tolerance_deg) {
+    p.reason = absl::StrFormat(
+        "turned %.0f degrees instead of 180; place it again, half a turn from the first placement",
+        turn.angle_deg);
+  } else if (turn.axis_off_vertical_deg > 30) {
+    p.reason = absl::StrFormat(
+        "the turn was about an axis %.0f degrees from vertical; keep the face on the floor",
+        turn.axis_off_vertical_deg);
+  } else if (misalignment_deg > 2 * kFaceToleranceDeg / 3) {
+    p.reason = absl::StrFormat(
+        "horizontal components do not mirror (mean %.1f degrees off the face axis)",
+        misalignment_deg);
+  } else {
+    p.ok = true;
+  }
+  return p;
+}
+
+}  // namespace
+
+std::string_view ProtocolKindName(ProtocolKind kind) {
+  switch (kind) {
+    case ProtocolKind::kAuto: return "auto";
+    case ProtocolKind::kSixFace: return "six-face";
+    case ProtocolKind::kPositions: return "positions";
+    case ProtocolKind::kFree: return "free";
+  }
+  return "auto";
+}
+
+absl::StatusOr<ProtocolKind> ParseProtocolKind(std::string_view name) {
+  if (name == "auto") return ProtocolKind::kAuto;
+  if (name == "six-face") return ProtocolKind::kSixFace;
+  if (name == "positions" || name == "positions24" || name == "positions36")
+    return ProtocolKind::kPositions;
+  if (name == "free") return ProtocolKind::kFree;
+  return absl::InvalidArgumentError(absl::StrFormat(
+      "--protocol: '%s' is not one of auto, six-face, positions, positions24, positions36, free",
+      name));
+}
+
+std::string Face::Label() const { return absl::StrFormat("%c%c", "XYZ"[axis], sign > 0 ? '+' : '-'); }
+
+Face ClassifyFace(const Eigen::Vector3d& up_body) {
+  Face f;
+  const Eigen::Vector3d u = up_body.normalized();
+  u.cwiseAbs().maxCoeff(&f.axis);
+  f.sign = u(f.axis) >= 0 ? 1 : -1;
+  f.off_axis_deg = std::acos(std::min(1.0, std::abs(u(f.axis)))) * kRadToDeg;
+  return f;
+}
+
+ProtocolKind DetectProtocol(const std::vector<Eigen::Vector3d>& ups) {
+  if (ups.empty()) return ProtocolKind::kFree;
+  std::array<int, 3> horizontal{};
+  int any_horizontal = 0;  // poses with an axis within 5 degrees of horizontal
+  for (const auto& up : ups) {
+    const Eigen::Vector3d u = up.normalized();
+    bool any = false;
+    for (int j = 0; j < 3; ++j) {
+      const bool h = std::abs(u(j)) < 0.087;
+      horizontal[static_cast<size_t>(j)] += h;
+      any |= h;
+    }
+    any_horizontal += any;
+  }
+  // Six-face: every face placed twice in a row (the 180-degree pair); extra poses may follow.
+  // A positions scheme also visits every face, but never the same face twice in a row.
+  std::array<bool, 6> consecutive{};
+  for (size_t i = 0; i + 1 < ups.size(); ++i) {
+    const Face a = ClassifyFace(ups[i]), b = ClassifyFace(ups[i + 1]);
+    if (a == b && a.off_axis_deg <= kFaceToleranceDeg && b.off_axis_deg <= kFaceToleranceDeg)
+      consecutive[static_cast<size_t>(2 * a.axis + (a.sign > 0 ? 0 : 1))] = true;
+  }
+  bool all_paired = true;
+  for (bool c : consecutive) all_paired &= c;
+  if (all_paired) return ProtocolKind::kSixFace;
+  // seeds/002: every position has its group's rotation axis horizontal.
+  if (horizontal[0] >= 6 && horizontal[1] >= 6 && horizontal[2] >= 6 &&
+      any_horizontal * 5 >= 4 * static_cast<int>(ups.size()))
+    return ProtocolKind::kPositions;
+  return ProtocolKind::kFree;
+}
+
+SixFaceCheck CheckSixFacePairs(const std::vector<FacePose>& poses, double turn_tolerance_deg) {
+  SixFaceCheck out;
+  std::array<bool, 6> verified{};
+  std::array<std::vector<int>, 6> placements;
+  auto slot = [](const Face& f) { return static_cast<size_t>(2 * f.axis + (f.sign > 0 ? 0 : 1)); };
+  for (const FacePose& p : poses) {
+    const Face f = ClassifyFace(p.up);
+    if (f.off_axis_deg <= kFaceToleranceDeg) placements[slot(f)].push_back(p.index);
+  }
+  for (size_t i = 0; i + 1 < poses.size();) {
+    const Face fa = ClassifyFace(poses[i].up);
+    const Face fb = ClassifyFace(poses[i + 1].up);
+    if (fa.off_axis_deg > kFaceToleranceDeg || !(fa == fb)) {
+      ++i;
+      continue;
+    }
+    PairCheck check = VerifyPair(poses[i], poses[i + 1], poses[i + 1].rotation_from_previous,
+                                 turn_tolerance_deg);
+    check.pose_a = poses[i].index;
+    check.pose_b = poses[i + 1].index;
+    if (!check.ok && i + 2 < poses.size() && ClassifyFace(poses[i + 2].up) == fa) {
+      // A re-done placement: the third placement may be the proper half turn from the first.
+      out.pairs.push_back(check);
+      PairCheck redo = VerifyPair(
+          poses[i], poses[i + 2],
+          Compose(poses[i + 1].rotation_from_previous, poses[i + 2].rotation_from_previous),
+          turn_tolerance_deg);
+      redo.pose_a = poses[i].index;
+      redo.pose_b = poses[i + 2].index;
+      if (redo.ok) {
+        verified[slot(fa)] = true;
+        out.pairs.push_back(redo);
+        i += 3;
+        continue;
+      }
+      ++i;
+      continue;
+    }
+    if (check.ok) verified[slot(fa)] = true;
+    out.pairs.push_back(check);
+    i += check.ok ? 2 : 1;
+  }
+  for (size_t s = 0; s < 6; ++s) {
+    if (verified[s]) continue;
+    Face f;
+    f.axis = static_cast<int>(s / 2);
+    f.sign = s % 2 == 0 ? 1 : -1;
+    out.missing.push_back(
+        placements[s].empty()
+            ? absl::StrFormat("face %s: never placed", f.Label())
+            : absl::StrFormat("face %s: no verified 180-degree pair (placements at poses %s)",
+                              f.Label(), absl::StrJoin(placements[s], ", ")));
+  }
+  return out;
+}
+
+}  // namespace imucal::core

@@ -1,0 +1,71 @@
+// Calibration protocols: which poses a capture holds and what can be checked about them.
+//   six-face  (seeds/000): each face up twice, the second time turned 180 degrees about the
+//             vertical; the pair's mean cancels the floor tilt to first order.
+//   positions (seeds/002): 24 or 36 positions, three groups turned about a horizontal axis.
+//   free      (Tedaldi, IMU-TK): hand-held poses anywhere on the sphere.
+#ifndef IMUCAL_CORE_PROTOCOL_H_
+#define IMUCAL_CORE_PROTOCOL_H_
+
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "Eigen/Core"
+#include "absl/status/statusor.h"
+
+namespace imucal::core {
+
+enum class ProtocolKind { kAuto, kSixFace, kPositions, kFree };
+
+std::string_view ProtocolKindName(ProtocolKind kind);  // "auto", "six-face", "positions", "free"
+// Accepts the names above and "positions24", "positions36".
+absl::StatusOr<ProtocolKind> ParseProtocolKind(std::string_view name);
+
+// The face that is up: the body axis closest to the measured up (specific-force) direction.
+struct Face {
+  int axis = 2;  // 0 x, 1 y, 2 z
+  int sign = 1;  // +1: that axis points up (reads +g)
+  double off_axis_deg = 0;  // angle between up and that axis
+  std::string Label() const;  // "Z+", "X-", ...
+  bool operator==(const Face& o) const { return axis == o.axis && sign == o.sign; }
+};
+Face ClassifyFace(const Eigen::Vector3d& up_body);
+
+// Poses more than this far from every axis are not "on a face".
+inline constexpr double kFaceToleranceDeg = 20.0;
+
+// Auto-detection from the up directions of the usable poses (body frame, unit vectors), in
+// time order.
+ProtocolKind DetectProtocol(const std::vector<Eigen::Vector3d>& ups);
+
+struct PairCheck {
+  int pose_a = -1, pose_b = -1;  // indices into the caller's pose list
+  bool ok = false;
+  double tilt_deg = 0;      // half the angle between the two up directions (floor tilt)
+  double rotation_deg = 0;  // gyro-integrated rotation between the poses about the vertical
+  std::string face;
+  std::string reason;       // why rejected, in a technician's words
+};
+
+// What the six-face check needs to know about one usable pose, in time order.
+struct FacePose {
+  int index = -1;          // the caller's pose index
+  Eigen::Vector3d up;      // unit up direction, body frame
+  // Rotation from the previous FacePose to this one (body frame rotation vector, rad), from the
+  // calibrated gyroscope; ignored for the first pose.
+  Eigen::Vector3d rotation_from_previous = Eigen::Vector3d::Zero();
+};
+
+// Pairs consecutive placements of the same face and verifies each: same face up, horizontal
+// components mirrored (their mean is the installation misalignment, small), turned about the
+// vertical by 180 +- tolerance. Faces with no valid pair are named in `missing`.
+struct SixFaceCheck {
+  std::vector<PairCheck> pairs;
+  std::vector<std::string> missing;  // "face X- has no verified 180-degree pair"
+};
+SixFaceCheck CheckSixFacePairs(const std::vector<FacePose>& poses,
+                               double turn_tolerance_deg = 20.0);
+
+}  // namespace imucal::core
+
+#endif  // IMUCAL_CORE_PROTOCOL_H_
