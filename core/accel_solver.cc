@@ -235,9 +235,31 @@ std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<Acce
     const Eigen::Vector3d d = Eigen::Vector3d(
         (a.normalized().transpose() * l).transpose().cwiseProduct(
             (Eigen::Vector3d::Ones() + 2 * p.quadratic.cwiseProduct(y)).cwiseProduct(p.scale)));
-    out.push_back(std::max(1e-12, d.cwiseProduct(pose.mean_std).norm()));
+    out.push_back(std::max(1e-12, std::hypot(d.cwiseProduct(pose.mean_std).norm(),
+                                             pose.model_sigma_m_s2)));
   }
   return out;
+}
+
+double EstimateModelSigma(const AccelParams& p, const std::vector<AccelPose>& poses,
+                          double gravity_m_s2, int n_free) {
+  std::vector<AccelPose> bare = poses;
+  for (auto& pose : bare) pose.model_sigma_m_s2 = 0;
+  const std::vector<double> r = MagnitudeResiduals(p, bare, gravity_m_s2);
+  const std::vector<double> sigma = MagnitudeSigmas(p, bare);
+  const double dof = static_cast<double>(poses.size()) - n_free;
+  auto chi2 = [&](double tau) {
+    double s = 0;
+    for (size_t i = 0; i < r.size(); ++i) s += r[i] * r[i] / (sigma[i] * sigma[i] + tau * tau);
+    return s;
+  };
+  if (dof <= 0 || chi2(0) <= dof) return 0.0;
+  double lo = 0, hi = 10 * (Rms(r) + 1e-12);  // chi2 decreases in tau
+  for (int it = 0; it < 60; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (chi2(mid) > dof ? lo : hi) = mid;
+  }
+  return hi;
 }
 
 AccelObservability AnalyseAccelObservability(const AccelParams& p,

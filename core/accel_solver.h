@@ -34,6 +34,8 @@ using AccelMask = std::array<bool, kAccelParams>;  // true = estimated, false = 
 struct AccelPose {
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();  // mean raw reading, input units
   Eigen::Vector3d mean_std = Eigen::Vector3d::Ones();  // std of that mean per axis, input units
+  // Error of |a| that the model leaves, common to all poses, m/s^2 (see EstimateModelSigma).
+  double model_sigma_m_s2 = 0.0;
 };
 
 AccelVector PackAccel(const AccelParams& p);
@@ -58,8 +60,15 @@ absl::StatusOr<AccelParams> FitKnownReferences(const std::vector<Eigen::Vector3d
 
 // Jacobian d(|a_i| - g)/d(params), one row per pose.
 Eigen::MatrixXd MagnitudeJacobian(const AccelParams& p, const std::vector<AccelPose>& poses);
-// Standard deviation of |a_i| from the pose's mean_std, m/s^2.
+// Standard deviation of |a_i| from the pose's mean_std and model_sigma_m_s2, m/s^2.
 std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<AccelPose>& poses);
+
+// The common model error tau (m/s^2) with sum_i r_i^2 / (sigma_i^2 + tau^2) = N - free: the
+// scatter the residual shows beyond each pose's measured noise (0 when the noise explains it).
+// Weighting by noise alone lets a 50 s rest outweigh every 4 s pose tenfold, although on real
+// data the model, not the noise, limits the fit; with tau each pose counts as what it is worth.
+double EstimateModelSigma(const AccelParams& p, const std::vector<AccelPose>& poses,
+                          double gravity_m_s2, int n_free);
 
 // Which parameters the poses determine. Information is compared with a broad physical prior
 // (bias 0.2 g, scale 10 %, angles 30 mrad, quadratic 1e-3 per m/s^2): a parameter whose posterior

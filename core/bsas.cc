@@ -19,9 +19,7 @@ void BsasCheck(bool ok, const char* what) {
 
 // Uniform in [0, 1) from the top 53 bits of one engine output. Portable, unlike
 // std::uniform_real_distribution, whose algorithm each standard library chooses.
-double Uniform01(std::mt19937_64& rng) {
-  return static_cast<double>(rng() >> 11) * 0x1.0p-53;
-}
+double Uniform01(std::mt19937_64& rng) { return static_cast<double>(rng() >> 11) * 0x1.0p-53; }
 
 // NaN counts as zero, so a NaN comparison proposes no move instead of a NaN point.
 double Sign(double v) {
@@ -59,8 +57,7 @@ void BoxIsValid(const Eigen::VectorXd& x0, const Eigen::VectorXd& lower,
 
 // out = clamp(x + scale * dir) onto the box, element by element (no temporaries).
 void StepClamped(const Eigen::VectorXd& x, double scale, const Eigen::VectorXd& dir,
-                 const Eigen::VectorXd& lower, const Eigen::VectorXd& upper,
-                 Eigen::VectorXd* out) {
+                 const Eigen::VectorXd& lower, const Eigen::VectorXd& upper, Eigen::VectorXd* out) {
   for (Eigen::Index i = 0; i < x.size(); ++i) {
     const double v = x(i) + scale * dir(i);
     (*out)(i) = v > upper(i) ? upper(i) : (v < lower(i) ? lower(i) : v);

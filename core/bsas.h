@@ -42,17 +42,17 @@ namespace imucal::core {
 
 // Defaults are rBAS `BSASoptim`'s.
 struct BsasOptions {
-  int k = 5;                  // beetles (random directions) per iteration
-  double d_init = 3.0;        // initial antenna length (rBAS d1)
-  double d0 = 0.001;          // antenna length floor added at every decay
-  double eta_d = 0.95;        // antenna length decay on a failed iteration
-  double step_init = 0.8;     // initial step size
-  double eta_step = 0.95;     // step decay on a failed iteration
-  double p_min = 0.2;         // probability of moving to a random improving candidate
-  double p_step = 0.2;        // probability of keeping the step on a failed iteration
-  int n_flag = 2;             // at most this many kept steps in a row
-  int max_iterations = 200;   // rBAS n
-  double step_tol = 0.01;     // stop once step < step_tol
+  int k = 5;                 // beetles (random directions) per iteration
+  double d_init = 3.0;       // initial antenna length (rBAS d1)
+  double d0 = 0.001;         // antenna length floor added at every decay
+  double eta_d = 0.95;       // antenna length decay on a failed iteration
+  double step_init = 0.8;    // initial step size
+  double eta_step = 0.95;    // step decay on a failed iteration
+  double p_min = 0.2;        // probability of moving to a random improving candidate
+  double p_step = 0.2;       // probability of keeping the step on a failed iteration
+  int n_flag = 2;            // at most this many kept steps in a row
+  int max_iterations = 200;  // rBAS n
+  double step_tol = 0.01;    // stop once step < step_tol
   uint64_t seed = 1;
 };
 

@@ -22,6 +22,8 @@ constexpr double kMovePassDeg = 1.0;
 constexpr double kMoveFailDeg = 5.0;
 // Two poses whose up directions agree within this are the same orientation (not a new pose).
 constexpr double kDuplicateDeg = 2.0;
+// ... and a move that turned less than this did not re-place the robot.
+constexpr double kNotTurnedDeg = 10.0;
 
 double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   return kRadToDeg * std::atan2(a.cross(b).norm(), a.dot(b));
@@ -154,6 +156,7 @@ GyroStage SolveGyro(const Capture& cap, const std::vector<StaticInterval>& ivs,
   if (start) {
     go.initial_matrix = *start;
   } else {
+    go.compute_heldout = false;  // the rough pass only serves the pair and duplicate checks
     go.scale_unknown = std::isnan(nominal);
     go.initial_matrix = out.params.matrix;
   }
@@ -199,28 +202,29 @@ std::vector<double> ToDeg(const std::vector<double>& rad) {
   return out;
 }
 
-// Marks poses that repeat an earlier orientation (except a verified six-face pair partner).
-void MarkDuplicates(std::vector<StaticInterval>* ivs, const std::vector<Eigen::Vector3d>& ups,
-                    const std::vector<PairCheck>& pairs) {
-  auto partners = [&](int a, int b) {
-    for (const auto& p : pairs)
-      if (p.ok && ((p.pose_a == a && p.pose_b == b) || (p.pose_a == b && p.pose_b == a)))
-        return true;
-    return false;
-  };
+// Marks a pose that repeats the previous one without a re-placement: same up direction and no
+// rotation between them (a pose split in two by a bump, or a placement that was never made).
+// A revisit after other poses is a new, independent placement and stays in.
+void MarkDuplicates(const Capture& cap, const GyroParams& gyro, std::vector<StaticInterval>* ivs,
+                    const std::vector<Eigen::Vector3d>& ups) {
+  int previous = -1;
   for (size_t i = 0; i < ivs->size(); ++i) {
     if (!(*ivs)[i].used) continue;
-    for (size_t j = 0; j < i; ++j) {
-      if (!(*ivs)[j].used || partners(static_cast<int>(j), static_cast<int>(i))) continue;
-      const double angle = AngleDeg(ups[i], ups[j]);
-      if (angle < kDuplicateDeg) {
+    if (previous >= 0) {
+      const StaticInterval& p = (*ivs)[static_cast<size_t>(previous)];
+      const double angle = AngleDeg(ups[i], ups[static_cast<size_t>(previous)]);
+      const double turned =
+          IntegrateRotation(cap, p.end - 1, (*ivs)[i].begin, gyro).norm() * kRadToDeg;
+      if (angle < kDuplicateDeg && turned < kNotTurnedDeg) {
         (*ivs)[i].used = false;
         (*ivs)[i].reason = absl::StrFormat(
-            "duplicate of pose %d (same orientation within %.1f degrees); place the robot in a "
-            "new orientation", static_cast<int>(j), angle);
-        break;
+            "duplicate of pose %d (same orientation within %.1f degrees, turned %.0f degrees "
+            "since); place the robot in a new orientation",
+            previous, angle, turned);
+        continue;
       }
     }
+    previous = static_cast<int>(i);
   }
 }
 
@@ -269,6 +273,45 @@ AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& po
     if (std::isfinite(s) && s > 0) unit(idx[a]) = s;
   }
   return unit;
+}
+
+// Greedy forward selection of the quadratic terms by leave-one-pose-out (PRESS) error: a term
+// is kept only if it lowers that error by kQuadraticGain. With few poses at intermediate angles a
+// second-order term would otherwise fit noise and predict new poses worse than leaving it out.
+AccelMask SelectQuadratics(const AccelParams& start, const std::vector<AccelPose>& poses,
+                           double g, const AccelMask& determined,
+                           std::vector<std::string>* notes) {
+  constexpr double kQuadraticGain = 0.02;
+  AccelMask mask = determined;
+  for (int c = 9; c < 12; ++c) mask[static_cast<size_t>(c)] = false;
+  auto press = [&](const AccelMask& m) {
+    auto fit = RefineAccelLm(start, poses, g, m, nullptr);
+    return fit.ok() ? PressRms(fit->params, poses, g, m) : std::numeric_limits<double>::infinity();
+  };
+  double best = press(mask);
+  for (;;) {
+    int pick = -1;
+    double pick_press = best * (1 - kQuadraticGain);
+    for (int c = 9; c < 12; ++c) {
+      if (!determined[static_cast<size_t>(c)] || mask[static_cast<size_t>(c)]) continue;
+      AccelMask trial = mask;
+      trial[static_cast<size_t>(c)] = true;
+      const double p = press(trial);
+      if (p < pick_press) pick = c, pick_press = p;
+    }
+    if (pick < 0) break;
+    mask[static_cast<size_t>(pick)] = true;
+    best = pick_press;
+  }
+  for (int c = 9; c < 12; ++c) {
+    if (determined[static_cast<size_t>(c)] && !mask[static_cast<size_t>(c)]) {
+      notes->push_back(absl::StrFormat(
+          "accel %s: held at 0; adding it does not predict held-out poses better (add poses "
+          "with that axis about 45 degrees from vertical to resolve it)",
+          AccelParamName(c)));
+    }
+  }
+  return mask;
 }
 
 std::string Verdict(const CalibrationReport& r, bool degraded) {
@@ -340,9 +383,9 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
                                                p.pose_a, p.pose_b, p.face, p.reason));
     for (const auto& m : check.missing) rep.warnings.push_back(m);
   }
-  MarkDuplicates(&ivs, ups, rep.pairs);
+  MarkDuplicates(cap, gyro.params, &ivs, ups);
   used = UsedIndices(ivs);
-  const std::vector<AccelPose> poses = ToAccelPoses(ivs, used, rep.noise);
+  std::vector<AccelPose> poses = ToAccelPoses(ivs, used, rep.noise);
 
   // 4. Accelerometer stage 1: linear least squares.
   auto s1_time = std::chrono::steady_clock::now();
@@ -364,28 +407,35 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   ls.ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - s1_time).count();
   rep.stages.push_back(ls);
 
+  // The model error beyond each pose's noise joins the weights (accel_solver.h).
+  const double tau = EstimateModelSigma(*s1, poses, g, 9);
+  for (auto& pose : poses) pose.model_sigma_m_s2 = tau;
+
   // 5. What the poses determine; undetermined parameters stay at neutral values.
   AccelMask all{};
   all.fill(true);
   const AccelObservability obs = AnalyseAccelObservability(*s1, poses, g, all);
   for (const auto& w : obs.warnings) rep.warnings.push_back(w);
 
-  // 6. BSAS, then LM.
+  // 6. Second-order terms enter only where they predict held-out poses better.
+  const AccelMask free = SelectQuadratics(*s1, poses, g, obs.determined, &rep.warnings);
+
+  // 7. BSAS, then LM.
   AccelParams start = *s1;
   if (opt.use_bsas) {
     StageReport bs;
-    start = RefineAccelBsas(*s1, poses, g, obs.determined, StageOneUnits(*s1, poses, obs.determined),
+    start = RefineAccelBsas(*s1, poses, g, free, StageOneUnits(*s1, poses, free),
                             BsasStageOptions{.seed = opt.seed}, &bs);
     rep.stages.push_back(bs);
   }
   StageReport lm_report;
-  auto lm = RefineAccelLm(start, poses, g, obs.determined, &lm_report);
+  auto lm = RefineAccelLm(start, poses, g, free, &lm_report);
   if (!lm.ok()) return lm.status();
   rep.stages.push_back(lm_report);
   rep.accel_chi2_reduced = lm->chi2_reduced;
   const AccelParams& accel = lm->params;
 
-  // 7. Final gyroscope with the final accelerometer.
+  // 8. Final gyroscope with the final accelerometer.
   gyro = SolveGyro(cap, ivs, used, accel, gyro.result ? &gyro.params.matrix : nullptr);
   for (const auto& w : gyro.warnings) rep.warnings.push_back(w);
 
@@ -395,7 +445,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.residual.accel_max_m_s2 = Max(r);
   std::vector<double> held(poses.size(), kNaN);
   if (opt.heldout) {
-    held = HeldOutMagnitudeResiduals(accel, poses, g, obs.determined);
+    held = HeldOutMagnitudeResiduals(accel, poses, g, free);
     rep.residual.accel_heldout_rms_m_s2 = RmsFinite(held);
     rep.residual.accel_heldout_max_m_s2 = Max(held);
   }
@@ -456,7 +506,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   const AccelVector se = lm->covariance.diagonal().cwiseSqrt();
   AccelVector se_or_nan = se;
   for (int c = 0; c < kAccelParams; ++c)
-    if (!obs.determined[static_cast<size_t>(c)]) se_or_nan(c) = kNaN;
+    if (!free[static_cast<size_t>(c)]) se_or_nan(c) = kNaN;
   ps.stderrs.accel = UnpackAccel(se_or_nan, Eigen::Vector3d::Constant(
                                                 rep.protocol == ProtocolKind::kSixFace ? kNaN : 0.0));
   if (gyro.result) {

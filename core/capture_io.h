@@ -30,8 +30,10 @@ inline constexpr std::string_view kImucalCaptureMarker = "# imucal-capture v1";
 
 // Parses the text of an imucal capture. `source_name` prefixes error messages (usually the path).
 // Accepts LF or CRLF line endings, blank lines anywhere, a UTF-8 byte-order mark, spaces around
-// fields and header keys/values. Unknown header keys go to `extra_metadata` in file order;
-// columns other than t,ax,ay,az,gx,gy,gz,temp go to `extra_columns` in file order.
+// fields and header keys/values. Every '#' line before the column line must be key=value (a bare
+// '#' counts as blank). Unknown header keys go to `extra_metadata` in file order; columns other
+// than t,ax,ay,az,gx,gy,gz,temp go to `extra_columns` in file order. A capture with a column line
+// and no rows is valid (and empty).
 absl::StatusOr<Capture> ParseImucalCsv(std::string_view text, std::string_view source_name);
 
 // Reads `path` with one read and parses it; errors are prefixed with `path`.

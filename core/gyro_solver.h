@@ -63,7 +63,9 @@ struct GyroSolveOptions {
   // Constant gyro bias [input unit], used unless interpolate_bias is set.
   Eigen::Vector3d bias = Eigen::Vector3d::Zero();
   // Bias linear in time over each move, from its bias_before (at t[begin]) to bias_after
-  // (at t[end]): follows a slowly drifting bias that the static poses measure.
+  // (at t[end]): follows a slowly drifting bias that the static poses measure. Static means
+  // belong to the poses' middles, not the move's ends; for a linear drift the resulting rate
+  // error is antisymmetric over the move and nearly cancels (1e-4 relative in the tests).
   bool interpolate_bias = false;
   int max_iterations = 100;  // Levenberg-Marquardt iterations
   // Leave-one-move-out errors (first-order, see GyroSolveResult::heldout_error_rad).
@@ -87,9 +89,9 @@ struct GyroSolveResult {
   // at the solution (the first-order LOO: exact for a linear model, close when the fit is good);
   // move i is then re-integrated exactly with M_-i. Empty unless compute_heldout.
   std::vector<double> heldout_error_rad;
-  int iterations = 0;  // Levenberg-Marquardt steps taken (successful + unsuccessful)
-  double cost = 0.0;   // 0.5 * sum over moves of |r|^2 at the solution (Ceres' convention)
-  bool converged = false;  // Ceres reported CONVERGENCE (else it stopped on max_iterations)
+  int iterations = 0;          // Levenberg-Marquardt steps taken (successful + unsuccessful)
+  double cost = 0.0;           // 0.5 * sum over moves of |r|^2 at the solution (Ceres' convention)
+  bool converged = false;      // Ceres reported CONVERGENCE (else it stopped on max_iterations)
   double initial_scale = 0.0;  // the isotropic starting scale when scale_unknown, else 0
   bool rank_deficient = false;
   // Entries the moves cannot determine, e.g. "gyro matrix column z (rotations about z)" when a
@@ -117,10 +119,9 @@ Eigen::Vector3d PredictUpAfterMove(const std::vector<double>& t_s,
 // `jacobian` is not null, dr / d vec(M) (column-major vec). The function the solver minimises;
 // exposed so that callers and tests can check it. NaNs for a move that cannot be integrated.
 Eigen::Vector3d GyroMoveResidual(const std::vector<double>& t_s,
-                                 const std::vector<Eigen::Vector3d>& gyro_raw,
-                                 const GyroMove& move, const Eigen::Matrix3d& matrix,
-                                 const Eigen::Vector3d& bias, bool interpolate_bias,
-                                 Eigen::Matrix<double, 3, 9>* jacobian);
+                                 const std::vector<Eigen::Vector3d>& gyro_raw, const GyroMove& move,
+                                 const Eigen::Matrix3d& matrix, const Eigen::Vector3d& bias,
+                                 bool interpolate_bias, Eigen::Matrix<double, 3, 9>* jacobian);
 
 // The s > 0 of M = s * I that minimises the summed squared residual, from the data alone (raw
 // counts, unknown unit): a log-spaced grid over 6 decades centred on the s that makes the median

@@ -116,18 +116,6 @@ Face ClassifyFace(const Eigen::Vector3d& up_body) {
 
 ProtocolKind DetectProtocol(const std::vector<Eigen::Vector3d>& ups) {
   if (ups.empty()) return ProtocolKind::kFree;
-  std::array<int, 3> horizontal{};
-  int any_horizontal = 0;  // poses with an axis within 5 degrees of horizontal
-  for (const auto& up : ups) {
-    const Eigen::Vector3d u = up.normalized();
-    bool any = false;
-    for (int j = 0; j < 3; ++j) {
-      const bool h = std::abs(u(j)) < 0.087;
-      horizontal[static_cast<size_t>(j)] += h;
-      any |= h;
-    }
-    any_horizontal += any;
-  }
   // Six-face: every face placed twice in a row (the 180-degree pair); extra poses may follow.
   // A positions scheme also visits every face, but never the same face twice in a row.
   std::array<bool, 6> consecutive{};
@@ -139,9 +127,25 @@ ProtocolKind DetectProtocol(const std::vector<Eigen::Vector3d>& ups) {
   bool all_paired = true;
   for (bool c : consecutive) all_paired &= c;
   if (all_paired) return ProtocolKind::kSixFace;
-  // seeds/002: every position has its group's rotation axis horizontal.
-  if (horizontal[0] >= 6 && horizontal[1] >= 6 && horizontal[2] >= 6 &&
-      any_horizontal * 5 >= 4 * static_cast<int>(ups.size()))
+
+  // seeds/002: the positions between faces (45 or 30 degrees) keep their group's rotation axis
+  // horizontal. Hand-held poses off the faces rarely do.
+  std::array<int, 3> horizontal{};
+  int off_face = 0, off_face_horizontal = 0;
+  for (const auto& up : ups) {
+    if (ClassifyFace(up).off_axis_deg <= kFaceToleranceDeg) continue;
+    ++off_face;
+    const Eigen::Vector3d u = up.normalized();
+    bool any = false;
+    for (int j = 0; j < 3; ++j) {
+      const bool h = std::abs(u(j)) < 0.087;  // within 5 degrees of horizontal
+      horizontal[static_cast<size_t>(j)] += h;
+      any |= h;
+    }
+    off_face_horizontal += any;
+  }
+  if (3 * off_face >= static_cast<int>(ups.size()) && 5 * off_face_horizontal >= 4 * off_face &&
+      horizontal[0] >= 2 && horizontal[1] >= 2 && horizontal[2] >= 2)
     return ProtocolKind::kPositions;
   return ProtocolKind::kFree;
 }

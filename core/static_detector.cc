@@ -59,13 +59,8 @@ Eigen::Vector3d RunStd(const std::vector<Eigen::Vector3d>& x, size_t b, size_t e
 
 // Saturation: a rail is the extreme value of an axis over the whole capture; a static interval
 // piled up on it (a fifth of its samples or more) reads the rail, not the signal.
-bool PiledOnRail(const std::vector<Eigen::Vector3d>& x, size_t b, size_t e, int* axis) {
-  if (x.empty() || e <= b) return false;
-  Eigen::Vector3d lo = x.front(), hi = x.front();
-  for (const auto& v : x) {
-    lo = lo.cwiseMin(v);
-    hi = hi.cwiseMax(v);
-  }
+bool PiledOnRail(const std::vector<Eigen::Vector3d>& x, size_t b, size_t e,
+                 const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, int* axis) {
   for (int j = 0; j < 3; ++j) {
     size_t at_rail = 0;
     for (size_t i = b; i < e; ++i) at_rail += (x[i](j) == lo(j) || x[i](j) == hi(j));
@@ -77,6 +72,15 @@ bool PiledOnRail(const std::vector<Eigen::Vector3d>& x, size_t b, size_t e, int*
   return false;
 }
 
+void Extremes(const std::vector<Eigen::Vector3d>& x, Eigen::Vector3d* lo, Eigen::Vector3d* hi) {
+  *lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  *hi = -*lo;
+  for (const auto& v : x) {
+    *lo = lo->cwiseMin(v);
+    *hi = hi->cwiseMax(v);
+  }
+}
+
 }  // namespace
 
 MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOptions& options) {
@@ -86,6 +90,8 @@ MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOpt
   size_t w = dt > 0 ? static_cast<size_t>(std::lround(options.window_s / dt)) : 5;
   w = std::max<size_t>(5, w) | 1;  // odd, centred
   out.window = w;
+  Extremes(capture.accel, &out.accel_lo, &out.accel_hi);
+  Extremes(capture.gyro, &out.gyro_lo, &out.gyro_hi);
   const PrefixMoments acc(capture.accel), gyr(capture.gyro);
   out.accel_var.resize(n);
   out.gyro_var.resize(n);
@@ -198,7 +204,8 @@ std::vector<StaticInterval> DetectStatic(const Capture& capture, const MotionSig
       s.used = false;
       s.reason = absl::StrFormat("too short: held %.1f s, needs %.1f s; hold the pose longer",
                                  duration, options.min_static_s);
-    } else if (PiledOnRail(capture.accel, b, e, &axis) || PiledOnRail(capture.gyro, b, e, &axis)) {
+    } else if (PiledOnRail(capture.accel, b, e, motion.accel_lo, motion.accel_hi, &axis) ||
+               PiledOnRail(capture.gyro, b, e, motion.gyro_lo, motion.gyro_hi, &axis)) {
       s.used = false;
       s.reason = absl::StrFormat(
           "saturated: axis %c sits on the sensor's range limit; use a larger range setting",

@@ -54,6 +54,8 @@ struct MotionSignal {
   std::vector<double> accel_var;
   std::vector<double> gyro_var;
   size_t window = 0;  // samples
+  // The extreme reading of each axis over the capture: a sensor's range limit shows up here.
+  Eigen::Vector3d accel_lo, accel_hi, gyro_lo, gyro_hi;
 };
 
 MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOptions& options);

@@ -47,7 +47,8 @@ absl::Status AllFinite(const Eigen::Matrix3d& m, const std::string& path) {
 // matrix (determinant 1), so finite angles always make it invertible; only the scales can
 // make the accel model singular.
 absl::Status AccelParamsAreValid(const core::AccelParams& a) {
-  for (const auto& [v, path] : {std::pair{&a.bias, "accel.bias"}, {&a.scale, "accel.scale"},
+  for (const auto& [v, path] : {std::pair{&a.bias, "accel.bias"},
+                                {&a.scale, "accel.scale"},
                                 {&a.tri_angles, "accel.tri_angles"},
                                 {&a.frame_angles, "accel.frame_angles"},
                                 {&a.quadratic, "accel.quadratic"}}) {
@@ -65,8 +66,8 @@ absl::Status GyroParamsAreValid(const core::GyroParams& g) {
   if (absl::Status s = AllFinite(g.accel_coupling, "gyro.accel_coupling"); !s.ok()) return s;
   const Eigen::Vector3d sv = Eigen::JacobiSVD<Eigen::Matrix3d>(g.matrix).singularValues();
   if (!(sv(2) > 0.0) || sv(0) / sv(2) > kMaxConditionNumber) {
-    return PathError("gyro.matrix", "not invertible (condition number " +
-                                        std::to_string(sv(0) / sv(2)) + ")");
+    return PathError("gyro.matrix",
+                     "not invertible (condition number " + std::to_string(sv(0) / sv(2)) + ")");
   }
   return absl::OkStatus();
 }
@@ -158,10 +159,8 @@ void Corrector::Apply(const RawSample& in, CalibratedSample* out) const noexcept
   double values[6] = {a(0), a(1), a(2), w(0), w(1), w(2)};
   int skipped = 0;
   if (!effects_.empty()) {
-    const core::SignalArray signals = {in.temp_c, in.t_s - time_origin_or_zero_s_,
-                                       a(0),      a(1),
-                                       a(2),      w(0),
-                                       w(1),      w(2)};
+    const core::SignalArray signals = {
+        in.temp_c, in.t_s - time_origin_or_zero_s_, a(0), a(1), a(2), w(0), w(1), w(2)};
     const bool no_temperature = std::isnan(in.temp_c);
     for (const CompiledEffect& e : effects_) {
       if (e.uses_temperature && no_temperature) {

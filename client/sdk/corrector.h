@@ -33,9 +33,9 @@
 namespace imucal::sdk {
 
 struct RawSample {
-  double t_s = 0.0;        // seconds, any origin (see Corrector time origin)
-  double accel[3] = {};    // in the parameter set's accel input unit
-  double gyro[3] = {};     // in the parameter set's gyro input unit
+  double t_s = 0.0;      // seconds, any origin (see Corrector time origin)
+  double accel[3] = {};  // in the parameter set's accel input unit
+  double gyro[3] = {};   // in the parameter set's gyro input unit
   double temp_c = std::numeric_limits<double>::quiet_NaN();  // degC; NaN when not measured
 };
 

@@ -2,11 +2,11 @@
 
 #include <cmath>
 #include <cstdint>
-#include <type_traits>
 #include <limits>
 #include <optional>
 #include <string>
 #include <string_view>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -19,9 +19,10 @@
 namespace imucal::sdk {
 namespace {
 
-using Json = nlohmann::json;
-// Key order as written in the spec, so the output reads like report.md.
+// Ordered both ways: the output keeps the spec's key order, and an evidence object read back is
+// kept with its keys in the order written.
 using OrderedJson = nlohmann::ordered_json;
+using Json = OrderedJson;
 
 constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
 constexpr const char* kAxisNames[3] = {"x", "y", "z"};
@@ -93,11 +94,11 @@ std::string Element(const std::string& path, size_t index) {
   return path + "[" + std::to_string(index) + "]";
 }
 
-#define IMUCAL_RETURN_IF_ERROR(expr)             \
-  do {                                           \
+#define IMUCAL_RETURN_IF_ERROR(expr)                    \
+  do {                                                  \
     if (absl::Status status_ = (expr); !status_.ok()) { \
-      return status_;                            \
-    }                                            \
+      return status_;                                   \
+    }                                                   \
   } while (false)
 
 // Whether null is read as NaN (standard errors) or rejected (everything else).
@@ -109,7 +110,8 @@ absl::Status ReadDouble(const Json& j, const std::string& path, Null null, doubl
     return absl::OkStatus();
   }
   if (!j.is_number()) {
-    return PathError(path, null == Null::kAsNan ? "expected a number or null" : "expected a number");
+    return PathError(path,
+                     null == Null::kAsNan ? "expected a number or null" : "expected a number");
   }
   *out = j.get<double>();
   return absl::OkStatus();
@@ -239,8 +241,7 @@ absl::Status ReadAccelModelFields(const Json& obj, const std::string& path, bool
 absl::Status ReadAccel(const Json& j, const std::string& path, core::ParamSet* out) {
   IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
   IMUCAL_RETURN_IF_ERROR(ReadAccelModelFields(j, path, kRequired, Null::kReject, &out->accel));
-  IMUCAL_RETURN_IF_ERROR(
-      Member(j, path, "input_unit", kRequired, ReadAccelUnit, &out->accel_unit));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "input_unit", kRequired, ReadAccelUnit, &out->accel_unit));
   // Standard errors: unknown (NaN) unless stated.
   core::AccelParams& se = out->stderrs.accel;
   se.bias = se.scale = se.tri_angles = se.frame_angles = se.quadratic =
@@ -343,8 +344,7 @@ absl::Status ReadEffect(const Json& j, const std::string& path, core::Effect* ou
   return Member(j, path, "evidence", kOptional, ReadEvidence, &out->evidence);
 }
 
-absl::Status ReadEffects(const Json& j, const std::string& path,
-                         std::vector<core::Effect>* out) {
+absl::Status ReadEffects(const Json& j, const std::string& path, std::vector<core::Effect>* out) {
   if (!j.is_array()) return PathError(path, "expected an array");
   out->assign(j.size(), core::Effect());
   for (size_t i = 0; i < j.size(); ++i) {
@@ -355,8 +355,8 @@ absl::Status ReadEffects(const Json& j, const std::string& path,
 
 absl::Status ReadQuality(const Json& j, const std::string& path, core::ParamSet* out) {
   IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
-  IMUCAL_RETURN_IF_ERROR(Member(j, path, "accel_rms", kOptional, Numbers(Null::kAsNan),
-                                &out->quality_accel_rms_m_s2));
+  IMUCAL_RETURN_IF_ERROR(
+      Member(j, path, "accel_rms", kOptional, Numbers(Null::kAsNan), &out->quality_accel_rms_m_s2));
   return Member(j, path, "gyro_static_rms", kOptional, Numbers(Null::kAsNan),
                 &out->quality_gyro_static_rms_rad_s);
 }
@@ -373,8 +373,8 @@ absl::Status ReadParamSet(const Json& j, const std::string& path, core::ParamSet
   std::string format;
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "format", kRequired, ReadString, &format));
   if (format != kParamsFormat) {
-    return PathError(Child(path, "format"), "expected \"" + std::string(kParamsFormat) +
-                                                "\", got \"" + format + "\"");
+    return PathError(Child(path, "format"),
+                     "expected \"" + std::string(kParamsFormat) + "\", got \"" + format + "\"");
   }
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "device", kOptional, ReadString, &out->device));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "version", kOptional, ReadInt, &out->version));

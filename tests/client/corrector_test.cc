@@ -90,8 +90,7 @@ bool SameBits(const CalibratedSample& a, const CalibratedSample& b) {
 }
 
 void ExpectClose(double actual, double expected, double rel, const char* what, int i) {
-  EXPECT_NEAR(actual, expected, rel * std::max(1.0, std::abs(expected))) << what << "[" << i
-                                                                        << "]";
+  EXPECT_NEAR(actual, expected, rel * std::max(1.0, std::abs(expected))) << what << "[" << i << "]";
 }
 
 TEST(CorrectorTest, AgreesWithTheModelOnRandomParams) {
@@ -241,13 +240,11 @@ TEST(CorrectorTest, SkipsAndCountsTemperatureEffectsWithoutTemperature) {
 }
 
 TEST(CorrectorTest, TimeEffectsNeedAnExplicitOrigin) {
-  const core::ParamSet p =
-      IdentityWithEffects({MakeEffect(core::Sensor::kGyro, 0, "time", 1e-4)});
+  const core::ParamSet p = IdentityWithEffects({MakeEffect(core::Sensor::kGyro, 0, "time", 1e-4)});
   const absl::StatusOr<Corrector> no_origin = Corrector::Create(p);
   ASSERT_FALSE(no_origin.ok());
   EXPECT_EQ(no_origin.status().code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_TRUE(absl::StartsWith(no_origin.status().message(), "effects[0]:"))
-      << no_origin.status();
+  EXPECT_TRUE(absl::StartsWith(no_origin.status().message(), "effects[0]:")) << no_origin.status();
 
   // Not applied: no origin needed, and time is not read.
   core::ParamSet reported = p;

@@ -16,7 +16,8 @@
 namespace imucal::sdk {
 namespace {
 
-using Json = nlohmann::json;
+// Ordered, so that evidence objects keep their key order through the test's edits.
+using Json = nlohmann::ordered_json;
 constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
 
 // Bitwise, so NaN == NaN and -0.0 != 0.0: the round trip must be exact.
@@ -26,8 +27,7 @@ template <typename Derived>
 void ExpectSameBits(const Eigen::MatrixBase<Derived>& a, const Eigen::MatrixBase<Derived>& b,
                     const std::string& what) {
   for (Eigen::Index i = 0; i < a.size(); ++i) {
-    EXPECT_TRUE(SameBits(a(i), b(i))) << what << " element " << i << ": " << a(i) << " vs "
-                                      << b(i);
+    EXPECT_TRUE(SameBits(a(i), b(i))) << what << " element " << i << ": " << a(i) << " vs " << b(i);
   }
 }
 
@@ -267,7 +267,10 @@ TEST(ParamsJsonTest, ErrorsNameTheJsonPath) {
        "accel.scale[2]: expected a number"},
       {"null value", [](Json& j) { j["accel"]["bias"][0] = nullptr; },
        "accel.bias[0]: expected a number"},
-      {"short vector", [](Json& j) { j["accel"]["quadratic"] = {1, 2}; },
+      {"short vector",
+       [](Json& j) {
+         j["accel"]["quadratic"] = {1, 2};
+       },
        "accel.quadratic: expected an array of 3 numbers"},
       {"format", [](Json& j) { j["format"] = "imucal-params v2"; },
        "format: expected \"imucal-params v1\""},
@@ -284,7 +287,10 @@ TEST(ParamsJsonTest, ErrorsNameTheJsonPath) {
        "effects[0].coefficient: missing"},
       {"effects type", [](Json& j) { j["effects"] = Json::object(); },
        "effects: expected an array"},
-      {"matrix row", [](Json& j) { j["gyro"]["matrix"][1] = {1, 2}; },
+      {"matrix row",
+       [](Json& j) {
+         j["gyro"]["matrix"][1] = {1, 2};
+       },
        "gyro.matrix[1]: expected an array of 3 numbers"},
       {"matrix element", [](Json& j) { j["gyro"]["matrix"][2][0] = true; },
        "gyro.matrix[2][0]: expected a number"},
@@ -303,8 +309,7 @@ TEST(ParamsJsonTest, ErrorsNameTheJsonPath) {
       {"accel type", [](Json& j) { j["accel"] = Json::array(); }, "accel: expected an object"},
       {"quality", [](Json& j) { j["quality"]["accel_rms"] = "small"; },
        "quality.accel_rms: expected a number or null"},
-      {"source", [](Json& j) { j["source"]["session"] = 17; },
-       "source.session: expected a string"},
+      {"source", [](Json& j) { j["source"]["session"] = 17; }, "source.session: expected a string"},
   };
   const Json valid = Json::parse(ParamSetToJson(FullParamSet(3)));
   for (const ErrorCase& c : cases) {

@@ -122,8 +122,8 @@ TEST(BsasTest, CountsEveryEvaluation) {
       BsasOptions options;
       options.k = k;
       options.max_iterations = max_iterations;
-      const BsasResult r = MinimizeBsas(counted, Filled(3, 2.0), Filled(3, -5), Filled(3, 5),
-                                        options);
+      const BsasResult r =
+          MinimizeBsas(counted, Filled(3, 2.0), Filled(3, -5), Filled(3, 5), options);
       EXPECT_EQ(r.evaluations, calls) << "k " << k << " n " << max_iterations;
       EXPECT_EQ(r.evaluations, 1 + 3 * k * r.iterations);
       EXPECT_LE(r.iterations, max_iterations);

@@ -33,12 +33,12 @@ Eigen::Matrix3d TrueMatrix(double scale) {
 struct SyntheticConfig {
   Eigen::Matrix3d matrix = TrueMatrix(1.0);
   Eigen::Vector3d bias = Eigen::Vector3d(0.012, -0.021, 0.008);  // input unit
-  Eigen::Vector3d bias_drift = Eigen::Vector3d::Zero();         // input unit per second
+  Eigen::Vector3d bias_drift = Eigen::Vector3d::Zero();          // input unit per second
   double rate_hz = 200.0;
   int num_moves = 20;
   double static_s = 1.0;
-  double gyro_noise = 0.0;    // per-sample standard deviation, input unit
-  double up_noise_rad = 0.0;  // per-axis standard deviation of the measured up directions
+  double gyro_noise = 0.0;     // per-sample standard deviation, input unit
+  double up_noise_rad = 0.0;   // per-axis standard deviation of the measured up directions
   bool single_axis_z = false;  // every move rotates about body z
   uint64_t seed = kSeed;
 };
@@ -170,8 +170,8 @@ TEST(GyroSolverTest, AnalyticJacobianMatchesCentralDifferences) {
   for (bool interpolate : {false, true}) {
     for (const GyroMove& move : data.moves) {
       Eigen::Matrix<double, 3, 9> analytic;
-      const Eigen::Vector3d r0 = GyroMoveResidual(data.t_s, data.gyro_raw, move, m, config.bias,
-                                                  interpolate, &analytic);
+      const Eigen::Vector3d r0 =
+          GyroMoveResidual(data.t_s, data.gyro_raw, move, m, config.bias, interpolate, &analytic);
       EXPECT_GT(r0.norm(), 1e-2);
       Eigen::Matrix<double, 3, 9> numeric;
       const double h = 1e-6;
@@ -185,8 +185,9 @@ TEST(GyroSolverTest, AnalyticJacobianMatchesCentralDifferences) {
                                            interpolate, nullptr)) /
                          (2.0 * h);
       }
-      EXPECT_LT((analytic - numeric).norm(), 1e-7 * analytic.norm())
-          << "analytic\n" << analytic << "\nnumeric\n" << numeric;
+      EXPECT_LT((analytic - numeric).norm(), 1e-7 * analytic.norm()) << "analytic\n"
+                                                                     << analytic << "\nnumeric\n"
+                                                                     << numeric;
     }
   }
 }
@@ -238,8 +239,8 @@ TEST(GyroSolverTest, HeldOutErrorsExceedInSampleAndMatchExactLeaveOneOut) {
     ASSERT_TRUE(without.ok()) << without.status();
     const Eigen::Vector3d up = PredictUpAfterMove(data.t_s, data.gyro_raw, data.moves[i],
                                                   without->matrix, config.bias, false);
-    const double exact = std::atan2(up.cross(data.moves[i].up_after).norm(),
-                                    up.dot(data.moves[i].up_after));
+    const double exact =
+        std::atan2(up.cross(data.moves[i].up_after).norm(), up.dot(data.moves[i].up_after));
     EXPECT_NEAR(result->heldout_error_rad[i], exact, 0.01 * exact) << "move " << i;
   }
 }
@@ -355,13 +356,13 @@ TEST(GyroSolverTest, BadInputsGiveTheRightCodes) {
   EXPECT_EQ(code(data.t_s, data.gyro_raw, data.moves, bad), absl::StatusCode::kInvalidArgument);
 
   // The Ceres-free helpers do not fail: NaN for a move they cannot integrate.
-  EXPECT_TRUE(PredictUpAfterMove(data.t_s, data.gyro_raw, moves[2], config.matrix, config.bias,
-                                 false)
-                  .allFinite());
+  EXPECT_TRUE(
+      PredictUpAfterMove(data.t_s, data.gyro_raw, moves[2], config.matrix, config.bias, false)
+          .allFinite());
   moves[2].end = data.gyro_raw.size() + 5;
-  EXPECT_TRUE(PredictUpAfterMove(data.t_s, data.gyro_raw, moves[2], config.matrix, config.bias,
-                                 false)
-                  .hasNaN());
+  EXPECT_TRUE(
+      PredictUpAfterMove(data.t_s, data.gyro_raw, moves[2], config.matrix, config.bias, false)
+          .hasNaN());
   EXPECT_TRUE(std::isnan(EstimateIsotropicScale(data.t_s, data.gyro_raw, moves, options)));
 }
 

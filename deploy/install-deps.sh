@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Installs the Debian packages imucal builds and runs with. Idempotent; works on a bare Debian 12
+# machine (as root, or with sudo). Nothing is downloaded from outside Debian's archive.
+set -euo pipefail
+packages=(
+  g++ cmake ninja-build pkg-config
+  libceres-dev libeigen3-dev libabsl-dev nlohmann-json3-dev
+  libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler libsqlite3-dev
+  libgtest-dev libgmock-dev libbenchmark-dev tmux
+)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+sudo=""
+[ "$(id -u)" -eq 0 ] || sudo="sudo"
+echo "install-deps: installing ${missing[*]}"
+$sudo apt-get update -qq
+DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
