@@ -204,22 +204,29 @@ absl::StatusOr<AccelParams> FitKnownReferences(const std::vector<Eigen::Vector3d
 }
 
 Eigen::MatrixXd MagnitudeJacobian(const AccelParams& p, const std::vector<AccelPose>& poses) {
+  // r = |a| - g with a = L z, z = y + q.*y.^2, y = s.*(u - b). With n = a/|a| and c = L^T n:
+  //   dr/db_j = -c_j (1 + 2 q_j y_j) s_j     dr/ds_j = c_j (1 + 2 q_j y_j) (u_j - b_j)
+  //   dr/dq_j = c_j y_j^2                    dr/dt_yx = n_y z_x, dr/dt_zx = n_z z_x,
+  //                                          dr/dt_zy = n_z z_y
+  // (checked against the autodiff functor that the LM stage uses, in accel_solver_test).
   Eigen::MatrixXd j(static_cast<Eigen::Index>(poses.size()), kAccelParams);
-  const double* params[4] = {p.bias.data(), p.scale.data(), p.tri_angles.data(),
-                             p.quadratic.data()};
+  const Eigen::Matrix3d l = LowerMisalignment<double>(p.tri_angles);
   for (size_t i = 0; i < poses.size(); ++i) {
-    std::unique_ptr<ceres::CostFunction> cost(MagnitudeError::Create(poses[i].mean, 0.0, 1.0));
-    double r;
-    double jb[3], js[3], jt[3], jq[3];
-    double* jac[4] = {jb, js, jt, jq};
-    cost->Evaluate(params, &r, jac);
+    const Eigen::Vector3d d = poses[i].mean - p.bias;
+    const Eigen::Vector3d y = p.scale.cwiseProduct(d);
+    const Eigen::Vector3d z = y + p.quadratic.cwiseProduct(y.cwiseProduct(y));
+    const Eigen::Vector3d n = (l * z).normalized();
+    const Eigen::Vector3d c = l.transpose() * n;
+    const Eigen::Vector3d dz_dy = Eigen::Vector3d::Ones() + 2 * p.quadratic.cwiseProduct(y);
+    const auto row = static_cast<Eigen::Index>(i);
     for (int k = 0; k < 3; ++k) {
-      const auto row = static_cast<Eigen::Index>(i);
-      j(row, k) = jb[k];
-      j(row, 3 + k) = js[k];
-      j(row, 6 + k) = jt[k];
-      j(row, 9 + k) = jq[k];
+      j(row, k) = -c(k) * dz_dy(k) * p.scale(k);
+      j(row, 3 + k) = c(k) * dz_dy(k) * d(k);
+      j(row, 9 + k) = c(k) * y(k) * y(k);
     }
+    j(row, 6) = n.y() * z.x();
+    j(row, 7) = n.z() * z.x();
+    j(row, 8) = n.z() * z.y();
   }
   return j;
 }
@@ -440,6 +447,31 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
   return out;
 }
 
+AccelParams RefineAccelGaussNewton(const AccelParams& start, const std::vector<AccelPose>& poses,
+                                   double gravity_m_s2, const AccelMask& free, int max_iterations) {
+  std::vector<int> index;
+  for (int c = 0; c < kAccelParams; ++c)
+    if (free[static_cast<size_t>(c)]) index.push_back(c);
+  if (poses.size() <= index.size()) return start;
+  const std::vector<double> sigma = MagnitudeSigmas(start, poses);
+  AccelVector theta = PackAccel(start);
+  for (int it = 0; it < max_iterations; ++it) {
+    const AccelParams p = UnpackAccel(theta, start.frame_angles);
+    const Eigen::MatrixXd jw = WeightedJacobian(p, poses, sigma, free);
+    const Eigen::VectorXd rw = WeightedResiduals(p, poses, sigma, gravity_m_s2);
+    const Eigen::VectorXd step = (jw.transpose() * jw).ldlt().solve(-jw.transpose() * rw);
+    if (!step.allFinite()) break;
+    double rel = 0;
+    for (size_t k = 0; k < index.size(); ++k) {
+      const auto kk = static_cast<Eigen::Index>(k);
+      theta(index[k]) += step(kk);
+      rel = std::max(rel, std::abs(step(kk)) / std::max(1e-300, std::abs(theta(index[k]))));
+    }
+    if (rel < 1e-10) break;
+  }
+  return UnpackAccel(theta, start.frame_angles);
+}
+
 std::vector<double> HeldOutMagnitudeResiduals(const AccelParams& fit,
                                               const std::vector<AccelPose>& poses,
                                               double gravity_m_s2, const AccelMask& free) {
@@ -447,8 +479,11 @@ std::vector<double> HeldOutMagnitudeResiduals(const AccelParams& fit,
   for (size_t i = 0; i < poses.size(); ++i) {
     std::vector<AccelPose> rest = poses;
     rest.erase(rest.begin() + static_cast<long>(i));
-    const auto r = RefineAccelLm(fit, rest, gravity_m_s2, free, nullptr);
-    if (r.ok()) out[i] = MagnitudeResiduals(r->params, {poses[i]}, gravity_m_s2)[0];
+    int n_free = 0;
+    for (bool f : free) n_free += f;
+    if (static_cast<int>(rest.size()) <= n_free) continue;  // nothing to refit with: NaN
+    const AccelParams refit = RefineAccelGaussNewton(fit, rest, gravity_m_s2, free, 10);
+    out[i] = MagnitudeResiduals(refit, {poses[i]}, gravity_m_s2)[0];
   }
   return out;
 }

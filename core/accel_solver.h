@@ -113,7 +113,15 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
                                        const std::vector<AccelPose>& poses, double gravity_m_s2,
                                        const AccelMask& free, StageReport* report);
 
-// Leave-one-pose-out: for each pose, refit (LM, from `fit`) without it and return its |a| - g.
+// Gauss-Newton on the weighted magnitude residuals over the `free` parameters, from a nearby
+// start, until the step is below 1e-10 of the parameters or after `max_iterations`. For the many
+// small refits (threshold sweep, term selection, leave-one-out), where the setup of a Ceres
+// problem would cost more than the solve; the reported "lm" stage stays on Ceres.
+AccelParams RefineAccelGaussNewton(const AccelParams& start, const std::vector<AccelPose>& poses,
+                                   double gravity_m_s2, const AccelMask& free, int max_iterations);
+
+// Leave-one-pose-out: for each pose, refit without it (Gauss-Newton from `fit`, which is a
+// converged full fit, so the refit converges in a few steps) and return its |a| - g.
 std::vector<double> HeldOutMagnitudeResiduals(const AccelParams& fit,
                                               const std::vector<AccelPose>& poses,
                                               double gravity_m_s2, const AccelMask& free);

@@ -76,13 +76,12 @@ SweepResult SweepThreshold(const Capture& cap, const MotionSignal& motion, const
     if (poses.size() < 10) continue;
     const auto e = FitEllipsoid(poses, g);
     if (!e.ok()) continue;
-    const auto lm = RefineAccelLm(*e, poses, g, LinearMask(), nullptr);
-    if (!lm.ok()) continue;
-    const double press = PressRms(lm->params, poses, g, LinearMask());
+    const AccelParams fit = RefineAccelGaussNewton(*e, poses, g, LinearMask(), 10);
+    const double press = PressRms(fit, poses, g, LinearMask());
     if (press < best.press) {
       best.multiplier = m;
       best.intervals = std::move(ivs);
-      best.accel = lm->params;
+      best.accel = fit;
       best.press = press;
       best.poses = poses.size();
     }
@@ -140,26 +139,38 @@ struct GyroStage {
   std::vector<std::string> warnings;
 };
 
+// The rough gyroscope for the pair and duplicate checks, which tolerate a few percent of scale
+// error: the nominal factor, or for raw counts the isotropic scale the moves imply.
+GyroParams RoughGyro(const Capture& cap, const std::vector<StaticInterval>& ivs,
+                     const std::vector<int>& used, const AccelParams& accel) {
+  GyroParams g;
+  g.bias = StaticGyroBias(ivs, used);
+  const double nominal = NominalGyroToSi(cap.gyro_unit);
+  double scale = nominal;
+  if (std::isnan(nominal)) {
+    GyroSolveOptions go;
+    go.bias = g.bias;
+    go.interpolate_bias = true;
+    scale = EstimateIsotropicScale(cap.t_s, cap.gyro, MovesBetween(ivs, used, accel), go);
+  }
+  g.matrix = Eigen::Matrix3d::Identity() * (std::isfinite(scale) ? scale : 1.0);
+  return g;
+}
+
 GyroStage SolveGyro(const Capture& cap, const std::vector<StaticInterval>& ivs,
                     const std::vector<int>& used, const AccelParams& accel,
-                    const Eigen::Matrix3d* start) {
+                    const GyroParams& rough) {
   GyroStage out;
+  out.params = rough;
   out.params.bias = StaticGyroBias(ivs, used);
   const double nominal = NominalGyroToSi(cap.gyro_unit);
-  out.params.matrix = Eigen::Matrix3d::Identity() * (std::isnan(nominal) ? 1.0 : nominal);
   const std::vector<GyroMove> moves = MovesBetween(ivs, used, accel);
   GyroSolveOptions go;
   go.bias = out.params.bias;
   // Each move uses the bias measured at the poses on either side of it (a drifting bias is
   // followed); the stored model keeps the constant mean bias.
   go.interpolate_bias = true;
-  if (start) {
-    go.initial_matrix = *start;
-  } else {
-    go.compute_heldout = false;  // the rough pass only serves the pair and duplicate checks
-    go.scale_unknown = std::isnan(nominal);
-    go.initial_matrix = out.params.matrix;
-  }
+  go.initial_matrix = rough.matrix;
   auto r = moves.size() >= 3 ? SolveGyroFromMoves(cap.t_s, cap.gyro, moves, go)
                              : absl::StatusOr<GyroSolveResult>(absl::FailedPreconditionError(
                                    "fewer than 3 moves between static poses"));
@@ -169,6 +180,7 @@ GyroStage SolveGyro(const Capture& cap, const std::vector<StaticInterval>& ivs,
         "between static poses%s",
         r.status().message(),
         std::isnan(nominal) ? "; the gyro is in raw counts, so its output stays in counts" : ""));
+    if (std::isnan(nominal)) out.params.matrix.setIdentity();
     return out;
   }
   if (r->rank_deficient) {
@@ -285,8 +297,7 @@ AccelMask SelectQuadratics(const AccelParams& start, const std::vector<AccelPose
   AccelMask mask = determined;
   for (int c = 9; c < 12; ++c) mask[static_cast<size_t>(c)] = false;
   auto press = [&](const AccelMask& m) {
-    auto fit = RefineAccelLm(start, poses, g, m, nullptr);
-    return fit.ok() ? PressRms(fit->params, poses, g, m) : std::numeric_limits<double>::infinity();
+    return PressRms(RefineAccelGaussNewton(start, poses, g, m, 10), poses, g, m);
   };
   double best = press(mask);
   for (;;) {
@@ -324,12 +335,28 @@ std::string Verdict(const CalibrationReport& r, bool degraded) {
   return "pass";
 }
 
+// Appends the time since the previous mark to report->phase_ms.
+class PhaseTimer {
+ public:
+  explicit PhaseTimer(CalibrationReport* report) : report_(report) {}
+  void Mark(const char* name) {
+    const auto now = std::chrono::steady_clock::now();
+    report_->phase_ms.emplace_back(name, 1e3 * std::chrono::duration<double>(now - last_).count());
+    last_ = now;
+  }
+
+ private:
+  CalibrationReport* report_;
+  std::chrono::steady_clock::time_point last_ = std::chrono::steady_clock::now();
+};
+
 }  // namespace
 
 absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateOptions& opt) {
   const auto t0 = std::chrono::steady_clock::now();
   if (absl::Status s = ValidateCapture(cap); !s.ok()) return s;
   CalibrationReport rep;
+  PhaseTimer timer(&rep);
   rep.device = cap.device;
   rep.gravity_m_s2 = cap.gravity_m_s2;
   const double g = cap.gravity_m_s2;
@@ -346,11 +373,13 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
         static_cast<int>(most_poses), opt.detector.min_static_s));
   }
   rep.threshold_multiplier = sweep.multiplier;
+  timer.Mark("static");
   std::vector<StaticInterval>& ivs = sweep.intervals;
 
   // 2. Rough gyroscope (for pair checks), from the sweep's accelerometer.
   std::vector<int> used = UsedIndices(ivs);
-  GyroStage gyro = SolveGyro(cap, ivs, used, sweep.accel, nullptr);
+  const GyroParams rough_gyro = RoughGyro(cap, ivs, used, sweep.accel);
+  timer.Mark("gyro_rough");
   std::vector<Eigen::Vector3d> ups(ivs.size(), Eigen::Vector3d::Zero());
   for (size_t i = 0; i < ivs.size(); ++i) ups[i] = sweep.accel.Apply(ivs[i].accel_mean).normalized();
 
@@ -371,7 +400,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
       if (k > 0) {
         fp.rotation_from_previous = IntegrateRotation(
             cap, ivs[static_cast<size_t>(used[k - 1])].end - 1,
-            ivs[static_cast<size_t>(used[k])].begin, gyro.params);
+            ivs[static_cast<size_t>(used[k])].begin, rough_gyro);
       }
       fps.push_back(fp);
     }
@@ -383,9 +412,10 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
                                                p.pose_a, p.pose_b, p.face, p.reason));
     for (const auto& m : check.missing) rep.warnings.push_back(m);
   }
-  MarkDuplicates(cap, gyro.params, &ivs, ups);
+  MarkDuplicates(cap, rough_gyro, &ivs, ups);
   used = UsedIndices(ivs);
   std::vector<AccelPose> poses = ToAccelPoses(ivs, used, rep.noise);
+  timer.Mark("protocol");
 
   // 4. Accelerometer stage 1: linear least squares.
   auto s1_time = std::chrono::steady_clock::now();
@@ -434,10 +464,12 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.stages.push_back(lm_report);
   rep.accel_chi2_reduced = lm->chi2_reduced;
   const AccelParams& accel = lm->params;
+  timer.Mark("accel");
 
   // 8. Final gyroscope with the final accelerometer.
-  gyro = SolveGyro(cap, ivs, used, accel, gyro.result ? &gyro.params.matrix : nullptr);
+  const GyroStage gyro = SolveGyro(cap, ivs, used, accel, rough_gyro);
   for (const auto& w : gyro.warnings) rep.warnings.push_back(w);
+  timer.Mark("gyro");
 
   // 8. Residuals, in-sample and held out.
   const std::vector<double> r = MagnitudeResiduals(accel, poses, g);
@@ -449,6 +481,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     rep.residual.accel_heldout_rms_m_s2 = RmsFinite(held);
     rep.residual.accel_heldout_max_m_s2 = Max(held);
   }
+  timer.Mark("heldout");
   double gyro_ss = 0;
   for (int i : used) {
     const StaticInterval& s = ivs[static_cast<size_t>(i)];
@@ -523,6 +556,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   ps.quality_accel_rms_m_s2 = rep.residual.accel_rms_m_s2;
   ps.quality_gyro_static_rms_rad_s = rep.residual.gyro_static_rms_rad_s;
 
+  timer.Mark("report");
   bool degraded = !gyro.calibrated;
   for (bool d : obs.determined) degraded |= !d;
   for (const auto& p : rep.pairs) degraded |= !p.ok;

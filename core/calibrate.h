@@ -74,6 +74,8 @@ struct CalibrationReport {
   std::string verdict;  // pass | warn | fail
   std::vector<std::string> warnings;
   double total_ms = 0;
+  // Wall time of each phase of the pipeline, in order: {"static", ms}, {"gyro_rough", ms}, ...
+  std::vector<std::pair<std::string, double>> phase_ms;
 };
 
 // Errors: FailedPrecondition when the capture cannot determine the model (too few poses, poses

@@ -88,6 +88,7 @@ std::string ReportToJson(const core::CalibrationReport& r) {
   j["verdict"] = r.verdict;
   j["warnings"] = r.warnings;
   j["ms"] = r.total_ms;
+  for (const auto& [phase, ms] : r.phase_ms) j["phase_ms"][phase] = ms;
   return j.dump(2) + "\n";
 }
 
