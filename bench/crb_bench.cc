@@ -20,11 +20,13 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
 
 #include "Eigen/Core"
+#include "absl/strings/str_format.h"
 #include "core/accel_solver.h"
 #include "core/calibrate.h"
 #include "core/crb.h"
@@ -72,24 +74,20 @@ std::pair<size_t, size_t> HoldSamples(const Capture& cap, const SimPose& hold) {
   return {begin, end};
 }
 
-struct Sums {
-  // Per parameter, over the runs where it was estimated.
-  AccelVector err_sq = AccelVector::Zero(), crb_used_sq = AccelVector::Zero();
-  AccelVector crb_holds_sq = AccelVector::Zero(), se_sq = AccelVector::Zero();
-  AccelVector z_sum = AccelVector::Zero();  // sum of error / CRB: a systematic bias shows here
-  std::array<int, kAccelParams> estimated{};
-  Eigen::Vector3d gyro_err_sq = Eigen::Vector3d::Zero(), gyro_crb_sq = Eigen::Vector3d::Zero();
-  int runs = 0, failures = 0;
+// One Calibrate() run against its truth and bounds.
+struct Run {
+  uint64_t seed = 0;
+  std::string verdict;
+  AccelMask free{};  // what Calibrate estimated
+  AccelVector err, crb_used, crb_holds, se;
+  Eigen::Vector3d gyro_err, gyro_crb;
   double used_samples = 0, hold_samples = 0;
 };
 
-void RunSeed(uint64_t seed, Sums* sums) {
+std::optional<Run> RunSeed(uint64_t seed) {
   const SimOptions options = BenchSimOptions(seed);
   const auto sim = Simulate(options);
-  if (!sim.ok()) {
-    ++sums->failures;
-    return;
-  }
+  if (!sim.ok()) return std::nullopt;
   CalibrateOptions opt;
   opt.seed = seed;
   opt.heldout = false;  // the held-out refits do not change the estimates
@@ -97,97 +95,156 @@ void RunSeed(uint64_t seed, Sums* sums) {
   if (!rep.ok()) {
     std::printf("seed %llu: %s\n", static_cast<unsigned long long>(seed),
                 std::string(rep.status().message()).c_str());
-    ++sums->failures;
-    return;
+    return std::nullopt;
   }
   const SimTruth& truth = sim->truth;
   const double g = sim->capture.gravity_m_s2;
-  const AccelVector se = PackAccel(rep->params.stderrs.accel);
-  AccelMask free{};
-  for (int c = 0; c < kAccelParams; ++c) free[static_cast<size_t>(c)] = std::isfinite(se(c));
+  Run run;
+  run.seed = seed;
+  run.verdict = rep->verdict;
+  run.se = PackAccel(rep->params.stderrs.accel);
+  for (int c = 0; c < kAccelParams; ++c)
+    run.free[static_cast<size_t>(c)] = std::isfinite(run.se(c));
 
   const Eigen::Vector3d accel_sigma = RawNoiseSigma(
       truth.accel.Misalignment() * truth.accel.scale.asDiagonal(), options.accel_noise_m_s2);
   std::vector<AccelPose> used, holds;
-  double used_samples = 0;
   for (const PoseReport& p : rep->poses) {
     if (!p.interval.used) continue;
     used.push_back(PoseAtTruth(*sim, accel_sigma, p.interval.begin, p.interval.end));
-    used_samples += static_cast<double>(p.interval.samples());
+    run.used_samples += static_cast<double>(p.interval.samples());
   }
   for (const SimPose& hold : sim->poses) {
     const auto [begin, end] = HoldSamples(sim->capture, hold);
     holds.push_back(PoseAtTruth(*sim, accel_sigma, begin, end));
-    sums->hold_samples += static_cast<double>(end - begin);
+    run.hold_samples += static_cast<double>(end - begin);
   }
-  sums->used_samples += used_samples;
-  const AccelVector crb_used = AccelCramerRaoStd(truth.accel, used, g, free);
-  const AccelVector crb_holds = AccelCramerRaoStd(truth.accel, holds, g, free);
-  const AccelVector err = PackAccel(rep->params.accel) - PackAccel(truth.accel);
-  for (int c = 0; c < kAccelParams; ++c) {
-    if (!free[static_cast<size_t>(c)]) continue;
-    ++sums->estimated[static_cast<size_t>(c)];
-    sums->err_sq(c) += err(c) * err(c);
-    sums->crb_used_sq(c) += crb_used(c) * crb_used(c);
-    sums->crb_holds_sq(c) += crb_holds(c) * crb_holds(c);
-    sums->se_sq(c) += se(c) * se(c);
-    sums->z_sum(c) += err(c) / crb_used(c);
-  }
+  run.crb_used = AccelCramerRaoStd(truth.accel, used, g, run.free);
+  run.crb_holds = AccelCramerRaoStd(truth.accel, holds, g, run.free);
+  run.err = PackAccel(rep->params.accel) - PackAccel(truth.accel);
   const Eigen::Vector3d gyro_sigma = RawNoiseSigma(truth.gyro.matrix, options.gyro_noise_rad_s);
-  const Eigen::Vector3d gyro_crb = gyro_sigma / std::sqrt(used_samples);
-  sums->gyro_err_sq += (rep->params.gyro.bias - truth.gyro.bias).cwiseAbs2();
-  sums->gyro_crb_sq += gyro_crb.cwiseAbs2();
-  ++sums->runs;
+  run.gyro_crb = gyro_sigma / std::sqrt(run.used_samples);
+  run.gyro_err = rep->params.gyro.bias - truth.gyro.bias;
+  return run;
 }
 
-double Ratio(double num_sq, double den_sq) { return std::sqrt(num_sq / den_sq); }
+// Ratios of a set of parameters over the (run, parameter) pairs where the parameter was estimated
+// and keep(run, parameter) holds.
+struct Ratios {
+  int n = 0;
+  double used = 0, holds = 0, median_se = 0, mean_z = 0;
+};
 
-void Print(const Sums& s, int seeds) {
+template <typename Keep>
+Ratios GroupRatios(const std::vector<Run>& runs, const std::vector<int>& params, Keep keep) {
+  double e = 0, cu = 0, ch = 0, z = 0;
+  std::vector<double> se_ratio;
+  Ratios out;
+  for (const Run& r : runs) {
+    for (int c : params) {
+      if (!r.free[static_cast<size_t>(c)] || !keep(r, c)) continue;
+      ++out.n;
+      e += r.err(c) * r.err(c);
+      cu += r.crb_used(c) * r.crb_used(c);
+      ch += r.crb_holds(c) * r.crb_holds(c);
+      z += r.err(c) / r.crb_used(c);
+      se_ratio.push_back(r.se(c) / r.crb_used(c));
+    }
+  }
+  if (out.n == 0) return out;
+  out.used = std::sqrt(e / cu);
+  out.holds = std::sqrt(e / ch);
+  out.mean_z = z / out.n;
+  std::nth_element(se_ratio.begin(), se_ratio.begin() + static_cast<long>(se_ratio.size() / 2),
+                   se_ratio.end());
+  out.median_se = se_ratio[se_ratio.size() / 2];
+  return out;
+}
+
+std::vector<int> Group(int g) { return {3 * g, 3 * g + 1, 3 * g + 2}; }
+
+void PrintRatioRow(const char* name, const Ratios& r, int of) {
+  if (r.n == 0) {
+    std::printf("%-24s %5d/%-4d %10s\n", name, 0, of, "-");
+    return;
+  }
+  std::printf("%-24s %5d/%-4d %10.2f %11.2f %9.2f %8.2f\n", name, r.n, of, r.used, r.holds,
+              r.median_se, r.mean_z);
+}
+
+void Print(const std::vector<Run>& runs, int seeds) {
+  const int n = static_cast<int>(runs.size());
+  double used_samples = 0, hold_samples = 0;
+  std::string failed;
+  for (const Run& r : runs) {
+    used_samples += r.used_samples;
+    hold_samples += r.hold_samples;
+    if (r.verdict == "fail") failed += absl::StrFormat(" %d", r.seed);
+  }
   std::printf(
       "CRB efficiency of Calibrate(): six-face + 24 extra poses, noise 0.02 m/s^2 and 0.002 "
-      "rad/s at 200 Hz,\n%d seeds (%d failed); truth from RandomTruth(seed). Static samples per "
-      "run: %.0f used by Calibrate, %.0f in the simulated holds.\n",
-      seeds, s.failures, s.used_samples / s.runs, s.hold_samples / s.runs);
+      "rad/s at 200 Hz,\n%d seeds (%d did not calibrate); truth from RandomTruth(seed). Static "
+      "samples per run: %.0f used by Calibrate, %.0f in the simulated holds.\n"
+      "Verdict 'fail' in %d runs:%s\n",
+      seeds, seeds - n, used_samples / n, hold_samples / n,
+      static_cast<int>(std::count_if(runs.begin(), runs.end(),
+                                     [](const Run& r) { return r.verdict == "fail"; })),
+      failed.empty() ? " none" : failed.c_str());
   std::printf(
       "ratio = RMS(estimate - truth) / RMS(CRB) over the runs and axes where the parameter was "
       "estimated;\n'used' = bound over the intervals Calibrate used, 'holds' = over the full "
-      "holds; se/CRB = Calibrate's reported stderr vs the bound; mean z = "
-      "mean((est-truth)/CRB).\n\n");
-  std::printf("%-12s %9s %10s %11s %8s %8s\n", "group", "estimated", "ratio used", "ratio holds",
+      "simulated holds;\nse/CRB = median of Calibrate's reported stderr / bound; mean z = "
+      "mean((estimate - truth) / CRB used).\n\n");
+  std::printf("%-24s %10s %10s %11s %9s %8s\n", "group", "estimated", "ratio used", "ratio holds",
               "se/CRB", "mean z");
-  for (int g = 0; g < 4; ++g) {
-    double e = 0, cu = 0, ch = 0, se = 0, z = 0;
-    int n = 0;
-    for (int c = 3 * g; c < 3 * g + 3; ++c) {
-      e += s.err_sq(c);
-      cu += s.crb_used_sq(c);
-      ch += s.crb_holds_sq(c);
-      se += s.se_sq(c);
-      z += s.z_sum(c);
-      n += s.estimated[static_cast<size_t>(c)];
-    }
-    if (n == 0) {
-      std::printf("%-12s %5d/%-3d %10s\n", kGroups[g], 0, 3 * s.runs, "-");
-      continue;
-    }
-    std::printf("%-12s %5d/%-3d %10.2f %11.2f %8.2f %8.2f\n", kGroups[g], n, 3 * s.runs,
-                Ratio(e, cu), Ratio(e, ch), Ratio(se, cu), z / n);
+  auto every = [](const Run&, int) { return true; };
+  for (int g = 0; g < 4; ++g) PrintRatioRow(kGroups[g], GroupRatios(runs, Group(g), every), 3 * n);
+  Eigen::Vector3d gyro_err_sq = Eigen::Vector3d::Zero(), gyro_crb_sq = Eigen::Vector3d::Zero();
+  for (const Run& r : runs) {
+    gyro_err_sq += r.gyro_err.cwiseAbs2();
+    gyro_crb_sq += r.gyro_crb.cwiseAbs2();
   }
-  const Eigen::Vector3d gyro_ratio = (s.gyro_err_sq.array() / s.gyro_crb_sq.array()).sqrt();
-  std::printf("%-12s %5d/%-3d %10.2f %11s %8s %8s   (per axis %.2f %.2f %.2f)\n", "gyro bias",
-              3 * s.runs, 3 * s.runs, Ratio(s.gyro_err_sq.sum(), s.gyro_crb_sq.sum()), "-", "-",
-              "-", gyro_ratio.x(), gyro_ratio.y(), gyro_ratio.z());
+  const Eigen::Vector3d gyro_ratio = (gyro_err_sq.array() / gyro_crb_sq.array()).sqrt();
+  std::printf("%-24s %5d/%-4d %10.2f %11s %9s %8s   (per axis %.2f %.2f %.2f)\n", "gyro bias",
+              3 * n, 3 * n, std::sqrt(gyro_err_sq.sum() / gyro_crb_sq.sum()), "-", "-", "-",
+              gyro_ratio.x(), gyro_ratio.y(), gyro_ratio.z());
+
+  // A quadratic term held at 0 is a model error q_i y_i^2 (about q_i g^2 on the faces, like a
+  // shift of bias_i) that the same axis's bias and scale absorb: split by it, axis by axis.
+  int held = 0;
+  for (const Run& r : runs) held += !r.free[9] + !r.free[10] + !r.free[11];
+  std::printf(
+      "\nsplit by the PRESS selection of the same axis's quadratic (held at 0 in %d of %d):\n",
+      held, 3 * n);
+  auto quad_estimated = [](const Run& r, int c) { return r.free[static_cast<size_t>(9 + c % 3)]; };
+  auto quad_held = [](const Run& r, int c) { return !r.free[static_cast<size_t>(9 + c % 3)]; };
+  for (int g = 0; g < 3; ++g) {
+    PrintRatioRow(absl::StrFormat("%s, quad_i estimated", kGroups[g]).c_str(),
+                  GroupRatios(runs, Group(g), quad_estimated), 3 * n - held);
+    PrintRatioRow(absl::StrFormat("%s, quad_i held at 0", kGroups[g]).c_str(),
+                  GroupRatios(runs, Group(g), quad_held), held);
+  }
+  std::printf("(tri_angles couple two axes; its split is by the first axis of the pair.)\n");
+  if (!failed.empty()) {
+    auto passed = [](const Run& r, int) { return r.verdict != "fail"; };
+    std::printf("\nexcluding the runs with verdict 'fail':\n");
+    for (int g = 0; g < 4; ++g) {
+      PrintRatioRow(kGroups[g], GroupRatios(runs, Group(g), passed), 3 * n);
+    }
+  }
 
   std::printf("\nper parameter (runs estimated, ratio used, ratio holds, RMS CRB used):\n");
   for (int c = 0; c < kAccelParams; ++c) {
-    const int n = s.estimated[static_cast<size_t>(c)];
-    if (n == 0) {
-      std::printf("  %-12s %3d\n", AccelParamName(c).c_str(), n);
+    const Ratios r = GroupRatios(runs, {c}, every);
+    double crb_sq = 0;
+    for (const Run& run : runs)
+      if (run.free[static_cast<size_t>(c)]) crb_sq += run.crb_used(c) * run.crb_used(c);
+    if (r.n == 0) {
+      std::printf("  %-12s %3d\n", AccelParamName(c).c_str(), r.n);
       continue;
     }
-    std::printf("  %-12s %3d %6.2f %6.2f %10.3g\n", AccelParamName(c).c_str(), n,
-                Ratio(s.err_sq(c), s.crb_used_sq(c)), Ratio(s.err_sq(c), s.crb_holds_sq(c)),
-                std::sqrt(s.crb_used_sq(c) / n));
+    std::printf("  %-12s %3d %6.2f %6.2f %10.3g\n", AccelParamName(c).c_str(), r.n, r.used, r.holds,
+                std::sqrt(crb_sq / r.n));
   }
   std::printf("\ntarget: ratio <= 1.5 per group\n");
 }
@@ -206,8 +263,11 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  imucal::core::Sums sums;
-  for (int s = 1; s <= seeds; ++s) imucal::core::RunSeed(static_cast<uint64_t>(s), &sums);
-  imucal::core::Print(sums, seeds);
+  std::vector<imucal::core::Run> runs;
+  for (int s = 1; s <= seeds; ++s) {
+    if (auto run = imucal::core::RunSeed(static_cast<uint64_t>(s))) runs.push_back(*run);
+  }
+  if (runs.empty()) return 1;
+  imucal::core::Print(runs, seeds);
   return 0;
 }

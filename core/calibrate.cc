@@ -7,6 +7,7 @@
 #include "Eigen/Dense"
 #include "absl/strings/str_format.h"
 #include "core/gyro_solver.h"
+#include "core/validation.h"
 
 namespace imucal::core {
 namespace {
@@ -240,25 +241,44 @@ void MarkDuplicates(const Capture& cap, const GyroParams& gyro, std::vector<Stat
   }
 }
 
-// Six-face stage 1 (seeds/000): pair-averaged face readings against +-g on the face axis.
-absl::StatusOr<AccelParams> FitVerifiedFaces(const std::vector<StaticInterval>& ivs,
-                                             const std::vector<PairCheck>& pairs,
-                                             const std::vector<Eigen::Vector3d>& ups, double g) {
+// The six-face references: pair-averaged face readings (raw) and +-g on the face axis.
+struct FaceReferences {
   std::vector<Eigen::Vector3d> means, refs;
+};
+FaceReferences VerifiedFaces(const std::vector<StaticInterval>& ivs,
+                             const std::vector<PairCheck>& pairs,
+                             const std::vector<Eigen::Vector3d>& ups, double g) {
+  FaceReferences out;
   for (const PairCheck& p : pairs) {
     if (!p.ok) continue;
     const Face f = ClassifyFace(ups[static_cast<size_t>(p.pose_a)]);
     Eigen::Vector3d ref = Eigen::Vector3d::Zero();
     ref(f.axis) = f.sign * g;
-    means.push_back(0.5 * (ivs[static_cast<size_t>(p.pose_a)].accel_mean +
-                           ivs[static_cast<size_t>(p.pose_b)].accel_mean));
-    refs.push_back(ref);
+    out.means.push_back(0.5 * (ivs[static_cast<size_t>(p.pose_a)].accel_mean +
+                               ivs[static_cast<size_t>(p.pose_b)].accel_mean));
+    out.refs.push_back(ref);
   }
-  if (means.size() < 6) {
+  return out;
+}
+
+// Six-face stage 1 (seeds/000): the affine least-squares fit to the verified faces.
+absl::StatusOr<AccelParams> FitVerifiedFaces(const FaceReferences& faces) {
+  if (faces.means.size() < 6) {
     return absl::FailedPreconditionError(absl::StrFormat(
-        "only %d of 6 faces have a verified 180-degree pair", static_cast<int>(means.size())));
+        "only %d of 6 faces have a verified 180-degree pair", static_cast<int>(faces.means.size())));
   }
-  return FitKnownReferences(means, refs);
+  return FitKnownReferences(faces.means, faces.refs);
+}
+
+// The case frame for the final model: the rotation that best maps its frame-free output of the
+// verified faces onto +-g (Kabsch), so frame_angles agree with the refined scale and angles.
+Eigen::Vector3d FrameAngles(const AccelParams& accel, const FaceReferences& faces) {
+  AccelParams frame_free = accel;
+  frame_free.frame_angles.setZero();
+  std::vector<Eigen::Vector3d> out;
+  for (const auto& m : faces.means) out.push_back(frame_free.Apply(m));
+  const Eigen::AngleAxisd aa(BestFitRotation(out, faces.refs));
+  return aa.angle() * aa.axis();
 }
 
 AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& poses,
@@ -421,13 +441,14 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   auto s1_time = std::chrono::steady_clock::now();
   absl::StatusOr<AccelParams> s1 = absl::UnknownError("unset");
   if (rep.protocol == ProtocolKind::kSixFace) {
-    s1 = FitVerifiedFaces(ivs, rep.pairs, ups, g);
+    s1 = FitVerifiedFaces(VerifiedFaces(ivs, rep.pairs, ups, g));
     if (!s1.ok()) {
       rep.warnings.push_back("six-face least squares not possible (" +
                              std::string(s1.status().message()) +
                              "); used the ellipsoid fit instead, frame alignment unknown");
     }
   }
+  const bool s1_from_faces = s1.ok();
   if (!s1.ok()) s1 = FitEllipsoid(poses, g);
   if (!s1.ok()) return s1.status();
   StageReport ls;
@@ -463,6 +484,9 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   if (!lm.ok()) return lm.status();
   rep.stages.push_back(lm_report);
   rep.accel_chi2_reduced = lm->chi2_reduced;
+  if (rep.protocol == ProtocolKind::kSixFace && s1_from_faces) {
+    lm->params.frame_angles = FrameAngles(lm->params, VerifiedFaces(ivs, rep.pairs, ups, g));
+  }
   const AccelParams& accel = lm->params;
   timer.Mark("accel");
 
