@@ -185,9 +185,15 @@ GyroStage SolveGyro(const Capture& cap, const std::vector<StaticInterval>& ivs,
     return out;
   }
   if (r->rank_deficient) {
-    for (const auto& u : r->undetermined)
-      out.warnings.push_back("gyroscope: " + u +
-                             " is not determined by the moves; add rotations about that axis");
+    // A matrix the moves do not determine is not a calibration: keep the nominal (or, for
+    // counts, isotropic) factor and say what would determine the rest.
+    std::string which;
+    for (const auto& u : r->undetermined) which += (which.empty() ? "" : "; ") + u;
+    out.warnings.push_back(absl::StrFormat(
+        "gyroscope: only the bias was calibrated, the moves do not determine the scale and "
+        "misalignment (%s); turn the robot about each of its three axes between poses",
+        which));
+    return out;
   }
   out.params.matrix = r->matrix;
   out.calibrated = !r->rank_deficient;
@@ -494,6 +500,14 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   const GyroStage gyro = SolveGyro(cap, ivs, used, accel, rough_gyro);
   for (const auto& w : gyro.warnings) rep.warnings.push_back(w);
   timer.Mark("gyro");
+
+  // The pairs' turn angles as the calibrated gyroscope measures them (the check itself ran on
+  // the rough one, which its 20-degree tolerance allows).
+  for (PairCheck& p : rep.pairs) {
+    p.rotation_deg = IntegrateRotation(cap, ivs[static_cast<size_t>(p.pose_a)].end - 1,
+                                       ivs[static_cast<size_t>(p.pose_b)].begin, gyro.params)
+                         .norm() * kRadToDeg;
+  }
 
   // 8. Residuals, in-sample and held out.
   const std::vector<double> r = MagnitudeResiduals(accel, poses, g);

@@ -162,7 +162,8 @@ SixFaceCheck CheckSixFacePairs(const std::vector<FacePose>& poses, double turn_t
   for (size_t i = 0; i + 1 < poses.size();) {
     const Face fa = ClassifyFace(poses[i].up);
     const Face fb = ClassifyFace(poses[i + 1].up);
-    if (fa.off_axis_deg > kFaceToleranceDeg || !(fa == fb)) {
+    // Once a face has its verified pair, further placements of it are extra poses, not pairs.
+    if (fa.off_axis_deg > kFaceToleranceDeg || !(fa == fb) || verified[slot(fa)]) {
       ++i;
       continue;
     }
