@@ -472,6 +472,17 @@ AccelParams RefineAccelGaussNewton(const AccelParams& start, const std::vector<A
   return UnpackAccel(theta, start.frame_angles);
 }
 
+AccelVector AccelStdErrors(const AccelParams& p, const std::vector<AccelPose>& poses,
+                           const AccelMask& free) {
+  AccelVector out = AccelVector::Zero();
+  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free);
+  const Eigen::MatrixXd cov = (jw.transpose() * jw).ldlt().solve(
+      Eigen::MatrixXd::Identity(jw.cols(), jw.cols()));
+  for (int c = 0, k = 0; c < kAccelParams; ++c)
+    if (free[static_cast<size_t>(c)]) out(c) = std::sqrt(std::max(0.0, cov(k, k))), ++k;
+  return out;
+}
+
 std::vector<double> HeldOutMagnitudeResiduals(const AccelParams& fit,
                                               const std::vector<AccelPose>& poses,
                                               double gravity_m_s2, const AccelMask& free) {

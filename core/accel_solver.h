@@ -120,6 +120,11 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
 AccelParams RefineAccelGaussNewton(const AccelParams& start, const std::vector<AccelPose>& poses,
                                    double gravity_m_s2, const AccelMask& free, int max_iterations);
 
+// One-sigma standard errors (J^T W J)^-1 over the free parameters at `p` (weights from each
+// pose's noise and model_sigma_m_s2); 0 for fixed parameters.
+AccelVector AccelStdErrors(const AccelParams& p, const std::vector<AccelPose>& poses,
+                           const AccelMask& free);
+
 // Leave-one-pose-out: for each pose, refit without it (Gauss-Newton from `fit`, which is a
 // converged full fit, so the refit converges in a few steps) and return its |a| - g.
 std::vector<double> HeldOutMagnitudeResiduals(const AccelParams& fit,

@@ -313,42 +313,56 @@ AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& po
   return unit;
 }
 
-// Greedy forward selection of the quadratic terms by leave-one-pose-out (PRESS) error: a term
-// is kept only if it lowers that error by kQuadraticGain. With few poses at intermediate angles a
-// second-order term would otherwise fit noise and predict new poses worse than leaving it out.
+// Backward elimination of the quadratic terms by leave-one-pose-out (PRESS) error: the full
+// 15-parameter model is the default, and a term is dropped only where leaving it out predicts
+// held-out poses better. With few poses at intermediate angles a second-order term fits noise
+// (the Xsens capture's quadratic_x does); where it is real, dropping it biases that axis' bias.
 AccelMask SelectQuadratics(const AccelParams& start, const std::vector<AccelPose>& poses,
                            double g, const AccelMask& determined,
                            std::vector<std::string>* notes) {
-  constexpr double kQuadraticGain = 0.02;
   AccelMask mask = determined;
-  for (int c = 9; c < 12; ++c) mask[static_cast<size_t>(c)] = false;
   auto press = [&](const AccelMask& m) {
     return PressRms(RefineAccelGaussNewton(start, poses, g, m, 10), poses, g, m);
   };
+  // Only a term within two standard errors of zero may go: a significant one is kept even if
+  // PRESS, itself noisy with a few dozen poses, would prefer the smaller model.
+  const AccelParams full = RefineAccelGaussNewton(start, poses, g, mask, 10);
+  const AccelVector se = AccelStdErrors(full, poses, mask);
   double best = press(mask);
   for (;;) {
-    int pick = -1;
-    double pick_press = best * (1 - kQuadraticGain);
+    int drop = -1;
+    double drop_press = best;
     for (int c = 9; c < 12; ++c) {
-      if (!determined[static_cast<size_t>(c)] || mask[static_cast<size_t>(c)]) continue;
+      if (!mask[static_cast<size_t>(c)]) continue;
+      if (std::abs(PackAccel(full)(c)) > 2 * se(c)) continue;
       AccelMask trial = mask;
-      trial[static_cast<size_t>(c)] = true;
+      trial[static_cast<size_t>(c)] = false;
       const double p = press(trial);
-      if (p < pick_press) pick = c, pick_press = p;
+      if (p < drop_press) drop = c, drop_press = p;
     }
-    if (pick < 0) break;
-    mask[static_cast<size_t>(pick)] = true;
-    best = pick_press;
+    if (drop < 0) break;
+    mask[static_cast<size_t>(drop)] = false;
+    best = drop_press;
   }
   for (int c = 9; c < 12; ++c) {
     if (determined[static_cast<size_t>(c)] && !mask[static_cast<size_t>(c)]) {
       notes->push_back(absl::StrFormat(
-          "accel %s: held at 0; adding it does not predict held-out poses better (add poses "
-          "with that axis about 45 degrees from vertical to resolve it)",
+          "accel %s: held at 0; it is within two standard errors of zero and leaving it out "
+          "predicts held-out poses better "
+          "(add poses with that axis about 45 degrees from vertical to resolve it)",
           AccelParamName(c)));
     }
   }
   return mask;
+}
+
+// Sets every pose's common model error to the one the residual of `p` shows.
+void SetModelSigma(const AccelParams& p, double g, const AccelMask& free,
+                   std::vector<AccelPose>* poses) {
+  int n_free = 0;
+  for (bool f : free) n_free += f;
+  const double tau = EstimateModelSigma(p, *poses, g, n_free);
+  for (auto& pose : *poses) pose.model_sigma_m_s2 = tau;
 }
 
 std::string Verdict(const CalibrationReport& r, bool degraded) {
@@ -464,9 +478,9 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   ls.ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - s1_time).count();
   rep.stages.push_back(ls);
 
-  // The model error beyond each pose's noise joins the weights (accel_solver.h).
-  const double tau = EstimateModelSigma(*s1, poses, g, 9);
-  for (auto& pose : poses) pose.model_sigma_m_s2 = tau;
+  // The model error beyond each pose's noise joins the weights (accel_solver.h). Stage 1 lacks
+  // the second-order terms, so its misfit overstates it: it is measured again at each refit.
+  SetModelSigma(*s1, g, LinearMask(), &poses);
 
   // 5. What the poses determine; undetermined parameters stay at neutral values.
   AccelMask all{};
@@ -474,10 +488,18 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   const AccelObservability obs = AnalyseAccelObservability(*s1, poses, g, all);
   for (const auto& w : obs.warnings) rep.warnings.push_back(w);
 
-  // 6. Second-order terms enter only where they predict held-out poses better.
+  // 6. Second-order terms stay unless leaving them out predicts held-out poses better.
+  SetModelSigma(RefineAccelGaussNewton(*s1, poses, g, obs.determined, 10), g, obs.determined,
+                &poses);
   const AccelMask free = SelectQuadratics(*s1, poses, g, obs.determined, &rep.warnings);
 
   // 7. BSAS, then LM.
+  // Undetermined second-order terms and angles are held at their neutral value, 0: a stage-1
+  // value the data does not support would be a confident number it cannot back.
+  AccelVector s1_vector = PackAccel(*s1);
+  for (int c = 6; c < kAccelParams; ++c)
+    if (!obs.determined[static_cast<size_t>(c)]) s1_vector(c) = 0;
+  *s1 = UnpackAccel(s1_vector, s1->frame_angles);
   AccelParams start = *s1;
   if (opt.use_bsas) {
     StageReport bs;
@@ -488,6 +510,11 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   StageReport lm_report;
   auto lm = RefineAccelLm(start, poses, g, free, &lm_report);
   if (!lm.ok()) return lm.status();
+  // The weights and the covariance with the model error of the final fit.
+  SetModelSigma(lm->params, g, free, &poses);
+  lm = RefineAccelLm(lm->params, poses, g, free, nullptr);
+  if (!lm.ok()) return lm.status();
+  lm_report.accel_rms_m_s2 = Rms(MagnitudeResiduals(lm->params, poses, g));
   rep.stages.push_back(lm_report);
   rep.accel_chi2_reduced = lm->chi2_reduced;
   if (rep.protocol == ProtocolKind::kSixFace && s1_from_faces) {

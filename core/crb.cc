@@ -44,13 +44,14 @@ AccelVector AccelCramerRaoStd(const AccelParams& truth,
   // Parameters span ~10 orders of magnitude (counts of bias, 1e-5 of quadratic): invert the
   // unit-diagonal form D F D, D = diag(F_kk^-1/2), and scale back, F^-1 = D (D F D)^-1 D.
   const Eigen::VectorXd d = info.diagonal().cwiseSqrt().cwiseInverse();
-  const bool zero_column = !d.allFinite();
-  const Eigen::MatrixXd scaled = d.asDiagonal() * info * d.asDiagonal();
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(scaled);
-  if (zero_column || eig.info() != Eigen::Success ||
-      !(eig.eigenvalues().minCoeff() > kSingularEigen)) {
+  auto undetermined = [&] {
     for (int c : index) out(c) = std::numeric_limits<double>::infinity();
     return out;
+  };
+  if (!d.allFinite()) return undetermined();  // a parameter the poses do not touch at all
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(d.asDiagonal() * info * d.asDiagonal());
+  if (eig.info() != Eigen::Success || !(eig.eigenvalues().minCoeff() > kSingularEigen)) {
+    return undetermined();
   }
   const Eigen::MatrixXd inverse = eig.eigenvectors() *
                                   eig.eigenvalues().cwiseInverse().asDiagonal() *

@@ -15,8 +15,8 @@
 // What it does not include: the poses' model_sigma_m_s2 (a fitted misfit, not sensor noise, so
 // it is ignored here: pose mean noise only), nor the information a known orientation (six-face
 // faces) would add; an estimator that used orientations could beat this bound. The linearised
-// magnitude also discards the noise across the gravity direction, which with unknown
-// orientations carries no information about the parameters anyway.
+// magnitude keeps only the noise along gravity: across it, the unknown orientation absorbs the
+// reading (exactly so for noise isotropic in the calibrated frame, as the simulator draws it).
 #ifndef IMUCAL_CORE_CRB_H_
 #define IMUCAL_CORE_CRB_H_
 

@@ -61,7 +61,9 @@ struct FacePose {
 // vertical by 180 +- tolerance. Faces with no valid pair are named in `missing`.
 struct SixFaceCheck {
   std::vector<PairCheck> pairs;
-  std::vector<std::string> missing;  // "face X- has no verified 180-degree pair"
+  // "face X-: no verified 180-degree pair (placements at poses 4, 5)" or "face X-: never placed".
+  // A wrong face after a turn shows here: its placement is missing its partner.
+  std::vector<std::string> missing;
 };
 SixFaceCheck CheckSixFacePairs(const std::vector<FacePose>& poses,
                                double turn_tolerance_deg = 20.0);

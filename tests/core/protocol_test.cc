@@ -321,6 +321,19 @@ TEST(ProtocolTest, RedoneSequenceContinuesWithTheNextFace) {
   EXPECT_TRUE(check.missing.empty()) << Describe(check);
 }
 
+TEST(ProtocolTest, ExtraPlacementsAfterAVerifiedPairAreNotPairs) {
+  // Extra poses after the protocol may put a face up twice in a row, turned by anything: they
+  // are not a six-face pair and must not be "rejected" (a technician would redo them).
+  Placements pl;
+  pl.AllFaces(2.0);
+  pl.Place(0, -1, 5).Place(0, -1, 65);   // X- again, turned 60 degrees
+  pl.Place(2, 1, 0).Place(2, 1, 3);      // Z+ again, not turned
+  const SixFaceCheck check = CheckSixFacePairs(pl.poses());
+  EXPECT_EQ(check.pairs.size(), 6u) << Describe(check);
+  for (const PairCheck& p : check.pairs) EXPECT_TRUE(p.ok) << Describe(check);
+  EXPECT_TRUE(check.missing.empty()) << Describe(check);
+}
+
 TEST(ProtocolTest, MissingFacesAreListed) {
   Placements pl;
   pl.Place(0, 1, 0).Place(0, 1, 180).Place(1, 1, 0).Place(1, 1, 180);

@@ -1,0 +1,163 @@
+#include "storage/migrations.h"
+
+#include "storage/str_util.h"
+
+namespace imucal::storage {
+namespace {
+
+// Version 1: the whole service schema.
+// - Times are INTEGER microseconds since the Unix epoch (UTC).
+// - State names match types.cc; CHECK constraints keep garbage out of the indexed columns.
+// - Partial unique indexes state two invariants in the database itself: at most one open
+//   session per device, at most one active parameter version per device. The second is also
+//   the hot path: GetActive is a single lookup in `param_versions_active`.
+// - A session's last acknowledged seq is MAX(seq) of its batches (no counter to keep in sync:
+//   an append writes one row and nothing else).
+// - param_versions: a rowid table (rows hold kilobytes of JSON, too big for WITHOUT ROWID);
+//   report_json is the last column, which the hot path never reads. (session_id, device_id)
+//   references sessions so a version cannot claim another device's session.
+constexpr char kSchemaV1[] = R"sql(
+CREATE TABLE devices (
+  id TEXT NOT NULL PRIMARY KEY,
+  sensor_model TEXT NOT NULL,
+  nominal_rate_hz REAL NOT NULL CHECK (nominal_rate_hz >= 0),
+  accel_unit TEXT NOT NULL,
+  gyro_unit TEXT NOT NULL,
+  created_at_us INTEGER NOT NULL
+);
+
+CREATE TABLE sessions (
+  id TEXT NOT NULL PRIMARY KEY,
+  device_id TEXT NOT NULL REFERENCES devices (id),
+  state TEXT NOT NULL CHECK (state IN ('open', 'solving', 'solved', 'cancelled', 'failed')),
+  protocol TEXT NOT NULL,
+  created_at_us INTEGER NOT NULL,
+  updated_at_us INTEGER NOT NULL,
+  UNIQUE (id, device_id)
+);
+CREATE INDEX sessions_by_device ON sessions (device_id);
+CREATE UNIQUE INDEX sessions_one_open ON sessions (device_id) WHERE state = 'open';
+
+CREATE TABLE sample_batches (
+  session_id TEXT NOT NULL REFERENCES sessions (id),
+  seq INTEGER NOT NULL CHECK (seq >= 1),
+  first_t_s REAL NOT NULL,
+  count INTEGER NOT NULL CHECK (count >= 1),
+  payload BLOB NOT NULL,
+  PRIMARY KEY (session_id, seq)
+);
+
+CREATE TABLE poses (
+  session_id TEXT NOT NULL REFERENCES sessions (id),
+  pose_index INTEGER NOT NULL CHECK (pose_index >= 0),
+  t_start_s REAL NOT NULL,
+  t_end_s REAL NOT NULL,
+  used INTEGER NOT NULL CHECK (used IN (0, 1)),
+  reason TEXT NOT NULL,
+  detail_json TEXT NOT NULL,
+  PRIMARY KEY (session_id, pose_index)
+) WITHOUT ROWID;
+
+CREATE TABLE solves (
+  id INTEGER PRIMARY KEY,
+  session_id TEXT NOT NULL REFERENCES sessions (id),
+  state TEXT NOT NULL CHECK (state IN ('running', 'succeeded', 'failed')),
+  actor TEXT NOT NULL,
+  started_at_us INTEGER NOT NULL,
+  finished_at_us INTEGER,
+  version INTEGER NOT NULL DEFAULT 0,
+  error TEXT NOT NULL DEFAULT ''
+);
+CREATE INDEX solves_by_session ON solves (session_id);
+
+CREATE TABLE param_versions (
+  device_id TEXT NOT NULL REFERENCES devices (id),
+  version INTEGER NOT NULL CHECK (version >= 1),
+  created_at_us INTEGER NOT NULL,
+  session_id TEXT,
+  verdict TEXT NOT NULL CHECK (verdict IN ('pass', 'warn', 'fail')),
+  accel_rms REAL,
+  state TEXT NOT NULL CHECK (state IN ('candidate', 'active', 'superseded', 'rejected')),
+  provenance TEXT NOT NULL,
+  params_json TEXT NOT NULL,
+  report_json TEXT NOT NULL,
+  UNIQUE (device_id, version),
+  FOREIGN KEY (session_id, device_id) REFERENCES sessions (id, device_id)
+);
+CREATE UNIQUE INDEX param_versions_active ON param_versions (device_id) WHERE state = 'active';
+
+CREATE TABLE audit_log (
+  id INTEGER PRIMARY KEY,
+  time_us INTEGER NOT NULL,
+  actor TEXT NOT NULL,
+  action TEXT NOT NULL,
+  target TEXT NOT NULL,
+  detail TEXT NOT NULL
+);
+CREATE INDEX audit_by_target ON audit_log (target, id);
+
+PRAGMA user_version = 1;
+)sql";
+
+constexpr Migration kMigrations[] = {
+    {1, kSchemaV1},
+};
+
+absl::Status ApplyOne(Connection& conn, const Migration& m) {
+  absl::StatusOr<Transaction> txn = Transaction::Begin(conn);
+  if (!txn.ok()) return txn.status();
+  // Read inside the write lock: another process may have applied it meanwhile.
+  absl::StatusOr<int> current = SchemaVersion(conn);
+  if (!current.ok()) return current.status();
+  if (*current >= m.version) return absl::OkStatus();
+  if (absl::Status s = conn.Exec(m.sql); !s.ok()) {
+    return absl::Status(s.code(), Cat("migration ", m.version, ": ", s.message()));
+  }
+  absl::StatusOr<int> after = SchemaVersion(conn);
+  if (!after.ok()) return after.status();
+  if (*after != m.version) {
+    return absl::InternalError(Cat("migration ", m.version,
+                                            " did not set user_version to its number (got ",
+                                            *after, ")"));
+  }
+  return txn->Commit();
+}
+
+}  // namespace
+
+std::span<const Migration> Migrations() { return kMigrations; }
+
+int LatestSchemaVersion() { return Migrations().back().version; }
+
+absl::StatusOr<int> SchemaVersion(Connection& conn) {
+  absl::StatusOr<ScopedStatement> stmt = conn.Prepare("PRAGMA user_version");
+  if (!stmt.ok()) return stmt.status();
+  absl::StatusOr<bool> row = (*stmt)->Step();
+  if (!row.ok()) return row.status();
+  if (!*row) return absl::InternalError("PRAGMA user_version returned no row");
+  return static_cast<int>((*stmt)->ColumnInt64(0));
+}
+
+absl::Status Migrate(Connection& conn, std::span<const Migration> migrations) {
+  for (size_t i = 0; i < migrations.size(); ++i) {
+    if (migrations[i].version != static_cast<int>(i) + 1) {
+      return absl::InternalError(Cat("migration #", i, " has version ",
+                                              migrations[i].version, ", expected ", i + 1));
+    }
+  }
+  absl::StatusOr<int> current = SchemaVersion(conn);
+  if (!current.ok()) return current.status();
+  const int latest = static_cast<int>(migrations.size());
+  if (*current > latest) {
+    return absl::FailedPreconditionError(
+        Cat("the database has schema version ", *current,
+                     ", newer than this program's ", latest, ": upgrade the program"));
+  }
+  for (const Migration& m : migrations) {
+    if (m.version <= *current) continue;
+    if (absl::Status s = ApplyOne(conn, m); !s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace imucal::storage

@@ -1,0 +1,177 @@
+// Thin RAII layer over the SQLite C API, with absl statuses instead of result codes.
+//
+// - `Statement`: move-only, owns one sqlite3_stmt (finalised by unique_ptr). Binds copy their
+//   argument (SQLITE_TRANSIENT). A bind error is kept and returned by the next Step().
+// - `Connection`: one sqlite3 handle plus its prepared statements, each prepared once and
+//   reused (`Prepare` returns a `ScopedStatement` that resets it when it goes out of scope).
+//   A Connection is not thread-safe: one thread at a time (Store guards them).
+// - `Transaction`: BEGIN IMMEDIATE; the destructor rolls back unless Commit() ran.
+//
+// SQL is always a constant; values are bound, never concatenated into it.
+//
+// SQLite result codes map to absl codes as follows (SqliteStatus):
+//   BUSY, LOCKED                       -> Unavailable (another writer holds the lock: retry)
+//   CONSTRAINT_UNIQUE, _PRIMARYKEY     -> AlreadyExists
+//   other CONSTRAINT (FOREIGNKEY, CHECK, NOTNULL, ...) -> FailedPrecondition
+//   CORRUPT, NOTADB                    -> DataLoss
+//   FULL, NOMEM                        -> ResourceExhausted
+//   CANTOPEN, PERM, READONLY, IOERR    -> Unavailable (the file cannot be used right now)
+//   TOOBIG                             -> InvalidArgument
+//   INTERRUPT                          -> Cancelled
+//   anything else (ERROR, MISUSE, RANGE, ...) -> Internal
+#ifndef IMUCAL_STORAGE_SQLITE_DB_H_
+#define IMUCAL_STORAGE_SQLITE_DB_H_
+
+#include <sqlite3.h>
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <unordered_map>
+#include <utility>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/time/time.h"
+
+namespace imucal::storage {
+
+// `context` says what was being done ("AppendBatch"); `db` (may be null) supplies the message.
+absl::Status SqliteStatus(int extended_code, std::string_view context, sqlite3* db);
+
+class Statement {
+ public:
+  Statement() = default;
+  static absl::StatusOr<Statement> Prepare(sqlite3* db, std::string_view sql);
+
+  Statement(Statement&&) noexcept = default;
+  Statement& operator=(Statement&&) noexcept = default;
+  Statement(const Statement&) = delete;
+  Statement& operator=(const Statement&) = delete;
+
+  // Parameters are 1-based, as in SQLite (?1, ?2, ...).
+  void BindInt64(int index, int64_t value);
+  void BindDouble(int index, double value);  // NaN binds NULL (SQLite would store NULL anyway)
+  void BindText(int index, std::string_view value);
+  void BindBlob(int index, std::string_view value);
+  void BindNull(int index);
+
+  // One step: true when a row is ready, false when the statement is done.
+  absl::StatusOr<bool> Step();
+  // Runs a statement that returns no rows (or ignores them) to completion.
+  absl::Status Run();
+
+  // Columns are 0-based. NULL reads as 0, NaN, "" respectively.
+  int64_t ColumnInt64(int column) const;
+  double ColumnDouble(int column) const;
+  std::string ColumnText(int column) const;
+  std::string ColumnBlob(int column) const;
+  std::string_view ColumnBlobView(int column) const;  // valid until the next Step/Reset
+  bool ColumnIsNull(int column) const;
+
+  // Ready to run again: resets, clears bindings and any pending bind error.
+  void Reset();
+
+  sqlite3_stmt* get() const { return stmt_.get(); }
+
+ private:
+  struct Finalizer {
+    void operator()(sqlite3_stmt* stmt) const { sqlite3_finalize(stmt); }
+  };
+  void NoteBind(int rc);
+
+  std::unique_ptr<sqlite3_stmt, Finalizer> stmt_;
+  sqlite3* db_ = nullptr;
+  int bind_error_ = SQLITE_OK;
+};
+
+// A cached statement lent by a Connection; resets it on destruction so that no read
+// transaction stays open behind a half-stepped SELECT.
+class ScopedStatement {
+ public:
+  explicit ScopedStatement(Statement* stmt, bool* in_use) : stmt_(stmt), in_use_(in_use) {}
+  ScopedStatement(ScopedStatement&& other) noexcept
+      : stmt_(std::exchange(other.stmt_, nullptr)), in_use_(std::exchange(other.in_use_, nullptr)) {}
+  ScopedStatement& operator=(ScopedStatement&&) = delete;
+  ScopedStatement(const ScopedStatement&) = delete;
+  ScopedStatement& operator=(const ScopedStatement&) = delete;
+  ~ScopedStatement();
+
+  Statement* operator->() const { return stmt_; }
+  Statement& operator*() const { return *stmt_; }
+
+ private:
+  Statement* stmt_;
+  bool* in_use_;
+};
+
+struct ConnectionOptions {
+  bool read_only = false;
+  // PRAGMA synchronous = FULL instead of NORMAL (store.h explains the choice).
+  bool synchronous_full = false;
+  absl::Duration busy_timeout = absl::Seconds(5);
+};
+
+class Connection {
+ public:
+  // Opens (creating unless read_only) and applies the per-connection settings: foreign_keys=ON,
+  // busy_timeout, synchronous. journal_mode=WAL is a property of the file, set by
+  // Store::Open through the writer connection.
+  static absl::StatusOr<std::unique_ptr<Connection>> Open(const std::string& path,
+                                                          const ConnectionOptions& options);
+  ~Connection();
+  Connection(const Connection&) = delete;
+  Connection& operator=(const Connection&) = delete;
+
+  // The statement for `sql`, prepared on first use and cached for the connection's lifetime.
+  // Internal if the same statement is already lent out (a nested use would clobber it).
+  absl::StatusOr<ScopedStatement> Prepare(std::string_view sql);
+
+  // Runs a constant script of one or more statements without parameters (schema, PRAGMA).
+  absl::Status Exec(const char* sql);
+
+  sqlite3* db() const { return db_; }
+
+ private:
+  explicit Connection(sqlite3* db) : db_(db) {}
+
+  struct Cached {
+    Statement stmt;
+    bool in_use = false;
+  };
+  // Looked up by the SQL text without building a std::string on the hot path.
+  struct SqlHash {
+    using is_transparent = void;
+    size_t operator()(std::string_view sql) const noexcept {
+      return std::hash<std::string_view>{}(sql);
+    }
+  };
+  sqlite3* db_;
+  // Node-based: pointers to the values stay valid as the map grows.
+  std::unordered_map<std::string, Cached, SqlHash, std::equal_to<>> cache_;
+};
+
+class Transaction {
+ public:
+  // BEGIN IMMEDIATE: takes the write lock now (waiting up to busy_timeout), so a transaction
+  // never fails half-way because another connection wrote first.
+  static absl::StatusOr<Transaction> Begin(Connection& conn);
+
+  Transaction(Transaction&& other) noexcept : conn_(std::exchange(other.conn_, nullptr)) {}
+  Transaction& operator=(Transaction&&) = delete;
+  Transaction(const Transaction&) = delete;
+  Transaction& operator=(const Transaction&) = delete;
+  ~Transaction();  // rolls back unless committed
+
+  absl::Status Commit();
+
+ private:
+  explicit Transaction(Connection* conn) : conn_(conn) {}
+  Connection* conn_;  // null once committed or rolled back
+};
+
+}  // namespace imucal::storage
+
+#endif  // IMUCAL_STORAGE_SQLITE_DB_H_

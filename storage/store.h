@@ -1,0 +1,180 @@
+// imucal's durable state: devices, sessions and their raw sample batches, poses, solves,
+// parameter versions and the audit log, in one SQLite file (schema: migrations.cc).
+//
+// Durability: the file is in WAL mode with synchronous=NORMAL by default. In WAL mode a commit
+// appends its pages to the -wal file with write() before returning, so an acknowledged batch is
+// in the OS page cache and survives the server being killed (SIGKILL, crash, OOM kill): the
+// service's requirement. NORMAL skips only the fsync of each commit; an OS crash or power cut can
+// then lose the last commits (the file stays consistent, never corrupt). FULL fsyncs every
+// commit: a disk flush (0.1-10 ms) per acknowledged batch, which with 100 robots streaming
+// would bound ingest by the disk's flush rate rather than by the CPU. Deployments that must keep
+// acknowledged data through a power cut choose StoreOptions::durability = kFull and accept that
+// cost (or the server batches several streams into one commit).
+//
+// Threads: a Store is safe to share. Writes go through one connection, serialised by a mutex,
+// each call in one BEGIN IMMEDIATE transaction (which also serialises writers in other
+// processes on the same file). Reads use a small pool of read-only connections: WAL lets them
+// run concurrently with each other and with the writer, each seeing the latest committed state
+// when its statement starts, so GetActive never waits behind an ingest commit.
+//
+// Errors: NotFound for a missing device/session/version; InvalidArgument for malformed input;
+// FailedPrecondition for a call the current state does not allow (the message says why and
+// what would); AlreadyExists for a duplicate id; Unavailable when the file is locked or cannot
+// be used; DataLoss for a corrupt file. Messages may contain ids and the file path, never SQL;
+// the server caps them at its boundary.
+//
+// Audit: every mutating call writes its audit entry in the same transaction, except AppendBatch
+// (data, not an action: a batch is its own record, and an audit row per batch would double the
+// write volume of ingest).
+#ifndef IMUCAL_STORAGE_STORE_H_
+#define IMUCAL_STORAGE_STORE_H_
+
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/time/time.h"
+#include "storage/types.h"
+
+namespace imucal::storage {
+
+class Connection;  // sqlite_db.h: SQLite stays out of this header
+
+// PRAGMA synchronous in WAL mode: see the header comment.
+enum class Durability { kNormal, kFull };
+
+struct StoreOptions {
+  Durability durability = Durability::kNormal;  // see the header comment
+  int read_connections = 4;                     // the read pool; at least 1
+  absl::Duration busy_timeout = absl::Seconds(5);
+  std::function<absl::Time()> clock;  // for tests; absl::Now when empty
+};
+
+struct AuditQuery {
+  std::string target;   // exact target, e.g. DeviceTarget("robot-7"); empty = every target
+  int64_t after_id = 0;  // paging: entries with id > after_id
+  int limit = 1000;
+};
+
+class Store {
+ public:
+  // Opens `path` (a file: ":memory:" cannot be shared by the pool), creating it if needed,
+  // switches it to WAL and applies pending migrations.
+  static absl::StatusOr<std::unique_ptr<Store>> Open(const std::string& path,
+                                                     StoreOptions options = {});
+  ~Store();
+  Store(const Store&) = delete;
+  Store& operator=(const Store&) = delete;
+
+  // ---- Devices. `created_at` of the argument is ignored; the stored device is returned.
+  absl::StatusOr<Device> CreateDevice(const Device& device, std::string_view actor);
+  absl::StatusOr<Device> GetDevice(std::string_view id);
+  absl::StatusOr<std::vector<Device>> ListDevices();  // by id
+
+  // ---- Sessions. CreateSession uses `id`, `device_id` and `protocol` (an empty id gets a
+  // generated one) and returns the open session. FailedPrecondition naming the open session if
+  // the device already has one.
+  absl::StatusOr<Session> CreateSession(const Session& session, std::string_view actor);
+  absl::StatusOr<Session> GetSession(std::string_view id);
+  // The device's sessions, oldest first, optionally only those in `state`.
+  absl::StatusOr<std::vector<Session>> ListSessions(std::string_view device_id,
+                                                    std::optional<SessionState> state = {});
+  // Moves a session along the transitions of types.h; FailedPrecondition for any other.
+  absl::StatusOr<Session> SetSessionState(std::string_view id, SessionState state,
+                                          std::string_view actor);
+
+  // ---- Raw samples. Stores batch `seq` (EncodeSamples() bytes) of an open session and returns
+  // the session's new last_acked_seq. Batches are numbered 1, 2, 3, ...:
+  //   seq == last + 1              stored durably, then acknowledged (returns seq)
+  //   seq <= last, same payload    a retransmission: no-op, returns last (even if closed since)
+  //   seq <= last, other payload   InvalidArgument
+  //   seq > last + 1               FailedPrecondition naming the expected seq (a robot resumes
+  //                                from GetSession().last_acked_seq + 1)
+  // InvalidArgument for a payload that does not decode or is empty; FailedPrecondition if the
+  // session is not open.
+  absl::StatusOr<int64_t> AppendBatch(std::string_view session_id, int64_t seq,
+                                      std::string_view payload);
+  // The session's batches with seq > after_seq, in seq order.
+  absl::StatusOr<std::vector<SampleBatch>> ReadBatches(std::string_view session_id,
+                                                       int64_t after_seq = 0);
+
+  // ---- Poses: replaces the session's pose list (indexes must be 0..n-1 in order).
+  absl::Status PutPoses(std::string_view session_id, const std::vector<Pose>& poses,
+                        std::string_view actor);
+  absl::StatusOr<std::vector<Pose>> ListPoses(std::string_view session_id);
+
+  // ---- Solves: the unit of work that turns a session's raw data into a parameter version.
+  // StartSolve moves the session to `solving` (from open, solved or failed) and records a
+  // running solve. FinishSolve adds the version (as AddVersion, its session and device taken
+  // from the solve), marks the solve succeeded and the session solved, atomically. FailSolve
+  // marks the solve failed and moves the session to `next` (failed, or open to collect more).
+  absl::StatusOr<Solve> StartSolve(std::string_view session_id, std::string_view actor);
+  absl::StatusOr<ParamVersion> FinishSolve(int64_t solve_id, const ParamVersion& version,
+                                           std::string_view actor);
+  absl::StatusOr<Solve> FailSolve(int64_t solve_id, std::string_view error, std::string_view actor,
+                                  SessionState next = SessionState::kFailed);
+  absl::StatusOr<Solve> GetSolve(int64_t solve_id);
+  absl::StatusOr<std::vector<Solve>> ListSolves(std::string_view session_id);
+
+  // ---- Parameter versions.
+  // Adds the next version of `version.device_id` (1, 2, 3, ... assigned atomically). Uses
+  // device_id, session_id (optional; must be that device's), params_json, report_json,
+  // verdict, accel_rms, provenance and state: kCandidate, or kActive when it passed the quality
+  // gates (it becomes active at once and the previous active version is superseded).
+  absl::StatusOr<ParamVersion> AddVersion(const ParamVersion& version, std::string_view actor);
+  // Candidate -> active; the previous active version becomes superseded. Promoting the active
+  // version is a no-op; any other state is FailedPrecondition (use Rollback for older ones).
+  absl::StatusOr<ParamVersion> Promote(std::string_view device_id, int version,
+                                       std::string_view actor);
+  // Makes any version older than the active one active again (whatever its state: it is the
+  // technician's explicit choice); the active one becomes superseded. FailedPrecondition if the
+  // device has no active version or `to_version` is not older than it.
+  absl::StatusOr<ParamVersion> Rollback(std::string_view device_id, int to_version,
+                                        std::string_view actor);
+  // Candidate -> rejected; `reason` goes to the audit log.
+  absl::StatusOr<ParamVersion> Reject(std::string_view device_id, int version,
+                                      std::string_view actor, std::string_view reason);
+  // The hot path (a robot fetching its parameters): one prepared, indexed lookup on a pooled
+  // read connection. report_json is NOT loaded (left empty): use GetVersion for the report.
+  // NotFound if the device has no active version (or does not exist).
+  absl::StatusOr<ParamVersion> GetActive(std::string_view device_id);
+  absl::StatusOr<ParamVersion> GetVersion(std::string_view device_id, int version);
+  // Every version of the device, oldest first, with reports.
+  absl::StatusOr<std::vector<ParamVersion>> ListVersions(std::string_view device_id);
+
+  // ---- Audit log. AppendAudit is for actions outside storage (e.g. a robot fetched its
+  // parameters); `id` and `time` are assigned. ListAudit is in id (= time) order.
+  absl::StatusOr<AuditEntry> AppendAudit(const AuditEntry& entry);
+  absl::StatusOr<std::vector<AuditEntry>> ListAudit(const AuditQuery& query = {});
+
+ private:
+  class ReadLease;
+  Store(StoreOptions options, std::unique_ptr<Connection> writer,
+        std::vector<std::unique_ptr<Connection>> readers);
+
+  absl::Time Now() const;
+  ReadLease AcquireReader();
+  void ReleaseReader(Connection* conn);
+
+  StoreOptions options_;
+  std::mutex write_mu_;
+  std::unique_ptr<Connection> writer_;  // guarded by write_mu_
+
+  // Declared after writer_ so they close first (the writer, last out, checkpoints the WAL).
+  std::vector<std::unique_ptr<Connection>> readers_;
+  std::mutex readers_mu_;
+  std::condition_variable reader_free_;
+  std::vector<Connection*> free_readers_;  // guarded by readers_mu_
+};
+
+}  // namespace imucal::storage
+
+#endif  // IMUCAL_STORAGE_STORE_H_

@@ -1,0 +1,134 @@
+// Domain types of imucal's storage: what goes into and comes out of `Store` (store.h).
+//
+// Parameter sets and reports are opaque JSON text here ("imucal-params v1" and
+// "imucal-report v1", ../shared/spec/report.md); storage indexes only the few columns the
+// service queries (device, version, created_at, verdict, accel_rms, state).
+#ifndef IMUCAL_STORAGE_TYPES_H_
+#define IMUCAL_STORAGE_TYPES_H_
+
+#include <cstdint>
+#include <limits>
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include "absl/status/statusor.h"
+#include "absl/time/time.h"
+
+namespace imucal::storage {
+
+// A robot's IMU. `id` is chosen by the fleet (e.g. "robot-0042"); units are the capture
+// format's names ("m/s^2", "g", "counts"; "rad/s", "deg/s", "counts").
+struct Device {
+  std::string id;
+  std::string sensor_model;
+  double nominal_rate_hz = 0.0;
+  std::string accel_unit;
+  std::string gyro_unit;
+  absl::Time created_at;  // set by the store
+};
+
+// A session's states and the transitions Store allows (anything else is FailedPrecondition):
+//   open    -> solving | cancelled | failed
+//   solving -> solved | failed | open   (open: the solve needs more poses)
+//   solved  -> solving                  (re-solve from the stored raw data)
+//   failed  -> solving                  (retry)
+//   cancelled: final
+// Only `open` accepts sample batches; a device has at most one open session.
+enum class SessionState { kOpen, kSolving, kSolved, kCancelled, kFailed };
+
+struct Session {
+  std::string id;  // empty on CreateSession: the store generates one
+  std::string device_id;
+  SessionState state = SessionState::kOpen;
+  std::string protocol;  // "six-face", "positions", "free", ... (opaque to storage)
+  absl::Time created_at;
+  absl::Time updated_at;  // last state change
+  // The highest batch seq durably stored; batches are numbered 1, 2, 3, ... so 0 = none yet.
+  int64_t last_acked_seq = 0;
+};
+
+// One batch of raw samples as the robot sent it, in `sample_codec.h`'s binary form.
+struct SampleBatch {
+  std::string session_id;
+  int64_t seq = 0;         // 1, 2, 3, ... per session
+  double first_t_s = 0.0;  // t of the first sample (from the payload)
+  int64_t count = 0;       // samples in the payload
+  std::string payload;     // EncodeSamples() bytes
+};
+
+// A static pose found in a session (the report's `poses` entries). The detector re-evaluates
+// as data arrives, so a session's pose list is replaced as a whole (Store::PutPoses).
+struct Pose {
+  std::string session_id;
+  int index = 0;  // 0, 1, 2, ... in time order
+  double t_start_s = 0.0;
+  double t_end_s = 0.0;
+  bool used = true;
+  std::string reason;       // why it is unused, for a technician
+  std::string detail_json;  // means, sample count, temperature...: opaque to storage
+};
+
+// One attempt to solve a session (a session can be re-solved from its raw data later).
+enum class SolveState { kRunning, kSucceeded, kFailed };
+
+struct Solve {
+  int64_t id = 0;
+  std::string session_id;
+  SolveState state = SolveState::kRunning;
+  std::string actor;
+  absl::Time started_at;
+  std::optional<absl::Time> finished_at;
+  int version = 0;    // the parameter version it created; 0 = none
+  std::string error;  // why it failed
+};
+
+enum class Verdict { kPass, kWarn, kFail };
+
+// Version policy: a solve creates a `candidate`; it becomes `active` when it passes the quality
+// gates or a technician promotes it; the version it displaces becomes `superseded`. A technician
+// may `reject` a candidate. Rollback makes any earlier version active again.
+enum class VersionState { kCandidate, kActive, kSuperseded, kRejected };
+
+// An immutable parameter set version; only `state` ever changes.
+struct ParamVersion {
+  std::string device_id;
+  int version = 0;  // 1, 2, 3, ... per device, assigned by the store
+  absl::Time created_at;
+  std::string session_id;  // the session it was solved from; empty if none
+  std::string params_json;
+  std::string report_json;
+  Verdict verdict = Verdict::kFail;
+  double accel_rms = std::numeric_limits<double>::quiet_NaN();  // m/s^2; NaN = unknown
+  VersionState state = VersionState::kCandidate;
+  std::string provenance;  // software version, solver settings, inputs: opaque text
+};
+
+// Who did what. Targets name the object: "device:<id>" (devices and their versions) or
+// "session:<id>" (sessions, poses, solves).
+struct AuditEntry {
+  int64_t id = 0;  // increasing; assigned by the store
+  absl::Time time;
+  std::string actor;
+  std::string action;  // e.g. "version.promote"
+  std::string target;
+  std::string detail;
+};
+
+// Names as stored and shown: "open", "solving", ...; "running", ...; "pass", ...; "candidate", ...
+std::string_view SessionStateName(SessionState state);
+std::string_view SolveStateName(SolveState state);
+std::string_view VerdictName(Verdict verdict);
+std::string_view VersionStateName(VersionState state);
+absl::StatusOr<SessionState> ParseSessionState(std::string_view name);
+absl::StatusOr<SolveState> ParseSolveState(std::string_view name);
+absl::StatusOr<Verdict> ParseVerdict(std::string_view name);
+absl::StatusOr<VersionState> ParseVersionState(std::string_view name);
+
+// Audit targets.
+std::string DeviceTarget(std::string_view device_id);
+std::string SessionTarget(std::string_view session_id);
+
+}  // namespace imucal::storage
+
+#endif  // IMUCAL_STORAGE_TYPES_H_
