@@ -485,7 +485,25 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   // 5. What the poses determine; undetermined parameters stay at neutral values.
   AccelMask all{};
   all.fill(true);
-  const AccelObservability obs = AnalyseAccelObservability(*s1, poses, g, all);
+  AccelObservability obs = AnalyseAccelObservability(*s1, poses, g, all);
+  // Six-face: at axis-aligned poses the non-orthogonality angles reach |a| only at second order,
+  // but the face references of stage 1 (seeds/000) determine them. Those stay at their stage-1
+  // value, held fixed, instead of being reported undetermined.
+  AccelMask held_by_faces{};
+  if (s1_from_faces) {
+    AccelMask candidates = all;
+    for (int c = 6; c < 9; ++c) {
+      held_by_faces[static_cast<size_t>(c)] = !obs.determined[static_cast<size_t>(c)];
+      candidates[static_cast<size_t>(c)] = obs.determined[static_cast<size_t>(c)];
+      if (held_by_faces[static_cast<size_t>(c)]) {
+        rep.warnings.push_back(absl::StrFormat(
+            "accel %s: set by the six-face references (stage 1); |a| = g alone does not "
+            "determine it, so later stages hold it",
+            AccelParamName(c)));
+      }
+    }
+    obs = AnalyseAccelObservability(*s1, poses, g, candidates);
+  }
   for (const auto& w : obs.warnings) rep.warnings.push_back(w);
 
   // 6. Second-order terms stay unless leaving them out predicts held-out poses better.
@@ -498,7 +516,8 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   // value the data does not support would be a confident number it cannot back.
   AccelVector s1_vector = PackAccel(*s1);
   for (int c = 6; c < kAccelParams; ++c)
-    if (!obs.determined[static_cast<size_t>(c)]) s1_vector(c) = 0;
+    if (!obs.determined[static_cast<size_t>(c)] && !held_by_faces[static_cast<size_t>(c)])
+      s1_vector(c) = 0;
   *s1 = UnpackAccel(s1_vector, s1->frame_angles);
   AccelParams start = *s1;
   if (opt.use_bsas) {
@@ -622,8 +641,11 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   ps.quality_gyro_static_rms_rad_s = rep.residual.gyro_static_rms_rad_s;
 
   timer.Mark("report");
+  // Undetermined first-order parameters degrade the verdict; undetermined second-order terms
+  // do not (six-face determines seeds/000's 12-parameter model completely), but are warned of.
   bool degraded = !gyro.calibrated;
-  for (bool d : obs.determined) degraded |= !d;
+  for (int c = 0; c < 9; ++c)
+    degraded |= !obs.determined[static_cast<size_t>(c)] && !held_by_faces[static_cast<size_t>(c)];
   for (const auto& p : rep.pairs) degraded |= !p.ok;
   rep.verdict = Verdict(rep, degraded);
   rep.total_ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -8,11 +8,12 @@ namespace {
 // Version 1: the whole service schema.
 // - Times are INTEGER microseconds since the Unix epoch (UTC).
 // - State names match types.cc; CHECK constraints keep garbage out of the indexed columns.
-// - Partial unique indexes state two invariants in the database itself: at most one open
-//   session per device, at most one active parameter version per device. The second is also
-//   the hot path: GetActive is a single lookup in `param_versions_active`.
-// - A session's last acknowledged seq is MAX(seq) of its batches (no counter to keep in sync:
-//   an append writes one row and nothing else).
+// - Partial unique indexes state invariants in the database itself: at most one open session
+//   per device, one running solve per session, one active parameter version per device. The
+//   last is also the hot path: GetActive is a single lookup in `param_versions_active`.
+// - A session's last acknowledged seq is MAX(seq) of its batches and its sample count the
+//   last batch's end_sample (a running total), so an append writes one row and nothing else: no
+//   counter in `sessions` to keep in sync, and no page of it rewritten per batch.
 // - param_versions: a rowid table (rows hold kilobytes of JSON, too big for WITHOUT ROWID);
 //   report_json is the last column, which the hot path never reads. (session_id, device_id)
 //   references sessions so a version cannot claim another device's session.
@@ -31,6 +32,7 @@ CREATE TABLE sessions (
   device_id TEXT NOT NULL REFERENCES devices (id),
   state TEXT NOT NULL CHECK (state IN ('open', 'solving', 'solved', 'cancelled', 'failed')),
   protocol TEXT NOT NULL,
+  gravity_m_s2 REAL NOT NULL CHECK (gravity_m_s2 > 0),
   created_at_us INTEGER NOT NULL,
   updated_at_us INTEGER NOT NULL,
   UNIQUE (id, device_id)
@@ -42,7 +44,9 @@ CREATE TABLE sample_batches (
   session_id TEXT NOT NULL REFERENCES sessions (id),
   seq INTEGER NOT NULL CHECK (seq >= 1),
   first_t_s REAL NOT NULL,
+  last_t_s REAL NOT NULL CHECK (last_t_s >= first_t_s),
   count INTEGER NOT NULL CHECK (count >= 1),
+  end_sample INTEGER NOT NULL CHECK (end_sample >= count),
   payload BLOB NOT NULL,
   PRIMARY KEY (session_id, seq)
 );
@@ -66,9 +70,11 @@ CREATE TABLE solves (
   started_at_us INTEGER NOT NULL,
   finished_at_us INTEGER,
   version INTEGER NOT NULL DEFAULT 0,
-  error TEXT NOT NULL DEFAULT ''
+  error TEXT NOT NULL DEFAULT '',
+  report_json TEXT NOT NULL DEFAULT ''
 );
 CREATE INDEX solves_by_session ON solves (session_id);
+CREATE UNIQUE INDEX solves_one_running ON solves (session_id) WHERE state = 'running';
 
 CREATE TABLE param_versions (
   device_id TEXT NOT NULL REFERENCES devices (id),
@@ -116,9 +122,8 @@ absl::Status ApplyOne(Connection& conn, const Migration& m) {
   absl::StatusOr<int> after = SchemaVersion(conn);
   if (!after.ok()) return after.status();
   if (*after != m.version) {
-    return absl::InternalError(Cat("migration ", m.version,
-                                            " did not set user_version to its number (got ",
-                                            *after, ")"));
+    return absl::InternalError(
+        Cat("migration ", m.version, " did not set user_version to its number (got ", *after, ")"));
   }
   return txn->Commit();
 }
@@ -141,17 +146,17 @@ absl::StatusOr<int> SchemaVersion(Connection& conn) {
 absl::Status Migrate(Connection& conn, std::span<const Migration> migrations) {
   for (size_t i = 0; i < migrations.size(); ++i) {
     if (migrations[i].version != static_cast<int>(i) + 1) {
-      return absl::InternalError(Cat("migration #", i, " has version ",
-                                              migrations[i].version, ", expected ", i + 1));
+      return absl::InternalError(
+          Cat("migration #", i, " has version ", migrations[i].version, ", expected ", i + 1));
     }
   }
   absl::StatusOr<int> current = SchemaVersion(conn);
   if (!current.ok()) return current.status();
   const int latest = static_cast<int>(migrations.size());
   if (*current > latest) {
-    return absl::FailedPreconditionError(
-        Cat("the database has schema version ", *current,
-                     ", newer than this program's ", latest, ": upgrade the program"));
+    return absl::FailedPreconditionError(Cat("the database has schema version ", *current,
+                                             ", newer than this program's ", latest,
+                                             ": upgrade the program"));
   }
   for (const Migration& m : migrations) {
     if (m.version <= *current) continue;

@@ -4,8 +4,8 @@
 #include <cmath>
 #include <cstring>
 
-#include "storage/str_util.h"
 #include "absl/strings/str_format.h"
+#include "storage/str_util.h"
 
 namespace imucal::storage {
 namespace {
@@ -22,7 +22,8 @@ void PutU32(uint32_t v, char* out) {
 
 uint32_t GetU32(const char* in) {
   uint32_t v = 0;
-  for (int i = 0; i < 4; ++i) v |= static_cast<uint32_t>(static_cast<unsigned char>(in[i])) << (8 * i);
+  for (int i = 0; i < 4; ++i)
+    v |= static_cast<uint32_t>(static_cast<unsigned char>(in[i])) << (8 * i);
   return v;
 }
 
@@ -33,7 +34,8 @@ void PutF64(double d, char* out) {
 
 double GetF64(const char* in) {
   uint64_t v = 0;
-  for (int i = 0; i < 8; ++i) v |= static_cast<uint64_t>(static_cast<unsigned char>(in[i])) << (8 * i);
+  for (int i = 0; i < 8; ++i)
+    v |= static_cast<uint64_t>(static_cast<unsigned char>(in[i])) << (8 * i);
   return std::bit_cast<double>(v);
 }
 
@@ -50,12 +52,12 @@ struct Header {
 absl::StatusOr<Header> ReadHeader(std::string_view payload) {
   if (payload.size() < kSampleHeaderBytes) {
     return Corrupt(payload.size(), Cat("truncated header (", payload.size(), " of ",
-                                                kSampleHeaderBytes, " bytes)"));
+                                       kSampleHeaderBytes, " bytes)"));
   }
   const auto version = static_cast<uint8_t>(payload[0]);
   if (version != kSampleCodecVersion) {
-    return Corrupt(0, Cat("unknown format version ", version, " (expected ",
-                                   kSampleCodecVersion, ")"));
+    return Corrupt(
+        0, Cat("unknown format version ", version, " (expected ", kSampleCodecVersion, ")"));
   }
   const auto flags = static_cast<uint8_t>(payload[1]);
   if ((flags & ~kKnownFlags) != 0) {
@@ -68,13 +70,12 @@ absl::StatusOr<Header> ReadHeader(std::string_view payload) {
   // count < 2^32 and fields <= 8, so this cannot overflow a 64-bit size_t.
   const size_t expected = kSampleHeaderBytes + static_cast<size_t>(h.count) * h.fields * 8;
   if (payload.size() < expected) {
-    return Corrupt(payload.size(), Cat("truncated: the header says ", h.count,
-                                                " samples (", expected, " bytes), got ",
-                                                payload.size(), " bytes"));
+    return Corrupt(payload.size(), Cat("truncated: the header says ", h.count, " samples (",
+                                       expected, " bytes), got ", payload.size(), " bytes"));
   }
   if (payload.size() > expected) {
-    return Corrupt(expected, Cat(payload.size() - expected,
-                                          " unexpected bytes after ", h.count, " samples"));
+    return Corrupt(expected,
+                   Cat(payload.size() - expected, " unexpected bytes after ", h.count, " samples"));
   }
   return h;
 }
@@ -99,8 +100,9 @@ absl::StatusOr<EncodedBatchInfo> Walk(std::string_view payload, Visit visit) {
       }
     }
     if (i > 0 && !(v[0] > info.last_t_s)) {
-      return Corrupt(record_offset, absl::StrFormat("sample %d t_s %.9g does not increase (previous %.9g)",
-                                                    i, v[0], info.last_t_s));
+      return Corrupt(record_offset,
+                     absl::StrFormat("sample %d t_s %.9g does not increase (previous %.9g)", i,
+                                     v[0], info.last_t_s));
     }
     if (i == 0) info.first_t_s = v[0];
     info.last_t_s = v[0];
@@ -122,8 +124,7 @@ absl::Status BadSample(size_t index, std::string_view what) {
 
 absl::StatusOr<std::string> EncodeSamples(std::span<const ImuSample> samples) {
   if (samples.size() > std::numeric_limits<uint32_t>::max()) {
-    return absl::InvalidArgumentError(
-        Cat("too many samples in one batch: ", samples.size()));
+    return absl::InvalidArgumentError(Cat("too many samples in one batch: ", samples.size()));
   }
   const bool has_temp = !samples.empty() && !std::isnan(samples[0].temp);
   const size_t fields = kBaseFields + (has_temp ? 1 : 0);
@@ -171,9 +172,8 @@ absl::Status DecodeSamplesInto(std::string_view payload, std::vector<ImuSample>*
       out->reserve(old_size + static_cast<size_t>(h->count));
     }
   }
-  absl::StatusOr<EncodedBatchInfo> info = Walk(payload, [out](const ImuSample& s) {
-    out->push_back(s);
-  });
+  absl::StatusOr<EncodedBatchInfo> info =
+      Walk(payload, [out](const ImuSample& s) { out->push_back(s); });
   if (!info.ok()) {
     out->resize(old_size);
     return info.status();

@@ -29,9 +29,9 @@ inline constexpr uint8_t kSampleCodecVersion = 1;
 inline constexpr size_t kSampleHeaderBytes = 6;
 
 struct ImuSample {
-  double t_s = 0.0;                // seconds, any origin
-  std::array<double, 3> accel{};  // device accel unit
-  std::array<double, 3> gyro{};   // device gyro unit
+  double t_s = 0.0;                                        // seconds, any origin
+  std::array<double, 3> accel{};                           // device accel unit
+  std::array<double, 3> gyro{};                            // device gyro unit
   double temp = std::numeric_limits<double>::quiet_NaN();  // NaN = not measured
 };
 

@@ -168,9 +168,9 @@ absl::StatusOr<std::unique_ptr<Connection>> Connection::Open(const std::string& 
   }
   // NOMUTEX: a Connection is used by one thread at a time (Store guards it), so SQLite's own
   // per-connection mutex would only cost time.
-  const int flags = (options.read_only ? SQLITE_OPEN_READONLY
-                                       : SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE) |
-                    SQLITE_OPEN_NOMUTEX;
+  const int flags =
+      (options.read_only ? SQLITE_OPEN_READONLY : SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE) |
+      SQLITE_OPEN_NOMUTEX;
   sqlite3* db = nullptr;
   const int rc = sqlite3_open_v2(path.c_str(), &db, flags, nullptr);
   if (rc != SQLITE_OK) {
@@ -183,8 +183,8 @@ absl::StatusOr<std::unique_ptr<Connection>> Connection::Open(const std::string& 
   const auto timeout_ms = absl::ToInt64Milliseconds(options.busy_timeout);
   sqlite3_busy_timeout(db, static_cast<int>(std::min<int64_t>(timeout_ms, 1 << 30)));
   if (absl::Status s = conn->Exec("PRAGMA foreign_keys = ON"); !s.ok()) return s;
-  const char* sync = options.synchronous_full ? "PRAGMA synchronous = FULL"
-                                                              : "PRAGMA synchronous = NORMAL";
+  const char* sync =
+      options.synchronous_full ? "PRAGMA synchronous = FULL" : "PRAGMA synchronous = NORMAL";
   if (absl::Status s = conn->Exec(sync); !s.ok()) return s;
   return conn;
 }
@@ -211,9 +211,9 @@ absl::Status Connection::Exec(const char* sql) {
   char* message = nullptr;
   const int rc = sqlite3_exec(db_, sql, nullptr, nullptr, &message);
   if (rc == SQLITE_OK) return absl::OkStatus();
-  absl::Status status = absl::Status(
-      SqliteStatus(rc, "exec", nullptr).code(),
-      Cat("exec: ", message != nullptr ? message : sqlite3_errstr(rc)));
+  absl::Status status =
+      absl::Status(SqliteStatus(rc, "exec", nullptr).code(),
+                   Cat("exec: ", message != nullptr ? message : sqlite3_errstr(rc)));
   sqlite3_free(message);
   return status;
 }

@@ -93,7 +93,8 @@ class ScopedStatement {
  public:
   explicit ScopedStatement(Statement* stmt, bool* in_use) : stmt_(stmt), in_use_(in_use) {}
   ScopedStatement(ScopedStatement&& other) noexcept
-      : stmt_(std::exchange(other.stmt_, nullptr)), in_use_(std::exchange(other.in_use_, nullptr)) {}
+      : stmt_(std::exchange(other.stmt_, nullptr)),
+        in_use_(std::exchange(other.in_use_, nullptr)) {}
   ScopedStatement& operator=(ScopedStatement&&) = delete;
   ScopedStatement(const ScopedStatement&) = delete;
   ScopedStatement& operator=(const ScopedStatement&) = delete;

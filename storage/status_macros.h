@@ -7,11 +7,11 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 
-#define STORAGE_RETURN_IF_ERROR(expr)                            \
-  do {                                                           \
+#define STORAGE_RETURN_IF_ERROR(expr)                                   \
+  do {                                                                  \
     if (absl::Status storage_status_ = (expr); !storage_status_.ok()) { \
-      return storage_status_;                                    \
-    }                                                            \
+      return storage_status_;                                           \
+    }                                                                   \
   } while (false)
 
 #define STORAGE_CONCAT_INNER_(a, b) a##b

@@ -5,58 +5,93 @@
 #include <type_traits>
 #include <utility>
 
-#include "storage/str_util.h"
 #include "absl/strings/str_format.h"
 #include "storage/migrations.h"
 #include "storage/sample_codec.h"
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
+#include "storage/str_util.h"
 
 namespace imucal::storage {
 namespace {
 
 // ---- SQL. Every statement is a constant, prepared once per connection. ---------------------
 
+// active_version: a lookup in the partial index param_versions_active.
 constexpr char kSelectDevice[] =
-    "SELECT id, sensor_model, nominal_rate_hz, accel_unit, gyro_unit, created_at_us "
-    "FROM devices WHERE id = ?1";
+    "SELECT d.id, d.sensor_model, d.nominal_rate_hz, d.accel_unit, d.gyro_unit, "
+    "d.created_at_us, COALESCE((SELECT v.version FROM param_versions v "
+    "WHERE v.device_id = d.id AND v.state = 'active'), 0) "
+    "FROM devices d WHERE d.id = ?1";
 constexpr char kSelectDevices[] =
-    "SELECT id, sensor_model, nominal_rate_hz, accel_unit, gyro_unit, created_at_us "
-    "FROM devices ORDER BY id";
+    "SELECT d.id, d.sensor_model, d.nominal_rate_hz, d.accel_unit, d.gyro_unit, "
+    "d.created_at_us, COALESCE((SELECT v.version FROM param_versions v "
+    "WHERE v.device_id = d.id AND v.state = 'active'), 0) "
+    "FROM devices d WHERE d.id > ?1 ORDER BY d.id LIMIT ?2";
 constexpr char kInsertDevice[] =
     "INSERT INTO devices (id, sensor_model, nominal_rate_hz, accel_unit, gyro_unit, "
     "created_at_us) VALUES (?1, ?2, ?3, ?4, ?5, ?6)";
 
-// The last acknowledged seq is the session's highest stored batch (an index seek backwards).
+// Sessions: three statements with the same columns (ReadSession). The derived ones are the last
+// batch's seq and running sample total (seeks backwards on the batches' primary key), the
+// accepted poses, and the version of the latest successful solve.
 constexpr char kSelectSession[] =
-    "SELECT s.id, s.device_id, s.state, s.protocol, s.created_at_us, s.updated_at_us, "
+    "SELECT s.id, s.device_id, s.state, s.protocol, s.gravity_m_s2, s.created_at_us, "
+    "s.updated_at_us, "
     "COALESCE((SELECT b.seq FROM sample_batches b WHERE b.session_id = s.id "
-    "ORDER BY b.seq DESC LIMIT 1), 0) "
+    "ORDER BY b.seq DESC LIMIT 1), 0), "
+    "COALESCE((SELECT b.end_sample FROM sample_batches b WHERE b.session_id = s.id "
+    "ORDER BY b.seq DESC LIMIT 1), 0), "
+    "(SELECT COUNT(*) FROM poses p WHERE p.session_id = s.id AND p.used = 1), "
+    "COALESCE((SELECT v.version FROM solves v WHERE v.session_id = s.id "
+    "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0) "
     "FROM sessions s WHERE s.id = ?1";
+// Lists page by rowid (creation order): ?3 is the rowid of the previous page's last session.
 constexpr char kSelectSessionsOfDevice[] =
-    "SELECT s.id, s.device_id, s.state, s.protocol, s.created_at_us, s.updated_at_us, "
+    "SELECT s.id, s.device_id, s.state, s.protocol, s.gravity_m_s2, s.created_at_us, "
+    "s.updated_at_us, "
     "COALESCE((SELECT b.seq FROM sample_batches b WHERE b.session_id = s.id "
-    "ORDER BY b.seq DESC LIMIT 1), 0) "
-    "FROM sessions s WHERE s.device_id = ?1 AND (?2 IS NULL OR s.state = ?2) ORDER BY s.rowid";
+    "ORDER BY b.seq DESC LIMIT 1), 0), "
+    "COALESCE((SELECT b.end_sample FROM sample_batches b WHERE b.session_id = s.id "
+    "ORDER BY b.seq DESC LIMIT 1), 0), "
+    "(SELECT COUNT(*) FROM poses p WHERE p.session_id = s.id AND p.used = 1), "
+    "COALESCE((SELECT v.version FROM solves v WHERE v.session_id = s.id "
+    "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0) "
+    "FROM sessions s WHERE s.device_id = ?1 AND (?2 IS NULL OR s.state = ?2) AND s.rowid > ?3 "
+    "ORDER BY s.rowid LIMIT ?4";
+constexpr char kSelectSessionsAll[] =
+    "SELECT s.id, s.device_id, s.state, s.protocol, s.gravity_m_s2, s.created_at_us, "
+    "s.updated_at_us, "
+    "COALESCE((SELECT b.seq FROM sample_batches b WHERE b.session_id = s.id "
+    "ORDER BY b.seq DESC LIMIT 1), 0), "
+    "COALESCE((SELECT b.end_sample FROM sample_batches b WHERE b.session_id = s.id "
+    "ORDER BY b.seq DESC LIMIT 1), 0), "
+    "(SELECT COUNT(*) FROM poses p WHERE p.session_id = s.id AND p.used = 1), "
+    "COALESCE((SELECT v.version FROM solves v WHERE v.session_id = s.id "
+    "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0) "
+    "FROM sessions s WHERE (?2 IS NULL OR s.state = ?2) AND s.rowid > ?3 "
+    "ORDER BY s.rowid LIMIT ?4";
+constexpr char kSelectSessionRowid[] = "SELECT rowid FROM sessions WHERE id = ?1";
 constexpr char kSelectOpenSessionOfDevice[] =
     "SELECT id FROM sessions WHERE device_id = ?1 AND state = 'open'";
 constexpr char kInsertSession[] =
-    "INSERT INTO sessions (id, device_id, state, protocol, created_at_us, updated_at_us) "
-    "VALUES (?1, ?2, 'open', ?3, ?4, ?4)";
+    "INSERT INTO sessions (id, device_id, state, protocol, gravity_m_s2, created_at_us, "
+    "updated_at_us) VALUES (?1, ?2, 'open', ?3, ?4, ?5, ?5)";
 constexpr char kUpdateSessionState[] =
     "UPDATE sessions SET state = ?2, updated_at_us = ?3 WHERE id = ?1";
 constexpr char kSessionExists[] = "SELECT 1 FROM sessions WHERE id = ?1";
 constexpr char kSelectSessionStateForAppend[] = "SELECT state FROM sessions WHERE id = ?1";
 
-constexpr char kSelectLastSeq[] =
-    "SELECT seq FROM sample_batches WHERE session_id = ?1 ORDER BY seq DESC LIMIT 1";
+constexpr char kSelectLastBatch[] =
+    "SELECT seq, last_t_s, end_sample FROM sample_batches WHERE session_id = ?1 "
+    "ORDER BY seq DESC LIMIT 1";
 constexpr char kSelectBatchPayload[] =
     "SELECT payload FROM sample_batches WHERE session_id = ?1 AND seq = ?2";
 constexpr char kInsertBatch[] =
-    "INSERT INTO sample_batches (session_id, seq, first_t_s, count, payload) "
-    "VALUES (?1, ?2, ?3, ?4, ?5)";
+    "INSERT INTO sample_batches (session_id, seq, first_t_s, last_t_s, count, end_sample, "
+    "payload) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)";
 constexpr char kSelectBatches[] =
-    "SELECT seq, first_t_s, count, payload FROM sample_batches "
+    "SELECT seq, first_t_s, last_t_s, count, payload FROM sample_batches "
     "WHERE session_id = ?1 AND seq > ?2 ORDER BY seq";
 
 constexpr char kDeletePoses[] = "DELETE FROM poses WHERE session_id = ?1";
@@ -68,15 +103,19 @@ constexpr char kSelectPoses[] =
     "WHERE session_id = ?1 ORDER BY pose_index";
 
 constexpr char kSelectSolve[] =
-    "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error "
-    "FROM solves WHERE id = ?1";
+    "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, "
+    "report_json FROM solves WHERE id = ?1";
 constexpr char kSelectSolvesOfSession[] =
-    "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error "
-    "FROM solves WHERE session_id = ?1 ORDER BY id";
+    "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, "
+    "report_json FROM solves WHERE session_id = ?1 ORDER BY id";
+constexpr char kSelectRunningSolves[] =
+    "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, "
+    "report_json FROM solves WHERE state = 'running' ORDER BY id";
 constexpr char kInsertSolve[] =
     "INSERT INTO solves (session_id, state, actor, started_at_us) VALUES (?1, 'running', ?2, ?3)";
 constexpr char kFinishSolve[] =
-    "UPDATE solves SET state = ?2, finished_at_us = ?3, version = ?4, error = ?5 WHERE id = ?1";
+    "UPDATE solves SET state = ?2, finished_at_us = ?3, version = ?4, error = ?5, "
+    "report_json = ?6 WHERE id = ?1";
 constexpr char kAbandonRunningSolves[] =
     "UPDATE solves SET state = 'failed', finished_at_us = ?2, error = ?3 "
     "WHERE session_id = ?1 AND state = 'running'";
@@ -93,7 +132,12 @@ constexpr char kSelectVersion[] =
 constexpr char kSelectVersionsOfDevice[] =
     "SELECT device_id, version, created_at_us, session_id, verdict, accel_rms, state, "
     "provenance, params_json, report_json FROM param_versions "
-    "WHERE device_id = ?1 ORDER BY version";
+    "WHERE device_id = ?1 AND version > ?2 ORDER BY version LIMIT ?3";
+// The same without the documents, which are most of each row's bytes.
+constexpr char kSelectVersionHeadersOfDevice[] =
+    "SELECT device_id, version, created_at_us, session_id, verdict, accel_rms, state, "
+    "provenance FROM param_versions "
+    "WHERE device_id = ?1 AND version > ?2 ORDER BY version LIMIT ?3";
 constexpr char kSelectNextVersion[] =
     "SELECT COALESCE(MAX(version), 0) + 1 FROM param_versions WHERE device_id = ?1";
 constexpr char kInsertVersion[] =
@@ -184,6 +228,7 @@ Device ReadDevice(const Statement& st) {
   d.accel_unit = st.ColumnText(3);
   d.gyro_unit = st.ColumnText(4);
   d.created_at = FromMicros(st.ColumnInt64(5));
+  d.active_version = static_cast<int>(st.ColumnInt64(6));
   return d;
 }
 
@@ -193,9 +238,13 @@ absl::StatusOr<Session> ReadSession(const Statement& st) {
   s.device_id = st.ColumnText(1);
   STORAGE_ASSIGN_OR_RETURN(s.state, FromColumn(ParseSessionState(st.ColumnText(2))));
   s.protocol = st.ColumnText(3);
-  s.created_at = FromMicros(st.ColumnInt64(4));
-  s.updated_at = FromMicros(st.ColumnInt64(5));
-  s.last_acked_seq = st.ColumnInt64(6);
+  s.gravity_m_s2 = st.ColumnDouble(4);
+  s.created_at = FromMicros(st.ColumnInt64(5));
+  s.updated_at = FromMicros(st.ColumnInt64(6));
+  s.last_acked_seq = st.ColumnInt64(7);
+  s.samples = st.ColumnInt64(8);
+  s.poses_accepted = static_cast<int>(st.ColumnInt64(9));
+  s.version = static_cast<int>(st.ColumnInt64(10));
   return s;
 }
 
@@ -209,11 +258,15 @@ absl::StatusOr<Solve> ReadSolve(const Statement& st) {
   if (!st.ColumnIsNull(5)) s.finished_at = FromMicros(st.ColumnInt64(5));
   s.version = static_cast<int>(st.ColumnInt64(6));
   s.error = st.ColumnText(7);
+  s.report_json = st.ColumnText(8);
   return s;
 }
 
-// Columns as in kSelectVersion; the report only when the statement selects it (column 9).
-absl::StatusOr<ParamVersion> ReadVersion(const Statement& st, bool with_report) {
+// Which of the JSON documents a version statement selects (after the 8 header columns).
+enum class Documents { kNone, kParams, kBoth };
+
+// Columns as in kSelectVersion, up to what `docs` says the statement selects.
+absl::StatusOr<ParamVersion> ReadVersion(const Statement& st, Documents docs) {
   ParamVersion v;
   v.device_id = st.ColumnText(0);
   v.version = static_cast<int>(st.ColumnInt64(1));
@@ -223,8 +276,8 @@ absl::StatusOr<ParamVersion> ReadVersion(const Statement& st, bool with_report) 
   v.accel_rms = st.ColumnDouble(5);
   STORAGE_ASSIGN_OR_RETURN(v.state, FromColumn(ParseVersionState(st.ColumnText(6))));
   v.provenance = st.ColumnText(7);
-  v.params_json = st.ColumnText(8);
-  if (with_report) v.report_json = st.ColumnText(9);
+  if (docs != Documents::kNone) v.params_json = st.ColumnText(8);
+  if (docs == Documents::kBoth) v.report_json = st.ColumnText(9);
   return v;
 }
 
@@ -294,7 +347,7 @@ absl::StatusOr<std::optional<ParamVersion>> FindActive(Connection& conn,
   st->BindText(1, device_id);
   STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
   if (!row) return std::nullopt;
-  return ReadVersion(*st, /*with_report=*/false);
+  return ReadVersion(*st, Documents::kParams);
 }
 
 absl::StatusOr<ParamVersion> LoadVersion(Connection& conn, std::string_view device_id,
@@ -307,15 +360,30 @@ absl::StatusOr<ParamVersion> LoadVersion(Connection& conn, std::string_view devi
     STORAGE_RETURN_IF_ERROR(LoadDevice(conn, device_id).status());
     return absl::NotFoundError(Cat("device '", device_id, "' has no version ", version));
   }
-  return ReadVersion(*st, /*with_report=*/true);
+  return ReadVersion(*st, Documents::kBoth);
 }
 
-absl::StatusOr<int64_t> LastSeq(Connection& conn, std::string_view session_id) {
-  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectLastSeq));
+struct LastBatch {
+  int64_t seq = 0;  // 0: no batch yet
+  double last_t_s = 0.0;
+  int64_t end_sample = 0;
+};
+
+absl::StatusOr<LastBatch> FindLastBatch(Connection& conn, std::string_view session_id) {
+  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectLastBatch));
   st->BindText(1, session_id);
   STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-  return row ? st->ColumnInt64(0) : 0;
+  LastBatch last;
+  if (row) {
+    last.seq = st->ColumnInt64(0);
+    last.last_t_s = st->ColumnDouble(1);
+    last.end_sample = st->ColumnInt64(2);
+  }
+  return last;
 }
+
+// SQLite's LIMIT -1 is "no limit".
+int64_t SqlLimit(int limit) { return limit > 0 ? limit : -1; }
 
 absl::Status InsertAudit(Connection& conn, absl::Time time, std::string_view actor,
                          std::string_view action, std::string_view target,
@@ -327,6 +395,27 @@ absl::Status InsertAudit(Connection& conn, absl::Time time, std::string_view act
   st->BindText(4, target);
   st->BindText(5, detail);
   return st->Run();
+}
+
+// A device registering again (robots do at every boot) must say the same thing.
+absl::Status SameRegistration(const Device& stored, const Device& again) {
+  auto differs = [&](std::string_view field, const auto& was, const auto& now) {
+    return absl::AlreadyExistsError(Cat("device '", stored.id, "' is already registered with ",
+                                        field, " ", was, ", not ", now));
+  };
+  if (stored.sensor_model != again.sensor_model) {
+    return differs("sensor_model", stored.sensor_model, again.sensor_model);
+  }
+  if (stored.nominal_rate_hz != again.nominal_rate_hz) {
+    return differs("nominal_rate_hz", stored.nominal_rate_hz, again.nominal_rate_hz);
+  }
+  if (stored.accel_unit != again.accel_unit) {
+    return differs("accel_unit", stored.accel_unit, again.accel_unit);
+  }
+  if (stored.gyro_unit != again.gyro_unit) {
+    return differs("gyro_unit", stored.gyro_unit, again.gyro_unit);
+  }
+  return absl::OkStatus();
 }
 
 // ---- Session state machine (types.h) ---------------------------------------------------------
@@ -351,8 +440,9 @@ std::string AllowedFrom(SessionState from) {
   std::string names;
   for (SessionState to : {SessionState::kOpen, SessionState::kSolving, SessionState::kSolved,
                           SessionState::kCancelled, SessionState::kFailed}) {
-    if (TransitionAllowed(from, to)) AppendTo(&names, names.empty() ? "" : ", ",
-                                                     SessionStateName(to));
+    if (TransitionAllowed(from, to)) {
+      AppendTo(&names, names.empty() ? "" : ", ", SessionStateName(to));
+    }
   }
   return names.empty() ? "none: it is final" : names;
 }
@@ -370,8 +460,7 @@ absl::Status ChangeSessionState(Connection& conn, const Session& session, Sessio
                              FindOpenSession(conn, session.device_id));
     if (open) {
       return absl::FailedPreconditionError(
-          Cat("device '", session.device_id, "' already has an open session '", *open,
-                       "'"));
+          Cat("device '", session.device_id, "' already has an open session '", *open, "'"));
     }
   }
   STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kUpdateSessionState));
@@ -393,8 +482,8 @@ absl::Status ValidateNewVersion(const ParamVersion& v) {
         Cat("a new version is a candidate or active, not ", VersionStateName(v.state)));
   }
   if (std::isinf(v.accel_rms) || v.accel_rms < 0) {
-    return absl::InvalidArgumentError(Cat("accel_rms ", v.accel_rms,
-                                                   " is not a finite non-negative number"));
+    return absl::InvalidArgumentError(
+        Cat("accel_rms ", v.accel_rms, " is not a finite non-negative number"));
   }
   return absl::OkStatus();
 }
@@ -415,6 +504,10 @@ absl::StatusOr<int> Activate(Connection& conn, std::string_view device_id, int v
   return active ? active->version : 0;
 }
 
+std::string Reason(std::string_view reason) {
+  return reason.empty() ? std::string() : Cat(": ", reason);
+}
+
 std::string Displaced(int previous) {
   return previous == 0 ? std::string() : Cat("; version ", previous, " superseded");
 }
@@ -426,9 +519,8 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
   if (!v.session_id.empty()) {
     STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, v.session_id));
     if (session.device_id != v.device_id) {
-      return absl::InvalidArgumentError(Cat("session '", v.session_id,
-                                                     "' belongs to device '", session.device_id,
-                                                     "', not '", v.device_id, "'"));
+      return absl::InvalidArgumentError(Cat("session '", v.session_id, "' belongs to device '",
+                                            session.device_id, "', not '", v.device_id, "'"));
     }
   }
   // The write lock is held (BEGIN IMMEDIATE), so MAX + 1 cannot race another writer.
@@ -464,10 +556,9 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
   }
   STORAGE_RETURN_IF_ERROR(InsertAudit(
       conn, now, actor, "version.add", DeviceTarget(v.device_id),
-      Cat("version ", number, " ", VersionStateName(v.state), ", verdict ",
-                   VerdictName(v.verdict), ", accel_rms ", v.accel_rms,
-                   v.session_id.empty() ? "" : Cat(", session ", v.session_id),
-                   Displaced(displaced))));
+      Cat("version ", number, " ", VersionStateName(v.state), ", verdict ", VerdictName(v.verdict),
+          ", accel_rms ", v.accel_rms, v.session_id.empty() ? "" : Cat(", session ", v.session_id),
+          Displaced(displaced))));
   return LoadVersion(conn, v.device_id, number);
 }
 
@@ -520,6 +611,9 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
           Cat(op, ": cannot switch to WAL (journal mode is '", mode, "')"));
     }
   }
+  // After a checkpoint, cut the -wal file back to 64 MiB instead of leaving it at the size an
+  // ingest burst grew it to.
+  STORAGE_RETURN_IF_ERROR(Annotate(op, writer->Exec("PRAGMA journal_size_limit = 67108864")));
   STORAGE_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
   std::vector<std::unique_ptr<Connection>> readers;
   conn_options.read_only = true;
@@ -560,14 +654,15 @@ absl::StatusOr<Device> Store::CreateDevice(const Device& device, std::string_vie
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(device.id, "device id")));
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   if (!std::isfinite(device.nominal_rate_hz) || device.nominal_rate_hz < 0) {
-    return absl::InvalidArgumentError(Cat(
-        kOp, ": nominal_rate_hz ", device.nominal_rate_hz, " is not a non-negative number"));
+    return absl::InvalidArgumentError(
+        Cat(kOp, ": nominal_rate_hz ", device.nominal_rate_hz, " is not a non-negative number"));
   }
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Device> {
     STORAGE_ASSIGN_OR_RETURN(std::optional<Device> existing, FindDevice(conn, device.id));
     if (existing) {
-      return absl::AlreadyExistsError(Cat("device '", device.id, "' already exists"));
+      STORAGE_RETURN_IF_ERROR(SameRegistration(*existing, device));
+      return *std::move(existing);
     }
     Device d = device;
     d.created_at = Now();
@@ -579,10 +674,10 @@ absl::StatusOr<Device> Store::CreateDevice(const Device& device, std::string_vie
     st->BindText(5, d.gyro_unit);
     st->BindInt64(6, Micros(d.created_at));
     STORAGE_RETURN_IF_ERROR(st->Run());
-    STORAGE_RETURN_IF_ERROR(InsertAudit(
-        conn, d.created_at, actor, "device.create", DeviceTarget(d.id),
-        Cat("sensor ", d.sensor_model, ", ", d.nominal_rate_hz, " Hz, accel ",
-                     d.accel_unit, ", gyro ", d.gyro_unit)));
+    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, d.created_at, actor, "device.create",
+                                        DeviceTarget(d.id),
+                                        Cat("sensor ", d.sensor_model, ", ", d.nominal_rate_hz,
+                                            " Hz, accel ", d.accel_unit, ", gyro ", d.gyro_unit)));
     return d;
   });
 }
@@ -592,10 +687,12 @@ absl::StatusOr<Device> Store::GetDevice(std::string_view id) {
   return Annotate("GetDevice", LoadDevice(lease.conn(), id));
 }
 
-absl::StatusOr<std::vector<Device>> Store::ListDevices() {
+absl::StatusOr<std::vector<Device>> Store::ListDevices(std::string_view after_id, int limit) {
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<Device>> {
     STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, lease.conn().Prepare(kSelectDevices));
+    st->BindText(1, after_id);
+    st->BindInt64(2, SqlLimit(limit));
     std::vector<Device> out;
     for (;;) {
       STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
@@ -612,6 +709,10 @@ absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string
   constexpr std::string_view kOp = "CreateSession";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(session.device_id, "device_id")));
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  if (!std::isfinite(session.gravity_m_s2) || session.gravity_m_s2 <= 0) {
+    return absl::InvalidArgumentError(
+        Cat(kOp, ": gravity_m_s2 ", session.gravity_m_s2, " is not a positive number"));
+  }
   const std::string id = session.id.empty() ? GenerateSessionId() : session.id;
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Session> {
@@ -619,9 +720,9 @@ absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string
     STORAGE_ASSIGN_OR_RETURN(std::optional<std::string> open,
                              FindOpenSession(conn, session.device_id));
     if (open) {
-      return absl::FailedPreconditionError(
-          Cat("device '", session.device_id, "' already has an open session '", *open,
-                       "': finish or cancel it first"));
+      return absl::FailedPreconditionError(Cat("device '", session.device_id,
+                                               "' already has an open session '", *open,
+                                               "': finish or cancel it first"));
     }
     if (CheckSessionExists(conn, id).ok()) {
       return absl::AlreadyExistsError(Cat("session '", id, "' already exists"));
@@ -631,11 +732,12 @@ absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string
     st->BindText(1, id);
     st->BindText(2, session.device_id);
     st->BindText(3, session.protocol);
-    st->BindInt64(4, Micros(now));
+    st->BindDouble(4, session.gravity_m_s2);
+    st->BindInt64(5, Micros(now));
     STORAGE_RETURN_IF_ERROR(st->Run());
-    STORAGE_RETURN_IF_ERROR(InsertAudit(
-        conn, now, actor, "session.create", SessionTarget(id),
-        Cat("device ", session.device_id, ", protocol ", session.protocol)));
+    STORAGE_RETURN_IF_ERROR(
+        InsertAudit(conn, now, actor, "session.create", SessionTarget(id),
+                    Cat("device ", session.device_id, ", protocol ", session.protocol)));
     return LoadSession(conn, id);
   });
 }
@@ -645,18 +747,32 @@ absl::StatusOr<Session> Store::GetSession(std::string_view id) {
   return Annotate("GetSession", LoadSession(lease.conn(), id));
 }
 
-absl::StatusOr<std::vector<Session>> Store::ListSessions(std::string_view device_id,
-                                                         std::optional<SessionState> state) {
+absl::StatusOr<std::vector<Session>> Store::ListSessions(const SessionQuery& query) {
   ReadLease lease = AcquireReader();
+  Connection& conn = lease.conn();
   auto list = [&]() -> absl::StatusOr<std::vector<Session>> {
-    STORAGE_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
-    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, lease.conn().Prepare(kSelectSessionsOfDevice));
-    st->BindText(1, device_id);
-    if (state) {
-      st->BindText(2, SessionStateName(*state));
+    int64_t after_rowid = 0;
+    if (!query.after_id.empty()) {
+      STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectSessionRowid));
+      st->BindText(1, query.after_id);
+      STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
+      if (!row) {
+        return absl::InvalidArgumentError(Cat("page after unknown session '", query.after_id, "'"));
+      }
+      after_rowid = st->ColumnInt64(0);
+    }
+    const bool of_device = !query.device_id.empty();
+    if (of_device) STORAGE_RETURN_IF_ERROR(LoadDevice(conn, query.device_id).status());
+    STORAGE_ASSIGN_OR_RETURN(
+        ScopedStatement st, conn.Prepare(of_device ? kSelectSessionsOfDevice : kSelectSessionsAll));
+    if (of_device) st->BindText(1, query.device_id);
+    if (query.state) {
+      st->BindText(2, SessionStateName(*query.state));
     } else {
       st->BindNull(2);
     }
+    st->BindInt64(3, after_rowid);
+    st->BindInt64(4, SqlLimit(query.limit));
     std::vector<Session> out;
     for (;;) {
       STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
@@ -682,8 +798,7 @@ absl::StatusOr<Session> Store::SetSessionState(std::string_view id, SessionState
       STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kAbandonRunningSolves));
       st->BindText(1, id);
       st->BindInt64(2, Micros(now));
-      st->BindText(3, Cat("abandoned: session set to ", SessionStateName(state),
-                                   " by ", actor));
+      st->BindText(3, Cat("abandoned: session set to ", SessionStateName(state), " by ", actor));
       STORAGE_RETURN_IF_ERROR(st->Run());
     }
     return LoadSession(conn, id);
@@ -692,8 +807,8 @@ absl::StatusOr<Session> Store::SetSessionState(std::string_view id, SessionState
 
 // ---- Raw samples -----------------------------------------------------------------------------
 
-absl::StatusOr<int64_t> Store::AppendBatch(std::string_view session_id, int64_t seq,
-                                           std::string_view payload) {
+absl::StatusOr<BatchAck> Store::AppendBatch(std::string_view session_id, int64_t seq,
+                                            std::string_view payload) {
   constexpr std::string_view kOp = "AppendBatch";
   if (seq < 1) {
     return absl::InvalidArgumentError(
@@ -702,14 +817,13 @@ absl::StatusOr<int64_t> Store::AppendBatch(std::string_view session_id, int64_t 
   // Checked before taking the lock: decoding is the costly part and needs no database.
   absl::StatusOr<EncodedBatchInfo> info = InspectSamples(payload);
   if (!info.ok()) {
-    return absl::InvalidArgumentError(
-        Cat(kOp, ": batch ", seq, ": ", info.status().message()));
+    return absl::InvalidArgumentError(Cat(kOp, ": batch ", seq, ": ", info.status().message()));
   }
   if (info->count == 0) {
     return absl::InvalidArgumentError(Cat(kOp, ": batch ", seq, " has no samples"));
   }
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int64_t> {
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<BatchAck> {
     SessionState state;
     {
       STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectSessionStateForAppend));
@@ -718,35 +832,42 @@ absl::StatusOr<int64_t> Store::AppendBatch(std::string_view session_id, int64_t 
       if (!row) return absl::NotFoundError(Cat("no session '", session_id, "'"));
       STORAGE_ASSIGN_OR_RETURN(state, FromColumn(ParseSessionState(st->ColumnText(0))));
     }
-    STORAGE_ASSIGN_OR_RETURN(const int64_t last, LastSeq(conn, session_id));
-    if (seq <= last) {
+    STORAGE_ASSIGN_OR_RETURN(const LastBatch last, FindLastBatch(conn, session_id));
+    if (seq <= last.seq) {
       // A retransmission of an acknowledged batch is a no-op, if it is the same batch.
       STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectBatchPayload));
       st->BindText(1, session_id);
       st->BindInt64(2, seq);
       STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-      if (row && st->ColumnBlobView(0) == payload) return last;
-      return absl::InvalidArgumentError(
-          Cat("session '", session_id, "': batch ", seq,
-                       " was already stored with different content"));
+      if (row && st->ColumnBlobView(0) == payload) return BatchAck{last.seq, last.end_sample};
+      return absl::InvalidArgumentError(Cat("session '", session_id, "': batch ", seq,
+                                            " was already stored with different content"));
     }
-    if (seq != last + 1) {
-      return absl::FailedPreconditionError(
-          Cat("session '", session_id, "': batch ", seq, " is out of order; expected ",
-                       last + 1, " (last acknowledged ", last, ")"));
+    if (seq != last.seq + 1) {
+      return absl::FailedPreconditionError(Cat("session '", session_id, "': batch ", seq,
+                                               " is out of order; expected ", last.seq + 1,
+                                               " (last acknowledged ", last.seq, ")"));
     }
     if (state != SessionState::kOpen) {
-      return absl::FailedPreconditionError(Cat(
-          "session '", session_id, "' is ", SessionStateName(state), ", not open"));
+      return absl::FailedPreconditionError(
+          Cat("session '", session_id, "' is ", SessionStateName(state), ", not open"));
     }
+    if (last.seq > 0 && !(info->first_t_s > last.last_t_s)) {
+      return absl::InvalidArgumentError(
+          Cat("session '", session_id, "': batch ", seq, " starts at t_s ", info->first_t_s,
+              ", not after the last sample of batch ", last.seq, " (t_s ", last.last_t_s, ")"));
+    }
+    const BatchAck ack{seq, last.end_sample + info->count};
     STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kInsertBatch));
     st->BindText(1, session_id);
     st->BindInt64(2, seq);
     st->BindDouble(3, info->first_t_s);
-    st->BindInt64(4, info->count);
-    st->BindBlob(5, payload);
+    st->BindDouble(4, info->last_t_s);
+    st->BindInt64(5, info->count);
+    st->BindInt64(6, ack.samples);
+    st->BindBlob(7, payload);
     STORAGE_RETURN_IF_ERROR(st->Run());
-    return seq;
+    return ack;
   });
 }
 
@@ -766,17 +887,19 @@ absl::StatusOr<std::vector<SampleBatch>> Store::ReadBatches(std::string_view ses
       b.session_id = std::string(session_id);
       b.seq = st->ColumnInt64(0);
       b.first_t_s = st->ColumnDouble(1);
-      b.count = st->ColumnInt64(2);
-      b.payload = st->ColumnBlob(3);
+      b.last_t_s = st->ColumnDouble(2);
+      b.count = st->ColumnInt64(3);
+      b.payload = st->ColumnBlob(4);
       // Verified on the way out too: a damaged file must not feed a solve silently.
       absl::StatusOr<EncodedBatchInfo> info = InspectSamples(b.payload);
       if (!info.ok()) {
-        return absl::DataLossError(Cat("session '", session_id, "' batch ", b.seq,
-                                                ": ", info.status().message()));
+        return absl::DataLossError(
+            Cat("session '", session_id, "' batch ", b.seq, ": ", info.status().message()));
       }
-      if (info->count != b.count || info->first_t_s != b.first_t_s) {
-        return absl::DataLossError(Cat("session '", session_id, "' batch ", b.seq,
-                                                ": payload disagrees with its row"));
+      if (info->count != b.count || info->first_t_s != b.first_t_s ||
+          info->last_t_s != b.last_t_s) {
+        return absl::DataLossError(
+            Cat("session '", session_id, "' batch ", b.seq, ": payload disagrees with its row"));
       }
       out.push_back(std::move(b));
     }
@@ -802,8 +925,8 @@ absl::Status Store::PutPoses(std::string_view session_id, const std::vector<Pose
           Cat(kOp, ": pose ", i, " belongs to session '", p.session_id, "'"));
     }
     if (!std::isfinite(p.t_start_s) || !std::isfinite(p.t_end_s) || p.t_end_s < p.t_start_s) {
-      return absl::InvalidArgumentError(Cat(kOp, ": pose ", i, " has bad times [",
-                                                     p.t_start_s, ", ", p.t_end_s, "]"));
+      return absl::InvalidArgumentError(
+          Cat(kOp, ": pose ", i, " has bad times [", p.t_start_s, ", ", p.t_end_s, "]"));
     }
     used += p.used ? 1 : 0;
   }
@@ -873,8 +996,8 @@ absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string
       STORAGE_RETURN_IF_ERROR(st->Run());
     }
     const int64_t id = sqlite3_last_insert_rowid(conn.db());
-    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.start",
-                                        SessionTarget(session_id), Cat("solve ", id)));
+    STORAGE_RETURN_IF_ERROR(
+        InsertAudit(conn, now, actor, "solve.start", SessionTarget(session_id), Cat("solve ", id)));
     return LoadSolve(conn, id);
   });
 }
@@ -887,18 +1010,17 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
     STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
     if (solve.state != SolveState::kRunning) {
-      return absl::FailedPreconditionError(Cat(
-          "solve ", solve_id, " is ", SolveStateName(solve.state), ", not running"));
+      return absl::FailedPreconditionError(
+          Cat("solve ", solve_id, " is ", SolveStateName(solve.state), ", not running"));
     }
     STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
     ParamVersion v = version;
     if (v.device_id.empty()) v.device_id = session.device_id;
     if (v.session_id.empty()) v.session_id = session.id;
     if (v.device_id != session.device_id || v.session_id != session.id) {
-      return absl::InvalidArgumentError(
-          Cat("solve ", solve_id, " is of session '", session.id, "' of device '",
-                       session.device_id, "', not of '", v.session_id, "' of '", v.device_id,
-                       "'"));
+      return absl::InvalidArgumentError(Cat("solve ", solve_id, " is of session '", session.id,
+                                            "' of device '", session.device_id, "', not of '",
+                                            v.session_id, "' of '", v.device_id, "'"));
     }
     const absl::Time now = Now();
     STORAGE_ASSIGN_OR_RETURN(ParamVersion added, InsertVersion(conn, v, actor, now));
@@ -909,18 +1031,19 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
       st->BindInt64(3, Micros(now));
       st->BindInt64(4, added.version);
       st->BindText(5, "");
+      st->BindText(6, "");  // the report is the version's
       STORAGE_RETURN_IF_ERROR(st->Run());
     }
     STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, SessionState::kSolved, actor, now));
-    STORAGE_RETURN_IF_ERROR(
-        InsertAudit(conn, now, actor, "solve.finish", SessionTarget(session.id),
-                    Cat("solve ", solve_id, " -> version ", added.version)));
+    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.finish", SessionTarget(session.id),
+                                        Cat("solve ", solve_id, " -> version ", added.version)));
     return added;
   });
 }
 
 absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
-                                       std::string_view actor, SessionState next) {
+                                       std::string_view report_json, std::string_view actor,
+                                       SessionState next) {
   constexpr std::string_view kOp = "FailSolve";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   if (next != SessionState::kFailed && next != SessionState::kOpen) {
@@ -931,8 +1054,8 @@ absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Solve> {
     STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
     if (solve.state != SolveState::kRunning) {
-      return absl::FailedPreconditionError(Cat(
-          "solve ", solve_id, " is ", SolveStateName(solve.state), ", not running"));
+      return absl::FailedPreconditionError(
+          Cat("solve ", solve_id, " is ", SolveStateName(solve.state), ", not running"));
     }
     STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
     const absl::Time now = Now();
@@ -943,11 +1066,11 @@ absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
       st->BindInt64(3, Micros(now));
       st->BindInt64(4, 0);
       st->BindText(5, error);
+      st->BindText(6, report_json);
       STORAGE_RETURN_IF_ERROR(st->Run());
     }
     STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, next, actor, now));
-    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.fail",
-                                        SessionTarget(session.id),
+    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.fail", SessionTarget(session.id),
                                         Cat("solve ", solve_id, ": ", error)));
     return LoadSolve(conn, solve_id);
   });
@@ -958,21 +1081,38 @@ absl::StatusOr<Solve> Store::GetSolve(int64_t solve_id) {
   return Annotate("GetSolve", LoadSolve(lease.conn(), solve_id));
 }
 
+namespace {
+
+absl::StatusOr<std::vector<Solve>> ReadSolves(Statement& st) {
+  std::vector<Solve> out;
+  for (;;) {
+    STORAGE_ASSIGN_OR_RETURN(bool row, st.Step());
+    if (!row) return out;
+    STORAGE_ASSIGN_OR_RETURN(Solve s, ReadSolve(st));
+    out.push_back(std::move(s));
+  }
+}
+
+}  // namespace
+
 absl::StatusOr<std::vector<Solve>> Store::ListSolves(std::string_view session_id) {
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<Solve>> {
     STORAGE_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
     STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, lease.conn().Prepare(kSelectSolvesOfSession));
     st->BindText(1, session_id);
-    std::vector<Solve> out;
-    for (;;) {
-      STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-      if (!row) return out;
-      STORAGE_ASSIGN_OR_RETURN(Solve s, ReadSolve(*st));
-      out.push_back(std::move(s));
-    }
+    return ReadSolves(*st);
   };
   return Annotate("ListSolves", list());
+}
+
+absl::StatusOr<std::vector<Solve>> Store::ListRunningSolves() {
+  ReadLease lease = AcquireReader();
+  auto list = [&]() -> absl::StatusOr<std::vector<Solve>> {
+    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, lease.conn().Prepare(kSelectRunningSolves));
+    return ReadSolves(*st);
+  };
+  return Annotate("ListRunningSolves", list());
 }
 
 // ---- Parameter versions ----------------------------------------------------------------------
@@ -982,13 +1122,12 @@ absl::StatusOr<ParamVersion> Store::AddVersion(const ParamVersion& version,
   constexpr std::string_view kOp = "AddVersion";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) {
-    return InsertVersion(conn, version, actor, Now());
-  });
+  return InTransaction(
+      kOp, *writer_, [&](Connection& conn) { return InsertVersion(conn, version, actor, Now()); });
 }
 
 absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int version,
-                                            std::string_view actor) {
+                                            std::string_view actor, std::string_view reason) {
   constexpr std::string_view kOp = "Promote";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
@@ -996,21 +1135,20 @@ absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int vers
     STORAGE_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
     if (v.state == VersionState::kActive) return v;
     if (v.state != VersionState::kCandidate) {
-      return absl::FailedPreconditionError(Cat(
-          "version ", version, " of device '", device_id, "' is ", VersionStateName(v.state),
-          "; only a candidate can be promoted (Rollback makes an older version active)"));
+      return absl::FailedPreconditionError(
+          Cat("version ", version, " of device '", device_id, "' is ", VersionStateName(v.state),
+              "; only a candidate can be promoted (Rollback makes an older version active)"));
     }
     STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, version));
-    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, Now(), actor, "version.promote",
-                                        DeviceTarget(device_id),
-                                        Cat("version ", version, " active",
-                                                     Displaced(displaced))));
+    STORAGE_RETURN_IF_ERROR(
+        InsertAudit(conn, Now(), actor, "version.promote", DeviceTarget(device_id),
+                    Cat("version ", version, " active", Displaced(displaced), Reason(reason))));
     return LoadVersion(conn, device_id, version);
   });
 }
 
 absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_version,
-                                             std::string_view actor) {
+                                             std::string_view actor, std::string_view reason) {
   constexpr std::string_view kOp = "Rollback";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
@@ -1022,15 +1160,15 @@ absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_
           Cat("device '", device_id, "' has no active version to roll back from"));
     }
     if (to_version >= active->version) {
-      return absl::FailedPreconditionError(
-          Cat("version ", to_version, " is not older than the active version ",
-                       active->version, " of device '", device_id, "'"));
+      return absl::FailedPreconditionError(Cat("version ", to_version,
+                                               " is not older than the active version ",
+                                               active->version, " of device '", device_id, "'"));
     }
     STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, to_version));
-    STORAGE_RETURN_IF_ERROR(InsertAudit(
-        conn, Now(), actor, "version.rollback", DeviceTarget(device_id),
-        Cat("version ", to_version, " (was ", VersionStateName(target.state),
-                     ") active", Displaced(displaced))));
+    STORAGE_RETURN_IF_ERROR(
+        InsertAudit(conn, Now(), actor, "version.rollback", DeviceTarget(device_id),
+                    Cat("version ", to_version, " (was ", VersionStateName(target.state),
+                        ") active", Displaced(displaced), Reason(reason))));
     return LoadVersion(conn, device_id, to_version);
   });
 }
@@ -1043,9 +1181,9 @@ absl::StatusOr<ParamVersion> Store::Reject(std::string_view device_id, int versi
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
     STORAGE_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
     if (v.state != VersionState::kCandidate) {
-      return absl::FailedPreconditionError(
-          Cat("version ", version, " of device '", device_id, "' is ",
-                       VersionStateName(v.state), "; only a candidate can be rejected"));
+      return absl::FailedPreconditionError(Cat("version ", version, " of device '", device_id,
+                                               "' is ", VersionStateName(v.state),
+                                               "; only a candidate can be rejected"));
     }
     {
       STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSetVersionState));
@@ -1069,8 +1207,7 @@ absl::StatusOr<ParamVersion> Store::GetActive(std::string_view device_id) {
     if (active) return *std::move(active);
     // The miss path only: say whether the device exists at all.
     STORAGE_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
-    return absl::NotFoundError(
-        Cat("device '", device_id, "' has no active parameter version"));
+    return absl::NotFoundError(Cat("device '", device_id, "' has no active parameter version"));
   };
   return Annotate("GetActive", get());
 }
@@ -1080,17 +1217,24 @@ absl::StatusOr<ParamVersion> Store::GetVersion(std::string_view device_id, int v
   return Annotate("GetVersion", LoadVersion(lease.conn(), device_id, version));
 }
 
-absl::StatusOr<std::vector<ParamVersion>> Store::ListVersions(std::string_view device_id) {
+absl::StatusOr<std::vector<ParamVersion>> Store::ListVersions(std::string_view device_id,
+                                                              const VersionQuery& query) {
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<ParamVersion>> {
     STORAGE_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
-    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, lease.conn().Prepare(kSelectVersionsOfDevice));
+    STORAGE_ASSIGN_OR_RETURN(
+        ScopedStatement st,
+        lease.conn().Prepare(query.with_documents ? kSelectVersionsOfDevice
+                                                  : kSelectVersionHeadersOfDevice));
     st->BindText(1, device_id);
+    st->BindInt64(2, query.after_version);
+    st->BindInt64(3, SqlLimit(query.limit));
+    const Documents docs = query.with_documents ? Documents::kBoth : Documents::kNone;
     std::vector<ParamVersion> out;
     for (;;) {
       STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
       if (!row) return out;
-      STORAGE_ASSIGN_OR_RETURN(ParamVersion v, ReadVersion(*st, /*with_report=*/true));
+      STORAGE_ASSIGN_OR_RETURN(ParamVersion v, ReadVersion(*st, docs));
       out.push_back(std::move(v));
     }
   };

@@ -23,9 +23,9 @@
 // be used; DataLoss for a corrupt file. Messages may contain ids and the file path, never SQL;
 // the server caps them at its boundary.
 //
-// Audit: every mutating call writes its audit entry in the same transaction, except AppendBatch
-// (data, not an action: a batch is its own record, and an audit row per batch would double the
-// write volume of ingest).
+// Audit: every mutating call writes its audit entry in the same transaction, except AppendBatch:
+// a batch is data, not an action, and is its own record; a row per batch (10,000 a second at
+// full ingest) would bury the actions the log is for.
 #ifndef IMUCAL_STORAGE_STORE_H_
 #define IMUCAL_STORAGE_STORE_H_
 
@@ -55,11 +55,26 @@ struct StoreOptions {
   Durability durability = Durability::kNormal;  // see the header comment
   int read_connections = 4;                     // the read pool; at least 1
   absl::Duration busy_timeout = absl::Seconds(5);
-  std::function<absl::Time()> clock;  // for tests; absl::Now when empty
+  std::function<absl::Time()> clock{};  // for tests; absl::Now when empty
+};
+
+// Paging is by key: pass the last item of a page to get the next one. Every member has a
+// default initializer so that designated initializers ({.limit = 100}) compile warning-free.
+struct SessionQuery {
+  std::string device_id{};              // empty = every device
+  std::optional<SessionState> state{};  // empty = any state
+  std::string after_id{};  // sessions created after this one (InvalidArgument if unknown)
+  int limit = 0;           // 0 = no limit
+};
+
+struct VersionQuery {
+  int after_version = 0;
+  int limit = 0;                // 0 = no limit
+  bool with_documents = false;  // load params_json and report_json (kilobytes each)
 };
 
 struct AuditQuery {
-  std::string target;   // exact target, e.g. DeviceTarget("robot-7"); empty = every target
+  std::string target{};  // exact target, e.g. DeviceTarget("robot-7"); empty = every target
   int64_t after_id = 0;  // paging: entries with id > after_id
   int limit = 1000;
 };
@@ -74,34 +89,39 @@ class Store {
   Store(const Store&) = delete;
   Store& operator=(const Store&) = delete;
 
-  // ---- Devices. `created_at` of the argument is ignored; the stored device is returned.
+  // ---- Devices. CreateDevice registers a device and returns it as stored (created_at and
+  // active_version of the argument are ignored). Robots register at every boot, so the same
+  // metadata again returns the existing device (no-op, not audited); different metadata under
+  // a taken id is AlreadyExists naming the field.
   absl::StatusOr<Device> CreateDevice(const Device& device, std::string_view actor);
   absl::StatusOr<Device> GetDevice(std::string_view id);
-  absl::StatusOr<std::vector<Device>> ListDevices();  // by id
+  // By id, those after `after_id`; limit 0 = all.
+  absl::StatusOr<std::vector<Device>> ListDevices(std::string_view after_id = "", int limit = 0);
 
-  // ---- Sessions. CreateSession uses `id`, `device_id` and `protocol` (an empty id gets a
-  // generated one) and returns the open session. FailedPrecondition naming the open session if
-  // the device already has one.
+  // ---- Sessions. CreateSession uses `id`, `device_id`, `protocol` and `gravity_m_s2` (an
+  // empty id gets a generated one, "s-" and 32 hex digits) and returns the open session.
+  // FailedPrecondition naming the open session if the device already has one.
   absl::StatusOr<Session> CreateSession(const Session& session, std::string_view actor);
   absl::StatusOr<Session> GetSession(std::string_view id);
-  // The device's sessions, oldest first, optionally only those in `state`.
-  absl::StatusOr<std::vector<Session>> ListSessions(std::string_view device_id,
-                                                    std::optional<SessionState> state = {});
+  // Oldest first. NotFound if query.device_id names no device.
+  absl::StatusOr<std::vector<Session>> ListSessions(const SessionQuery& query = {});
   // Moves a session along the transitions of types.h; FailedPrecondition for any other.
   absl::StatusOr<Session> SetSessionState(std::string_view id, SessionState state,
                                           std::string_view actor);
 
-  // ---- Raw samples. Stores batch `seq` (EncodeSamples() bytes) of an open session and returns
-  // the session's new last_acked_seq. Batches are numbered 1, 2, 3, ...:
-  //   seq == last + 1              stored durably, then acknowledged (returns seq)
-  //   seq <= last, same payload    a retransmission: no-op, returns last (even if closed since)
+  // ---- Raw samples. Stores batch `seq` (EncodeSamples() bytes) of an open session and
+  // returns the acknowledgement. Batches are numbered 1, 2, 3, ...:
+  //   seq == last + 1              committed (durable, see above), then acknowledged: seq
+  //   seq <= last, same payload    a retransmission: no-op, acknowledges `last` again (even if
+  //                                the session has closed since)
   //   seq <= last, other payload   InvalidArgument
   //   seq > last + 1               FailedPrecondition naming the expected seq (a robot resumes
   //                                from GetSession().last_acked_seq + 1)
-  // InvalidArgument for a payload that does not decode or is empty; FailedPrecondition if the
-  // session is not open.
-  absl::StatusOr<int64_t> AppendBatch(std::string_view session_id, int64_t seq,
-                                      std::string_view payload);
+  // InvalidArgument for a payload that does not decode, is empty, or does not start after the
+  // previous batch's last sample (time increases across batches too); FailedPrecondition if
+  // the session is not open.
+  absl::StatusOr<BatchAck> AppendBatch(std::string_view session_id, int64_t seq,
+                                       std::string_view payload);
   // The session's batches with seq > after_seq, in seq order.
   absl::StatusOr<std::vector<SampleBatch>> ReadBatches(std::string_view session_id,
                                                        int64_t after_seq = 0);
@@ -115,14 +135,21 @@ class Store {
   // StartSolve moves the session to `solving` (from open, solved or failed) and records a
   // running solve. FinishSolve adds the version (as AddVersion, its session and device taken
   // from the solve), marks the solve succeeded and the session solved, atomically. FailSolve
-  // marks the solve failed and moves the session to `next` (failed, or open to collect more).
+  // marks the solve failed with its error and report (the capture could not determine a
+  // calibration; a poor calibration is a version with verdict fail, not a failed solve) and
+  // moves the session to `next` (failed, or open to collect more poses).
+  // Setting a solving session's state by hand (SetSessionState) fails its running solve.
   absl::StatusOr<Solve> StartSolve(std::string_view session_id, std::string_view actor);
   absl::StatusOr<ParamVersion> FinishSolve(int64_t solve_id, const ParamVersion& version,
                                            std::string_view actor);
-  absl::StatusOr<Solve> FailSolve(int64_t solve_id, std::string_view error, std::string_view actor,
+  absl::StatusOr<Solve> FailSolve(int64_t solve_id, std::string_view error,
+                                  std::string_view report_json, std::string_view actor,
                                   SessionState next = SessionState::kFailed);
   absl::StatusOr<Solve> GetSolve(int64_t solve_id);
-  absl::StatusOr<std::vector<Solve>> ListSolves(std::string_view session_id);
+  absl::StatusOr<std::vector<Solve>> ListSolves(std::string_view session_id);  // oldest first
+  // Every solve still running: after a restart these are orphans that the server re-runs or
+  // fails (their sessions stay `solving` until then).
+  absl::StatusOr<std::vector<Solve>> ListRunningSolves();
 
   // ---- Parameter versions.
   // Adds the next version of `version.device_id` (1, 2, 3, ... assigned atomically). Uses
@@ -133,13 +160,13 @@ class Store {
   // Candidate -> active; the previous active version becomes superseded. Promoting the active
   // version is a no-op; any other state is FailedPrecondition (use Rollback for older ones).
   absl::StatusOr<ParamVersion> Promote(std::string_view device_id, int version,
-                                       std::string_view actor);
+                                       std::string_view actor, std::string_view reason = "");
   // Makes any version older than the active one active again (whatever its state: it is the
   // technician's explicit choice); the active one becomes superseded. FailedPrecondition if the
   // device has no active version or `to_version` is not older than it.
   absl::StatusOr<ParamVersion> Rollback(std::string_view device_id, int to_version,
-                                        std::string_view actor);
-  // Candidate -> rejected; `reason` goes to the audit log.
+                                        std::string_view actor, std::string_view reason = "");
+  // Candidate -> rejected; `reason` goes to the audit log (as it does for Promote, Rollback).
   absl::StatusOr<ParamVersion> Reject(std::string_view device_id, int version,
                                       std::string_view actor, std::string_view reason);
   // The hot path (a robot fetching its parameters): one prepared, indexed lookup on a pooled
@@ -147,8 +174,9 @@ class Store {
   // NotFound if the device has no active version (or does not exist).
   absl::StatusOr<ParamVersion> GetActive(std::string_view device_id);
   absl::StatusOr<ParamVersion> GetVersion(std::string_view device_id, int version);
-  // Every version of the device, oldest first, with reports.
-  absl::StatusOr<std::vector<ParamVersion>> ListVersions(std::string_view device_id);
+  // The device's versions, oldest first; without params/report JSON unless asked.
+  absl::StatusOr<std::vector<ParamVersion>> ListVersions(std::string_view device_id,
+                                                         const VersionQuery& query = {});
 
   // ---- Audit log. AppendAudit is for actions outside storage (e.g. a robot fetched its
   // parameters); `id` and `time` are assigned. ListAudit is in id (= time) order.

@@ -15,8 +15,8 @@ constexpr std::array<std::string_view, 5> kSessionStateNames = {"open", "solving
                                                                 "cancelled", "failed"};
 constexpr std::array<std::string_view, 3> kSolveStateNames = {"running", "succeeded", "failed"};
 constexpr std::array<std::string_view, 3> kVerdictNames = {"pass", "warn", "fail"};
-constexpr std::array<std::string_view, 4> kVersionStateNames = {"candidate", "active",
-                                                                "superseded", "rejected"};
+constexpr std::array<std::string_view, 4> kVersionStateNames = {"candidate", "active", "superseded",
+                                                                "rejected"};
 
 template <typename Enum, size_t N>
 absl::StatusOr<Enum> Parse(const std::array<std::string_view, N>& names, std::string_view name,
@@ -56,8 +56,6 @@ absl::StatusOr<VersionState> ParseVersionState(std::string_view name) {
 }
 
 std::string DeviceTarget(std::string_view device_id) { return Cat("device:", device_id); }
-std::string SessionTarget(std::string_view session_id) {
-  return Cat("session:", session_id);
-}
+std::string SessionTarget(std::string_view session_id) { return Cat("session:", session_id); }
 
 }  // namespace imucal::storage

@@ -25,7 +25,8 @@ struct Device {
   double nominal_rate_hz = 0.0;
   std::string accel_unit;
   std::string gyro_unit;
-  absl::Time created_at;  // set by the store
+  absl::Time created_at;   // set by the store
+  int active_version = 0;  // read-only: the active parameter version, 0 when none
 };
 
 // A session's states and the transitions Store allows (anything else is FailedPrecondition):
@@ -41,11 +42,17 @@ struct Session {
   std::string id;  // empty on CreateSession: the store generates one
   std::string device_id;
   SessionState state = SessionState::kOpen;
-  std::string protocol;  // "six-face", "positions", "free", ... (opaque to storage)
+  std::string protocol;           // "six-face", "positions", "free", ... (opaque to storage)
+  double gravity_m_s2 = 9.80665;  // local gravity, kept for re-solves
   absl::Time created_at;
   absl::Time updated_at;  // last state change
-  // The highest batch seq durably stored; batches are numbered 1, 2, 3, ... so 0 = none yet.
+
+  // Read-only, derived from the stored rows:
+  // the highest batch seq durably stored; batches are numbered 1, 2, 3, ... so 0 = none yet;
   int64_t last_acked_seq = 0;
+  int64_t samples = 0;     // samples in the stored batches
+  int poses_accepted = 0;  // poses with used = true (PutPoses)
+  int version = 0;         // version created by the session's latest successful solve; 0 none
 };
 
 // One batch of raw samples as the robot sent it, in `sample_codec.h`'s binary form.
@@ -53,6 +60,7 @@ struct SampleBatch {
   std::string session_id;
   int64_t seq = 0;         // 1, 2, 3, ... per session
   double first_t_s = 0.0;  // t of the first sample (from the payload)
+  double last_t_s = 0.0;   // t of the last sample
   int64_t count = 0;       // samples in the payload
   std::string payload;     // EncodeSamples() bytes
 };
@@ -79,11 +87,18 @@ struct Solve {
   std::string actor;
   absl::Time started_at;
   std::optional<absl::Time> finished_at;
-  int version = 0;    // the parameter version it created; 0 = none
-  std::string error;  // why it failed
+  int version = 0;          // the parameter version it created; 0 = none
+  std::string error;        // why it failed
+  std::string report_json;  // a failed solve's report; a successful one's is its version's
 };
 
 enum class Verdict { kPass, kWarn, kFail };
+
+// What a robot is told when a batch is stored (or found already stored).
+struct BatchAck {
+  int64_t last_acked_seq = 0;  // every batch up to this one is durably stored
+  int64_t samples = 0;         // samples stored in the session so far
+};
 
 // Version policy: a solve creates a `candidate`; it becomes `active` when it passes the quality
 // gates or a technician promotes it; the version it displaces becomes `superseded`. A technician

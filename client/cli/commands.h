@@ -16,6 +16,7 @@ inline constexpr int kExitBadInput = 2;     // unreadable or malformed input
 inline constexpr int kExitUndetermined = 3; // the capture cannot determine the calibration
 inline constexpr int kExitVerdictFail = 4;  // calibrated, but the result fails the quality gates
 inline constexpr int kExitInternal = 5;
+inline constexpr int kExitUnavailable = 6;  // the server could not be reached (or timed out)
 
 // Prints "imucal: <message>" to stderr and maps the status to an exit code.
 int ReportError(const absl::Status& status);
@@ -24,6 +25,19 @@ int RunCalibrate(const std::vector<std::string>& args);
 int RunApply(const std::vector<std::string>& args);
 int RunSimulate(const std::vector<std::string>& args);
 int RunDemo(const std::vector<std::string>& args);
+
+// Server commands (server_commands.cc, guide.cc). Each accepts --server ADDR (else
+// $IMUCAL_SERVER, else 127.0.0.1:50051). A server error prints the server's message; the exit
+// code is kExitUnavailable when the server is unreachable, kExitBadInput for an invalid
+// argument or an unknown id, kExitUndetermined for a state that forbids the call.
+int RunDevices(const std::vector<std::string>& args);
+int RunSession(const std::vector<std::string>& args);
+int RunUpload(const std::vector<std::string>& args);
+int RunSolve(const std::vector<std::string>& args);
+int RunReport(const std::vector<std::string>& args);
+int RunParams(const std::vector<std::string>& args);
+int RunExport(const std::vector<std::string>& args);
+int RunGuide(const std::vector<std::string>& args);
 
 }  // namespace imucal::cli
 

@@ -14,7 +14,17 @@ constexpr char kHelp[] =
     "  calibrate FILE...        calibrate accelerometer and gyroscope from a capture\n"
     "  apply --params P IN OUT  apply a parameter set to a capture (writes m/s^2, rad/s)\n"
     "  simulate --out FILE      write a simulated capture with known truth\n"
-    "  demo                     simulate, calibrate, apply, print the error before and after\n";
+    "  demo                     simulate, calibrate, apply, print the error before and after\n"
+    "server commands (imucal [--server ADDR] COMMAND ...; default $IMUCAL_SERVER, else\n"
+    "127.0.0.1:50051; exit code 6 when the server is unreachable):\n"
+    "  devices [register ID ...|get ID]   list, register or show devices\n"
+    "  session start|list|show|cancel     calibration sessions\n"
+    "  upload FILE... --device D          stream a capture into a session (resumes)\n"
+    "  guide --device D                   live guidance through a calibration capture\n"
+    "  solve --session S [--wait]         solve a session\n"
+    "  report --session S [--json]        the latest solve's report\n"
+    "  params get|list|promote|rollback   parameter versions of a device\n"
+    "  export --device D --format F       a parameter version as json, kalibr or openvins\n";
 
 }  // namespace
 
@@ -23,8 +33,28 @@ int main(int argc, char** argv) {
     std::fputs(kHelp, stderr);
     return imucal::cli::kExitUsage;
   }
-  const std::string command = argv[1];
-  const std::vector<std::string> args(argv + 2, argv + argc);
+  // A global `--server ADDR` (or --server=ADDR) before the command goes to the command.
+  std::vector<std::string> global;
+  int first = 1;
+  while (first < argc) {
+    const std::string s = argv[first];
+    if (s == "--server" && first + 1 < argc) {
+      global = {"--server", argv[first + 1]};
+      first += 2;
+    } else if (s.rfind("--server=", 0) == 0) {
+      global = {s};
+      first += 1;
+    } else {
+      break;
+    }
+  }
+  if (first >= argc) {
+    std::fputs(kHelp, stderr);
+    return imucal::cli::kExitUsage;
+  }
+  const std::string command = argv[first];
+  std::vector<std::string> args(argv + first + 1, argv + argc);
+  args.insert(args.begin(), global.begin(), global.end());
   if (command == "--help" || command == "-h" || command == "help") {
     std::fputs(kHelp, stdout);
     return imucal::cli::kExitOk;
@@ -37,6 +67,14 @@ int main(int argc, char** argv) {
   if (command == "apply") return imucal::cli::RunApply(args);
   if (command == "simulate") return imucal::cli::RunSimulate(args);
   if (command == "demo") return imucal::cli::RunDemo(args);
+  if (command == "devices") return imucal::cli::RunDevices(args);
+  if (command == "session") return imucal::cli::RunSession(args);
+  if (command == "upload") return imucal::cli::RunUpload(args);
+  if (command == "guide") return imucal::cli::RunGuide(args);
+  if (command == "solve") return imucal::cli::RunSolve(args);
+  if (command == "report") return imucal::cli::RunReport(args);
+  if (command == "params") return imucal::cli::RunParams(args);
+  if (command == "export") return imucal::cli::RunExport(args);
   std::fprintf(stderr, "imucal: unknown command '%s'\n\n%s", command.c_str(), kHelp);
   return imucal::cli::kExitUsage;
 }

@@ -14,23 +14,23 @@
 #define STORAGE_TEST_CONCAT_INNER_(a, b) a##b
 #define STORAGE_TEST_CONCAT_(a, b) STORAGE_TEST_CONCAT_INNER_(a, b)
 
-#define ASSERT_OK(expr)                                  \
-  do {                                                   \
-    const absl::Status storage_test_status_ = (expr);    \
+#define ASSERT_OK(expr)                                             \
+  do {                                                              \
+    const absl::Status storage_test_status_ = (expr);               \
     ASSERT_TRUE(storage_test_status_.ok()) << storage_test_status_; \
   } while (false)
-#define EXPECT_OK(expr)                                  \
-  do {                                                   \
-    const absl::Status storage_test_status_ = (expr);    \
+#define EXPECT_OK(expr)                                             \
+  do {                                                              \
+    const absl::Status storage_test_status_ = (expr);               \
     EXPECT_TRUE(storage_test_status_.ok()) << storage_test_status_; \
   } while (false)
 
 // ASSERT_OK_AND_ASSIGN(auto x, F()); fails the test (returning) on error.
 #define ASSERT_OK_AND_ASSIGN(lhs, expr) \
   ASSERT_OK_AND_ASSIGN_IMPL_(STORAGE_TEST_CONCAT_(storage_test_or_, __LINE__), lhs, expr)
-#define ASSERT_OK_AND_ASSIGN_IMPL_(tmp, lhs, expr)  \
-  auto tmp = (expr);                                \
-  ASSERT_TRUE(tmp.ok()) << tmp.status();            \
+#define ASSERT_OK_AND_ASSIGN_IMPL_(tmp, lhs, expr) \
+  auto tmp = (expr);                               \
+  ASSERT_TRUE(tmp.ok()) << tmp.status();           \
   lhs = std::move(*tmp)
 
 namespace imucal::storage {

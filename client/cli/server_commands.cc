@@ -1,0 +1,751 @@
+// Server commands: devices, session, upload, solve, report, params, export. Each is a thin
+// layer over one or two RPCs of proto/imucal/v1/imucal.proto: parse flags -> call -> print
+// (human by default, --json for scripts).
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "client/cli/args.h"
+#include "client/cli/commands.h"
+#include "client/cli/server_common.h"
+#include "client/sdk/uploader.h"
+#include "core/capture_io.h"
+#include "nlohmann/json.hpp"
+
+namespace imucal::cli {
+namespace {
+
+namespace pb = imucal::v1;
+using nlohmann::json;
+
+constexpr char kServerFlagHelp[] =
+    "  --server ADDR     the calibration service (default $IMUCAL_SERVER, else 127.0.0.1:50051)\n"
+    "exit codes: 0 ok, 1 usage, 2 bad input or unknown id, 3 the state forbids it (e.g. not\n"
+    "            enough poses yet), 4 verdict fail, 5 internal, 6 server unreachable\n";
+
+// ------------------------------------------------------------------------------------------
+// devices
+
+constexpr char kDevicesHelp[] =
+    "usage: imucal devices [--json]\n"
+    "       imucal devices register ID --sensor-model M --rate HZ --accel-unit U --gyro-unit U\n"
+    "       imucal devices get ID [--json]\n"
+    "  Lists the registered devices, registers one (the same metadata again is a no-op), or\n"
+    "  shows one. Units: accel m/s^2|g|counts, gyro rad/s|deg/s|counts.\n"
+    "options:\n";
+
+void PrintDevice(const pb::Device& d) {
+  std::printf("%-20s %-14s %8.1f Hz  accel %-6s gyro %-6s active %s\n", d.id().c_str(),
+              d.sensor_model().empty() ? "-" : d.sensor_model().c_str(), d.nominal_rate_hz(),
+              d.accel_unit().c_str(), d.gyro_unit().c_str(),
+              d.active_version() > 0 ? absl::StrCat("v", d.active_version()).c_str() : "none");
+}
+
+int DevicesHelp() { return std::printf("%s%s", kDevicesHelp, kServerFlagHelp), kExitOk; }
+
+}  // namespace
+
+int RunDevices(const std::vector<std::string>& argv) {
+  auto a = Args::Parse(argv, {"server", "sensor-model", "rate", "accel-unit", "gyro-unit"},
+                       {"json", "help"});
+  if (!a.ok()) return UsageError(std::string(a.status().message()), kDevicesHelp);
+  if (a->Has("help")) return DevicesHelp();
+  Server server = Connect(*a);
+  const auto& pos = a->positional();
+  if (pos.empty()) {
+    pb::ListDevicesResponse all;
+    std::string token;
+    do {
+      pb::ListDevicesRequest req;
+      req.set_page_size(1000);
+      req.set_page_token(token);
+      pb::ListDevicesResponse page;
+      auto ctx = CallContext();
+      if (grpc::Status s = server.devices->ListDevices(ctx.get(), req, &page); !s.ok())
+        return RpcError(server, s);
+      for (auto& d : *page.mutable_devices()) *all.add_devices() = std::move(d);
+      token = page.next_page_token();
+    } while (!token.empty());
+    if (a->Has("json")) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
+    if (all.devices().empty()) std::printf("no devices registered\n");
+    for (const auto& d : all.devices()) PrintDevice(d);
+    return kExitOk;
+  }
+  if (pos[0] == "get" && pos.size() == 2) {
+    pb::GetDeviceRequest req;
+    req.set_device_id(pos[1]);
+    pb::Device d;
+    auto ctx = CallContext();
+    if (grpc::Status s = server.devices->GetDevice(ctx.get(), req, &d); !s.ok())
+      return RpcError(server, s);
+    if (a->Has("json")) return std::printf("%s\n", ProtoJson(d).c_str()), kExitOk;
+    PrintDevice(d);
+    return kExitOk;
+  }
+  if (pos[0] == "register" && pos.size() == 2) {
+    for (const char* flag : {"rate", "accel-unit", "gyro-unit"}) {
+      if (!a->Get(flag))
+        return UsageError(absl::StrCat("devices register needs --", flag), kDevicesHelp);
+    }
+    auto rate = a->GetDouble("rate", 0);
+    if (!rate.ok() || !(*rate > 0))
+      return UsageError("--rate: expected a sample rate in Hz > 0", kDevicesHelp);
+    pb::RegisterDeviceRequest req;
+    pb::Device* d = req.mutable_device();
+    d->set_id(pos[1]);
+    d->set_sensor_model(a->Get("sensor-model").value_or(""));
+    d->set_nominal_rate_hz(*rate);
+    d->set_accel_unit(*a->Get("accel-unit"));
+    d->set_gyro_unit(*a->Get("gyro-unit"));
+    pb::Device out;
+    auto ctx = CallContext();
+    if (grpc::Status s = server.devices->RegisterDevice(ctx.get(), req, &out); !s.ok())
+      return RpcError(server, s);
+    if (a->Has("json")) return std::printf("%s\n", ProtoJson(out).c_str()), kExitOk;
+    std::printf("registered %s\n", out.id().c_str());
+    PrintDevice(out);
+    return kExitOk;
+  }
+  return UsageError(absl::StrCat("devices: unexpected '", absl::StrJoin(pos, " "), "'"),
+                    kDevicesHelp);
+}
+
+// ------------------------------------------------------------------------------------------
+// session
+
+namespace {
+
+constexpr char kSessionHelp[] =
+    "usage: imucal session start --device D [--protocol six-face|positions|free|auto] [--json]\n"
+    "       imucal session list [--device D] [--state open|solving|solved|failed|cancelled]\n"
+    "       imucal session show ID [--json]\n"
+    "       imucal session cancel ID\n"
+    "  Opens a calibration session (a device has at most one open), lists, shows or cancels.\n"
+    "options:\n"
+    "  --gravity G       local gravity for `start`, m/s^2 (default 9.80665)\n";
+
+void PrintSession(const pb::Session& s) {
+  std::printf("%-14s %-18s %-9s %-9s %9lld samples %3d poses  %s%s\n", s.id().c_str(),
+              s.device_id().c_str(), SessionStateName(s.state()).c_str(),
+              ProtocolName(s.protocol()).c_str(), static_cast<long long>(s.samples()),
+              s.poses_accepted(), TimeText(s.created_at()).c_str(),
+              s.version() > 0 ? absl::StrCat("  -> v", s.version()).c_str() : "");
+}
+
+absl::StatusOr<pb::SessionState> ParseState(const std::string& name) {
+  for (int i = pb::SESSION_STATE_OPEN; i <= pb::SESSION_STATE_CANCELLED; ++i) {
+    if (SessionStateName(static_cast<pb::SessionState>(i)) == name)
+      return static_cast<pb::SessionState>(i);
+  }
+  return absl::InvalidArgumentError(absl::StrCat("--state: unknown state '", name, "'"));
+}
+
+}  // namespace
+
+int RunSession(const std::vector<std::string>& argv) {
+  auto a = Args::Parse(argv, {"server", "device", "protocol", "state", "gravity"},
+                       {"json", "help"});
+  if (!a.ok()) return UsageError(std::string(a.status().message()), kSessionHelp);
+  if (a->Has("help")) return std::printf("%s%s", kSessionHelp, kServerFlagHelp), kExitOk;
+  const auto& pos = a->positional();
+  if (pos.empty()) return UsageError("session needs start, list, show or cancel", kSessionHelp);
+  Server server = Connect(*a);
+  const bool as_json = a->Has("json");
+  if (pos[0] == "start" && pos.size() == 1) {
+    auto device = a->Get("device");
+    if (!device) return UsageError("session start needs --device", kSessionHelp);
+    auto protocol = ParseProtocol(a->Get("protocol").value_or("auto"));
+    if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kSessionHelp);
+    auto gravity = a->GetDouble("gravity", 0.0);
+    if (!gravity.ok()) return UsageError(std::string(gravity.status().message()), kSessionHelp);
+    pb::CreateSessionRequest req;
+    req.set_device_id(*device);
+    req.set_protocol(*protocol);
+    req.set_gravity_m_s2(*gravity);
+    pb::Session s;
+    auto ctx = CallContext();
+    if (grpc::Status st = server.sessions->CreateSession(ctx.get(), req, &s); !st.ok())
+      return RpcError(server, st);
+    if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
+    std::printf("session %s opened for %s (protocol %s)\n", s.id().c_str(),
+                s.device_id().c_str(), ProtocolName(s.protocol()).c_str());
+    return kExitOk;
+  }
+  if (pos[0] == "list" && pos.size() == 1) {
+    pb::ListSessionsResponse all;
+    pb::ListSessionsRequest req;
+    req.set_device_id(a->Get("device").value_or(""));
+    if (auto st = a->Get("state")) {
+      auto state = ParseState(*st);
+      if (!state.ok()) return UsageError(std::string(state.status().message()), kSessionHelp);
+      req.set_state(*state);
+    }
+    req.set_page_size(1000);
+    do {
+      pb::ListSessionsResponse page;
+      auto ctx = CallContext();
+      if (grpc::Status st = server.sessions->ListSessions(ctx.get(), req, &page); !st.ok())
+        return RpcError(server, st);
+      for (auto& s : *page.mutable_sessions()) *all.add_sessions() = std::move(s);
+      req.set_page_token(page.next_page_token());
+    } while (!req.page_token().empty());
+    if (as_json) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
+    if (all.sessions().empty()) std::printf("no sessions\n");
+    for (const auto& s : all.sessions()) PrintSession(s);
+    return kExitOk;
+  }
+  if ((pos[0] == "show" || pos[0] == "cancel") && pos.size() == 2) {
+    pb::Session s;
+    auto ctx = CallContext();
+    grpc::Status st;
+    if (pos[0] == "show") {
+      pb::GetSessionRequest req;
+      req.set_session_id(pos[1]);
+      st = server.sessions->GetSession(ctx.get(), req, &s);
+    } else {
+      pb::CancelSessionRequest req;
+      req.set_session_id(pos[1]);
+      st = server.sessions->CancelSession(ctx.get(), req, &s);
+    }
+    if (!st.ok()) return RpcError(server, st);
+    if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
+    if (pos[0] == "cancel") std::printf("cancelled session %s\n", s.id().c_str());
+    PrintSession(s);
+    return kExitOk;
+  }
+  return UsageError(absl::StrCat("session: unexpected '", absl::StrJoin(pos, " "), "'"),
+                    kSessionHelp);
+}
+
+// ------------------------------------------------------------------------------------------
+// solve (shared with upload --solve)
+
+namespace {
+
+constexpr char kSolveHelp[] =
+    "usage: imucal solve --session S [--wait] [--seed N] [--timeout SECONDS] [--json]\n"
+    "  Starts a solve job for the session's samples. With --wait, waits for the result and\n"
+    "  prints the version created, its verdict and whether it became active.\n"
+    "options:\n";
+
+// Starts a solve and, if `wait`, polls the job until it finishes (at most timeout_s).
+int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t seed,
+                      bool wait, double timeout_s, bool as_json) {
+  pb::SolveSessionRequest req;
+  req.set_session_id(session);
+  req.set_seed(seed);
+  pb::SolveJob job;
+  {
+    auto ctx = CallContext();
+    if (grpc::Status s = server.sessions->SolveSession(ctx.get(), req, &job); !s.ok())
+      return RpcError(server, s);
+  }
+  const auto deadline =
+      std::chrono::steady_clock::now() + std::chrono::milliseconds(int64_t(timeout_s * 1000));
+  // A poll with a growing interval: solves take from a fraction of a second to minutes.
+  auto interval = std::chrono::milliseconds(50);
+  while (wait && (job.state() == pb::JOB_STATE_QUEUED || job.state() == pb::JOB_STATE_RUNNING ||
+                  job.state() == pb::JOB_STATE_UNSPECIFIED)) {
+    if (std::chrono::steady_clock::now() > deadline) {
+      std::fprintf(stderr, "imucal: solve job %s still %s after %.0f s\n", job.id().c_str(),
+                   JobStateName(job.state()).c_str(), timeout_s);
+      return kExitUnavailable;
+    }
+    std::this_thread::sleep_for(interval);
+    interval = std::min(interval * 2, std::chrono::milliseconds(1000));
+    pb::GetSolveJobRequest get;
+    get.set_job_id(job.id());
+    auto ctx = CallContext();
+    if (grpc::Status s = server.sessions->GetSolveJob(ctx.get(), get, &job); !s.ok())
+      return RpcError(server, s);
+  }
+  if (as_json) {
+    std::printf("%s\n", ProtoJson(job).c_str());
+  } else if (!wait) {
+    std::printf("solve job %s %s for session %s\n", job.id().c_str(),
+                JobStateName(job.state()).c_str(), session.c_str());
+  } else if (job.state() == pb::JOB_STATE_DONE) {
+    std::printf("solved session %s: version %d, verdict %s, %s\n", session.c_str(),
+                job.version(), job.verdict().c_str(),
+                job.activated() ? "now active" : "candidate (not activated: see the report)");
+  } else {
+    std::printf("solve of session %s failed: %s\n", session.c_str(), job.error().c_str());
+  }
+  if (!wait) return kExitOk;
+  if (job.state() == pb::JOB_STATE_FAILED) return kExitUndetermined;
+  return job.verdict() == "fail" ? kExitVerdictFail : kExitOk;
+}
+
+}  // namespace
+
+int RunSolve(const std::vector<std::string>& argv) {
+  auto a = Args::Parse(argv, {"server", "session", "seed", "timeout"}, {"wait", "json", "help"});
+  if (!a.ok()) return UsageError(std::string(a.status().message()), kSolveHelp);
+  if (a->Has("help")) return std::printf("%s%s", kSolveHelp, kServerFlagHelp), kExitOk;
+  auto session = a->Get("session");
+  if (!session || !a->positional().empty()) return UsageError("solve needs --session S", kSolveHelp);
+  auto seed = a->GetInt("seed", 0);
+  auto timeout = a->GetDouble("timeout", 600);
+  if (!seed.ok() || !timeout.ok())
+    return UsageError("--seed and --timeout take numbers", kSolveHelp);
+  Server server = Connect(*a);
+  return SolveAndMaybeWait(server, *session, static_cast<uint64_t>(*seed), a->Has("wait"),
+                           *timeout, a->Has("json"));
+}
+
+// ------------------------------------------------------------------------------------------
+// upload
+
+namespace {
+
+constexpr char kUploadHelp[] =
+    "usage: imucal upload FILE... --device D [--session S] [--solve] [options]\n"
+    "  Streams a capture's raw samples to a session: the given one, else a new one for the\n"
+    "  device. Resumes after the last acknowledged batch when the connection drops, and when run\n"
+    "  again for the same session and file. FILE: imucal CSV or an imu_tk pair.\n"
+    "options:\n"
+    "  --protocol six-face|positions|free|auto   for a new session (default auto)\n"
+    "  --format auto|imucal|imutk   --accel-unit U   --gyro-unit U   input as for calibrate\n"
+    "  --batch N          samples per batch (default 2000)\n"
+    "  --solve            solve when the upload is complete and wait for the verdict\n"
+    "  --json             print the session (and solve job) as JSON\n";
+
+// Draws "[#####.....]  42%  12000/28000 samples" on stderr, over itself.
+class ProgressBar {
+ public:
+  explicit ProgressBar(bool enabled) : enabled_(enabled) {}
+  void Update(int64_t done, int64_t total) {
+    if (!enabled_ || total <= 0) return;
+    const int width = 30;
+    const int filled = static_cast<int>(width * done / total);
+    const int percent = static_cast<int>(100 * done / total);
+    if (percent == last_percent_) return;
+    last_percent_ = percent;
+    std::fprintf(stderr, "\r[%s%s] %3d%%  %lld/%lld samples", std::string(filled, '#').c_str(),
+                 std::string(width - filled, '.').c_str(), percent,
+                 static_cast<long long>(done), static_cast<long long>(total));
+    std::fflush(stderr);
+  }
+  void Finish() {
+    if (enabled_ && last_percent_ >= 0) std::fputs("\n", stderr);
+  }
+
+ private:
+  bool enabled_;
+  int last_percent_ = -1;
+};
+
+absl::StatusOr<core::ImportOptions> UploadImportOptions(const Args& a) {
+  core::ImportOptions o;
+  if (auto f = a.Get("format")) o.format = *f;
+  if (auto u = a.Get("accel-unit")) {
+    auto p = core::ParseAccelUnit(*u);
+    if (!p.ok()) return absl::InvalidArgumentError(absl::StrCat("--accel-unit: ", p.status().message()));
+    o.accel_unit = *p;
+  }
+  if (auto u = a.Get("gyro-unit")) {
+    auto p = core::ParseGyroUnit(*u);
+    if (!p.ok()) return absl::InvalidArgumentError(absl::StrCat("--gyro-unit: ", p.status().message()));
+    o.gyro_unit = *p;
+  }
+  return o;
+}
+
+}  // namespace
+
+int RunUpload(const std::vector<std::string>& argv) {
+  auto a = Args::Parse(argv,
+                       {"server", "device", "session", "protocol", "format", "accel-unit",
+                        "gyro-unit", "batch", "seed", "timeout"},
+                       {"solve", "json", "help"});
+  if (!a.ok()) return UsageError(std::string(a.status().message()), kUploadHelp);
+  if (a->Has("help")) return std::printf("%s%s", kUploadHelp, kServerFlagHelp), kExitOk;
+  if (a->positional().empty()) return UsageError("upload needs a capture FILE", kUploadHelp);
+  auto device = a->Get("device");
+  auto session_id = a->Get("session");
+  if (!device && !session_id) return UsageError("upload needs --device or --session", kUploadHelp);
+  auto batch = a->GetInt("batch", 2000);
+  if (!batch.ok() || *batch < 1 || *batch > 100000)
+    return UsageError("--batch: expected 1..100000 samples", kUploadHelp);
+  auto io = UploadImportOptions(*a);
+  if (!io.ok()) return UsageError(std::string(io.status().message()), kUploadHelp);
+  auto capture = core::ImportCapture(a->positional(), *io);
+  if (!capture.ok()) return ReportError(capture.status());
+
+  Server server = Connect(*a);
+  pb::Session session;
+  if (session_id) {
+    pb::GetSessionRequest req;
+    req.set_session_id(*session_id);
+    auto ctx = CallContext();
+    if (grpc::Status s = server.sessions->GetSession(ctx.get(), req, &session); !s.ok())
+      return RpcError(server, s);
+    if (device && session.device_id() != *device) {
+      std::fprintf(stderr, "imucal: session %s belongs to %s, not %s\n", session_id->c_str(),
+                   session.device_id().c_str(), device->c_str());
+      return kExitBadInput;
+    }
+  }
+  const std::string device_id = device ? *device : session.device_id();
+  // The server keeps samples in the device's registered units: refuse a capture in others.
+  {
+    pb::GetDeviceRequest req;
+    req.set_device_id(device_id);
+    pb::Device d;
+    auto ctx = CallContext();
+    if (grpc::Status s = server.devices->GetDevice(ctx.get(), req, &d); !s.ok())
+      return RpcError(server, s);
+    const std::string accel(core::AccelUnitName(capture->accel_unit));
+    const std::string gyro(core::GyroUnitName(capture->gyro_unit));
+    if (d.accel_unit() != accel || d.gyro_unit() != gyro) {
+      std::fprintf(stderr,
+                   "imucal: the capture is in accel %s, gyro %s but %s is registered with accel "
+                   "%s, gyro %s (use --accel-unit/--gyro-unit if the file's units are wrong)\n",
+                   accel.c_str(), gyro.c_str(), device_id.c_str(), d.accel_unit().c_str(),
+                   d.gyro_unit().c_str());
+      return kExitBadInput;
+    }
+  }
+  if (!session_id) {
+    auto protocol = ParseProtocol(a->Get("protocol").value_or("auto"));
+    if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kUploadHelp);
+    pb::CreateSessionRequest req;
+    req.set_device_id(device_id);
+    req.set_protocol(*protocol);
+    req.set_gravity_m_s2(capture->gravity_m_s2);
+    auto ctx = CallContext();
+    if (grpc::Status s = server.sessions->CreateSession(ctx.get(), req, &session); !s.ok())
+      return RpcError(server, s);
+    if (!a->Has("json"))
+      std::printf("session %s opened for %s\n", session.id().c_str(), device_id.c_str());
+  }
+
+  ProgressBar bar(::isatty(STDERR_FILENO) == 1);
+  sdk::UploadOptions options;
+  options.batch_samples = static_cast<int>(*batch);
+  options.max_retries = 8;
+  options.progress = [&bar](int64_t done, int64_t total) { bar.Update(done, total); };
+  sdk::Uploader uploader(server.channel, options);
+  absl::StatusOr<sdk::UploadResult> result = uploader.Upload(session.id(), *capture);
+  bar.Finish();
+  if (!result.ok()) {
+    const int code = RpcError(server, result.status());
+    std::fprintf(stderr, "imucal: run the same command with --session %s to resume\n",
+                 session.id().c_str());
+    return code;
+  }
+  if (!a->Has("json")) {
+    std::printf("uploaded %lld samples to session %s", static_cast<long long>(result->sent_samples),
+                session.id().c_str());
+    if (result->skipped_samples > 0)
+      std::printf(" (resumed: %lld were already stored)",
+                  static_cast<long long>(result->skipped_samples));
+    if (result->reconnects > 0) std::printf(" after %d reconnects", result->reconnects);
+    std::printf("\n");
+  }
+  if (!a->Has("solve")) {
+    if (a->Has("json")) {
+      pb::GetSessionRequest req;
+      req.set_session_id(session.id());
+      auto ctx = CallContext();
+      if (grpc::Status s = server.sessions->GetSession(ctx.get(), req, &session); !s.ok())
+        return RpcError(server, s);
+      std::printf("%s\n", ProtoJson(session).c_str());
+    }
+    return kExitOk;
+  }
+  auto seed = a->GetInt("seed", 0);
+  auto timeout = a->GetDouble("timeout", 600);
+  if (!seed.ok() || !timeout.ok())
+    return UsageError("--seed and --timeout take numbers", kUploadHelp);
+  return SolveAndMaybeWait(server, session.id(), static_cast<uint64_t>(*seed), true, *timeout,
+                           a->Has("json"));
+}
+
+// ------------------------------------------------------------------------------------------
+// report
+
+namespace {
+
+constexpr char kReportHelp[] =
+    "usage: imucal report --session S [--json]\n"
+    "  The report of the session's latest solve: a summary, or with --json the\n"
+    "  \"imucal-report v1\" document exactly as the server stores it.\n"
+    "options:\n";
+
+std::string Vec(const json& v, const char* fmt = "%+.5f") {
+  if (!v.is_array()) return "-";
+  std::vector<std::string> parts;
+  for (const auto& x : v) parts.push_back(x.is_number() ? absl::StrFormat(fmt, x.get<double>())
+                                                        : std::string("null"));
+  return absl::StrCat("[", absl::StrJoin(parts, ", "), "]");
+}
+
+double Num(const json& j, const char* key) {
+  return j.contains(key) && j[key].is_number() ? j[key].get<double>() : std::nan("");
+}
+
+std::string Str(const json& j, const char* key) {
+  return j.contains(key) && j[key].is_string() ? j[key].get<std::string>() : "";
+}
+
+void PrintReportSummary(const json& r) {
+  std::printf("device      %s   session %s\n", Str(r, "device").c_str(), Str(r, "session").c_str());
+  int used = 0, total = 0;
+  if (r.contains("poses")) {
+    for (const auto& p : r["poses"]) {
+      ++total;
+      used += p.value("used", false);
+    }
+  }
+  std::printf("poses       %d found, %d used\n", total, used);
+  if (r.contains("poses")) {
+    for (const auto& p : r["poses"]) {
+      if (!p.value("used", true))
+        std::printf("  pose %-3d  not used: %s\n", p.value("index", -1), Str(p, "reason").c_str());
+    }
+  }
+  if (r.contains("pairs")) {
+    for (const auto& p : r["pairs"]) {
+      std::printf("  pair %-9s %-4s rotation %.1f deg, tilt %.1f deg  %s\n",
+                  p.contains("poses") ? p["poses"].dump().c_str() : "?",
+                  Str(p, "status").c_str(), Num(p, "rotation_deg"), Num(p, "tilt_deg"),
+                  Str(p, "reason").c_str());
+    }
+  }
+  if (r.contains("stages")) {
+    for (const auto& s : r["stages"])
+      std::printf("stage       %-5s accel rms %.5f m/s^2 (%d iterations)\n", Str(s, "name").c_str(),
+                  Num(s, "accel_rms"), s.value("iterations", 0));
+  }
+  if (r.contains("residual")) {
+    const json& res = r["residual"];
+    std::printf("residual    accel rms %.5f m/s^2, max %.5f m/s^2, gyro static rms %.6f rad/s\n",
+                Num(res, "accel_rms"), Num(res, "accel_max"), Num(res, "gyro_static_rms"));
+  }
+  if (r.contains("parameters") && r["parameters"].is_object()) {
+    const json& p = r["parameters"];
+    if (p.contains("accel")) {
+      std::printf("accel bias  %s\n", Vec(p["accel"]["bias"]).c_str());
+      std::printf("accel scale %s\n", Vec(p["accel"]["scale"]).c_str());
+    }
+    if (p.contains("gyro")) std::printf("gyro bias   %s\n", Vec(p["gyro"]["bias"], "%+.6f").c_str());
+  }
+  if (r.contains("effects")) {
+    for (const auto& e : r["effects"])
+      std::printf("effect      %s %s ~ %s: %.3g (held-out rms %.3g -> %.3g)\n",
+                  Str(e, "sensor").c_str(), Str(e, "axis").c_str(), Str(e, "regressor").c_str(),
+                  Num(e, "coefficient"), Num(e, "error_before"), Num(e, "error_after"));
+  }
+  if (r.contains("warnings")) {
+    for (const auto& w : r["warnings"])
+      std::printf("warning     %s\n", w.is_string() ? w.get<std::string>().c_str() : w.dump().c_str());
+  }
+  std::printf("verdict     %s\n", Str(r, "verdict").c_str());
+}
+
+}  // namespace
+
+int RunReport(const std::vector<std::string>& argv) {
+  auto a = Args::Parse(argv, {"server", "session"}, {"json", "help"});
+  if (!a.ok()) return UsageError(std::string(a.status().message()), kReportHelp);
+  if (a->Has("help")) return std::printf("%s%s", kReportHelp, kServerFlagHelp), kExitOk;
+  auto session = a->Get("session");
+  if (!session) return UsageError("report needs --session S", kReportHelp);
+  Server server = Connect(*a);
+  pb::GetReportRequest req;
+  req.set_session_id(*session);
+  pb::Report report;
+  auto ctx = CallContext();
+  if (grpc::Status s = server.sessions->GetReport(ctx.get(), req, &report); !s.ok())
+    return RpcError(server, s);
+  if (a->Has("json")) {
+    std::fputs(report.json().c_str(), stdout);
+    if (!report.json().empty() && report.json().back() != '\n') std::fputs("\n", stdout);
+    return kExitOk;
+  }
+  json r = json::parse(report.json(), nullptr, /*allow_exceptions=*/false);
+  if (r.is_discarded() || !r.is_object()) {
+    std::fprintf(stderr, "imucal: the server's report is not valid JSON\n");
+    return kExitInternal;
+  }
+  PrintReportSummary(r);
+  return Str(r, "verdict") == "fail" ? kExitVerdictFail : kExitOk;
+}
+
+// ------------------------------------------------------------------------------------------
+// params
+
+namespace {
+
+constexpr char kParamsHelp[] =
+    "usage: imucal params get --device D [--version N] [--json]\n"
+    "       imucal params list --device D [--json]\n"
+    "       imucal params promote --device D --version N [--reason TEXT]\n"
+    "       imucal params rollback --device D --to N [--reason TEXT]\n"
+    "  Shows a parameter version (default the active one; --json prints the \"imucal-params v1\"\n"
+    "  document exactly as stored), lists the versions, makes a version active, or makes an\n"
+    "  earlier version active again.\n"
+    "options:\n";
+
+void PrintParamHeader(const pb::ParameterSet& p) {
+  std::printf("v%-4d %-10s %-5s accel rms %.5f m/s^2  %s  session %s\n", p.version(),
+              VersionStateName(p.state()).c_str(), p.verdict().c_str(), p.accel_rms_m_s2(),
+              TimeText(p.created_at()).c_str(), p.session_id().c_str());
+}
+
+}  // namespace
+
+int RunParams(const std::vector<std::string>& argv) {
+  auto a = Args::Parse(argv, {"server", "device", "version", "to", "reason"}, {"json", "help"});
+  if (!a.ok()) return UsageError(std::string(a.status().message()), kParamsHelp);
+  if (a->Has("help")) return std::printf("%s%s", kParamsHelp, kServerFlagHelp), kExitOk;
+  const auto& pos = a->positional();
+  auto device = a->Get("device");
+  if (pos.size() != 1) return UsageError("params needs get, list, promote or rollback", kParamsHelp);
+  if (!device) return UsageError("params needs --device D", kParamsHelp);
+  auto version = a->GetInt("version", 0);
+  auto to = a->GetInt("to", 0);
+  if (!version.ok() || !to.ok()) return UsageError("--version and --to take numbers", kParamsHelp);
+  Server server = Connect(*a);
+  const bool as_json = a->Has("json");
+  const std::string& verb = pos[0];
+  pb::ParameterSet p;
+  auto ctx = CallContext();
+  grpc::Status s;
+  if (verb == "get") {
+    if (*version > 0) {
+      pb::GetParametersRequest req;
+      req.set_device_id(*device);
+      req.set_version(static_cast<int32_t>(*version));
+      s = server.params->GetParameters(ctx.get(), req, &p);
+    } else {
+      pb::GetActiveParametersRequest req;
+      req.set_device_id(*device);
+      s = server.params->GetActiveParameters(ctx.get(), req, &p);
+    }
+    if (!s.ok()) return RpcError(server, s);
+    if (as_json) {
+      std::fputs(p.json().c_str(), stdout);
+      if (!p.json().empty() && p.json().back() != '\n') std::fputs("\n", stdout);
+      return kExitOk;
+    }
+    std::printf("device      %s\n", p.device_id().c_str());
+    std::printf("version     ");
+    PrintParamHeader(p);
+    json j = json::parse(p.json(), nullptr, false);
+    if (j.is_object()) {
+      if (j.contains("accel")) {
+        std::printf("accel unit  %s\n", Str(j["accel"], "input_unit").c_str());
+        std::printf("accel bias  %s\n", Vec(j["accel"]["bias"]).c_str());
+        std::printf("accel scale %s\n", Vec(j["accel"]["scale"]).c_str());
+      }
+      if (j.contains("gyro")) {
+        std::printf("gyro unit   %s\n", Str(j["gyro"], "input_unit").c_str());
+        std::printf("gyro bias   %s\n", Vec(j["gyro"]["bias"], "%+.6f").c_str());
+      }
+      if (j.contains("effects")) std::printf("effects     %zu\n", j["effects"].size());
+    }
+    std::printf("crc32c      %08x\n", p.crc32c());
+    return kExitOk;
+  }
+  if (verb == "list") {
+    pb::ListVersionsResponse all;
+    pb::ListVersionsRequest req;
+    req.set_device_id(*device);
+    req.set_page_size(1000);
+    do {
+      pb::ListVersionsResponse page;
+      auto page_ctx = CallContext();
+      if (s = server.params->ListVersions(page_ctx.get(), req, &page); !s.ok())
+        return RpcError(server, s);
+      for (auto& v : *page.mutable_versions()) *all.add_versions() = std::move(v);
+      req.set_page_token(page.next_page_token());
+    } while (!req.page_token().empty());
+    if (as_json) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
+    if (all.versions().empty()) std::printf("%s has no parameter versions\n", device->c_str());
+    for (const auto& v : all.versions()) PrintParamHeader(v);
+    return kExitOk;
+  }
+  if (verb == "promote") {
+    if (*version <= 0) return UsageError("params promote needs --version N", kParamsHelp);
+    pb::PromoteRequest req;
+    req.set_device_id(*device);
+    req.set_version(static_cast<int32_t>(*version));
+    req.set_reason(a->Get("reason").value_or(""));
+    s = server.params->Promote(ctx.get(), req, &p);
+  } else if (verb == "rollback") {
+    if (*to <= 0) return UsageError("params rollback needs --to N", kParamsHelp);
+    pb::RollbackRequest req;
+    req.set_device_id(*device);
+    req.set_to_version(static_cast<int32_t>(*to));
+    req.set_reason(a->Get("reason").value_or(""));
+    s = server.params->Rollback(ctx.get(), req, &p);
+  } else {
+    return UsageError(absl::StrCat("params: unknown action '", verb, "'"), kParamsHelp);
+  }
+  if (!s.ok()) return RpcError(server, s);
+  p.clear_json();
+  if (as_json) return std::printf("%s\n", ProtoJson(p).c_str()), kExitOk;
+  std::printf("%s v%d is now active\n", p.device_id().c_str(), p.version());
+  return kExitOk;
+}
+
+// ------------------------------------------------------------------------------------------
+// export
+
+namespace {
+
+constexpr char kExportHelp[] =
+    "usage: imucal export --device D [--version N] --format json|kalibr|openvins [--out FILE]\n"
+    "  A parameter version (default the active one) in another tool's format. What the format\n"
+    "  cannot hold (biases, second-order terms) is listed on stderr.\n"
+    "options:\n";
+
+}  // namespace
+
+int RunExport(const std::vector<std::string>& argv) {
+  auto a = Args::Parse(argv, {"server", "device", "version", "format", "out"}, {"help"});
+  if (!a.ok()) return UsageError(std::string(a.status().message()), kExportHelp);
+  if (a->Has("help")) return std::printf("%s%s", kExportHelp, kServerFlagHelp), kExitOk;
+  auto device = a->Get("device");
+  auto format = a->Get("format");
+  auto version = a->GetInt("version", 0);
+  if (!device || !format) return UsageError("export needs --device and --format", kExportHelp);
+  if (*format != "json" && *format != "kalibr" && *format != "openvins")
+    return UsageError("--format: expected json, kalibr or openvins", kExportHelp);
+  if (!version.ok()) return UsageError(std::string(version.status().message()), kExportHelp);
+  Server server = Connect(*a);
+  pb::ExportRequest req;
+  req.set_device_id(*device);
+  req.set_version(static_cast<int32_t>(*version));
+  req.set_format(*format);
+  pb::ExportResponse out;
+  auto ctx = CallContext();
+  if (grpc::Status s = server.params->Export(ctx.get(), req, &out); !s.ok())
+    return RpcError(server, s);
+  for (const auto& note : out.notes()) std::fprintf(stderr, "note: %s\n", note.c_str());
+  if (auto path = a->Get("out")) {
+    std::FILE* f = std::fopen((*path + ".tmp").c_str(), "wb");
+    if (f == nullptr) return ReportError(absl::NotFoundError(*path + ": cannot write"));
+    const bool written =
+        std::fwrite(out.content().data(), 1, out.content().size(), f) == out.content().size();
+    const bool ok = std::fclose(f) == 0 && written;
+    if (!ok || std::rename((*path + ".tmp").c_str(), path->c_str()) != 0)
+      return ReportError(absl::InternalError(*path + ": write failed"));
+    std::fprintf(stderr, "wrote %s\n", path->c_str());
+    return kExitOk;
+  }
+  std::fputs(out.content().c_str(), stdout);
+  return kExitOk;
+}
+
+}  // namespace imucal::cli

@@ -1,0 +1,58 @@
+// What the server commands (server_commands.cc, guide.cc) share: the server address, stubs,
+// per-call deadlines, gRPC errors -> message and exit code, and small formatting helpers.
+#ifndef IMUCAL_CLIENT_CLI_SERVER_COMMON_H_
+#define IMUCAL_CLIENT_CLI_SERVER_COMMON_H_
+
+#include <memory>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "client/cli/args.h"
+#include "google/protobuf/timestamp.pb.h"
+#include "grpcpp/grpcpp.h"
+#include "imucal/v1/imucal.grpc.pb.h"
+
+namespace imucal::cli {
+
+inline constexpr char kDefaultServer[] = "127.0.0.1:50051";
+
+// --server, else $IMUCAL_SERVER, else kDefaultServer.
+std::string ServerAddress(const Args& args);
+
+// The stubs of one channel to the server.
+struct Server {
+  std::string address;
+  std::shared_ptr<grpc::Channel> channel;
+  std::unique_ptr<imucal::v1::DeviceService::Stub> devices;
+  std::unique_ptr<imucal::v1::SessionService::Stub> sessions;
+  std::unique_ptr<imucal::v1::ParameterService::Stub> params;
+};
+Server Connect(const Args& args);
+
+// A context for a unary call: deadline 30 s (`--timeout S` where a command offers it).
+std::unique_ptr<grpc::ClientContext> CallContext(double timeout_s = 30.0);
+
+// Prints "imucal: <the server's message>" (for an unreachable server: which address) to stderr
+// and returns the exit code: kExitUnavailable for UNAVAILABLE / DEADLINE_EXCEEDED, kExitBadInput
+// for INVALID_ARGUMENT / NOT_FOUND / ALREADY_EXISTS, kExitUndetermined for FAILED_PRECONDITION,
+// kExitInternal otherwise.
+int RpcError(const Server& server, const grpc::Status& status);
+// The same for an absl::Status that came from an RPC (same code numbers).
+int RpcError(const Server& server, const absl::Status& status);
+
+// Prints "imucal: message\n\nhelp" and returns kExitUsage.
+int UsageError(const std::string& message, const char* help);
+
+// Proto enums and times in a technician's words.
+std::string ProtocolName(imucal::v1::Protocol protocol);  // "six-face", "positions", "free", "auto"
+absl::StatusOr<imucal::v1::Protocol> ParseProtocol(const std::string& name);
+std::string SessionStateName(imucal::v1::SessionState state);  // "open", "solving", ...
+std::string JobStateName(imucal::v1::JobState state);
+std::string VersionStateName(imucal::v1::VersionState state);
+std::string TimeText(const google::protobuf::Timestamp& t);  // RFC 3339, "-" when unset
+// A message as JSON with the .proto field names (for --json of listings).
+std::string ProtoJson(const google::protobuf::Message& message);
+
+}  // namespace imucal::cli
+
+#endif  // IMUCAL_CLIENT_CLI_SERVER_COMMON_H_

@@ -1,0 +1,85 @@
+// The robot SDK's network part: fetching the active parameter set from the calibration service
+// and booting from the local cache when the service cannot be reached. Robots that only apply
+// parameters link imucal::sdk alone; this (imucal::sdk_client) brings in gRPC.
+//
+// Typical startup (see client/examples/robot_startup.cc):
+//   auto client = sdk::ParamClient::Create("calib.fleet:50051");
+//   auto boot = sdk::LoadOrFetch(*client, "robot-0042", "/var/lib/imu/params.cache",
+//                                absl::Seconds(2));
+//   auto corrector = sdk::Corrector::Create(boot->loaded.params);
+#ifndef IMUCAL_CLIENT_SDK_CLIENT_H_
+#define IMUCAL_CLIENT_SDK_CLIENT_H_
+
+#include <memory>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "absl/time/time.h"
+#include "client/sdk/param_cache.h"
+#include "imucal/v1/imucal.grpc.pb.h"
+
+namespace grpc {
+class Channel;
+class ChannelCredentials;
+}  // namespace grpc
+
+namespace imucal::sdk {
+
+struct ClientOptions {
+  // nullptr: plaintext (grpc::InsecureChannelCredentials), for a trusted fleet network.
+  std::shared_ptr<grpc::ChannelCredentials> credentials;
+};
+
+// Creates a channel to `target` ("host:port", any gRPC target URI). The channel connects
+// lazily: an unreachable server shows up in the first call, not here.
+std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target,
+                                           const ClientOptions& options = {});
+
+// Converts a received ParameterSet to the SDK's plain form.
+StoredParams FromProto(const imucal::v1::ParameterSet& set);
+
+class ParamClient {
+ public:
+  // InvalidArgument for an empty target.
+  static absl::StatusOr<ParamClient> Create(const std::string& target,
+                                            const ClientOptions& options = {});
+  explicit ParamClient(std::shared_ptr<grpc::Channel> channel);
+
+  // GetActiveParameters for `device` with a deadline. The JSON is checked against the server's
+  // crc32c (DataLoss on a mismatch) and parsed (InvalidArgument if it does not parse). Errors
+  // from the server keep its code and message: NOT_FOUND when the device has no active set,
+  // UNAVAILABLE / DEADLINE_EXCEEDED when the server could not be reached in time.
+  absl::StatusOr<LoadedParams> FetchActive(const std::string& device, absl::Duration deadline);
+
+  // As FetchActive, sending if_not_version = known_version (0: none). When the server answers
+  // with the header only (the active version is still known_version), sets *unchanged and
+  // returns an empty LoadedParams: the caller's copy is current.
+  absl::StatusOr<LoadedParams> FetchActiveIfChanged(const std::string& device, int known_version,
+                                                    absl::Duration deadline, bool* unchanged);
+
+ private:
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<imucal::v1::ParameterService::Stub> stub_;
+};
+
+// What LoadOrFetch booted with.
+struct BootParams {
+  LoadedParams loaded;
+  bool from_cache = false;  // true: the server was unreachable, these are the cached ones
+  // One sentence for the robot's log: where the parameters came from and why; when the cache
+  // could not be updated, that too.
+  std::string note;
+};
+
+// Fetches the active set with `deadline` and, on success, updates the cache at `cache_path`
+// (a failure to write the cache is reported in `note`, not an error). When the server is
+// unreachable (UNAVAILABLE or DEADLINE_EXCEEDED) it boots with the cached set instead, if the
+// cache is valid and for the same device, and says so in `note`. Any other server answer
+// (NOT_FOUND: no active set; a checksum mismatch) is returned as it is: the server is
+// authoritative when it answers. When neither works, the error names both causes.
+absl::StatusOr<BootParams> LoadOrFetch(ParamClient& client, const std::string& device,
+                                       const std::string& cache_path, absl::Duration deadline);
+
+}  // namespace imucal::sdk
+
+#endif  // IMUCAL_CLIENT_SDK_CLIENT_H_

@@ -1,0 +1,183 @@
+#include "client/sdk/param_cache.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "client/sdk/crc32c.h"
+#include "client/sdk/params_json.h"
+
+namespace imucal::sdk {
+namespace {
+
+absl::Status ErrnoStatus(const std::string& path, const char* what) {
+  const int err = errno;
+  const std::string message = absl::StrCat(path, ": ", what, ": ", std::strerror(err));
+  if (err == ENOENT) return absl::NotFoundError(message);
+  if (err == EACCES || err == EPERM) return absl::PermissionDeniedError(message);
+  return absl::UnavailableError(message);
+}
+
+absl::Status WriteAll(int fd, std::string_view data) {
+  while (!data.empty()) {
+    const ssize_t n = ::write(fd, data.data(), data.size());
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      return absl::UnknownError(std::strerror(errno));
+    }
+    data.remove_prefix(static_cast<size_t>(n));
+  }
+  return absl::OkStatus();
+}
+
+// Makes the rename durable: the directory entry must reach the disk too.
+void SyncDirectory(const std::string& path) {
+  const size_t slash = path.rfind('/');
+  const std::string dir =
+      slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return;
+  ::fsync(fd);
+  ::close(fd);
+}
+
+absl::StatusOr<std::string> ReadWholeFile(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return ErrnoStatus(path, "cannot open");
+  std::string text;
+  char buffer[8192];
+  for (;;) {
+    const ssize_t n = ::read(fd, buffer, sizeof buffer);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      absl::Status s = ErrnoStatus(path, "read failed");
+      ::close(fd);
+      return s;
+    }
+    if (n == 0) break;
+    text.append(buffer, static_cast<size_t>(n));
+  }
+  ::close(fd);
+  return text;
+}
+
+// Reads "KEY VALUE\n" from the front of `rest`.
+absl::StatusOr<std::string> TakeField(std::string_view* rest, std::string_view key,
+                                      const std::string& path) {
+  const size_t eol = rest->find('\n');
+  if (eol == std::string_view::npos)
+    return absl::DataLossError(
+        absl::StrCat(path, ": truncated header (no '", std::string(key), "' line)"));
+  std::string_view line = rest->substr(0, eol);
+  rest->remove_prefix(eol + 1);
+  const std::string prefix = absl::StrCat(std::string(key), " ");
+  if (line.substr(0, prefix.size()) != prefix)
+    return absl::DataLossError(absl::StrCat(path, ": malformed header: expected '",
+                                            std::string(key), " ...', found '",
+                                            std::string(line.substr(0, 40)), "'"));
+  return std::string(line.substr(prefix.size()));
+}
+
+}  // namespace
+
+absl::StatusOr<LoadedParams> ParseStoredParams(StoredParams stored) {
+  const uint32_t actual = Crc32c(stored.json);
+  if (actual != stored.crc32c) {
+    return absl::DataLossError(absl::StrFormat(
+        "parameter set %s v%d: checksum mismatch (crc32c %08x stated, %08x computed)",
+        stored.device_id, stored.version, stored.crc32c, actual));
+  }
+  absl::StatusOr<core::ParamSet> params = ParamSetFromJson(stored.json);
+  if (!params.ok()) return params.status();
+  if (params->version != 0 && params->version != stored.version) {
+    return absl::DataLossError(absl::StrFormat("parameter set: JSON version %d but header says %d",
+                                               params->version, stored.version));
+  }
+  if (!params->device.empty() && params->device != stored.device_id) {
+    return absl::DataLossError(absl::StrFormat(
+        "parameter set: JSON device '%s' but header says '%s'", params->device, stored.device_id));
+  }
+  return LoadedParams{std::move(stored), *std::move(params)};
+}
+
+absl::Status SaveParamCache(const std::string& path, const StoredParams& params) {
+  if (Crc32c(params.json) != params.crc32c)
+    return absl::InvalidArgumentError("parameter set: crc32c does not match its JSON");
+  if (params.device_id.find('\n') != std::string::npos)
+    return absl::InvalidArgumentError("parameter set: device id contains a line break");
+  const std::string text =
+      absl::StrFormat("%s\ndevice %s\nversion %d\ncrc32c %08x\nlength %d\n\n%s", kParamCacheFormat,
+                      params.device_id, params.version, params.crc32c, params.json.size(),
+                      params.json);
+  const std::string tmp = absl::StrCat(path, ".tmp.", ::getpid());
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return ErrnoStatus(tmp, "cannot create");
+  absl::Status s = WriteAll(fd, text);
+  if (s.ok() && ::fsync(fd) != 0) s = ErrnoStatus(tmp, "fsync failed");
+  if (::close(fd) != 0 && s.ok()) s = ErrnoStatus(tmp, "close failed");
+  if (s.ok() && ::rename(tmp.c_str(), path.c_str()) != 0) s = ErrnoStatus(path, "rename failed");
+  if (!s.ok()) {
+    ::unlink(tmp.c_str());
+    return absl::Status(s.code(), absl::StrCat(path, ": ", s.message()));
+  }
+  SyncDirectory(path);
+  return absl::OkStatus();
+}
+
+absl::StatusOr<LoadedParams> LoadParamCache(const std::string& path) {
+  absl::StatusOr<std::string> text = ReadWholeFile(path);
+  if (!text.ok()) return text.status();
+  std::string_view rest = *text;
+  const size_t eol = rest.find('\n');
+  const std::string_view magic = rest.substr(0, eol);
+  if (magic.substr(0, 19) != "imucal-param-cache ")
+    return absl::DataLossError(absl::StrCat(path, ": not an imucal parameter cache"));
+  if (magic != kParamCacheFormat) {
+    return absl::DataLossError(absl::StrCat(path, ": cache format '",
+                                            std::string(magic.substr(0, 40)),
+                                            "' is not supported (this SDK reads '",
+                                            std::string(kParamCacheFormat), "')"));
+  }
+  rest.remove_prefix(eol + 1);
+  StoredParams stored;
+  absl::StatusOr<std::string> device = TakeField(&rest, "device", path);
+  if (!device.ok()) return device.status();
+  stored.device_id = *device;
+  absl::StatusOr<std::string> version = TakeField(&rest, "version", path);
+  if (!version.ok()) return version.status();
+  if (!absl::SimpleAtoi(*version, &stored.version))
+    return absl::DataLossError(absl::StrCat(path, ": malformed version '", *version, "'"));
+  absl::StatusOr<std::string> crc = TakeField(&rest, "crc32c", path);
+  if (!crc.ok()) return crc.status();
+  if (crc->size() != 8 || !absl::SimpleHexAtoi(*crc, &stored.crc32c))
+    return absl::DataLossError(absl::StrCat(path, ": malformed crc32c '", *crc, "'"));
+  absl::StatusOr<std::string> length = TakeField(&rest, "length", path);
+  if (!length.ok()) return length.status();
+  size_t bytes = 0;
+  if (!absl::SimpleAtoi(*length, &bytes))
+    return absl::DataLossError(absl::StrCat(path, ": malformed length '", *length, "'"));
+  if (rest.empty() || rest.front() != '\n')
+    return absl::DataLossError(absl::StrCat(path, ": malformed header (no blank line)"));
+  rest.remove_prefix(1);
+  if (rest.size() != bytes) {
+    return absl::DataLossError(absl::StrFormat("%s: %s (%d bytes of JSON, header says %d)", path,
+                                               rest.size() < bytes ? "truncated" : "trailing data",
+                                               rest.size(), bytes));
+  }
+  stored.json = std::string(rest);
+  absl::StatusOr<LoadedParams> loaded = ParseStoredParams(std::move(stored));
+  if (!loaded.ok()) {
+    return absl::DataLossError(absl::StrCat(path, ": ", loaded.status().message()));
+  }
+  return loaded;
+}
+
+}  // namespace imucal::sdk

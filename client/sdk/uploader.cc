@@ -1,0 +1,250 @@
+#include "client/sdk/uploader.h"
+
+#include <algorithm>
+#include <thread>
+#include <utility>
+
+#include "absl/strings/ascii.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "client/sdk/grpc_status.h"
+#include "grpcpp/grpcpp.h"
+
+namespace imucal::sdk {
+namespace {
+
+namespace pb = imucal::v1;
+
+absl::Status CheckColumns(const SampleColumns& s) {
+  const size_t n = s.t_s.size();
+  if (s.accel.size() != 3 * n || s.gyro.size() != 3 * n)
+    return absl::InvalidArgumentError("samples: accel and gyro need 3 values per sample");
+  if (!s.temp_c.empty() && s.temp_c.size() != n)
+    return absl::InvalidArgumentError("samples: temp_c needs 0 or 1 value per sample");
+  return absl::OkStatus();
+}
+
+absl::Status CheckOptions(const UploadOptions& o) {
+  if (o.batch_samples < 1) return absl::InvalidArgumentError("batch_samples must be >= 1");
+  if (o.max_in_flight < 1) return absl::InvalidArgumentError("max_in_flight must be >= 1");
+  if (o.max_retries < 0) return absl::InvalidArgumentError("max_retries must be >= 0");
+  return absl::OkStatus();
+}
+
+// Codes after which the same batches may be sent again on a new stream: the connection broke
+// or the server went away; the session's last_acked_seq says what survived.
+bool IsRetryable(const absl::Status& s) {
+  return absl::IsUnavailable(s) || absl::IsDeadlineExceeded(s) || absl::IsAborted(s) ||
+         absl::IsCancelled(s) || absl::IsUnknown(s);
+}
+
+pb::SampleBatch MakeBatch(const std::string& session_id, const SampleColumns& s, int64_t begin,
+                          int64_t end, int64_t seq) {
+  pb::SampleBatch b;
+  b.set_session_id(session_id);
+  b.set_seq(seq);
+  b.mutable_t_s()->Add(s.t_s.begin() + begin, s.t_s.begin() + end);
+  b.mutable_accel()->Add(s.accel.begin() + 3 * begin, s.accel.begin() + 3 * end);
+  b.mutable_gyro()->Add(s.gyro.begin() + 3 * begin, s.gyro.begin() + 3 * end);
+  if (!s.temp_c.empty()) b.mutable_temp_c()->Add(s.temp_c.begin() + begin, s.temp_c.begin() + end);
+  return b;
+}
+
+}  // namespace
+
+SampleColumns ColumnsFromCapture(const core::Capture& capture) {
+  SampleColumns s;
+  const size_t n = capture.size();
+  s.t_s = capture.t_s;
+  s.accel.reserve(3 * n);
+  s.gyro.reserve(3 * n);
+  for (size_t i = 0; i < n; ++i) {
+    for (int k = 0; k < 3; ++k) s.accel.push_back(capture.accel[i][k]);
+    for (int k = 0; k < 3; ++k) s.gyro.push_back(capture.gyro[i][k]);
+  }
+  if (capture.has_temp() && capture.temp_unit == core::TempUnit::kCelsius) s.temp_c = capture.temp;
+  return s;
+}
+
+Uploader::Uploader(std::shared_ptr<grpc::Channel> channel, UploadOptions options)
+    : channel_(std::move(channel)),
+      stub_(pb::SessionService::NewStub(channel_)),
+      options_(std::move(options)) {}
+
+Uploader::~Uploader() = default;
+
+void Uploader::Cancel() {
+  std::lock_guard<std::mutex> lock(mu_);
+  cancelled_ = true;
+  if (stream_context_ != nullptr) stream_context_->TryCancel();
+  cancel_cv_.notify_all();
+}
+
+void Uploader::DropStream() {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (stream_context_ != nullptr) stream_context_->TryCancel();
+}
+
+bool Uploader::WaitBackoff(absl::Duration backoff) {
+  std::unique_lock<std::mutex> lock(mu_);
+  return !cancel_cv_.wait_for(lock, absl::ToChronoNanoseconds(backoff),
+                              [this] { return cancelled_; });
+}
+
+absl::StatusOr<pb::Session> Uploader::GetSession(const std::string& session_id) {
+  grpc::ClientContext context;
+  context.set_deadline(absl::ToChronoTime(absl::Now() + options_.call_deadline));
+  pb::GetSessionRequest request;
+  request.set_session_id(session_id);
+  pb::Session session;
+  if (grpc::Status s = stub_->GetSession(&context, request, &session); !s.ok())
+    return FromGrpcStatus(s);
+  return session;
+}
+
+absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
+                                              const core::Capture& capture) {
+  return Upload(session_id, ColumnsFromCapture(capture));
+}
+
+absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
+                                              const SampleColumns& samples) {
+  if (absl::Status s = CheckColumns(samples); !s.ok()) return s;
+  if (absl::Status s = CheckOptions(options_); !s.ok()) return s;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    cancelled_ = false;
+  }
+  UploadResult result;
+  result.total_samples = samples.size();
+  bool first = true;
+  int retries = 0;
+  absl::Duration backoff = options_.initial_backoff;
+  absl::Status last_error;
+  for (;;) {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (cancelled_) return absl::CancelledError("upload cancelled");
+    }
+    absl::Status attempt_status;
+    const int64_t sent_before = result.sent_samples;
+    absl::StatusOr<pb::Session> session = GetSession(session_id);
+    if (!session.ok()) {
+      attempt_status = session.status();
+    } else {
+      const int64_t stored = session->samples();
+      if (stored > samples.size()) {
+        return absl::FailedPreconditionError(absl::StrFormat(
+            "session %s already holds %d samples, more than the %d of this capture", session_id,
+            stored, samples.size()));
+      }
+      if (first) result.skipped_samples = stored;
+      first = false;
+      result.last_acked_seq = session->last_acked_seq();
+      if (stored == samples.size()) {
+        if (options_.progress) options_.progress(stored, samples.size());
+        return result;
+      }
+      if (session->state() != pb::SESSION_STATE_OPEN) {
+        return absl::FailedPreconditionError(absl::StrFormat(
+            "session %s is %s and takes no more samples", session_id,
+            absl::AsciiStrToLower(pb::SessionState_Name(session->state()).substr(14))));
+      }
+      attempt_status =
+          StreamOnce(session_id, samples, stored, session->last_acked_seq() + 1, &result);
+      if (attempt_status.ok()) return result;
+    }
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (cancelled_) return absl::CancelledError("upload cancelled");
+    }
+    if (!IsRetryable(attempt_status)) return attempt_status;
+    if (result.sent_samples > sent_before) {
+      retries = 0;
+      backoff = options_.initial_backoff;
+    }
+    if (++retries > options_.max_retries) {
+      return absl::Status(attempt_status.code(),
+                          absl::StrFormat("upload to session %s gave up after %d reconnects: %s",
+                                          session_id, options_.max_retries,
+                                          attempt_status.message()));
+    }
+    if (!WaitBackoff(backoff)) return absl::CancelledError("upload cancelled");
+    backoff = std::min(backoff * 2, options_.max_backoff);
+    ++result.reconnects;
+  }
+}
+
+absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleColumns& samples,
+                                  int64_t first_sample, int64_t first_seq,
+                                  UploadResult* result) {
+  const int64_t total = samples.size();
+  const int64_t n = options_.batch_samples;
+  const int64_t batches = (total - first_sample + n - 1) / n;
+  const int64_t last_seq = first_seq + batches - 1;
+
+  grpc::ClientContext context;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (cancelled_) return absl::CancelledError("upload cancelled");
+    stream_context_ = &context;
+  }
+  auto stream = stub_->StreamSamples(&context);
+
+  // Window shared by the writer thread and this (reading) thread.
+  std::mutex window_mu;
+  std::condition_variable window_cv;
+  int64_t acked_seq = first_seq - 1;  // guarded by window_mu
+  bool reading_done = false;          // guarded by window_mu
+
+  std::thread writer([&] {
+    for (int64_t k = 0; k < batches; ++k) {
+      const int64_t seq = first_seq + k;
+      {
+        std::unique_lock<std::mutex> lock(window_mu);
+        window_cv.wait(lock, [&] {
+          return reading_done || seq - acked_seq <= options_.max_in_flight;
+        });
+        if (reading_done) return;
+      }
+      const int64_t begin = first_sample + k * n;
+      const int64_t end = std::min(total, begin + n);
+      if (!stream->Write(MakeBatch(session_id, samples, begin, end, seq))) return;
+    }
+    stream->WritesDone();
+  });
+
+  pb::SampleAck ack;
+  while (stream->Read(&ack)) {
+    const int64_t seq = std::min(ack.last_acked_seq(), last_seq);
+    const int64_t acked_samples = std::min(total, first_sample + (seq - first_seq + 1) * n);
+    {
+      std::lock_guard<std::mutex> lock(window_mu);
+      if (seq <= acked_seq) continue;
+      acked_seq = seq;
+    }
+    window_cv.notify_all();
+    result->sent_samples = acked_samples - result->skipped_samples;
+    result->last_acked_seq = seq;
+    if (options_.progress) options_.progress(acked_samples, total);
+  }
+  {
+    std::lock_guard<std::mutex> lock(window_mu);
+    reading_done = true;
+  }
+  window_cv.notify_all();
+  writer.join();
+  const grpc::Status finish = stream->Finish();
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    stream_context_ = nullptr;
+  }
+  if (!finish.ok()) return FromGrpcStatus(finish);
+  if (acked_seq < last_seq) {
+    return absl::UnavailableError(absl::StrFormat(
+        "the stream ended with batch %d of %d acknowledged", acked_seq, last_seq));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace imucal::sdk

@@ -1,0 +1,175 @@
+// Online static-pose segmentation: the incremental counterpart of core/static_detector.h, fed
+// sample by sample while a robot streams, for the technician's live guide.
+//
+// Model (as the offline detector): a sample is still when the window variance (sum over the
+// three axes) of the accelerometer AND of the gyroscope is at most `multiplier` times the
+// learnt white-noise variance of that sensor. The window is centred on the sample it classifies,
+// so classification runs window/2 samples behind the newest sample.
+// The noise floor is learnt from the data: the 10th percentile of the window variances over the
+// first `learn_s` seconds (a calibration capture starts at rest, as Calibrate assumes), then
+// refined with every accepted pose (an exponential average of its window variances, never above
+// the initial estimate). Quantised (integer) readings keep at least one step's rounding noise.
+//
+// A still run becomes a pose when the robot moves again (or at Flush()): trimmed by `trim_s` at
+// both ends, rejected when shorter than `min_static_s` ("too short") or when its first and
+// second half means differ by more than `moved_sigma` standard errors and 3 noise std ("moved"),
+// as DetectStatic does.
+//
+// Six-face guidance: the wanted sequence is Z+, Z+ turned, Z-, Z- turned, Y+, Y+ turned, Y-, Y-
+// turned, X+, X+ turned, X-, X- turned (seeds/000, core/simulator.h). An accepted pose whose face
+// (ClassifyFace of its accelerometer mean) is the wanted one advances the sequence; the 180-degree
+// turn itself is not verified online (the solve's pair check does that). Raw counts carry an
+// unknown offset, so for counts the mean is centred by the running mean of the accepted pose
+// means once four poses are in (an approximation: exact only when opposite faces balance).
+//
+// Memory is bounded: a ring of one window, the learning window (at most kMaxLearnSamples
+// variances) and at most kMaxChunks partial sums per still run, whatever the session length.
+#ifndef IMUCAL_CORE_ONLINE_SEGMENTER_H_
+#define IMUCAL_CORE_ONLINE_SEGMENTER_H_
+
+#include <array>
+#include <cstddef>
+#include <deque>
+#include <string>
+#include <vector>
+
+#include "Eigen/Core"
+#include "core/capture.h"
+
+namespace imucal::core {
+
+struct OnlineSegmenterOptions {
+  double rate_hz = 0.0;        // nominal; 0: learnt from the first sample intervals
+  double window_s = 0.5;       // variance window
+  double min_static_s = 1.0;   // after trimming
+  double trim_s = 0.1;         // removed from each end of a still run
+  double moved_sigma = 8.0;    // as StaticDetectorOptions::moved_sigma
+  double multiplier = 6.0;     // threshold = multiplier * noise variance
+  double learn_s = 2.0;        // initial rest used to learn the noise floor
+  double stillness_period_s = 0.25;  // sample time between two stillness updates
+  bool six_face = false;       // emit six-face guidance (faces and the next pose wanted)
+  AccelUnit accel_unit = AccelUnit::kMetersPerSecond2;
+};
+
+struct StillnessUpdate {
+  double t_s = 0;
+  bool still = false;
+  double still_for_s = 0;   // since the still run started (before trimming)
+  double needed_s = 0;      // min_static_s + 2 * trim_s
+  double motion_ratio = 0;  // max over the sensors of window variance / threshold
+};
+
+struct PoseUpdate {
+  int index = 0;  // 0, 1, 2, ... over all poses, accepted or not
+  bool accepted = false;
+  std::string reason;  // why rejected, in a technician's words
+  std::string face;    // "Z+" when on a face (within kFaceToleranceDeg), else ""
+  double t_start_s = 0, t_end_s = 0;
+  Eigen::Vector3d accel_mean = Eigen::Vector3d::Zero();  // input units
+  Eigen::Vector3d gyro_mean = Eigen::Vector3d::Zero();
+  size_t samples = 0;
+};
+
+struct NextPoseUpdate {
+  std::string instruction;
+  std::string face;  // wanted face, "" for free poses or when done
+  bool turn_half = false;
+  bool done = false;  // the six-face sequence is complete
+};
+
+struct SegmenterEvent {
+  enum class Kind { kStillness, kPose, kNextPose };
+  Kind kind = Kind::kStillness;
+  StillnessUpdate stillness;
+  PoseUpdate pose;
+  NextPoseUpdate next_pose;
+};
+
+class OnlineSegmenter {
+ public:
+  static constexpr size_t kMaxLearnSamples = 8192;
+  static constexpr size_t kMaxChunks = 256;
+  static constexpr int kSixFaceSteps = 12;
+
+  explicit OnlineSegmenter(OnlineSegmenterOptions options);
+
+  // The first guidance (the pose wanted before any sample arrives).
+  NextPoseUpdate CurrentNextPose() const;
+
+  // Feeds one sample (input units; t strictly increasing, as the caller validates). Appends the
+  // events it causes to `events`.
+  void Add(double t_s, const Eigen::Vector3d& accel, const Eigen::Vector3d& gyro,
+           std::vector<SegmenterEvent>* events);
+  // Ends the current still run, if any, as if the robot moved (e.g. the session is closing).
+  void Flush(std::vector<SegmenterEvent>* events);
+
+  int poses_accepted() const { return poses_accepted_; }
+  int poses_total() const { return next_pose_index_; }
+  int six_face_step() const { return step_; }  // 0..12: wanted steps done
+  bool noise_learnt() const { return noise_learnt_; }
+  // Per-axis noise variances (input units squared); zero until learnt.
+  const Eigen::Vector3d& accel_noise_var() const { return accel_floor_; }
+  const Eigen::Vector3d& gyro_noise_var() const { return gyro_floor_; }
+  // Six-face faces whose two steps are done, and those still wanted, in protocol order.
+  std::vector<std::string> FacesDone() const;
+  std::vector<std::string> FacesPending() const;
+
+ private:
+  struct Sample {
+    double t_s;
+    Eigen::Vector3d accel, gyro;
+  };
+  // Sums of a stretch of samples (accel relative to the run's first sample).
+  struct Chunk {
+    size_t n = 0;
+    Eigen::Vector3d accel_sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3d gyro_sum = Eigen::Vector3d::Zero();
+  };
+
+  void LearnRate(double t_s);
+  void Classify(const Sample& s, const Eigen::Vector3d& accel_var,
+                const Eigen::Vector3d& gyro_var, std::vector<SegmenterEvent>* events);
+  void AddToRun(const Sample& s);
+  void EndRun(std::vector<SegmenterEvent>* events);
+  void FinishLearning();
+  std::string FaceOf(const Eigen::Vector3d& accel_mean) const;
+  void Guide(const PoseUpdate& pose, std::vector<SegmenterEvent>* events);
+
+  OnlineSegmenterOptions options_;
+  // Sampling.
+  double first_t_s_ = 0;
+  size_t seen_ = 0;
+  size_t window_ = 0;  // samples, odd; 0 until the rate is known
+  std::deque<Sample> ring_;
+  Eigen::Vector3d offset_a_ = Eigen::Vector3d::Zero(), offset_g_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d s1a_ = Eigen::Vector3d::Zero(), s2a_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d s1g_ = Eigen::Vector3d::Zero(), s2g_ = Eigen::Vector3d::Zero();
+  bool integer_valued_ = true;
+  // Noise floor (per-axis variances).
+  bool noise_learnt_ = false;
+  std::vector<Eigen::Vector3d> learn_a_, learn_g_;
+  Eigen::Vector3d accel_floor_ = Eigen::Vector3d::Zero(), gyro_floor_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d accel_floor0_ = Eigen::Vector3d::Zero(), gyro_floor0_ = Eigen::Vector3d::Zero();
+  // The current still run.
+  bool in_run_ = false;
+  double run_start_t_s_ = 0;
+  size_t run_seen_ = 0;             // samples of the run so far (before trimming)
+  std::deque<Sample> run_tail_;     // the last trim samples, not yet summed
+  size_t trim_n_ = 0;
+  std::vector<Chunk> chunks_;
+  size_t chunk_n_ = 1;              // samples per chunk (doubles when kMaxChunks is reached)
+  Eigen::Vector3d run_offset_a_ = Eigen::Vector3d::Zero();
+  double run_first_t_s_ = 0, run_last_t_s_ = 0;
+  Eigen::Vector3d run_var_a_ = Eigen::Vector3d::Zero(), run_var_g_ = Eigen::Vector3d::Zero();
+  size_t run_var_n_ = 0;
+  double last_stillness_t_s_ = -1e300;
+  // Poses and guidance.
+  int next_pose_index_ = 0;
+  int poses_accepted_ = 0;
+  Eigen::Vector3d pose_mean_sum_ = Eigen::Vector3d::Zero();
+  int step_ = 0;
+};
+
+}  // namespace imucal::core
+
+#endif  // IMUCAL_CORE_ONLINE_SEGMENTER_H_

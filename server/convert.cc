@@ -1,0 +1,145 @@
+#include "server/convert.h"
+
+#include <array>
+
+#include "absl/strings/str_cat.h"
+
+namespace imucal::server {
+namespace {
+
+std::array<uint32_t, 256> MakeCrcTable() {
+  std::array<uint32_t, 256> table{};
+  for (uint32_t i = 0; i < 256; ++i) {
+    uint32_t c = i;
+    for (int k = 0; k < 8; ++k) c = (c & 1) ? 0x82F63B78u ^ (c >> 1) : c >> 1;
+    table[i] = c;
+  }
+  return table;
+}
+
+}  // namespace
+
+std::string ProtocolName(v1::Protocol protocol) {
+  switch (protocol) {
+    case v1::PROTOCOL_SIX_FACE: return "six-face";
+    case v1::PROTOCOL_POSITIONS: return "positions";
+    case v1::PROTOCOL_FREE: return "free";
+    default: return "auto";
+  }
+}
+
+v1::Protocol ParseProtocol(std::string_view stored) {
+  if (stored == "six-face") return v1::PROTOCOL_SIX_FACE;
+  if (stored == "positions") return v1::PROTOCOL_POSITIONS;
+  if (stored == "free") return v1::PROTOCOL_FREE;
+  return v1::PROTOCOL_UNSPECIFIED;
+}
+
+void ToTimestamp(absl::Time t, google::protobuf::Timestamp* out) {
+  const absl::Duration since = t - absl::UnixEpoch();
+  const int64_t seconds = absl::ToInt64Seconds(since);
+  out->set_seconds(seconds);
+  out->set_nanos(static_cast<int32_t>(absl::ToInt64Nanoseconds(since - absl::Seconds(seconds))));
+}
+
+v1::Device ToProto(const storage::Device& device) {
+  v1::Device out;
+  out.set_id(device.id);
+  out.set_sensor_model(device.sensor_model);
+  out.set_nominal_rate_hz(device.nominal_rate_hz);
+  out.set_accel_unit(device.accel_unit);
+  out.set_gyro_unit(device.gyro_unit);
+  ToTimestamp(device.created_at, out.mutable_created_at());
+  out.set_active_version(device.active_version);
+  return out;
+}
+
+storage::Device FromProto(const v1::Device& device) {
+  storage::Device out;
+  out.id = device.id();
+  out.sensor_model = device.sensor_model();
+  out.nominal_rate_hz = device.nominal_rate_hz();
+  out.accel_unit = device.accel_unit();
+  out.gyro_unit = device.gyro_unit();
+  return out;
+}
+
+v1::SessionState ToProto(storage::SessionState state) {
+  switch (state) {
+    case storage::SessionState::kOpen: return v1::SESSION_STATE_OPEN;
+    case storage::SessionState::kSolving: return v1::SESSION_STATE_SOLVING;
+    case storage::SessionState::kSolved: return v1::SESSION_STATE_SOLVED;
+    case storage::SessionState::kFailed: return v1::SESSION_STATE_FAILED;
+    case storage::SessionState::kCancelled: return v1::SESSION_STATE_CANCELLED;
+  }
+  return v1::SESSION_STATE_UNSPECIFIED;
+}
+
+absl::StatusOr<storage::SessionState> FromProto(v1::SessionState state) {
+  switch (state) {
+    case v1::SESSION_STATE_OPEN: return storage::SessionState::kOpen;
+    case v1::SESSION_STATE_SOLVING: return storage::SessionState::kSolving;
+    case v1::SESSION_STATE_SOLVED: return storage::SessionState::kSolved;
+    case v1::SESSION_STATE_FAILED: return storage::SessionState::kFailed;
+    case v1::SESSION_STATE_CANCELLED: return storage::SessionState::kCancelled;
+    default: return absl::InvalidArgumentError("state: unknown session state");
+  }
+}
+
+core::ProtocolKind ToProtocolKind(v1::Protocol protocol) {
+  switch (protocol) {
+    case v1::PROTOCOL_SIX_FACE: return core::ProtocolKind::kSixFace;
+    case v1::PROTOCOL_POSITIONS: return core::ProtocolKind::kPositions;
+    case v1::PROTOCOL_FREE: return core::ProtocolKind::kFree;
+    default: return core::ProtocolKind::kAuto;
+  }
+}
+
+v1::Session ToProto(const storage::Session& session, int live_poses_accepted) {
+  v1::Session out;
+  out.set_id(session.id);
+  out.set_device_id(session.device_id);
+  out.set_state(ToProto(session.state));
+  out.set_protocol(ParseProtocol(session.protocol));
+  ToTimestamp(session.created_at, out.mutable_created_at());
+  ToTimestamp(session.updated_at, out.mutable_updated_at());
+  out.set_last_acked_seq(session.last_acked_seq);
+  out.set_samples(session.samples);
+  out.set_poses_accepted(live_poses_accepted >= 0 ? live_poses_accepted : session.poses_accepted);
+  out.set_version(session.version);
+  return out;
+}
+
+v1::VersionState ToProto(storage::VersionState state) {
+  switch (state) {
+    case storage::VersionState::kCandidate: return v1::VERSION_STATE_CANDIDATE;
+    case storage::VersionState::kActive: return v1::VERSION_STATE_ACTIVE;
+    case storage::VersionState::kSuperseded: return v1::VERSION_STATE_SUPERSEDED;
+    // The API has no "rejected" state yet: a rejected version is a candidate that never was.
+    case storage::VersionState::kRejected: return v1::VERSION_STATE_CANDIDATE;
+  }
+  return v1::VERSION_STATE_UNSPECIFIED;
+}
+
+v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json) {
+  v1::ParameterSet out;
+  out.set_device_id(version.device_id);
+  out.set_version(version.version);
+  out.set_state(ToProto(version.state));
+  ToTimestamp(version.created_at, out.mutable_created_at());
+  out.set_session_id(version.session_id);
+  out.set_verdict(std::string(storage::VerdictName(version.verdict)));
+  out.set_accel_rms_m_s2(version.accel_rms);
+  out.set_crc32c(Crc32c(version.params_json));
+  if (with_json) out.set_json(version.params_json);
+  return out;
+}
+
+uint32_t Crc32c(std::string_view data) {
+  static const std::array<uint32_t, 256> kTable = MakeCrcTable();
+  uint32_t c = 0xFFFFFFFFu;
+  for (unsigned char b : data) c = kTable[(c ^ b) & 0xFF] ^ (c >> 8);
+  return c ^ 0xFFFFFFFFu;
+}
+
+}  // namespace imucal::server

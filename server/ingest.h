@@ -1,0 +1,45 @@
+// Ingest of one SampleBatch: validate -> encode -> store (durable before the ack) -> segment.
+//
+// Checks, each naming the field at fault (INVALID_ARGUMENT) or the state (FAILED_PRECONDITION):
+//   seq          >= 1; a gap is FailedPrecondition naming the expected seq; seq <= last acked is
+//                a retransmission, a no-op when the content is the same (Store compares)
+//   t_s          not empty, finite, strictly increasing, after the session's last stored t
+//   accel, gyro  exactly 3 per sample, finite, within the unit's physical range
+//   temp_c       empty or 1 per sample, finite, within -100..200 degC
+#ifndef IMUCAL_SERVER_INGEST_H_
+#define IMUCAL_SERVER_INGEST_H_
+
+#include <cstdint>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "imucal/v1/imucal.pb.h"
+#include "server/session_hub.h"
+#include "storage/sample_codec.h"
+#include "storage/store.h"
+
+namespace imucal::server {
+
+inline constexpr int64_t kMaxBatchSamples = 100000;
+
+// Column sizes, finiteness and magnitudes, independent of the session's history. `accel_unit`
+// and `gyro_unit` are the device's units (they set the physical ranges).
+absl::Status ValidateBatchColumns(const v1::SampleBatch& batch, std::string_view accel_unit,
+                                  std::string_view gyro_unit);
+// The batch's times against the session's last stored sample time (NaN: none yet).
+absl::Status ValidateBatchTimes(const v1::SampleBatch& batch, double last_t_s);
+std::vector<storage::ImuSample> ToSamples(const v1::SampleBatch& batch);
+
+struct IngestResult {
+  v1::SampleAck ack;
+  std::vector<v1::SessionEvent> events;  // for the watchers
+};
+
+// Applies one batch to `session` (whose `mu` the caller holds).
+absl::StatusOr<IngestResult> IngestBatch(storage::Store& store, LiveSession& session,
+                                         const v1::SampleBatch& batch);
+
+}  // namespace imucal::server
+
+#endif  // IMUCAL_SERVER_INGEST_H_

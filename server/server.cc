@@ -1,0 +1,55 @@
+#include "server/server.h"
+
+#include <chrono>
+
+#include "absl/strings/str_cat.h"
+#include "grpcpp/ext/proto_server_reflection_plugin.h"
+#include "grpcpp/health_check_service_interface.h"
+
+namespace imucal::server {
+
+absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& options) {
+  const size_t colon = options.listen.rfind(':');
+  if (colon == std::string::npos)
+    return absl::InvalidArgumentError("listen: expected host:port");
+  absl::StatusOr<std::unique_ptr<storage::Store>> store = storage::Store::Open(options.db_path);
+  if (!store.ok()) return store.status();
+
+  std::unique_ptr<Server> s(new Server());
+  s->host_ = options.listen.substr(0, colon);
+  s->drain_deadline_ = options.drain_deadline;
+  s->store_ = *std::move(store);
+  s->devices_ = std::make_unique<DeviceServiceImpl>(s->store_.get());
+  s->sessions_ = std::make_unique<SessionServiceImpl>(s->store_.get(), options.sessions);
+  s->parameters_ = std::make_unique<ParameterServiceImpl>(s->store_.get());
+
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  builder.AddListeningPort(options.listen, grpc::InsecureServerCredentials(), &s->port_);
+  builder.RegisterService(s->devices_.get());
+  builder.RegisterService(s->sessions_.get());
+  builder.RegisterService(s->parameters_.get());
+  s->server_ = builder.BuildAndStart();
+  if (s->server_ == nullptr || s->port_ == 0) {
+    return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
+  }
+  return s;
+}
+
+Server::~Server() { Shutdown(); }
+
+std::string Server::address() const { return absl::StrCat(host_, ":", port_); }
+
+void Server::Shutdown() {
+  if (shut_down_ || server_ == nullptr) return;
+  shut_down_ = true;
+  // New calls are refused at once; in-flight ones get until the deadline, then are cancelled.
+  server_->GetHealthCheckService()->Shutdown();
+  server_->Shutdown(std::chrono::system_clock::now() +
+                    absl::ToChronoMilliseconds(drain_deadline_));
+  server_->Wait();
+  sessions_->DrainSolves();  // queued solves finish and store their results
+}
+
+}  // namespace imucal::server

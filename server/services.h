@@ -1,0 +1,141 @@
+// The three gRPC services of imucal/v1/imucal.proto on the callback API. Handlers read
+// validate -> convert -> call -> convert -> finish; store calls are short SQLite transactions
+// run inline, solves run in the SolvePool, streams are reactors (no thread per stream).
+#ifndef IMUCAL_SERVER_SERVICES_H_
+#define IMUCAL_SERVER_SERVICES_H_
+
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <string>
+
+#include "grpcpp/grpcpp.h"
+#include "imucal/v1/imucal.grpc.pb.h"
+#include "server/session_hub.h"
+#include "server/solve_pool.h"
+#include "storage/store.h"
+
+namespace imucal::server {
+
+// Who did it, for the audit log: until authentication exists, "technician" and the peer.
+std::string ActorOf(const grpc::CallbackServerContext& context);
+
+// Pages are by key (the store's paging): the token is the key of a page's last item. Returns
+// the page size to use (0 means 100; at most `max_page_size`).
+absl::StatusOr<int> PageSize(int page_size, int max_page_size);
+
+class DeviceServiceImpl final : public v1::DeviceService::CallbackService {
+ public:
+  explicit DeviceServiceImpl(storage::Store* store) : store_(store) {}
+  grpc::ServerUnaryReactor* RegisterDevice(grpc::CallbackServerContext* context,
+                                           const v1::RegisterDeviceRequest* request,
+                                           v1::Device* response) override;
+  grpc::ServerUnaryReactor* GetDevice(grpc::CallbackServerContext* context,
+                                      const v1::GetDeviceRequest* request,
+                                      v1::Device* response) override;
+  grpc::ServerUnaryReactor* ListDevices(grpc::CallbackServerContext* context,
+                                        const v1::ListDevicesRequest* request,
+                                        v1::ListDevicesResponse* response) override;
+
+ private:
+  absl::Status DoRegister(const grpc::CallbackServerContext& context,
+                          const v1::RegisterDeviceRequest& request, v1::Device* response);
+  storage::Store* store_;
+};
+
+class ParameterServiceImpl final : public v1::ParameterService::CallbackService {
+ public:
+  explicit ParameterServiceImpl(storage::Store* store) : store_(store) {}
+  grpc::ServerUnaryReactor* GetActiveParameters(grpc::CallbackServerContext* context,
+                                                const v1::GetActiveParametersRequest* request,
+                                                v1::ParameterSet* response) override;
+  grpc::ServerUnaryReactor* GetParameters(grpc::CallbackServerContext* context,
+                                          const v1::GetParametersRequest* request,
+                                          v1::ParameterSet* response) override;
+  grpc::ServerUnaryReactor* ListVersions(grpc::CallbackServerContext* context,
+                                         const v1::ListVersionsRequest* request,
+                                         v1::ListVersionsResponse* response) override;
+  grpc::ServerUnaryReactor* Promote(grpc::CallbackServerContext* context,
+                                    const v1::PromoteRequest* request,
+                                    v1::ParameterSet* response) override;
+  grpc::ServerUnaryReactor* Rollback(grpc::CallbackServerContext* context,
+                                     const v1::RollbackRequest* request,
+                                     v1::ParameterSet* response) override;
+  grpc::ServerUnaryReactor* Export(grpc::CallbackServerContext* context,
+                                   const v1::ExportRequest* request,
+                                   v1::ExportResponse* response) override;
+
+ private:
+  absl::Status DoExport(const v1::ExportRequest& request, v1::ExportResponse* response);
+  storage::Store* store_;
+};
+
+struct SessionServiceOptions {
+  int solve_threads = 2;
+  size_t solve_queue_limit = 16;
+};
+
+class SessionServiceImpl final : public v1::SessionService::CallbackService {
+ public:
+  SessionServiceImpl(storage::Store* store, SessionServiceOptions options);
+  ~SessionServiceImpl() override;
+
+  grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* context,
+                                          const v1::CreateSessionRequest* request,
+                                          v1::Session* response) override;
+  grpc::ServerUnaryReactor* GetSession(grpc::CallbackServerContext* context,
+                                       const v1::GetSessionRequest* request,
+                                       v1::Session* response) override;
+  grpc::ServerUnaryReactor* ListSessions(grpc::CallbackServerContext* context,
+                                         const v1::ListSessionsRequest* request,
+                                         v1::ListSessionsResponse* response) override;
+  grpc::ServerUnaryReactor* CancelSession(grpc::CallbackServerContext* context,
+                                          const v1::CancelSessionRequest* request,
+                                          v1::Session* response) override;
+  grpc::ServerBidiReactor<v1::SampleBatch, v1::SampleAck>* StreamSamples(
+      grpc::CallbackServerContext* context) override;
+  grpc::ServerWriteReactor<v1::SessionEvent>* WatchSession(
+      grpc::CallbackServerContext* context, const v1::WatchSessionRequest* request) override;
+  grpc::ServerUnaryReactor* SolveSession(grpc::CallbackServerContext* context,
+                                         const v1::SolveSessionRequest* request,
+                                         v1::SolveJob* response) override;
+  grpc::ServerUnaryReactor* GetSolveJob(grpc::CallbackServerContext* context,
+                                        const v1::GetSolveJobRequest* request,
+                                        v1::SolveJob* response) override;
+  grpc::ServerUnaryReactor* GetReport(grpc::CallbackServerContext* context,
+                                      const v1::GetReportRequest* request,
+                                      v1::Report* response) override;
+
+  // Stops taking solves and finishes the queued ones (graceful shutdown, after the server's).
+  void DrainSolves() { pool_.Shutdown(); }
+
+ private:
+  struct SolveTask {
+    int64_t solve_id = 0;
+    std::string job_id;
+    std::string session_id;
+    uint64_t seed = 1;
+    std::string actor;
+  };
+  absl::Status DoSolve(const grpc::CallbackServerContext& context,
+                       const v1::SolveSessionRequest& request, v1::SolveJob* response);
+  absl::Status DoGetSolveJob(const v1::GetSolveJobRequest& request, v1::SolveJob* response);
+  absl::Status DoGetReport(const v1::GetReportRequest& request, v1::Report* response);
+  void RunSolve(const SolveTask& task);
+  // Records a job's new state and tells the session's watchers.
+  void UpdateJob(const v1::SolveJob& job);
+  absl::StatusOr<v1::Session> SessionProto(const std::string& session_id);
+
+  storage::Store* store_;
+  SessionHub hub_;
+  std::mutex jobs_mu_;
+  std::map<std::string, v1::SolveJob> jobs_;  // guarded by jobs_mu_
+  // Serialises "predict the next version number, store the version": the params JSON carries
+  // its version, so the number must be known before the version is stored.
+  std::mutex version_mu_;
+  SolvePool pool_;  // last: its workers use the members above
+};
+
+}  // namespace imucal::server
+
+#endif  // IMUCAL_SERVER_SERVICES_H_

@@ -1,0 +1,92 @@
+// The in-memory side of sessions: per-session live state (last sample time, counts, the online
+// segmenter) and the fan-out of SessionEvents to WatchSession streams.
+//
+// Fan-out never blocks ingest: Publish hands each watcher the event under a short lock and the
+// watcher queues it (coalescing stillness updates, dropping the oldest when it falls far
+// behind); the watcher's own gRPC writes drain its queue.
+//
+// Live state is rebuilt from storage the first time a session is touched after a restart (its
+// stored batches are decoded and replayed through the segmenter, without publishing), so
+// samples, poses and resume points survive a server restart.
+#ifndef IMUCAL_SERVER_SESSION_HUB_H_
+#define IMUCAL_SERVER_SESSION_HUB_H_
+
+#include <cstdint>
+#include <limits>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/online_segmenter.h"
+#include "imucal/v1/imucal.pb.h"
+#include "server/convert.h"
+#include "storage/store.h"
+
+namespace imucal::server {
+
+// A WatchSession stream as the hub sees it. Both calls must return quickly.
+class Watcher {
+ public:
+  virtual ~Watcher() = default;
+  virtual void Push(const v1::SessionEvent& event) = 0;
+  virtual void Close() = 0;  // no more events: end the stream after the queued ones
+};
+
+struct LiveSession {
+  // Guards everything below but the watchers. Held across one batch's ingest (validate,
+  // store, segment) so that two streams of one session serialise.
+  std::mutex mu;
+  std::string id;
+  storage::Device device;
+  v1::Protocol protocol = v1::PROTOCOL_UNSPECIFIED;
+  double gravity_m_s2 = core::kStandardGravity;
+  int64_t last_acked_seq = 0;
+  double last_t_s = std::numeric_limits<double>::quiet_NaN();  // NaN: no sample yet
+  std::unique_ptr<core::OnlineSegmenter> segmenter;
+
+  std::mutex watchers_mu;
+  std::vector<Watcher*> watchers;  // guarded by watchers_mu
+  bool closed = false;             // guarded by watchers_mu: watchers added now end at once
+};
+
+class SessionHub {
+ public:
+  explicit SessionHub(storage::Store* store) : store_(store) {}
+
+  // The session's live state, loading it from storage on first use.
+  absl::StatusOr<std::shared_ptr<LiveSession>> Get(std::string_view session_id);
+  // The online segmenter's accepted poses if the session is live in memory, else -1.
+  int PeekPosesAccepted(std::string_view session_id);
+
+  void Publish(LiveSession& session, const v1::SessionEvent& event);
+  void AddWatcher(LiveSession& session, Watcher* watcher);
+  void RemoveWatcher(LiveSession& session, Watcher* watcher);
+  // Ends every watcher's stream (the session closed) and forgets the live state.
+  void CloseSession(LiveSession& session);
+  // A closed (solved or failed) session is being solved again: watchers may follow it.
+  void Reopen(LiveSession& session);
+
+  // Converts segmenter events to SessionEvents (plus a Progress after each pose).
+  static std::vector<v1::SessionEvent> ToEvents(const LiveSession& session,
+                                                const std::vector<core::SegmenterEvent>& events);
+  static v1::SessionEvent ProgressEvent(const LiveSession& session);
+  static v1::SessionEvent NextPoseEvent(const core::NextPoseUpdate& next);
+
+ private:
+  absl::StatusOr<std::shared_ptr<LiveSession>> Load(std::string_view session_id);
+
+  storage::Store* store_;
+  std::mutex mu_;
+  std::map<std::string, std::shared_ptr<LiveSession>, std::less<>> sessions_;  // guarded by mu_
+};
+
+core::OnlineSegmenterOptions SegmenterOptionsFor(const storage::Device& device,
+                                                 v1::Protocol protocol);
+
+}  // namespace imucal::server
+
+#endif  // IMUCAL_SERVER_SESSION_HUB_H_

@@ -1,0 +1,390 @@
+#include <cmath>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/match.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/strip.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/time/clock.h"
+#include "client/cli/report_json.h"
+#include "client/sdk/params_json.h"
+#include "core/calibrate.h"
+#include "server/convert.h"
+#include "server/services.h"
+#include "server/unary.h"
+#include "storage/sample_codec.h"
+
+namespace imucal::server {
+namespace {
+
+constexpr char kJobPrefix[] = "solve-";
+
+absl::Status RequireSession(const std::string& session_id) {
+  return session_id.empty() ? absl::InvalidArgumentError("session_id: required")
+                            : absl::OkStatus();
+}
+
+v1::SessionEvent Stamped() {
+  v1::SessionEvent e;
+  ToTimestamp(absl::Now(), e.mutable_time());
+  return e;
+}
+
+// The session's stored batches as a core::Capture in the device's units.
+absl::StatusOr<core::Capture> LoadCapture(storage::Store& store, const LiveSession& live) {
+  absl::StatusOr<std::vector<storage::SampleBatch>> batches = store.ReadBatches(live.id);
+  if (!batches.ok()) return batches.status();
+  std::vector<storage::ImuSample> samples;
+  for (const storage::SampleBatch& b : *batches)
+    if (absl::Status s = storage::DecodeSamplesInto(b.payload, &samples); !s.ok()) return s;
+  core::Capture cap;
+  cap.device = live.device.id;
+  absl::StatusOr<core::AccelUnit> au = core::ParseAccelUnit(live.device.accel_unit);
+  absl::StatusOr<core::GyroUnit> gu = core::ParseGyroUnit(live.device.gyro_unit);
+  if (!au.ok()) return au.status();
+  if (!gu.ok()) return gu.status();
+  cap.accel_unit = *au;
+  cap.gyro_unit = *gu;
+  cap.gravity_m_s2 = live.gravity_m_s2;
+  cap.rate_hz = live.device.nominal_rate_hz;
+  const bool has_temp = !samples.empty() && !std::isnan(samples.front().temp);
+  cap.t_s.reserve(samples.size());
+  cap.accel.reserve(samples.size());
+  cap.gyro.reserve(samples.size());
+  for (const storage::ImuSample& x : samples) {
+    cap.t_s.push_back(x.t_s);
+    cap.accel.emplace_back(x.accel[0], x.accel[1], x.accel[2]);
+    cap.gyro.emplace_back(x.gyro[0], x.gyro[1], x.gyro[2]);
+    if (has_temp) cap.temp.push_back(std::isnan(x.temp) ? 0.0 : x.temp);
+  }
+  // Batches with and without temperature may mix: then the capture has none.
+  if (has_temp) {
+    for (const storage::ImuSample& x : samples) {
+      if (std::isnan(x.temp)) {
+        cap.temp.clear();
+        break;
+      }
+    }
+  }
+  return cap;
+}
+
+v1::JobState ToJobState(storage::SolveState state) {
+  switch (state) {
+    case storage::SolveState::kRunning: return v1::JOB_STATE_RUNNING;
+    case storage::SolveState::kSucceeded: return v1::JOB_STATE_DONE;
+    case storage::SolveState::kFailed: return v1::JOB_STATE_FAILED;
+  }
+  return v1::JOB_STATE_UNSPECIFIED;
+}
+
+}  // namespace
+
+SessionServiceImpl::SessionServiceImpl(storage::Store* store, SessionServiceOptions options)
+    : store_(store),
+      hub_(store),
+      pool_(options.solve_threads, options.solve_queue_limit) {}
+
+SessionServiceImpl::~SessionServiceImpl() { pool_.Shutdown(); }
+
+absl::StatusOr<v1::Session> SessionServiceImpl::SessionProto(const std::string& session_id) {
+  absl::StatusOr<storage::Session> session = store_->GetSession(session_id);
+  if (!session.ok()) return session.status();
+  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(session_id);
+  if (!live.ok()) return live.status();
+  int poses = 0;
+  {
+    std::lock_guard lock((*live)->mu);
+    poses = (*live)->segmenter->poses_accepted();
+  }
+  return ToProto(*session, poses);
+}
+
+grpc::ServerUnaryReactor* SessionServiceImpl::CreateSession(
+    grpc::CallbackServerContext* context, const v1::CreateSessionRequest* request,
+    v1::Session* response) {
+  // validate
+  absl::Status valid = absl::OkStatus();
+  if (request->device_id().empty()) valid = absl::InvalidArgumentError("device_id: required");
+  if (!v1::Protocol_IsValid(request->protocol()))
+    valid = absl::InvalidArgumentError("protocol: unknown protocol");
+  const double g = request->gravity_m_s2() == 0 ? core::kStandardGravity : request->gravity_m_s2();
+  if (!(g >= 9.7 && g <= 9.9))
+    valid = absl::InvalidArgumentError("gravity_m_s2: local gravity must be in 9.7..9.9 m/s^2");
+  if (!valid.ok()) return FinishUnary(context, valid);
+  // convert, call
+  storage::Session wanted;
+  wanted.device_id = request->device_id();
+  wanted.protocol = ProtocolName(request->protocol());
+  wanted.gravity_m_s2 = g;
+  absl::StatusOr<storage::Session> created = store_->CreateSession(wanted, ActorOf(*context));
+  if (!created.ok()) return FinishUnary(context, created.status());
+  // convert back
+  *response = ToProto(*created);
+  return FinishUnary(context, absl::OkStatus());
+}
+
+grpc::ServerUnaryReactor* SessionServiceImpl::GetSession(grpc::CallbackServerContext* context,
+                                                         const v1::GetSessionRequest* request,
+                                                         v1::Session* response) {
+  if (absl::Status s = RequireSession(request->session_id()); !s.ok())
+    return FinishUnary(context, s);
+  absl::StatusOr<v1::Session> session = SessionProto(request->session_id());
+  if (session.ok()) *response = *std::move(session);
+  return FinishUnary(context, session.status());
+}
+
+grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(
+    grpc::CallbackServerContext* context, const v1::ListSessionsRequest* request,
+    v1::ListSessionsResponse* response) {
+  std::optional<storage::SessionState> state;
+  if (request->state() != v1::SESSION_STATE_UNSPECIFIED) {
+    absl::StatusOr<storage::SessionState> s = FromProto(request->state());
+    if (!s.ok()) return FinishUnary(context, s.status());
+    state = *s;
+  }
+  absl::StatusOr<int> size = PageSize(request->page_size(), 1000);
+  if (!size.ok()) return FinishUnary(context, size.status());
+  storage::SessionQuery query;
+  query.device_id = request->device_id();
+  query.state = state;
+  query.after_id = request->page_token();
+  query.limit = *size + 1;  // one more: whether there is a next page
+  absl::StatusOr<std::vector<storage::Session>> sessions = store_->ListSessions(query);
+  if (!sessions.ok()) return FinishUnary(context, sessions.status());
+  const bool more = sessions->size() > static_cast<size_t>(*size);
+  if (more) sessions->pop_back();
+  for (const storage::Session& s : *sessions)
+    *response->add_sessions() = ToProto(s, hub_.PeekPosesAccepted(s.id));
+  if (more) response->set_next_page_token(sessions->back().id);
+  return FinishUnary(context, absl::OkStatus());
+}
+
+grpc::ServerUnaryReactor* SessionServiceImpl::CancelSession(
+    grpc::CallbackServerContext* context, const v1::CancelSessionRequest* request,
+    v1::Session* response) {
+  if (absl::Status s = RequireSession(request->session_id()); !s.ok())
+    return FinishUnary(context, s);
+  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(request->session_id());
+  if (!live.ok()) return FinishUnary(context, live.status());
+  absl::StatusOr<storage::Session> cancelled;
+  {
+    std::lock_guard lock((*live)->mu);  // no batch is half ingested while it closes
+    cancelled = store_->SetSessionState(request->session_id(), storage::SessionState::kCancelled,
+                                        ActorOf(*context));
+  }
+  if (!cancelled.ok()) return FinishUnary(context, cancelled.status());
+  absl::StatusOr<v1::Session> proto = SessionProto(request->session_id());
+  if (!proto.ok()) return FinishUnary(context, proto.status());
+  v1::SessionEvent e = Stamped();
+  *e.mutable_session() = *proto;
+  hub_.Publish(**live, e);
+  hub_.CloseSession(**live);
+  *response = *std::move(proto);
+  return FinishUnary(context, absl::OkStatus());
+}
+
+// ---- Solves.
+
+absl::Status SessionServiceImpl::DoSolve(const grpc::CallbackServerContext& context,
+                                         const v1::SolveSessionRequest& request,
+                                         v1::SolveJob* response) {
+  if (absl::Status s = RequireSession(request.session_id()); !s.ok()) return s;
+  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(request.session_id());
+  if (!live.ok()) return live.status();
+  if (!pool_.Reserve()) {
+    return absl::ResourceExhaustedError(
+        "the solve queue is full; retry in a minute (GetSolveJob shows running jobs)");
+  }
+  const std::string actor = ActorOf(context);
+  absl::StatusOr<storage::Solve> solve;
+  std::vector<core::SegmenterEvent> last_pose;
+  {
+    std::lock_guard lock((*live)->mu);  // no batch lands after the solve has started
+    solve = store_->StartSolve(request.session_id(), actor);
+    if (solve.ok()) (*live)->segmenter->Flush(&last_pose);  // the final hold is a pose
+  }
+  if (!solve.ok()) {
+    pool_.Release();
+    return solve.status();
+  }
+  hub_.Reopen(**live);
+  for (const v1::SessionEvent& e : SessionHub::ToEvents(**live, last_pose)) hub_.Publish(**live, e);
+  SolveTask task;
+  task.solve_id = solve->id;
+  task.job_id = absl::StrCat(kJobPrefix, solve->id);
+  task.session_id = request.session_id();
+  task.seed = request.seed() == 0 ? 1 : request.seed();
+  task.actor = actor;
+  v1::SolveJob job;
+  job.set_id(task.job_id);
+  job.set_session_id(task.session_id);
+  job.set_state(v1::JOB_STATE_QUEUED);
+  UpdateJob(job);
+  if (absl::StatusOr<v1::Session> s = SessionProto(task.session_id); s.ok()) {
+    v1::SessionEvent e = Stamped();
+    *e.mutable_session() = *std::move(s);
+    hub_.Publish(**live, e);
+  }
+  pool_.Submit([this, task] { RunSolve(task); });
+  *response = job;
+  return absl::OkStatus();
+}
+
+void SessionServiceImpl::UpdateJob(const v1::SolveJob& job) {
+  {
+    std::lock_guard lock(jobs_mu_);
+    jobs_[job.id()] = job;
+  }
+  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(job.session_id());
+  if (!live.ok()) return;
+  v1::SessionEvent e = Stamped();
+  *e.mutable_solve() = job;
+  hub_.Publish(**live, e);
+}
+
+void SessionServiceImpl::RunSolve(const SolveTask& task) {
+  v1::SolveJob job;
+  job.set_id(task.job_id);
+  job.set_session_id(task.session_id);
+  job.set_state(v1::JOB_STATE_RUNNING);
+  UpdateJob(job);
+  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(task.session_id);
+  absl::Status failure = live.status();
+  if (failure.ok()) {
+    // read -> decode -> calibrate -> JSON -> store (the version becomes active if it passes).
+    absl::StatusOr<core::Capture> capture = LoadCapture(*store_, **live);
+    core::CalibrateOptions options;
+    options.protocol = ToProtocolKind((*live)->protocol);
+    options.seed = task.seed;
+    absl::StatusOr<core::CalibrationReport> report =
+        capture.ok() ? core::Calibrate(*capture, options)
+                     : absl::StatusOr<core::CalibrationReport>(capture.status());
+    if (report.ok()) {
+      std::lock_guard lock(version_mu_);
+      absl::StatusOr<std::vector<storage::ParamVersion>> versions =
+          store_->ListVersions((*live)->device.id);
+      int next = 1;
+      if (versions.ok())
+        for (const storage::ParamVersion& v : *versions) next = std::max(next, v.version + 1);
+      report->device = (*live)->device.id;
+      report->params.device = (*live)->device.id;
+      report->params.version = next;
+      report->params.source_session = task.session_id;
+      report->params.software = "imucald " IMUCAL_VERSION;
+      storage::ParamVersion version;
+      version.device_id = (*live)->device.id;
+      version.session_id = task.session_id;
+      version.params_json = sdk::ParamSetToJson(report->params);
+      version.report_json = cli::ReportToJson(*report);
+      version.verdict = storage::ParseVerdict(report->verdict).value_or(storage::Verdict::kFail);
+      version.accel_rms = report->residual.accel_rms_m_s2;
+      // The quality gate: only a passing solve becomes active on its own.
+      version.state = report->verdict == "pass" ? storage::VersionState::kActive
+                                                : storage::VersionState::kCandidate;
+      version.provenance = absl::StrFormat("imucald %s; protocol %s; seed %d", IMUCAL_VERSION,
+                                           core::ProtocolKindName(options.protocol), options.seed);
+      absl::StatusOr<storage::ParamVersion> stored =
+          store_->FinishSolve(task.solve_id, version, task.actor);
+      if (stored.ok()) {
+        job.set_state(v1::JOB_STATE_DONE);
+        job.set_version(stored->version);
+        job.set_verdict(report->verdict);
+        job.set_activated(stored->state == storage::VersionState::kActive);
+      } else {
+        failure = stored.status();
+      }
+    } else {
+      failure = report.status();
+    }
+  }
+  if (job.state() != v1::JOB_STATE_DONE) {
+    if (failure.ok()) failure = absl::InternalError("solve ended without a result");
+    job.set_state(v1::JOB_STATE_FAILED);
+    job.set_error(ScrubMessage(failure.message()));
+    store_->FailSolve(task.solve_id, job.error(), /*report_json=*/"", task.actor).IgnoreError();
+  }
+  UpdateJob(job);
+  if (!live.ok()) return;
+  if (absl::StatusOr<v1::Session> s = SessionProto(task.session_id); s.ok()) {
+    v1::SessionEvent e = Stamped();
+    *e.mutable_session() = *std::move(s);
+    hub_.Publish(**live, e);
+  }
+  hub_.CloseSession(**live);
+}
+
+grpc::ServerUnaryReactor* SessionServiceImpl::SolveSession(
+    grpc::CallbackServerContext* context, const v1::SolveSessionRequest* request,
+    v1::SolveJob* response) {
+  return FinishUnary(context, DoSolve(*context, *request, response));
+}
+
+absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& request,
+                                               v1::SolveJob* response) {
+  absl::string_view id = request.job_id();
+  int64_t solve_id = 0;
+  if (!absl::ConsumePrefix(&id, kJobPrefix) || !absl::SimpleAtoi(id, &solve_id))
+    return absl::InvalidArgumentError("job_id: not a solve job id (\"solve-<n>\")");
+  {
+    std::lock_guard lock(jobs_mu_);
+    if (auto it = jobs_.find(request.job_id()); it != jobs_.end()) {
+      *response = it->second;
+      return absl::OkStatus();
+    }
+  }
+  // A job of an earlier server run: from storage.
+  absl::StatusOr<storage::Solve> solve = store_->GetSolve(solve_id);
+  if (!solve.ok()) return solve.status();
+  response->set_id(request.job_id());
+  response->set_session_id(solve->session_id);
+  response->set_state(ToJobState(solve->state));
+  response->set_error(ScrubMessage(solve->error));
+  response->set_version(solve->version);
+  if (solve->version > 0) {
+    absl::StatusOr<storage::Session> session = store_->GetSession(solve->session_id);
+    if (!session.ok()) return session.status();
+    absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, solve->version);
+    if (!v.ok()) return v.status();
+    response->set_verdict(std::string(storage::VerdictName(v->verdict)));
+    response->set_activated(v->state != storage::VersionState::kCandidate);
+  }
+  return absl::OkStatus();
+}
+
+grpc::ServerUnaryReactor* SessionServiceImpl::GetSolveJob(grpc::CallbackServerContext* context,
+                                                          const v1::GetSolveJobRequest* request,
+                                                          v1::SolveJob* response) {
+  return FinishUnary(context, DoGetSolveJob(*request, response));
+}
+
+absl::Status SessionServiceImpl::DoGetReport(const v1::GetReportRequest& request,
+                                             v1::Report* response) {
+  if (absl::Status s = RequireSession(request.session_id()); !s.ok()) return s;
+  absl::StatusOr<storage::Session> session = store_->GetSession(request.session_id());
+  if (!session.ok()) return session.status();
+  absl::StatusOr<std::vector<storage::Solve>> solves = store_->ListSolves(request.session_id());
+  if (!solves.ok()) return solves.status();
+  int version = 0;
+  for (const storage::Solve& s : *solves)
+    if (s.version > 0) version = s.version;
+  if (version == 0) {
+    return absl::NotFoundError(
+        absl::StrCat("session ", request.session_id(), " has no solved report yet"));
+  }
+  absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, version);
+  if (!v.ok()) return v.status();
+  response->set_json(v->report_json);
+  return absl::OkStatus();
+}
+
+grpc::ServerUnaryReactor* SessionServiceImpl::GetReport(grpc::CallbackServerContext* context,
+                                                        const v1::GetReportRequest* request,
+                                                        v1::Report* response) {
+  return FinishUnary(context, DoGetReport(*request, response));
+}
+
+}  // namespace imucal::server

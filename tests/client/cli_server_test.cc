@@ -1,0 +1,174 @@
+// The CLI's server commands driven in-process against a real imucald (skipped until the server
+// is built): register -> session -> upload (resumable) -> solve -> report -> params -> export,
+// the JSON outputs scripts read, and the exit code for an unreachable server.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "client/cli/commands.h"
+#include "core/capture_io.h"
+#include "core/simulator.h"
+#include "nlohmann/json.hpp"
+#include "tests/client/imucald_process.h"
+
+namespace imucal::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+class CliServerTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    if (!testing_util::kHaveImucald) GTEST_SKIP() << "imucald is not built yet";
+    dir_ = fs::path(testing::TempDir()) /
+           absl::StrCat("imucal_cli_server_test_",
+                        testing::UnitTest::GetInstance()->current_test_info()->name(), "_",
+                        ::getpid());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    auto server = testing_util::ImucaldProcess::Start(dir_.string());
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = *std::move(server);
+  }
+  void TearDown() override {
+    server_.reset();
+    if (!dir_.empty()) fs::remove_all(dir_);
+  }
+
+  int Run(int (*command)(const std::vector<std::string>&), std::vector<std::string> args) {
+    args.insert(args.begin(), {"--server", server_->address()});
+    testing::internal::CaptureStdout();
+    testing::internal::CaptureStderr();
+    const int code = command(args);
+    out_ = testing::internal::GetCapturedStdout();
+    err_ = testing::internal::GetCapturedStderr();
+    return code;
+  }
+
+  std::string WriteSimulatedCapture(uint64_t seed) {
+    core::SimOptions sim;
+    sim.seed = seed;
+    auto r = core::Simulate(sim);
+    EXPECT_TRUE(r.ok()) << r.status();
+    const std::string path = (dir_ / absl::StrCat("capture", seed, ".csv")).string();
+    EXPECT_TRUE(core::WriteImucalCsvFile(r->capture, path).ok());
+    return path;
+  }
+
+  void Register(const std::string& device) {
+    ASSERT_EQ(Run(RunDevices, {"register", device, "--sensor-model", "sim", "--rate", "200",
+                               "--accel-unit", "m/s^2", "--gyro-unit", "rad/s"}),
+              kExitOk)
+        << err_;
+  }
+
+  fs::path dir_;
+  std::unique_ptr<testing_util::ImucaldProcess> server_;
+  std::string out_, err_;
+};
+
+TEST_F(CliServerTest, RegisterListAndShowDevices) {
+  Register("robot-cli-1");
+  Register("robot-cli-1");  // the same metadata again is a no-op
+  ASSERT_EQ(Run(RunDevices, {"--json"}), kExitOk) << err_;
+  json j = json::parse(out_);
+  ASSERT_EQ(j["devices"].size(), 1u) << out_;
+  EXPECT_EQ(j["devices"][0]["id"], "robot-cli-1");
+  ASSERT_EQ(Run(RunDevices, {"get", "robot-cli-1"}), kExitOk) << err_;
+  EXPECT_NE(out_.find("robot-cli-1"), std::string::npos);
+  EXPECT_EQ(Run(RunDevices, {"get", "robot-none"}), kExitBadInput);
+  EXPECT_NE(err_.find("robot-none"), std::string::npos) << err_;
+}
+
+TEST_F(CliServerTest, SessionStartListCancel) {
+  Register("robot-cli-2");
+  ASSERT_EQ(Run(RunSession, {"start", "--device", "robot-cli-2", "--protocol", "six-face",
+                             "--json"}),
+            kExitOk)
+      << err_;
+  const std::string id = json::parse(out_)["id"];
+  EXPECT_EQ(Run(RunSession, {"start", "--device", "robot-cli-2"}), kExitUndetermined)
+      << "a second open session must be refused: " << out_;
+  ASSERT_EQ(Run(RunSession, {"list", "--device", "robot-cli-2"}), kExitOk) << err_;
+  EXPECT_NE(out_.find(id), std::string::npos) << out_;
+  ASSERT_EQ(Run(RunSession, {"cancel", id}), kExitOk) << err_;
+  EXPECT_NE(out_.find("cancelled"), std::string::npos) << out_;
+}
+
+TEST_F(CliServerTest, UploadSolveReportParamsExport) {
+  Register("robot-cli-3");
+  const std::string capture = WriteSimulatedCapture(5);
+  ASSERT_EQ(Run(RunUpload, {capture, "--device", "robot-cli-3", "--protocol", "six-face",
+                            "--solve"}),
+            kExitOk)
+      << out_ << err_;
+  EXPECT_NE(out_.find("uploaded"), std::string::npos) << out_;
+  EXPECT_NE(out_.find("verdict"), std::string::npos) << out_;
+  ASSERT_EQ(Run(RunSession, {"list", "--device", "robot-cli-3", "--json"}), kExitOk) << err_;
+  const std::string session = json::parse(out_)["sessions"][0]["id"];
+
+  ASSERT_EQ(Run(RunReport, {"--session", session, "--json"}), kExitOk) << err_;
+  json report = json::parse(out_);
+  EXPECT_EQ(report["format"], "imucal-report v1");
+  ASSERT_EQ(Run(RunReport, {"--session", session}), kExitOk) << err_;
+  EXPECT_NE(out_.find("verdict"), std::string::npos) << out_;
+
+  ASSERT_EQ(Run(RunParams, {"get", "--device", "robot-cli-3", "--version", "1", "--json"}),
+            kExitOk)
+      << err_;
+  EXPECT_EQ(json::parse(out_)["format"], "imucal-params v1");
+  // Whether a version activates by itself is the server's gates' call; promote it either way.
+  ASSERT_EQ(Run(RunParams, {"promote", "--device", "robot-cli-3", "--version", "1"}), kExitOk)
+      << err_;
+  EXPECT_NE(out_.find("robot-cli-3 v1 is now active"), std::string::npos) << out_;
+  ASSERT_EQ(Run(RunParams, {"get", "--device", "robot-cli-3"}), kExitOk) << err_;
+  EXPECT_NE(out_.find("accel bias"), std::string::npos) << out_;
+  ASSERT_EQ(Run(RunParams, {"list", "--device", "robot-cli-3"}), kExitOk) << err_;
+  EXPECT_NE(out_.find("v1"), std::string::npos) << out_;
+
+  // json: kalibr and openvins exports are still being written on the server side.
+  const std::string out = (dir_ / "params.json").string();
+  ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "json", "--out", out}),
+            kExitOk)
+      << err_;
+  EXPECT_TRUE(fs::exists(out));
+  EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "bogus"}), kExitUsage);
+}
+
+TEST_F(CliServerTest, UploadAgainToTheSameSessionResumes) {
+  Register("robot-cli-4");
+  const std::string capture = WriteSimulatedCapture(6);
+  ASSERT_EQ(Run(RunSession, {"start", "--device", "robot-cli-4", "--json"}), kExitOk) << err_;
+  const std::string id = json::parse(out_)["id"];
+  ASSERT_EQ(Run(RunUpload, {capture, "--session", id}), kExitOk) << err_;
+  ASSERT_EQ(Run(RunUpload, {capture, "--session", id}), kExitOk) << err_;
+  EXPECT_NE(out_.find("uploaded 0 samples"), std::string::npos) << out_;
+  EXPECT_NE(out_.find("already stored"), std::string::npos) << out_;
+}
+
+TEST_F(CliServerTest, UnitsDifferentFromTheDevicesAreRefused) {
+  ASSERT_EQ(Run(RunDevices, {"register", "robot-cli-5", "--rate", "200", "--accel-unit", "g",
+                             "--gyro-unit", "deg/s"}),
+            kExitOk)
+      << err_;
+  EXPECT_EQ(Run(RunUpload, {WriteSimulatedCapture(7), "--device", "robot-cli-5"}), kExitBadInput);
+  EXPECT_NE(err_.find("registered with accel g"), std::string::npos) << err_;
+}
+
+TEST(CliServerUnreachableTest, ExitCodeSix) {
+  const std::string address = absl::StrCat("127.0.0.1:", testing_util::FreeLoopbackPort());
+  testing::internal::CaptureStderr();
+  const int code = RunDevices({"--server", address});
+  const std::string err = testing::internal::GetCapturedStderr();
+  EXPECT_EQ(code, kExitUnavailable);
+  EXPECT_NE(err.find("unreachable"), std::string::npos) << err;
+}
+
+}  // namespace
+}  // namespace imucal::cli

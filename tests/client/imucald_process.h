@@ -1,0 +1,116 @@
+// Starts the real imucald for end-to-end tests: a free loopback port, a fresh SQLite file in a
+// temp directory, readiness by waiting for the channel to connect (no sleeps). The path of the
+// binary comes from CMake (IMUCAL_IMUCALD_PATH) once the server target exists.
+#ifndef IMUCAL_TESTS_CLIENT_IMUCALD_PROCESS_H_
+#define IMUCAL_TESTS_CLIENT_IMUCALD_PROCESS_H_
+
+#include <netinet/in.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/strings/str_cat.h"
+#include "grpcpp/grpcpp.h"
+
+namespace imucal::testing_util {
+
+// A loopback port that was free a moment ago (the kernel's pick for port 0).
+inline int FreeLoopbackPort() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = 0;
+  socklen_t len = sizeof addr;
+  int port = 0;
+  if (::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) == 0 &&
+      ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len) == 0) {
+    port = ntohs(addr.sin_port);
+  }
+  ::close(fd);
+  return port;
+}
+
+inline constexpr bool kHaveImucald =
+#ifdef IMUCAL_IMUCALD_PATH
+    true;
+#else
+    false;
+#endif
+
+class ImucaldProcess {
+ public:
+  // Starts imucald with its database in `dir`; Unavailable if it does not come up in 20 s.
+  static absl::StatusOr<std::unique_ptr<ImucaldProcess>> Start(const std::string& dir) {
+    auto p = std::unique_ptr<ImucaldProcess>(new ImucaldProcess);
+    p->db_path_ = (std::filesystem::path(dir) / "imucal.db").string();
+    p->port_ = FreeLoopbackPort();
+    if (absl::Status s = p->Launch(); !s.ok()) return s;
+    return p;
+  }
+  ~ImucaldProcess() { Stop(SIGTERM); }
+
+  std::string address() const { return absl::StrCat("127.0.0.1:", port_); }
+  const std::string& db_path() const { return db_path_; }
+  std::shared_ptr<grpc::Channel> NewChannel() const {
+    // A channel of its own per call site: after a restart old channels reconnect lazily.
+    grpc::ChannelArguments args;
+    args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 100);
+    args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 500);
+    return grpc::CreateCustomChannel(address(), grpc::InsecureChannelCredentials(), args);
+  }
+
+  // Stops the server (SIGKILL: as a crash or power cut would) and starts it again on the same
+  // port and database.
+  absl::Status Restart() {
+    Stop(SIGKILL);
+    return Launch();
+  }
+  void Stop(int signal) {
+    if (pid_ <= 0) return;
+    ::kill(pid_, signal);
+    int status = 0;
+    ::waitpid(pid_, &status, 0);
+    pid_ = -1;
+  }
+
+ private:
+  ImucaldProcess() = default;
+
+  absl::Status Launch() {
+#ifdef IMUCAL_IMUCALD_PATH
+    const std::string listen = address();
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      ::execl(IMUCAL_IMUCALD_PATH, IMUCAL_IMUCALD_PATH, "--listen", listen.c_str(), "--db",
+              db_path_.c_str(), static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    if (pid_ < 0) return absl::InternalError("fork failed");
+    auto channel = NewChannel();
+    if (!channel->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(20))) {
+      Stop(SIGKILL);
+      return absl::UnavailableError(absl::StrCat("imucald did not listen on ", listen));
+    }
+    return absl::OkStatus();
+#else
+    return absl::UnimplementedError("imucald is not built");
+#endif
+  }
+
+  std::string db_path_;
+  int port_ = 0;
+  pid_t pid_ = -1;
+};
+
+}  // namespace imucal::testing_util
+
+#endif  // IMUCAL_TESTS_CLIENT_IMUCALD_PROCESS_H_

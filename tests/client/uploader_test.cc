@@ -1,0 +1,297 @@
+// The Uploader against an in-process fake SessionService (always) and the real imucald (when it
+// is built): complete uploads, cancel + upload again resumes after the last ack, dropped streams
+// reconnect, and the server ends up with every sample exactly once.
+#include "client/sdk/uploader.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "client/sdk/client.h"
+#include "core/simulator.h"
+#include "grpcpp/grpcpp.h"
+#include "tests/client/fake_services.h"
+#include "tests/client/imucald_process.h"
+
+namespace imucal::sdk {
+namespace {
+
+namespace fs = std::filesystem;
+namespace pb = imucal::v1;
+using testing_util::FakeServer;
+using testing_util::FakeSessionService;
+
+SampleColumns MakeColumns(int n) {
+  SampleColumns s;
+  for (int i = 0; i < n; ++i) {
+    s.t_s.push_back(0.005 * i);
+    for (int k = 0; k < 3; ++k) s.accel.push_back(i * 3 + k);
+    for (int k = 0; k < 3; ++k) s.gyro.push_back(-0.001 * i);
+    s.temp_c.push_back(25.0);
+  }
+  return s;
+}
+
+UploadOptions SmallBatches() {
+  UploadOptions o;
+  o.batch_samples = 100;
+  o.max_in_flight = 4;
+  o.initial_backoff = absl::Milliseconds(10);
+  return o;
+}
+
+class UploaderFakeTest : public testing::Test {
+ protected:
+  UploaderFakeTest() : server_({&service_}) { service_.AddSession("s-1"); }
+  std::shared_ptr<grpc::Channel> Channel() { return MakeChannel(server_.address()); }
+
+  FakeSessionService service_;
+  FakeServer server_;
+};
+
+TEST_F(UploaderFakeTest, UploadsEverySampleOnceWithProgress) {
+  const SampleColumns samples = MakeColumns(1050);
+  std::vector<int64_t> progress;
+  UploadOptions o = SmallBatches();
+  o.progress = [&](int64_t acked, int64_t total) {
+    EXPECT_EQ(total, 1050);
+    progress.push_back(acked);
+  };
+  Uploader uploader(Channel(), o);
+  absl::StatusOr<UploadResult> r = uploader.Upload("s-1", samples);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->sent_samples, 1050);
+  EXPECT_EQ(r->skipped_samples, 0);
+  EXPECT_EQ(r->last_acked_seq, 11);
+  EXPECT_EQ(service_.StoredTimes("s-1"), samples.t_s);
+  EXPECT_EQ(service_.StoredAccel("s-1"), samples.accel);
+  ASSERT_FALSE(progress.empty());
+  EXPECT_EQ(progress.back(), 1050);
+  for (size_t i = 1; i < progress.size(); ++i) EXPECT_GT(progress[i], progress[i - 1]);
+}
+
+TEST_F(UploaderFakeTest, CancelThenUploadAgainResumesAfterLastAck) {
+  const SampleColumns samples = MakeColumns(2000);
+  UploadOptions o = SmallBatches();
+  Uploader* self = nullptr;
+  o.progress = [&](int64_t acked, int64_t) {
+    if (acked >= 1000) self->Cancel();
+  };
+  Uploader first(Channel(), o);
+  self = &first;
+  absl::StatusOr<UploadResult> r = first.Upload("s-1", samples);
+  ASSERT_TRUE(absl::IsCancelled(r.status())) << r.status();
+  // Batches already in flight when the stream was cancelled may still be stored after Upload
+  // returned: the second upload learns from the session where to resume.
+  EXPECT_GE(service_.StoredTimes("s-1").size(), 1000u);
+
+  Uploader second(Channel(), SmallBatches());
+  r = second.Upload("s-1", samples);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_GE(r->skipped_samples, 1000);
+  EXPECT_LT(r->skipped_samples, 2000);
+  EXPECT_EQ(r->skipped_samples + r->sent_samples, 2000);
+  EXPECT_EQ(service_.StoredTimes("s-1"), samples.t_s);  // every sample exactly once, in order
+  EXPECT_EQ(service_.StoredAccel("s-1"), samples.accel);
+}
+
+TEST_F(UploaderFakeTest, ServerSideDropReconnectsAndResumes) {
+  const SampleColumns samples = MakeColumns(1000);
+  service_.FailStreamAfter(3);  // the 3rd batch is stored, but its ack never arrives
+  Uploader uploader(Channel(), SmallBatches());
+  absl::StatusOr<UploadResult> r = uploader.Upload("s-1", samples);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->reconnects, 1);
+  EXPECT_EQ(service_.streams_opened(), 2);
+  EXPECT_EQ(service_.StoredTimes("s-1"), samples.t_s);
+}
+
+TEST_F(UploaderFakeTest, ClientSideDropReconnectsAndResumes) {
+  const SampleColumns samples = MakeColumns(1000);
+  UploadOptions o = SmallBatches();
+  Uploader* self = nullptr;
+  bool dropped = false;
+  o.progress = [&](int64_t acked, int64_t) {
+    if (acked >= 400 && !dropped) {
+      dropped = true;
+      self->DropStream();
+    }
+  };
+  Uploader uploader(Channel(), o);
+  self = &uploader;
+  absl::StatusOr<UploadResult> r = uploader.Upload("s-1", samples);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_GE(r->reconnects, 1);
+  EXPECT_EQ(service_.StoredTimes("s-1"), samples.t_s);
+}
+
+TEST_F(UploaderFakeTest, CompleteSessionIsANoOp) {
+  const SampleColumns samples = MakeColumns(300);
+  Uploader uploader(Channel(), SmallBatches());
+  ASSERT_TRUE(uploader.Upload("s-1", samples).ok());
+  absl::StatusOr<UploadResult> r = uploader.Upload("s-1", samples);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->skipped_samples, 300);
+  EXPECT_EQ(r->sent_samples, 0);
+  EXPECT_EQ(service_.StoredTimes("s-1").size(), 300u);
+}
+
+TEST_F(UploaderFakeTest, LongerSessionThanCaptureIsFailedPrecondition) {
+  Uploader uploader(Channel(), SmallBatches());
+  ASSERT_TRUE(uploader.Upload("s-1", MakeColumns(300)).ok());
+  EXPECT_TRUE(absl::IsFailedPrecondition(uploader.Upload("s-1", MakeColumns(200)).status()));
+}
+
+TEST_F(UploaderFakeTest, UnknownSessionIsNotFound) {
+  Uploader uploader(Channel(), SmallBatches());
+  EXPECT_TRUE(absl::IsNotFound(uploader.Upload("nope", MakeColumns(10)).status()));
+}
+
+TEST(UploaderTest, UnreachableServerGivesUpAfterRetries) {
+  UploadOptions o = SmallBatches();
+  o.max_retries = 2;
+  o.initial_backoff = absl::Milliseconds(1);
+  o.call_deadline = absl::Milliseconds(300);
+  Uploader uploader(MakeChannel(absl::StrCat("127.0.0.1:", testing_util::FreeLoopbackPort())), o);
+  absl::Status s = uploader.Upload("s-1", MakeColumns(10)).status();
+  EXPECT_TRUE(absl::IsUnavailable(s) || absl::IsDeadlineExceeded(s)) << s;
+  EXPECT_NE(s.message().find("gave up after 2 reconnects"), std::string::npos) << s;
+}
+
+TEST(UploaderTest, MalformedColumnsAreInvalidArgument) {
+  SampleColumns s = MakeColumns(10);
+  s.gyro.pop_back();
+  Uploader uploader(MakeChannel("127.0.0.1:1"), SmallBatches());
+  EXPECT_TRUE(absl::IsInvalidArgument(uploader.Upload("s-1", s).status()));
+}
+
+// ---- against the real server ----
+
+class UploaderImucaldTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    if (!testing_util::kHaveImucald) GTEST_SKIP() << "imucald is not built yet";
+    dir_ = fs::path(testing::TempDir()) /
+           absl::StrCat("imucal_uploader_test_",
+                        testing::UnitTest::GetInstance()->current_test_info()->name(), "_",
+                        ::getpid());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    auto server = testing_util::ImucaldProcess::Start(dir_.string());
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = *std::move(server);
+  }
+  void TearDown() override {
+    server_.reset();
+    fs::remove_all(dir_);
+  }
+
+  std::string CreateSession(const std::string& device) {
+    auto channel = server_->NewChannel();
+    auto devices = pb::DeviceService::NewStub(channel);
+    auto sessions = pb::SessionService::NewStub(channel);
+    grpc::ClientContext c1;
+    pb::RegisterDeviceRequest reg;
+    reg.mutable_device()->set_id(device);
+    reg.mutable_device()->set_sensor_model("sim");
+    reg.mutable_device()->set_nominal_rate_hz(200);
+    reg.mutable_device()->set_accel_unit("m/s^2");
+    reg.mutable_device()->set_gyro_unit("rad/s");
+    pb::Device d;
+    grpc::Status s = devices->RegisterDevice(&c1, reg, &d);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    grpc::ClientContext c2;
+    pb::CreateSessionRequest create;
+    create.set_device_id(device);
+    create.set_protocol(pb::PROTOCOL_SIX_FACE);
+    pb::Session session;
+    s = sessions->CreateSession(&c2, create, &session);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return session.id();
+  }
+
+  pb::Session GetSession(const std::string& id) {
+    auto sessions = pb::SessionService::NewStub(server_->NewChannel());
+    grpc::ClientContext c;
+    pb::GetSessionRequest req;
+    req.set_session_id(id);
+    pb::Session session;
+    grpc::Status s = sessions->GetSession(&c, req, &session);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return session;
+  }
+
+  fs::path dir_;
+  std::unique_ptr<testing_util::ImucaldProcess> server_;
+};
+
+SampleColumns SimulatedColumns() {
+  core::SimOptions sim;
+  sim.seed = 7;
+  auto result = core::Simulate(sim);
+  EXPECT_TRUE(result.ok()) << result.status();
+  return ColumnsFromCapture(result->capture);
+}
+
+TEST_F(UploaderImucaldTest, CancelThenUploadAgainStoresEverySampleOnce) {
+  const SampleColumns samples = SimulatedColumns();
+  const int64_t total = samples.size();
+  const std::string session = CreateSession("robot-up-1");
+  ASSERT_FALSE(session.empty());
+  UploadOptions o;
+  o.batch_samples = 500;
+  Uploader* self = nullptr;
+  o.progress = [&](int64_t acked, int64_t) {
+    if (acked >= total / 2) self->Cancel();
+  };
+  Uploader first(server_->NewChannel(), o);
+  self = &first;
+  ASSERT_TRUE(absl::IsCancelled(first.Upload(session, samples).status()));
+  const pb::Session half = GetSession(session);
+  EXPECT_GE(half.samples(), total / 2);
+  EXPECT_LT(half.samples(), total);
+
+  UploadOptions o2;
+  o2.batch_samples = 500;
+  Uploader second(server_->NewChannel(), o2);
+  absl::StatusOr<UploadResult> r = second.Upload(session, samples);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_GE(r->skipped_samples, half.samples());  // in-flight batches may have landed since
+  EXPECT_EQ(r->skipped_samples + r->sent_samples, total);
+  const pb::Session done = GetSession(session);
+  EXPECT_EQ(done.samples(), total);
+  EXPECT_EQ(done.last_acked_seq(), r->last_acked_seq);
+}
+
+TEST_F(UploaderImucaldTest, ServerRestartMidUploadResumes) {
+  const SampleColumns samples = SimulatedColumns();
+  const int64_t total = samples.size();
+  const std::string session = CreateSession("robot-up-2");
+  ASSERT_FALSE(session.empty());
+  UploadOptions o;
+  o.batch_samples = 500;
+  o.max_retries = 20;
+  o.initial_backoff = absl::Milliseconds(50);
+  o.max_backoff = absl::Milliseconds(500);
+  bool restarted = false;
+  o.progress = [&](int64_t acked, int64_t) {
+    if (acked >= total / 3 && !restarted) {
+      restarted = true;
+      ASSERT_TRUE(server_->Restart().ok());
+    }
+  };
+  Uploader uploader(server_->NewChannel(), o);
+  absl::StatusOr<UploadResult> r = uploader.Upload(session, samples);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_GE(r->reconnects, 1);
+  EXPECT_EQ(GetSession(session).samples(), total);
+}
+
+}  // namespace
+}  // namespace imucal::sdk

@@ -1,0 +1,158 @@
+#include "core/online_segmenter.h"
+
+#include <cmath>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "core/simulator.h"
+#include "gtest/gtest.h"
+
+namespace imucal::core {
+namespace {
+
+struct Fed {
+  std::vector<PoseUpdate> poses;
+  std::vector<NextPoseUpdate> next;
+  int stillness = 0;
+};
+
+Fed FeedAll(OnlineSegmenter& seg, const Capture& cap) {
+  Fed fed;
+  std::vector<SegmenterEvent> events;
+  for (size_t i = 0; i < cap.size(); ++i) seg.Add(cap.t_s[i], cap.accel[i], cap.gyro[i], &events);
+  seg.Flush(&events);
+  for (const SegmenterEvent& e : events) {
+    switch (e.kind) {
+      case SegmenterEvent::Kind::kStillness: ++fed.stillness; break;
+      case SegmenterEvent::Kind::kPose: fed.poses.push_back(e.pose); break;
+      case SegmenterEvent::Kind::kNextPose: fed.next.push_back(e.next_pose); break;
+    }
+  }
+  return fed;
+}
+
+std::vector<PoseUpdate> Accepted(const Fed& fed) {
+  std::vector<PoseUpdate> out;
+  for (const PoseUpdate& p : fed.poses)
+    if (p.accepted) out.push_back(p);
+  return out;
+}
+
+class SixFaceTest : public testing::TestWithParam<AccelUnit> {};
+
+TEST_P(SixFaceTest, FindsTheTwelvePosesAndGuidesThroughThem) {
+  SimOptions sim;
+  sim.seed = 7;
+  sim.accel_unit = GetParam();
+  auto result = Simulate(sim);
+  ASSERT_TRUE(result.ok()) << result.status();
+  OnlineSegmenterOptions opt;
+  opt.rate_hz = sim.rate_hz;
+  opt.six_face = true;
+  opt.accel_unit = sim.accel_unit;
+  OnlineSegmenter seg(opt);
+  EXPECT_EQ(seg.CurrentNextPose().face, "Z+");
+  const Fed fed = FeedAll(seg, result->capture);
+  const std::vector<PoseUpdate> accepted = Accepted(fed);
+  ASSERT_EQ(accepted.size(), result->poses.size()) << "seed " << sim.seed;
+  for (size_t i = 0; i < accepted.size(); ++i) {
+    const SimPose& truth = result->poses[i];
+    EXPECT_GE(accepted[i].t_start_s, truth.t_start_s - 0.05) << i;
+    EXPECT_LE(accepted[i].t_end_s, truth.t_end_s + 0.05) << i;
+    if (sim.accel_unit != AccelUnit::kCounts || i >= 4) {
+      EXPECT_EQ(accepted[i].face, truth.label.substr(0, 2)) << i;
+    }
+  }
+  EXPECT_GT(fed.stillness, 100);
+  if (sim.accel_unit != AccelUnit::kCounts) {
+    EXPECT_EQ(seg.six_face_step(), OnlineSegmenter::kSixFaceSteps);
+    ASSERT_FALSE(fed.next.empty());
+    EXPECT_TRUE(fed.next.back().done);
+    EXPECT_EQ(fed.next.front().face, "Z+");  // after Z+: its turned partner
+    EXPECT_TRUE(fed.next.front().turn_half);
+    EXPECT_EQ(fed.next[1].face, "Z-");
+    EXPECT_EQ(seg.FacesDone().size(), 6u);
+    EXPECT_TRUE(seg.FacesPending().empty());
+  }
+  // The learnt noise floor is the simulated one (0.02 m/s^2 per axis in m/s^2).
+  if (sim.accel_unit == AccelUnit::kMetersPerSecond2) {
+    EXPECT_NEAR(std::sqrt(seg.accel_noise_var()(0)), 0.02, 0.006);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Units, SixFaceTest,
+                         testing::Values(AccelUnit::kMetersPerSecond2, AccelUnit::kG,
+                                         AccelUnit::kCounts));
+
+// A synthetic signal: rest, a short pause, a hold that slides half way, a long hold.
+TEST(OnlineSegmenterTest, RejectsTooShortAndMovedPoses) {
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  OnlineSegmenterOptions opt;
+  opt.rate_hz = 100;
+  OnlineSegmenter seg(opt);
+  std::vector<SegmenterEvent> events;
+  double t = 0;
+  auto hold = [&](double seconds, Eigen::Vector3d a, const Eigen::Vector3d& shift_after_half) {
+    const int n = static_cast<int>(seconds * opt.rate_hz);
+    for (int i = 0; i < n; ++i, t += 0.01) {
+      const Eigen::Vector3d ai = a + (i > n / 2 ? shift_after_half : Eigen::Vector3d::Zero());
+      seg.Add(t, ai + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)),
+              Eigen::Vector3d(noise(rng), noise(rng), noise(rng)) * 0.1, &events);
+    }
+  };
+  auto move = [&](double seconds) {
+    const int n = static_cast<int>(seconds * opt.rate_hz);
+    for (int i = 0; i < n; ++i, t += 0.01)
+      seg.Add(t, Eigen::Vector3d(3 * std::sin(7 * t), 0, 9.8), Eigen::Vector3d(1, 0, 0), &events);
+  };
+  const Eigen::Vector3d up(0, 0, 9.8), none = Eigen::Vector3d::Zero();
+  hold(5, up, none);
+  move(1);
+  hold(1.0, up, none);  // 0.5 s window and 0.1 s trims leave well under 1 s
+  move(1);
+  hold(4, up, Eigen::Vector3d(0.05, 0, 0));  // 5 noise std: a slide, not noise
+  move(1);
+  hold(4, up, none);
+  seg.Flush(&events);
+  std::vector<PoseUpdate> poses;
+  for (const SegmenterEvent& e : events)
+    if (e.kind == SegmenterEvent::Kind::kPose) poses.push_back(e.pose);
+  ASSERT_EQ(poses.size(), 4u);
+  EXPECT_TRUE(poses[0].accepted);
+  EXPECT_EQ(poses[0].face, "Z+");
+  EXPECT_FALSE(poses[1].accepted);
+  EXPECT_NE(poses[1].reason.find("too short"), std::string::npos) << poses[1].reason;
+  EXPECT_FALSE(poses[2].accepted);
+  EXPECT_NE(poses[2].reason.find("moved"), std::string::npos) << poses[2].reason;
+  EXPECT_TRUE(poses[3].accepted);
+  EXPECT_EQ(seg.poses_accepted(), 2);
+}
+
+// An hour at rest: memory stays bounded (chunks merge) and the mean stays exact.
+TEST(OnlineSegmenterTest, LongRestIsOnePoseWithTheRightMean) {
+  OnlineSegmenterOptions opt;
+  opt.rate_hz = 200;
+  OnlineSegmenter seg(opt);
+  std::vector<SegmenterEvent> events;
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> noise(0.0, 0.02);
+  const int n = 200 * 3600;
+  for (int i = 0; i < n; ++i) {
+    seg.Add(i / 200.0, Eigen::Vector3d(0.1, -0.2, 9.8) + Eigen::Vector3d(noise(rng), 0, 0),
+            Eigen::Vector3d(noise(rng), noise(rng), noise(rng)), &events);
+    if (events.size() > 64) events.clear();  // the caller drains events as it goes
+  }
+  events.clear();
+  seg.Flush(&events);
+  ASSERT_EQ(events.size(), 2u);  // the pose and the next-pose guidance
+  const PoseUpdate& pose = events[0].pose;
+  EXPECT_TRUE(pose.accepted) << pose.reason;
+  EXPECT_NEAR(pose.accel_mean(0), 0.1, 1e-3);
+  EXPECT_NEAR(pose.accel_mean(2), 9.8, 1e-9);
+  EXPECT_GT(pose.t_end_s - pose.t_start_s, 3590);
+}
+
+}  // namespace
+}  // namespace imucal::core

@@ -1,0 +1,517 @@
+// The server through its real API: an in-process imucald on a loopback port with a SQLite file,
+// driven by the generated stubs.
+#include "server/server.h"
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cmath>
+#include <functional>
+#include <future>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "client/sdk/params_json.h"
+#include "core/accel_solver.h"
+#include "core/calibrate.h"
+#include "core/simulator.h"
+#include "grpcpp/generic/generic_stub.h"
+#include "grpcpp/grpcpp.h"
+#include "gtest/gtest.h"
+#include "imucal/v1/imucal.grpc.pb.h"
+#include "server/status_util.h"
+
+namespace imucal::server {
+namespace {
+
+using std::chrono::seconds;
+using std::chrono::system_clock;
+
+constexpr int kBatch = 200;
+
+class ServerTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    static std::atomic<int> counter{0};
+    ServerOptions options;
+    options.listen = "127.0.0.1:0";
+    options.db_path = testing::TempDir() + "/server_test_" + std::to_string(::getpid()) + "_" +
+                      std::to_string(counter++) + ".db";
+    auto server = Server::Start(options);
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = *std::move(server);
+    channel_ = grpc::CreateChannel(server_->address(), grpc::InsecureChannelCredentials());
+    devices_ = v1::DeviceService::NewStub(channel_);
+    sessions_ = v1::SessionService::NewStub(channel_);
+    params_ = v1::ParameterService::NewStub(channel_);
+  }
+
+  static std::unique_ptr<grpc::ClientContext> Ctx() {
+    auto ctx = std::make_unique<grpc::ClientContext>();
+    ctx->set_deadline(system_clock::now() + seconds(20));
+    return ctx;
+  }
+
+  v1::Device Register(const std::string& id) {
+    v1::RegisterDeviceRequest req;
+    req.mutable_device()->set_id(id);
+    req.mutable_device()->set_sensor_model("sim");
+    req.mutable_device()->set_nominal_rate_hz(200);
+    req.mutable_device()->set_accel_unit("m/s^2");
+    req.mutable_device()->set_gyro_unit("rad/s");
+    v1::Device out;
+    grpc::Status s = devices_->RegisterDevice(Ctx().get(), req, &out);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return out;
+  }
+
+  v1::Session Create(const std::string& device, v1::Protocol protocol, grpc::Status* status) {
+    v1::CreateSessionRequest req;
+    req.set_device_id(device);
+    req.set_protocol(protocol);
+    v1::Session out;
+    *status = sessions_->CreateSession(Ctx().get(), req, &out);
+    return out;
+  }
+
+  static core::SimResult Sim() {
+    core::SimOptions o;
+    o.seed = 11;
+    // Six faces alone leave the cross-axis and quadratic terms undetermined (verdict warn):
+    // eight free orientations after them make a capture that passes the quality gate.
+    o.extra_poses = 8;
+    auto r = core::Simulate(o);
+    EXPECT_TRUE(r.ok()) << r.status();
+    return *std::move(r);
+  }
+
+  static std::vector<v1::SampleBatch> Batches(const core::Capture& cap, const std::string& id) {
+    std::vector<v1::SampleBatch> out;
+    for (size_t b = 0; b < cap.size(); b += kBatch) {
+      v1::SampleBatch batch;
+      batch.set_session_id(id);
+      batch.set_seq(static_cast<int64_t>(out.size()) + 1);
+      for (size_t i = b; i < std::min(cap.size(), b + kBatch); ++i) {
+        batch.add_t_s(cap.t_s[i]);
+        for (int k = 0; k < 3; ++k) {
+          batch.add_accel(cap.accel[i](k));
+          batch.add_gyro(cap.gyro[i](k));
+        }
+        if (cap.has_temp()) batch.add_temp_c(cap.temp[i]);
+      }
+      out.push_back(std::move(batch));
+    }
+    return out;
+  }
+
+  // Streams `batches` on one stream; returns the stream's final status and the acks.
+  grpc::Status Stream(const std::vector<v1::SampleBatch>& batches, std::vector<v1::SampleAck>* acks) {
+    auto ctx = Ctx();
+    auto stream = sessions_->StreamSamples(ctx.get());
+    for (const v1::SampleBatch& b : batches) {
+      if (!stream->Write(b)) break;
+      v1::SampleAck ack;
+      if (!stream->Read(&ack)) break;
+      acks->push_back(ack);
+    }
+    stream->WritesDone();
+    v1::SampleAck extra;
+    while (stream->Read(&extra)) acks->push_back(extra);
+    return stream->Finish();
+  }
+
+  v1::Session GetSession(const std::string& id) {
+    v1::GetSessionRequest req;
+    req.set_session_id(id);
+    v1::Session out;
+    grpc::Status s = sessions_->GetSession(Ctx().get(), req, &out);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return out;
+  }
+
+  std::string ReportOf(const std::string& session_id) {
+    v1::GetReportRequest req;
+    req.set_session_id(session_id);
+    v1::Report report;
+    grpc::Status s = sessions_->GetReport(Ctx().get(), req, &report);
+    return s.ok() ? report.json() : s.error_message();
+  }
+
+  std::unique_ptr<Server> server_;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<v1::DeviceService::Stub> devices_;
+  std::unique_ptr<v1::SessionService::Stub> sessions_;
+  std::unique_ptr<v1::ParameterService::Stub> params_;
+};
+
+// A WatchSession stream read on its own thread; tests wait on its events with a deadline.
+class Watch {
+ public:
+  Watch(v1::SessionService::Stub* stub, const std::string& session_id) {
+    ctx_.set_deadline(system_clock::now() + seconds(60));
+    v1::WatchSessionRequest req;
+    req.set_session_id(session_id);
+    reader_ = stub->WatchSession(&ctx_, req);
+    thread_ = std::thread([this] {
+      v1::SessionEvent e;
+      while (reader_->Read(&e)) {
+        std::lock_guard lock(mu_);
+        events_.push_back(e);
+        cv_.notify_all();
+      }
+      grpc::Status s = reader_->Finish();
+      std::lock_guard lock(mu_);
+      status_ = s;
+      ended_ = true;
+      cv_.notify_all();
+    });
+  }
+  ~Watch() {
+    ctx_.TryCancel();
+    thread_.join();
+  }
+  // Waits until pred(events, ended) holds; false on timeout.
+  bool WaitFor(const std::function<bool(const std::vector<v1::SessionEvent>&, bool)>& pred,
+               seconds timeout = seconds(15)) {
+    std::unique_lock lock(mu_);
+    return cv_.wait_for(lock, timeout, [&] { return pred(events_, ended_); });
+  }
+  std::vector<v1::SessionEvent> events() {
+    std::lock_guard lock(mu_);
+    return events_;
+  }
+  grpc::Status status() {
+    std::lock_guard lock(mu_);
+    return status_;
+  }
+
+ private:
+  grpc::ClientContext ctx_;
+  std::unique_ptr<grpc::ClientReader<v1::SessionEvent>> reader_;
+  std::thread thread_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::vector<v1::SessionEvent> events_;
+  bool ended_ = false;
+  grpc::Status status_;
+};
+
+int AcceptedPoses(const std::vector<v1::SessionEvent>& events) {
+  int n = 0;
+  for (const auto& e : events) n += e.has_pose() && e.pose().accepted();
+  return n;
+}
+
+TEST_F(ServerTest, DevicesAndOneOpenSessionPerDevice) {
+  const v1::Device d = Register("robot-1");
+  EXPECT_EQ(d.id(), "robot-1");
+  EXPECT_EQ(d.active_version(), 0);
+  Register("robot-1");  // robots register at every boot: a no-op
+  v1::RegisterDeviceRequest other;
+  *other.mutable_device() = d;
+  other.mutable_device()->set_nominal_rate_hz(100);
+  v1::Device out;
+  EXPECT_EQ(devices_->RegisterDevice(Ctx().get(), other, &out).error_code(),
+            grpc::StatusCode::ALREADY_EXISTS);
+  other.mutable_device()->set_id("bad id!");
+  EXPECT_EQ(devices_->RegisterDevice(Ctx().get(), other, &out).error_code(),
+            grpc::StatusCode::INVALID_ARGUMENT);
+
+  grpc::Status s;
+  const v1::Session first = Create("robot-1", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  EXPECT_EQ(first.state(), v1::SESSION_STATE_OPEN);
+  Create("robot-1", v1::PROTOCOL_SIX_FACE, &s);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_NE(s.error_message().find(first.id()), std::string::npos) << s.error_message();
+  Create("no-such-robot", v1::PROTOCOL_SIX_FACE, &s);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND) << s.error_message();
+
+  v1::ListDevicesRequest list;
+  list.set_page_size(1);
+  v1::ListDevicesResponse page;
+  ASSERT_TRUE(devices_->ListDevices(Ctx().get(), list, &page).ok());
+  EXPECT_EQ(page.devices_size(), 1);
+}
+
+TEST_F(ServerTest, IngestAcksRetransmissionsGapsAndBadBatches) {
+  Register("robot-2");
+  grpc::Status s;
+  const v1::Session session = Create("robot-2", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  const core::SimResult sim = Sim();
+  const std::vector<v1::SampleBatch> batches = Batches(sim.capture, session.id());
+
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream({batches.begin(), batches.begin() + 5}, &acks).ok());
+  ASSERT_EQ(acks.size(), 5u);
+  for (int i = 0; i < 5; ++i) EXPECT_EQ(acks[i].last_acked_seq(), i + 1);
+  EXPECT_EQ(acks.back().samples(), 5 * kBatch);
+
+  // A repeated batch is a no-op ack; a gap names the expected seq.
+  acks.clear();
+  s = Stream({batches[2], batches[6]}, &acks);
+  ASSERT_EQ(acks.size(), 1u);
+  EXPECT_EQ(acks[0].last_acked_seq(), 5);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_NE(s.error_message().find("expected 6"), std::string::npos) << s.error_message();
+
+  // Bad batches name the field; nothing accepted before is lost.
+  v1::SampleBatch nan = batches[5];
+  nan.set_accel(7, std::nan(""));
+  acks.clear();
+  s = Stream({nan}, &acks);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("accel[7]"), std::string::npos) << s.error_message();
+  v1::SampleBatch short_gyro = batches[5];
+  short_gyro.mutable_gyro()->RemoveLast();
+  s = Stream({short_gyro}, &acks);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("gyro"), std::string::npos) << s.error_message();
+  v1::SampleBatch absurd = batches[5];
+  absurd.set_gyro(4, 1e6);
+  s = Stream({absurd}, &acks);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("gyro[4]"), std::string::npos) << s.error_message();
+  v1::SampleBatch backwards = batches[5];
+  backwards.set_t_s(0, batches[4].t_s(0));
+  s = Stream({backwards}, &acks);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("t_s[0]"), std::string::npos) << s.error_message();
+  EXPECT_TRUE(acks.empty());
+
+  const v1::Session after = GetSession(session.id());
+  EXPECT_EQ(after.last_acked_seq(), 5);
+  EXPECT_EQ(after.samples(), 5 * kBatch);
+  // The stream resumes after the last ack.
+  acks.clear();
+  ASSERT_TRUE(Stream({batches[5]}, &acks).ok());
+  EXPECT_EQ(acks.at(0).last_acked_seq(), 6);
+}
+
+TEST_F(ServerTest, WatchGuidesSolveActivatesAndMatchesOfflineCalibrate) {
+  Register("robot-3");
+  grpc::Status s;
+  const v1::Session session = Create("robot-3", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  core::SimResult sim = Sim();
+
+  Watch watch(sessions_.get(), session.id());
+  ASSERT_TRUE(watch.WaitFor([](const auto& ev, bool) {
+    return ev.size() >= 2 && ev[0].has_session() && ev[1].has_next_pose();
+  })) << "no snapshot";
+  EXPECT_EQ(watch.events()[1].next_pose().face(), "Z+");
+
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream(Batches(sim.capture, session.id()), &acks).ok());
+  // The final hold ends with the stream: 11 poses are closed by a move, the 12th by the solve.
+  ASSERT_TRUE(watch.WaitFor([](const auto& ev, bool) { return AcceptedPoses(ev) >= 11; }))
+      << AcceptedPoses(watch.events()) << " poses";
+  bool saw_z_minus = false, saw_turn = false, saw_stillness = false;
+  for (const auto& e : watch.events()) {
+    if (e.has_next_pose() && e.next_pose().face() == "Z-") saw_z_minus = true;
+    if (e.has_next_pose() && e.next_pose().turn_half()) saw_turn = true;
+    if (e.has_stillness()) saw_stillness = true;
+  }
+  EXPECT_TRUE(saw_z_minus);
+  EXPECT_TRUE(saw_turn);
+  EXPECT_TRUE(saw_stillness);
+  EXPECT_GE(GetSession(session.id()).poses_accepted(), 11);
+
+  v1::SolveSessionRequest solve;
+  solve.set_session_id(session.id());
+  solve.set_seed(1);
+  v1::SolveJob job;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), solve, &job).ok());
+  EXPECT_EQ(job.state(), v1::JOB_STATE_QUEUED);
+  // Solving twice at once is not allowed: the session is solving.
+  v1::SolveJob again;
+  EXPECT_EQ(sessions_->SolveSession(Ctx().get(), solve, &again).error_code(),
+            grpc::StatusCode::FAILED_PRECONDITION);
+
+  // The watch ends when the session closes, after the solve's result.
+  ASSERT_TRUE(watch.WaitFor([](const auto&, bool ended) { return ended; }, seconds(30)));
+  EXPECT_TRUE(watch.status().ok()) << watch.status().error_message();
+  bool saw_done = false;
+  for (const auto& e : watch.events())
+    if (e.has_solve() && e.solve().state() == v1::JOB_STATE_DONE) saw_done = true;
+  EXPECT_TRUE(saw_done);
+  EXPECT_EQ(AcceptedPoses(watch.events()), 20);
+
+  v1::GetSolveJobRequest get;
+  get.set_job_id(job.id());
+  ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
+  ASSERT_EQ(job.state(), v1::JOB_STATE_DONE) << job.error();
+  EXPECT_EQ(job.version(), 1);
+  EXPECT_EQ(job.verdict(), "pass") << ReportOf(session.id());
+  EXPECT_TRUE(job.activated());
+  EXPECT_EQ(GetSession(session.id()).state(), v1::SESSION_STATE_SOLVED);
+
+  v1::GetActiveParametersRequest active;
+  active.set_device_id("robot-3");
+  v1::ParameterSet ps;
+  ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), active, &ps).ok());
+  EXPECT_EQ(ps.version(), 1);
+  EXPECT_EQ(ps.state(), v1::VERSION_STATE_ACTIVE);
+  auto served = sdk::ParamSetFromJson(ps.json());
+  ASSERT_TRUE(served.ok()) << served.status();
+
+  // Offline: the same capture, protocol and seed.
+  sim.capture.device = "robot-3";
+  sim.capture.rate_hz = 200;
+  core::CalibrateOptions options;
+  options.protocol = core::ProtocolKind::kSixFace;
+  options.seed = 1;
+  auto offline = core::Calibrate(sim.capture, options);
+  ASSERT_TRUE(offline.ok()) << offline.status();
+  const core::AccelVector a = core::PackAccel(served->accel);
+  const core::AccelVector b = core::PackAccel(offline->params.accel);
+  for (int i = 0; i < core::kAccelParams; ++i)
+    EXPECT_NEAR(a(i), b(i), 1e-9 * std::max(1.0, std::abs(b(i)))) << "parameter " << i;
+
+  // Not modified since: only the header.
+  active.set_if_not_version(1);
+  ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), active, &ps).ok());
+  EXPECT_TRUE(ps.json().empty());
+
+  v1::GetReportRequest report_req;
+  report_req.set_session_id(session.id());
+  v1::Report report;
+  ASSERT_TRUE(sessions_->GetReport(Ctx().get(), report_req, &report).ok());
+  EXPECT_NE(report.json().find("imucal-report v1"), std::string::npos);
+
+  v1::ExportRequest exp;
+  exp.set_device_id("robot-3");
+  exp.set_format("json");
+  v1::ExportResponse exported;
+  ASSERT_TRUE(params_->Export(Ctx().get(), exp, &exported).ok());
+  EXPECT_EQ(exported.content(), ps.json().empty() ? exported.content() : ps.json());
+  exp.set_format("kalibr");
+  EXPECT_EQ(params_->Export(Ctx().get(), exp, &exported).error_code(),
+            grpc::StatusCode::UNIMPLEMENTED);
+}
+
+TEST_F(ServerTest, ResolvePromoteAndRollback) {
+  Register("robot-4");
+  grpc::Status s;
+  const v1::Session session = Create("robot-4", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream(Batches(Sim().capture, session.id()), &acks).ok());
+
+  auto solve_and_wait = [&](uint64_t seed) {
+    v1::SolveSessionRequest req;
+    req.set_session_id(session.id());
+    req.set_seed(seed);
+    v1::SolveJob job;
+    EXPECT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+    // Ends when the session closes: at once if the solve is already done.
+    Watch watch(sessions_.get(), session.id());
+    EXPECT_TRUE(watch.WaitFor([](const auto&, bool ended) { return ended; }, seconds(30)))
+        << "seed " << seed << ": " << watch.events().size() << " events, last "
+        << (watch.events().empty() ? "" : watch.events().back().DebugString());
+    v1::GetSolveJobRequest get;
+    get.set_job_id(job.id());
+    EXPECT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
+    return job;
+  };
+  const v1::SolveJob first = solve_and_wait(1);
+  ASSERT_EQ(first.state(), v1::JOB_STATE_DONE) << first.error();
+  const v1::SolveJob second = solve_and_wait(2);  // a re-solve is a new version
+  ASSERT_EQ(second.state(), v1::JOB_STATE_DONE) << second.error();
+  EXPECT_EQ(second.version(), 2);
+
+  v1::ListVersionsRequest list;
+  list.set_device_id("robot-4");
+  list.set_page_size(1);
+  v1::ListVersionsResponse page;
+  ASSERT_TRUE(params_->ListVersions(Ctx().get(), list, &page).ok());
+  ASSERT_EQ(page.versions_size(), 1);
+  EXPECT_EQ(page.versions(0).version(), 1);
+  EXPECT_EQ(page.versions(0).state(), v1::VERSION_STATE_SUPERSEDED);
+  EXPECT_TRUE(page.versions(0).json().empty());
+  list.set_page_token(page.next_page_token());
+  ASSERT_TRUE(params_->ListVersions(Ctx().get(), list, &page).ok());
+  ASSERT_EQ(page.versions_size(), 1);
+  EXPECT_EQ(page.versions(0).state(), v1::VERSION_STATE_ACTIVE);
+
+  v1::RollbackRequest rollback;
+  rollback.set_device_id("robot-4");
+  rollback.set_to_version(1);
+  rollback.set_reason("test");
+  v1::ParameterSet ps;
+  ASSERT_TRUE(params_->Rollback(Ctx().get(), rollback, &ps).ok());
+  EXPECT_EQ(ps.version(), 1);
+  EXPECT_EQ(ps.state(), v1::VERSION_STATE_ACTIVE);
+  rollback.set_to_version(2);  // not older than the active one
+  EXPECT_EQ(params_->Rollback(Ctx().get(), rollback, &ps).error_code(),
+            grpc::StatusCode::FAILED_PRECONDITION);
+  v1::PromoteRequest promote;
+  promote.set_device_id("robot-4");
+  promote.set_version(2);  // superseded: promote is for candidates
+  EXPECT_EQ(params_->Promote(Ctx().get(), promote, &ps).error_code(),
+            grpc::StatusCode::FAILED_PRECONDITION);
+  promote.set_version(1);  // the active one: a no-op
+  ASSERT_TRUE(params_->Promote(Ctx().get(), promote, &ps).ok());
+  v1::GetActiveParametersRequest active;
+  active.set_device_id("robot-4");
+  ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), active, &ps).ok());
+  EXPECT_EQ(ps.version(), 1);
+  EXPECT_NE(ps.crc32c(), 0u);
+}
+
+TEST_F(ServerTest, HealthIsServingAndUnknownsAreNotFound) {
+  grpc::GenericStub generic(channel_);
+  grpc::ByteBuffer request, response;  // HealthCheckRequest{service: ""} is zero bytes
+  grpc::Slice empty("");
+  request = grpc::ByteBuffer(&empty, 1);
+  grpc::ClientContext ctx;
+  ctx.set_deadline(system_clock::now() + seconds(10));
+  std::promise<grpc::Status> done;
+  generic.UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request,
+                    &response, [&](grpc::Status st) { done.set_value(st); });
+  grpc::Status st = done.get_future().get();
+  ASSERT_TRUE(st.ok()) << st.error_message();
+  std::vector<grpc::Slice> slices;
+  ASSERT_TRUE(response.Dump(&slices).ok());
+  std::string bytes;
+  for (const auto& sl : slices) bytes.append(reinterpret_cast<const char*>(sl.begin()), sl.size());
+  EXPECT_EQ(bytes, std::string("\x08\x01", 2));  // status: SERVING
+
+  v1::GetActiveParametersRequest active;
+  active.set_device_id("nobody");
+  v1::ParameterSet ps;
+  EXPECT_EQ(params_->GetActiveParameters(Ctx().get(), active, &ps).error_code(),
+            grpc::StatusCode::NOT_FOUND);
+  v1::GetSessionRequest get;
+  get.set_session_id("s-nope");
+  v1::Session session;
+  EXPECT_EQ(sessions_->GetSession(Ctx().get(), get, &session).error_code(),
+            grpc::StatusCode::NOT_FOUND);
+  v1::GetSolveJobRequest job;
+  job.set_job_id("bogus");
+  v1::SolveJob j;
+  EXPECT_EQ(sessions_->GetSolveJob(Ctx().get(), job, &j).error_code(),
+            grpc::StatusCode::INVALID_ARGUMENT);
+}
+
+TEST(StatusUtilTest, MapsCodesOneToOneAndScrubsPaths) {
+  const grpc::Status s =
+      ToGrpcStatus(absl::UnavailableError("cannot open /var/lib/imucal/imucal.db: locked"));
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::UNAVAILABLE);
+  EXPECT_EQ(s.error_message().find("/var"), std::string::npos) << s.error_message();
+  EXPECT_EQ(ToGrpcStatus(absl::InvalidArgumentError("accel: in m/s^2")).error_message(),
+            "accel: in m/s^2");
+  EXPECT_EQ(ToGrpcStatus(absl::InternalError("SELECT * FROM x")).error_message().find("SELECT"),
+            std::string::npos);
+  EXPECT_LE(ToGrpcStatus(absl::NotFoundError(std::string(5000, 'x'))).error_message().size(),
+            kMaxStatusMessage);
+  EXPECT_EQ(ToGrpcStatus(absl::ResourceExhaustedError("full")).error_code(),
+            grpc::StatusCode::RESOURCE_EXHAUSTED);
+}
+
+}  // namespace
+}  // namespace imucal::server

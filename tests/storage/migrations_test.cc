@@ -1,0 +1,235 @@
+#include "storage/migrations.h"
+
+#include <fstream>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+#include "storage/sqlite_db.h"
+#include "storage/store.h"
+#include "tests/storage/test_util.h"
+
+namespace imucal::storage {
+namespace {
+
+using ::testing::HasSubstr;
+
+absl::StatusOr<std::unique_ptr<Connection>> OpenRaw(const std::string& path) {
+  return Connection::Open(path, ConnectionOptions{});
+}
+
+// One text value of a one-row query.
+absl::StatusOr<std::string> QueryText(Connection& conn, const char* sql) {
+  absl::StatusOr<ScopedStatement> st = conn.Prepare(sql);
+  if (!st.ok()) return st.status();
+  absl::StatusOr<bool> row = (*st)->Step();
+  if (!row.ok()) return row.status();
+  if (!*row) return absl::NotFoundError("no row");
+  return (*st)->ColumnText(0);
+}
+
+int CountTables(Connection& conn) {
+  auto count = QueryText(conn, "SELECT COUNT(*) FROM sqlite_master WHERE type = 'table'");
+  return count.ok() ? std::stoi(*count) : -1;
+}
+
+TEST(MigrationsTest, VersionsAreNumberedFromOneAndEachSetsItsOwnVersion) {
+  const auto migrations = Migrations();
+  ASSERT_FALSE(migrations.empty());
+  for (size_t i = 0; i < migrations.size(); ++i) {
+    EXPECT_EQ(migrations[i].version, static_cast<int>(i) + 1);
+    EXPECT_THAT(migrations[i].sql,
+                HasSubstr("PRAGMA user_version = " + std::to_string(i + 1) + ";"));
+  }
+  EXPECT_EQ(LatestSchemaVersion(), static_cast<int>(migrations.size()));
+}
+
+TEST(MigrationsTest, FreshFileMigratesToLatest) {
+  const std::string path = TempDbPath("db");
+  ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
+  ASSERT_OK_AND_ASSIGN(int before, SchemaVersion(*conn));
+  EXPECT_EQ(before, 0);
+  ASSERT_OK(Migrate(*conn));
+  ASSERT_OK_AND_ASSIGN(int after, SchemaVersion(*conn));
+  EXPECT_EQ(after, LatestSchemaVersion());
+  EXPECT_EQ(CountTables(*conn), 7);  // devices sessions sample_batches poses solves
+                                     // param_versions audit_log
+}
+
+TEST(MigrationsTest, OpeningTwiceIsIdempotentAndKeepsData) {
+  const std::string path = TempDbPath("db");
+  {
+    ASSERT_OK_AND_ASSIGN(auto store, Store::Open(path));
+    Device d;
+    d.id = "robot-1";
+    ASSERT_OK(store->CreateDevice(d, "test").status());
+  }
+  for (int i = 0; i < 2; ++i) {
+    ASSERT_OK_AND_ASSIGN(auto store, Store::Open(path));
+    ASSERT_OK_AND_ASSIGN(std::vector<Device> devices, store->ListDevices());
+    ASSERT_EQ(devices.size(), 1u);
+    EXPECT_EQ(devices[0].id, "robot-1");
+  }
+  ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
+  ASSERT_OK(Migrate(*conn));  // again, directly: nothing to do
+  ASSERT_OK_AND_ASSIGN(int version, SchemaVersion(*conn));
+  EXPECT_EQ(version, LatestSchemaVersion());
+}
+
+TEST(MigrationsTest, TwoStoresOpenTheSameFileAtOnce) {
+  const std::string path = TempDbPath("db");
+  ASSERT_OK_AND_ASSIGN(auto a, Store::Open(path));
+  ASSERT_OK_AND_ASSIGN(auto b, Store::Open(path));
+  Device d;
+  d.id = "robot-1";
+  ASSERT_OK(a->CreateDevice(d, "test").status());
+  ASSERT_OK(b->GetDevice("robot-1").status());
+}
+
+// A later migration, as a future schema change would add one.
+constexpr char kTestV2[] = R"sql(
+ALTER TABLE devices ADD COLUMN site TEXT NOT NULL DEFAULT 'unknown';
+PRAGMA user_version = 2;
+)sql";
+
+TEST(MigrationsTest, UpgradeKeepsExistingRows) {
+  const std::string path = TempDbPath("db");
+  {
+    ASSERT_OK_AND_ASSIGN(auto store, Store::Open(path));
+    Device d;
+    d.id = "robot-1";
+    ASSERT_OK(store->CreateDevice(d, "test").status());
+  }
+  std::vector<Migration> migrations(Migrations().begin(), Migrations().end());
+  migrations.push_back({2, kTestV2});
+  ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
+  ASSERT_OK(Migrate(*conn, migrations));
+  ASSERT_OK(Migrate(*conn, migrations));
+  ASSERT_OK_AND_ASSIGN(int version, SchemaVersion(*conn));
+  EXPECT_EQ(version, 2);
+  ASSERT_OK_AND_ASSIGN(std::string site,
+                       QueryText(*conn, "SELECT site FROM devices WHERE id = 'robot-1'"));
+  EXPECT_EQ(site, "unknown");
+}
+
+TEST(MigrationsTest, AFailedMigrationLeavesTheWholePreviousVersion) {
+  const std::string path = TempDbPath("db");
+  ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
+  ASSERT_OK(Migrate(*conn));
+  const int tables = CountTables(*conn);
+
+  std::vector<Migration> broken(Migrations().begin(), Migrations().end());
+  broken.push_back({2,
+                    "CREATE TABLE half_done (x INTEGER); SELECT no_such_column FROM devices;"
+                    " PRAGMA user_version = 2;"});
+  EXPECT_FALSE(Migrate(*conn, broken).ok());
+  ASSERT_OK_AND_ASSIGN(int version, SchemaVersion(*conn));
+  EXPECT_EQ(version, 1);
+  EXPECT_EQ(CountTables(*conn), tables);  // half_done rolled back
+
+  std::vector<Migration> forgetful(Migrations().begin(), Migrations().end());
+  forgetful.push_back({2, "CREATE TABLE half_done (x INTEGER);"});
+  absl::Status status = Migrate(*conn, forgetful);
+  EXPECT_EQ(status.code(), absl::StatusCode::kInternal) << status;
+  EXPECT_THAT(status.message(), HasSubstr("did not set user_version"));
+  EXPECT_EQ(CountTables(*conn), tables);
+}
+
+TEST(MigrationsTest, ANewerDatabaseIsRefused) {
+  const std::string path = TempDbPath("db");
+  {
+    ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
+    ASSERT_OK(conn->Exec("PRAGMA user_version = 99"));
+  }
+  absl::StatusOr<std::unique_ptr<Store>> store = Store::Open(path);
+  EXPECT_EQ(store.status().code(), absl::StatusCode::kFailedPrecondition) << store.status();
+  EXPECT_THAT(store.status().message(), HasSubstr("schema version 99"));
+}
+
+TEST(MigrationsTest, AFileThatIsNotADatabaseIsDataLoss) {
+  const std::string path = TempDbPath("db");
+  {
+    std::ofstream out(path, std::ios::binary);
+    out << std::string(8192, 'x');
+  }
+  absl::StatusOr<std::unique_ptr<Store>> store = Store::Open(path);
+  EXPECT_EQ(store.status().code(), absl::StatusCode::kDataLoss) << store.status();
+}
+
+TEST(MigrationsTest, AnUnreachableDirectoryIsUnavailable) {
+  absl::StatusOr<std::unique_ptr<Store>> store =
+      Store::Open(::testing::TempDir() + "no/such/dir/imucal.db");
+  EXPECT_EQ(store.status().code(), absl::StatusCode::kUnavailable) << store.status();
+}
+
+TEST(MigrationsTest, StoreFileIsWalWithForeignKeysEnforced) {
+  const std::string path = TempDbPath("db");
+  ASSERT_OK(Store::Open(path).status());
+  ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
+  ASSERT_OK_AND_ASSIGN(std::string mode, QueryText(*conn, "PRAGMA journal_mode"));
+  EXPECT_EQ(mode, "wal");
+  ASSERT_OK_AND_ASSIGN(std::string fk, QueryText(*conn, "PRAGMA foreign_keys"));
+  EXPECT_EQ(fk, "1");
+
+  // A session of a device that does not exist: the database itself refuses it.
+  absl::Status orphan = conn->Exec(
+      "INSERT INTO sessions (id, device_id, state, protocol, gravity_m_s2, created_at_us, "
+      "updated_at_us) "
+      "VALUES ('s1', 'ghost', 'open', 'six-face', 9.8, 0, 0)");
+  EXPECT_EQ(orphan.code(), absl::StatusCode::kFailedPrecondition) << orphan;
+  EXPECT_THAT(orphan.message(), HasSubstr("FOREIGN KEY"));
+
+  ASSERT_OK(
+      conn->Exec("INSERT INTO devices (id, sensor_model, nominal_rate_hz, accel_unit, gyro_unit, "
+                 "created_at_us) VALUES ('d1', 'm', 200, 'g', 'rad/s', 0)"));
+  ASSERT_OK(conn->Exec(
+      "INSERT INTO sessions (id, device_id, state, protocol, gravity_m_s2, created_at_us, "
+      "updated_at_us) "
+      "VALUES ('s1', 'd1', 'open', 'six-face', 9.8, 0, 0)"));
+  // A second open session of the same device: refused by the partial unique index.
+  absl::Status second_open = conn->Exec(
+      "INSERT INTO sessions (id, device_id, state, protocol, gravity_m_s2, created_at_us, "
+      "updated_at_us) "
+      "VALUES ('s2', 'd1', 'open', 'six-face', 9.8, 0, 0)");
+  EXPECT_EQ(second_open.code(), absl::StatusCode::kAlreadyExists) << second_open;
+  // A version that names another device's session.
+  ASSERT_OK(
+      conn->Exec("INSERT INTO devices (id, sensor_model, nominal_rate_hz, accel_unit, gyro_unit, "
+                 "created_at_us) VALUES ('d2', 'm', 200, 'g', 'rad/s', 0)"));
+  absl::Status cross = conn->Exec(
+      "INSERT INTO param_versions (device_id, version, created_at_us, session_id, verdict, "
+      "state, provenance, params_json, report_json) "
+      "VALUES ('d2', 1, 0, 's1', 'pass', 'candidate', '', '{}', '{}')");
+  EXPECT_EQ(cross.code(), absl::StatusCode::kFailedPrecondition) << cross;
+  // A state the schema does not know.
+  absl::Status bad_state = conn->Exec(
+      "INSERT INTO param_versions (device_id, version, created_at_us, verdict, state, "
+      "provenance, params_json, report_json) "
+      "VALUES ('d2', 1, 0, 'pass', 'bogus', '', '{}', '{}')");
+  EXPECT_EQ(bad_state.code(), absl::StatusCode::kFailedPrecondition) << bad_state;
+}
+
+TEST(MigrationsTest, ActiveVersionLookupUsesThePartialIndex) {
+  const std::string path = TempDbPath("db");
+  ASSERT_OK(Store::Open(path).status());
+  ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
+  // The same statement as store.cc's kSelectActiveVersion.
+  ASSERT_OK_AND_ASSIGN(ScopedStatement st,
+                       conn->Prepare("EXPLAIN QUERY PLAN "
+                                     "SELECT device_id, version, created_at_us, session_id, "
+                                     "verdict, accel_rms, state, provenance, params_json FROM "
+                                     "param_versions WHERE device_id = ?1 AND state = 'active'"));
+  st->BindText(1, "robot-1");
+  std::string plan;
+  for (;;) {
+    ASSERT_OK_AND_ASSIGN(bool row, st->Step());
+    if (!row) break;
+    plan += st->ColumnText(3) + "\n";
+  }
+  EXPECT_THAT(plan, HasSubstr("USING INDEX param_versions_active")) << plan;
+}
+
+}  // namespace
+}  // namespace imucal::storage

@@ -1,0 +1,135 @@
+#include "storage/sqlite_db.h"
+
+#include <cmath>
+#include <memory>
+#include <string>
+
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+#include "tests/storage/test_util.h"
+
+namespace imucal::storage {
+namespace {
+
+using ::testing::HasSubstr;
+
+class SqliteDbTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    path_ = TempDbPath("db");
+    auto conn = Connection::Open(path_, ConnectionOptions{});
+    ASSERT_TRUE(conn.ok()) << conn.status();
+    conn_ = *std::move(conn);
+    ASSERT_OK(conn_->Exec("PRAGMA journal_mode = WAL"));
+    ASSERT_OK(
+        conn_->Exec("CREATE TABLE t (k INTEGER PRIMARY KEY, v TEXT NOT NULL, "
+                    "d REAL, b BLOB, CHECK (length(v) < 10))"));
+  }
+
+  int64_t Count() {
+    auto st = conn_->Prepare("SELECT COUNT(*) FROM t");
+    EXPECT_TRUE(st.ok());
+    EXPECT_TRUE((*st)->Step().value_or(false));
+    return (*st)->ColumnInt64(0);
+  }
+
+  absl::Status Insert(int64_t k, std::string_view v) {
+    auto st = conn_->Prepare("INSERT INTO t (k, v) VALUES (?1, ?2)");
+    if (!st.ok()) return st.status();
+    (*st)->BindInt64(1, k);
+    (*st)->BindText(2, v);
+    return (*st)->Run();
+  }
+
+  std::string path_;
+  std::unique_ptr<Connection> conn_;
+};
+
+TEST_F(SqliteDbTest, StatementsArePreparedOncePerConnection) {
+  sqlite3_stmt* first = nullptr;
+  {
+    ASSERT_OK_AND_ASSIGN(ScopedStatement st, conn_->Prepare("SELECT 1"));
+    first = st->get();
+  }
+  ASSERT_OK_AND_ASSIGN(ScopedStatement st, conn_->Prepare("SELECT 1"));
+  EXPECT_EQ(st->get(), first);
+  // Lent out already: a nested use would clobber its bindings and cursor.
+  EXPECT_EQ(conn_->Prepare("SELECT 1").status().code(), absl::StatusCode::kInternal);
+}
+
+TEST_F(SqliteDbTest, ValuesRoundTripAndNanIsNull) {
+  {
+    ASSERT_OK_AND_ASSIGN(ScopedStatement st,
+                         conn_->Prepare("INSERT INTO t (k, v, d, b) VALUES (?1, ?2, ?3, ?4)"));
+    st->BindInt64(1, int64_t{1} << 40);
+    st->BindText(2, std::string_view("a\0b", 3));
+    st->BindDouble(3, std::nan(""));
+    st->BindBlob(4, "");
+    ASSERT_OK(st->Run());
+  }
+  ASSERT_OK_AND_ASSIGN(ScopedStatement st,
+                       conn_->Prepare("SELECT k, v, d, b, typeof(d), typeof(b) FROM t"));
+  ASSERT_OK_AND_ASSIGN(bool row, st->Step());
+  ASSERT_TRUE(row);
+  EXPECT_EQ(st->ColumnInt64(0), int64_t{1} << 40);
+  EXPECT_EQ(st->ColumnText(1), std::string("a\0b", 3));
+  EXPECT_TRUE(std::isnan(st->ColumnDouble(2)));
+  EXPECT_EQ(st->ColumnText(4), "null");
+  EXPECT_EQ(st->ColumnText(5), "blob");  // empty, not NULL
+  EXPECT_EQ(st->ColumnBlob(3), "");
+}
+
+TEST_F(SqliteDbTest, TransactionRollsBackUnlessCommitted) {
+  {
+    ASSERT_OK_AND_ASSIGN(Transaction txn, Transaction::Begin(*conn_));
+    ASSERT_OK(Insert(1, "x"));
+  }
+  EXPECT_EQ(Count(), 0);
+  {
+    ASSERT_OK_AND_ASSIGN(Transaction txn, Transaction::Begin(*conn_));
+    ASSERT_OK(Insert(1, "x"));
+    ASSERT_OK(txn.Commit());
+    EXPECT_FALSE(txn.Commit().ok());
+  }
+  EXPECT_EQ(Count(), 1);
+}
+
+TEST_F(SqliteDbTest, ConstraintCodesMapToStatuses) {
+  ASSERT_OK(Insert(1, "x"));
+  EXPECT_EQ(Insert(1, "y").code(), absl::StatusCode::kAlreadyExists);
+  EXPECT_EQ(Insert(2, "much too long").code(), absl::StatusCode::kFailedPrecondition);
+  // A bind error (index out of range) surfaces at Step.
+  ASSERT_OK_AND_ASSIGN(ScopedStatement st, conn_->Prepare("SELECT ?1"));
+  st->BindInt64(7, 1);
+  EXPECT_EQ(st->Step().status().code(), absl::StatusCode::kInternal);
+}
+
+TEST_F(SqliteDbTest, LockedDatabaseIsUnavailable) {
+  ConnectionOptions impatient;
+  impatient.busy_timeout = absl::ZeroDuration();
+  ASSERT_OK_AND_ASSIGN(auto other, Connection::Open(path_, impatient));
+  ASSERT_OK_AND_ASSIGN(Transaction holding, Transaction::Begin(*conn_));
+  absl::StatusOr<Transaction> blocked = Transaction::Begin(*other);
+  EXPECT_EQ(blocked.status().code(), absl::StatusCode::kUnavailable) << blocked.status();
+  EXPECT_THAT(blocked.status().message(), HasSubstr("locked"));
+}
+
+TEST(SqliteStatusTest, CodesMapAsDocumented) {
+  EXPECT_EQ(SqliteStatus(SQLITE_BUSY, "x", nullptr).code(), absl::StatusCode::kUnavailable);
+  EXPECT_EQ(SqliteStatus(SQLITE_CONSTRAINT_UNIQUE, "x", nullptr).code(),
+            absl::StatusCode::kAlreadyExists);
+  EXPECT_EQ(SqliteStatus(SQLITE_CONSTRAINT_PRIMARYKEY, "x", nullptr).code(),
+            absl::StatusCode::kAlreadyExists);
+  EXPECT_EQ(SqliteStatus(SQLITE_CONSTRAINT_FOREIGNKEY, "x", nullptr).code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(SqliteStatus(SQLITE_CORRUPT, "x", nullptr).code(), absl::StatusCode::kDataLoss);
+  EXPECT_EQ(SqliteStatus(SQLITE_NOTADB, "x", nullptr).code(), absl::StatusCode::kDataLoss);
+  EXPECT_EQ(SqliteStatus(SQLITE_FULL, "x", nullptr).code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_EQ(SqliteStatus(SQLITE_IOERR_WRITE, "x", nullptr).code(), absl::StatusCode::kUnavailable);
+  EXPECT_EQ(SqliteStatus(SQLITE_MISUSE, "x", nullptr).code(), absl::StatusCode::kInternal);
+  EXPECT_THAT(SqliteStatus(SQLITE_BUSY, "AppendBatch", nullptr).message(),
+              HasSubstr("AppendBatch: "));
+}
+
+}  // namespace
+}  // namespace imucal::storage
