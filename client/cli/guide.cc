@@ -82,9 +82,10 @@ int RunGuide(const std::vector<std::string>& argv) {
   });
   view.Line(absl::StrFormat("Calibrating %s: session %s (protocol %s).", session.device_id(),
                             session.id(), ProtocolName(session.protocol())));
-  view.Line(absl::StrFormat("Start the robot's capture now; it streams into session %s "
-                            "(e.g. imucal upload FILE --session %s).",
-                            session.id(), session.id()));
+  view.Line(
+      absl::StrFormat("Start the robot's capture now; it streams into session %s "
+                      "(e.g. imucal upload FILE --session %s).",
+                      session.id(), session.id()));
 
   std::string job_id;
   bool done = false;

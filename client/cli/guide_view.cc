@@ -30,14 +30,27 @@ void GuideView::Status(const std::string& text) {
 
 bool GuideView::OnEvent(const pb::SessionEvent& event) {
   switch (event.event_case()) {
-    case pb::SessionEvent::kStillness: OnStillness(event.stillness()); return false;
-    case pb::SessionEvent::kPose: OnPose(event.pose()); return false;
-    case pb::SessionEvent::kNextPose: OnNextPose(event.next_pose()); return false;
-    case pb::SessionEvent::kPair: OnPair(event.pair()); return false;
-    case pb::SessionEvent::kProgress: OnProgress(event.progress()); return false;
-    case pb::SessionEvent::kSolve: return OnSolve(event.solve());
-    case pb::SessionEvent::kSession: return OnSession(event.session());
-    default: return false;
+    case pb::SessionEvent::kStillness:
+      OnStillness(event.stillness());
+      return false;
+    case pb::SessionEvent::kPose:
+      OnPose(event.pose());
+      return false;
+    case pb::SessionEvent::kNextPose:
+      OnNextPose(event.next_pose());
+      return false;
+    case pb::SessionEvent::kPair:
+      OnPair(event.pair());
+      return false;
+    case pb::SessionEvent::kProgress:
+      OnProgress(event.progress());
+      return false;
+    case pb::SessionEvent::kSolve:
+      return OnSolve(event.solve());
+    case pb::SessionEvent::kSession:
+      return OnSession(event.session());
+    default:
+      return false;
   }
 }
 
@@ -116,7 +129,8 @@ void GuideView::OnProgress(const pb::Progress& p) {
     if (!p.faces_pending().empty())
       absl::StrAppend(&text, "; to do: ", absl::StrJoin(p.faces_pending(), " "));
   }
-  if (p.coverage() > 0) absl::StrAppend(&text, absl::StrFormat("; coverage %.0f%%", 100 * p.coverage()));
+  if (p.coverage() > 0)
+    absl::StrAppend(&text, absl::StrFormat("; coverage %.0f%%", 100 * p.coverage()));
   if (text == last_progress_) return;
   last_progress_ = text;
   Line(text);
@@ -127,9 +141,9 @@ bool GuideView::OnSolve(const pb::SolveJob& job) {
   const std::string state = JobStateName(job.state());
   if (job.state() == pb::JOB_STATE_DONE) {
     final_job_ = job;
-    Line(absl::StrFormat("RESULT: version %d, verdict %s, %s", job.version(), job.verdict(),
-                         job.activated() ? "now active"
-                                         : "candidate, not activated (see imucal report)"));
+    Line(absl::StrFormat(
+        "RESULT: version %d, verdict %s, %s", job.version(), job.verdict(),
+        job.activated() ? "now active" : "candidate, not activated (see imucal report)"));
     return true;
   }
   if (job.state() == pb::JOB_STATE_FAILED) {

@@ -151,8 +151,8 @@ absl::StatusOr<pb::SessionState> ParseState(const std::string& name) {
 }  // namespace
 
 int RunSession(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "device", "protocol", "state", "gravity"},
-                       {"json", "help"});
+  auto a =
+      Args::Parse(argv, {"server", "device", "protocol", "state", "gravity"}, {"json", "help"});
   if (!a.ok()) return UsageError(std::string(a.status().message()), kSessionHelp);
   if (a->Has("help")) return std::printf("%s%s", kSessionHelp, kServerFlagHelp), kExitOk;
   const auto& pos = a->positional();
@@ -175,8 +175,8 @@ int RunSession(const std::vector<std::string>& argv) {
     if (grpc::Status st = server.sessions->CreateSession(ctx.get(), req, &s); !st.ok())
       return RpcError(server, st);
     if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
-    std::printf("session %s opened for %s (protocol %s)\n", s.id().c_str(),
-                s.device_id().c_str(), ProtocolName(s.protocol()).c_str());
+    std::printf("session %s opened for %s (protocol %s)\n", s.id().c_str(), s.device_id().c_str(),
+                ProtocolName(s.protocol()).c_str());
     return kExitOk;
   }
   if (pos[0] == "list" && pos.size() == 1) {
@@ -237,8 +237,8 @@ constexpr char kSolveHelp[] =
     "options:\n";
 
 // Starts a solve and, if `wait`, polls the job until it finishes (at most timeout_s).
-int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t seed,
-                      bool wait, double timeout_s, bool as_json) {
+int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t seed, bool wait,
+                      double timeout_s, bool as_json) {
   pb::SolveSessionRequest req;
   req.set_session_id(session);
   req.set_seed(seed);
@@ -273,8 +273,8 @@ int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t
     std::printf("solve job %s %s for session %s\n", job.id().c_str(),
                 JobStateName(job.state()).c_str(), session.c_str());
   } else if (job.state() == pb::JOB_STATE_DONE) {
-    std::printf("solved session %s: version %d, verdict %s, %s\n", session.c_str(),
-                job.version(), job.verdict().c_str(),
+    std::printf("solved session %s: version %d, verdict %s, %s\n", session.c_str(), job.version(),
+                job.verdict().c_str(),
                 job.activated() ? "now active" : "candidate (not activated: see the report)");
   } else {
     std::printf("solve of session %s failed: %s\n", session.c_str(), job.error().c_str());
@@ -291,14 +291,15 @@ int RunSolve(const std::vector<std::string>& argv) {
   if (!a.ok()) return UsageError(std::string(a.status().message()), kSolveHelp);
   if (a->Has("help")) return std::printf("%s%s", kSolveHelp, kServerFlagHelp), kExitOk;
   auto session = a->Get("session");
-  if (!session || !a->positional().empty()) return UsageError("solve needs --session S", kSolveHelp);
+  if (!session || !a->positional().empty())
+    return UsageError("solve needs --session S", kSolveHelp);
   auto seed = a->GetInt("seed", 0);
   auto timeout = a->GetDouble("timeout", 600);
   if (!seed.ok() || !timeout.ok())
     return UsageError("--seed and --timeout take numbers", kSolveHelp);
   Server server = Connect(*a);
-  return SolveAndMaybeWait(server, *session, static_cast<uint64_t>(*seed), a->Has("wait"),
-                           *timeout, a->Has("json"));
+  return SolveAndMaybeWait(server, *session, static_cast<uint64_t>(*seed), a->Has("wait"), *timeout,
+                           a->Has("json"));
 }
 
 // ------------------------------------------------------------------------------------------
@@ -330,8 +331,8 @@ class ProgressBar {
     if (percent == last_percent_) return;
     last_percent_ = percent;
     std::fprintf(stderr, "\r[%s%s] %3d%%  %lld/%lld samples", std::string(filled, '#').c_str(),
-                 std::string(width - filled, '.').c_str(), percent,
-                 static_cast<long long>(done), static_cast<long long>(total));
+                 std::string(width - filled, '.').c_str(), percent, static_cast<long long>(done),
+                 static_cast<long long>(total));
     std::fflush(stderr);
   }
   void Finish() {
@@ -348,12 +349,14 @@ absl::StatusOr<core::ImportOptions> UploadImportOptions(const Args& a) {
   if (auto f = a.Get("format")) o.format = *f;
   if (auto u = a.Get("accel-unit")) {
     auto p = core::ParseAccelUnit(*u);
-    if (!p.ok()) return absl::InvalidArgumentError(absl::StrCat("--accel-unit: ", p.status().message()));
+    if (!p.ok())
+      return absl::InvalidArgumentError(absl::StrCat("--accel-unit: ", p.status().message()));
     o.accel_unit = *p;
   }
   if (auto u = a.Get("gyro-unit")) {
     auto p = core::ParseGyroUnit(*u);
-    if (!p.ok()) return absl::InvalidArgumentError(absl::StrCat("--gyro-unit: ", p.status().message()));
+    if (!p.ok())
+      return absl::InvalidArgumentError(absl::StrCat("--gyro-unit: ", p.status().message()));
     o.gyro_unit = *p;
   }
   return o;
@@ -484,8 +487,8 @@ constexpr char kReportHelp[] =
 std::string Vec(const json& v, const char* fmt = "%+.5f") {
   if (!v.is_array()) return "-";
   std::vector<std::string> parts;
-  for (const auto& x : v) parts.push_back(x.is_number() ? absl::StrFormat(fmt, x.get<double>())
-                                                        : std::string("null"));
+  for (const auto& x : v)
+    parts.push_back(x.is_number() ? absl::StrFormat(fmt, x.get<double>()) : std::string("null"));
   return absl::StrCat("[", absl::StrJoin(parts, ", "), "]");
 }
 
@@ -516,9 +519,8 @@ void PrintReportSummary(const json& r) {
   if (r.contains("pairs")) {
     for (const auto& p : r["pairs"]) {
       std::printf("  pair %-9s %-4s rotation %.1f deg, tilt %.1f deg  %s\n",
-                  p.contains("poses") ? p["poses"].dump().c_str() : "?",
-                  Str(p, "status").c_str(), Num(p, "rotation_deg"), Num(p, "tilt_deg"),
-                  Str(p, "reason").c_str());
+                  p.contains("poses") ? p["poses"].dump().c_str() : "?", Str(p, "status").c_str(),
+                  Num(p, "rotation_deg"), Num(p, "tilt_deg"), Str(p, "reason").c_str());
     }
   }
   if (r.contains("stages")) {
@@ -537,7 +539,8 @@ void PrintReportSummary(const json& r) {
       std::printf("accel bias  %s\n", Vec(p["accel"]["bias"]).c_str());
       std::printf("accel scale %s\n", Vec(p["accel"]["scale"]).c_str());
     }
-    if (p.contains("gyro")) std::printf("gyro bias   %s\n", Vec(p["gyro"]["bias"], "%+.6f").c_str());
+    if (p.contains("gyro"))
+      std::printf("gyro bias   %s\n", Vec(p["gyro"]["bias"], "%+.6f").c_str());
   }
   if (r.contains("effects")) {
     for (const auto& e : r["effects"])
@@ -547,7 +550,8 @@ void PrintReportSummary(const json& r) {
   }
   if (r.contains("warnings")) {
     for (const auto& w : r["warnings"])
-      std::printf("warning     %s\n", w.is_string() ? w.get<std::string>().c_str() : w.dump().c_str());
+      std::printf("warning     %s\n",
+                  w.is_string() ? w.get<std::string>().c_str() : w.dump().c_str());
   }
   std::printf("verdict     %s\n", Str(r, "verdict").c_str());
 }
@@ -610,7 +614,8 @@ int RunParams(const std::vector<std::string>& argv) {
   if (a->Has("help")) return std::printf("%s%s", kParamsHelp, kServerFlagHelp), kExitOk;
   const auto& pos = a->positional();
   auto device = a->Get("device");
-  if (pos.size() != 1) return UsageError("params needs get, list, promote or rollback", kParamsHelp);
+  if (pos.size() != 1)
+    return UsageError("params needs get, list, promote or rollback", kParamsHelp);
   if (!device) return UsageError("params needs --device D", kParamsHelp);
   auto version = a->GetInt("version", 0);
   auto to = a->GetInt("to", 0);

@@ -74,10 +74,14 @@ int UsageError(const std::string& message, const char* help) {
 
 std::string ProtocolName(pb::Protocol protocol) {
   switch (protocol) {
-    case pb::PROTOCOL_SIX_FACE: return "six-face";
-    case pb::PROTOCOL_POSITIONS: return "positions";
-    case pb::PROTOCOL_FREE: return "free";
-    default: return "auto";
+    case pb::PROTOCOL_SIX_FACE:
+      return "six-face";
+    case pb::PROTOCOL_POSITIONS:
+      return "positions";
+    case pb::PROTOCOL_FREE:
+      return "free";
+    default:
+      return "auto";
   }
 }
 

@@ -18,13 +18,13 @@ int main(int argc, char** argv) {
   if (!client.ok()) return std::fprintf(stderr, "%s\n", client.status().ToString().c_str()), 1;
   // A short deadline: a robot must boot even when the service is down (then from the cache).
   auto boot = sdk::LoadOrFetch(*client, device, cache, absl::Seconds(2));
-  if (!boot.ok()) return std::fprintf(stderr, "no IMU calibration: %s\n",
-                                      boot.status().ToString().c_str()), 1;
+  if (!boot.ok())
+    return std::fprintf(stderr, "no IMU calibration: %s\n", boot.status().ToString().c_str()), 1;
   std::printf("%s\n", boot->note.c_str());
 
   auto corrector = sdk::Corrector::Create(boot->loaded.params);
-  if (!corrector.ok()) return std::fprintf(stderr, "bad parameters: %s\n",
-                                           corrector.status().ToString().c_str()), 1;
+  if (!corrector.ok())
+    return std::fprintf(stderr, "bad parameters: %s\n", corrector.status().ToString().c_str()), 1;
 
   sdk::RawSample raw;  // in the parameter set's input units, e.g. from the IMU driver
   raw.accel[2] = 9.81;

@@ -70,8 +70,8 @@ absl::StatusOr<BootParams> LoadOrFetch(ParamClient& client, const std::string& d
   }
   if (fetched.ok()) {
     BootParams boot{*std::move(fetched), false, ""};
-    boot.note = absl::StrFormat("parameters %s v%d from the server", device,
-                                boot.loaded.stored.version);
+    boot.note =
+        absl::StrFormat("parameters %s v%d from the server", device, boot.loaded.stored.version);
     if (absl::Status s = SaveParamCache(cache_path, boot.loaded.stored); !s.ok())
       absl::StrAppend(&boot.note, "; the cache could not be updated: ", s.message());
     return boot;
@@ -79,9 +79,9 @@ absl::StatusOr<BootParams> LoadOrFetch(ParamClient& client, const std::string& d
   if (!IsUnreachable(fetched.status())) return fetched.status();
   if (cache_usable) {
     BootParams boot{*std::move(cached), true, ""};
-    boot.note = absl::StrFormat(
-        "parameters %s v%d from the cache %s: the server was unreachable (%s)", device,
-        boot.loaded.stored.version, cache_path, fetched.status().message());
+    boot.note =
+        absl::StrFormat("parameters %s v%d from the cache %s: the server was unreachable (%s)",
+                        device, boot.loaded.stored.version, cache_path, fetched.status().message());
     return boot;
   }
   const std::string cache_problem =

@@ -113,10 +113,9 @@ absl::Status SaveParamCache(const std::string& path, const StoredParams& params)
     return absl::InvalidArgumentError("parameter set: crc32c does not match its JSON");
   if (params.device_id.find('\n') != std::string::npos)
     return absl::InvalidArgumentError("parameter set: device id contains a line break");
-  const std::string text =
-      absl::StrFormat("%s\ndevice %s\nversion %d\ncrc32c %08x\nlength %d\n\n%s", kParamCacheFormat,
-                      params.device_id, params.version, params.crc32c, params.json.size(),
-                      params.json);
+  const std::string text = absl::StrFormat(
+      "%s\ndevice %s\nversion %d\ncrc32c %08x\nlength %d\n\n%s", kParamCacheFormat,
+      params.device_id, params.version, params.crc32c, params.json.size(), params.json);
   const std::string tmp = absl::StrCat(path, ".tmp.", ::getpid());
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) return ErrnoStatus(tmp, "cannot create");
@@ -141,10 +140,9 @@ absl::StatusOr<LoadedParams> LoadParamCache(const std::string& path) {
   if (magic.substr(0, 19) != "imucal-param-cache ")
     return absl::DataLossError(absl::StrCat(path, ": not an imucal parameter cache"));
   if (magic != kParamCacheFormat) {
-    return absl::DataLossError(absl::StrCat(path, ": cache format '",
-                                            std::string(magic.substr(0, 40)),
-                                            "' is not supported (this SDK reads '",
-                                            std::string(kParamCacheFormat), "')"));
+    return absl::DataLossError(
+        absl::StrCat(path, ": cache format '", std::string(magic.substr(0, 40)),
+                     "' is not supported (this SDK reads '", std::string(kParamCacheFormat), "')"));
   }
   rest.remove_prefix(eol + 1);
   StoredParams stored;

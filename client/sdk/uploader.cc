@@ -134,9 +134,9 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
     } else {
       const int64_t stored = session->samples();
       if (stored > samples.size()) {
-        return absl::FailedPreconditionError(absl::StrFormat(
-            "session %s already holds %d samples, more than the %d of this capture", session_id,
-            stored, samples.size()));
+        return absl::FailedPreconditionError(
+            absl::StrFormat("session %s already holds %d samples, more than the %d of this capture",
+                            session_id, stored, samples.size()));
       }
       if (first) result.skipped_samples = stored;
       first = false;
@@ -164,10 +164,10 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
       backoff = options_.initial_backoff;
     }
     if (++retries > options_.max_retries) {
-      return absl::Status(attempt_status.code(),
-                          absl::StrFormat("upload to session %s gave up after %d reconnects: %s",
-                                          session_id, options_.max_retries,
-                                          attempt_status.message()));
+      return absl::Status(
+          attempt_status.code(),
+          absl::StrFormat("upload to session %s gave up after %d reconnects: %s", session_id,
+                          options_.max_retries, attempt_status.message()));
     }
     if (!WaitBackoff(backoff)) return absl::CancelledError("upload cancelled");
     backoff = std::min(backoff * 2, options_.max_backoff);
@@ -176,8 +176,7 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
 }
 
 absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleColumns& samples,
-                                  int64_t first_sample, int64_t first_seq,
-                                  UploadResult* result) {
+                                  int64_t first_sample, int64_t first_seq, UploadResult* result) {
   const int64_t total = samples.size();
   const int64_t n = options_.batch_samples;
   const int64_t batches = (total - first_sample + n - 1) / n;
@@ -202,9 +201,8 @@ absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleCol
       const int64_t seq = first_seq + k;
       {
         std::unique_lock<std::mutex> lock(window_mu);
-        window_cv.wait(lock, [&] {
-          return reading_done || seq - acked_seq <= options_.max_in_flight;
-        });
+        window_cv.wait(lock,
+                       [&] { return reading_done || seq - acked_seq <= options_.max_in_flight; });
         if (reading_done) return;
       }
       const int64_t begin = first_sample + k * n;
@@ -241,8 +239,8 @@ absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleCol
   }
   if (!finish.ok()) return FromGrpcStatus(finish);
   if (acked_seq < last_seq) {
-    return absl::UnavailableError(absl::StrFormat(
-        "the stream ended with batch %d of %d acknowledged", acked_seq, last_seq));
+    return absl::UnavailableError(
+        absl::StrFormat("the stream ended with batch %d of %d acknowledged", acked_seq, last_seq));
   }
   return absl::OkStatus();
 }

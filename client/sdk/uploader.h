@@ -65,7 +65,7 @@ struct UploadResult {
   int64_t skipped_samples = 0;  // already in the session when Upload started (a resume)
   int64_t sent_samples = 0;     // acknowledged during this Upload
   int64_t last_acked_seq = 0;
-  int reconnects = 0;           // streams re-opened after a drop
+  int reconnects = 0;  // streams re-opened after a drop
 };
 
 class Uploader {
@@ -80,10 +80,8 @@ class Uploader {
   // options; FailedPrecondition if the session is not open or holds more samples than given;
   // the server's status for a non-retryable error (INVALID_ARGUMENT, NOT_FOUND, ...);
   // UNAVAILABLE after max_retries reconnects without progress; Cancelled after Cancel().
-  absl::StatusOr<UploadResult> Upload(const std::string& session_id,
-                                      const SampleColumns& samples);
-  absl::StatusOr<UploadResult> Upload(const std::string& session_id,
-                                      const core::Capture& capture);
+  absl::StatusOr<UploadResult> Upload(const std::string& session_id, const SampleColumns& samples);
+  absl::StatusOr<UploadResult> Upload(const std::string& session_id, const core::Capture& capture);
 
   // Thread-safe. Stops the current Upload, which returns Cancelled (what was acknowledged stays
   // in the session; a later Upload resumes after it).
@@ -105,7 +103,7 @@ class Uploader {
 
   std::mutex mu_;
   std::condition_variable cancel_cv_;
-  bool cancelled_ = false;                    // guarded by mu_
+  bool cancelled_ = false;                         // guarded by mu_
   grpc::ClientContext* stream_context_ = nullptr;  // guarded by mu_
 };
 

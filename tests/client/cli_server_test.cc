@@ -88,9 +88,9 @@ TEST_F(CliServerTest, RegisterListAndShowDevices) {
 
 TEST_F(CliServerTest, SessionStartListCancel) {
   Register("robot-cli-2");
-  ASSERT_EQ(Run(RunSession, {"start", "--device", "robot-cli-2", "--protocol", "six-face",
-                             "--json"}),
-            kExitOk)
+  ASSERT_EQ(
+      Run(RunSession, {"start", "--device", "robot-cli-2", "--protocol", "six-face", "--json"}),
+      kExitOk)
       << err_;
   const std::string id = json::parse(out_)["id"];
   EXPECT_EQ(Run(RunSession, {"start", "--device", "robot-cli-2"}), kExitUndetermined)
@@ -104,9 +104,9 @@ TEST_F(CliServerTest, SessionStartListCancel) {
 TEST_F(CliServerTest, UploadSolveReportParamsExport) {
   Register("robot-cli-3");
   const std::string capture = WriteSimulatedCapture(5);
-  ASSERT_EQ(Run(RunUpload, {capture, "--device", "robot-cli-3", "--protocol", "six-face",
-                            "--solve"}),
-            kExitOk)
+  ASSERT_EQ(
+      Run(RunUpload, {capture, "--device", "robot-cli-3", "--protocol", "six-face", "--solve"}),
+      kExitOk)
       << out_ << err_;
   EXPECT_NE(out_.find("uploaded"), std::string::npos) << out_;
   EXPECT_NE(out_.find("verdict"), std::string::npos) << out_;
@@ -119,8 +119,7 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
   ASSERT_EQ(Run(RunReport, {"--session", session}), kExitOk) << err_;
   EXPECT_NE(out_.find("verdict"), std::string::npos) << out_;
 
-  ASSERT_EQ(Run(RunParams, {"get", "--device", "robot-cli-3", "--version", "1", "--json"}),
-            kExitOk)
+  ASSERT_EQ(Run(RunParams, {"get", "--device", "robot-cli-3", "--version", "1", "--json"}), kExitOk)
       << err_;
   EXPECT_EQ(json::parse(out_)["format"], "imucal-params v1");
   // Whether a version activates by itself is the server's gates' call; promote it either way.
@@ -134,8 +133,7 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
 
   // json: kalibr and openvins exports are still being written on the server side.
   const std::string out = (dir_ / "params.json").string();
-  ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "json", "--out", out}),
-            kExitOk)
+  ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "json", "--out", out}), kExitOk)
       << err_;
   EXPECT_TRUE(fs::exists(out));
   EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "bogus"}), kExitUsage);

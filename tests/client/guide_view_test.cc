@@ -120,8 +120,7 @@ TEST(GuideViewTest, ProgressThenSolveResultEndsTheGuide) {
   EXPECT_FALSE(view.ReadyToSolve());
   view.OnEvent(Progress(12, 12));
   EXPECT_TRUE(view.ReadyToSolve());
-  EXPECT_NE(out.find("progress: 12/12 poses; faces done: Z+; to do: Y+"), std::string::npos)
-      << out;
+  EXPECT_NE(out.find("progress: 12/12 poses; faces done: Z+; to do: Y+"), std::string::npos) << out;
   EXPECT_FALSE(view.OnEvent(Solve(pb::JOB_STATE_RUNNING, "")));
   EXPECT_FALSE(view.ReadyToSolve());
   EXPECT_TRUE(view.OnEvent(Solve(pb::JOB_STATE_DONE, "pass")));

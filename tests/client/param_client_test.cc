@@ -1,8 +1,6 @@
 // ParamClient and LoadOrFetch: against an in-process fake ParameterService (checksums, NOT_FOUND,
 // if_not_version), an address where nothing listens (boot from the cache), and the real imucald
 // when it is built.
-#include "client/sdk/client.h"
-
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -13,6 +11,7 @@
 #include <string>
 
 #include "absl/strings/str_cat.h"
+#include "client/sdk/client.h"
 #include "client/sdk/crc32c.h"
 #include "client/sdk/grpc_status.h"
 #include "client/sdk/params_json.h"
@@ -42,9 +41,7 @@ pb::ParameterSet MakeSet(const std::string& device, int version) {
   return set;
 }
 
-std::string Unreachable() {
-  return absl::StrCat("127.0.0.1:", testing_util::FreeLoopbackPort());
-}
+std::string Unreachable() { return absl::StrCat("127.0.0.1:", testing_util::FreeLoopbackPort()); }
 
 class ParamClientTest : public testing::Test {
  protected:

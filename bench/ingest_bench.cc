@@ -1,0 +1,679 @@
+// Durable ingest throughput: N simulated robots, each with its own device and session, stream
+// SessionService.StreamSamples batches (packed columns, seq 1, 2, ...) to a real imucald server
+// over loopback and count what the server acknowledges (acks come after the SQLite commit).
+//
+//   ninja -C build-perf ingest_bench
+//   build-perf/bench/ingest_bench [--n=1,100,1000] [--seconds=5] [--batch=200] [--window=1]
+//                                 [--channels=4] [--breakdown=1] [--keep]
+//
+// The server runs in a forked child process (imucal::server::Server on 127.0.0.1:0 with a
+// SQLite file in a fresh temp dir), so the client's and the server's CPU are measured apart:
+// client = getrusage(self), server = /proc/<child>/stat. The client is the gRPC callback API:
+// one ClientBidiReactor per robot, no thread per stream (gRPC's own few threads drive them all),
+// streams spread over --channels HTTP/2 connections. Each robot keeps up to --window batches
+// unacknowledged (the server handles one batch of a stream at a time). Each round sends for
+// --seconds, then half-closes every stream and waits for the remaining acks: the wall time
+// includes that drain. Ack latency is StartWrite of batch seq -> the ack covering seq.
+//
+// The samples are a simulated six-face capture (200 Hz, temperature on), cut into batches and
+// replayed with a time shift per lap, so the server's online segmenter sees realistic motion.
+//
+// --breakdown runs, in this process and without gRPC, the pieces of one batch's cost: protobuf
+// encode/decode of a batch, the server's IngestBatch (validate, encode, SQLite commit, segment)
+// and Store::AppendBatch alone (the commit), each single-threaded.
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "core/simulator.h"
+#include "grpcpp/grpcpp.h"
+#include "imucal/v1/imucal.grpc.pb.h"
+#include "server/ingest.h"
+#include "server/server.h"
+#include "server/session_hub.h"
+#include "storage/sample_codec.h"
+#include "storage/store.h"
+
+namespace {
+
+namespace v1 = imucal::v1;
+using Clock = std::chrono::steady_clock;
+
+double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+struct Flags {
+  std::vector<int> ns = {1, 100, 1000};
+  double seconds = 5.0;
+  int batch = 200;
+  int window = 1;
+  int channels = 4;
+  bool breakdown = true;
+  bool keep = false;
+};
+
+Flags ParseFlags(int argc, char** argv) {
+  Flags f;
+  for (int i = 1; i < argc; ++i) {
+    std::string_view a = argv[i];
+    auto value = [&](std::string_view name) -> std::optional<std::string_view> {
+      if (!a.starts_with(name)) return std::nullopt;
+      return a.substr(name.size());
+    };
+    if (auto v = value("--n=")) {
+      f.ns.clear();
+      for (const std::string& s : std::vector<std::string>(absl::StrSplit(std::string(*v), ','))) {
+        int n = 0;
+        if (!absl::SimpleAtoi(s, &n) || n < 1) {
+          std::fprintf(stderr, "--n: bad value\n");
+          std::exit(2);
+        }
+        f.ns.push_back(n);
+      }
+    } else if (auto s = value("--seconds=")) {
+      f.seconds = std::atof(std::string(*s).c_str());
+    } else if (auto b = value("--batch=")) {
+      f.batch = std::atoi(std::string(*b).c_str());
+    } else if (auto w = value("--window=")) {
+      f.window = std::max(1, std::atoi(std::string(*w).c_str()));
+    } else if (auto c = value("--channels=")) {
+      f.channels = std::max(1, std::atoi(std::string(*c).c_str()));
+    } else if (auto k = value("--breakdown=")) {
+      f.breakdown = *k != "0";
+    } else if (a == "--keep") {
+      f.keep = true;
+    } else {
+      std::fprintf(stderr, "unknown flag %s\n", argv[i]);
+      std::exit(2);
+    }
+  }
+  return f;
+}
+
+// ---- The samples: one simulated capture as flat columns, replayed lap after lap.
+struct Columns {
+  std::vector<double> t, accel, gyro, temp;
+  size_t n = 0;
+  double lap_s = 0;  // time shift per lap
+};
+
+Columns MakeColumns() {
+  imucal::core::SimOptions o;
+  o.protocol = imucal::core::SimProtocol::kSixFace;
+  o.seed = 42;
+  absl::StatusOr<imucal::core::SimResult> sim = imucal::core::Simulate(o);
+  if (!sim.ok()) {
+    std::fprintf(stderr, "simulate: %s\n", std::string(sim.status().message()).c_str());
+    std::exit(1);
+  }
+  const imucal::core::Capture& c = sim->capture;
+  Columns col;
+  col.n = c.size();
+  for (size_t i = 0; i < c.size(); ++i) {
+    col.t.push_back(c.t_s[i]);
+    for (int k = 0; k < 3; ++k) {
+      col.accel.push_back(c.accel[i](k));
+      col.gyro.push_back(c.gyro[i](k));
+    }
+    col.temp.push_back(c.has_temp() ? c.temp[i] : 25.0);
+  }
+  col.lap_s = c.t_s.back() - c.t_s.front() + 1.0 / o.rate_hz;
+  return col;
+}
+
+// Fills `b` with batch `seq` (1-based) of `batch` samples: the replayed capture's samples
+// [(seq-1)*batch, seq*batch), lap by lap.
+void FillBatch(const Columns& col, int batch, int64_t seq, v1::SampleBatch* b) {
+  b->clear_t_s();
+  b->clear_accel();
+  b->clear_gyro();
+  b->clear_temp_c();
+  b->set_seq(seq);
+  b->mutable_t_s()->Reserve(batch);
+  b->mutable_accel()->Reserve(3 * batch);
+  b->mutable_gyro()->Reserve(3 * batch);
+  b->mutable_temp_c()->Reserve(batch);
+  const int64_t first = (seq - 1) * batch;
+  for (int j = 0; j < batch;) {
+    const int64_t g = first + j;
+    const size_t i = static_cast<size_t>(g % static_cast<int64_t>(col.n));
+    const double shift = static_cast<double>(g / static_cast<int64_t>(col.n)) * col.lap_s;
+    const int run = static_cast<int>(std::min<size_t>(batch - j, col.n - i));  // up to lap end
+    for (int k = 0; k < run; ++k) {
+      b->add_t_s(col.t[i + k] + shift);
+      b->add_temp_c(col.temp[i + k]);
+    }
+    b->mutable_accel()->Add(col.accel.begin() + 3 * i, col.accel.begin() + 3 * (i + run));
+    b->mutable_gyro()->Add(col.gyro.begin() + 3 * i, col.gyro.begin() + 3 * (i + run));
+    j += run;
+  }
+}
+
+// ---- CPU accounting.
+double SelfCpuS() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+double ProcCpuS(pid_t pid) {
+  std::ifstream f("/proc/" + std::to_string(pid) + "/stat");
+  std::string s((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  const size_t close = s.rfind(')');
+  if (close == std::string::npos) return 0;
+  std::istringstream rest(s.substr(close + 2));
+  std::string field;
+  double utime = 0, stime = 0;
+  for (int i = 3; i <= 15 && rest >> field; ++i) {  // fields 14, 15: utime, stime (ticks)
+    if (i == 14) utime = std::atof(field.c_str());
+    if (i == 15) stime = std::atof(field.c_str());
+  }
+  return (utime + stime) / static_cast<double>(sysconf(_SC_CLK_TCK));
+}
+
+std::string LoadAvg() {
+  std::ifstream f("/proc/loadavg");
+  std::string a, b, c;
+  f >> a >> b >> c;
+  return a + " " + b + " " + c;
+}
+
+// ---- The server, in a child process.
+struct Child {
+  pid_t pid = -1;
+  int port = 0;
+  int stop_fd = -1;  // closing it tells the child to shut down
+};
+
+Child ForkServer(const std::string& db_path) {
+  int port_pipe[2], stop_pipe[2];
+  if (pipe(port_pipe) != 0 || pipe(stop_pipe) != 0) {
+    std::perror("pipe");
+    std::exit(1);
+  }
+  const pid_t pid = fork();
+  if (pid < 0) {
+    std::perror("fork");
+    std::exit(1);
+  }
+  if (pid == 0) {
+    close(port_pipe[0]);
+    close(stop_pipe[1]);
+    imucal::server::ServerOptions options;
+    options.listen = "127.0.0.1:0";
+    options.db_path = db_path;
+    options.drain_deadline = absl::Seconds(5);
+    absl::StatusOr<std::unique_ptr<imucal::server::Server>> server =
+        imucal::server::Server::Start(options);
+    int port = 0;
+    if (server.ok()) port = (*server)->port();
+    else std::fprintf(stderr, "server: %s\n", std::string(server.status().message()).c_str());
+    if (write(port_pipe[1], &port, sizeof port) != sizeof port) _exit(1);
+    close(port_pipe[1]);
+    char c;
+    while (read(stop_pipe[0], &c, 1) > 0) {
+    }
+    if (server.ok()) server->reset();  // ~Server: Shutdown (drains), checkpoint on close
+    _exit(0);
+  }
+  close(port_pipe[1]);
+  close(stop_pipe[0]);
+  Child child;
+  child.pid = pid;
+  child.stop_fd = stop_pipe[1];
+  if (read(port_pipe[0], &child.port, sizeof child.port) != sizeof child.port ||
+      child.port == 0) {
+    std::fprintf(stderr, "the server did not start\n");
+    std::exit(1);
+  }
+  close(port_pipe[0]);
+  return child;
+}
+
+void StopServer(Child& child) {
+  close(child.stop_fd);
+  int status = 0;
+  waitpid(child.pid, &status, 0);
+}
+
+// ---- One round: N robots.
+struct Shared {
+  const Columns* col = nullptr;
+  int batch = 200;
+  int window = 1;
+  Clock::time_point deadline;
+  std::mutex mu;
+  std::condition_variable cv;
+  int running = 0;           // guarded by mu
+  int failed = 0;            // guarded by mu
+  std::string first_error;   // guarded by mu
+  std::vector<double> latencies_us;  // guarded by mu (merged at OnDone)
+  int64_t acked_samples = 0;         // guarded by mu
+  int64_t acked_batches = 0;         // guarded by mu
+  Clock::time_point last_ack;        // guarded by mu
+};
+
+class Robot final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAck> {
+ public:
+  Robot(Shared* shared, v1::SessionService::Stub* stub, std::string session_id)
+      : shared_(shared), stub_(stub), session_id_(std::move(session_id)) {
+    sent_at_.resize(static_cast<size_t>(shared_->window) + 1);
+    latencies_us_.reserve(4096);
+  }
+
+  void Start() {
+    stub_->async()->StreamSamples(&context_, this);
+    {
+      std::lock_guard lock(mu_);
+      MaybeWriteLocked();
+    }
+    StartRead(&ack_);
+    StartCall();
+  }
+
+  void OnWriteDone(bool ok) override {
+    std::lock_guard lock(mu_);
+    writing_ = false;
+    if (ok) MaybeWriteLocked();
+  }
+
+  void OnWritesDoneDone(bool /*ok*/) override {}
+
+  void OnReadDone(bool ok) override {
+    if (!ok) return;  // the server finished: OnDone follows
+    const Clock::time_point now = Clock::now();
+    {
+      std::lock_guard lock(mu_);
+      for (int64_t s = acked_seq_ + 1; s <= ack_.last_acked_seq(); ++s) {
+        latencies_us_.push_back(1e6 * Seconds(now - SentAt(s)));
+      }
+      acked_batches_ += ack_.last_acked_seq() - acked_seq_;
+      acked_seq_ = ack_.last_acked_seq();
+      acked_samples_ = ack_.samples();
+      last_ack_ = now;
+      MaybeWriteLocked();
+    }
+    StartRead(&ack_);
+  }
+
+  void OnDone(const grpc::Status& status) override {
+    {
+      std::lock_guard lock(shared_->mu);
+      if (!status.ok()) {
+        ++shared_->failed;
+        if (shared_->first_error.empty())
+          shared_->first_error = absl::StrCat(session_id_, ": ", status.error_message());
+      }
+      shared_->latencies_us.insert(shared_->latencies_us.end(), latencies_us_.begin(),
+                                   latencies_us_.end());
+      shared_->acked_samples += acked_samples_;
+      shared_->acked_batches += acked_batches_;
+      shared_->last_ack = std::max(shared_->last_ack, last_ack_);
+      --shared_->running;
+      shared_->cv.notify_all();  // under the lock: main destroys `shared` once it sees 0
+    }
+  }
+
+ private:
+  Clock::time_point& SentAt(int64_t seq) {
+    return sent_at_[static_cast<size_t>(seq % static_cast<int64_t>(sent_at_.size()))];
+  }
+
+  void MaybeWriteLocked() {
+    if (writing_ || writes_done_) return;
+    if (Clock::now() >= shared_->deadline) {
+      writes_done_ = true;
+      StartWritesDone();
+      return;
+    }
+    if (next_seq_ - 1 - acked_seq_ >= shared_->window) return;
+    if (next_seq_ == 1) batch_.set_session_id(session_id_);
+    else batch_.clear_session_id();
+    FillBatch(*shared_->col, shared_->batch, next_seq_, &batch_);
+    SentAt(next_seq_) = Clock::now();
+    ++next_seq_;
+    writing_ = true;
+    StartWrite(&batch_);
+  }
+
+  Shared* shared_;
+  v1::SessionService::Stub* stub_;
+  std::string session_id_;
+  grpc::ClientContext context_;
+  v1::SampleAck ack_;  // only the read path touches it
+
+  std::mutex mu_;
+  v1::SampleBatch batch_;  // guarded by mu_; not touched while a write is in flight
+  bool writing_ = false;
+  bool writes_done_ = false;
+  int64_t next_seq_ = 1;
+  int64_t acked_seq_ = 0;
+  int64_t acked_samples_ = 0;
+  int64_t acked_batches_ = 0;
+  Clock::time_point last_ack_;
+  std::vector<Clock::time_point> sent_at_;  // ring, indexed by seq
+  std::vector<double> latencies_us_;
+};
+
+double Percentile(std::vector<double>& v, double p) {
+  if (v.empty()) return 0;
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
+  return v[k];
+}
+
+struct RoundResult {
+  int n = 0;
+  double wall_s = 0, samples_per_s = 0, batches_per_s = 0;
+  int64_t samples = 0, batches = 0;
+  double p50_us = 0, p99_us = 0, max_us = 0;
+  double client_cpu_s = 0, server_cpu_s = 0;
+  int failed = 0;
+  std::string load;
+};
+
+RoundResult RunRound(const Flags& flags, const Columns& col, Child& child,
+                     std::vector<std::shared_ptr<grpc::Channel>>& channels, int n, int round) {
+  RoundResult r;
+  r.n = n;
+  // Setup (not timed): a device and an open session per robot.
+  std::vector<std::string> sessions;
+  {
+    auto devices = v1::DeviceService::NewStub(channels[0]);
+    auto session_stub = v1::SessionService::NewStub(channels[0]);
+    for (int i = 0; i < n; ++i) {
+      v1::RegisterDeviceRequest req;
+      v1::Device* d = req.mutable_device();
+      d->set_id(absl::StrCat("bench-r", round, "-n", n, "-", i));
+      d->set_sensor_model("MPU-6050");
+      d->set_nominal_rate_hz(200);
+      d->set_accel_unit("m/s^2");
+      d->set_gyro_unit("rad/s");
+      v1::Device out;
+      grpc::ClientContext c1;
+      grpc::Status s = devices->RegisterDevice(&c1, req, &out);
+      v1::CreateSessionRequest sreq;
+      sreq.set_device_id(d->id());
+      sreq.set_protocol(v1::PROTOCOL_SIX_FACE);
+      v1::Session session;
+      grpc::ClientContext c2;
+      if (s.ok()) s = session_stub->CreateSession(&c2, sreq, &session);
+      if (!s.ok()) {
+        std::fprintf(stderr, "setup: %s\n", s.error_message().c_str());
+        std::exit(1);
+      }
+      sessions.push_back(session.id());
+    }
+  }
+  std::vector<std::unique_ptr<v1::SessionService::Stub>> stubs;
+  for (auto& ch : channels) stubs.push_back(v1::SessionService::NewStub(ch));
+
+  Shared shared;
+  shared.col = &col;
+  shared.batch = flags.batch;
+  shared.window = flags.window;
+  shared.running = n;
+  std::vector<std::unique_ptr<Robot>> robots;
+  for (int i = 0; i < n; ++i) {
+    robots.push_back(std::make_unique<Robot>(
+        &shared, stubs[static_cast<size_t>(i) % stubs.size()].get(), sessions[i]));
+  }
+  r.load = LoadAvg();
+  const double client_cpu0 = SelfCpuS(), server_cpu0 = ProcCpuS(child.pid);
+  const Clock::time_point start = Clock::now();
+  shared.deadline = start + std::chrono::microseconds(static_cast<int64_t>(flags.seconds * 1e6));
+  for (auto& robot : robots) robot->Start();
+  {
+    std::unique_lock lock(shared.mu);
+    shared.cv.wait(lock, [&] { return shared.running == 0; });
+  }
+  const Clock::time_point end = Clock::now();
+  r.client_cpu_s = SelfCpuS() - client_cpu0;
+  r.server_cpu_s = ProcCpuS(child.pid) - server_cpu0;
+  r.wall_s = Seconds(end - start);
+  r.samples = shared.acked_samples;
+  r.batches = shared.acked_batches;
+  r.samples_per_s = static_cast<double>(r.samples) / r.wall_s;
+  r.batches_per_s = static_cast<double>(r.batches) / r.wall_s;
+  r.p50_us = Percentile(shared.latencies_us, 0.50);
+  r.p99_us = Percentile(shared.latencies_us, 0.99);
+  r.max_us = shared.latencies_us.empty()
+                 ? 0
+                 : *std::max_element(shared.latencies_us.begin(), shared.latencies_us.end());
+  r.failed = shared.failed;
+  if (shared.failed > 0) {
+    std::fprintf(stderr, "N=%d: %d streams failed, first: %s\n", n, shared.failed,
+                 shared.first_error.c_str());
+  }
+  return r;
+}
+
+double ThreadCpuS() {
+  rusage u{};
+  getrusage(RUSAGE_THREAD, &u);
+  return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+// ---- Breakdown: the pieces of one batch, single-threaded, no gRPC.
+void Breakdown(const Flags& flags, const Columns& col, const std::string& dir) {
+  std::printf("\nBreakdown (one thread, no gRPC), batch = %d samples:\n", flags.batch);
+  const int per = flags.batch;
+  auto report = [&](const char* what, int64_t batches, double s) {
+    std::printf("  %-52s %9.1f us/batch %8.0f batches/s %10.0f samples/s\n", what,
+                1e6 * s / static_cast<double>(batches), static_cast<double>(batches) / s,
+                static_cast<double>(batches * per) / s);
+  };
+  // Protobuf: fill + serialize (client side), parse (server side).
+  {
+    v1::SampleBatch b;
+    std::string wire;
+    const int k = 20000;
+    Clock::time_point t0 = Clock::now();
+    for (int i = 1; i <= k; ++i) {
+      FillBatch(col, per, i, &b);
+      wire.clear();
+      b.SerializeToString(&wire);
+    }
+    report("client: fill columns + proto serialize", k, Seconds(Clock::now() - t0));
+    v1::SampleBatch parsed;
+    t0 = Clock::now();
+    for (int i = 1; i <= k; ++i) parsed.ParseFromString(wire);
+    report("server: proto parse", k, Seconds(Clock::now() - t0));
+    std::printf("  (wire size %zu bytes per batch, %.1f bytes/sample)\n", wire.size(),
+                static_cast<double>(wire.size()) / per);
+  }
+  const std::string db = dir + "/breakdown.db";
+  absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store =
+      imucal::storage::Store::Open(db);
+  if (!store.ok()) {
+    std::fprintf(stderr, "breakdown store: %s\n", std::string(store.status().message()).c_str());
+    return;
+  }
+  auto new_session = [&](const std::string& id) {
+    imucal::storage::Device d;
+    d.id = id;
+    d.sensor_model = "MPU-6050";
+    d.nominal_rate_hz = 200;
+    d.accel_unit = "m/s^2";
+    d.gyro_unit = "rad/s";
+    (void)(*store)->CreateDevice(d, "bench");
+    imucal::storage::Session s;
+    s.device_id = id;
+    s.protocol = "six-face";
+    return (*store)->CreateSession(s, "bench")->id;
+  };
+  // IngestBatch: the server's whole per-batch work bar gRPC (validate, encode, commit, segment).
+  {
+    const std::string sid = new_session("breakdown-ingest");
+    imucal::server::SessionHub hub(store->get());
+    std::shared_ptr<imucal::server::LiveSession> live = *hub.Get(sid);
+    v1::SampleBatch b;
+    int64_t k = 0;
+    double fill_s = 0;
+    const Clock::time_point t0 = Clock::now();
+    while (Seconds(Clock::now() - t0) < 2.0) {
+      const Clock::time_point f0 = Clock::now();
+      FillBatch(col, per, k + 1, &b);
+      fill_s += Seconds(Clock::now() - f0);
+      std::lock_guard lock(live->mu);
+      absl::StatusOr<imucal::server::IngestResult> res =
+          imucal::server::IngestBatch(**store, *live, b);
+      if (!res.ok()) {
+        std::fprintf(stderr, "IngestBatch: %s\n", std::string(res.status().message()).c_str());
+        return;
+      }
+      ++k;
+    }
+    report("server: IngestBatch (validate+encode+commit+segment)", k,
+           Seconds(Clock::now() - t0) - fill_s);
+  }
+  // The parts of IngestBatch: validation + ToSamples + EncodeSamples; segmenter; commit alone.
+  {
+    v1::SampleBatch b;
+    FillBatch(col, per, 1, &b);
+    const int k = 20000;
+    Clock::time_point t0 = Clock::now();
+    size_t bytes = 0;
+    for (int i = 0; i < k; ++i) {
+      (void)imucal::server::ValidateBatchColumns(b, "m/s^2", "rad/s");
+      (void)imucal::server::ValidateBatchTimes(b, -1.0);
+      std::vector<imucal::storage::ImuSample> s = imucal::server::ToSamples(b);
+      bytes += imucal::storage::EncodeSamples(s)->size();
+    }
+    report("  of which validate + ToSamples + EncodeSamples", k, Seconds(Clock::now() - t0));
+    std::printf("  (stored payload %.1f bytes/sample)\n",
+                static_cast<double>(bytes) / (static_cast<double>(k) * per));
+  }
+  {
+    imucal::storage::Device d;
+    d.id = "seg";
+    d.sensor_model = "MPU-6050";
+    d.nominal_rate_hz = 200;
+    d.accel_unit = "m/s^2";
+    d.gyro_unit = "rad/s";
+    imucal::core::OnlineSegmenter seg(
+        imucal::server::SegmenterOptionsFor(d, v1::PROTOCOL_SIX_FACE));
+    std::vector<imucal::core::SegmenterEvent> events;
+    const int64_t k = static_cast<int64_t>(col.n) / per;
+    Clock::time_point t0 = Clock::now();
+    for (int64_t i = 0; i < k * per; ++i) {
+      const size_t j = static_cast<size_t>(i);
+      seg.Add(col.t[j], Eigen::Vector3d(col.accel[3 * j], col.accel[3 * j + 1], col.accel[3 * j + 2]),
+              Eigen::Vector3d(col.gyro[3 * j], col.gyro[3 * j + 1], col.gyro[3 * j + 2]), &events);
+    }
+    report("  of which online segmenter", k, Seconds(Clock::now() - t0));
+  }
+  {
+    const std::string sid = new_session("breakdown-append");
+    std::vector<std::string> payloads;
+    v1::SampleBatch b;
+    const int64_t k_max = 200000;
+    int64_t k = 0;
+    double encode_s = 0;
+    std::vector<double> lat_us;
+    const double cpu0 = ThreadCpuS();
+    const Clock::time_point t0 = Clock::now();
+    while (k < k_max && Seconds(Clock::now() - t0) < 2.0) {
+      const Clock::time_point e0 = Clock::now();
+      FillBatch(col, per, k + 1, &b);
+      std::string payload = *imucal::storage::EncodeSamples(imucal::server::ToSamples(b));
+      const Clock::time_point a0 = Clock::now();
+      encode_s += Seconds(a0 - e0);
+      absl::StatusOr<imucal::storage::BatchAck> ack = (*store)->AppendBatch(sid, k + 1, payload);
+      lat_us.push_back(1e6 * Seconds(Clock::now() - a0));
+      if (!ack.ok()) {
+        std::fprintf(stderr, "AppendBatch: %s\n", std::string(ack.status().message()).c_str());
+        return;
+      }
+      ++k;
+    }
+    const double wall = Seconds(Clock::now() - t0), cpu = ThreadCpuS() - cpu0;
+    report("  of which Store::AppendBatch (one commit per batch)", k, wall - encode_s);
+    double sum = 0;
+    for (double x : lat_us) sum += x;
+    const double mean = sum / static_cast<double>(lat_us.size());
+    const double p50 = Percentile(lat_us, 0.5), p99 = Percentile(lat_us, 0.99),
+                 p999 = Percentile(lat_us, 0.999);
+    std::sort(lat_us.begin(), lat_us.end());
+    double slow = 0;  // time spent in calls over 1 ms (WAL checkpoints: write + fsync)
+    for (double x : lat_us)
+      if (x > 1000) slow += x;
+    std::printf("    AppendBatch per call: mean %.0f us, p50 %.0f us, p99 %.0f us, p99.9 %.0f us, "
+                "max %.1f ms; calls > 1 ms take %.0f%% of the time; thread cpu %.0f%% of wall\n",
+                mean, p50, p99, p999, lat_us.back() / 1e3, 100 * slow / sum, 100 * cpu / wall);
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const Flags flags = ParseFlags(argc, argv);
+  char tmpl[] = "/tmp/imucal-ingest-bench-XXXXXX";
+  if (mkdtemp(tmpl) == nullptr) {
+    std::perror("mkdtemp");
+    return 1;
+  }
+  const std::string dir = tmpl;
+  const Columns col = MakeColumns();
+
+  // Fork before any gRPC object exists in this process.
+  Child child = ForkServer(dir + "/ingest.db");
+  std::printf("imucal ingest bench: server pid %d on 127.0.0.1:%d, db %s/ingest.db "
+              "(WAL, synchronous=NORMAL: the Store default)\n",
+              static_cast<int>(child.pid), child.port, dir.c_str());
+  std::printf("batch %d samples (t, accel[3], gyro[3], temp per sample), window %d batch(es) "
+              "per stream, %d channel(s), %.1f s per round, %ld cores\n\n",
+              flags.batch, flags.window, flags.channels, flags.seconds,
+              sysconf(_SC_NPROCESSORS_ONLN));
+
+  std::vector<std::shared_ptr<grpc::Channel>> channels;
+  for (int i = 0; i < flags.channels; ++i) {
+    grpc::ChannelArguments args;
+    args.SetInt("imucal.bench.channel", i);  // distinct args: a connection per channel
+    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+    channels.push_back(grpc::CreateCustomChannel(absl::StrCat("127.0.0.1:", child.port),
+                                                 grpc::InsecureChannelCredentials(), args));
+  }
+
+  std::printf("%6s %8s %11s %12s %10s %9s %9s %9s %8s %8s %6s  %s\n", "N", "wall_s", "samples",
+              "samples/s", "batches/s", "p50_ms", "p99_ms", "max_ms", "cli_cpu", "srv_cpu",
+              "failed", "loadavg(before)");
+  int round = 0;
+  for (int n : flags.ns) {
+    RoundResult r = RunRound(flags, col, child, channels, n, round++);
+    std::printf("%6d %8.2f %11lld %12.0f %10.0f %9.2f %9.2f %9.2f %7.0f%% %7.0f%% %6d  %s\n",
+                r.n, r.wall_s, static_cast<long long>(r.samples), r.samples_per_s,
+                r.batches_per_s, r.p50_us / 1e3, r.p99_us / 1e3, r.max_us / 1e3,
+                100 * r.client_cpu_s / r.wall_s, 100 * r.server_cpu_s / r.wall_s, r.failed,
+                r.load.c_str());
+    std::fflush(stdout);
+  }
+  channels.clear();
+  StopServer(child);
+  std::error_code ec;
+  std::printf("\ndb size after the rounds: %.1f MB (+ WAL)\n",
+              static_cast<double>(std::filesystem::file_size(dir + "/ingest.db", ec)) / 1e6);
+  if (flags.breakdown) Breakdown(flags, col, dir);
+  if (!flags.keep) std::filesystem::remove_all(dir, ec);
+  return 0;
+}
