@@ -25,6 +25,8 @@ int RunCalibrate(const std::vector<std::string>& args);
 int RunApply(const std::vector<std::string>& args);
 int RunSimulate(const std::vector<std::string>& args);
 int RunDemo(const std::vector<std::string>& args);
+// The main job through the service: guide + simulated robot + solve + SDK fetch and apply.
+int RunServerDemo(const std::vector<std::string>& args);
 
 // Server commands (server_commands.cc, guide.cc). Each accepts --server ADDR (else
 // $IMUCAL_SERVER, else 127.0.0.1:50051). A server error prints the server's message; the exit

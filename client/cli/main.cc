@@ -15,6 +15,7 @@ constexpr char kHelp[] =
     "  apply --params P IN OUT  apply a parameter set to a capture (writes m/s^2, rad/s)\n"
     "  simulate --out FILE      write a simulated capture with known truth\n"
     "  demo                     simulate, calibrate, apply, print the error before and after\n"
+    "                           (with --server ADDR: the same through the service, guided)\n"
     "server commands (imucal [--server ADDR] COMMAND ...; default $IMUCAL_SERVER, else\n"
     "127.0.0.1:50051; exit code 6 when the server is unreachable):\n"
     "  devices [register ID ...|get ID]   list, register or show devices\n"
@@ -66,7 +67,12 @@ int main(int argc, char** argv) {
   if (command == "calibrate") return imucal::cli::RunCalibrate(args);
   if (command == "apply") return imucal::cli::RunApply(args);
   if (command == "simulate") return imucal::cli::RunSimulate(args);
-  if (command == "demo") return imucal::cli::RunDemo(args);
+  if (command == "demo") {
+    // With a server, the demo runs through the service; without, offline.
+    for (const std::string& a : args)
+      if (a == "--server" || a.rfind("--server=", 0) == 0) return imucal::cli::RunServerDemo(args);
+    return imucal::cli::RunDemo(args);
+  }
   if (command == "devices") return imucal::cli::RunDevices(args);
   if (command == "session") return imucal::cli::RunSession(args);
   if (command == "upload") return imucal::cli::RunUpload(args);

@@ -11,6 +11,7 @@
 #include "absl/strings/str_split.h"
 #include "client/cli/args.h"
 #include "client/cli/commands.h"
+#include "client/cli/demo_common.h"
 #include "client/cli/report_json.h"
 #include "client/cli/summary.h"
 #include "client/sdk/corrector.h"
@@ -182,6 +183,8 @@ core::ParamSet TruthParams(const core::SimResult& sim) {
   return p;
 }
 
+}  // namespace
+
 // Applies `params` to every sample of `in` through the SDK's Corrector (as a robot does).
 absl::StatusOr<core::Capture> ApplyParams(const core::ParamSet& params, const core::Capture& in) {
   if (in.accel_unit != params.accel_unit || in.gyro_unit != params.gyro_unit) {
@@ -212,7 +215,52 @@ absl::StatusOr<core::Capture> ApplyParams(const core::ParamSet& params, const co
   return out;
 }
 
-}  // namespace
+
+core::SimOptions DemoCaptureOptions(uint64_t seed, int extra_poses) {
+  core::SimOptions so;
+  so.protocol = core::SimProtocol::kSixFace;
+  so.extra_poses = extra_poses;
+  so.seed = seed;
+  return so;
+}
+
+absl::Status PrintBeforeAfter(const core::SimOptions& capture_options, const core::SimTruth& truth,
+                              const core::ParamSet& params) {
+  // A fresh capture of the same unit (same truth, new poses), without noise.
+  core::SimOptions vo = capture_options;
+  vo.seed = capture_options.seed + 1000;
+  vo.protocol = core::SimProtocol::kFree;
+  vo.extra_poses = 0;
+  vo.accel_noise_m_s2 = 0;
+  vo.gyro_noise_rad_s = 0;
+  auto val = core::Simulate(vo, truth);
+  if (!val.ok()) return val.status();
+  auto calibrated = ApplyParams(params, val->capture);
+  if (!calibrated.ok()) return calibrated.status();
+  // "Before": the nominal conversion a robot would use without calibration.
+  std::vector<Eigen::Vector3d> nominal_a, nominal_g;
+  const double ka = core::NominalAccelToSi(val->capture.accel_unit, val->capture.gravity_m_s2);
+  const double kg = core::NominalGyroToSi(val->capture.gyro_unit);
+  for (size_t i = 0; i < val->capture.size(); ++i) {
+    nominal_a.push_back(ka * val->capture.accel[i]);
+    nominal_g.push_back(kg * val->capture.gyro[i]);
+  }
+  const double g = vo.gravity_m_s2;
+  const double before_a = core::VectorRmsError(nominal_a, val->true_accel_m_s2, false);
+  const double after_a = core::VectorRmsError(calibrated->accel, val->true_accel_m_s2, false);
+  const double after_a_aligned = core::VectorRmsError(calibrated->accel, val->true_accel_m_s2, true);
+  const double before_g = core::VectorRmsError(nominal_g, val->true_gyro_rad_s, false);
+  const double after_g = core::VectorRmsError(calibrated->gyro, val->true_gyro_rad_s, false);
+  std::printf(
+      "applied through the robot SDK's Corrector to a fresh noise-free capture of the same unit "
+      "(%zu samples)\n"
+      "                     before (nominal)      after (calibrated)\n"
+      "  accel error RMS    %8.2f mg           %8.3f mg  (%.3f mg after best-fit rotation)\n"
+      "  gyro error RMS     %8.3f deg/s        %8.4f deg/s\n",
+      val->capture.size(), 1e3 * before_a / g, 1e3 * after_a / g, 1e3 * after_a_aligned / g,
+      before_g * kRadToDeg, after_g * kRadToDeg);
+  return absl::OkStatus();
+}
 
 int ReportError(const absl::Status& status) {
   std::fprintf(stderr, "imucal: %s\n", std::string(status.message()).c_str());
@@ -330,25 +378,24 @@ int RunSimulate(const std::vector<std::string>& argv) {
   return kExitOk;
 }
 
-// The README's main job, offline: simulate a six-face session with extra poses, calibrate it,
-// apply the result to a fresh noise-free validation capture, print the error before and after.
+// The offline main job: simulate a six-face session with extra poses, calibrate it, apply the
+// result to a fresh noise-free validation capture, print the error before and after.
 int RunDemo(const std::vector<std::string>& argv) {
   auto a = Args::Parse(argv, {"out-dir", "seed", "extra-poses"}, {"help", "no-bsas"});
   if (!a.ok() || a->Has("help")) {
-    std::printf("usage: imucal demo [--out-dir DIR] [--seed N]\n");
+    std::printf("usage: imucal demo [--out-dir DIR] [--seed N] [--extra-poses N] [--no-bsas]\n"
+                "       imucal demo --server ADDR [--seed N]   (the same through the service)\n");
     return a.ok() ? kExitOk : kExitUsage;
   }
   const std::string dir = a->Get("out-dir").value_or("imucal-demo");
   auto seed = a->GetInt("seed", 7);
   if (!seed.ok()) return Usage(std::string(seed.status().message()), "");
-  std::filesystem::create_directories(dir);
-
-  core::SimOptions so;
-  so.protocol = core::SimProtocol::kSixFace;
   auto extra = a->GetInt("extra-poses", 24);
   if (!extra.ok()) return Usage(std::string(extra.status().message()), "");
-  so.extra_poses = static_cast<int>(*extra);
-  so.seed = static_cast<uint64_t>(*seed);
+  std::filesystem::create_directories(dir);
+
+  const core::SimOptions so = DemoCaptureOptions(static_cast<uint64_t>(*seed),
+                                                 static_cast<int>(*extra));
   auto sim = core::Simulate(so);
   if (!sim.ok()) return ReportError(sim.status());
   sim->capture.device = "demo-robot";
@@ -367,39 +414,9 @@ int RunDemo(const std::vector<std::string>& argv) {
   WriteFileAtomically(dir + "/params.json", sdk::ParamSetToJson(report->params)).IgnoreError();
   std::printf("== 2. calibrated it (report.json, params.json in %s)\n%s", dir.c_str(),
               FormatSummary(*report).c_str());
-
-  // A fresh capture of the same unit (same truth, new poses), without noise.
-  core::SimOptions vo = so;
-  vo.seed = so.seed + 1000;
-  vo.protocol = core::SimProtocol::kFree;
-  vo.accel_noise_m_s2 = 0;
-  vo.gyro_noise_rad_s = 0;
-  auto val = core::Simulate(vo, sim->truth);
-  if (!val.ok()) return ReportError(val.status());
-  auto calibrated = ApplyParams(report->params, val->capture);
-  if (!calibrated.ok()) return ReportError(calibrated.status());
-  // "Before": the nominal conversion a robot would use without calibration.
-  std::vector<Eigen::Vector3d> nominal_a, nominal_g, truth_static_g;
-  const double ka = core::NominalAccelToSi(val->capture.accel_unit, val->capture.gravity_m_s2);
-  const double kg = core::NominalGyroToSi(val->capture.gyro_unit);
-  for (size_t i = 0; i < val->capture.size(); ++i) {
-    nominal_a.push_back(ka * val->capture.accel[i]);
-    nominal_g.push_back(kg * val->capture.gyro[i]);
-  }
-  const double g = so.gravity_m_s2;
-  const double before_a = core::VectorRmsError(nominal_a, val->true_accel_m_s2, false);
-  const double after_a = core::VectorRmsError(calibrated->accel, val->true_accel_m_s2, false);
-  const double after_a_aligned = core::VectorRmsError(calibrated->accel, val->true_accel_m_s2, true);
-  const double before_g = core::VectorRmsError(nominal_g, val->true_gyro_rad_s, false);
-  const double after_g = core::VectorRmsError(calibrated->gyro, val->true_gyro_rad_s, false);
-  std::printf(
-      "== 3. applied the parameters through the robot SDK to a fresh noise-free capture "
-      "(%zu samples)\n"
-      "                     before (nominal)      after (calibrated)\n"
-      "  accel error RMS    %8.2f mg           %8.3f mg  (%.3f mg after best-fit rotation)\n"
-      "  gyro error RMS     %8.3f deg/s        %8.4f deg/s\n",
-      val->capture.size(), 1e3 * before_a / g, 1e3 * after_a / g, 1e3 * after_a_aligned / g,
-      before_g * kRadToDeg, after_g * kRadToDeg);
+  std::printf("== 3. ");
+  if (absl::Status s = PrintBeforeAfter(so, sim->truth, report->params); !s.ok())
+    return ReportError(s);
   return kExitOk;
 }
 
