@@ -28,51 +28,11 @@
 #include "absl/status/statusor.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/string_view.h"
+#include "core/str_util.h"
 
 namespace imucal::core {
 namespace {
 
-// ---------------------------------------------------------------------------------------------
-// String building. This absl build keeps its own absl::string_view
-// (ABSL_OPTION_USE_STD_STRING_VIEW=0 in the Debian package), so absl::StrCat and friends reject
-// the std::string_view that capture.h uses; these small equivalents accept both.
-
-void AppendPiece(std::string* out, std::string_view s) { out->append(s); }
-void AppendPiece(std::string* out, absl::string_view s) { out->append(s.data(), s.size()); }
-void AppendPiece(std::string* out, const std::string& s) { out->append(s); }
-void AppendPiece(std::string* out, const char* s) { out->append(s); }
-// Integers only: doubles go through FormatDouble so that the precision is explicit.
-template <std::integral Int>
-void AppendPiece(std::string* out, Int value) {
-  static_assert(!std::same_as<Int, char> && !std::same_as<Int, bool>, "not a number to print");
-  std::array<char, 24> buffer;
-  const auto result = std::to_chars(buffer.data(), buffer.data() + buffer.size(), value);
-  out->append(buffer.data(), result.ptr);
-}
-
-template <typename... Pieces>
-void AppendTo(std::string* out, const Pieces&... pieces) {
-  (AppendPiece(out, pieces), ...);
-}
-
-template <typename... Pieces>
-std::string Cat(const Pieces&... pieces) {
-  std::string out;
-  AppendTo(&out, pieces...);
-  return out;
-}
-
-template <typename Range>
-std::string Join(const Range& pieces, std::string_view separator) {
-  std::string out;
-  bool first = true;
-  for (const auto& piece : pieces) {
-    if (!first) out.append(separator);
-    AppendPiece(&out, piece);
-    first = false;
-  }
-  return out;
-}
 
 // ---------------------------------------------------------------------------------------------
 // Text helpers shared by the readers. They work on string_views into the file buffer, so a

@@ -267,6 +267,7 @@ int ReportError(const absl::Status& status) {
   switch (status.code()) {
     case absl::StatusCode::kInvalidArgument:
     case absl::StatusCode::kNotFound:
+    case absl::StatusCode::kAlreadyExists:
     case absl::StatusCode::kDataLoss:
       return kExitBadInput;
     case absl::StatusCode::kFailedPrecondition:

@@ -39,27 +39,13 @@ std::unique_ptr<grpc::ClientContext> CallContext(double timeout_s) {
 }
 
 int RpcError(const Server& server, const absl::Status& status) {
-  switch (status.code()) {
-    case absl::StatusCode::kUnavailable:
-    case absl::StatusCode::kDeadlineExceeded:
-      std::fprintf(stderr, "imucal: server %s unreachable: %s\n", server.address.c_str(),
-                   std::string(status.message()).c_str());
-      return kExitUnavailable;
-    default:
-      break;
+  if (status.code() == absl::StatusCode::kUnavailable ||
+      status.code() == absl::StatusCode::kDeadlineExceeded) {
+    std::fprintf(stderr, "imucal: server %s unreachable: %s\n", server.address.c_str(),
+                 std::string(status.message()).c_str());
+    return kExitUnavailable;
   }
-  std::fprintf(stderr, "imucal: %s\n", std::string(status.message()).c_str());
-  switch (status.code()) {
-    case absl::StatusCode::kInvalidArgument:
-    case absl::StatusCode::kNotFound:
-    case absl::StatusCode::kAlreadyExists:
-    case absl::StatusCode::kDataLoss:
-      return kExitBadInput;
-    case absl::StatusCode::kFailedPrecondition:
-      return kExitUndetermined;
-    default:
-      return kExitInternal;
-  }
+  return ReportError(status);
 }
 
 int RpcError(const Server& server, const grpc::Status& status) {
