@@ -9,6 +9,8 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
+#include "absl/time/clock.h"
+#include "absl/time/time.h"
 #include "client/cli/args.h"
 #include "client/cli/commands.h"
 #include "client/cli/demo_common.h"
@@ -25,6 +27,12 @@ namespace imucal::cli {
 namespace {
 
 constexpr double kRadToDeg = 180.0 / M_PI;
+
+// Provenance of a parameter set made by this CLI: the software and when (RFC 3339, UTC).
+void StampParams(core::ParamSet* params) {
+  params->software = "imucal " IMUCAL_VERSION;
+  params->created_at = absl::FormatTime("%Y-%m-%dT%H:%M:%SZ", absl::Now(), absl::UTCTimeZone());
+}
 
 absl::Status WriteFileAtomically(const std::string& path, const std::string& text) {
   const std::string tmp = path + ".tmp";
@@ -304,7 +312,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   if (!capture.ok()) return ReportError(capture.status());
   auto report = core::Calibrate(*capture, co);
   if (!report.ok()) return ReportError(report.status());
-  report->params.software = "imucal " IMUCAL_VERSION;
+  StampParams(&report->params);
   const std::string json = ReportToJson(*report);
   if (auto out = a->Get("out")) {
     if (absl::Status s = WriteFileAtomically(*out, json); !s.ok()) return ReportError(s);
@@ -410,7 +418,7 @@ int RunDemo(const std::vector<std::string>& argv) {
   co.use_bsas = !a->Has("no-bsas");
   auto report = core::Calibrate(sim->capture, co);
   if (!report.ok()) return ReportError(report.status());
-  report->params.software = "imucal " IMUCAL_VERSION;
+  StampParams(&report->params);
   WriteFileAtomically(dir + "/report.json", ReportToJson(*report)).IgnoreError();
   WriteFileAtomically(dir + "/params.json", sdk::ParamSetToJson(report->params)).IgnoreError();
   std::printf("== 2. calibrated it (report.json, params.json in %s)\n%s", dir.c_str(),
