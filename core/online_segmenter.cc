@@ -55,6 +55,7 @@ bool IsInteger(const Eigen::Vector3d& x) {
 }  // namespace
 
 OnlineSegmenter::OnlineSegmenter(OnlineSegmenterOptions options) : options_(std::move(options)) {
+  last_pose_.index = -1;
   if (options_.rate_hz > 0) LearnRate(0);
 }
 
@@ -188,11 +189,21 @@ void OnlineSegmenter::Classify(const Sample& s, const Eigen::Vector3d& accel_var
       run_var_a_.setZero();
       run_var_g_.setZero();
       run_var_n_ = 0;
+      run_judged_at_hold_ = false;
+      run_accepted_ = false;
     }
     run_var_a_ += accel_var;
     run_var_g_ += gyro_var;
     ++run_var_n_;
     AddToRun(s);
+    // Held for the hold time: judge the run now, so that a pose counts even when no motion
+    // (nor Flush) ever ends it.
+    if (!run_judged_at_hold_ && !chunks_.empty() &&
+        run_last_t_s_ - run_first_t_s_ >= options_.min_static_s) {
+      run_judged_at_hold_ = true;
+      PoseUpdate pose;
+      if (EvaluateRun(&pose) && pose.accepted) AcceptPose(std::move(pose), events);
+    }
   } else if (in_run_) {
     EndRun(events);
   }
@@ -247,9 +258,41 @@ void OnlineSegmenter::Flush(std::vector<SegmenterEvent>* events) {
 
 void OnlineSegmenter::EndRun(std::vector<SegmenterEvent>* events) {
   in_run_ = false;
+  PoseUpdate pose;
+  const bool has_samples = EvaluateRun(&pose);
+  if (run_accepted_) {
+    // Accepted at the hold time (its event has fired): update its statistics with the whole run.
+    run_accepted_ = false;
+    if (has_samples) {
+      pose_mean_sum_ += pose.accel_mean - run_accepted_mean_;
+      pose.index = last_pose_.index;
+      pose.face = last_pose_.face;  // as announced
+      pose.accepted = true;         // as announced
+      pose.reason.clear();
+      last_pose_ = std::move(pose);
+    }
+    RefineFloor();
+    return;
+  }
+  if (!has_samples) return;  // nothing left after trimming: a pause, not a pose
+  if (pose.accepted) {
+    AcceptPose(std::move(pose), events);
+    RefineFloor();
+    return;
+  }
+  pose.index = next_pose_index_++;
+  pose.face = FaceOf(pose.accel_mean);
+  last_pose_ = pose;
+  SegmenterEvent e;
+  e.kind = SegmenterEvent::Kind::kPose;
+  e.pose = std::move(pose);
+  events->push_back(std::move(e));
+}
+
+bool OnlineSegmenter::EvaluateRun(PoseUpdate* pose) const {
   Chunk total, first_half;
   for (const Chunk& c : chunks_) total.n += c.n;
-  if (total.n < 2) return;  // nothing left after trimming: a pause, not a pose
+  if (total.n < 2) return false;
   size_t k = 0;
   for (; k < chunks_.size() && 2 * (first_half.n + chunks_[k].n) <= total.n + 1; ++k) {
     first_half.n += chunks_[k].n;
@@ -260,19 +303,18 @@ void OnlineSegmenter::EndRun(std::vector<SegmenterEvent>* events) {
     total.gyro_sum += c.gyro_sum;
   }
   const double n = static_cast<double>(total.n);
-  PoseUpdate pose;
-  pose.index = next_pose_index_++;
-  pose.t_start_s = run_first_t_s_;
-  pose.t_end_s = run_last_t_s_;
-  pose.samples = total.n;
-  pose.accel_mean = run_offset_a_ + total.accel_sum / n;
-  pose.gyro_mean = total.gyro_sum / n;
-  pose.accepted = true;
-  const double duration = pose.t_end_s - pose.t_start_s;
+  pose->t_start_s = run_first_t_s_;
+  pose->t_end_s = run_last_t_s_;
+  pose->samples = total.n;
+  pose->accel_mean = run_offset_a_ + total.accel_sum / n;
+  pose->gyro_mean = total.gyro_sum / n;
+  pose->accepted = true;
+  pose->reason.clear();
+  const double duration = pose->t_end_s - pose->t_start_s;
   if (duration < options_.min_static_s) {
-    pose.accepted = false;
-    pose.reason = absl::StrFormat("too short: held %.1f s, needs %.1f s; hold the pose longer",
-                                  duration, options_.min_static_s);
+    pose->accepted = false;
+    pose->reason = absl::StrFormat("too short: held %.1f s, needs %.1f s; hold the pose longer",
+                                   duration, options_.min_static_s);
   } else if (first_half.n > 0 && first_half.n < total.n) {
     // Moved during the pose: as DetectStatic, the two halves' means differ by more than the
     // noise of the means AND by more than the per-sample noise.
@@ -284,8 +326,8 @@ void OnlineSegmenter::EndRun(std::vector<SegmenterEvent>* events) {
     const Eigen::Vector3d sigma_means = noise_std * std::sqrt(1.0 / n1 + 1.0 / n2);
     for (int j = 0; j < 3; ++j) {
       if (shift(j) > options_.moved_sigma * sigma_means(j) && shift(j) > 3 * noise_std(j)) {
-        pose.accepted = false;
-        pose.reason = absl::StrFormat(
+        pose->accepted = false;
+        pose->reason = absl::StrFormat(
             "moved during capture: axis %c shifted by %.1f noise std between the first and "
             "second half; keep the robot still",
             "xyz"[j], shift(j) / noise_std(j));
@@ -293,22 +335,30 @@ void OnlineSegmenter::EndRun(std::vector<SegmenterEvent>* events) {
       }
     }
   }
-  pose.face = FaceOf(pose.accel_mean);
-  if (pose.accepted) {
-    ++poses_accepted_;
-    pose_mean_sum_ += pose.accel_mean;
-    // Refine the floor with the pose's own window variances; never above the initial rest's.
-    if (run_var_n_ > 0) {
-      const double m = static_cast<double>(run_var_n_);
-      accel_floor_ = (0.8 * accel_floor_ + 0.2 * run_var_a_ / m).cwiseMin(accel_floor0_);
-      gyro_floor_ = (0.8 * gyro_floor_ + 0.2 * run_var_g_ / m).cwiseMin(gyro_floor0_);
-    }
-  }
+  return true;
+}
+
+void OnlineSegmenter::AcceptPose(PoseUpdate pose, std::vector<SegmenterEvent>* events) {
+  pose.index = next_pose_index_++;
+  pose.face = FaceOf(pose.accel_mean);  // before this pose counts, as the offset estimate
+  ++poses_accepted_;
+  pose_mean_sum_ += pose.accel_mean;
+  run_accepted_ = in_run_;
+  run_accepted_mean_ = pose.accel_mean;
+  last_pose_ = pose;
   SegmenterEvent e;
   e.kind = SegmenterEvent::Kind::kPose;
   e.pose = pose;
   events->push_back(std::move(e));
-  if (pose.accepted) Guide(pose, events);
+  Guide(pose, events);
+}
+
+void OnlineSegmenter::RefineFloor() {
+  // Refine the floor with the pose's own window variances; never above the initial rest's.
+  if (run_var_n_ == 0) return;
+  const double m = static_cast<double>(run_var_n_);
+  accel_floor_ = (0.8 * accel_floor_ + 0.2 * run_var_a_ / m).cwiseMin(accel_floor0_);
+  gyro_floor_ = (0.8 * gyro_floor_ + 0.2 * run_var_g_ / m).cwiseMin(gyro_floor0_);
 }
 
 std::string OnlineSegmenter::FaceOf(const Eigen::Vector3d& accel_mean) const {

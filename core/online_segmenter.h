@@ -10,10 +10,15 @@
 // refined with every accepted pose (an exponential average of its window variances, never above
 // the initial estimate). Quantised (integer) readings keep at least one step's rounding noise.
 //
-// A still run becomes a pose when the robot moves again (or at Flush()): trimmed by `trim_s` at
-// both ends, rejected when shorter than `min_static_s` ("too short") or when its first and
-// second half means differ by more than `moved_sigma` standard errors and 3 noise std ("moved"),
-// as DetectStatic does.
+// A still run is a pose trimmed by `trim_s` at both ends, rejected when shorter than
+// `min_static_s` ("too short") or when its first and second half means differ by more than
+// `moved_sigma` standard errors and 3 noise std ("moved"), as DetectStatic does. A run is
+// accepted as soon as it has been held for the hold time (min_static_s after trimming) and its
+// halves agree: the pose event, the accepted count and the next-pose guidance fire then, so the
+// last pose of a capture counts even if the robot stops streaming while still. The run may keep
+// growing; its statistics (the accepted-means sum, the noise floor refinement) are updated when
+// motion (or Flush()) ends it, with no second pose event. A run that ends before the hold time,
+// or that had moved when it reached it, is judged when it ends, as a whole.
 //
 // Six-face guidance: the wanted sequence is Z+, Z+ turned, Z-, Z- turned, Y+, Y+ turned, Y-, Y-
 // turned, X+, X+ turned, X-, X- turned (seeds/000, core/simulator.h). An accepted pose whose face
@@ -106,6 +111,9 @@ class OnlineSegmenter {
   int poses_accepted() const { return poses_accepted_; }
   int poses_total() const { return next_pose_index_; }
   int six_face_step() const { return step_; }  // 0..12: wanted steps done
+  // The last pose judged (index -1 before any): an accepted one's statistics (means, end time,
+  // samples) are those of its whole run once motion or Flush() has ended it.
+  const PoseUpdate& last_pose() const { return last_pose_; }
   bool noise_learnt() const { return noise_learnt_; }
   // Per-axis noise variances (input units squared); zero until learnt.
   const Eigen::Vector3d& accel_noise_var() const { return accel_floor_; }
@@ -131,6 +139,12 @@ class OnlineSegmenter {
                 const Eigen::Vector3d& gyro_var, std::vector<SegmenterEvent>* events);
   void AddToRun(const Sample& s);
   void EndRun(std::vector<SegmenterEvent>* events);
+  // Judges the run's trimmed samples so far (index and face left unset); false when fewer than
+  // two samples are left after trimming.
+  bool EvaluateRun(PoseUpdate* pose) const;
+  // Counts `pose` (judged accepted) and emits its pose event and the guidance.
+  void AcceptPose(PoseUpdate pose, std::vector<SegmenterEvent>* events);
+  void RefineFloor();
   void FinishLearning();
   std::string FaceOf(const Eigen::Vector3d& accel_mean) const;
   void Guide(const PoseUpdate& pose, std::vector<SegmenterEvent>* events);
@@ -162,6 +176,10 @@ class OnlineSegmenter {
   double run_first_t_s_ = 0, run_last_t_s_ = 0;
   Eigen::Vector3d run_var_a_ = Eigen::Vector3d::Zero(), run_var_g_ = Eigen::Vector3d::Zero();
   size_t run_var_n_ = 0;
+  bool run_judged_at_hold_ = false;  // the run reached the hold time and was judged then
+  bool run_accepted_ = false;        // ... and accepted: its pose event has fired
+  Eigen::Vector3d run_accepted_mean_ = Eigen::Vector3d::Zero();  // in pose_mean_sum_
+  PoseUpdate last_pose_;  // index -1 until the first pose (the constructor)
   double last_stillness_t_s_ = -1e300;
   // Poses and guidance.
   int next_pose_index_ = 0;

@@ -121,7 +121,8 @@ v1::VersionState ToProto(storage::VersionState state) {
   return v1::VERSION_STATE_UNSPECIFIED;
 }
 
-v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json) {
+v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json,
+                         ParamCrcCache* crc_cache) {
   v1::ParameterSet out;
   out.set_device_id(version.device_id);
   out.set_version(version.version);
@@ -130,9 +131,33 @@ v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json) {
   out.set_session_id(version.session_id);
   out.set_verdict(std::string(storage::VerdictName(version.verdict)));
   out.set_accel_rms_m_s2(version.accel_rms);
-  out.set_crc32c(Crc32c(version.params_json));
+  out.set_crc32c(crc_cache != nullptr ? crc_cache->Get(version) : Crc32c(version.params_json));
   if (with_json) out.set_json(version.params_json);
   return out;
+}
+
+uint32_t ParamCrcCache::Get(const storage::ParamVersion& version) {
+  // Listings do not load the JSON: nothing worth caching (and no entry to poison).
+  if (version.params_json.empty()) return Crc32c(version.params_json);
+  std::pair<std::string, int> key(version.device_id, version.version);
+  {
+    std::lock_guard lock(mu_);
+    auto it = entries_.find(key);
+    if (it != entries_.end() && it->second.json_size == version.params_json.size()) {
+      ++hits_;
+      return it->second.crc;
+    }
+  }
+  const uint32_t crc = Crc32c(version.params_json);  // outside the lock
+  std::lock_guard lock(mu_);
+  if (entries_.size() >= kMaxEntries && entries_.find(key) == entries_.end()) entries_.clear();
+  entries_[std::move(key)] = Entry{version.params_json.size(), crc};
+  return crc;
+}
+
+size_t ParamCrcCache::hits() const {
+  std::lock_guard lock(mu_);
+  return hits_;
 }
 
 uint32_t Crc32c(std::string_view data) {

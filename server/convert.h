@@ -3,9 +3,13 @@
 #ifndef IMUCAL_SERVER_CONVERT_H_
 #define IMUCAL_SERVER_CONVERT_H_
 
+#include <cstddef>
 #include <cstdint>
+#include <map>
+#include <mutex>
 #include <string>
 #include <string_view>
+#include <utility>
 
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
@@ -32,8 +36,32 @@ std::string ProtocolName(v1::Protocol protocol);
 v1::Protocol ParseProtocol(std::string_view stored);
 core::ProtocolKind ToProtocolKind(v1::Protocol protocol);
 
+// CRC-32C of each version's params JSON, computed once: a version's JSON never changes, and a
+// robot fleet fetching its active parameters would otherwise re-hash the same kilobytes on every
+// call. Keyed by (device, version) and checked against the JSON's length; bounded (cleared when
+// full). One per Store (a ParameterServiceImpl owns one): (device, version) names one JSON only
+// within one database. Thread-safe.
+class ParamCrcCache {
+ public:
+  static constexpr size_t kMaxEntries = 4096;
+  // Crc32c(version.params_json), from the cache when it holds it.
+  uint32_t Get(const storage::ParamVersion& version);
+  size_t hits() const;
+
+ private:
+  struct Entry {
+    size_t json_size = 0;
+    uint32_t crc = 0;
+  };
+  mutable std::mutex mu_;
+  std::map<std::pair<std::string, int>, Entry> entries_;  // guarded by mu_
+  size_t hits_ = 0;                                      // guarded by mu_
+};
+
 // Parameter versions. `with_json` false leaves json empty (listings, if_not_version hits).
-v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json);
+// `crc_cache` (optional) supplies the crc32c.
+v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json,
+                         ParamCrcCache* crc_cache = nullptr);
 v1::VersionState ToProto(storage::VersionState state);
 
 // CRC-32C (Castagnoli) of ParameterSet.json, as the SDK's cache checks it.

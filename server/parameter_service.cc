@@ -35,7 +35,7 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::GetActiveParameters(
   if (!active.ok()) return FinishUnary(context, active.status());
   const bool unchanged =
       request->if_not_version() != 0 && request->if_not_version() == active->version;
-  *response = ToProto(*active, /*with_json=*/!unchanged);
+  *response = ToProto(*active, /*with_json=*/!unchanged, &crc_cache_);
   return FinishUnary(context, absl::OkStatus());
 }
 
@@ -48,7 +48,7 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::GetParameters(
   absl::StatusOr<storage::ParamVersion> v =
       store_->GetVersion(request->device_id(), request->version());
   if (!v.ok()) return FinishUnary(context, v.status());
-  *response = ToProto(*v, /*with_json=*/true);
+  *response = ToProto(*v, /*with_json=*/true, &crc_cache_);
   return FinishUnary(context, absl::OkStatus());
 }
 
@@ -84,7 +84,7 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::Promote(grpc::CallbackServerCont
       store_->Promote(request->device_id(), request->version(), ActorOf(*context),
                       request->reason());
   if (!v.ok()) return FinishUnary(context, v.status());
-  *response = ToProto(*v, /*with_json=*/true);
+  *response = ToProto(*v, /*with_json=*/true, &crc_cache_);
   return FinishUnary(context, absl::OkStatus());
 }
 
@@ -98,7 +98,7 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::Rollback(grpc::CallbackServerCon
       store_->Rollback(request->device_id(), request->to_version(), ActorOf(*context),
                        request->reason());
   if (!v.ok()) return FinishUnary(context, v.status());
-  *response = ToProto(*v, /*with_json=*/true);
+  *response = ToProto(*v, /*with_json=*/true, &crc_cache_);
   return FinishUnary(context, absl::OkStatus());
 }
 

@@ -1,12 +1,20 @@
 #include "server/server.h"
 
 #include <chrono>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "grpcpp/health_check_service_interface.h"
 
 namespace imucal::server {
+namespace {
+
+constexpr char kOrphanedSolveError[] =
+    "the server stopped during this solve; solve the session again";
+constexpr char kStartupActor[] = "imucald";
+
+}  // namespace
 
 absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& options) {
   const size_t colon = options.listen.rfind(':');
@@ -14,6 +22,17 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
     return absl::InvalidArgumentError("listen: expected host:port");
   absl::StatusOr<std::unique_ptr<storage::Store>> store = storage::Store::Open(options.db_path);
   if (!store.ok()) return store.status();
+  // Solves still running were orphaned by a server that stopped (killed, crashed) mid-solve:
+  // nothing will finish them, and their sessions would stay `solving` for ever. Fail them and
+  // reopen their sessions so that the technician can solve again.
+  absl::StatusOr<std::vector<storage::Solve>> orphans = (*store)->ListRunningSolves();
+  if (!orphans.ok()) return orphans.status();
+  for (const storage::Solve& solve : *orphans) {
+    absl::StatusOr<storage::Solve> failed = (*store)->FailSolve(
+        solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
+        storage::SessionState::kOpen);
+    if (!failed.ok()) return failed.status();
+  }
 
   std::unique_ptr<Server> s(new Server());
   s->host_ = options.listen.substr(0, colon);

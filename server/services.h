@@ -11,6 +11,7 @@
 
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
+#include "server/convert.h"
 #include "server/session_hub.h"
 #include "server/solve_pool.h"
 #include "storage/store.h"
@@ -68,6 +69,7 @@ class ParameterServiceImpl final : public v1::ParameterService::CallbackService 
  private:
   absl::Status DoExport(const v1::ExportRequest& request, v1::ExportResponse* response);
   storage::Store* store_;
+  ParamCrcCache crc_cache_;  // the fetch hot path's CRC, once per version
 };
 
 struct SessionServiceOptions {

@@ -94,10 +94,14 @@ TEST(OnlineSegmenterTest, RejectsTooShortAndMovedPoses) {
   OnlineSegmenter seg(opt);
   std::vector<SegmenterEvent> events;
   double t = 0;
-  auto hold = [&](double seconds, Eigen::Vector3d a, const Eigen::Vector3d& shift_after_half) {
+  // `shift` is added from `shift_at_s` into the hold (default: half way).
+  auto hold = [&](double seconds, Eigen::Vector3d a, const Eigen::Vector3d& shift,
+                  double shift_at_s = -1) {
     const int n = static_cast<int>(seconds * opt.rate_hz);
+    const int shift_at =
+        shift_at_s < 0 ? n / 2 + 1 : static_cast<int>(shift_at_s * opt.rate_hz);
     for (int i = 0; i < n; ++i, t += 0.01) {
-      const Eigen::Vector3d ai = a + (i > n / 2 ? shift_after_half : Eigen::Vector3d::Zero());
+      const Eigen::Vector3d ai = a + (i >= shift_at ? shift : Eigen::Vector3d::Zero());
       seg.Add(t, ai + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)),
               Eigen::Vector3d(noise(rng), noise(rng), noise(rng)) * 0.1, &events);
     }
@@ -112,7 +116,9 @@ TEST(OnlineSegmenterTest, RejectsTooShortAndMovedPoses) {
   move(1);
   hold(1.0, up, none);  // 0.5 s window and 0.1 s trims leave well under 1 s
   move(1);
-  hold(4, up, Eigen::Vector3d(0.05, 0, 0));  // 5 noise std: a slide, not noise
+  // 6 noise std: a slide, not noise. It happens before the hold time is reached (a pose is
+  // accepted then), so the run has moved when judged at the hold time and when it ends.
+  hold(2, up, Eigen::Vector3d(0.06, 0, 0), 0.8);
   move(1);
   hold(4, up, none);
   seg.Flush(&events);
@@ -130,6 +136,82 @@ TEST(OnlineSegmenterTest, RejectsTooShortAndMovedPoses) {
   EXPECT_EQ(seg.poses_accepted(), 2);
 }
 
+// The robot stops streaming while still after its last pose (no motion, no Flush): the pose
+// counts once it has been held for the hold time, with its guidance, and only once.
+TEST(OnlineSegmenterTest, AcceptsAPoseOnceHeldWithoutWaitingForMotion) {
+  std::mt19937_64 rng(4);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  OnlineSegmenterOptions opt;
+  opt.rate_hz = 100;
+  OnlineSegmenter seg(opt);
+  std::vector<SegmenterEvent> events;
+  double t = 0;
+  auto hold = [&](double seconds, const Eigen::Vector3d& a) {
+    for (int i = 0; i < static_cast<int>(seconds * opt.rate_hz); ++i, t += 0.01)
+      seg.Add(t, a + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)),
+              Eigen::Vector3d(noise(rng), noise(rng), noise(rng)) * 0.1, &events);
+  };
+  auto move = [&](double seconds) {
+    for (int i = 0; i < static_cast<int>(seconds * opt.rate_hz); ++i, t += 0.01)
+      seg.Add(t, Eigen::Vector3d(3 * std::sin(7 * t), 0, 9.8), Eigen::Vector3d(1, 0, 0), &events);
+  };
+  auto poses = [&] {
+    std::vector<PoseUpdate> out;
+    for (const SegmenterEvent& e : events)
+      if (e.kind == SegmenterEvent::Kind::kPose) out.push_back(e.pose);
+    return out;
+  };
+  hold(5, Eigen::Vector3d(0, 0, 9.8));
+  move(1);
+  hold(3, Eigen::Vector3d(0, 9.8, 0));  // then the stream stops
+  ASSERT_EQ(poses().size(), 2u);
+  EXPECT_EQ(seg.poses_accepted(), 2);
+  const PoseUpdate last = poses()[1];
+  EXPECT_TRUE(last.accepted) << last.reason;
+  EXPECT_EQ(last.index, 1);
+  EXPECT_EQ(last.face, "Y+");
+  // Fired at the hold time, not at the end of the hold.
+  EXPECT_NEAR(last.t_end_s - last.t_start_s, opt.min_static_s, 0.02);
+  // Its guidance follows it at once.
+  size_t k = 0, pose_events = 0;
+  for (; k < events.size() && pose_events < 2; ++k)
+    pose_events += events[k].kind == SegmenterEvent::Kind::kPose;
+  ASSERT_LT(k, events.size());
+  EXPECT_EQ(events[k].kind, SegmenterEvent::Kind::kNextPose);
+  // Motion (or Flush) ending the run adds no second pose event and no second count.
+  events.clear();
+  move(1);
+  seg.Flush(&events);
+  EXPECT_TRUE(poses().empty());
+  EXPECT_EQ(seg.poses_accepted(), 2);
+  EXPECT_EQ(seg.poses_total(), 2);
+  // Its statistics grew with the run until the motion ended it.
+  EXPECT_EQ(seg.last_pose().index, 1);
+  EXPECT_TRUE(seg.last_pose().accepted);
+  EXPECT_GT(seg.last_pose().t_end_s - seg.last_pose().t_start_s, 2.0);
+}
+
+// The six-face guide completes on the samples alone: the capture's last pose closes although
+// the stream ends with the robot still (no Flush).
+TEST(OnlineSegmenterTest, SixFaceCompletesWithoutFlush) {
+  SimOptions sim;
+  sim.seed = 7;
+  auto result = Simulate(sim);
+  ASSERT_TRUE(result.ok()) << result.status();
+  OnlineSegmenterOptions opt;
+  opt.rate_hz = sim.rate_hz;
+  opt.six_face = true;
+  OnlineSegmenter seg(opt);
+  std::vector<SegmenterEvent> events;
+  const Capture& cap = result->capture;
+  // Stop streaming 2.5 s into the last (4 s) hold: held past the hold time, still.
+  const double stop_t = result->poses.back().t_start_s + 2.5;
+  for (size_t i = 0; i < cap.size() && cap.t_s[i] <= stop_t; ++i)
+    seg.Add(cap.t_s[i], cap.accel[i], cap.gyro[i], &events);
+  EXPECT_EQ(seg.six_face_step(), OnlineSegmenter::kSixFaceSteps);
+  EXPECT_TRUE(seg.CurrentNextPose().done);
+}
+
 // An hour at rest: memory stays bounded (chunks merge) and the mean stays exact.
 TEST(OnlineSegmenterTest, LongRestIsOnePoseWithTheRightMean) {
   OnlineSegmenterOptions opt;
@@ -144,10 +226,12 @@ TEST(OnlineSegmenterTest, LongRestIsOnePoseWithTheRightMean) {
             Eigen::Vector3d(noise(rng), noise(rng), noise(rng)), &events);
     if (events.size() > 64) events.clear();  // the caller drains events as it goes
   }
+  // The pose and its guidance fired after the hold time; Flush ends the run without another.
+  EXPECT_EQ(seg.poses_accepted(), 1);
   events.clear();
   seg.Flush(&events);
-  ASSERT_EQ(events.size(), 2u);  // the pose and the next-pose guidance
-  const PoseUpdate& pose = events[0].pose;
+  EXPECT_TRUE(events.empty());
+  const PoseUpdate& pose = seg.last_pose();  // its statistics, over the whole run
   EXPECT_TRUE(pose.accepted) << pose.reason;
   EXPECT_NEAR(pose.accel_mean(0), 0.1, 1e-3);
   EXPECT_NEAR(pose.accel_mean(2), 9.8, 1e-9);

@@ -6,11 +6,13 @@
 #include <chrono>
 #include <condition_variable>
 #include <cmath>
+#include <cstdint>
 #include <functional>
 #include <future>
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <thread>
 #include <vector>
 
@@ -22,7 +24,9 @@
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
 #include "imucal/v1/imucal.grpc.pb.h"
+#include "server/convert.h"
 #include "server/status_util.h"
+#include "storage/store.h"
 
 namespace imucal::server {
 namespace {
@@ -36,11 +40,16 @@ class ServerTest : public testing::Test {
  protected:
   void SetUp() override {
     static std::atomic<int> counter{0};
-    ServerOptions options;
-    options.listen = "127.0.0.1:0";
-    options.db_path = testing::TempDir() + "/server_test_" + std::to_string(::getpid()) + "_" +
-                      std::to_string(counter++) + ".db";
-    auto server = Server::Start(options);
+    options_.listen = "127.0.0.1:0";
+    options_.db_path = testing::TempDir() + "/server_test_" + std::to_string(::getpid()) + "_" +
+                       std::to_string(counter++) + ".db";
+    StartServer();
+  }
+
+  // (Re)starts the server on options_.db_path and connects the stubs to it.
+  void StartServer() {
+    server_.reset();
+    auto server = Server::Start(options_);
     ASSERT_TRUE(server.ok()) << server.status();
     server_ = *std::move(server);
     channel_ = grpc::CreateChannel(server_->address(), grpc::InsecureChannelCredentials());
@@ -140,6 +149,7 @@ class ServerTest : public testing::Test {
     return s.ok() ? report.json() : s.error_message();
   }
 
+  ServerOptions options_;
   std::unique_ptr<Server> server_;
   std::shared_ptr<grpc::Channel> channel_;
   std::unique_ptr<v1::DeviceService::Stub> devices_;
@@ -203,6 +213,93 @@ int AcceptedPoses(const std::vector<v1::SessionEvent>& events) {
   int n = 0;
   for (const auto& e : events) n += e.has_pose() && e.pose().accepted();
   return n;
+}
+
+// A solve left running by a server that was killed: the next server start fails it and
+// reopens its session, so that it can be solved again.
+TEST_F(ServerTest, StartFailsSolvesOrphanedByAStoppedServer) {
+  Register("robot-1");
+  auto store = storage::Store::Open(options_.db_path);
+  ASSERT_TRUE(store.ok()) << store.status();
+  storage::Session wanted;
+  wanted.device_id = "robot-1";
+  wanted.protocol = "six-face";
+  auto session = (*store)->CreateSession(wanted, "test");
+  ASSERT_TRUE(session.ok()) << session.status();
+  auto solve = (*store)->StartSolve(session->id, "test");
+  ASSERT_TRUE(solve.ok()) << solve.status();
+  ASSERT_EQ(solve->state, storage::SolveState::kRunning);
+
+  StartServer();  // the restart, on the same file
+
+  auto after = (*store)->GetSolve(solve->id);
+  ASSERT_TRUE(after.ok()) << after.status();
+  EXPECT_EQ(after->state, storage::SolveState::kFailed);
+  EXPECT_EQ(after->error, "the server stopped during this solve; solve the session again");
+  auto running = (*store)->ListRunningSolves();
+  ASSERT_TRUE(running.ok()) << running.status();
+  EXPECT_TRUE(running->empty());
+  EXPECT_EQ(GetSession(session->id).state(), v1::SESSION_STATE_OPEN);
+  // Open again: it can be solved again (the store accepts a new solve).
+  auto again = (*store)->StartSolve(session->id, "test");
+  EXPECT_TRUE(again.ok()) << again.status();
+}
+
+// CRC-32C, bit by bit: a reference independent of the server's table.
+uint32_t ReferenceCrc32c(std::string_view data) {
+  uint32_t c = 0xFFFFFFFFu;
+  for (unsigned char b : data) {
+    c ^= b;
+    for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0x82F63B78u & (0u - (c & 1u)));
+  }
+  return ~c;
+}
+
+TEST(ParamCrcCacheTest, ComputesOncePerVersion) {
+  ASSERT_EQ(ReferenceCrc32c("123456789"), 0xE3069283u);  // the CRC-32C check value
+  storage::ParamVersion v;
+  v.device_id = "robot-1";
+  v.version = 3;
+  v.params_json = std::string(4600, 'x') + "{\"accel\": 1}";
+  ParamCrcCache cache;
+  EXPECT_EQ(cache.Get(v), ReferenceCrc32c(v.params_json));
+  EXPECT_EQ(cache.hits(), 0u);
+  EXPECT_EQ(cache.Get(v), ReferenceCrc32c(v.params_json));
+  EXPECT_EQ(cache.hits(), 1u);
+  v.version = 4;  // another version: its own entry
+  v.params_json += " ";
+  EXPECT_EQ(cache.Get(v), ReferenceCrc32c(v.params_json));
+  EXPECT_EQ(cache.hits(), 1u);
+  // A listing (no JSON loaded) is not cached.
+  v.params_json.clear();
+  EXPECT_EQ(cache.Get(v), ReferenceCrc32c(""));
+  EXPECT_EQ(cache.hits(), 1u);
+}
+
+// The fetch hot path's crc32c (cached after the first call) is the JSON's CRC-32C.
+TEST_F(ServerTest, ActiveParametersCrcIsTheJsonCrcWhenCached) {
+  Register("robot-1");
+  {
+    auto store = storage::Store::Open(options_.db_path);
+    ASSERT_TRUE(store.ok()) << store.status();
+    storage::ParamVersion v;
+    v.device_id = "robot-1";
+    v.params_json = "{\"format\": \"imucal-params\", \"pad\": \"" + std::string(4600, 'p') + "\"}";
+    v.report_json = "{}";
+    v.verdict = storage::Verdict::kPass;
+    v.accel_rms = 0.01;
+    v.state = storage::VersionState::kActive;
+    ASSERT_TRUE((*store)->AddVersion(v, "test").ok());
+  }
+  for (int i = 0; i < 2; ++i) {
+    v1::GetActiveParametersRequest req;
+    req.set_device_id("robot-1");
+    v1::ParameterSet out;
+    grpc::Status s = params_->GetActiveParameters(Ctx().get(), req, &out);
+    ASSERT_TRUE(s.ok()) << s.error_message();
+    ASSERT_GT(out.json().size(), 4600u);
+    EXPECT_EQ(out.crc32c(), ReferenceCrc32c(out.json())) << "call " << i;
+  }
 }
 
 TEST_F(ServerTest, DevicesAndOneOpenSessionPerDevice) {
