@@ -60,19 +60,12 @@ int RunGuide(const std::vector<std::string>& argv) {
 
   pb::Session session;
   if (session_id) {
-    pb::GetSessionRequest req;
-    req.set_session_id(*session_id);
-    auto ctx = CallContext();
-    if (grpc::Status s = server.sessions->GetSession(ctx.get(), req, &session); !s.ok())
+    if (grpc::Status s = GetSession(server, *session_id, &session); !s.ok())
       return RpcError(server, s);
   } else {
     auto protocol = ParseProtocol(a->Get("protocol").value_or("auto"));
     if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kGuideHelp);
-    pb::CreateSessionRequest req;
-    req.set_device_id(*device);
-    req.set_protocol(*protocol);
-    auto ctx = CallContext();
-    if (grpc::Status s = server.sessions->CreateSession(ctx.get(), req, &session); !s.ok())
+    if (grpc::Status s = CreateSession(server, *device, *protocol, 0.0, &session); !s.ok())
       return RpcError(server, s);
   }
 

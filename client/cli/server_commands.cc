@@ -166,13 +166,8 @@ int RunSession(const std::vector<std::string>& argv) {
     if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kSessionHelp);
     auto gravity = a->GetDouble("gravity", 0.0);
     if (!gravity.ok()) return UsageError(std::string(gravity.status().message()), kSessionHelp);
-    pb::CreateSessionRequest req;
-    req.set_device_id(*device);
-    req.set_protocol(*protocol);
-    req.set_gravity_m_s2(*gravity);
     pb::Session s;
-    auto ctx = CallContext();
-    if (grpc::Status st = server.sessions->CreateSession(ctx.get(), req, &s); !st.ok())
+    if (grpc::Status st = CreateSession(server, *device, *protocol, *gravity, &s); !st.ok())
       return RpcError(server, st);
     if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
     std::printf("session %s opened for %s (protocol %s)\n", s.id().c_str(), s.device_id().c_str(),
@@ -204,16 +199,13 @@ int RunSession(const std::vector<std::string>& argv) {
   }
   if ((pos[0] == "show" || pos[0] == "cancel") && pos.size() == 2) {
     pb::Session s;
-    auto ctx = CallContext();
     grpc::Status st;
     if (pos[0] == "show") {
-      pb::GetSessionRequest req;
-      req.set_session_id(pos[1]);
-      st = server.sessions->GetSession(ctx.get(), req, &s);
+      st = GetSession(server, pos[1], &s);
     } else {
       pb::CancelSessionRequest req;
       req.set_session_id(pos[1]);
-      st = server.sessions->CancelSession(ctx.get(), req, &s);
+      st = server.sessions->CancelSession(CallContext().get(), req, &s);
     }
     if (!st.ok()) return RpcError(server, st);
     if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
@@ -386,10 +378,7 @@ int RunUpload(const std::vector<std::string>& argv) {
   Server server = Connect(*a);
   pb::Session session;
   if (session_id) {
-    pb::GetSessionRequest req;
-    req.set_session_id(*session_id);
-    auto ctx = CallContext();
-    if (grpc::Status s = server.sessions->GetSession(ctx.get(), req, &session); !s.ok())
+    if (grpc::Status s = GetSession(server, *session_id, &session); !s.ok())
       return RpcError(server, s);
     if (device && session.device_id() != *device) {
       std::fprintf(stderr, "imucal: session %s belongs to %s, not %s\n", session_id->c_str(),
@@ -420,12 +409,9 @@ int RunUpload(const std::vector<std::string>& argv) {
   if (!session_id) {
     auto protocol = ParseProtocol(a->Get("protocol").value_or("auto"));
     if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kUploadHelp);
-    pb::CreateSessionRequest req;
-    req.set_device_id(device_id);
-    req.set_protocol(*protocol);
-    req.set_gravity_m_s2(capture->gravity_m_s2);
-    auto ctx = CallContext();
-    if (grpc::Status s = server.sessions->CreateSession(ctx.get(), req, &session); !s.ok())
+    if (grpc::Status s = CreateSession(server, device_id, *protocol, capture->gravity_m_s2,
+                                       &session);
+        !s.ok())
       return RpcError(server, s);
     if (!a->Has("json"))
       std::printf("session %s opened for %s\n", session.id().c_str(), device_id.c_str());
@@ -456,10 +442,7 @@ int RunUpload(const std::vector<std::string>& argv) {
   }
   if (!a->Has("solve")) {
     if (a->Has("json")) {
-      pb::GetSessionRequest req;
-      req.set_session_id(session.id());
-      auto ctx = CallContext();
-      if (grpc::Status s = server.sessions->GetSession(ctx.get(), req, &session); !s.ok())
+      if (grpc::Status s = GetSession(server, session.id(), &session); !s.ok())
         return RpcError(server, s);
       std::printf("%s\n", ProtoJson(session).c_str());
     }

@@ -38,6 +38,22 @@ std::unique_ptr<grpc::ClientContext> CallContext(double timeout_s) {
   return context;
 }
 
+grpc::Status GetSession(const Server& server, const std::string& session_id,
+                        pb::Session* session) {
+  pb::GetSessionRequest req;
+  req.set_session_id(session_id);
+  return server.sessions->GetSession(CallContext().get(), req, session);
+}
+
+grpc::Status CreateSession(const Server& server, const std::string& device_id,
+                           pb::Protocol protocol, double gravity_m_s2, pb::Session* session) {
+  pb::CreateSessionRequest req;
+  req.set_device_id(device_id);
+  req.set_protocol(protocol);
+  req.set_gravity_m_s2(gravity_m_s2);
+  return server.sessions->CreateSession(CallContext().get(), req, session);
+}
+
 int RpcError(const Server& server, const absl::Status& status) {
   if (status.code() == absl::StatusCode::kUnavailable ||
       status.code() == absl::StatusCode::kDeadlineExceeded) {

@@ -32,6 +32,14 @@ Server Connect(const Args& args);
 // A context for a unary call: deadline 30 s (`--timeout S` where a command offers it).
 std::unique_ptr<grpc::ClientContext> CallContext(double timeout_s = 30.0);
 
+// The session calls every command needs, with CallContext()'s deadline.
+grpc::Status GetSession(const Server& server, const std::string& session_id,
+                        imucal::v1::Session* session);
+// gravity_m_s2 0: the server's default (9.80665).
+grpc::Status CreateSession(const Server& server, const std::string& device_id,
+                           imucal::v1::Protocol protocol, double gravity_m_s2,
+                           imucal::v1::Session* session);
+
 // Prints "imucal: <the server's message>" (for an unreachable server: which address) to stderr
 // and returns the exit code: kExitUnavailable for UNAVAILABLE / DEADLINE_EXCEEDED, kExitBadInput
 // for INVALID_ARGUMENT / NOT_FOUND / ALREADY_EXISTS, kExitUndetermined for FAILED_PRECONDITION,

@@ -48,11 +48,8 @@ int RunServerDemo(const std::vector<std::string>& argv) {
   if (grpc::Status s = server.devices->RegisterDevice(CallContext().get(), reg, &registered);
       !s.ok())
     return RpcError(server, s);
-  pb::CreateSessionRequest create;
-  create.set_device_id(device);
-  create.set_protocol(pb::PROTOCOL_SIX_FACE);
   pb::Session session;
-  if (grpc::Status s = server.sessions->CreateSession(CallContext().get(), create, &session);
+  if (grpc::Status s = CreateSession(server, device, pb::PROTOCOL_SIX_FACE, 0.0, &session);
       !s.ok())
     return RpcError(server, s);
 
@@ -61,7 +58,9 @@ int RunServerDemo(const std::vector<std::string>& argv) {
   std::fflush(stdout);
   absl::Status upload_status;
   std::thread robot([&] {
-    sdk::Uploader uploader(server.channel, sdk::UploadOptions{.batch_samples = 400});
+    sdk::UploadOptions options;
+    options.batch_samples = 400;
+    sdk::Uploader uploader(server.channel, options);
     upload_status = uploader.Upload(session.id(), sim->capture).status();
   });
   const int guide_rc = RunGuide({"--server", server.address, "--device", device, "--session",
@@ -70,12 +69,9 @@ int RunServerDemo(const std::vector<std::string>& argv) {
   if (!upload_status.ok()) {
     // The guide starts the solve as soon as the protocol is complete; a robot still streaming
     // then finds its session closed and stops, as a real one does. Anything else is an error.
-    pb::GetSessionRequest get;
-    get.set_session_id(session.id());
     pb::Session now;
     const bool closed =
-        server.sessions->GetSession(CallContext().get(), get, &now).ok() &&
-        now.state() != pb::SESSION_STATE_OPEN;
+        GetSession(server, session.id(), &now).ok() && now.state() != pb::SESSION_STATE_OPEN;
     if (!closed) return ReportError(upload_status);
     std::printf("   (the robot stopped streaming: its session closed for the solve)\n");
   }

@@ -22,24 +22,9 @@ namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-class CliServerTest : public testing::Test {
+class CliServerTest : public testing_util::ImucaldTest {
  protected:
-  void SetUp() override {
-    if (!testing_util::kHaveImucald) GTEST_SKIP() << "imucald is not built yet";
-    dir_ = fs::path(testing::TempDir()) /
-           absl::StrCat("imucal_cli_server_test_",
-                        testing::UnitTest::GetInstance()->current_test_info()->name(), "_",
-                        ::getpid());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-    auto server = testing_util::ImucaldProcess::Start(dir_.string());
-    ASSERT_TRUE(server.ok()) << server.status();
-    server_ = *std::move(server);
-  }
-  void TearDown() override {
-    server_.reset();
-    if (!dir_.empty()) fs::remove_all(dir_);
-  }
+  CliServerTest() : ImucaldTest("imucal_cli_server_test") {}
 
   int Run(int (*command)(const std::vector<std::string>&), std::vector<std::string> args) {
     args.insert(args.begin(), {"--server", server_->address()});
@@ -68,8 +53,6 @@ class CliServerTest : public testing::Test {
         << err_;
   }
 
-  fs::path dir_;
-  std::unique_ptr<testing_util::ImucaldProcess> server_;
   std::string out_, err_;
 };
 

@@ -19,6 +19,7 @@
 #include "absl/status/statusor.h"
 #include "absl/strings/str_cat.h"
 #include "grpcpp/grpcpp.h"
+#include "gtest/gtest.h"
 
 namespace imucal::testing_util {
 
@@ -109,6 +110,35 @@ class ImucaldProcess {
   std::string db_path_;
   int port_ = 0;
   pid_t pid_ = -1;
+};
+
+// A test against a real imucald with its database in a fresh per-test directory (skipped when
+// imucald is not built). `prefix` names the directory, e.g. "imucal_uploader_test".
+class ImucaldTest : public ::testing::Test {
+ protected:
+  explicit ImucaldTest(std::string prefix) : prefix_(std::move(prefix)) {}
+  void SetUp() override {
+    if (!kHaveImucald) GTEST_SKIP() << "imucald is not built yet";
+    dir_ = std::filesystem::path(::testing::TempDir()) /
+           absl::StrCat(prefix_, "_",
+                        ::testing::UnitTest::GetInstance()->current_test_info()->name(), "_",
+                        ::getpid());
+    std::filesystem::remove_all(dir_);
+    std::filesystem::create_directories(dir_);
+    auto server = ImucaldProcess::Start(dir_.string());
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = *std::move(server);
+  }
+  void TearDown() override {
+    server_.reset();
+    if (!dir_.empty()) std::filesystem::remove_all(dir_);
+  }
+
+  std::filesystem::path dir_;
+  std::unique_ptr<ImucaldProcess> server_;
+
+ private:
+  std::string prefix_;
 };
 
 }  // namespace imucal::testing_util

@@ -173,24 +173,9 @@ TEST(UploaderTest, MalformedColumnsAreInvalidArgument) {
 
 // ---- against the real server ----
 
-class UploaderImucaldTest : public testing::Test {
+class UploaderImucaldTest : public testing_util::ImucaldTest {
  protected:
-  void SetUp() override {
-    if (!testing_util::kHaveImucald) GTEST_SKIP() << "imucald is not built yet";
-    dir_ = fs::path(testing::TempDir()) /
-           absl::StrCat("imucal_uploader_test_",
-                        testing::UnitTest::GetInstance()->current_test_info()->name(), "_",
-                        ::getpid());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-    auto server = testing_util::ImucaldProcess::Start(dir_.string());
-    ASSERT_TRUE(server.ok()) << server.status();
-    server_ = *std::move(server);
-  }
-  void TearDown() override {
-    server_.reset();
-    fs::remove_all(dir_);
-  }
+  UploaderImucaldTest() : ImucaldTest("imucal_uploader_test") {}
 
   std::string CreateSession(const std::string& device) {
     auto channel = server_->NewChannel();
@@ -227,8 +212,6 @@ class UploaderImucaldTest : public testing::Test {
     return session;
   }
 
-  fs::path dir_;
-  std::unique_ptr<testing_util::ImucaldProcess> server_;
 };
 
 SampleColumns SimulatedColumns() {
