@@ -42,6 +42,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "bench/service_bench_util.h"
 #include "client/sdk/params_json.h"
 #include "core/params.h"
 #include "grpcpp/grpcpp.h"
@@ -52,9 +53,7 @@
 namespace {
 
 namespace v1 = imucal::v1;
-using Clock = std::chrono::steady_clock;
-
-double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+using namespace imucal::bench;  // Clock, Seconds, ForkServer, ... (service_bench_util.h)
 
 struct Flags {
   int devices = 10000;
@@ -204,73 +203,10 @@ void Populate(const Flags& flags, const std::string& path) {
               static_cast<double>(json_bytes) / static_cast<double>(total));
 }
 
-struct Child {
-  pid_t pid = -1;
-  int port = 0;
-  int stop_fd = -1;
-};
 
-Child ForkServer(const std::string& db_path) {
-  int port_pipe[2], stop_pipe[2];
-  if (pipe(port_pipe) != 0 || pipe(stop_pipe) != 0) std::exit(1);
-  const pid_t pid = fork();
-  if (pid < 0) std::exit(1);
-  if (pid == 0) {
-    close(port_pipe[0]);
-    close(stop_pipe[1]);
-    imucal::server::ServerOptions options;
-    options.listen = "127.0.0.1:0";
-    options.db_path = db_path;
-    options.drain_deadline = absl::Seconds(5);
-    absl::StatusOr<std::unique_ptr<imucal::server::Server>> server =
-        imucal::server::Server::Start(options);
-    int port = server.ok() ? (*server)->port() : 0;
-    if (!server.ok())
-      std::fprintf(stderr, "server: %s\n", std::string(server.status().message()).c_str());
-    if (write(port_pipe[1], &port, sizeof port) != sizeof port) _exit(1);
-    char c;
-    while (read(stop_pipe[0], &c, 1) > 0) {
-    }
-    if (server.ok()) server->reset();
-    _exit(0);
-  }
-  close(port_pipe[1]);
-  close(stop_pipe[0]);
-  Child child{pid, 0, stop_pipe[1]};
-  if (read(port_pipe[0], &child.port, sizeof child.port) != sizeof child.port ||
-      child.port == 0) {
-    std::fprintf(stderr, "the server did not start\n");
-    std::exit(1);
-  }
-  close(port_pipe[0]);
-  return child;
-}
 
-double ProcCpuS(pid_t pid) {
-  std::ifstream f("/proc/" + std::to_string(pid) + "/stat");
-  std::string s((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  const size_t close_paren = s.rfind(')');
-  if (close_paren == std::string::npos) return 0;
-  std::istringstream rest(s.substr(close_paren + 2));
-  std::string field;
-  double t = 0;
-  for (int i = 3; i <= 15 && rest >> field; ++i)
-    if (i == 14 || i == 15) t += std::atof(field.c_str());
-  return t / static_cast<double>(sysconf(_SC_CLK_TCK));
-}
 
-double SelfCpuS() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
-}
 
-std::string LoadAvg() {
-  std::ifstream f("/proc/loadavg");
-  std::string a, b, c;
-  f >> a >> b >> c;
-  return a + " " + b + " " + c;
-}
 
 // One chain of calls: each completion records its latency and issues the next call.
 struct Run {
@@ -339,12 +275,6 @@ class Chain {
   int64_t bytes_ = 0;
 };
 
-double Percentile(std::vector<double>& v, double p) {
-  if (v.empty()) return 0;
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
-  std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
-  return v[k];
-}
 
 void PrintRow(const char* what, int callers, std::vector<double>& lat, double wall_s,
               int64_t errors, double cli_cpu, double srv_cpu, const std::string& load) {
@@ -440,8 +370,7 @@ int main(int argc, char** argv) {
       }
     }
   }
-  close(child.stop_fd);
-  waitpid(child.pid, nullptr, 0);
+  StopServer(child);
 
   // The SQLite part alone: Store::GetActive in this process, one thread.
   {

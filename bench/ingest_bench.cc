@@ -46,6 +46,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
+#include "bench/service_bench_util.h"
 #include "core/simulator.h"
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
@@ -58,9 +59,7 @@
 namespace {
 
 namespace v1 = imucal::v1;
-using Clock = std::chrono::steady_clock;
-
-double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+using namespace imucal::bench;  // Clock, Seconds, ForkServer, ... (service_bench_util.h)
 
 struct Flags {
   std::vector<int> ns = {1, 100, 1000};
@@ -167,93 +166,6 @@ void FillBatch(const Columns& col, int batch, int64_t seq, v1::SampleBatch* b) {
     b->mutable_gyro()->Add(col.gyro.begin() + 3 * i, col.gyro.begin() + 3 * (i + run));
     j += run;
   }
-}
-
-// ---- CPU accounting.
-double SelfCpuS() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
-}
-
-double ProcCpuS(pid_t pid) {
-  std::ifstream f("/proc/" + std::to_string(pid) + "/stat");
-  std::string s((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  const size_t close = s.rfind(')');
-  if (close == std::string::npos) return 0;
-  std::istringstream rest(s.substr(close + 2));
-  std::string field;
-  double utime = 0, stime = 0;
-  for (int i = 3; i <= 15 && rest >> field; ++i) {  // fields 14, 15: utime, stime (ticks)
-    if (i == 14) utime = std::atof(field.c_str());
-    if (i == 15) stime = std::atof(field.c_str());
-  }
-  return (utime + stime) / static_cast<double>(sysconf(_SC_CLK_TCK));
-}
-
-std::string LoadAvg() {
-  std::ifstream f("/proc/loadavg");
-  std::string a, b, c;
-  f >> a >> b >> c;
-  return a + " " + b + " " + c;
-}
-
-// ---- The server, in a child process.
-struct Child {
-  pid_t pid = -1;
-  int port = 0;
-  int stop_fd = -1;  // closing it tells the child to shut down
-};
-
-Child ForkServer(const std::string& db_path) {
-  int port_pipe[2], stop_pipe[2];
-  if (pipe(port_pipe) != 0 || pipe(stop_pipe) != 0) {
-    std::perror("pipe");
-    std::exit(1);
-  }
-  const pid_t pid = fork();
-  if (pid < 0) {
-    std::perror("fork");
-    std::exit(1);
-  }
-  if (pid == 0) {
-    close(port_pipe[0]);
-    close(stop_pipe[1]);
-    imucal::server::ServerOptions options;
-    options.listen = "127.0.0.1:0";
-    options.db_path = db_path;
-    options.drain_deadline = absl::Seconds(5);
-    absl::StatusOr<std::unique_ptr<imucal::server::Server>> server =
-        imucal::server::Server::Start(options);
-    int port = 0;
-    if (server.ok()) port = (*server)->port();
-    else std::fprintf(stderr, "server: %s\n", std::string(server.status().message()).c_str());
-    if (write(port_pipe[1], &port, sizeof port) != sizeof port) _exit(1);
-    close(port_pipe[1]);
-    char c;
-    while (read(stop_pipe[0], &c, 1) > 0) {
-    }
-    if (server.ok()) server->reset();  // ~Server: Shutdown (drains), checkpoint on close
-    _exit(0);
-  }
-  close(port_pipe[1]);
-  close(stop_pipe[0]);
-  Child child;
-  child.pid = pid;
-  child.stop_fd = stop_pipe[1];
-  if (read(port_pipe[0], &child.port, sizeof child.port) != sizeof child.port ||
-      child.port == 0) {
-    std::fprintf(stderr, "the server did not start\n");
-    std::exit(1);
-  }
-  close(port_pipe[0]);
-  return child;
-}
-
-void StopServer(Child& child) {
-  close(child.stop_fd);
-  int status = 0;
-  waitpid(child.pid, &status, 0);
 }
 
 // ---- One round: N robots.
@@ -375,12 +287,6 @@ class Robot final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAc
   std::vector<double> latencies_us_;
 };
 
-double Percentile(std::vector<double>& v, double p) {
-  if (v.empty()) return 0;
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
-  std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
-  return v[k];
-}
 
 struct RoundResult {
   int n = 0;

@@ -1,0 +1,123 @@
+// What the service benchmarks (ingest_bench, fetch_bench) share: a real imucald server in a forked
+// child (so client and server CPU are measured apart), CPU and load accounting, percentiles.
+#ifndef IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
+#define IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
+
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "absl/time/time.h"
+#include "server/server.h"
+
+namespace imucal::bench {
+
+using Clock = std::chrono::steady_clock;
+
+inline double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+// CPU seconds (user + system) of this process.
+inline double SelfCpuS() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+// CPU seconds (utime + stime, fields 14 and 15 of /proc/PID/stat) of another process.
+inline double ProcCpuS(pid_t pid) {
+  std::ifstream f("/proc/" + std::to_string(pid) + "/stat");
+  std::string s((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  const size_t close_paren = s.rfind(')');
+  if (close_paren == std::string::npos) return 0;
+  std::istringstream rest(s.substr(close_paren + 2));
+  std::string field;
+  double ticks = 0;
+  for (int i = 3; i <= 15 && rest >> field; ++i)
+    if (i == 14 || i == 15) ticks += std::atof(field.c_str());
+  return ticks / static_cast<double>(sysconf(_SC_CLK_TCK));
+}
+
+inline std::string LoadAvg() {
+  std::ifstream f("/proc/loadavg");
+  std::string a, b, c;
+  f >> a >> b >> c;
+  return a + " " + b + " " + c;
+}
+
+// The p-quantile (0..1) by partial sort; 0 for no samples.
+inline double Percentile(std::vector<double>& v, double p) {
+  if (v.empty()) return 0;
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
+  return v[k];
+}
+
+// imucald (server::Server) on 127.0.0.1:0 with its database at db_path, in a child process.
+struct Child {
+  pid_t pid = -1;
+  int port = 0;
+  int stop_fd = -1;  // closing it tells the child to shut down
+};
+
+inline Child ForkServer(const std::string& db_path) {
+  int port_pipe[2], stop_pipe[2];
+  if (pipe(port_pipe) != 0 || pipe(stop_pipe) != 0) {
+    std::perror("pipe");
+    std::exit(1);
+  }
+  const pid_t pid = fork();
+  if (pid < 0) {
+    std::perror("fork");
+    std::exit(1);
+  }
+  if (pid == 0) {
+    close(port_pipe[0]);
+    close(stop_pipe[1]);
+    server::ServerOptions options;
+    options.listen = "127.0.0.1:0";
+    options.db_path = db_path;
+    options.drain_deadline = absl::Seconds(5);
+    absl::StatusOr<std::unique_ptr<server::Server>> server = server::Server::Start(options);
+    const int port = server.ok() ? (*server)->port() : 0;
+    if (!server.ok())
+      std::fprintf(stderr, "server: %s\n", std::string(server.status().message()).c_str());
+    if (write(port_pipe[1], &port, sizeof port) != sizeof port) _exit(1);
+    close(port_pipe[1]);
+    char c;
+    while (read(stop_pipe[0], &c, 1) > 0) {
+    }
+    if (server.ok()) server->reset();  // ~Server: Shutdown (drains), checkpoint on close
+    _exit(0);
+  }
+  close(port_pipe[1]);
+  close(stop_pipe[0]);
+  Child child;
+  child.pid = pid;
+  child.stop_fd = stop_pipe[1];
+  if (read(port_pipe[0], &child.port, sizeof child.port) != sizeof child.port ||
+      child.port == 0) {
+    std::fprintf(stderr, "the server did not start\n");
+    std::exit(1);
+  }
+  close(port_pipe[0]);
+  return child;
+}
+
+inline void StopServer(Child& child) {
+  close(child.stop_fd);
+  waitpid(child.pid, nullptr, 0);
+}
+
+}  // namespace imucal::bench
+
+#endif  // IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
