@@ -13,29 +13,31 @@
 namespace imucal::core {
 namespace {
 
-// Residual of one static pose:  r = (|a(u)| - g) / sigma,  a(u) = L(tri) * z(u), where
+// Residual of one static pose:  r = (|a(u)| - g) / sigma,  a(u) = L(tri) * z(u) - offset, where
 // z_i = y_i + q_i y_i^2 and y = diag(scale) (u - bias) (core/model.h). frame_angles drop out.
 struct MagnitudeError {
-  MagnitudeError(const Eigen::Vector3d& u, double g, double inv_sigma)
-      : u_(u), g_(g), inv_sigma_(inv_sigma) {}
+  MagnitudeError(const Eigen::Vector3d& u, const Eigen::Vector3d& offset, double g,
+                 double inv_sigma)
+      : u_(u), offset_(offset), g_(g), inv_sigma_(inv_sigma) {}
 
   template <typename T>
   bool operator()(const T* bias, const T* scale, const T* tri, const T* quad, T* r) const {
     const Eigen::Map<const Vec3<T>> b(bias), s(scale), t(tri), q(quad);
     const Vec3<T> y = s.cwiseProduct(u_.cast<T>() - b);
     const Vec3<T> z = y + q.cwiseProduct(y.cwiseProduct(y));
-    const Vec3<T> a = LowerMisalignment<T>(Vec3<T>(t)) * z;
+    const Vec3<T> a = LowerMisalignment<T>(Vec3<T>(t)) * z - offset_.cast<T>();
     r[0] = (a.norm() - T(g_)) * T(inv_sigma_);
     return true;
   }
 
-  static ceres::CostFunction* Create(const Eigen::Vector3d& u, double g, double inv_sigma) {
+  static ceres::CostFunction* Create(const AccelPose& pose, double g, double inv_sigma) {
     return new ceres::AutoDiffCostFunction<MagnitudeError, 1, 3, 3, 3, 3>(
-        new MagnitudeError(u, g, inv_sigma));
+        new MagnitudeError(pose.mean, pose.offset_m_s2, g, inv_sigma));
   }
 
  private:
   Eigen::Vector3d u_;
+  Eigen::Vector3d offset_;
   double g_;
   double inv_sigma_;
 };
@@ -113,7 +115,8 @@ std::vector<double> MagnitudeResiduals(const AccelParams& p, const std::vector<A
   std::vector<double> r;
   r.reserve(poses.size());
   const Eigen::Matrix3d l = LowerMisalignment<double>(p.tri_angles);
-  for (const AccelPose& pose : poses) r.push_back((l * p.PerAxis(pose.mean)).norm() - gravity_m_s2);
+  for (const AccelPose& pose : poses)
+    r.push_back((l * p.PerAxis(pose.mean) - pose.offset_m_s2).norm() - gravity_m_s2);
   return r;
 }
 
@@ -204,7 +207,8 @@ absl::StatusOr<AccelParams> FitKnownReferences(const std::vector<Eigen::Vector3d
 }
 
 Eigen::MatrixXd MagnitudeJacobian(const AccelParams& p, const std::vector<AccelPose>& poses) {
-  // r = |a| - g with a = L z, z = y + q.*y.^2, y = s.*(u - b). With n = a/|a| and c = L^T n:
+  // r = |a| - g with a = L z - offset, z = y + q.*y.^2, y = s.*(u - b). With n = a/|a| and
+  // c = L^T n:
   //   dr/db_j = -c_j (1 + 2 q_j y_j) s_j     dr/ds_j = c_j (1 + 2 q_j y_j) (u_j - b_j)
   //   dr/dq_j = c_j y_j^2                    dr/dt_yx = n_y z_x, dr/dt_zx = n_z z_x,
   //                                          dr/dt_zy = n_z z_y
@@ -215,7 +219,7 @@ Eigen::MatrixXd MagnitudeJacobian(const AccelParams& p, const std::vector<AccelP
     const Eigen::Vector3d d = poses[i].mean - p.bias;
     const Eigen::Vector3d y = p.scale.cwiseProduct(d);
     const Eigen::Vector3d z = y + p.quadratic.cwiseProduct(y.cwiseProduct(y));
-    const Eigen::Vector3d n = (l * z).normalized();
+    const Eigen::Vector3d n = (l * z - poses[i].offset_m_s2).normalized();
     const Eigen::Vector3d c = l.transpose() * n;
     const Eigen::Vector3d dz_dy = Eigen::Vector3d::Ones() + 2 * p.quadratic.cwiseProduct(y);
     const auto row = static_cast<Eigen::Index>(i);
@@ -238,7 +242,8 @@ std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<Acce
   const Eigen::Matrix3d l = LowerMisalignment<double>(p.tri_angles);
   for (const AccelPose& pose : poses) {
     const Eigen::Vector3d y = p.scale.cwiseProduct(pose.mean - p.bias);
-    const Eigen::Vector3d a = l * (y + p.quadratic.cwiseProduct(y.cwiseProduct(y)));
+    const Eigen::Vector3d a =
+        l * (y + p.quadratic.cwiseProduct(y.cwiseProduct(y))) - pose.offset_m_s2;
     const Eigen::Vector3d d = Eigen::Vector3d(
         (a.normalized().transpose() * l).transpose().cwiseProduct(
             (Eigen::Vector3d::Ones() + 2 * p.quadratic.cwiseProduct(y)).cwiseProduct(p.scale)));
@@ -394,7 +399,7 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
   ceres::Problem problem;
   double* blocks[4] = {p.bias.data(), p.scale.data(), p.tri_angles.data(), p.quadratic.data()};
   for (size_t i = 0; i < poses.size(); ++i) {
-    problem.AddResidualBlock(MagnitudeError::Create(poses[i].mean, gravity_m_s2, 1.0 / sigma[i]),
+    problem.AddResidualBlock(MagnitudeError::Create(poses[i], gravity_m_s2, 1.0 / sigma[i]),
                              nullptr, blocks[0], blocks[1], blocks[2], blocks[3]);
   }
   for (int b = 0; b < 4; ++b) {

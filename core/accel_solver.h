@@ -36,6 +36,10 @@ struct AccelPose {
   Eigen::Vector3d mean_std = Eigen::Vector3d::Ones();  // std of that mean per axis, input units
   // Error of |a| that the model leaves, common to all poses, m/s^2 (see EstimateModelSigma).
   double model_sigma_m_s2 = 0.0;
+  // A known additive term of this pose's output, removed before the magnitude: the effects the
+  // diagnostics found (core/effects.h), rotated into the frame-free axes R(frame_angles)^T, m/s^2.
+  // |a| is then |L z - offset|. Zero in the plain model.
+  Eigen::Vector3d offset_m_s2 = Eigen::Vector3d::Zero();
 };
 
 AccelVector PackAccel(const AccelParams& p);

@@ -365,6 +365,66 @@ void SetModelSigma(const AccelParams& p, double g, const AccelMask& free,
   for (auto& pose : *poses) pose.model_sigma_m_s2 = tau;
 }
 
+// Runs the effect search on the used poses and, when it adds effects, puts its refitted model,
+// effects and residuals into the report.
+absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>& ivs,
+                           const std::vector<int>& used, const std::vector<AccelPose>& poses,
+                           const AccelMask& free, bool gyro_si, const EffectSearchOptions& opt,
+                           CalibrationReport* rep) {
+  EffectSearchInput in;
+  in.gravity_m_s2 = cap.gravity_m_s2;
+  in.accel = rep->params.accel;
+  in.accel_free = free;
+  in.gyro = rep->params.gyro;
+  in.gyro_output_si = gyro_si;
+  const double t0 = cap.t_s.empty() ? 0.0 : cap.t_s.front();
+  for (size_t k = 0; k < used.size(); ++k) {
+    const StaticInterval& s = ivs[static_cast<size_t>(used[k])];
+    EffectPose p;
+    p.pose_index = used[k];
+    p.accel = poses[k];
+    p.gyro_mean = s.gyro_mean;
+    p.gyro_mean_std = s.gyro_std / std::sqrt(static_cast<double>(std::max<size_t>(1, s.samples())));
+    p.temp_c = s.temp_mean;
+    p.time_s = 0.5 * (s.t_start_s + s.t_end_s) - t0;
+    in.poses.push_back(p);
+  }
+  absl::StatusOr<EffectSearchResult> res = FindEffects(in, opt);
+  if (!res.ok()) return res.status();
+  rep->effect_diagnostics = std::move(res->diagnostics);
+  if (res->effects.empty()) return absl::OkStatus();
+  ParamSet& ps = rep->params;
+  ps.accel = res->accel;
+  ps.gyro = res->gyro;
+  ps.effects = std::move(res->effects);
+  AccelVector se = res->accel_covariance.diagonal().cwiseSqrt();
+  for (int c = 0; c < kAccelParams; ++c)
+    if (!free[static_cast<size_t>(c)]) se(c) = kNaN;
+  ps.stderrs.accel = UnpackAccel(se, ps.stderrs.accel.frame_angles);
+  // Residuals of the model as stored (with its applied effects).
+  std::vector<double> after;
+  double gyro_ss = 0;
+  for (const EffectPoseRow& row : rep->effect_diagnostics.rows) {
+    after.push_back(row.accel_after_m_s2);
+    gyro_ss += row.gyro_after_rad_s.squaredNorm();
+    for (PoseReport& pr : rep->poses)
+      if (pr.index == row.pose_index) pr.residual_m_s2 = row.accel_after_m_s2;
+  }
+  rep->residual.accel_rms_m_s2 = Rms(after);
+  rep->residual.accel_max_m_s2 = Max(after);
+  rep->residual.gyro_static_rms_rad_s = std::sqrt(gyro_ss / std::max<size_t>(1, after.size()));
+  if (std::isfinite(rep->effect_diagnostics.accel_heldout_after_m_s2))
+    rep->residual.accel_heldout_rms_m_s2 = rep->effect_diagnostics.accel_heldout_after_m_s2;
+  ps.quality_accel_rms_m_s2 = rep->residual.accel_rms_m_s2;
+  ps.quality_gyro_static_rms_rad_s = rep->residual.gyro_static_rms_rad_s;
+  StageReport st;
+  st.name = "effects";
+  st.accel_rms_m_s2 = rep->residual.accel_rms_m_s2;
+  st.iterations = rep->effect_diagnostics.rounds;
+  rep->stages.push_back(st);
+  return absl::OkStatus();
+}
+
 std::string Verdict(const CalibrationReport& r, bool degraded) {
   const double move = r.residual.move_rms_deg;
   if (r.residual.accel_rms_m_s2 > kAccelFailRms || (std::isfinite(move) && move > kMoveFailDeg))
@@ -641,6 +701,14 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   ps.quality_gyro_static_rms_rad_s = rep.residual.gyro_static_rms_rad_s;
 
   timer.Mark("report");
+
+  // 11. Close the loop: effects the residual shows, added and refitted jointly.
+  if (opt.effects.enabled) {
+    const bool gyro_si = gyro.calibrated || !std::isnan(NominalGyroToSi(cap.gyro_unit));
+    absl::Status s = SearchEffects(cap, ivs, used, poses, free, gyro_si, opt.effects, &rep);
+    if (!s.ok()) return s;
+    timer.Mark("effects");
+  }
   // Undetermined first-order parameters degrade the verdict; undetermined second-order terms
   // do not (six-face determines seeds/000's 12-parameter model completely), but are warned of.
   bool degraded = !gyro.calibrated;

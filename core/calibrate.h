@@ -4,7 +4,8 @@
 //   calibration predicts held-out poses best is kept) -> rough accelerometer -> gyroscope from
 //   the rotations between poses -> protocol (detected or declared) and its checks (six-face
 //   pairs, duplicates) -> accelerometer stages ls, bsas, lm -> final gyroscope -> residuals
-//   in-sample and held-out -> observability -> verdict.
+//   in-sample and held-out -> observability -> effects the residual shows (core/effects.h),
+//   refitted jointly -> verdict.
 #ifndef IMUCAL_CORE_CALIBRATE_H_
 #define IMUCAL_CORE_CALIBRATE_H_
 
@@ -14,6 +15,7 @@
 #include "absl/status/statusor.h"
 #include "core/accel_solver.h"
 #include "core/capture.h"
+#include "core/effects.h"
 #include "core/params.h"
 #include "core/protocol.h"
 #include "core/static_detector.h"
@@ -26,6 +28,8 @@ struct CalibrateOptions {
   bool use_bsas = true;
   bool heldout = true;  // leave-one-pose-out accelerometer refits (the held-out figures)
   StaticDetectorOptions detector;
+  // The search for effects the model misses (core/effects.h), after the solve.
+  EffectSearchOptions effects;
   // Threshold multipliers tried (times the learnt noise variance).
   std::vector<double> multipliers = {2, 3, 4, 6, 8, 12, 16, 24, 32, 48};
 };
@@ -73,6 +77,8 @@ struct CalibrationReport {
   double accel_chi2_reduced = 0;
   std::string verdict;  // pass | warn | fail
   std::vector<std::string> warnings;
+  // What the residual search examined and found; its effects are in params.effects.
+  EffectDiagnostics effect_diagnostics;
   double total_ms = 0;
   // Wall time of each phase of the pipeline, in order: {"static", ms}, {"gyro_rough", ms}, ...
   std::vector<std::pair<std::string, double>> phase_ms;

@@ -16,6 +16,7 @@
 #include <cstdio>
 #include <cstring>
 #include <limits>
+#include <mutex>
 #include <optional>
 #include <span>
 #include <string>
@@ -28,6 +29,9 @@
 #include "absl/status/statusor.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/string_view.h"
+#include "core/capture_io_internal.h"
+#include "core/import_columns.h"
+#include "core/import_euroc.h"
 #include "core/str_util.h"
 
 namespace imucal::core {
@@ -38,7 +42,7 @@ namespace {
 // Text helpers shared by the readers. They work on string_views into the file buffer, so a
 // 50,000-line capture costs no allocation per line or per value.
 
-constexpr std::string_view kUtf8Bom = "\xEF\xBB\xBF";
+using io_internal::kUtf8Bom;
 
 // Longest bad text quoted in full in an error message; a binary file fed to the reader must not
 // produce a megabyte-long status.
@@ -74,34 +78,7 @@ absl::Status LineError(std::string_view source, int line_number, std::string_vie
   return absl::InvalidArgumentError(Cat(source, ":", line_number, ": ", message));
 }
 
-// Splits text into lines without copying. Accepts LF and CRLF; a final line without a newline
-// counts, an empty remainder after the last newline does not.
-class LineCursor {
- public:
-  explicit LineCursor(std::string_view text) : text_(text) {}
-
-  bool Next(std::string_view* line) {
-    if (pos_ >= text_.size()) return false;
-    const char* begin = text_.data() + pos_;
-    const size_t left = text_.size() - pos_;
-    const void* newline = std::memchr(begin, '\n', left);
-    size_t length = newline == nullptr ? left : static_cast<const char*>(newline) - begin;
-    pos_ += newline == nullptr ? left : length + 1;
-    if (length > 0 && begin[length - 1] == '\r') --length;
-    *line = std::string_view(begin, length);
-    ++line_number_;
-    return true;
-  }
-
-  // 1-based number of the line last returned by Next (0 before the first).
-  int line_number() const { return line_number_; }
-  std::string_view rest() const { return text_.substr(pos_); }
-
- private:
-  std::string_view text_;
-  size_t pos_ = 0;
-  int line_number_ = 0;
-};
+using io_internal::LineCursor;
 
 // Upper bound on the rows left, to reserve the sample vectors once.
 // memchr rather than std::count: glibc's is vectorised, GCC -O2 does not vectorise the count.
@@ -962,6 +939,11 @@ absl::StatusOr<const CaptureImporter*> DetectImporter(const std::vector<std::str
   std::vector<std::string> heads;
   heads.reserve(paths.size());
   for (const std::string& path : paths) {
+    struct stat info;
+    if (::stat(path.c_str(), &info) == 0 && S_ISDIR(info.st_mode)) {
+      heads.emplace_back();  // a directory (a ROS 2 bag): its importer looks at the path
+      continue;
+    }
     absl::StatusOr<std::string> head = ReadFileBytes(path, kSniffBytes);
     if (!head.ok()) return head.status();
     heads.push_back(*std::move(head));
@@ -1211,14 +1193,39 @@ absl::StatusOr<Capture> ReadImuTkPair(const std::string& accel_path, const std::
 // ---------------------------------------------------------------------------------------------
 // Registry.
 
-std::span<const CaptureImporter* const> CaptureImporters() {
-  // Order is the auto-detection order: the explicit imucal marker before content heuristics.
-  // Leaked on purpose (no destructors at exit for function-local statics).
-  static const auto* const kImporters = new std::array<const CaptureImporter*, 2>{
+namespace {
+
+// Order is the auto-detection order: explicit markers (imucal, EuRoC's header) before content
+// heuristics. Leaked on purpose (no destructors at exit for function-local statics).
+std::vector<const CaptureImporter*>& MutableImporters() {
+  static auto* const importers = new std::vector<const CaptureImporter*>{
       new ImucalImporter(),
+      EurocCsvImporter(),
       new ImuTkImporter(),
+      ColumnCsvImporter(),
   };
-  return *kImporters;
+  return *importers;
+}
+
+std::mutex& RegistryMutex() {
+  static auto* const mutex = new std::mutex();
+  return *mutex;
+}
+
+}  // namespace
+
+std::span<const CaptureImporter* const> CaptureImporters() {
+  std::lock_guard<std::mutex> lock(RegistryMutex());
+  return MutableImporters();
+}
+
+void RegisterCaptureImporter(const CaptureImporter* importer) {
+  std::lock_guard<std::mutex> lock(RegistryMutex());
+  std::vector<const CaptureImporter*>& importers = MutableImporters();
+  for (const CaptureImporter* known : importers) {
+    if (known->name() == importer->name()) return;
+  }
+  importers.push_back(importer);
 }
 
 absl::StatusOr<Capture> ImportCapture(const std::vector<std::string>& paths,
@@ -1227,7 +1234,9 @@ absl::StatusOr<Capture> ImportCapture(const std::vector<std::string>& paths,
   if (absl::Status s = CheckImportOptions(options); !s.ok()) return s;
 
   const CaptureImporter* importer = nullptr;
-  if (options.format == "auto") {
+  if (options.format == "auto" && !options.columns.map.empty()) {
+    importer = FindImporter("columns");
+  } else if (options.format == "auto") {
     absl::StatusOr<const CaptureImporter*> detected = DetectImporter(paths);
     if (!detected.ok()) return detected.status();
     importer = *detected;
@@ -1257,5 +1266,39 @@ absl::StatusOr<Capture> ImportCapture(const std::vector<std::string>& paths,
   }
   return capture;
 }
+
+// ---------------------------------------------------------------------------------------------
+// Helpers shared with the other importers in core (capture_io_internal.h).
+
+namespace io_internal {
+
+absl::StatusOr<std::string> ReadFileText(const std::string& path,
+                                         std::optional<size_t> max_bytes) {
+  return ReadFileBytes(path, max_bytes);
+}
+
+size_t CountTextLines(std::string_view text) { return CountLines(text); }
+std::string_view TrimText(std::string_view s) { return TrimSpaces(s); }
+bool IsBlankText(std::string_view line) { return IsBlank(line); }
+std::string QuoteText(std::string_view text) { return Quoted(text); }
+std::string DoubleText(double value) { return FormatDouble(value); }
+
+absl::Status LineErrorAt(std::string_view source, int line_number, std::string_view message) {
+  return LineError(source, line_number, message);
+}
+
+absl::Status ParseNumberField(std::string_view field, std::string_view source, int line_number,
+                              std::string_view column, double* value) {
+  const NumberError error = ParseNumber(field, value);
+  if (error == NumberError::kNone) return absl::OkStatus();
+  return NumberFieldError(source, line_number, column, field, error);
+}
+
+void ApplyImportOverrides(const ImportOptions& options, Capture* capture,
+                          std::vector<std::string>* notes) {
+  ApplyOverrides(options, capture, notes);
+}
+
+}  // namespace io_internal
 
 }  // namespace imucal::core

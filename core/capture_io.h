@@ -60,8 +60,27 @@ absl::Status WriteImucalCsvFile(const Capture& capture, const std::string& path)
 // ---------------------------------------------------------------------------------------------
 // Import options and unit inference.
 
+// Time base of the column-mapped CSV importer (core/import_columns.h).
+enum class ColumnTimeUnit { kSeconds, kMilliseconds, kMicroseconds, kNanoseconds, kSampleIndex };
+
+// Options of the column-mapped CSV importer ("columns"; core/import_columns.h documents them).
+struct ColumnCsvOptions {
+  // "ax=NAME,ay=NAME,az=NAME,gx=NAME,gy=NAME,gz=NAME[,t=NAME][,temp=NAME]"; NAME is a header
+  // name or a 1-based column number. Empty: not configured (then "auto" never picks "columns").
+  std::string map;
+  ColumnTimeUnit time_unit = ColumnTimeUnit::kSeconds;  // of the t column
+  std::optional<double> rate_hz;   // sample rate: needed without a t column or with kSampleIndex
+  std::string rate_from_preamble;  // or: the preamble key ("Fs" in "Fs,100") that holds it
+  std::optional<int> skip_lines;   // lines before the header; default: found by the names
+  std::string delimiter;           // ",", ";", "tab", "space"; empty: detected from the header
+  bool no_header = false;          // the file has no header line (NAME must be a number)
+  bool sort_by_time = false;       // rows out of time order are sorted instead of an error
+  std::optional<TempUnit> temp_unit;
+};
+
 struct ImportOptions {
-  // "auto" (detect from the content), or the name of a registered importer: "imucal", "imutk".
+  // "auto" (detect from the content), or the name of a registered importer: "imucal", "imutk",
+  // "euroc", "columns", "rosbag2" (when registered).
   std::string format = "auto";
   // Units to use instead of the file's own (imucal) or the inferred ones (imutk).
   std::optional<AccelUnit> accel_unit;
@@ -70,6 +89,10 @@ struct ImportOptions {
   std::optional<double> gravity_m_s2;
   // Device id instead of the file's (the CLI's --device).
   std::optional<std::string> device;
+  // The column-mapped CSV importer's options; a non-empty `columns.map` makes "auto" use it.
+  ColumnCsvOptions columns;
+  // ROS 2 bag: the sensor_msgs/msg/Imu topic to read; empty: the bag's only Imu topic.
+  std::string topic;
 };
 
 // What an import decided on its own, for the CLI to show the user.
@@ -149,12 +172,22 @@ class CaptureImporter {
 // How much of each file auto-detection looks at.
 inline constexpr size_t kSniffBytes = 4096;
 
-// The registered importers, in auto-detection order: "imucal", then "imutk".
+// The registered importers, in auto-detection order: "imucal", "euroc", "imutk", "columns"
+// (never auto-detected: it needs ImportOptions::columns), then those added by
+// RegisterCaptureImporter in the order added.
 std::span<const CaptureImporter* const> CaptureImporters();
 
-// Reads a capture from `paths` with the importer named by options.format, or for "auto" the
-// first importer whose Sniff accepts the content:
+// Adds an importer that lives outside core (e.g. storage's ROS 2 bag reader, which needs
+// SQLite). Call it explicitly at start-up, before any import runs concurrently: no static
+// initialiser does it, because the linker may drop an object file nothing references. Adding an
+// importer whose name is already registered does nothing; `importer` must outlive the process.
+void RegisterCaptureImporter(const CaptureImporter* importer);
+
+// Reads a capture from `paths` with the importer named by options.format, or for "auto"
+// "columns" when options.columns.map is set, else the first importer whose Sniff accepts the
+// content (a directory's head is empty: importers of directories look at the path):
 //   first line "# imucal-capture"  -> imucal (one file);
+//   first line "#timestamp [ns],w_RS_S_x ..." -> euroc (one file);
 //   lines of exactly four numbers  -> imutk (two files: accelerometer, then gyroscope; if the
 //                                     file names say "gyr" then "acc", they are swapped back and
 //                                     a note says so).

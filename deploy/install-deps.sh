@@ -4,7 +4,7 @@
 set -euo pipefail
 packages=(
   g++ cmake ninja-build pkg-config
-  libceres-dev libeigen3-dev libabsl-dev nlohmann-json3-dev
+  libceres-dev libeigen3-dev libabsl-dev nlohmann-json3-dev libboost-math-dev
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler libsqlite3-dev
   libgtest-dev libgmock-dev libbenchmark-dev tmux
 )

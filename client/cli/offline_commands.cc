@@ -14,6 +14,7 @@
 #include "client/cli/args.h"
 #include "client/cli/commands.h"
 #include "client/cli/demo_common.h"
+#include "client/cli/import_flags.h"
 #include "client/cli/report_json.h"
 #include "client/cli/summary.h"
 #include "client/sdk/corrector.h"
@@ -64,9 +65,10 @@ int Usage(const std::string& message, const char* help) {
 constexpr char kCalibrateHelp[] =
     "usage: imucal calibrate FILE... [options]\n"
     "  Calibrates the accelerometer and gyroscope from a static multi-pose capture.\n"
-    "  FILE: an imucal capture CSV, or an imu_tk pair (accelerometer file, gyroscope file).\n"
+    "  FILE: an imucal capture CSV, an imu_tk pair (accelerometer file, gyroscope file), a\n"
+    "  EuRoC imu0/data.csv, a ROS 2 bag, or a vendor CSV with --columns (see below).\n"
     "options:\n"
-    "  --format auto|imucal|imutk    input format (default auto: detected from the content)\n"
+    "  --format auto|imucal|euroc|imutk|columns|rosbag2   (default auto: from the content)\n"
     "  --protocol auto|six-face|positions|free   (default auto: detected from the poses)\n"
     "  --gravity G                   local gravity, m/s^2 (default: the file's, else 9.80665)\n"
     "  --accel-unit m/s^2|g|counts   --gyro-unit rad/s|deg/s|counts   override the units\n"
@@ -81,10 +83,11 @@ constexpr char kCalibrateHelp[] =
     "            4 calibrated but the verdict is fail, 5 internal error\n";
 
 constexpr char kApplyHelp[] =
-    "usage: imucal apply --params FILE IN OUT.csv [--format auto|imucal|imutk]\n"
+    "usage: imucal apply --params FILE IN OUT.csv [--format F] [input options]\n"
     "  Applies a parameter set (or a report containing one) to a capture and writes it in\n"
     "  m/s^2 and rad/s, keeping t, temp, extra columns and the header metadata.\n"
-    "  IN may be an imu_tk pair (two files) before OUT.csv.\n";
+    "  IN may be an imu_tk pair (two files) before OUT.csv.\n"
+    "  --accel-unit U --gyro-unit U   the input's units (a vendor CSV states none)\n";
 
 constexpr char kSimulateHelp[] =
     "usage: imucal simulate --out FILE.csv [options]\n"
@@ -122,6 +125,7 @@ absl::StatusOr<core::ImportOptions> ImportOptionsFrom(const Args& a) {
     o.gravity_m_s2 = *g;
   }
   if (auto d = a.Get("device")) o.device = *d;
+  if (absl::Status s = ApplyImportFlags(a, &o); !s.ok()) return s;
   return o;
 }
 
@@ -287,11 +291,12 @@ int ReportError(const absl::Status& status) {
 
 int RunCalibrate(const std::vector<std::string>& argv) {
   auto a = Args::Parse(argv,
-                       {"format", "protocol", "gravity", "accel-unit", "gyro-unit", "device",
-                        "seed", "out", "params-out"},
-                       {"json", "no-bsas", "no-heldout", "help"});
+                       WithImportValuedFlags({"format", "protocol", "gravity", "accel-unit",
+                                              "gyro-unit", "device", "seed", "out",
+                                              "params-out"}),
+                       WithImportSwitches({"json", "no-bsas", "no-heldout", "help"}));
   if (!a.ok()) return Usage(std::string(a.status().message()), kCalibrateHelp);
-  if (a->Has("help")) return std::printf("%s", kCalibrateHelp), kExitOk;
+  if (a->Has("help")) return std::printf("%s%s", kCalibrateHelp, kImportFlagsHelp), kExitOk;
   if (a->positional().empty()) return Usage("calibrate needs a capture FILE", kCalibrateHelp);
   auto io = ImportOptionsFrom(*a);
   if (!io.ok()) return Usage(std::string(io.status().message()), kCalibrateHelp);
@@ -311,7 +316,11 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   auto capture = core::ImportCapture(a->positional(), *io, &import);
   if (!capture.ok()) return ReportError(capture.status());
   auto report = core::Calibrate(*capture, co);
-  if (!report.ok()) return ReportError(report.status());
+  if (!report.ok()) {
+    // What the import decided (units, time base, gaps) often explains why poses are missing.
+    for (const auto& n : import.notes) std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
+    return ReportError(report.status());
+  }
   StampParams(&report->params);
   const std::string json = ReportToJson(*report);
   if (auto out = a->Get("out")) {
@@ -335,9 +344,10 @@ int RunCalibrate(const std::vector<std::string>& argv) {
 }
 
 int RunApply(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"params", "format"}, {"help"});
+  auto a = Args::Parse(argv, WithImportValuedFlags({"params", "format", "accel-unit", "gyro-unit"}),
+                       WithImportSwitches({"help"}));
   if (!a.ok()) return Usage(std::string(a.status().message()), kApplyHelp);
-  if (a->Has("help")) return std::printf("%s", kApplyHelp), kExitOk;
+  if (a->Has("help")) return std::printf("%s%s", kApplyHelp, kImportFlagsHelp), kExitOk;
   if (!a->Get("params")) return Usage("apply needs --params FILE", kApplyHelp);
   if (a->positional().size() < 2) return Usage("apply needs IN and OUT.csv", kApplyHelp);
   auto text = ReadFile(*a->Get("params"));
@@ -348,9 +358,9 @@ int RunApply(const std::vector<std::string>& argv) {
         absl::StrFormat("%s: %s", *a->Get("params"), params.status().message())));
   }
   std::vector<std::string> inputs(a->positional().begin(), a->positional().end() - 1);
-  core::ImportOptions io;
-  if (auto f = a->Get("format")) io.format = *f;
-  auto capture = core::ImportCapture(inputs, io);
+  auto io = ImportOptionsFrom(*a);
+  if (!io.ok()) return Usage(std::string(io.status().message()), kApplyHelp);
+  auto capture = core::ImportCapture(inputs, *io);
   if (!capture.ok()) return ReportError(capture.status());
   auto out = ApplyParams(*params, *capture);
   if (!out.ok()) return ReportError(out.status());

@@ -33,6 +33,51 @@ json PoseJson(const core::PoseReport& p) {
 
 }  // namespace
 
+// What the effect search examined, and per used pose the signals and the residuals without and
+// with the effects (the data of the plots).
+json DiagnosticsJson(const core::EffectDiagnostics& d) {
+  json j;
+  j["ran"] = d.ran;
+  j["rounds"] = d.rounds;
+  j["candidates"] = d.candidates;
+  j["absorbed_by_model"] = d.absorbed;
+  j["not_excited"] = d.not_excited;
+  j["accel_noise_floor"] = Num(d.accel_noise_floor_m_s2);
+  j["gyro_noise_floor"] = Num(d.gyro_noise_floor_rad_s);
+  j["accel_heldout_before"] = Num(d.accel_heldout_before_m_s2);
+  j["accel_heldout_after"] = Num(d.accel_heldout_after_m_s2);
+  j["gyro_heldout_before"] = Num(d.gyro_heldout_before_rad_s);
+  j["gyro_heldout_after"] = Num(d.gyro_heldout_after_rad_s);
+  j["units"] = "accel m/s^2, gyro rad/s; signals: temperature degC, time s, ax..az m/s^2";
+  j["top_candidates"] = json::array();
+  for (const core::CandidateScore& c : d.top) {
+    j["top_candidates"].push_back({{"sensor", c.sensor == core::Sensor::kGyro ? "gyro" : "accel"},
+                                   {"axis", std::string(1, "xyz"[c.axis])},
+                                   {"regressor", c.regressor},
+                                   {"f", Num(c.f)},
+                                   {"f_threshold", Num(c.f_threshold)},
+                                   {"delta_bic", Num(c.delta_bic)},
+                                   {"heldout_gain", Num(c.press_gain)},
+                                   {"coefficient", Num(c.coefficient)},
+                                   {"passed", c.passed}});
+  }
+  j["poses"] = json::array();
+  for (const core::EffectPoseRow& row : d.rows) {
+    json signals;
+    for (int s = 0; s < core::kNumSignals; ++s)
+      signals[std::string(core::kSignalNames[static_cast<size_t>(s)])] =
+          Num(row.signals[static_cast<size_t>(s)]);
+    j["poses"].push_back({{"index", row.pose_index},
+                          {"signals", std::move(signals)},
+                          {"accel_before", Num(row.accel_before_m_s2)},
+                          {"accel_after", Num(row.accel_after_m_s2)},
+                          {"gyro_before", Vec(row.gyro_before_rad_s)},
+                          {"gyro_after", Vec(row.gyro_after_rad_s)}});
+  }
+  j["notes"] = d.notes;
+  return j;
+}
+
 std::string ReportToJson(const core::CalibrationReport& r) {
   json j;
   j["format"] = "imucal-report v1";
@@ -84,6 +129,11 @@ std::string ReportToJson(const core::CalibrationReport& r) {
                    {"gravity_direction_heldout_max_deg", Num(res.move_heldout_max_deg)}};
   json params = json::parse(sdk::ParamSetToJson(r.params));
   j["effects"] = params.contains("effects") ? params["effects"] : json::array();
+  // Beside the spec's fields: the coefficient in an engineer's units (mg/degC, deg/s/g, ...).
+  for (size_t k = 0; k < r.params.effects.size() && k < j["effects"].size(); ++k)
+    j["effects"][k]["human"] = core::HumanCoefficient(r.params.effects[k]);
+  if (r.effect_diagnostics.ran || !r.effect_diagnostics.notes.empty())
+    j["effect_diagnostics"] = DiagnosticsJson(r.effect_diagnostics);
   j["parameters"] = std::move(params);
   j["verdict"] = r.verdict;
   j["warnings"] = r.warnings;

@@ -78,6 +78,25 @@ std::string FormatSummary(const core::CalibrationReport& r) {
   absl::StrAppendFormat(&s, "  gyro scale     %s rad/s per %s%s\n",
                         Vec(p.gyro.matrix.diagonal(), 6), core::GyroUnitName(p.gyro_unit),
                         p.gyro_calibrated ? "" : " (NOT calibrated: nominal)");
+  const core::EffectDiagnostics& d = r.effect_diagnostics;
+  if (d.ran) {
+    absl::StrAppendFormat(
+        &s, "effects     %d found among %d candidates (%d are the model's own terms, %d not "
+            "testable at rest)\n",
+        static_cast<int>(p.effects.size()), d.candidates, d.absorbed, d.not_excited);
+    for (const core::Effect& e : p.effects) {
+      const bool accel = e.sensor == core::Sensor::kAccel;
+      absl::StrAppendFormat(
+          &s, "  %s %c ~ %-16s %s; held-out %s %s -> %s%s\n", accel ? "accel" : "gyro ",
+          "xyz"[e.axis], e.regressor, core::HumanCoefficient(e), accel ? "|a|-g" : "rate",
+          accel ? absl::StrFormat("%.3f mg", 1e3 * e.error_before / g)
+                : absl::StrFormat("%.4f deg/s", e.error_before * kRadToDeg),
+          accel ? absl::StrFormat("%.3f mg", 1e3 * e.error_after / g)
+                : absl::StrFormat("%.4f deg/s", e.error_after * kRadToDeg),
+          e.applied ? "" : "  (reported, not applied)");
+    }
+    for (const auto& n : d.notes) absl::StrAppendFormat(&s, "  %s\n", n);
+  }
   absl::StrAppendFormat(&s, "verdict     %s   (%.0f ms)\n", r.verdict, r.total_ms);
   for (const auto& w : r.warnings) absl::StrAppendFormat(&s, "warning     %s\n", w);
   return s;

@@ -802,7 +802,7 @@ TEST(ImportCaptureTest, RegistryListsTheFormats) {
     names.push_back(importer->name());
     EXPECT_FALSE(importer->description().empty());
   }
-  EXPECT_THAT(names, ElementsAre("imucal", "imutk"));
+  EXPECT_THAT(names, ElementsAre("imucal", "euroc", "imutk", "columns"));
 }
 
 TEST(ImportCaptureTest, AutoDetectsImucal) {
@@ -897,10 +897,10 @@ TEST(ImportCaptureTest, WrongCallsAreClearErrors) {
               HasSubstr("the imucal format reads one file, got 2"));
   EXPECT_THAT(std::string(ImportCapture({tk_path}, {}).status().message()),
               HasSubstr("the imutk format reads two files"));
-  ImportOptions euroc;
-  euroc.format = "euroc";
-  EXPECT_EQ(ImportCapture({imucal_path}, euroc).status().message(),
-            "unknown capture format 'euroc' (known: auto, imucal, imutk)");
+  ImportOptions mcap;
+  mcap.format = "mcap";
+  EXPECT_EQ(ImportCapture({imucal_path}, mcap).status().message(),
+            "unknown capture format 'mcap' (known: auto, imucal, euroc, imutk, columns)");
   ImportOptions bad_gravity;
   bad_gravity.gravity_m_s2 = -1.0;
   EXPECT_FALSE(ImportCapture({imucal_path}, bad_gravity).ok());

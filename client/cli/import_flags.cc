@@ -1,0 +1,96 @@
+#include "client/cli/import_flags.h"
+
+#include <set>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/strings/str_cat.h"
+#include "core/capture.h"
+#include "core/import_columns.h"
+#include "storage/rosbag2_import.h"
+
+namespace imucal::cli {
+
+const char kImportFlagsHelp[] =
+    "input formats (--format, default auto): imucal CSV, EuRoC imu0/data.csv, imu_tk pair,\n"
+    "  ROS 2 bag (directory with metadata.yaml, or .db3), and vendor CSV with --columns:\n"
+    "  --columns ax=C,ay=C,az=C,gx=C,gy=C,gz=C[,t=C][,temp=C]   C: header name or column number\n"
+    "  --time-unit s|ms|us|ns|index   unit of the t column (index: a sample counter; needs a rate)\n"
+    "  --rate HZ | --rate-from-preamble KEY   sample rate (needed without t, or with index)\n"
+    "  --skip-lines N    preamble lines before the header (default: up to the line naming the columns)\n"
+    "  --delimiter ,|;|tab|space   (default: detected)   --no-header   columns by number only\n"
+    "  --sort-time       sort rows by time (a file saved part by part) instead of an error\n"
+    "  --temp-unit C|counts\n"
+    "  --topic NAME      ROS 2 bag: the sensor_msgs/msg/Imu topic (default: the only one)\n";
+
+namespace {
+
+const std::vector<std::string> kColumnValued = {"columns",    "time-unit", "rate",
+                                                "rate-from-preamble", "skip-lines",
+                                                "delimiter", "temp-unit"};
+const std::vector<std::string> kColumnSwitches = {"no-header", "sort-time"};
+
+absl::Status FlagError(const std::string& flag, absl::string_view message) {
+  return absl::InvalidArgumentError(absl::StrCat("--", flag, ": ", message));
+}
+
+}  // namespace
+
+std::set<std::string> WithImportValuedFlags(std::set<std::string> flags) {
+  flags.insert(kColumnValued.begin(), kColumnValued.end());
+  flags.insert("topic");
+  return flags;
+}
+
+std::set<std::string> WithImportSwitches(std::set<std::string> switches) {
+  switches.insert(kColumnSwitches.begin(), kColumnSwitches.end());
+  return switches;
+}
+
+absl::Status ApplyImportFlags(const Args& a, core::ImportOptions* o) {
+  storage::RegisterRosbag2Importer();
+  if (auto topic = a.Get("topic")) o->topic = *topic;
+  const auto columns = a.Get("columns");
+  if (!columns) {
+    for (const auto* list : {&kColumnValued, &kColumnSwitches}) {
+      for (const std::string& flag : *list) {
+        if (a.Has(flag)) return FlagError(flag, "applies to --columns input only");
+      }
+    }
+    return absl::OkStatus();
+  }
+  core::ColumnCsvOptions& c = o->columns;
+  c.map = *columns;
+  if (auto unit = a.Get("time-unit")) {
+    auto parsed = core::ParseColumnTimeUnit(*unit);
+    if (!parsed.ok()) return FlagError("time-unit", parsed.status().message());
+    c.time_unit = *parsed;
+  }
+  if (a.Get("rate")) {
+    auto rate = a.GetDouble("rate", 0);
+    if (!rate.ok()) return rate.status();
+    c.rate_hz = *rate;
+  }
+  if (auto key = a.Get("rate-from-preamble")) c.rate_from_preamble = *key;
+  if (a.Get("skip-lines")) {
+    auto skip = a.GetInt("skip-lines", 0);
+    if (!skip.ok()) return skip.status();
+    if (*skip < 0 || *skip > 1000000) return FlagError("skip-lines", "expected 0..1000000");
+    c.skip_lines = static_cast<int>(*skip);
+  }
+  if (auto d = a.Get("delimiter")) c.delimiter = *d;
+  if (auto unit = a.Get("temp-unit")) {
+    auto parsed = core::ParseTempUnit(*unit);
+    if (!parsed.ok()) return FlagError("temp-unit", parsed.status().message());
+    c.temp_unit = *parsed;
+  }
+  c.no_header = a.Has("no-header");
+  c.sort_by_time = a.Has("sort-time");
+  if (o->format != "auto" && o->format != "columns") {
+    return FlagError("columns", absl::StrCat("needs --format columns or auto, not ", o->format));
+  }
+  return core::CheckColumnCsvOptions(c);
+}
+
+}  // namespace imucal::cli

@@ -1,0 +1,30 @@
+// The input-format flags shared by `calibrate`, `apply` and `upload`: the column-mapped CSV
+// (--columns and its time base), the ROS 2 bag topic, and the registration of the importers
+// that live outside core (rosbag2), so that every command reads every format.
+#ifndef IMUCAL_CLIENT_CLI_IMPORT_FLAGS_H_
+#define IMUCAL_CLIENT_CLI_IMPORT_FLAGS_H_
+
+#include <set>
+#include <string>
+
+#include "absl/status/status.h"
+#include "client/cli/args.h"
+#include "core/capture_io.h"
+
+namespace imucal::cli {
+
+// For --help, after a command's own options.
+extern const char kImportFlagsHelp[];
+
+// `flags` plus the importer flags that take a value / the importer switches.
+std::set<std::string> WithImportValuedFlags(std::set<std::string> flags);
+std::set<std::string> WithImportSwitches(std::set<std::string> switches);
+
+// Registers the importers outside core (idempotent), then reads the importer flags into
+// `options`. A bad value, or a column option without --columns, is InvalidArgument naming the
+// flag (a usage error).
+absl::Status ApplyImportFlags(const Args& args, core::ImportOptions* options);
+
+}  // namespace imucal::cli
+
+#endif  // IMUCAL_CLIENT_CLI_IMPORT_FLAGS_H_

@@ -1,0 +1,1041 @@
+#include "core/effects.h"
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <utility>
+
+#include "Eigen/Dense"
+#include "absl/strings/str_format.h"
+#include "boost/math/distributions/fisher_f.hpp"
+#include "ceres/ceres.h"
+#include "core/str_util.h"
+
+namespace imucal::core {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kRadToDeg = 180.0 / M_PI;
+// A candidate whose column keeps less than this fraction of its norm once the current model's
+// columns are projected out is numerically in the model (a bias, a scale). Nearly collinear
+// ones stay: the F test judges whether the part the model lacks is significant.
+constexpr double kAbsorbedFraction = 1e-3;
+// A signal is excited when its spread over the poses exceeds this many times its own noise.
+constexpr double kExcitedRatio = 5.0;
+// Two candidates of one sensor explain the data equally well when their columns (beyond the
+// current model) are this collinear and their BIC differ by less than kAmbiguousBic (Kass and
+// Raftery: "not worth more than a bare mention").
+constexpr double kAmbiguousCorrelation = 0.9;
+constexpr double kAmbiguousBic = 2.0;
+
+// The accelerometer model's own terms: linear in the specific force (scale, misalignment) and
+// the square of the output axis's own signal (its quadratic). The model's observability and
+// selection decide those; the search does not re-add them as effects.
+bool IsModelTerm(Sensor sensor, int axis, const Regressor& r) {
+  if (sensor != Sensor::kAccel) return false;
+  const auto is_accel = [](int s) {
+    return s >= static_cast<int>(Signal::kAx) && s <= static_cast<int>(Signal::kAz);
+  };
+  if (r.num_factors == 1) return is_accel(r.factors[0]);
+  return r.num_factors == 2 && r.factors[0] == r.factors[1] &&
+         r.factors[0] == static_cast<int>(Signal::kAx) + axis;
+}
+
+const char* AxisName(int axis) { return axis == 0 ? "x" : axis == 1 ? "y" : "z"; }
+const char* SensorName(Sensor s) { return s == Sensor::kAccel ? "accel" : "gyro"; }
+
+bool UsesSignal(const Regressor& r, Signal s) {
+  for (int i = 0; i < r.num_factors; ++i)
+    if (r.factors[i] == static_cast<int>(s)) return true;
+  return false;
+}
+
+// An effect in the working model: what it acts on, its regressor and its coefficient.
+struct Term {
+  Sensor sensor = Sensor::kAccel;
+  int axis = 0;
+  Regressor regressor;
+  double coefficient = 0;
+  bool applied = true;
+};
+
+// The working model: the accelerometer and gyroscope fits and the effects added so far.
+struct State {
+  AccelParams accel;
+  Eigen::Vector3d gyro_offset = Eigen::Vector3d::Zero();  // rad/s, added to the static rate fit
+  std::vector<Term> terms;
+};
+
+// Signals of every pose from the model before any effect (what the SDK computes at run time).
+std::vector<SignalArray> PoseSignals(const std::vector<EffectPose>& poses, const AccelParams& accel,
+                                     const GyroParams& gyro) {
+  std::vector<SignalArray> out;
+  for (const EffectPose& p : poses) {
+    const Eigen::Vector3d a = accel.Apply(p.accel.mean);
+    const Eigen::Vector3d w = gyro.Apply(p.gyro_mean, a);
+    SignalArray s{};
+    s[static_cast<size_t>(Signal::kTemperature)] = p.temp_c;
+    s[static_cast<size_t>(Signal::kTime)] = p.time_s;
+    for (int k = 0; k < 3; ++k) {
+      s[static_cast<size_t>(Signal::kAx) + k] = a(k);
+      s[static_cast<size_t>(Signal::kGx) + k] = w(k);
+    }
+    out.push_back(s);
+  }
+  return out;
+}
+
+// Baseline static rates (rad/s) of the gyro model, before effects and the fitted offset.
+std::vector<Eigen::Vector3d> StaticRates(const std::vector<EffectPose>& poses,
+                                         const std::vector<SignalArray>& signals) {
+  std::vector<Eigen::Vector3d> out;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const SignalArray& s = signals[i];
+    out.emplace_back(s[static_cast<size_t>(Signal::kGx)], s[static_cast<size_t>(Signal::kGy)],
+                     s[static_cast<size_t>(Signal::kGz)]);
+  }
+  return out;
+}
+
+// Per pose and gyro axis: the std of the static mean in rad/s (noise through the gyro matrix).
+std::vector<Eigen::Vector3d> GyroSigmas(const std::vector<EffectPose>& poses,
+                                        const GyroParams& gyro) {
+  std::vector<Eigen::Vector3d> out;
+  for (const EffectPose& p : poses) {
+    Eigen::Vector3d s;
+    for (int j = 0; j < 3; ++j)
+      s(j) = std::max(1e-15, gyro.matrix.row(j).transpose().cwiseProduct(p.gyro_mean_std).norm());
+    out.push_back(s);
+  }
+  return out;
+}
+
+// tau with sum r_i^2 / (sigma_i^2 + tau^2) = dof (0 when the noise explains the residual).
+double CommonModelSigma(const std::vector<double>& r, const std::vector<double>& sigma,
+                        double dof) {
+  auto chi2 = [&](double tau) {
+    double s = 0;
+    for (size_t i = 0; i < r.size(); ++i) s += r[i] * r[i] / (sigma[i] * sigma[i] + tau * tau);
+    return s;
+  };
+  if (dof <= 0 || chi2(0) <= dof) return 0.0;
+  double hi = 1e-300;
+  for (double x : r) hi = std::max(hi, 10 * std::abs(x));
+  double lo = 0;
+  for (int it = 0; it < 80; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (chi2(mid) > dof ? lo : hi) = mid;
+  }
+  return hi;
+}
+
+// ---------------------------------------------------------------- accelerometer with effects
+
+// Sets every pose's frame-free offset from the accelerometer terms.
+void SetAccelOffsets(const State& st, const std::vector<SignalArray>& signals,
+                     std::vector<EffectPose>* poses) {
+  const Eigen::Matrix3d rt = ExpSo3<double>(st.accel.frame_angles).transpose();
+  for (size_t i = 0; i < poses->size(); ++i) {
+    Eigen::Vector3d body = Eigen::Vector3d::Zero();
+    for (const Term& t : st.terms)
+      if (t.sensor == Sensor::kAccel) body(t.axis) += t.coefficient * t.regressor.Evaluate(signals[i]);
+    (*poses)[i].accel.offset_m_s2 = rt * body;
+  }
+}
+
+std::vector<AccelPose> AccelPoses(const std::vector<EffectPose>& poses) {
+  std::vector<AccelPose> out;
+  for (const EffectPose& p : poses) out.push_back(p.accel);
+  return out;
+}
+
+// d(|a_i| - g)/d(coefficient) of an accelerometer term on `axis`: -n_body,axis * x_i.
+double AccelEffectDerivative(const AccelParams& p, const AccelPose& pose, int axis, double x) {
+  const Eigen::Vector3d a_ff =
+      LowerMisalignment<double>(p.tri_angles) * p.PerAxis(pose.mean) - pose.offset_m_s2;
+  const Eigen::Vector3d n_body = ExpSo3<double>(p.frame_angles) * a_ff.normalized();
+  return -n_body(axis) * x;
+}
+
+// The accelerometer's weighted design [free model columns | accelerometer term columns] and
+// weighted residual at the current state.
+struct Design {
+  Eigen::MatrixXd x;
+  Eigen::VectorXd r;
+  std::vector<double> weight;  // 1 / sigma_i, sigma_i^2 = noise_i^2 + tau^2
+  // Mean of noise_i^2 / sigma_i^2: the weighted residual variance that the within-pose noise
+  // alone would give (1 when tau = 0). The F statistic's variance never goes below it.
+  double noise_s2 = 1.0;
+};
+
+Design AccelDesign(const State& st, const std::vector<AccelPose>& poses, const AccelMask& free,
+                   const std::vector<SignalArray>& signals, double g) {
+  Design d;
+  const std::vector<double> sigma = MagnitudeSigmas(st.accel, poses);
+  std::vector<AccelPose> bare = poses;
+  for (AccelPose& p : bare) p.model_sigma_m_s2 = 0;
+  const std::vector<double> noise = MagnitudeSigmas(st.accel, bare);
+  d.noise_s2 = 0;
+  for (size_t i = 0; i < poses.size(); ++i)
+    d.noise_s2 += std::pow(noise[i] / sigma[i], 2) / static_cast<double>(poses.size());
+  const std::vector<double> r = MagnitudeResiduals(st.accel, poses, g);
+  const Eigen::MatrixXd j = MagnitudeJacobian(st.accel, poses);
+  std::vector<int> cols;
+  for (int c = 0; c < kAccelParams; ++c)
+    if (free[static_cast<size_t>(c)]) cols.push_back(c);
+  std::vector<const Term*> terms;
+  for (const Term& t : st.terms)
+    if (t.sensor == Sensor::kAccel) terms.push_back(&t);
+  const auto n = static_cast<Eigen::Index>(poses.size());
+  d.x.resize(n, static_cast<Eigen::Index>(cols.size() + terms.size()));
+  d.r.resize(n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double w = 1.0 / sigma[static_cast<size_t>(i)];
+    d.weight.push_back(w);
+    d.r(i) = r[static_cast<size_t>(i)] * w;
+    Eigen::Index k = 0;
+    for (int c : cols) d.x(i, k++) = j(i, c) * w;
+    for (const Term* t : terms)
+      d.x(i, k++) = AccelEffectDerivative(st.accel, poses[static_cast<size_t>(i)], t->axis,
+                                          t->regressor.Evaluate(signals[static_cast<size_t>(i)])) * w;
+  }
+  return d;
+}
+
+// Applies a step over [free model parameters | accelerometer term coefficients].
+void StepAccel(const Eigen::VectorXd& step, const AccelMask& free, State* st) {
+  AccelVector theta = PackAccel(st->accel);
+  Eigen::Index k = 0;
+  for (int c = 0; c < kAccelParams; ++c)
+    if (free[static_cast<size_t>(c)]) theta(c) += step(k++);
+  st->accel = UnpackAccel(theta, st->accel.frame_angles);
+  for (Term& t : st->terms)
+    if (t.sensor == Sensor::kAccel) t.coefficient += step(k++);
+}
+
+// Gauss-Newton over the model and the accelerometer coefficients from a nearby start (the many
+// leave-one-out refits; the reported joint fit runs on Ceres).
+void AccelGaussNewton(const AccelMask& free, const std::vector<SignalArray>& signals, double g,
+                      std::vector<EffectPose> poses, State* st, int iterations) {
+  for (int it = 0; it < iterations; ++it) {
+    SetAccelOffsets(*st, signals, &poses);
+    const Design d = AccelDesign(*st, AccelPoses(poses), free, signals, g);
+    if (d.x.rows() <= d.x.cols()) return;
+    const Eigen::VectorXd step = d.x.colPivHouseholderQr().solve(-d.r);
+    if (!step.allFinite()) return;
+    StepAccel(step, free, st);
+    if (step.norm() < 1e-12 * (1 + PackAccel(st->accel).norm())) return;
+  }
+}
+
+// One pose's weighted magnitude residual with the accelerometer terms as Ceres parameters:
+// blocks bias, scale, tri, quadratic (3 each) and, when there are terms, their coefficients.
+class AccelEffectCost : public ceres::CostFunction {
+ public:
+  AccelEffectCost(const AccelPose& pose, const Eigen::Vector3d& frame_angles,
+                  std::vector<std::pair<int, double>> terms, double g, double inv_sigma)
+      : pose_(pose), frame_(frame_angles), terms_(std::move(terms)), g_(g), w_(inv_sigma) {
+    set_num_residuals(1);
+    for (int b = 0; b < 4; ++b) mutable_parameter_block_sizes()->push_back(3);
+    if (!terms_.empty()) mutable_parameter_block_sizes()->push_back(static_cast<int>(terms_.size()));
+  }
+
+  bool Evaluate(double const* const* params, double* residual, double** jacobians) const override {
+    AccelParams p;
+    p.bias = Eigen::Map<const Eigen::Vector3d>(params[0]);
+    p.scale = Eigen::Map<const Eigen::Vector3d>(params[1]);
+    p.tri_angles = Eigen::Map<const Eigen::Vector3d>(params[2]);
+    p.quadratic = Eigen::Map<const Eigen::Vector3d>(params[3]);
+    p.frame_angles = frame_;
+    AccelPose pose = pose_;
+    const Eigen::Matrix3d rt = ExpSo3<double>(frame_).transpose();
+    Eigen::Vector3d body = Eigen::Vector3d::Zero();
+    for (size_t k = 0; k < terms_.size(); ++k) body(terms_[k].first) += params[4][k] * terms_[k].second;
+    pose.offset_m_s2 = rt * body;
+    const std::vector<AccelPose> one = {pose};
+    residual[0] = MagnitudeResiduals(p, one, g_)[0] * w_;
+    if (jacobians == nullptr) return std::isfinite(residual[0]);
+    const Eigen::MatrixXd j = MagnitudeJacobian(p, one);
+    for (int b = 0; b < 4; ++b)
+      if (jacobians[b] != nullptr)
+        for (int k = 0; k < 3; ++k) jacobians[b][k] = j(0, 3 * b + k) * w_;
+    if (!terms_.empty() && jacobians[4] != nullptr) {
+      for (size_t k = 0; k < terms_.size(); ++k)
+        jacobians[4][k] = AccelEffectDerivative(p, pose, terms_[k].first, terms_[k].second) * w_;
+    }
+    return std::isfinite(residual[0]);
+  }
+
+ private:
+  AccelPose pose_;
+  Eigen::Vector3d frame_;
+  std::vector<std::pair<int, double>> terms_;  // (axis, regressor value at this pose)
+  double g_, w_;
+};
+
+// The joint refit: Ceres over the free model parameters and every accelerometer coefficient,
+// weights fixed at the start. Returns the covariance over [free | coefficients] (scaled by the
+// reduced chi^2 when above 1) and writes the result into `st`.
+absl::StatusOr<Eigen::MatrixXd> AccelJointFit(const AccelMask& free,
+                                              const std::vector<SignalArray>& signals, double g,
+                                              std::vector<EffectPose> poses, State* st) {
+  SetAccelOffsets(*st, signals, &poses);
+  const std::vector<double> sigma = MagnitudeSigmas(st->accel, AccelPoses(poses));
+  std::vector<double> coeffs;
+  std::vector<Term*> terms;
+  for (Term& t : st->terms)
+    if (t.sensor == Sensor::kAccel) terms.push_back(&t), coeffs.push_back(t.coefficient);
+  AccelParams& p = st->accel;
+  double* blocks[4] = {p.bias.data(), p.scale.data(), p.tri_angles.data(), p.quadratic.data()};
+  ceres::Problem problem;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    std::vector<std::pair<int, double>> values;
+    for (const Term* t : terms) values.emplace_back(t->axis, t->regressor.Evaluate(signals[i]));
+    AccelPose bare = poses[i].accel;
+    bare.offset_m_s2.setZero();
+    auto* cost = new AccelEffectCost(bare, p.frame_angles, std::move(values), g, 1.0 / sigma[i]);
+    std::vector<double*> b(blocks, blocks + 4);
+    if (!coeffs.empty()) b.push_back(coeffs.data());
+    problem.AddResidualBlock(cost, nullptr, b);
+  }
+  for (int b = 0; b < 4; ++b) {
+    std::vector<int> fixed;
+    for (int k = 0; k < 3; ++k)
+      if (!free[static_cast<size_t>(3 * b + k)]) fixed.push_back(k);
+    if (fixed.size() == 3) {
+      problem.SetParameterBlockConstant(blocks[b]);
+    } else if (!fixed.empty()) {
+      problem.SetManifold(blocks[b], new ceres::SubsetManifold(3, fixed));
+    }
+  }
+  ceres::Solver::Options options;
+  options.linear_solver_type = ceres::DENSE_QR;
+  options.max_num_iterations = 100;
+  options.function_tolerance = 1e-14;
+  options.gradient_tolerance = 1e-14;
+  options.parameter_tolerance = 1e-14;
+  options.num_threads = 1;
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, &problem, &summary);
+  if (!summary.IsSolutionUsable()) {
+    return absl::InternalError("joint accelerometer refit with effects failed: " + summary.message);
+  }
+  for (size_t k = 0; k < terms.size(); ++k) terms[k]->coefficient = coeffs[k];
+  SetAccelOffsets(*st, signals, &poses);
+  const Design d = AccelDesign(*st, AccelPoses(poses), free, signals, g);
+  const auto dof = static_cast<double>(d.x.rows() - d.x.cols());
+  const Eigen::MatrixXd info = d.x.transpose() * d.x;
+  Eigen::MatrixXd cov = info.ldlt().solve(Eigen::MatrixXd::Identity(info.rows(), info.cols()));
+  const double chi2 = dof > 0 ? d.r.squaredNorm() / dof : 1.0;
+  if (chi2 > 1) cov *= chi2;
+  return cov;
+}
+
+// Sets every pose's common model error from the residual of the current state.
+void SetAccelModelSigma(const State& st, const AccelMask& free,
+                        const std::vector<SignalArray>& signals, double g,
+                        std::vector<EffectPose>* poses) {
+  SetAccelOffsets(st, signals, poses);
+  std::vector<AccelPose> bare = AccelPoses(*poses);
+  for (AccelPose& p : bare) p.model_sigma_m_s2 = 0;
+  int n_free = 0;
+  for (bool f : free) n_free += f;
+  for (const Term& t : st.terms) n_free += t.sensor == Sensor::kAccel;
+  const double tau = CommonModelSigma(MagnitudeResiduals(st.accel, bare, g),
+                                      MagnitudeSigmas(st.accel, bare),
+                                      static_cast<double>(poses->size()) - n_free);
+  for (EffectPose& p : *poses) p.accel.model_sigma_m_s2 = tau;
+}
+
+// Leave-one-pose-out |a| - g (m/s^2), exact refits from the full fit.
+std::vector<double> AccelHeldOut(const State& st, const AccelMask& free,
+                                 const std::vector<SignalArray>& signals, double g,
+                                 const std::vector<EffectPose>& poses) {
+  std::vector<double> out(poses.size(), kNaN);
+  for (size_t i = 0; i < poses.size(); ++i) {
+    std::vector<EffectPose> rest = poses;
+    std::vector<SignalArray> rest_signals = signals;
+    rest.erase(rest.begin() + static_cast<long>(i));
+    rest_signals.erase(rest_signals.begin() + static_cast<long>(i));
+    State refit = st;
+    AccelGaussNewton(free, rest_signals, g, rest, &refit, 8);
+    std::vector<EffectPose> one = {poses[i]};
+    SetAccelOffsets(refit, {signals[i]}, &one);
+    out[i] = MagnitudeResiduals(refit.accel, AccelPoses(one), g)[0];
+  }
+  return out;
+}
+
+// --------------------------------------------------------------------- gyroscope with effects
+
+// Per gyro axis, the static-rate model offset_j + sum_k c_k x_ik is linear: exact weighted least
+// squares. Returns the residuals (rad/s) and, through `heldout`, the exact leave-one-out ones.
+struct GyroAxisFit {
+  Eigen::VectorXd residual;  // rad/s
+  Eigen::VectorXd heldout;   // rad/s
+  Eigen::MatrixXd covariance;  // over [offset | coefficients], scaled by chi^2 when above 1
+  Eigen::VectorXd solution;
+  Design design;  // weighted, at the solution
+};
+
+GyroAxisFit FitGyroAxis(int axis, const std::vector<Eigen::Vector3d>& rates,
+                        const std::vector<Eigen::Vector3d>& sigma, double tau,
+                        const std::vector<const Term*>& terms,
+                        const std::vector<SignalArray>& signals) {
+  const auto n = static_cast<Eigen::Index>(rates.size());
+  const auto p = static_cast<Eigen::Index>(1 + terms.size());
+  Eigen::MatrixXd x(n, p);
+  Eigen::VectorXd y(n);
+  std::vector<double> w(static_cast<size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const auto ii = static_cast<size_t>(i);
+    w[ii] = 1.0 / std::hypot(sigma[ii](axis), tau);
+    x(i, 0) = w[ii];
+    for (size_t k = 0; k < terms.size(); ++k)
+      x(i, static_cast<Eigen::Index>(k + 1)) = terms[k]->regressor.Evaluate(signals[ii]) * w[ii];
+    y(i) = rates[ii](axis) * w[ii];
+  }
+  GyroAxisFit out;
+  const Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(x);
+  out.solution = qr.solve(y);
+  const Eigen::VectorXd e = y - x * out.solution;
+  const Eigen::MatrixXd info = x.transpose() * x;
+  out.covariance = info.ldlt().solve(Eigen::MatrixXd::Identity(p, p));
+  const double dof = static_cast<double>(n - p);
+  const double chi2 = dof > 0 ? e.squaredNorm() / dof : 1.0;
+  if (chi2 > 1) out.covariance *= chi2;
+  out.residual.resize(n);
+  out.heldout.resize(n);
+  const Eigen::MatrixXd inv = info.ldlt().solve(Eigen::MatrixXd::Identity(p, p));
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double h = x.row(i).dot(inv * x.row(i).transpose());
+    out.residual(i) = e(i) / w[static_cast<size_t>(i)];
+    out.heldout(i) = out.residual(i) / std::max(1e-9, 1.0 - h);
+  }
+  out.design.x = x;
+  out.design.r = e;
+  out.design.weight = w;
+  out.design.noise_s2 = 0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const auto ii = static_cast<size_t>(i);
+    out.design.noise_s2 += std::pow(sigma[ii](axis) * w[ii], 2) / static_cast<double>(n);
+  }
+  return out;
+}
+
+// ------------------------------------------------------------------------------ scoring
+
+// The candidate scorer: the current weighted design's orthonormal basis, leverages and residual.
+class Scorer {
+ public:
+  explicit Scorer(const Design& d)
+      : r_(d.r), n_(d.x.rows()), p_(d.x.cols()), noise_s2_(d.noise_s2) {
+    const Eigen::HouseholderQR<Eigen::MatrixXd> qr(d.x);
+    q_ = qr.householderQ() * Eigen::MatrixXd::Identity(n_, p_);
+    h_ = q_.rowwise().squaredNorm();
+    rss_ = r_.squaredNorm();
+  }
+  Eigen::Index dof_after() const { return n_ - p_ - 1; }
+  double rss() const { return rss_; }
+
+  // Fills score (except threshold/passed); false when absorbed by the current model.
+  bool Score(const Eigen::VectorXd& col, CandidateScore* s, Eigen::VectorXd* perp) const {
+    *perp = col - q_ * (q_.transpose() * col);
+    const double norm2 = perp->squaredNorm();
+    if (!(norm2 > kAbsorbedFraction * kAbsorbedFraction * col.squaredNorm()) || norm2 <= 0)
+      return false;
+    const double proj = perp->dot(r_);
+    const double drss = proj * proj / norm2;
+    const double rss_after = std::max(1e-300, rss_ - drss);
+    const double s2 = std::max(noise_s2_, rss_after / static_cast<double>(dof_after()));
+    s->f = drss / s2;
+    const double n = static_cast<double>(n_);
+    s->delta_bic = n * std::log(rss_after / rss_) + std::log(n);
+    // Held-out: leave-one-out residuals e_i / (1 - h_ii) before and after adding the column.
+    const double beta = proj / norm2;
+    double press_before = 0, press_after = 0;
+    for (Eigen::Index i = 0; i < n_; ++i) {
+      const double before = r_(i) / std::max(1e-9, 1 - h_(i));
+      const double after =
+          (r_(i) - beta * (*perp)(i)) / std::max(1e-9, 1 - h_(i) - (*perp)(i) * (*perp)(i) / norm2);
+      press_before += before * before;
+      press_after += after * after;
+    }
+    s->press_gain = (press_before - press_after) / s2;
+    s->coefficient = beta;  // in column units; the caller converts
+    return true;
+  }
+
+ private:
+  Eigen::VectorXd r_;
+  Eigen::Index n_, p_;
+  double noise_s2_;
+  Eigen::MatrixXd q_;
+  Eigen::VectorXd h_;
+  double rss_ = 0;
+};
+
+double FThreshold(double alpha, int tests, Eigen::Index dof) {
+  if (dof < 1 || tests < 1) return std::numeric_limits<double>::infinity();
+  const boost::math::fisher_f_distribution<double> f(1.0, static_cast<double>(dof));
+  return boost::math::quantile(boost::math::complement(f, alpha / tests));
+}
+
+// Every regressor of 1..max_factors factors over the signals.
+std::vector<Regressor> Dictionary(int max_factors) {
+  std::vector<Regressor> out;
+  for (int a = 0; a < kNumSignals; ++a) {
+    Regressor r;
+    r.factors[0] = a;
+    r.num_factors = 1;
+    out.push_back(r);
+    if (max_factors < 2) continue;
+    for (int b = a; b < kNumSignals; ++b) {
+      Regressor r2 = r;
+      r2.factors[1] = b;
+      r2.num_factors = 2;
+      out.push_back(r2);
+    }
+  }
+  return out;
+}
+
+// Which signals vary over the poses by more than their own noise.
+std::array<bool, kNumSignals> ExcitedSignals(const std::vector<EffectPose>& poses,
+                                             const std::vector<SignalArray>& signals,
+                                             const AccelParams& accel, const GyroParams& gyro) {
+  std::array<bool, kNumSignals> out{};
+  const auto n = static_cast<double>(signals.size());
+  for (int s = 0; s < kNumSignals; ++s) {
+    double mean = 0, noise2 = 0;
+    bool finite = true;
+    for (size_t i = 0; i < signals.size(); ++i) {
+      const double v = signals[i][static_cast<size_t>(s)];
+      finite &= std::isfinite(v);
+      mean += v / n;
+      // Measurement noise of the signal at this pose (accel and rate through the model).
+      if (s >= static_cast<int>(Signal::kAx) && s <= static_cast<int>(Signal::kAz)) {
+        const int k = s - static_cast<int>(Signal::kAx);
+        const Eigen::Matrix3d m = accel.Misalignment() * accel.scale.asDiagonal();
+        noise2 += m.row(k).transpose().cwiseProduct(poses[i].accel.mean_std).squaredNorm() / n;
+      } else if (s >= static_cast<int>(Signal::kGx)) {
+        const int k = s - static_cast<int>(Signal::kGx);
+        noise2 += gyro.matrix.row(k).transpose().cwiseProduct(poses[i].gyro_mean_std).squaredNorm() / n;
+      }
+    }
+    // At rest the true rate is zero: a measured static rate is the gyroscope's residual itself,
+    // so rates are never excited on static poses (they are tested on the moves).
+    if (!finite || s >= static_cast<int>(Signal::kGx)) continue;
+    double var = 0;
+    for (const SignalArray& a : signals) var += std::pow(a[static_cast<size_t>(s)] - mean, 2) / n;
+    out[static_cast<size_t>(s)] = var > 0 && var > kExcitedRatio * kExcitedRatio * noise2;
+  }
+  return out;
+}
+
+struct RoundCandidate {
+  CandidateScore score;
+  Regressor regressor;
+  Eigen::VectorXd perp;
+};
+
+std::string Describe(Sensor sensor, int axis, const Regressor& r) {
+  return Cat(SensorName(sensor), " ", AxisName(axis), " ~ ", r.Name());
+}
+
+// What would tell two regressors apart.
+std::string Separator(const Regressor& a, const Regressor& b) {
+  const bool temp = UsesSignal(a, Signal::kTemperature) || UsesSignal(b, Signal::kTemperature);
+  const bool time = UsesSignal(a, Signal::kTime) || UsesSignal(b, Signal::kTime);
+  if (temp && time) {
+    return "temperature and time rose together in this capture; a capture at a steady "
+           "temperature (or one that warms and cools) would tell them apart";
+  }
+  return "poses that vary one of them without the other, or per-axis references (known "
+         "orientations), would tell them apart";
+}
+
+std::string TermName(const Term& t) { return Describe(t.sensor, t.axis, t.regressor); }
+
+Effect ToEffect(const Term& t) {
+  Effect e;
+  e.sensor = t.sensor;
+  e.axis = t.axis;
+  e.regressor = t.regressor.Name();
+  e.coefficient = t.coefficient;
+  e.applied = t.applied;
+  return e;
+}
+
+double RmsOf(const std::vector<double>& v) {
+  double s = 0;
+  int n = 0;
+  for (double x : v)
+    if (std::isfinite(x)) s += x * x, ++n;
+  return n > 0 ? std::sqrt(s / n) : kNaN;
+}
+
+// The whole model's fit: accelerometer (Ceres joint) and gyroscope (linear) with `st`'s terms.
+// Fills the standard errors of the terms and the residuals.
+struct Fit {
+  std::vector<double> accel_residual, accel_heldout;    // m/s^2
+  std::vector<Eigen::Vector3d> gyro_residual, gyro_heldout;  // rad/s
+  std::vector<double> term_stderr;  // per st.terms
+  Eigen::MatrixXd accel_cov;        // over [free | accel coefficients]
+};
+
+class Search {
+ public:
+  Search(const EffectSearchInput& in, const EffectSearchOptions& opt) : in_(in), opt_(opt) {
+    poses_ = in.poses;
+    signals_ = PoseSignals(poses_, in.accel, in.gyro);
+    rates_ = StaticRates(poses_, signals_);
+    gyro_sigma_ = GyroSigmas(poses_, in.gyro);
+  }
+
+  // Refits everything with the terms in `st` (only those with applied, if `applied_only`).
+  // `previous`: a fit of the same accelerometer terms (a gyroscope term was added): its
+  // accelerometer part is reused, the expensive part being the leave-one-out refits.
+  absl::StatusOr<Fit> Refit(State* st, const Fit* previous = nullptr) {
+    Fit fit;
+    fit.term_stderr.assign(st->terms.size(), kNaN);
+    if (previous != nullptr) {
+      fit.accel_cov = previous->accel_cov;
+      fit.accel_residual = previous->accel_residual;
+      fit.accel_heldout = previous->accel_heldout;
+      for (size_t k = 0; k < previous->term_stderr.size(); ++k)
+        if (st->terms[k].sensor == Sensor::kAccel) fit.term_stderr[k] = previous->term_stderr[k];
+    } else if (absl::Status s = RefitAccel(st, &fit); !s.ok()) {
+      return s;
+    }
+    RefitGyro(st, &fit);
+    return fit;
+  }
+
+  absl::Status RefitAccel(State* st, Fit* out) {
+    Fit& fit = *out;
+    SetAccelModelSigma(*st, in_.accel_free, signals_, in_.gravity_m_s2, &poses_);
+    absl::StatusOr<Eigen::MatrixXd> cov =
+        AccelJointFit(in_.accel_free, signals_, in_.gravity_m_s2, poses_, st);
+    if (!cov.ok()) return cov.status();
+    SetAccelModelSigma(*st, in_.accel_free, signals_, in_.gravity_m_s2, &poses_);
+    cov = AccelJointFit(in_.accel_free, signals_, in_.gravity_m_s2, poses_, st);
+    if (!cov.ok()) return cov.status();
+    fit.accel_cov = *cov;
+    int n_free = 0;
+    for (bool f : in_.accel_free) n_free += f;
+    for (size_t k = 0, a = 0; k < st->terms.size(); ++k) {
+      if (st->terms[k].sensor != Sensor::kAccel) continue;
+      const auto idx = static_cast<Eigen::Index>(n_free + a++);
+      fit.term_stderr[k] = std::sqrt(std::max(0.0, (*cov)(idx, idx)));
+    }
+    SetAccelOffsets(*st, signals_, &poses_);
+    fit.accel_residual = MagnitudeResiduals(st->accel, AccelPoses(poses_), in_.gravity_m_s2);
+    fit.accel_heldout = AccelHeldOut(*st, in_.accel_free, signals_, in_.gravity_m_s2, poses_);
+    return absl::OkStatus();
+  }
+
+  void RefitGyro(State* st, Fit* out) const {
+    Fit& fit = *out;
+    fit.gyro_residual.assign(poses_.size(), Eigen::Vector3d::Zero());
+    fit.gyro_heldout.assign(poses_.size(), Eigen::Vector3d::Zero());
+    for (int j = 0; j < 3; ++j) {
+      std::vector<const Term*> terms;
+      std::vector<size_t> index;
+      for (size_t k = 0; k < st->terms.size(); ++k)
+        if (st->terms[k].sensor == Sensor::kGyro && st->terms[k].axis == j)
+          terms.push_back(&st->terms[k]), index.push_back(k);
+      const double tau = GyroTau(j, terms);
+      const GyroAxisFit g = FitGyroAxis(j, rates_, gyro_sigma_, tau, terms, signals_);
+      st->gyro_offset(j) = g.solution(0);
+      for (size_t k = 0; k < terms.size(); ++k) {
+        const auto c = static_cast<Eigen::Index>(k + 1);
+        st->terms[index[k]].coefficient = g.solution(c);
+        fit.term_stderr[index[k]] = std::sqrt(std::max(0.0, g.covariance(c, c)));
+      }
+      for (size_t i = 0; i < poses_.size(); ++i) {
+        fit.gyro_residual[i](j) = g.residual(static_cast<Eigen::Index>(i));
+        fit.gyro_heldout[i](j) = g.heldout(static_cast<Eigen::Index>(i));
+      }
+    }
+  }
+
+  // tau of gyro axis j for its current terms.
+  double GyroTau(int j, const std::vector<const Term*>& terms) const {
+    const GyroAxisFit g0 = FitGyroAxis(j, rates_, gyro_sigma_, 0.0, terms, signals_);
+    std::vector<double> r, s;
+    for (size_t i = 0; i < poses_.size(); ++i) {
+      r.push_back(g0.residual(static_cast<Eigen::Index>(i)));
+      s.push_back(gyro_sigma_[i](j));
+    }
+    return CommonModelSigma(r, s, static_cast<double>(poses_.size() - 1 - terms.size()));
+  }
+
+  absl::StatusOr<EffectSearchResult> Run() {
+    EffectSearchResult out;
+    EffectDiagnostics& diag = out.diagnostics;
+    diag.ran = true;
+    State st;
+    st.accel = in_.accel;
+    absl::StatusOr<Fit> base = Refit(&st);
+    if (!base.ok()) return base.status();
+    Fit fit = *base;
+    const std::array<bool, kNumSignals> excited =
+        ExcitedSignals(poses_, signals_, in_.accel, in_.gyro);
+    NoiseFloors(&diag);
+    diag.accel_heldout_before_m_s2 = RmsOf(base->accel_heldout);
+    diag.gyro_heldout_before_rad_s = GyroRms(base->gyro_heldout);
+
+    for (int round = 0; round < opt_.max_effects; ++round) {
+      std::vector<RoundCandidate> cands;
+      int absorbed = 0, not_excited = 0;
+      ScoreRound(st, excited, &cands, &absorbed, &not_excited);
+      if (round == 0) {
+        diag.candidates = static_cast<int>(cands.size());
+        diag.absorbed = absorbed;
+        diag.not_excited = not_excited;
+      }
+      ++diag.rounds;
+      if (cands.empty()) break;
+      const int tests = static_cast<int>(cands.size());
+      int best = -1;
+      for (size_t c = 0; c < cands.size(); ++c) {
+        CandidateScore& s = cands[c].score;
+        s.f_threshold = FThreshold(opt_.family_alpha, tests, DofAfter(st, s.sensor, s.axis));
+        s.passed = s.f > s.f_threshold && s.delta_bic < 0 && s.press_gain > s.f_threshold;
+        if (s.passed && (best < 0 || s.press_gain > cands[static_cast<size_t>(best)].score.press_gain))
+          best = static_cast<int>(c);
+      }
+      if (round == 0) KeepTop(cands, &diag);
+      if (std::getenv("IMUCAL_DEBUG_EFFECTS") != nullptr) {
+        std::vector<RoundCandidate> sorted = cands;
+        std::sort(sorted.begin(), sorted.end(), [](const auto& a, const auto& b) { return a.score.f > b.score.f; });
+        for (size_t k = 0; k < 6 && k < sorted.size(); ++k) {
+          const auto& sc = sorted[k].score;
+          fprintf(stderr, "round %d: %s %s %s F %.1f thr %.1f bic %.1f press %.1f c %.3g %s\n", round, SensorName(sc.sensor), AxisName(sc.axis), sc.regressor.c_str(), sc.f, sc.f_threshold, sc.delta_bic, sc.press_gain, sc.coefficient, sc.passed ? "PASS" : "");
+        }
+      }
+      if (best < 0) break;
+      // Among passing candidates that explain the residual as well, the simplest regressor:
+      // `temperature` before `temperature^2`.
+      const size_t first = static_cast<size_t>(best);
+      for (size_t c = 0; c < cands.size(); ++c) {
+        if (cands[c].score.passed && Ambiguous(cands[first], cands[c]) &&
+            cands[c].regressor.num_factors < cands[static_cast<size_t>(best)].regressor.num_factors)
+          best = static_cast<int>(c);
+      }
+      const RoundCandidate& win = cands[static_cast<size_t>(best)];
+      Term term;
+      term.sensor = win.score.sensor;
+      term.axis = win.score.axis;
+      term.regressor = win.regressor;
+      term.coefficient = win.score.coefficient;
+      term.applied = !UsesSignal(win.regressor, Signal::kTime) || opt_.apply_time_effects;
+      State next = st;
+      next.terms.push_back(term);
+      absl::StatusOr<Fit> after = Refit(&next, term.sensor == Sensor::kGyro ? &fit : nullptr);
+      if (!after.ok()) return after.status();
+      Effect e = ToEffect(next.terms.back());
+      e.std_error = after->term_stderr.back();
+      const bool accel = term.sensor == Sensor::kAccel;
+      e.error_before = accel ? RmsOf(fit.accel_heldout) : GyroRms(fit.gyro_heldout);
+      e.error_after = accel ? RmsOf(after->accel_heldout) : GyroRms(after->gyro_heldout);
+      e.evidence = Evidence(win, cands, tests, &diag);
+      st = next;
+      fit = *after;
+      out.effects.push_back(e);
+    }
+    // Coefficients as finally refitted (each effect's error_before/after stays as measured when
+    // it entered).
+    for (size_t k = 0; k < st.terms.size(); ++k) {
+      out.effects[k].coefficient = st.terms[k].coefficient;
+      out.effects[k].std_error = fit.term_stderr[k];
+    }
+    diag.accel_heldout_after_m_s2 = RmsOf(fit.accel_heldout);
+    diag.gyro_heldout_after_rad_s = GyroRms(fit.gyro_heldout);
+
+    // The stored model carries only the applied effects: refit without the others (a drift the
+    // robot will not correct is best left in the bias as its mean over the capture).
+    State stored = st;
+    std::erase_if(stored.terms, [](const Term& t) { return !t.applied; });
+    absl::StatusOr<Fit> final_fit = stored.terms.size() == st.terms.size() ? fit : Refit(&stored);
+    if (!final_fit.ok()) return final_fit.status();
+    Rows(*base, *final_fit, &diag);
+    out.accel = stored.accel;
+    out.gyro = in_.gyro;
+    out.gyro.bias = in_.gyro.bias + in_.gyro.matrix.inverse() * stored.gyro_offset;
+    FillAccelCovariance(*final_fit, &out);
+    for (size_t k = 0, s = 0; k < st.terms.size(); ++k) {
+      if (!st.terms[k].applied) continue;
+      out.effects[k].coefficient = stored.terms[s].coefficient;
+      out.effects[k].std_error = final_fit->term_stderr[s];
+      ++s;
+    }
+    FinalNotes(st, *final_fit, &diag);
+    return out;
+  }
+
+ private:
+  static double GyroRms(const std::vector<Eigen::Vector3d>& v) {
+    double s = 0;
+    for (const auto& x : v) s += x.squaredNorm();
+    return v.empty() ? kNaN : std::sqrt(s / static_cast<double>(v.size()));
+  }
+
+  Eigen::Index DofAfter(const State& st, Sensor sensor, int axis) const {
+    const auto n = static_cast<Eigen::Index>(poses_.size());
+    Eigen::Index p = 0;
+    if (sensor == Sensor::kAccel) {
+      for (bool f : in_.accel_free) p += f;
+      for (const Term& t : st.terms) p += t.sensor == Sensor::kAccel;
+    } else {
+      p = 1;
+      for (const Term& t : st.terms) p += t.sensor == Sensor::kGyro && t.axis == axis;
+    }
+    return n - p - 1;
+  }
+
+  void ScoreRound(const State& st, const std::array<bool, kNumSignals>& excited,
+                  std::vector<RoundCandidate>* cands, int* absorbed, int* not_excited) {
+    // Accelerometer design at the current state.
+    SetAccelModelSigma(st, in_.accel_free, signals_, in_.gravity_m_s2, &poses_);
+    const std::vector<AccelPose> ap = AccelPoses(poses_);
+    const Design ad = AccelDesign(st, ap, in_.accel_free, signals_, in_.gravity_m_s2);
+    const Scorer accel_scorer(ad);
+    std::vector<std::unique_ptr<Scorer>> gyro_scorers;
+    std::vector<std::vector<double>> gyro_w;
+    for (int j = 0; j < 3; ++j) {
+      std::vector<const Term*> terms;
+      for (const Term& t : st.terms)
+        if (t.sensor == Sensor::kGyro && t.axis == j) terms.push_back(&t);
+      const GyroAxisFit g =
+          FitGyroAxis(j, rates_, gyro_sigma_, GyroTau(j, terms), terms, signals_);
+      gyro_scorers.push_back(std::make_unique<Scorer>(g.design));
+      gyro_w.push_back(g.design.weight);
+    }
+    const auto n = static_cast<Eigen::Index>(poses_.size());
+    for (const Regressor& r : Dictionary(opt_.max_factors)) {
+      bool ok = true;
+      for (int f = 0; f < r.num_factors; ++f) ok &= excited[static_cast<size_t>(r.factors[f])];
+      bool has_values = true;
+      for (const SignalArray& s : signals_) has_values &= std::isfinite(r.Evaluate(s));
+      if (!has_values) continue;  // a signal the capture does not have (no temperature)
+      for (int sensor = 0; sensor < (in_.gyro_output_si ? 2 : 1); ++sensor) {
+        for (int axis = 0; axis < 3; ++axis) {
+          if (!ok) {
+            ++*not_excited;
+            continue;
+          }
+          bool exists = false;
+          for (const Term& t : st.terms)
+            exists |= static_cast<int>(t.sensor) == sensor && t.axis == axis && t.regressor == r;
+          if (exists) continue;
+          if (IsModelTerm(static_cast<Sensor>(sensor), axis, r)) {
+            ++*absorbed;
+            continue;
+          }
+          Eigen::VectorXd col(n);
+          for (Eigen::Index i = 0; i < n; ++i) {
+            const auto ii = static_cast<size_t>(i);
+            const double x = r.Evaluate(signals_[ii]);
+            col(i) = sensor == 0 ? AccelEffectDerivative(st.accel, ap[ii], axis, x) * ad.weight[ii]
+                                 : x * gyro_w[static_cast<size_t>(axis)][ii];
+          }
+          RoundCandidate c;
+          c.regressor = r;
+          c.score.sensor = sensor == 0 ? Sensor::kAccel : Sensor::kGyro;
+          c.score.axis = axis;
+          c.score.regressor = r.Name();
+          const Scorer& scorer = sensor == 0 ? accel_scorer : *gyro_scorers[static_cast<size_t>(axis)];
+          if (!scorer.Score(col, &c.score, &c.perp)) {
+            ++*absorbed;
+            continue;
+          }
+          // The accelerometer column is d r / d c = -n x: the coefficient has the opposite sign
+          // of the projection.
+          if (sensor == 0) c.score.coefficient = -c.score.coefficient;
+          cands->push_back(std::move(c));
+        }
+      }
+    }
+  }
+
+  static bool Ambiguous(const RoundCandidate& a, const RoundCandidate& b) {
+    if (&a == &b || a.score.sensor != b.score.sensor) return false;
+    if (a.score.sensor == Sensor::kGyro && a.score.axis != b.score.axis) return false;
+    const double corr = std::abs(a.perp.dot(b.perp)) / (a.perp.norm() * b.perp.norm());
+    return corr > kAmbiguousCorrelation &&
+           std::abs(a.score.delta_bic - b.score.delta_bic) < kAmbiguousBic;
+  }
+
+  static void KeepTop(std::vector<RoundCandidate> cands, EffectDiagnostics* diag) {
+    std::sort(cands.begin(), cands.end(), [](const RoundCandidate& a, const RoundCandidate& b) {
+      return a.score.f > b.score.f;
+    });
+    for (size_t k = 0; k < cands.size() && k < 8; ++k) diag->top.push_back(cands[k].score);
+  }
+
+  std::string Evidence(const RoundCandidate& win, const std::vector<RoundCandidate>& cands,
+                       int tests, EffectDiagnostics* diag) {
+    std::string rivals;
+    for (const RoundCandidate& c : cands) {
+      if (&c == &win || !Ambiguous(win, c)) continue;
+      const std::string name = Describe(c.score.sensor, c.score.axis, c.regressor);
+      rivals += Cat(rivals.empty() ? "" : ", ", name);
+      diag->notes.push_back(Cat(
+          "ambiguous: ", Describe(win.score.sensor, win.score.axis, win.regressor),
+          " explains the residual about as well as ", name,
+          absl::StrFormat(" (BIC %+.1f vs %+.1f); ", win.score.delta_bic, c.score.delta_bic),
+          Separator(win.regressor, c.regressor)));
+    }
+    return absl::StrFormat(
+        "F %.1f > %.1f (F(1,dof) at %.2g/%d candidates, Bonferroni); BIC %+.1f; held-out sum of "
+        "squares -%.1f (noise units)%s",
+        win.score.f, win.score.f_threshold, opt_.family_alpha, tests, win.score.delta_bic,
+        win.score.press_gain, rivals.empty() ? "" : Cat("; ambiguous with ", rivals));
+  }
+
+  void NoiseFloors(EffectDiagnostics* diag) const {
+    std::vector<AccelPose> bare = AccelPoses(poses_);
+    for (AccelPose& p : bare) p.model_sigma_m_s2 = 0, p.offset_m_s2.setZero();
+    diag->accel_noise_floor_m_s2 = RmsOf(MagnitudeSigmas(in_.accel, bare));
+    double s = 0;
+    for (const auto& g : gyro_sigma_) s += g.squaredNorm();
+    diag->gyro_noise_floor_rad_s = std::sqrt(s / static_cast<double>(gyro_sigma_.size()));
+  }
+
+  void Rows(const Fit& before, const Fit& after, EffectDiagnostics* diag) const {
+    for (size_t i = 0; i < poses_.size(); ++i) {
+      EffectPoseRow row;
+      row.pose_index = poses_[i].pose_index;
+      row.signals = signals_[i];
+      row.accel_before_m_s2 = before.accel_residual[i];
+      row.accel_after_m_s2 = after.accel_residual[i];
+      row.gyro_before_rad_s = before.gyro_residual[i];
+      row.gyro_after_rad_s = after.gyro_residual[i];
+      diag->rows.push_back(row);
+    }
+  }
+
+  void FillAccelCovariance(const Fit& fit, EffectSearchResult* out) const {
+    std::vector<int> idx;
+    for (int c = 0; c < kAccelParams; ++c)
+      if (in_.accel_free[static_cast<size_t>(c)]) idx.push_back(c);
+    for (size_t a = 0; a < idx.size(); ++a)
+      for (size_t b = 0; b < idx.size(); ++b)
+        out->accel_covariance(idx[a], idx[b]) =
+            fit.accel_cov(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b));
+  }
+
+  void FinalNotes(const State& st, const Fit& fit, EffectDiagnostics* diag) const {
+    bool has_temp = true;
+    for (const EffectPose& p : poses_) has_temp &= std::isfinite(p.temp_c);
+    for (const Term& t : st.terms) {
+      if (UsesSignal(t.regressor, Signal::kTime)) {
+        diag->notes.push_back(Cat(
+            TermName(t), ": a dependence on time since the capture started",
+            t.applied ? " (applied: the user opted in)"
+                      : " is reported, not applied (opt in to apply it at run time)",
+            has_temp ? ""
+                     : "; the capture has no temperature channel, so a warm-up would look the "
+                       "same: record temperature to tell them apart"));
+      }
+    }
+    const double accel_rms = RmsOf(fit.accel_residual);
+    diag->notes.push_back(absl::StrFormat(
+        "remaining accelerometer residual %.3f mg RMS (held out %.3f mg) against a noise floor "
+        "of %.3f mg",
+        accel_rms / kStandardGravity * 1e3, RmsOf(fit.accel_heldout) / kStandardGravity * 1e3,
+        diag->accel_noise_floor_m_s2 / kStandardGravity * 1e3));
+    diag->notes.push_back(absl::StrFormat(
+        "remaining gyroscope static residual %.4f deg/s RMS (held out %.4f deg/s) against a "
+        "noise floor of %.4f deg/s",
+        GyroRms(fit.gyro_residual) * kRadToDeg, GyroRms(fit.gyro_heldout) * kRadToDeg,
+        diag->gyro_noise_floor_rad_s * kRadToDeg));
+    if (!has_temp) {
+      diag->notes.push_back(
+          "no temperature channel: temperature effects could not be tested");
+    }
+    if (!in_.gyro_output_si) {
+      diag->notes.push_back(
+          "gyroscope effects not searched: its output stays in raw counts (scale not calibrated)");
+    }
+    if (diag->not_excited > 0) {
+      diag->notes.push_back(absl::StrFormat(
+          "%d candidates not testable on static poses: their signals (rates) do not vary at "
+          "rest",
+          diag->not_excited));
+    }
+  }
+
+  const EffectSearchInput& in_;
+  const EffectSearchOptions& opt_;
+  std::vector<EffectPose> poses_;
+  std::vector<SignalArray> signals_;
+  std::vector<Eigen::Vector3d> rates_;
+  std::vector<Eigen::Vector3d> gyro_sigma_;
+};
+
+}  // namespace
+
+absl::StatusOr<EffectSearchResult> FindEffects(const EffectSearchInput& input,
+                                               const EffectSearchOptions& options) {
+  if (!options.enabled) return absl::InvalidArgumentError("effect search is disabled");
+  int n_free = 0;
+  for (bool f : input.accel_free) n_free += f;
+  if (static_cast<int>(input.poses.size()) < n_free + 3) {
+    EffectSearchResult out;
+    out.accel = input.accel;
+    out.gyro = input.gyro;
+    out.diagnostics.notes.push_back(absl::StrFormat(
+        "effects not searched: %d poses leave too few degrees of freedom beyond the %d model "
+        "parameters",
+        static_cast<int>(input.poses.size()), n_free));
+    return out;
+  }
+  Search search(input, options);
+  return search.Run();
+}
+
+std::string HumanCoefficient(const Effect& e) {
+  // Numerator: mg or deg/s. Each factor of the regressor: degC, s, g or deg/s. A factor of the
+  // sensor's own kind turns the ratio into ppm (mg/g = 1000 ppm, (deg/s)/(deg/s) = 1e6 ppm).
+  const std::optional<Regressor> r = ParseRegressor(e.regressor);
+  const bool accel = e.sensor == Sensor::kAccel;
+  double factor = accel ? 1e3 / kStandardGravity : kRadToDeg;
+  std::string numerator = accel ? "mg" : "deg/s";
+  std::vector<std::string> units;
+  bool ppm = false;
+  if (r) {
+    for (int i = 0; i < r->num_factors; ++i) {
+      const auto s = static_cast<Signal>(r->factors[i]);
+      const bool is_accel = s >= Signal::kAx && s <= Signal::kAz;
+      const bool is_rate = s >= Signal::kGx;
+      if (!ppm && ((accel && is_accel) || (!accel && is_rate))) {
+        // mg per g or (deg/s) per (deg/s): relative, in ppm.
+        factor = 1e6;
+        numerator = "ppm";
+        ppm = true;
+        continue;
+      }
+      if (s == Signal::kTemperature) units.push_back("degC");
+      if (s == Signal::kTime) factor *= 3600, units.push_back("h");
+      if (is_accel) factor *= kStandardGravity, units.push_back("g");
+      if (is_rate) factor /= kRadToDeg, units.push_back("(deg/s)");
+    }
+  }
+  std::string unit = numerator;
+  for (size_t i = 0; i < units.size(); ++i) {
+    size_t run = 1;
+    while (i + run < units.size() && units[i + run] == units[i]) ++run;
+    unit += "/" + units[i] + (run > 1 ? "^2" : "");
+    i += run - 1;
+  }
+  if (units.empty() && !ppm) unit += " per regressor unit";
+  return absl::StrFormat("%.4g +- %.2g %s", e.coefficient * factor, e.std_error * factor, unit);
+}
+
+}  // namespace imucal::core

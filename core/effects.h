@@ -1,0 +1,150 @@
+// Closing the loop: find in a finished solve's residuals what the model misses, trace it to an
+// effect, add the effect, and show the error before and after (issue "close the loop").
+//
+// RESIDUALS examined, one row per used static pose i:
+//   accelerometer  r_i = |a_i| - g                      a_i = calibrated specific force, m/s^2
+//   gyroscope      w_i = M (v_i - b) - C a_i            calibrated static rate, rad/s, per axis
+// (the rotation residuals between poses are examined too, see EffectDiagnostics::notes).
+//
+// SIGNALS of a pose: temperature (mean, degC), time (pose middle, s from capture start), the
+// calibrated specific force ax, ay, az (m/s^2) and rate gx, gy, gz (rad/s) of the model before
+// any effect, as the SDK's Corrector computes them at run time.
+//
+// DICTIONARY (generic, nothing listed by hand): every regressor of one or two factors over the
+// signals the capture has (core/regressor.h: `temperature`, `ax*az`, `time^2`, ...), acting
+// additively on one output axis of either sensor:
+//   out[axis] -= coefficient * regressor          (core/params.h Effect)
+// Its trace on the residual follows from the model: an accelerometer term on axis j moves |a_i|
+// by -n_ij * x_i (n_i = a_i / |a_i|, the pose's gravity direction), a gyroscope term moves the
+// static rate of axis j by -x_i. A candidate that is one of the model's own terms (any `ax` on
+// the accelerometer is scale or misalignment, `ax^2` on accel x is quadratic_x) or that the
+// current model spans numerically is skipped as "absorbed"; one whose signal does not vary over
+// the poses (rates at rest: the static rate is the residual itself) is "not excited".
+// The magnitude |a| - g cannot tell every pair apart: `ax*az` on x moves |a| exactly as `ax^2`
+// on z (both by ax^2 az / |a|), so a cross-axis quadratic and a per-axis quadratic of another
+// axis are one explanation to the static residual, and the search reports the tie rather than
+// pretending to know the axis. (The gyroscope's rotations between poses could separate them, but
+// only in a joint accelerometer-gyroscope refit over the moves: the gyro matrix fitted to the
+// uncorrected directions absorbs most of the difference.)
+//
+// SELECTION, forward stepwise. Each round scores every candidate by linearised least squares
+// against the current model (weights 1 / (sigma_i^2 + tau^2): sigma_i the pose mean's noise from
+// the scatter within the pose, tau the model error common to all poses, 0 when the noise
+// explains the residual). A candidate enters only if all three hold:
+//   1. F = dRSS / s^2 exceeds the F(1, dof) quantile at alpha / m: m the number of candidates
+//      tested in the round (Bonferroni), s^2 = RSS_after / dof the residual variance, but never
+//      below what the within-pose noise alone would give (the noise level);
+//   2. the Bayesian information criterion falls: N ln(RSS_after / RSS_before) + ln N < 0;
+//   3. the held-out (leave-one-pose-out) weighted sum of squares falls by more than the same
+//      margin, F* s^2: the effect must predict poses it was not fitted to.
+// The best candidate by held-out gain enters, the model is refitted jointly (accelerometer:
+// Ceres over the free model parameters and every accelerometer effect coefficient; gyroscope:
+// the static model is linear in its bias and coefficients, an exact weighted least squares), and
+// the search repeats until nothing passes. Candidates that explain the residual about as well as
+// the chosen one (chi^2 within 4, i.e. two sigma) are named: the data cannot tell them apart.
+#ifndef IMUCAL_CORE_EFFECTS_H_
+#define IMUCAL_CORE_EFFECTS_H_
+
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "Eigen/Core"
+#include "absl/status/statusor.h"
+#include "core/accel_solver.h"
+#include "core/params.h"
+#include "core/regressor.h"
+
+namespace imucal::core {
+
+// One used static pose, as the diagnostics see it.
+struct EffectPose {
+  int pose_index = 0;  // index in CalibrationReport::poses
+  AccelPose accel;     // raw mean and its std (input units); offset and model sigma are set here
+  Eigen::Vector3d gyro_mean = Eigen::Vector3d::Zero();      // raw, input units
+  Eigen::Vector3d gyro_mean_std = Eigen::Vector3d::Ones();  // std of that mean, input units
+  double temp_c = std::numeric_limits<double>::quiet_NaN();  // NaN: no temperature channel
+  double time_s = 0.0;  // the pose's middle, s from capture start
+};
+
+struct EffectSearchOptions {
+  bool enabled = true;
+  double family_alpha = 0.01;  // false-alarm probability per round over all candidates
+  int max_effects = 6;
+  int max_factors = 2;  // regressors of at most this many factors
+  // Effects on `time` (drift since power-on) are found and reported; applied only when true.
+  bool apply_time_effects = false;
+};
+
+// Score of one candidate in the round it was tested (units: weighted, i.e. noise units).
+struct CandidateScore {
+  Sensor sensor = Sensor::kAccel;
+  int axis = 0;
+  std::string regressor;
+  double f = 0;          // dRSS / s^2
+  double f_threshold = 0;
+  double delta_bic = 0;  // < 0: the criterion prefers the effect
+  double press_gain = 0; // held-out weighted sum of squares before - after
+  double coefficient = 0;  // linearised, SI per regressor unit
+  bool passed = false;
+};
+
+// Per used pose, for plots and the report: the signals and the residuals without and with the
+// effects found (in-sample, SI).
+struct EffectPoseRow {
+  int pose_index = 0;
+  SignalArray signals{};  // indexed by Signal; temperature NaN when absent
+  double accel_before_m_s2 = 0, accel_after_m_s2 = 0;  // |a| - g
+  Eigen::Vector3d gyro_before_rad_s = Eigen::Vector3d::Zero();  // static rate
+  Eigen::Vector3d gyro_after_rad_s = Eigen::Vector3d::Zero();
+};
+
+struct EffectDiagnostics {
+  bool ran = false;
+  int rounds = 0;
+  int candidates = 0;  // distinct candidates tested in the first round
+  int absorbed = 0;    // skipped: the model already spans them
+  int not_excited = 0; // skipped: the regressor does not vary over the poses
+  // Noise floors: the RMS the static residual would have if the model were perfect, from the
+  // scatter within each pose.
+  double accel_noise_floor_m_s2 = 0;
+  double gyro_noise_floor_rad_s = 0;
+  // Held-out (leave-one-pose-out) RMS of the static residual, without and with all effects.
+  double accel_heldout_before_m_s2 = 0, accel_heldout_after_m_s2 = 0;
+  double gyro_heldout_before_rad_s = 0, gyro_heldout_after_rad_s = 0;
+  std::vector<CandidateScore> top;  // the best few candidates of the first round
+  std::vector<EffectPoseRow> rows;
+  std::vector<std::string> notes;   // ambiguities, what was not testable, residual vs floor
+};
+
+struct EffectSearchInput {
+  std::vector<EffectPose> poses;
+  double gravity_m_s2 = kStandardGravity;
+  AccelParams accel;       // the converged model without effects
+  AccelMask accel_free{};  // its free parameters
+  GyroParams gyro;
+  // False when the gyro model's output is not in rad/s (raw counts without a calibrated scale):
+  // gyroscope effects are then not searched.
+  bool gyro_output_si = true;
+};
+
+struct EffectSearchResult {
+  AccelParams accel;  // refitted jointly with the applied accelerometer effects
+  GyroParams gyro;    // bias refitted with the applied gyroscope effects
+  AccelMatrix accel_covariance = AccelMatrix::Zero();
+  std::vector<Effect> effects;  // in the order found
+  EffectDiagnostics diagnostics;
+};
+
+// Runs the search (see the top of this file). Never adds an effect the data does not support;
+// with too few poses it says how few and returns the model unchanged.
+absl::StatusOr<EffectSearchResult> FindEffects(const EffectSearchInput& input,
+                                               const EffectSearchOptions& options);
+
+// The effect's coefficient in the units an engineer uses: mg/degC, deg/s per g, ppm/degC, ...,
+// with its standard error: "0.52 +- 0.03 mg/degC".
+std::string HumanCoefficient(const Effect& effect);
+
+}  // namespace imucal::core
+
+#endif  // IMUCAL_CORE_EFFECTS_H_
