@@ -706,7 +706,8 @@ class Search {
         CandidateScore& s = cands[c].score;
         s.f_threshold = FThreshold(opt_.family_alpha, tests, DofAfter(st, s.sensor, s.axis));
         s.passed = s.f > s.f_threshold && s.delta_bic < 0 && s.press_gain > s.f_threshold;
-        if (s.passed && (best < 0 || s.press_gain > cands[static_cast<size_t>(best)].score.press_gain))
+        // Ranked by BIC, which compares candidates of different axes on one scale.
+        if (s.passed && (best < 0 || s.delta_bic < cands[static_cast<size_t>(best)].score.delta_bic))
           best = static_cast<int>(c);
       }
       if (round == 0) KeepTop(cands, &diag);
@@ -719,12 +720,23 @@ class Search {
         }
       }
       if (best < 0) break;
-      // Among passing candidates that explain the residual as well, the simplest regressor:
-      // `temperature` before `temperature^2`.
+      if (round + 1 == opt_.max_effects) {
+        diag.notes.push_back(absl::StrFormat(
+            "stopped at the limit of %d effects with significant candidates left; the model may "
+            "lack a term the dictionary does not hold",
+            opt_.max_effects));
+      }
+      // Among passing candidates that explain the residual as well: the simplest regressor
+      // (`temperature` before `temperature^2`), then one without `time`: a warm-up that time and
+      // temperature explain equally is attributed to temperature, which the SDK applies on every
+      // sample and which holds across power cycles (the ambiguity is reported either way).
       const size_t first = static_cast<size_t>(best);
+      auto rank = [](const Regressor& r) {
+        return 2 * r.num_factors + (UsesSignal(r, Signal::kTime) ? 1 : 0);
+      };
       for (size_t c = 0; c < cands.size(); ++c) {
         if (cands[c].score.passed && Ambiguous(cands[first], cands[c]) &&
-            cands[c].regressor.num_factors < cands[static_cast<size_t>(best)].regressor.num_factors)
+            rank(cands[c].regressor) < rank(cands[static_cast<size_t>(best)].regressor))
           best = static_cast<int>(c);
       }
       const RoundCandidate& win = cands[static_cast<size_t>(best)];
@@ -763,7 +775,7 @@ class Search {
     std::erase_if(stored.terms, [](const Term& t) { return !t.applied; });
     absl::StatusOr<Fit> final_fit = stored.terms.size() == st.terms.size() ? fit : Refit(&stored);
     if (!final_fit.ok()) return final_fit.status();
-    Rows(*base, *final_fit, &diag);
+    Rows(*base, *final_fit, fit, &diag);
     out.accel = stored.accel;
     out.gyro = in_.gyro;
     out.gyro.bias = in_.gyro.bias + in_.gyro.matrix.inverse() * stored.gyro_offset;
@@ -907,7 +919,7 @@ class Search {
     diag->gyro_noise_floor_rad_s = std::sqrt(s / static_cast<double>(gyro_sigma_.size()));
   }
 
-  void Rows(const Fit& before, const Fit& after, EffectDiagnostics* diag) const {
+  void Rows(const Fit& before, const Fit& after, const Fit& all, EffectDiagnostics* diag) const {
     for (size_t i = 0; i < poses_.size(); ++i) {
       EffectPoseRow row;
       row.pose_index = poses_[i].pose_index;
@@ -916,6 +928,8 @@ class Search {
       row.accel_after_m_s2 = after.accel_residual[i];
       row.gyro_before_rad_s = before.gyro_residual[i];
       row.gyro_after_rad_s = after.gyro_residual[i];
+      row.accel_all_m_s2 = all.accel_residual[i];
+      row.gyro_all_rad_s = all.gyro_residual[i];
       diag->rows.push_back(row);
     }
   }

@@ -37,7 +37,7 @@
 //   2. the Bayesian information criterion falls: N ln(RSS_after / RSS_before) + ln N < 0;
 //   3. the held-out (leave-one-pose-out) weighted sum of squares falls by more than the same
 //      margin, F* s^2: the effect must predict poses it was not fitted to.
-// The best candidate by held-out gain enters, the model is refitted jointly (accelerometer:
+// The passing candidate with the lowest BIC enters, the model is refitted jointly (accelerometer:
 // Ceres over the free model parameters and every accelerometer effect coefficient; gyroscope:
 // the static model is linear in its bias and coefficients, an exact weighted least squares), and
 // the search repeats until nothing passes. Candidates that explain the residual about as well as
@@ -70,7 +70,7 @@ struct EffectPose {
 struct EffectSearchOptions {
   bool enabled = true;
   double family_alpha = 0.01;  // false-alarm probability per round over all candidates
-  int max_effects = 6;
+  int max_effects = 10;
   int max_factors = 2;  // regressors of at most this many factors
   // Effects on `time` (drift since power-on) are found and reported; applied only when true.
   bool apply_time_effects = false;
@@ -94,9 +94,12 @@ struct CandidateScore {
 struct EffectPoseRow {
   int pose_index = 0;
   SignalArray signals{};  // indexed by Signal; temperature NaN when absent
-  double accel_before_m_s2 = 0, accel_after_m_s2 = 0;  // |a| - g
+  // before: no effects; after: the stored model (applied effects); all: every effect found,
+  // applied or not (the fit the coefficients come from).
+  double accel_before_m_s2 = 0, accel_after_m_s2 = 0, accel_all_m_s2 = 0;  // |a| - g
   Eigen::Vector3d gyro_before_rad_s = Eigen::Vector3d::Zero();  // static rate
   Eigen::Vector3d gyro_after_rad_s = Eigen::Vector3d::Zero();
+  Eigen::Vector3d gyro_all_rad_s = Eigen::Vector3d::Zero();
 };
 
 struct EffectDiagnostics {

@@ -46,6 +46,7 @@ class Args {
           value = argv[++i];
         }
         a.values_[name] = value;
+        a.all_values_[name].push_back(value);
       } else {
         return absl::InvalidArgumentError(absl::StrCat("unknown flag --", name));
       }
@@ -60,6 +61,11 @@ class Args {
   std::optional<std::string> Get(const std::string& name) const {
     auto it = values_.find(name);
     return it == values_.end() ? std::nullopt : std::optional<std::string>(it->second);
+  }
+  // Every value of a repeatable flag, in order (Get returns the last).
+  std::vector<std::string> GetAll(const std::string& name) const {
+    auto it = all_values_.find(name);
+    return it == all_values_.end() ? std::vector<std::string>{} : it->second;
   }
   absl::StatusOr<double> GetDouble(const std::string& name, double fallback) const {
     auto v = Get(name);
@@ -81,6 +87,7 @@ class Args {
  private:
   std::vector<std::string> positional_;
   std::map<std::string, std::string> values_;
+  std::map<std::string, std::vector<std::string>> all_values_;
   std::set<std::string> switches_;
 };
 

@@ -15,6 +15,7 @@
 #include "client/cli/commands.h"
 #include "client/cli/demo_common.h"
 #include "client/cli/import_flags.h"
+#include "client/cli/plots.h"
 #include "client/cli/report_json.h"
 #include "client/cli/summary.h"
 #include "client/sdk/corrector.h"
@@ -76,6 +77,12 @@ constexpr char kCalibrateHelp[] =
     "  --seed N                      BSAS random seed (default 1; same seed, same result)\n"
     "  --json                        print the JSON report (report.md) instead of the summary\n"
     "  --out FILE                    also write the JSON report to FILE\n"
+    "  --plots DIR                   write report.json, summary.txt and SVG plots (residual per\n"
+    "                                pose before/after the effects, each effect against its\n"
+    "                                regressor) into DIR\n"
+    "  --no-effects                  skip the search for effects the model misses\n"
+    "  --apply-time-effects          apply a found dependence on time since power-on (reported\n"
+    "                                only, by default)\n"
     "  --params-out FILE             write the parameter set (imucal-params v1) to FILE\n"
     "  --no-bsas                     skip the BSAS stage (least squares, then LM)\n"
     "  --no-heldout                  skip the leave-one-pose-out refits\n"
@@ -102,6 +109,7 @@ constexpr char kSimulateHelp[] =
     "  --floor-tilt DEG    (default 1)          --turn-error DEG  (default 3)\n"
     "  --no-temperature    no temp column\n"
     "  --effect SENSOR:AXIS:REGRESSOR:COEF   an extra effect, e.g. accel:y:temperature:0.005\n"
+    "                      (repeat the flag for several)\n"
     "  --truth FILE.json   write the true parameter set\n";
 
 absl::StatusOr<core::ImportOptions> ImportOptionsFrom(const Args& a) {
@@ -166,8 +174,8 @@ absl::StatusOr<core::SimOptions> SimOptionsFrom(const Args& a) {
     if (!p.ok()) return p.status();
     o.gyro_unit = *p;
   }
-  if (auto e = a.Get("effect")) {
-    std::vector<std::string> parts = absl::StrSplit(*e, ':');
+  for (const std::string& e : a.GetAll("effect")) {
+    std::vector<std::string> parts = absl::StrSplit(e, ':');
     double coef;
     if (parts.size() != 4 || (parts[0] != "accel" && parts[0] != "gyro") || parts[1].size() != 1 ||
         parts[1][0] < 'x' || parts[1][0] > 'z' || !absl::SimpleAtod(parts[3], &coef)) {
@@ -293,8 +301,9 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   auto a = Args::Parse(argv,
                        WithImportValuedFlags({"format", "protocol", "gravity", "accel-unit",
                                               "gyro-unit", "device", "seed", "out",
-                                              "params-out"}),
-                       WithImportSwitches({"json", "no-bsas", "no-heldout", "help"}));
+                                              "params-out", "plots"}),
+                       WithImportSwitches({"json", "no-bsas", "no-heldout", "no-effects",
+                                           "apply-time-effects", "help"}));
   if (!a.ok()) return Usage(std::string(a.status().message()), kCalibrateHelp);
   if (a->Has("help")) return std::printf("%s%s", kCalibrateHelp, kImportFlagsHelp), kExitOk;
   if (a->positional().empty()) return Usage("calibrate needs a capture FILE", kCalibrateHelp);
@@ -311,6 +320,8 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   co.seed = static_cast<uint64_t>(*seed);
   co.use_bsas = !a->Has("no-bsas");
   co.heldout = !a->Has("no-heldout");
+  co.effects.enabled = !a->Has("no-effects");
+  co.effects.apply_time_effects = a->Has("apply-time-effects");
 
   core::ImportReport import;
   auto capture = core::ImportCapture(a->positional(), *io, &import);
@@ -326,6 +337,18 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   if (auto out = a->Get("out")) {
     if (absl::Status s = WriteFileAtomically(*out, json); !s.ok()) return ReportError(s);
   }
+  std::vector<std::string> plot_paths;
+  if (auto dir = a->Get("plots")) {
+    auto plots = WriteReportPlots(nlohmann::json::parse(json), *dir);
+    if (!plots.ok()) return ReportError(plots.status());
+    const std::string base = std::filesystem::path(*dir).string();
+    if (absl::Status s = WriteFileAtomically(base + "/report.json", json); !s.ok())
+      return ReportError(s);
+    if (absl::Status s = WriteFileAtomically(base + "/summary.txt", FormatSummary(*report));
+        !s.ok())
+      return ReportError(s);
+    plot_paths = std::move(*plots);
+  }
   if (auto out = a->Get("params-out")) {
     if (absl::Status s = WriteFileAtomically(*out, sdk::ParamSetToJson(report->params)); !s.ok())
       return ReportError(s);
@@ -339,6 +362,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
                 std::string(core::GyroUnitName(capture->gyro_unit)).c_str());
     for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
     std::fputs(FormatSummary(*report).c_str(), stdout);
+    for (const auto& p : plot_paths) std::printf("plot        %s\n", p.c_str());
   }
   return report->verdict == "fail" ? kExitVerdictFail : kExitOk;
 }

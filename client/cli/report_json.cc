@@ -48,7 +48,10 @@ json DiagnosticsJson(const core::EffectDiagnostics& d) {
   j["accel_heldout_after"] = Num(d.accel_heldout_after_m_s2);
   j["gyro_heldout_before"] = Num(d.gyro_heldout_before_rad_s);
   j["gyro_heldout_after"] = Num(d.gyro_heldout_after_rad_s);
-  j["units"] = "accel m/s^2, gyro rad/s; signals: temperature degC, time s, ax..az m/s^2";
+  j["units"] =
+      "accel m/s^2, gyro rad/s; signals: temperature degC, time s, ax..az m/s^2, gx..gz rad/s; "
+      "per pose: _before without effects, _after the stored model (applied effects), _all every "
+      "effect found";
   j["top_candidates"] = json::array();
   for (const core::CandidateScore& c : d.top) {
     j["top_candidates"].push_back({{"sensor", c.sensor == core::Sensor::kGyro ? "gyro" : "accel"},
@@ -71,8 +74,10 @@ json DiagnosticsJson(const core::EffectDiagnostics& d) {
                           {"signals", std::move(signals)},
                           {"accel_before", Num(row.accel_before_m_s2)},
                           {"accel_after", Num(row.accel_after_m_s2)},
+                          {"accel_all", Num(row.accel_all_m_s2)},
                           {"gyro_before", Vec(row.gyro_before_rad_s)},
-                          {"gyro_after", Vec(row.gyro_after_rad_s)}});
+                          {"gyro_after", Vec(row.gyro_after_rad_s)},
+                          {"gyro_all", Vec(row.gyro_all_rad_s)}});
   }
   j["notes"] = d.notes;
   return j;

@@ -14,24 +14,10 @@
 #include "client/sdk/corrector.h"
 #include "core/calibrate.h"
 #include "core/simulator.h"
+#include "tests/core/effect_scenarios.h"
 
 namespace imucal::core {
 namespace {
-
-constexpr double kMg = 1e-3 * kStandardGravity;  // m/s^2
-constexpr double kDegS = M_PI / 180.0;           // rad/s
-
-// Six-face + 24 extra poses at 200 Hz, 2 mg accel noise, a warm-up of 8 degC.
-SimOptions Scenario(uint64_t seed, std::vector<SimEffect> effects, bool temperature = true) {
-  SimOptions o;
-  o.protocol = SimProtocol::kSixFace;
-  o.seed = seed;
-  o.extra_poses = 24;
-  o.accel_noise_m_s2 = 2 * kMg;
-  o.temperature = temperature;
-  o.effects = std::move(effects);
-  return o;
-}
 
 SimResult MustSimulate(const SimOptions& o) {
   absl::StatusOr<SimResult> r = Simulate(o);
@@ -48,58 +34,6 @@ CalibrationReport MustCalibrate(const Capture& cap, bool apply_time_effects = fa
   return r.ok() ? *std::move(r) : CalibrationReport();
 }
 
-// Error of a parameter set on the static holds of a capture, through the SDK's Corrector:
-// RMS over holds of |mean a| - g (m/s^2) and of |mean w| (rad/s).
-struct HoldError {
-  double accel_m_s2 = 0, gyro_rad_s = 0;
-};
-HoldError ErrorOn(const SimResult& sim, const ParamSet& params) {
-  absl::StatusOr<sdk::Corrector> c = sdk::Corrector::Create(params, sim.capture.t_s.front());
-  EXPECT_TRUE(c.ok()) << c.status();
-  if (!c.ok()) return {};
-  const Capture& cap = sim.capture;
-  double sa = 0, sg = 0;
-  for (const SimPose& pose : sim.poses) {
-    Eigen::Vector3d a = Eigen::Vector3d::Zero(), w = Eigen::Vector3d::Zero();
-    int n = 0;
-    for (size_t k = 0; k < cap.size(); ++k) {
-      // The middle of the hold, clear of the moves on either side.
-      if (cap.t_s[k] < pose.t_start_s + 0.3 || cap.t_s[k] > pose.t_end_s - 0.3) continue;
-      sdk::RawSample in;
-      in.t_s = cap.t_s[k];
-      for (int j = 0; j < 3; ++j) in.accel[j] = cap.accel[k](j), in.gyro[j] = cap.gyro[k](j);
-      if (cap.has_temp()) in.temp_c = cap.temp[k];
-      sdk::CalibratedSample out;
-      c->Apply(in, &out);
-      a += Eigen::Vector3d(out.accel_m_s2[0], out.accel_m_s2[1], out.accel_m_s2[2]);
-      w += Eigen::Vector3d(out.gyro_rad_s[0], out.gyro_rad_s[1], out.gyro_rad_s[2]);
-      ++n;
-    }
-    sa += std::pow((a / n).norm() - cap.gravity_m_s2, 2);
-    sg += (w / n).squaredNorm();
-  }
-  const auto holds = static_cast<double>(sim.poses.size());
-  return {std::sqrt(sa / holds), std::sqrt(sg / holds)};
-}
-
-// The oracle: the simulated truth with its effects, the validation capture's noise floor.
-ParamSet TruthParams(const SimResult& sim) {
-  ParamSet p;
-  p.accel = sim.truth.accel;
-  p.gyro = sim.truth.gyro;
-  p.gyro_calibrated = true;
-  for (const SimEffect& e : sim.effects) {
-    Effect fx;
-    fx.sensor = e.sensor;
-    fx.axis = e.axis;
-    fx.regressor = e.regressor;
-    fx.coefficient = e.coefficient;
-    fx.applied = true;
-    p.effects.push_back(fx);
-  }
-  return p;
-}
-
 const Effect* FindEffect(const ParamSet& p, const SimEffect& want) {
   for (const Effect& e : p.effects)
     if (e.sensor == want.sensor && e.axis == want.axis && e.regressor == want.regressor) return &e;
@@ -114,20 +48,11 @@ std::string List(const ParamSet& p) {
   return s.empty() ? "none" : s;
 }
 
-struct EffectCase {
-  std::string name;
-  std::vector<SimEffect> effects;
-  // False where the static residual |a| - g cannot tell the output axis (core/effects.h: `ax*az`
-  // on x moves |a| exactly as `ax^2` on z): then an equivalent accelerometer explanation must be
-  // found and the tie reported, and the validation error must still drop to the floor.
-  bool axis_identifiable = true;
-};
-
 class UndeclaredEffect : public testing::TestWithParam<std::tuple<EffectCase, int>> {};
 
 TEST_P(UndeclaredEffect, FoundWithinThreeSigmaAndValidationDropsToNoiseFloor) {
   const auto& [c, seed] = GetParam();
-  const SimResult sim = MustSimulate(Scenario(static_cast<uint64_t>(seed), c.effects));
+  const SimResult sim = MustSimulate(EffectScenario(static_cast<uint64_t>(seed), c.effects));
   // Time effects are applied only when the user opts in: opt in to validate them.
   bool time = false;
   for (const SimEffect& e : c.effects) time |= e.regressor.find("time") != std::string::npos;
@@ -156,7 +81,7 @@ TEST_P(UndeclaredEffect, FoundWithinThreeSigmaAndValidationDropsToNoiseFloor) {
     EXPECT_LT(got->error_after, got->error_before);
   }
   // A fresh capture of the same unit (new poses and noise, same warm-up).
-  SimOptions v = Scenario(static_cast<uint64_t>(seed) + 500, c.effects);
+  SimOptions v = EffectScenario(static_cast<uint64_t>(seed) + 500, c.effects);
   absl::StatusOr<SimResult> val_or = Simulate(v, sim.truth);
   ASSERT_TRUE(val_or.ok()) << val_or.status();
   const SimResult& val = *val_or;
@@ -178,23 +103,8 @@ TEST_P(UndeclaredEffect, FoundWithinThreeSigmaAndValidationDropsToNoiseFloor) {
   EXPECT_LE(after.gyro_rad_s, before.gyro_rad_s * 1.05);
 }
 
-SimEffect Fx(Sensor s, int axis, const char* regressor, double c) {
-  return SimEffect{s, axis, regressor, c};
-}
-
-// Magnitudes from the field notes' datasheet table.
-const EffectCase kCases[] = {
-    {"AccelBiasTemperature", {Fx(Sensor::kAccel, 0, "temperature", 0.5 * kMg)}},       // /degC
-    {"GyroBiasTemperature", {Fx(Sensor::kGyro, 2, "temperature", 0.02 * kDegS)}},      // /degC
-    {"GyroBiasTemperatureNonlinear", {Fx(Sensor::kGyro, 0, "temperature^2", 0.002 * kDegS)}},
-    {"AccelScaleTemperature", {Fx(Sensor::kAccel, 1, "temperature*ay", 2e-4)}},       // 0.02 %/degC
-    {"GyroGSensitivity", {Fx(Sensor::kGyro, 1, "ax", 0.05 * kDegS / kStandardGravity)}},  // /g
-    {"GyroBiasDrift", {Fx(Sensor::kGyro, 0, "time", 0.01 * kDegS / 60)}},             // /min
-    {"AccelCrossQuadratic", {Fx(Sensor::kAccel, 0, "ax*az", 3e-4)}, false},           // /(m/s^2)
-};
-
 INSTANTIATE_TEST_SUITE_P(Effects, UndeclaredEffect,
-                         testing::Combine(testing::ValuesIn(kCases), testing::Range(1, 4)),
+                         testing::Combine(testing::ValuesIn(kEffectCases), testing::Range(1, 4)),
                          [](const auto& param_info) {
                            return std::get<0>(param_info.param).name + "_seed" +
                                   std::to_string(std::get<1>(param_info.param));
@@ -205,7 +115,7 @@ class CleanCapture : public testing::TestWithParam<std::tuple<bool, int>> {};
 
 TEST_P(CleanCapture, AddsNoEffect) {
   const auto& [temperature, seed] = GetParam();
-  const SimResult sim = MustSimulate(Scenario(static_cast<uint64_t>(seed), {}, temperature));
+  const SimResult sim = MustSimulate(EffectScenario(static_cast<uint64_t>(seed), {}, temperature));
   const CalibrationReport rep = MustCalibrate(sim.capture);
   EXPECT_TRUE(rep.effect_diagnostics.ran);
   EXPECT_GT(rep.effect_diagnostics.candidates, temperature ? 100 : 50);

@@ -1,0 +1,151 @@
+// The figures for closing the loop, over many seeds (default 20 per row):
+//   - detection rate per effect type: the simulated effect found with the right sensor, axis and
+//     regressor (and how often its coefficient lies within 3 standard errors of the truth);
+//   - the false-alarm rate on clean captures, with and without a temperature channel;
+//   - the error before and after on a fresh validation capture of the same unit, through the
+//     SDK's Corrector (median over seeds), next to the validation capture's noise floor (the
+//     truth with its effects applied to it);
+//   - the time the effect search adds to Calibrate.
+// Scenarios and magnitudes: tests/core/effect_scenarios.h (six-face + 24 extra poses, 200 Hz,
+// 2 mg noise, an 8 degC warm-up). Time effects are applied (opt-in) for the validation.
+//
+// Usage: effects_bench [--seeds=N]
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "absl/strings/str_format.h"
+#include "core/calibrate.h"
+#include "tests/core/effect_scenarios.h"
+
+namespace imucal::core {
+namespace {
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+struct Run {
+  CalibrationReport report;
+  double ms = 0;
+};
+
+Run CalibrateTimed(const Capture& cap, bool effects, bool apply_time) {
+  CalibrateOptions opt;
+  opt.use_bsas = false;
+  opt.effects.enabled = effects;
+  opt.effects.apply_time_effects = apply_time;
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<CalibrationReport> r = Calibrate(cap, opt);
+  const double ms =
+      1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!r.ok()) {
+    std::fprintf(stderr, "calibrate failed: %s\n", std::string(r.status().message()).c_str());
+    std::exit(1);
+  }
+  return {*std::move(r), ms};
+}
+
+bool Same(const Effect& e, const SimEffect& s) {
+  return e.sensor == s.sensor && e.axis == s.axis && e.regressor == s.regressor;
+}
+
+int Main(int seeds) {
+  std::printf("effects_bench: %d seeds per row; six-face + 24 extra poses, 200 Hz, 2 mg noise, "
+              "8 degC warm-up\n\n", seeds);
+  std::printf("%-30s %9s %9s %9s | %-25s | %-27s\n", "effect (truth)", "found", "within3se",
+              "other", "validation accel mg", "validation gyro deg/s");
+  std::printf("%-30s %9s %9s %9s | %7s %7s %7s   | %8s %8s %8s\n", "", "", "", "", "before",
+              "after", "floor", "before", "after", "floor");
+  std::vector<double> search_ms, base_ms;
+  for (const EffectCase& c : kEffectCases) {
+    int found = 0, within = 0, other = 0;
+    std::vector<double> ab, aa, af, gb, ga, gf;
+    for (int seed = 1; seed <= seeds; ++seed) {
+      absl::StatusOr<SimResult> sim = Simulate(EffectScenario(static_cast<uint64_t>(seed), c.effects));
+      if (!sim.ok()) return 1;
+      bool time = false;
+      for (const SimEffect& e : c.effects) time |= e.regressor.find("time") != std::string::npos;
+      const Run run = CalibrateTimed(sim->capture, true, time);
+      search_ms.push_back(run.ms);
+      bool all = true, all3 = true;
+      for (const SimEffect& want : c.effects) {
+        const Effect* got = nullptr;
+        for (const Effect& e : run.report.params.effects)
+          if (Same(e, want)) got = &e;
+        all &= got != nullptr;
+        all3 &= got != nullptr && std::abs(got->coefficient - want.coefficient) < 3 * got->std_error;
+      }
+      found += all;
+      within += all3;
+      other += static_cast<int>(run.report.params.effects.size()) >
+               static_cast<int>(all ? c.effects.size() : 0);
+      absl::StatusOr<SimResult> val =
+          Simulate(EffectScenario(static_cast<uint64_t>(seed) + 500, c.effects), sim->truth);
+      if (!val.ok()) return 1;
+      ParamSet without = run.report.params;
+      without.effects.clear();
+      const HoldError b = ErrorOn(*val, without), a = ErrorOn(*val, run.report.params),
+                      f = ErrorOn(*val, TruthParams(*val));
+      ab.push_back(b.accel_m_s2 / kMg), aa.push_back(a.accel_m_s2 / kMg), af.push_back(f.accel_m_s2 / kMg);
+      gb.push_back(b.gyro_rad_s / kDegS), ga.push_back(a.gyro_rad_s / kDegS), gf.push_back(f.gyro_rad_s / kDegS);
+    }
+    std::string truth;
+    for (const SimEffect& e : c.effects)
+      truth += absl::StrFormat("%s%s %c~%s", truth.empty() ? "" : " + ",
+                               e.sensor == Sensor::kAccel ? "accel" : "gyro", "xyz"[e.axis],
+                               e.regressor);
+    std::printf("%-30s %4d/%-4d %4d/%-4d %4d/%-4d | %7.3f %7.3f %7.3f   | %8.4f %8.4f %8.4f\n",
+                truth.c_str(), found, seeds, within, seeds, other, seeds, Median(ab), Median(aa),
+                Median(af), Median(gb), Median(ga), Median(gf));
+  }
+  std::printf("\nclean captures (no effect simulated): captures with any effect added\n");
+  for (bool temperature : {true, false}) {
+    int alarms = 0;
+    std::string which;
+    for (int seed = 1; seed <= seeds; ++seed) {
+      absl::StatusOr<SimResult> sim = Simulate(EffectScenario(static_cast<uint64_t>(seed) + 1000, {}, temperature));
+      if (!sim.ok()) return 1;
+      const Run with = CalibrateTimed(sim->capture, true, false);
+      const Run without = CalibrateTimed(sim->capture, false, false);
+      search_ms.push_back(with.ms);
+      base_ms.push_back(without.ms);
+      if (!with.report.params.effects.empty()) {
+        ++alarms;
+        for (const Effect& e : with.report.params.effects)
+          which += absl::StrFormat(" [seed %d: %s %c~%s]", seed + 1000,
+                                   e.sensor == Sensor::kAccel ? "accel" : "gyro", "xyz"[e.axis],
+                                   e.regressor);
+      }
+    }
+    std::printf("  %-22s %d/%d false alarms (%.0f%% clean)%s\n",
+                temperature ? "with temperature:" : "without temperature:", alarms, seeds,
+                100.0 * (seeds - alarms) / seeds, which.c_str());
+  }
+  std::printf("\ncalibrate median %.1f ms with the effect search, %.1f ms without (clean captures)\n",
+              Median(search_ms), Median(base_ms));
+  return 0;
+}
+
+}  // namespace
+}  // namespace imucal::core
+
+int main(int argc, char** argv) {
+  int seeds = 20;
+  for (int i = 1; i < argc; ++i) {
+    const std::string_view a = argv[i];
+    if (a.rfind("--seeds=", 0) == 0) {
+      seeds = std::atoi(argv[i] + 8);
+    } else {
+      std::fprintf(stderr, "usage: effects_bench [--seeds=N]\n");
+      return 1;
+    }
+  }
+  return imucal::core::Main(std::max(1, seeds));
+}

@@ -1,0 +1,44 @@
+// Plots of a calibration report, as SVG files a browser or any image viewer opens. They are drawn
+// from the report JSON ("imucal-report v1" with its `effect_diagnostics`), so the offline
+// `calibrate --plots DIR` and the server's `report --plots DIR` draw the same pictures:
+//
+//   residual_accel_per_pose.svg   |a| - g per used pose (mg), before and after the effects
+//   residual_gyro_per_pose.svg    static rate magnitude per used pose (deg/s), before and after
+//   effect_N_<sensor>_<axis>_<regressor>.svg   for effect N: the residual it explains against
+//       its regressor (partial residual: every other effect removed), before and after, with
+//       the fitted line. For the accelerometer the abscissa is the regressor times the pose's
+//       gravity-direction component on the effect's axis, the way the term reaches |a| - g.
+#ifndef IMUCAL_CLIENT_CLI_PLOTS_H_
+#define IMUCAL_CLIENT_CLI_PLOTS_H_
+
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "nlohmann/json.hpp"
+
+namespace imucal::cli {
+
+// Writes the plots into `dir` (created if missing) and returns the paths written. A report
+// without effect diagnostics gives no plots (an empty list). InvalidArgument names the JSON
+// field that is malformed.
+absl::StatusOr<std::vector<std::string>> WriteReportPlots(const nlohmann::json& report,
+                                                          const std::string& dir);
+
+// One scatter plot (exposed for tests): series of points, optionally joined by lines.
+struct PlotSeries {
+  std::string label;
+  std::vector<double> x, y;
+  std::string colour = "#1f77b4";
+  bool line = false;    // join the points in order instead of drawing markers
+  bool hollow = false;  // open markers
+};
+struct Plot {
+  std::string title, x_label, y_label;
+  std::vector<PlotSeries> series;
+};
+std::string RenderSvg(const Plot& plot);
+
+}  // namespace imucal::cli
+
+#endif  // IMUCAL_CLIENT_CLI_PLOTS_H_

@@ -1,0 +1,111 @@
+// The undeclared-effect scenarios shared by tests/core/effects_test.cc and
+// bench/effects_bench.cc: the simulated captures, the effects with datasheet magnitudes
+// (../shared/notes/field-notes.md, section 7), and the validation error of a parameter set on a
+// fresh capture through the robot SDK's Corrector (the code robots run).
+#ifndef IMUCAL_TESTS_CORE_EFFECT_SCENARIOS_H_
+#define IMUCAL_TESTS_CORE_EFFECT_SCENARIOS_H_
+
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "Eigen/Core"
+#include "client/sdk/corrector.h"
+#include "core/params.h"
+#include "core/simulator.h"
+
+namespace imucal::core {
+
+constexpr double kMg = 1e-3 * kStandardGravity;  // m/s^2
+constexpr double kDegS = M_PI / 180.0;           // rad/s
+
+// Six-face + 24 extra poses at 200 Hz, 2 mg accel noise, a warm-up of 8 degC.
+inline SimOptions EffectScenario(uint64_t seed, std::vector<SimEffect> effects, bool temperature = true) {
+  SimOptions o;
+  o.protocol = SimProtocol::kSixFace;
+  o.seed = seed;
+  o.extra_poses = 24;
+  o.accel_noise_m_s2 = 2 * kMg;
+  o.temperature = temperature;
+  o.effects = std::move(effects);
+  return o;
+}
+
+// Error of a parameter set on the static holds of a capture, through the SDK's Corrector:
+// RMS over holds of |mean a| - g (m/s^2) and of |mean w| (rad/s).
+struct HoldError {
+  double accel_m_s2 = 0, gyro_rad_s = 0;
+};
+inline HoldError ErrorOn(const SimResult& sim, const ParamSet& params) {
+  absl::StatusOr<sdk::Corrector> c = sdk::Corrector::Create(params, sim.capture.t_s.front());
+  if (!c.ok()) return {NAN, NAN};  // a parameter set the SDK refuses: no error to measure
+  const Capture& cap = sim.capture;
+  double sa = 0, sg = 0;
+  for (const SimPose& pose : sim.poses) {
+    Eigen::Vector3d a = Eigen::Vector3d::Zero(), w = Eigen::Vector3d::Zero();
+    int n = 0;
+    for (size_t k = 0; k < cap.size(); ++k) {
+      // The middle of the hold, clear of the moves on either side.
+      if (cap.t_s[k] < pose.t_start_s + 0.3 || cap.t_s[k] > pose.t_end_s - 0.3) continue;
+      sdk::RawSample in;
+      in.t_s = cap.t_s[k];
+      for (int j = 0; j < 3; ++j) in.accel[j] = cap.accel[k](j), in.gyro[j] = cap.gyro[k](j);
+      if (cap.has_temp()) in.temp_c = cap.temp[k];
+      sdk::CalibratedSample out;
+      c->Apply(in, &out);
+      a += Eigen::Vector3d(out.accel_m_s2[0], out.accel_m_s2[1], out.accel_m_s2[2]);
+      w += Eigen::Vector3d(out.gyro_rad_s[0], out.gyro_rad_s[1], out.gyro_rad_s[2]);
+      ++n;
+    }
+    sa += std::pow((a / n).norm() - cap.gravity_m_s2, 2);
+    sg += (w / n).squaredNorm();
+  }
+  const auto holds = static_cast<double>(sim.poses.size());
+  return {std::sqrt(sa / holds), std::sqrt(sg / holds)};
+}
+
+// The oracle: the simulated truth with its effects, the validation capture's noise floor.
+inline ParamSet TruthParams(const SimResult& sim) {
+  ParamSet p;
+  p.accel = sim.truth.accel;
+  p.gyro = sim.truth.gyro;
+  p.gyro_calibrated = true;
+  for (const SimEffect& e : sim.effects) {
+    Effect fx;
+    fx.sensor = e.sensor;
+    fx.axis = e.axis;
+    fx.regressor = e.regressor;
+    fx.coefficient = e.coefficient;
+    fx.applied = true;
+    p.effects.push_back(fx);
+  }
+  return p;
+}
+
+struct EffectCase {
+  std::string name;
+  std::vector<SimEffect> effects;
+  // False where the static residual |a| - g cannot tell the output axis (core/effects.h: `ax*az`
+  // on x moves |a| exactly as `ax^2` on z): then an equivalent accelerometer explanation must be
+  // found and the tie reported, and the validation error must still drop to the floor.
+  bool axis_identifiable = true;
+};
+
+inline SimEffect Fx(Sensor s, int axis, const char* regressor, double c) {
+  return SimEffect{s, axis, regressor, c};
+}
+
+// Magnitudes from the field notes' datasheet table.
+inline const EffectCase kEffectCases[] = {
+    {"AccelBiasTemperature", {Fx(Sensor::kAccel, 0, "temperature", 0.5 * kMg)}},       // /degC
+    {"GyroBiasTemperature", {Fx(Sensor::kGyro, 2, "temperature", 0.02 * kDegS)}},      // /degC
+    {"GyroBiasTemperatureNonlinear", {Fx(Sensor::kGyro, 0, "temperature^2", 0.002 * kDegS)}},
+    {"AccelScaleTemperature", {Fx(Sensor::kAccel, 1, "temperature*ay", 2e-4)}},       // 0.02 %/degC
+    {"GyroGSensitivity", {Fx(Sensor::kGyro, 1, "ax", 0.05 * kDegS / kStandardGravity)}},  // /g
+    {"GyroBiasDrift", {Fx(Sensor::kGyro, 0, "time", 0.01 * kDegS / 60)}},             // /min
+    {"AccelCrossQuadratic", {Fx(Sensor::kAccel, 0, "ax*az", 3e-4)}, false},           // /(m/s^2)
+};
+
+}  // namespace imucal::core
+
+#endif  // IMUCAL_TESTS_CORE_EFFECT_SCENARIOS_H_
