@@ -787,6 +787,7 @@ class Search {
       ++s;
     }
     FinalNotes(st, *final_fit, &diag);
+    ExamineMoves(&diag);
     return out;
   }
 
@@ -872,6 +873,79 @@ class Search {
           cands->push_back(std::move(c));
         }
       }
+    }
+  }
+
+  // The rotation residuals: regress the gravity-direction error after each move on each of its
+  // signals (with an intercept); a slope significant at 1% over the signals (Bonferroni) is
+  // reported with its size.
+  void ExamineMoves(EffectDiagnostics* diag) const {
+    const std::vector<EffectMoveResidual>& m = in_.moves;
+    if (m.size() < 6) return;
+    struct MoveSignal {
+      const char* name;
+      const char* unit;
+      double scale;  // signal unit per reported unit
+      double (*get)(const EffectMoveResidual&);
+    };
+    const MoveSignal signals[] = {
+        {"the rotation angle", "per 100 deg", 100 / kRadToDeg,
+         [](const EffectMoveResidual& r) { return r.rotation_rad; }},
+        {"time", "per minute", 60, [](const EffectMoveResidual& r) { return r.time_s; }},
+        {"temperature", "per degC", 1, [](const EffectMoveResidual& r) { return r.temp_c; }},
+    };
+    struct MoveTrend {
+      const char* name;
+      double f, slope_deg;
+      const char* unit;
+      double dof;
+    };
+    std::vector<MoveTrend> trends;
+    int tested = 0;
+    std::vector<std::string> found;
+    const auto n = static_cast<Eigen::Index>(m.size());
+    for (const MoveSignal& sig : signals) {
+      Eigen::MatrixXd x(n, 2);
+      Eigen::VectorXd y(n);
+      bool finite = true;
+      for (Eigen::Index i = 0; i < n; ++i) {
+        x(i, 0) = 1;
+        x(i, 1) = sig.get(m[static_cast<size_t>(i)]);
+        y(i) = m[static_cast<size_t>(i)].error_rad;
+        finite &= std::isfinite(x(i, 1));
+      }
+      if (!finite || (x.col(1).array() - x.col(1).mean()).matrix().norm() <= 0) continue;
+      ++tested;
+      const Eigen::VectorXd b = x.colPivHouseholderQr().solve(y);
+      const double rss1 = (y - x * b).squaredNorm();
+      const double rss0 = (y.array() - y.mean()).matrix().squaredNorm();
+      const double dof = static_cast<double>(n - 2);
+      const double f = (rss0 - rss1) / std::max(1e-300, rss1 / dof);
+      trends.push_back({sig.name, f, b(1) * sig.scale * kRadToDeg, sig.unit, dof});
+    }
+    for (const MoveTrend& r : trends) {
+      if (r.f > FThreshold(0.01, tested, static_cast<Eigen::Index>(r.dof))) {
+        found.push_back(absl::StrFormat("%s (%+.3f deg %s, F %.1f)", r.name, r.slope_deg,
+                                        r.unit, r.f));
+      }
+    }
+    double ss = 0;
+    for (const auto& r : m) ss += r.error_rad * r.error_rad;
+    const double rms_deg = std::sqrt(ss / static_cast<double>(m.size())) * kRadToDeg;
+    if (found.empty()) {
+      diag->notes.push_back(absl::StrFormat(
+          "rotation residuals: the gravity-direction error after the %d moves (%.3f deg RMS) "
+          "shows no trend with the rotation angle, time or temperature",
+          static_cast<int>(m.size()), rms_deg));
+    } else {
+      std::string list;
+      for (const auto& f : found) list += (list.empty() ? "" : "; ") + f;
+      diag->notes.push_back(absl::StrFormat(
+          "rotation residuals: the gravity-direction error after the %d moves (%.3f deg RMS) "
+          "grows with %s: a rate-dependent gyroscope effect (scale nonlinearity, or a drift "
+          "during moves) that static poses cannot test; moves of different sizes and speeds "
+          "would locate it",
+          static_cast<int>(m.size()), rms_deg, list));
     }
   }
 

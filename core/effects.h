@@ -67,6 +67,15 @@ struct EffectPose {
   double time_s = 0.0;  // the pose's middle, s from capture start
 };
 
+// The gravity-direction error after one move between static poses (the gyroscope's rotation
+// residual), with the signals of the move.
+struct EffectMoveResidual {
+  double error_rad = 0;     // angle between predicted and measured gravity direction after it
+  double rotation_rad = 0;  // total rotation of the move
+  double time_s = 0;        // the move's middle, s from capture start
+  double temp_c = std::numeric_limits<double>::quiet_NaN();
+};
+
 struct EffectSearchOptions {
   bool enabled = true;
   double family_alpha = 0.01;  // false-alarm probability per round over all candidates
@@ -129,6 +138,10 @@ struct EffectSearchInput {
   // False when the gyro model's output is not in rad/s (raw counts without a calibrated scale):
   // gyroscope effects are then not searched.
   bool gyro_output_si = true;
+  // Examined for structure (does the error grow with the rotation angle, time, temperature?):
+  // what static poses cannot test, a rate-dependent gyro effect, shows up here. Reported as a
+  // note; nothing is added to the model from it.
+  std::vector<EffectMoveResidual> moves;
 };
 
 struct EffectSearchResult {
