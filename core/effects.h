@@ -111,6 +111,13 @@ struct EffectPoseRow {
   Eigen::Vector3d gyro_all_rad_s = Eigen::Vector3d::Zero();
 };
 
+// Six-face protocols fix each face's orientation: the per-axis residual of a verified face (its
+// 180-degree pair averaged, which cancels the floor tilt), calibrated minus +-g on the face axis.
+struct FaceResidual {
+  std::string face;  // "X+", ...
+  Eigen::Vector3d residual_m_s2 = Eigen::Vector3d::Zero();  // body frame, with the stored model
+};
+
 struct EffectDiagnostics {
   bool ran = false;
   int rounds = 0;
@@ -126,6 +133,7 @@ struct EffectDiagnostics {
   double gyro_heldout_before_rad_s = 0, gyro_heldout_after_rad_s = 0;
   std::vector<CandidateScore> top;  // the best few candidates of the first round
   std::vector<EffectPoseRow> rows;
+  std::vector<FaceResidual> faces;  // six-face only, filled by the pipeline
   std::vector<std::string> notes;   // ambiguities, what was not testable, residual vs floor
 };
 

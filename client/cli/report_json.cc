@@ -79,6 +79,9 @@ json DiagnosticsJson(const core::EffectDiagnostics& d) {
                           {"gyro_after", Vec(row.gyro_after_rad_s)},
                           {"gyro_all", Vec(row.gyro_all_rad_s)}});
   }
+  j["faces"] = json::array();
+  for (const core::FaceResidual& f : d.faces)
+    j["faces"].push_back({{"face", f.face}, {"residual", Vec(f.residual_m_s2)}});
   j["notes"] = d.notes;
   return j;
 }

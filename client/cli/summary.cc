@@ -96,6 +96,12 @@ std::string FormatSummary(const core::CalibrationReport& r) {
           e.applied ? "" : "  (reported, not applied)");
     }
     for (const auto& n : d.notes) absl::StrAppendFormat(&s, "  %s\n", n);
+    if (!d.faces.empty()) {
+      s += "  per-axis residual of each verified face (pair mean), mg:";
+      for (const core::FaceResidual& f : d.faces)
+        absl::StrAppendFormat(&s, " %s %s", f.face, Vec(f.residual_m_s2 * (1e3 / g), 2));
+      s += "\n";
+    }
   }
   absl::StrAppendFormat(&s, "verdict     %s   (%.0f ms)\n", r.verdict, r.total_ms);
   for (const auto& w : r.warnings) absl::StrAppendFormat(&s, "warning     %s\n", w);
