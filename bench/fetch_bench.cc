@@ -5,6 +5,13 @@
 //   build-perf/bench/fetch_bench [--devices=10000] [--versions=10] [--seconds=3]
 //                                [--callers=1,64] [--channels=1]
 //                                [--db=PATH (populated there if missing, reused if present)] [--keep]
+//                                [--warm] [--server-cpu=N] [--client-cpu=N]
+//
+// --warm fetches every device once before the rows (a fleet whose robots have all booted since
+// the server started: the server's response cache holds every device); without it the first
+// row also measures the cache's misses. --server-cpu / --client-cpu pin the forked server and
+// this load client to one core each (sched_setaffinity), so that on a 2-core machine they do
+// not compete for the same core.
 //
 // 1. Populates a fresh SQLite file through storage::Store (no direct SQL): `devices` devices,
 //    `versions` parameter versions each (the last one active, the others superseded). Each
@@ -63,6 +70,9 @@ struct Flags {
   std::string db;
   int channels = 1;  // HTTP/2 connections the callers are spread over
   bool keep = false;
+  bool warm = false;
+  int server_cpu = -1;
+  int client_cpu = -1;
 };
 
 Flags ParseFlags(int argc, char** argv) {
@@ -91,6 +101,12 @@ Flags ParseFlags(int argc, char** argv) {
       f.db = *d;
     } else if (a == "--keep") {
       f.keep = true;
+    } else if (a == "--warm") {
+      f.warm = true;
+    } else if (auto sc = value("--server-cpu=")) {
+      f.server_cpu = std::atoi(sc->c_str());
+    } else if (auto cc = value("--client-cpu=")) {
+      f.client_cpu = std::atoi(cc->c_str());
     } else {
       std::fprintf(stderr, "unknown flag %s\n", argv[i]);
       std::exit(2);
@@ -312,7 +328,8 @@ int main(int argc, char** argv) {
   // The active version per device (the last one added): for the if_not_version rows.
   std::vector<int> active(static_cast<size_t>(flags.devices), flags.versions);
 
-  Child child = ForkServer(db);
+  Child child = ForkServer(db, flags.server_cpu);
+  PinToCpu(flags.client_cpu);  // after the fork: the server keeps its own core
   {
     std::vector<std::unique_ptr<v1::ParameterService::Stub>> stubs;
     for (int i = 0; i < flags.channels; ++i) {
@@ -323,8 +340,9 @@ int main(int argc, char** argv) {
           absl::StrCat("127.0.0.1:", child.port), grpc::InsecureChannelCredentials(), args)));
     }
     v1::ParameterService::Stub* stub = stubs[0].get();
-    // Warm-up: connect, and one call per 10th device (touches a share of the pages).
-    for (int i = 0; i < flags.devices; i += 10) {
+    // Warm-up: connect, and one call per 10th device (touches a share of the pages), or every
+    // device with --warm.
+    for (int i = 0; i < flags.devices; i += flags.warm ? 1 : 10) {
       v1::GetActiveParametersRequest req;
       req.set_device_id(DeviceId(i));
       v1::ParameterSet out;
@@ -337,8 +355,10 @@ int main(int argc, char** argv) {
       }
     }
     std::printf("GetActiveParameters, random device of %d, %.1f s per row, %d channel(s), "
-                "server pid %d:\n",
-                flags.devices, flags.seconds, flags.channels, static_cast<int>(child.pid));
+                "server pid %d, %s, server cpu %d, client cpu %d (-1: any):\n",
+                flags.devices, flags.seconds, flags.channels, static_cast<int>(child.pid),
+                flags.warm ? "every device fetched once before" : "a tenth fetched before",
+                flags.server_cpu, flags.client_cpu);
     std::printf("%-22s %7s %9s %10s %8s %8s %8s %8s %6s %8s %8s  %s\n", "call", "callers",
                 "calls", "calls/s", "p50_ms", "p99_ms", "p999_ms", "max_ms", "errors",
                 "cli_cpu", "srv_cpu", "loadavg(before)");

@@ -5,6 +5,8 @@
 //   ninja -C build-perf ingest_bench
 //   build-perf/bench/ingest_bench [--n=1,100,1000] [--seconds=5] [--batch=200] [--window=1]
 //                                 [--channels=4] [--breakdown=1] [--keep]
+//                                 [--server-cpu=N] [--client-cpu=N]
+// (--server-cpu / --client-cpu pin the forked server and this client to one core each.)
 //
 // The server runs in a forked child process (imucal::server::Server on 127.0.0.1:0 with a
 // SQLite file in a fresh temp dir), so the client's and the server's CPU are measured apart:
@@ -69,6 +71,8 @@ struct Flags {
   int channels = 4;
   bool breakdown = true;
   bool keep = false;
+  int server_cpu = -1;
+  int client_cpu = -1;
 };
 
 Flags ParseFlags(int argc, char** argv) {
@@ -101,6 +105,10 @@ Flags ParseFlags(int argc, char** argv) {
       f.breakdown = *k != "0";
     } else if (a == "--keep") {
       f.keep = true;
+    } else if (a.starts_with("--server-cpu=")) {
+      f.server_cpu = std::atoi(argv[i] + std::strlen("--server-cpu="));
+    } else if (a.starts_with("--client-cpu=")) {
+      f.client_cpu = std::atoi(argv[i] + std::strlen("--client-cpu="));
     } else {
       std::fprintf(stderr, "unknown flag %s\n", argv[i]);
       std::exit(2);
@@ -543,7 +551,8 @@ int main(int argc, char** argv) {
   const Columns col = MakeColumns();
 
   // Fork before any gRPC object exists in this process.
-  Child child = ForkServer(dir + "/ingest.db");
+  Child child = ForkServer(dir + "/ingest.db", flags.server_cpu);
+  PinToCpu(flags.client_cpu);  // after the fork: the server keeps its own core
   std::printf("imucal ingest bench: server pid %d on 127.0.0.1:%d, db %s/ingest.db "
               "(WAL, synchronous=NORMAL: the Store default)\n",
               static_cast<int>(child.pid), child.port, dir.c_str());

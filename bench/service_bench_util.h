@@ -3,6 +3,7 @@
 #ifndef IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
 #define IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
 
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -62,14 +63,26 @@ inline double Percentile(std::vector<double>& v, double p) {
   return v[k];
 }
 
-// imucald (server::Server) on 127.0.0.1:0 with its database at db_path, in a child process.
+// Pins the calling process (all its threads created afterwards, and the children it forks) to
+// one CPU; cpu < 0 leaves it alone. For measuring the server and the load client on separate
+// cores of a small machine.
+inline void PinToCpu(int cpu) {
+  if (cpu < 0) return;
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  CPU_SET(cpu, &set);
+  if (sched_setaffinity(0, sizeof set, &set) != 0) std::perror("sched_setaffinity");
+}
+
+// imucald (server::Server) on 127.0.0.1:0 with its database at db_path, in a child process
+// (pinned to `cpu` when >= 0).
 struct Child {
   pid_t pid = -1;
   int port = 0;
   int stop_fd = -1;  // closing it tells the child to shut down
 };
 
-inline Child ForkServer(const std::string& db_path) {
+inline Child ForkServer(const std::string& db_path, int cpu = -1) {
   int port_pipe[2], stop_pipe[2];
   if (pipe(port_pipe) != 0 || pipe(stop_pipe) != 0) {
     std::perror("pipe");
@@ -83,6 +96,7 @@ inline Child ForkServer(const std::string& db_path) {
   if (pid == 0) {
     close(port_pipe[0]);
     close(stop_pipe[1]);
+    PinToCpu(cpu);
     server::ServerOptions options;
     options.listen = "127.0.0.1:0";
     options.db_path = db_path;

@@ -256,6 +256,14 @@ void OnlineSegmenter::Flush(std::vector<SegmenterEvent>* events) {
   if (in_run_) EndRun(events);
 }
 
+bool OnlineSegmenter::RedoTurn(const std::string& face) {
+  if (!options_.six_face || step_ == 0) return false;
+  const SixFaceStep& done = kSixFace[static_cast<size_t>(step_ - 1)];
+  if (!done.turn_half || face != done.face) return false;
+  --step_;
+  return true;
+}
+
 void OnlineSegmenter::EndRun(std::vector<SegmenterEvent>* events) {
   in_run_ = false;
   PoseUpdate pose;

@@ -22,8 +22,10 @@
 //
 // Six-face guidance: the wanted sequence is Z+, Z+ turned, Z-, Z- turned, Y+, Y+ turned, Y-, Y-
 // turned, X+, X+ turned, X-, X- turned (seeds/000, core/simulator.h). An accepted pose whose face
-// (ClassifyFace of its accelerometer mean) is the wanted one advances the sequence; the 180-degree
-// turn itself is not verified online (the solve's pair check does that). Raw counts carry an
+// (ClassifyFace of its accelerometer mean) is the wanted one advances the sequence. The 180-degree
+// turn needs the gyroscope integrated between the poses, which the segmenter does not do: the
+// caller (imucald) checks each pair with CheckSixFacePairs and, when the pair that completed a
+// face fails, calls RedoTurn so that the turned placement is wanted again. Raw counts carry an
 // unknown offset, so for counts the mean is centred by the running mean of the accepted pose
 // means once four poses are in (an approximation: exact only when opposite faces balance).
 //
@@ -107,6 +109,10 @@ class OnlineSegmenter {
            std::vector<SegmenterEvent>* events);
   // Ends the current still run, if any, as if the robot moved (e.g. the session is closing).
   void Flush(std::vector<SegmenterEvent>* events);
+  // Six-face: the pair that completed `face` (its turned placement, the last step done) failed
+  // the caller's pair check; that turned placement is wanted again. Returns false (and changes
+  // nothing) when the last step done is not `face`'s turned placement.
+  bool RedoTurn(const std::string& face);
 
   int poses_accepted() const { return poses_accepted_; }
   int poses_total() const { return next_pose_index_; }

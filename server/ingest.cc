@@ -106,8 +106,8 @@ std::vector<storage::ImuSample> ToSamples(const v1::SampleBatch& batch) {
   return out;
 }
 
-absl::StatusOr<IngestResult> IngestBatch(storage::Store& store, LiveSession& session,
-                                         const v1::SampleBatch& batch) {
+absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session,
+                                           const v1::SampleBatch& batch) {
   // validate
   if (batch.seq() < 1) return absl::InvalidArgumentError("seq: must be 1 or more");
   if (batch.seq() > session.last_acked_seq + 1) {
@@ -120,32 +120,53 @@ absl::StatusOr<IngestResult> IngestBatch(storage::Store& store, LiveSession& ses
           ValidateBatchColumns(batch, session.device.accel_unit, session.device.gyro_unit);
       !s.ok())
     return s;
-  const bool retransmission = batch.seq() <= session.last_acked_seq;
-  if (!retransmission) {
+  PreparedBatch out;
+  out.seq = batch.seq();
+  out.retransmission = batch.seq() <= session.last_acked_seq;
+  if (!out.retransmission) {
     if (absl::Status s = ValidateBatchTimes(batch, session.last_t_s); !s.ok()) return s;
   }
   // convert
-  const std::vector<storage::ImuSample> samples = ToSamples(batch);
-  absl::StatusOr<std::string> payload = storage::EncodeSamples(samples);
+  out.samples = ToSamples(batch);
+  absl::StatusOr<std::string> payload = storage::EncodeSamples(out.samples);
   if (!payload.ok()) return payload.status();
-  // call: durable before the ack (a retransmission is compared with the stored batch)
-  absl::StatusOr<storage::BatchAck> acked = store.AppendBatch(session.id, batch.seq(), *payload);
-  if (!acked.ok()) return acked.status();
+  out.payload = *std::move(payload);
+  return out;
+}
+
+IngestResult CompleteBatch(storage::Store& store, LiveSession& session,
+                           const PreparedBatch& batch, const storage::BatchAck& ack) {
   IngestResult result;
-  if (!retransmission) {
-    session.last_acked_seq = acked->last_acked_seq;
-    session.last_t_s = samples.back().t_s;
-    std::vector<core::SegmenterEvent> events;
-    for (const storage::ImuSample& x : samples) {
-      session.segmenter->Add(x.t_s, Eigen::Vector3d(x.accel[0], x.accel[1], x.accel[2]),
-                             Eigen::Vector3d(x.gyro[0], x.gyro[1], x.gyro[2]), &events);
-    }
-    result.events = SessionHub::ToEvents(session, events);
+  // A retransmission (or a batch another stream of the session stored first) changes nothing.
+  if (!batch.retransmission && ack.last_acked_seq > session.last_acked_seq) {
+    session.last_acked_seq = ack.last_acked_seq;
+    session.last_t_s = batch.samples.back().t_s;
+    std::vector<LiveEvent> events;
+    Segment(session, batch.samples, &events);
+    // Poses and pair verdicts are stored as they are judged (a few per minute). The batch is
+    // already durable and acknowledged by then, so a failure here must not fail the stream: the
+    // segmentation is deterministic and the replay at the session's next load stores them.
+    std::vector<storage::Pose> poses;
+    std::vector<storage::PosePair> pairs;
+    ToRows(events, &poses, &pairs);
+    store.SavePoses(session.id, poses, pairs).IgnoreError();
+    result.events = SessionHub::ToEvents(events);
   }
   // convert back
-  result.ack.set_last_acked_seq(acked->last_acked_seq);
-  result.ack.set_samples(acked->samples);
+  result.ack.set_last_acked_seq(ack.last_acked_seq);
+  result.ack.set_samples(ack.samples);
   return result;
+}
+
+absl::StatusOr<IngestResult> IngestBatch(storage::Store& store, LiveSession& session,
+                                         const v1::SampleBatch& batch) {
+  absl::StatusOr<PreparedBatch> prepared = PrepareBatch(session, batch);
+  if (!prepared.ok()) return prepared.status();
+  // call: durable before the ack (a retransmission is compared with the stored batch)
+  absl::StatusOr<storage::BatchAck> acked =
+      store.AppendBatch(session.id, prepared->seq, prepared->payload);
+  if (!acked.ok()) return acked.status();
+  return CompleteBatch(store, session, *prepared, *acked);
 }
 
 }  // namespace imucal::server

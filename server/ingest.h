@@ -10,6 +10,7 @@
 #define IMUCAL_SERVER_INGEST_H_
 
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -36,7 +37,23 @@ struct IngestResult {
   std::vector<v1::SessionEvent> events;  // for the watchers
 };
 
-// Applies one batch to `session` (whose `mu` the caller holds).
+// A batch checked against the session and encoded, ready for the store.
+struct PreparedBatch {
+  int64_t seq = 0;
+  bool retransmission = false;  // seq <= the session's last acked: the store compares it
+  std::string payload;          // EncodeSamples(samples)
+  std::vector<storage::ImuSample> samples;
+};
+
+// The three steps of one batch; the caller holds `session.mu` during the first and the last.
+// StreamSamples runs them asynchronously (the store's group commit in between, so that many
+// streams share a commit); IngestBatch runs them in a row.
+absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session,
+                                           const v1::SampleBatch& batch);
+// After the store acknowledged the batch: the session's state, the online segmentation (its
+// poses and pair verdicts stored as they are judged) and the events for the watchers.
+IngestResult CompleteBatch(storage::Store& store, LiveSession& session,
+                           const PreparedBatch& batch, const storage::BatchAck& ack);
 absl::StatusOr<IngestResult> IngestBatch(storage::Store& store, LiveSession& session,
                                          const v1::SampleBatch& batch);
 

@@ -20,22 +20,43 @@ absl::Status RequireVersion(int version, const char* field) {
 
 }  // namespace
 
-grpc::ServerUnaryReactor* ParameterServiceImpl::GetActiveParameters(
-    grpc::CallbackServerContext* context, const v1::GetActiveParametersRequest* request,
-    v1::ParameterSet* response) {
-  if (absl::Status s = RequireDevice(request->device_id()); !s.ok())
-    return FinishUnary(context, s);
-  // The hot path: one indexed lookup.
-  absl::StatusOr<storage::ParamVersion> active = store_->GetActive(request->device_id());
+absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> ParameterServiceImpl::ActiveEntry(
+    const std::string& device_id) {
+  if (std::shared_ptr<const ActiveParamCache::Entry> hit = cache_->Find(device_id)) return hit;
+  const uint64_t generation = cache_->generation();  // before the read: see active_cache.h
+  absl::StatusOr<storage::ParamVersion> active = store_->GetActive(device_id);
   if (absl::IsNotFound(active.status())) {
-    return FinishUnary(context, absl::NotFoundError(absl::StrCat(
-                                    "device '", request->device_id(),
-                                    "' has no active parameter set (or is not registered)")));
+    return absl::NotFoundError(absl::StrCat(
+        "device '", device_id, "' has no active parameter set (or is not registered)"));
   }
-  if (!active.ok()) return FinishUnary(context, active.status());
-  const bool unchanged =
-      request->if_not_version() != 0 && request->if_not_version() == active->version;
-  *response = ToProto(*active, /*with_json=*/!unchanged, &crc_cache_);
+  if (!active.ok()) return active.status();
+  auto entry = std::make_shared<ActiveParamCache::Entry>();
+  entry->version = active->version;
+  entry->full = grpc::Slice(ToProto(*active, /*with_json=*/true, &crc_cache_).SerializeAsString());
+  entry->header = grpc::Slice(ToProto(*active, /*with_json=*/false).SerializeAsString());
+  cache_->Insert(device_id, entry, generation);
+  return entry;
+}
+
+grpc::ServerUnaryReactor* ParameterServiceImpl::GetActiveParameters(
+    grpc::CallbackServerContext* context, const grpc::ByteBuffer* request,
+    grpc::ByteBuffer* response) {
+  // The hot path: parse the small request, answer from the cache (a reference-counted slice,
+  // nothing serialised); a miss reads the store once (one indexed lookup) and fills it.
+  v1::GetActiveParametersRequest req;
+  {
+    grpc::ByteBuffer copy(*request);  // Deserialize consumes its buffer
+    if (grpc::Status s =
+            grpc::SerializationTraits<v1::GetActiveParametersRequest>::Deserialize(&copy, &req);
+        !s.ok())
+      return FinishUnary(context, absl::InvalidArgumentError("request: not a GetActiveParametersRequest"));
+  }
+  if (absl::Status s = RequireDevice(req.device_id()); !s.ok()) return FinishUnary(context, s);
+  absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> entry = ActiveEntry(req.device_id());
+  if (!entry.ok()) return FinishUnary(context, entry.status());
+  const bool unchanged = req.if_not_version() != 0 && req.if_not_version() == (*entry)->version;
+  grpc::Slice slice = unchanged ? (*entry)->header : (*entry)->full;
+  *response = grpc::ByteBuffer(&slice, 1);
   return FinishUnary(context, absl::OkStatus());
 }
 
@@ -107,10 +128,14 @@ absl::Status ParameterServiceImpl::DoExport(const v1::ExportRequest& request,
   if (absl::Status s = RequireDevice(request.device_id()); !s.ok()) return s;
   if (request.version() < 0) return absl::InvalidArgumentError("version: must be 0 or more");
   if (request.format() == "kalibr" || request.format() == "openvins")
-    return absl::UnimplementedError(
-        absl::StrCat("format: ", request.format(), " comes with the ecosystem issue"));
+    return absl::UnimplementedError(absl::StrCat(
+        "format: export to ", request.format(),
+        " is not supported yet (the kalibr and openvins conversions come later); the supported "
+        "format is \"json\" (imucal-params v1)"));
   if (request.format() != "json")
-    return absl::InvalidArgumentError("format: must be \"json\", \"kalibr\" or \"openvins\"");
+    return absl::InvalidArgumentError(absl::StrCat(
+        "format: unknown format \"", request.format(),
+        "\"; the supported format is \"json\" (\"kalibr\" and \"openvins\" are not supported yet)"));
   absl::StatusOr<storage::ParamVersion> v =
       request.version() == 0 ? store_->GetActive(request.device_id())
                              : store_->GetVersion(request.device_id(), request.version());

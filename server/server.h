@@ -38,6 +38,7 @@ class Server {
   std::string host_;
   int port_ = 0;
   absl::Duration drain_deadline_;
+  std::shared_ptr<ActiveParamCache> active_cache_;  // before store_: it outlives the store
   std::unique_ptr<storage::Store> store_;
   std::unique_ptr<DeviceServiceImpl> devices_;
   std::unique_ptr<SessionServiceImpl> sessions_;

@@ -11,6 +11,7 @@
 
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
+#include "server/active_cache.h"
 #include "server/convert.h"
 #include "server/session_hub.h"
 #include "server/solve_pool.h"
@@ -44,12 +45,24 @@ class DeviceServiceImpl final : public v1::DeviceService::CallbackService {
   storage::Store* store_;
 };
 
-class ParameterServiceImpl final : public v1::ParameterService::CallbackService {
+// GetActiveParameters, the hot path, is a raw method: its responses come pre-serialised from
+// the ActiveParamCache; the other methods are ordinary callback methods.
+using ParameterServiceBase = v1::ParameterService::WithRawCallbackMethod_GetActiveParameters<
+    v1::ParameterService::WithCallbackMethod_GetParameters<
+        v1::ParameterService::WithCallbackMethod_ListVersions<
+            v1::ParameterService::WithCallbackMethod_Promote<
+                v1::ParameterService::WithCallbackMethod_Rollback<
+                    v1::ParameterService::WithCallbackMethod_Export<
+                        v1::ParameterService::Service>>>>>>;
+
+class ParameterServiceImpl final : public ParameterServiceBase {
  public:
-  explicit ParameterServiceImpl(storage::Store* store) : store_(store) {}
+  // `cache` (not owned, outlives the service) is invalidated by the store's on_active_change.
+  ParameterServiceImpl(storage::Store* store, ActiveParamCache* cache)
+      : store_(store), cache_(cache) {}
   grpc::ServerUnaryReactor* GetActiveParameters(grpc::CallbackServerContext* context,
-                                                const v1::GetActiveParametersRequest* request,
-                                                v1::ParameterSet* response) override;
+                                                const grpc::ByteBuffer* request,
+                                                grpc::ByteBuffer* response) override;
   grpc::ServerUnaryReactor* GetParameters(grpc::CallbackServerContext* context,
                                           const v1::GetParametersRequest* request,
                                           v1::ParameterSet* response) override;
@@ -68,8 +81,12 @@ class ParameterServiceImpl final : public v1::ParameterService::CallbackService 
 
  private:
   absl::Status DoExport(const v1::ExportRequest& request, v1::ExportResponse* response);
+  // The cached responses of the device's active version, filled from the store on a miss.
+  absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> ActiveEntry(
+      const std::string& device_id);
   storage::Store* store_;
-  ParamCrcCache crc_cache_;  // the fetch hot path's CRC, once per version
+  ActiveParamCache* cache_;
+  ParamCrcCache crc_cache_;  // the CRC, once per version
 };
 
 struct SessionServiceOptions {
@@ -98,6 +115,9 @@ class SessionServiceImpl final : public v1::SessionService::CallbackService {
       grpc::CallbackServerContext* context) override;
   grpc::ServerWriteReactor<v1::SessionEvent>* WatchSession(
       grpc::CallbackServerContext* context, const v1::WatchSessionRequest* request) override;
+  grpc::ServerUnaryReactor* ListPoses(grpc::CallbackServerContext* context,
+                                      const v1::ListPosesRequest* request,
+                                      v1::ListPosesResponse* response) override;
   grpc::ServerUnaryReactor* SolveSession(grpc::CallbackServerContext* context,
                                          const v1::SolveSessionRequest* request,
                                          v1::SolveJob* response) override;
@@ -123,6 +143,7 @@ class SessionServiceImpl final : public v1::SessionService::CallbackService {
                        const v1::SolveSessionRequest& request, v1::SolveJob* response);
   absl::Status DoGetSolveJob(const v1::GetSolveJobRequest& request, v1::SolveJob* response);
   absl::Status DoGetReport(const v1::GetReportRequest& request, v1::Report* response);
+  absl::Status DoListPoses(const v1::ListPosesRequest& request, v1::ListPosesResponse* response);
   void RunSolve(const SolveTask& task);
   // Records a job's new state and tells the session's watchers.
   void UpdateJob(const v1::SolveJob& job);

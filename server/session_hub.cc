@@ -1,9 +1,12 @@
 #include "server/session_hub.h"
 
+#include <optional>
 #include <utility>
 
+#include "absl/strings/str_format.h"
 #include "absl/time/clock.h"
 #include "core/capture.h"
+#include "core/str_util.h"
 #include "storage/sample_codec.h"
 
 namespace imucal::server {
@@ -24,6 +27,92 @@ core::OnlineSegmenterOptions SegmenterOptionsFor(const storage::Device& device,
   opt.six_face = protocol == v1::PROTOCOL_SIX_FACE;
   if (auto unit = core::ParseAccelUnit(device.accel_unit); unit.ok()) opt.accel_unit = *unit;
   return opt;
+}
+
+namespace {
+
+// Appends the segmenter's `fresh` events to `events`, each accepted pose followed by the pair
+// verdicts it completes; a failed pair replaces the guidance that follows it with its re-do.
+void AddSegmenterEvents(LiveSession& session, std::vector<core::SegmenterEvent>& fresh,
+                        std::vector<LiveEvent>* events) {
+  std::optional<core::NextPoseUpdate> redo;
+  for (core::SegmenterEvent& e : fresh) {
+    if (e.kind == core::SegmenterEvent::Kind::kNextPose && redo) {
+      e.next_pose = *std::exchange(redo, std::nullopt);
+    }
+    const bool accepted_pose = e.kind == core::SegmenterEvent::Kind::kPose && e.pose.accepted;
+    std::vector<core::PairCheck> verdicts;
+    if (accepted_pose) verdicts = session.pairs->OnPoseAccepted(e.pose);
+    const int pose_index = e.pose.index;
+    const bool is_pose = e.kind == core::SegmenterEvent::Kind::kPose;
+    const size_t pose_at = events->size();
+    events->push_back(LiveEvent{LiveEvent::Kind::kSegmenter, std::move(e), {}, {}});
+    for (core::PairCheck& p : verdicts) {
+      if (!p.ok && p.pose_b == pose_index && session.segmenter->RedoTurn(p.face)) {
+        redo = session.segmenter->CurrentNextPose();
+        redo->instruction = core::Cat(
+            "Pair ", p.face, " failed (", p.reason, "). Redo it: place it on ", p.face,
+            " again, half a turn about the vertical from its first placement, and keep it still");
+      }
+      LiveEvent pe;
+      pe.kind = LiveEvent::Kind::kPair;
+      pe.pair = std::move(p);
+      events->push_back(std::move(pe));
+    }
+    if (is_pose) (*events)[pose_at].progress = SessionHub::ProgressEvent(session);
+  }
+  fresh.clear();
+}
+
+}  // namespace
+
+void Segment(LiveSession& session, const std::vector<storage::ImuSample>& samples,
+             std::vector<LiveEvent>* events) {
+  std::vector<core::SegmenterEvent> fresh;
+  for (const storage::ImuSample& x : samples) {
+    const Eigen::Vector3d gyro(x.gyro[0], x.gyro[1], x.gyro[2]);
+    session.pairs->AddGyro(x.t_s, gyro);
+    session.segmenter->Add(x.t_s, Eigen::Vector3d(x.accel[0], x.accel[1], x.accel[2]), gyro,
+                           &fresh);
+    if (!fresh.empty()) AddSegmenterEvents(session, fresh, events);
+  }
+}
+
+void FlushSegment(LiveSession& session, std::vector<LiveEvent>* events) {
+  std::vector<core::SegmenterEvent> fresh;
+  session.segmenter->Flush(&fresh);
+  AddSegmenterEvents(session, fresh, events);
+}
+
+void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* poses,
+            std::vector<storage::PosePair>* pairs) {
+  for (const LiveEvent& e : events) {
+    if (e.kind == LiveEvent::Kind::kPair) {
+      storage::PosePair p;
+      p.pose_a = e.pair.pose_a;
+      p.pose_b = e.pair.pose_b;
+      p.ok = e.pair.ok;
+      p.face = e.pair.face;
+      p.rotation_deg = e.pair.rotation_deg;
+      p.tilt_deg = e.pair.tilt_deg;
+      p.reason = e.pair.reason;
+      pairs->push_back(std::move(p));
+    } else if (e.segmenter.kind == core::SegmenterEvent::Kind::kPose) {
+      const core::PoseUpdate& u = e.segmenter.pose;
+      storage::Pose p;
+      p.index = u.index;
+      p.t_start_s = u.t_start_s;
+      p.t_end_s = u.t_end_s;
+      p.used = u.accepted;
+      p.reason = u.reason;
+      p.face = u.face;
+      p.detail_json = absl::StrFormat(
+          R"({"samples": %d, "accel_mean": [%.9g, %.9g, %.9g], "gyro_mean": [%.9g, %.9g, %.9g]})",
+          u.samples, u.accel_mean.x(), u.accel_mean.y(), u.accel_mean.z(),
+          u.gyro_mean.x(), u.gyro_mean.y(), u.gyro_mean.z());
+      poses->push_back(std::move(p));
+    }
+  }
 }
 
 absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Get(std::string_view session_id) {
@@ -63,20 +152,31 @@ absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Load(std::string_view s
   live->gravity_m_s2 = session->gravity_m_s2;
   live->segmenter =
       std::make_unique<core::OnlineSegmenter>(SegmenterOptionsFor(*device, live->protocol));
+  live->pairs = std::make_unique<PairTracker>(live->protocol == v1::PROTOCOL_SIX_FACE,
+                                              device->accel_unit, device->gyro_unit);
   absl::StatusOr<std::vector<storage::SampleBatch>> batches = store_->ReadBatches(session_id);
   if (!batches.ok()) return batches.status();
-  std::vector<core::SegmenterEvent> ignored;
+  std::vector<LiveEvent> events;
+  std::vector<storage::Pose> poses;
+  std::vector<storage::PosePair> pairs;
   std::vector<storage::ImuSample> samples;
   for (const storage::SampleBatch& b : *batches) {
     samples.clear();
     if (absl::Status s = storage::DecodeSamplesInto(b.payload, &samples); !s.ok()) return s;
-    for (const storage::ImuSample& x : samples) {
-      live->segmenter->Add(x.t_s, Eigen::Vector3d(x.accel[0], x.accel[1], x.accel[2]),
-                           Eigen::Vector3d(x.gyro[0], x.gyro[1], x.gyro[2]), &ignored);
-      ignored.clear();
-    }
+    Segment(*live, samples, &events);
+    ToRows(events, &poses, &pairs);
+    events.clear();
     if (!samples.empty()) live->last_t_s = samples.back().t_s;
     live->last_acked_seq = b.seq;
+  }
+  // A server killed between a batch's commit and its poses' leaves them missing: the replay
+  // found them again (the segmentation is deterministic); store what is not there yet.
+  absl::StatusOr<std::vector<storage::Pose>> stored = store_->ListPoses(session_id);
+  if (!stored.ok()) return stored.status();
+  absl::StatusOr<std::vector<storage::PosePair>> stored_pairs = store_->ListPairs(session_id);
+  if (!stored_pairs.ok()) return stored_pairs.status();
+  if (stored->size() < poses.size() || stored_pairs->size() < pairs.size()) {
+    if (absl::Status s = store_->SavePoses(session_id, poses, pairs); !s.ok()) return s;
   }
   live->closed = session->state != storage::SessionState::kOpen &&
                  session->state != storage::SessionState::kSolving;
@@ -133,7 +233,10 @@ v1::SessionEvent SessionHub::ProgressEvent(const LiveSession& session) {
   const core::OnlineSegmenter& seg = *session.segmenter;
   p->set_poses_accepted(seg.poses_accepted());
   if (session.protocol == v1::PROTOCOL_SIX_FACE) {
-    p->set_poses_wanted(core::OnlineSegmenter::kSixFaceSteps);
+    // The poses in so far (a wrong face or a failed pair's placement among them) and the steps
+    // of the protocol still to do.
+    p->set_poses_wanted(seg.poses_accepted() + core::OnlineSegmenter::kSixFaceSteps -
+                        seg.six_face_step());
     for (const std::string& f : seg.FacesDone()) p->add_faces_done(f);
     for (const std::string& f : seg.FacesPending()) p->add_faces_pending(f);
     p->set_coverage(static_cast<double>(seg.FacesDone().size()) / 6.0);
@@ -141,10 +244,28 @@ v1::SessionEvent SessionHub::ProgressEvent(const LiveSession& session) {
   return e;
 }
 
-std::vector<v1::SessionEvent> SessionHub::ToEvents(
-    const LiveSession& session, const std::vector<core::SegmenterEvent>& events) {
+v1::PairVerdict SessionHub::ToProto(const core::PairCheck& pair) {
+  v1::PairVerdict v;
+  v.set_pose_a(pair.pose_a);
+  v.set_pose_b(pair.pose_b);
+  v.set_ok(pair.ok);
+  v.set_face(pair.face);
+  v.set_rotation_deg(pair.rotation_deg);
+  v.set_tilt_deg(pair.tilt_deg);
+  v.set_reason(pair.reason);
+  return v;
+}
+
+std::vector<v1::SessionEvent> SessionHub::ToEvents(const std::vector<LiveEvent>& events) {
   std::vector<v1::SessionEvent> out;
-  for (const core::SegmenterEvent& se : events) {
+  for (const LiveEvent& le : events) {
+    if (le.kind == LiveEvent::Kind::kPair) {
+      v1::SessionEvent e = Stamped();
+      *e.mutable_pair() = ToProto(le.pair);
+      out.push_back(std::move(e));
+      continue;
+    }
+    const core::SegmenterEvent& se = le.segmenter;
     switch (se.kind) {
       case core::SegmenterEvent::Kind::kStillness: {
         v1::SessionEvent e = Stamped();
@@ -166,7 +287,7 @@ std::vector<v1::SessionEvent> SessionHub::ToEvents(
         p->set_t_start_s(se.pose.t_start_s);
         p->set_t_end_s(se.pose.t_end_s);
         out.push_back(std::move(e));
-        out.push_back(ProgressEvent(session));
+        out.push_back(le.progress);
         break;
       }
       case core::SegmenterEvent::Kind::kNextPose:

@@ -6,8 +6,9 @@
 // behind); the watcher's own gRPC writes drain its queue.
 //
 // Live state is rebuilt from storage the first time a session is touched after a restart (its
-// stored batches are decoded and replayed through the segmenter, without publishing), so
-// samples, poses and resume points survive a server restart.
+// stored batches are decoded and replayed through the segmenter and the pair tracker, without
+// publishing; poses or verdicts missing from storage are stored then), so samples, poses, pair
+// verdicts, the guidance and resume points survive a server restart.
 #ifndef IMUCAL_SERVER_SESSION_HUB_H_
 #define IMUCAL_SERVER_SESSION_HUB_H_
 
@@ -24,6 +25,8 @@
 #include "core/online_segmenter.h"
 #include "imucal/v1/imucal.pb.h"
 #include "server/convert.h"
+#include "server/pair_tracker.h"
+#include "storage/sample_codec.h"
 #include "storage/store.h"
 
 namespace imucal::server {
@@ -47,11 +50,35 @@ struct LiveSession {
   int64_t last_acked_seq = 0;
   double last_t_s = std::numeric_limits<double>::quiet_NaN();  // NaN: no sample yet
   std::unique_ptr<core::OnlineSegmenter> segmenter;
+  std::unique_ptr<PairTracker> pairs;  // six-face pair verdicts while streaming
 
   std::mutex watchers_mu;
   std::vector<Watcher*> watchers;  // guarded by watchers_mu
   bool closed = false;             // guarded by watchers_mu: watchers added now end at once
 };
+
+// What samples caused, in order: the segmenter's events and the six-face pair verdicts (each
+// right after the pose that completed its pair).
+struct LiveEvent {
+  enum class Kind { kSegmenter, kPair };
+  Kind kind = Kind::kSegmenter;
+  core::SegmenterEvent segmenter;
+  core::PairCheck pair;
+  // After a pose: the progress as it stood then (with its pair verdicts), not at the end of the
+  // batch, whose later poses must not make the protocol look complete early.
+  v1::SessionEvent progress;
+};
+
+// Feeds `samples` through the session's segmenter and pair tracker (the caller holds `mu`).
+// When the pair that completed a face fails its check, the segmenter wants that face's turned
+// placement again (OnlineSegmenter::RedoTurn) and the next-pose guidance says why.
+void Segment(LiveSession& session, const std::vector<storage::ImuSample>& samples,
+             std::vector<LiveEvent>* events);
+// Ends the current still run (the session is closing for a solve): its pose, if any.
+void FlushSegment(LiveSession& session, std::vector<LiveEvent>* events);
+// The poses and pair verdicts among `events`, as storage rows.
+void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* poses,
+            std::vector<storage::PosePair>* pairs);
 
 class SessionHub {
  public:
@@ -70,9 +97,9 @@ class SessionHub {
   // A closed (solved or failed) session is being solved again: watchers may follow it.
   void Reopen(LiveSession& session);
 
-  // Converts segmenter events to SessionEvents (plus a Progress after each pose).
-  static std::vector<v1::SessionEvent> ToEvents(const LiveSession& session,
-                                                const std::vector<core::SegmenterEvent>& events);
+  // Converts live events to SessionEvents (each pose followed by its Progress).
+  static std::vector<v1::SessionEvent> ToEvents(const std::vector<LiveEvent>& events);
+  static v1::PairVerdict ToProto(const core::PairCheck& pair);
   static v1::SessionEvent ProgressEvent(const LiveSession& session);
   static v1::SessionEvent NextPoseEvent(const core::NextPoseUpdate& next);
 

@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <utility>
@@ -187,6 +188,44 @@ grpc::ServerUnaryReactor* SessionServiceImpl::CancelSession(
   return FinishUnary(context, absl::OkStatus());
 }
 
+absl::Status SessionServiceImpl::DoListPoses(const v1::ListPosesRequest& request,
+                                             v1::ListPosesResponse* response) {
+  if (absl::Status s = RequireSession(request.session_id()); !s.ok()) return s;
+  absl::StatusOr<std::vector<storage::Pose>> poses = store_->ListPoses(request.session_id());
+  if (!poses.ok()) return poses.status();
+  absl::StatusOr<std::vector<storage::PosePair>> pairs = store_->ListPairs(request.session_id());
+  if (!pairs.ok()) return pairs.status();
+  for (const storage::Pose& p : *poses) {
+    v1::PoseEvent* out = response->add_poses();
+    out->set_index(p.index);
+    out->set_accepted(p.used);
+    out->set_reason(p.reason);
+    out->set_face(p.face);
+    out->set_t_start_s(p.t_start_s);
+    out->set_t_end_s(p.t_end_s);
+  }
+  // Stored by (pose_a, pose_b); completed in the order of pose_b.
+  std::stable_sort(pairs->begin(), pairs->end(),
+                   [](const auto& a, const auto& b) { return a.pose_b < b.pose_b; });
+  for (const storage::PosePair& p : *pairs) {
+    v1::PairVerdict* out = response->add_pairs();
+    out->set_pose_a(p.pose_a);
+    out->set_pose_b(p.pose_b);
+    out->set_ok(p.ok);
+    out->set_face(p.face);
+    out->set_rotation_deg(p.rotation_deg);
+    out->set_tilt_deg(p.tilt_deg);
+    out->set_reason(p.reason);
+  }
+  return absl::OkStatus();
+}
+
+grpc::ServerUnaryReactor* SessionServiceImpl::ListPoses(grpc::CallbackServerContext* context,
+                                                        const v1::ListPosesRequest* request,
+                                                        v1::ListPosesResponse* response) {
+  return FinishUnary(context, DoListPoses(*request, response));
+}
+
 // ---- Solves.
 
 absl::Status SessionServiceImpl::DoSolve(const grpc::CallbackServerContext& context,
@@ -201,18 +240,24 @@ absl::Status SessionServiceImpl::DoSolve(const grpc::CallbackServerContext& cont
   }
   const std::string actor = ActorOf(context);
   absl::StatusOr<storage::Solve> solve;
-  std::vector<core::SegmenterEvent> last_pose;
+  std::vector<LiveEvent> last_pose;
   {
     std::lock_guard lock((*live)->mu);  // no batch lands after the solve has started
     solve = store_->StartSolve(request.session_id(), actor);
-    if (solve.ok()) (*live)->segmenter->Flush(&last_pose);  // the final hold is a pose
+    if (solve.ok()) {
+      FlushSegment(**live, &last_pose);  // the final hold is a pose
+      std::vector<storage::Pose> poses;
+      std::vector<storage::PosePair> pairs;
+      ToRows(last_pose, &poses, &pairs);
+      store_->SavePoses(request.session_id(), poses, pairs).IgnoreError();  // as in IngestBatch
+    }
   }
   if (!solve.ok()) {
     pool_.Release();
     return solve.status();
   }
   hub_.Reopen(**live);
-  for (const v1::SessionEvent& e : SessionHub::ToEvents(**live, last_pose)) hub_.Publish(**live, e);
+  for (const v1::SessionEvent& e : SessionHub::ToEvents(last_pose)) hub_.Publish(**live, e);
   SolveTask task;
   task.solve_id = solve->id;
   task.job_id = absl::StrCat(kJobPrefix, solve->id);

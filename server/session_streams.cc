@@ -16,7 +16,9 @@ namespace {
 
 // StreamSamples: read a batch, store it, ack it, read the next. One batch in flight per
 // stream, so reads and writes never overlap; any error ends the stream with its status after
-// everything acknowledged before it is stored.
+// everything acknowledged before it is stored. The store's group commit stores the batch: the
+// ack (and the batch's segmentation) follows on the store's committer thread once the
+// transaction holding it, shared with other streams' batches, has committed.
 class IngestReactor final : public grpc::ServerBidiReactor<v1::SampleBatch, v1::SampleAck> {
  public:
   IngestReactor(storage::Store* store, SessionHub* hub) : store_(store), hub_(hub) {
@@ -28,13 +30,7 @@ class IngestReactor final : public grpc::ServerBidiReactor<v1::SampleBatch, v1::
       Finish(grpc::Status::OK);
       return;
     }
-    absl::StatusOr<v1::SampleAck> ack = Handle();
-    if (!ack.ok()) {
-      Finish(ToGrpcStatus(ack.status()));
-      return;
-    }
-    ack_ = *std::move(ack);
-    StartWrite(&ack_);
+    if (absl::Status s = Submit(); !s.ok()) Finish(ToGrpcStatus(s));
   }
 
   void OnWriteDone(bool ok) override {
@@ -48,7 +44,8 @@ class IngestReactor final : public grpc::ServerBidiReactor<v1::SampleBatch, v1::
   void OnDone() override { delete this; }
 
  private:
-  absl::StatusOr<v1::SampleAck> Handle() {
+  // validate -> convert -> store (asynchronously; OnStored continues).
+  absl::Status Submit() {
     if (session_id_.empty()) {
       if (batch_.session_id().empty())
         return absl::InvalidArgumentError("session_id: required in the first batch of a stream");
@@ -62,14 +59,35 @@ class IngestReactor final : public grpc::ServerBidiReactor<v1::SampleBatch, v1::
       if (!live.ok()) return live.status();
       live_ = *std::move(live);
     }
-    absl::StatusOr<IngestResult> result;
+    absl::StatusOr<PreparedBatch> prepared;
     {
       std::lock_guard lock(live_->mu);
-      result = IngestBatch(*store_, *live_, batch_);
+      prepared = PrepareBatch(*live_, batch_);
     }
-    if (!result.ok()) return result.status();
-    for (const v1::SessionEvent& e : result->events) hub_->Publish(*live_, e);
-    return result->ack;
+    if (!prepared.ok()) return prepared.status();
+    prepared_ = *std::move(prepared);
+    store_->AppendBatchAsync(session_id_, prepared_.seq, std::move(prepared_.payload),
+                             [this](absl::StatusOr<storage::BatchAck> ack) {
+                               OnStored(std::move(ack));
+                             });
+    return absl::OkStatus();
+  }
+
+  // Durable (or refused): segment, tell the watchers, acknowledge.
+  void OnStored(absl::StatusOr<storage::BatchAck> stored) {
+    if (!stored.ok()) {
+      Finish(ToGrpcStatus(stored.status()));
+      return;
+    }
+    IngestResult result;
+    {
+      std::lock_guard lock(live_->mu);
+      result = CompleteBatch(*store_, *live_, prepared_, *stored);
+    }
+    prepared_ = PreparedBatch();
+    for (const v1::SessionEvent& e : result.events) hub_->Publish(*live_, e);
+    ack_ = std::move(result.ack);
+    StartWrite(&ack_);
   }
 
   storage::Store* store_;
@@ -77,6 +95,7 @@ class IngestReactor final : public grpc::ServerBidiReactor<v1::SampleBatch, v1::
   std::string session_id_;
   std::shared_ptr<LiveSession> live_;
   v1::SampleBatch batch_;
+  PreparedBatch prepared_;
   v1::SampleAck ack_;
 };
 

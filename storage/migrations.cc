@@ -105,8 +105,31 @@ CREATE INDEX audit_by_target ON audit_log (target, id);
 PRAGMA user_version = 1;
 )sql";
 
+// Version 2: the online segmentation's poses and six-face pair verdicts, stored as the server
+// judges them. A pose's face ("Z+", "" off the faces) becomes a column (the guide lists it);
+// pair verdicts are keyed by their two pose indexes: a pair is judged once, so a replay after a
+// restart rewrites the same rows.
+constexpr char kSchemaV2[] = R"sql(
+ALTER TABLE poses ADD COLUMN face TEXT NOT NULL DEFAULT '';
+
+CREATE TABLE pose_pairs (
+  session_id TEXT NOT NULL REFERENCES sessions (id),
+  pose_a INTEGER NOT NULL CHECK (pose_a >= 0),
+  pose_b INTEGER NOT NULL CHECK (pose_b > pose_a),
+  ok INTEGER NOT NULL CHECK (ok IN (0, 1)),
+  face TEXT NOT NULL,
+  rotation_deg REAL NOT NULL,
+  tilt_deg REAL NOT NULL,
+  reason TEXT NOT NULL,
+  PRIMARY KEY (session_id, pose_a, pose_b)
+) WITHOUT ROWID;
+
+PRAGMA user_version = 2;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, kSchemaV1},
+    {2, kSchemaV2},
 };
 
 absl::Status ApplyOne(Connection& conn, const Migration& m) {

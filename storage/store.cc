@@ -1,5 +1,6 @@
 #include "storage/store.h"
 
+#include <chrono>
 #include <cmath>
 #include <random>
 #include <type_traits>
@@ -96,10 +97,19 @@ constexpr char kSelectBatches[] =
 
 constexpr char kDeletePoses[] = "DELETE FROM poses WHERE session_id = ?1";
 constexpr char kInsertPose[] =
-    "INSERT INTO poses (session_id, pose_index, t_start_s, t_end_s, used, reason, detail_json) "
-    "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)";
+    "INSERT INTO poses (session_id, pose_index, t_start_s, t_end_s, used, reason, detail_json, "
+    "face) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)";
+constexpr char kUpsertPose[] =
+    "INSERT OR REPLACE INTO poses (session_id, pose_index, t_start_s, t_end_s, used, reason, "
+    "detail_json, face) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)";
+constexpr char kUpsertPair[] =
+    "INSERT OR REPLACE INTO pose_pairs (session_id, pose_a, pose_b, ok, face, rotation_deg, "
+    "tilt_deg, reason) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)";
+constexpr char kSelectPairs[] =
+    "SELECT pose_a, pose_b, ok, face, rotation_deg, tilt_deg, reason FROM pose_pairs "
+    "WHERE session_id = ?1 ORDER BY pose_a, pose_b";
 constexpr char kSelectPoses[] =
-    "SELECT pose_index, t_start_s, t_end_s, used, reason, detail_json FROM poses "
+    "SELECT pose_index, t_start_s, t_end_s, used, reason, detail_json, face FROM poses "
     "WHERE session_id = ?1 ORDER BY pose_index";
 
 constexpr char kSelectSolve[] =
@@ -580,12 +590,45 @@ class Store::ReadLease {
 };
 
 Store::Store(StoreOptions options, std::unique_ptr<Connection> writer,
+             std::unique_ptr<Connection> checkpointer,
              std::vector<std::unique_ptr<Connection>> readers)
-    : options_(std::move(options)), writer_(std::move(writer)), readers_(std::move(readers)) {
+    : options_(std::move(options)),
+      writer_(std::move(writer)),
+      checkpointer_(std::move(checkpointer)),
+      readers_(std::move(readers)) {
   for (const auto& r : readers_) free_readers_.push_back(r.get());
 }
 
-Store::~Store() = default;
+void Store::StartBackgroundThreads() {
+  {
+    // From now on the writer's commits no longer checkpoint (SQLite's automatic checkpoint is
+    // this hook): count the WAL's pages and let CheckpointLoop do it.
+    std::lock_guard lock(write_mu_);
+    sqlite3_wal_hook(
+        writer_->db(),
+        [](void* arg, sqlite3*, const char*, int pages) {
+          Store* store = static_cast<Store*>(arg);
+          store->wal_pages_.store(pages, std::memory_order_relaxed);
+          if (pages >= kCheckpointPages) store->checkpoint_cv_.notify_one();
+          return SQLITE_OK;
+        },
+        this);
+  }
+  committer_ = std::thread([this] { CommitLoop(); });
+  checkpoint_thread_ = std::thread([this] { CheckpointLoop(); });
+}
+
+Store::~Store() {
+  {
+    std::lock_guard lock(commit_mu_);
+    stopping_ = true;
+  }
+  commit_cv_.notify_all();
+  checkpoint_cv_.notify_all();
+  if (committer_.joinable()) committer_.join();  // after every submitted batch
+  if (checkpoint_thread_.joinable()) checkpoint_thread_.join();
+  checkpointer_.reset();  // before the writer, which checkpoints as the last one out
+}
 
 absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, StoreOptions options) {
   if (path.empty() || path == ":memory:") {
@@ -615,6 +658,8 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
   // ingest burst grew it to.
   STORAGE_RETURN_IF_ERROR(Annotate(op, writer->Exec("PRAGMA journal_size_limit = 67108864")));
   STORAGE_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
+  STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> checkpointer,
+                           Annotate(op, Connection::Open(path, conn_options)));
   std::vector<std::unique_ptr<Connection>> readers;
   conn_options.read_only = true;
   for (int i = 0; i < options.read_connections; ++i) {
@@ -623,7 +668,14 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
     readers.push_back(std::move(reader));
   }
   return std::unique_ptr<Store>(
-      new Store(std::move(options), std::move(writer), std::move(readers)));
+      new Store(std::move(options), std::move(writer), std::move(checkpointer),
+                std::move(readers)));
+}
+
+absl::StatusOr<ParamVersion> Store::NotifyIfActive(absl::StatusOr<ParamVersion> version) {
+  if (version.ok() && version->state == VersionState::kActive && options_.on_active_change)
+    options_.on_active_change(version->device_id);
+  return version;
 }
 
 absl::Time Store::Now() const {
@@ -807,14 +859,65 @@ absl::StatusOr<Session> Store::SetSessionState(std::string_view id, SessionState
 
 // ---- Raw samples -----------------------------------------------------------------------------
 
-absl::StatusOr<BatchAck> Store::AppendBatch(std::string_view session_id, int64_t seq,
-                                            std::string_view payload) {
+namespace {
+
+// AppendBatch's checks and insert inside the caller's transaction (see store.h).
+absl::StatusOr<BatchAck> AppendOne(Connection& conn, std::string_view session_id, int64_t seq,
+                                   std::string_view payload, const EncodedBatchInfo& info_value) {
+  const EncodedBatchInfo* info = &info_value;
+  SessionState state;
+  {
+    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectSessionStateForAppend));
+    st->BindText(1, session_id);
+    STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
+    if (!row) return absl::NotFoundError(Cat("no session '", session_id, "'"));
+    STORAGE_ASSIGN_OR_RETURN(state, FromColumn(ParseSessionState(st->ColumnText(0))));
+  }
+  STORAGE_ASSIGN_OR_RETURN(const LastBatch last, FindLastBatch(conn, session_id));
+  if (seq <= last.seq) {
+    // A retransmission of an acknowledged batch is a no-op, if it is the same batch.
+    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectBatchPayload));
+    st->BindText(1, session_id);
+    st->BindInt64(2, seq);
+    STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
+    if (row && st->ColumnBlobView(0) == payload) return BatchAck{last.seq, last.end_sample};
+    return absl::InvalidArgumentError(Cat("session '", session_id, "': batch ", seq,
+                                          " was already stored with different content"));
+  }
+  if (seq != last.seq + 1) {
+    return absl::FailedPreconditionError(Cat("session '", session_id, "': batch ", seq,
+                                             " is out of order; expected ", last.seq + 1,
+                                             " (last acknowledged ", last.seq, ")"));
+  }
+  if (state != SessionState::kOpen) {
+    return absl::FailedPreconditionError(
+        Cat("session '", session_id, "' is ", SessionStateName(state), ", not open"));
+  }
+  if (last.seq > 0 && !(info->first_t_s > last.last_t_s)) {
+    return absl::InvalidArgumentError(
+        Cat("session '", session_id, "': batch ", seq, " starts at t_s ", info->first_t_s,
+            ", not after the last sample of batch ", last.seq, " (t_s ", last.last_t_s, ")"));
+  }
+  const BatchAck ack{seq, last.end_sample + info->count};
+  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kInsertBatch));
+  st->BindText(1, session_id);
+  st->BindInt64(2, seq);
+  st->BindDouble(3, info->first_t_s);
+  st->BindDouble(4, info->last_t_s);
+  st->BindInt64(5, info->count);
+  st->BindInt64(6, ack.samples);
+  st->BindBlob(7, payload);
+  STORAGE_RETURN_IF_ERROR(st->Run());
+  return ack;
+}
+
+// Checks a batch before any lock: decoding is the costly part and needs no database.
+absl::StatusOr<EncodedBatchInfo> CheckBatch(int64_t seq, std::string_view payload) {
   constexpr std::string_view kOp = "AppendBatch";
   if (seq < 1) {
     return absl::InvalidArgumentError(
         Cat(kOp, ": batch seq ", seq, " is invalid; batches are numbered from 1"));
   }
-  // Checked before taking the lock: decoding is the costly part and needs no database.
   absl::StatusOr<EncodedBatchInfo> info = InspectSamples(payload);
   if (!info.ok()) {
     return absl::InvalidArgumentError(Cat(kOp, ": batch ", seq, ": ", info.status().message()));
@@ -822,53 +925,97 @@ absl::StatusOr<BatchAck> Store::AppendBatch(std::string_view session_id, int64_t
   if (info->count == 0) {
     return absl::InvalidArgumentError(Cat(kOp, ": batch ", seq, " has no samples"));
   }
+  return info;
+}
+
+}  // namespace
+
+absl::StatusOr<BatchAck> Store::AppendBatch(std::string_view session_id, int64_t seq,
+                                            std::string_view payload) {
+  absl::StatusOr<EncodedBatchInfo> info = CheckBatch(seq, payload);
+  if (!info.ok()) return info.status();
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<BatchAck> {
-    SessionState state;
-    {
-      STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectSessionStateForAppend));
-      st->BindText(1, session_id);
-      STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-      if (!row) return absl::NotFoundError(Cat("no session '", session_id, "'"));
-      STORAGE_ASSIGN_OR_RETURN(state, FromColumn(ParseSessionState(st->ColumnText(0))));
-    }
-    STORAGE_ASSIGN_OR_RETURN(const LastBatch last, FindLastBatch(conn, session_id));
-    if (seq <= last.seq) {
-      // A retransmission of an acknowledged batch is a no-op, if it is the same batch.
-      STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectBatchPayload));
-      st->BindText(1, session_id);
-      st->BindInt64(2, seq);
-      STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-      if (row && st->ColumnBlobView(0) == payload) return BatchAck{last.seq, last.end_sample};
-      return absl::InvalidArgumentError(Cat("session '", session_id, "': batch ", seq,
-                                            " was already stored with different content"));
-    }
-    if (seq != last.seq + 1) {
-      return absl::FailedPreconditionError(Cat("session '", session_id, "': batch ", seq,
-                                               " is out of order; expected ", last.seq + 1,
-                                               " (last acknowledged ", last.seq, ")"));
-    }
-    if (state != SessionState::kOpen) {
-      return absl::FailedPreconditionError(
-          Cat("session '", session_id, "' is ", SessionStateName(state), ", not open"));
-    }
-    if (last.seq > 0 && !(info->first_t_s > last.last_t_s)) {
-      return absl::InvalidArgumentError(
-          Cat("session '", session_id, "': batch ", seq, " starts at t_s ", info->first_t_s,
-              ", not after the last sample of batch ", last.seq, " (t_s ", last.last_t_s, ")"));
-    }
-    const BatchAck ack{seq, last.end_sample + info->count};
-    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kInsertBatch));
-    st->BindText(1, session_id);
-    st->BindInt64(2, seq);
-    st->BindDouble(3, info->first_t_s);
-    st->BindDouble(4, info->last_t_s);
-    st->BindInt64(5, info->count);
-    st->BindInt64(6, ack.samples);
-    st->BindBlob(7, payload);
-    STORAGE_RETURN_IF_ERROR(st->Run());
-    return ack;
+  return InTransaction("AppendBatch", *writer_, [&](Connection& conn) {
+    return AppendOne(conn, session_id, seq, payload, *info);
   });
+}
+
+struct Store::PendingAppend {
+  std::string session_id;
+  int64_t seq = 0;
+  std::string payload;
+  EncodedBatchInfo info;
+  std::function<void(absl::StatusOr<BatchAck>)> done;
+};
+
+void Store::AppendBatchAsync(std::string session_id, int64_t seq, std::string payload,
+                             std::function<void(absl::StatusOr<BatchAck>)> done) {
+  absl::StatusOr<EncodedBatchInfo> info = CheckBatch(seq, payload);
+  if (!info.ok()) {
+    done(info.status());
+    return;
+  }
+  std::call_once(threads_started_, [this] { StartBackgroundThreads(); });
+  {
+    std::lock_guard lock(commit_mu_);
+    pending_.push_back(PendingAppend{std::move(session_id), seq, std::move(payload), *info,
+                                     std::move(done)});
+  }
+  commit_cv_.notify_one();
+}
+
+void Store::CommitLoop() {
+  std::vector<PendingAppend> group;
+  std::vector<absl::StatusOr<BatchAck>> results;
+  for (;;) {
+    {
+      std::unique_lock lock(commit_mu_);
+      commit_cv_.wait(lock, [this] { return !pending_.empty() || stopping_; });
+      if (pending_.empty()) return;  // stopping, and everything submitted is done
+      // Everything that arrived while the previous group committed: one transaction.
+      group.swap(pending_);
+    }
+    results.clear();
+    {
+      std::lock_guard lock(write_mu_);
+      absl::Status status = InTransaction("AppendBatch", *writer_, [&](Connection& conn) {
+        for (const PendingAppend& p : group) {
+          absl::StatusOr<BatchAck> r = AppendOne(conn, p.session_id, p.seq, p.payload, p.info);
+          results.push_back(r.ok() ? r : WithContext("AppendBatch", r.status()));
+        }
+        return absl::OkStatus();  // a batch's own error fails that batch only
+      });
+      // No commit: nothing of the group is stored (each batch's own error stays its own).
+      if (!status.ok()) {
+        results.resize(group.size(), status);  // BEGIN failed: no batch got its own answer
+        for (auto& r : results)
+          if (r.ok()) r = status;
+      }
+    }
+    for (size_t i = 0; i < group.size(); ++i) group[i].done(std::move(results[i]));
+    group.clear();
+  }
+}
+
+void Store::CheckpointLoop() {
+  // WAL checkpoints off the commit path: the writer's automatic checkpoint (which would run
+  // inside a commit, holding up every stream's ack) is off; this thread copies the WAL into
+  // the database with PASSIVE checkpoints (never blocking the writer or readers) on its own
+  // connection, when the WAL has grown by kCheckpointPages or every second.
+  std::unique_lock lock(commit_mu_);
+  while (!stopping_) {
+    checkpoint_cv_.wait_for(lock, std::chrono::seconds(1), [this] {
+      return stopping_ || wal_pages_.load(std::memory_order_relaxed) >= kCheckpointPages;
+    });
+    if (stopping_) return;
+    if (wal_pages_.load(std::memory_order_relaxed) == 0) continue;
+    lock.unlock();
+    wal_pages_.store(0, std::memory_order_relaxed);
+    // Best effort: a busy or failed checkpoint is retried at the next round.
+    (void)sqlite3_wal_checkpoint_v2(checkpointer_->db(), nullptr, SQLITE_CHECKPOINT_PASSIVE,
+                                    nullptr, nullptr);
+    lock.lock();
+  }
 }
 
 absl::StatusOr<std::vector<SampleBatch>> Store::ReadBatches(std::string_view session_id,
@@ -947,6 +1094,7 @@ absl::Status Store::PutPoses(std::string_view session_id, const std::vector<Pose
       st->BindInt64(5, p.used ? 1 : 0);
       st->BindText(6, p.reason);
       st->BindText(7, p.detail_json);
+      st->BindText(8, p.face);
       STORAGE_RETURN_IF_ERROR(st->Run());
     }
     return InsertAudit(conn, Now(), actor, "session.poses", SessionTarget(session_id),
@@ -972,10 +1120,84 @@ absl::StatusOr<std::vector<Pose>> Store::ListPoses(std::string_view session_id) 
       p.used = st->ColumnInt64(3) != 0;
       p.reason = st->ColumnText(4);
       p.detail_json = st->ColumnText(5);
+      p.face = st->ColumnText(6);
       out.push_back(std::move(p));
     }
   };
   return Annotate("ListPoses", list());
+}
+
+absl::Status Store::SavePoses(std::string_view session_id, const std::vector<Pose>& poses,
+                              const std::vector<PosePair>& pairs) {
+  constexpr std::string_view kOp = "SavePoses";
+  for (const Pose& p : poses) {
+    if (p.index < 0 || !std::isfinite(p.t_start_s) || !std::isfinite(p.t_end_s) ||
+        p.t_end_s < p.t_start_s) {
+      return absl::InvalidArgumentError(Cat(kOp, ": pose ", p.index, " has a bad index or times [",
+                                            p.t_start_s, ", ", p.t_end_s, "]"));
+    }
+  }
+  for (const PosePair& p : pairs) {
+    if (p.pose_a < 0 || p.pose_b <= p.pose_a) {
+      return absl::InvalidArgumentError(
+          Cat(kOp, ": pair (", p.pose_a, ", ", p.pose_b, ") is not two increasing pose indexes"));
+    }
+  }
+  if (poses.empty() && pairs.empty()) return absl::OkStatus();
+  std::lock_guard lock(write_mu_);
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::Status {
+    STORAGE_RETURN_IF_ERROR(CheckSessionExists(conn, session_id));
+    for (const Pose& p : poses) {
+      STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kUpsertPose));
+      st->BindText(1, session_id);
+      st->BindInt64(2, p.index);
+      st->BindDouble(3, p.t_start_s);
+      st->BindDouble(4, p.t_end_s);
+      st->BindInt64(5, p.used ? 1 : 0);
+      st->BindText(6, p.reason);
+      st->BindText(7, p.detail_json);
+      st->BindText(8, p.face);
+      STORAGE_RETURN_IF_ERROR(st->Run());
+    }
+    for (const PosePair& p : pairs) {
+      STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kUpsertPair));
+      st->BindText(1, session_id);
+      st->BindInt64(2, p.pose_a);
+      st->BindInt64(3, p.pose_b);
+      st->BindInt64(4, p.ok ? 1 : 0);
+      st->BindText(5, p.face);
+      st->BindDouble(6, p.rotation_deg);
+      st->BindDouble(7, p.tilt_deg);
+      st->BindText(8, p.reason);
+      STORAGE_RETURN_IF_ERROR(st->Run());
+    }
+    return absl::OkStatus();
+  });
+}
+
+absl::StatusOr<std::vector<PosePair>> Store::ListPairs(std::string_view session_id) {
+  ReadLease lease = AcquireReader();
+  auto list = [&]() -> absl::StatusOr<std::vector<PosePair>> {
+    STORAGE_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
+    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, lease.conn().Prepare(kSelectPairs));
+    st->BindText(1, session_id);
+    std::vector<PosePair> out;
+    for (;;) {
+      STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
+      if (!row) return out;
+      PosePair p;
+      p.session_id = std::string(session_id);
+      p.pose_a = static_cast<int>(st->ColumnInt64(0));
+      p.pose_b = static_cast<int>(st->ColumnInt64(1));
+      p.ok = st->ColumnInt64(2) != 0;
+      p.face = st->ColumnText(3);
+      p.rotation_deg = st->ColumnDouble(4);
+      p.tilt_deg = st->ColumnDouble(5);
+      p.reason = st->ColumnText(6);
+      out.push_back(std::move(p));
+    }
+  };
+  return Annotate("ListPairs", list());
 }
 
 // ---- Solves ----------------------------------------------------------------------------------
@@ -1007,7 +1229,7 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
   constexpr std::string_view kOp = "FinishSolve";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+  return NotifyIfActive(InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
     STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
     if (solve.state != SolveState::kRunning) {
       return absl::FailedPreconditionError(
@@ -1038,7 +1260,7 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
     STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.finish", SessionTarget(session.id),
                                         Cat("solve ", solve_id, " -> version ", added.version)));
     return added;
-  });
+  }));
 }
 
 absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
@@ -1122,8 +1344,8 @@ absl::StatusOr<ParamVersion> Store::AddVersion(const ParamVersion& version,
   constexpr std::string_view kOp = "AddVersion";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(
-      kOp, *writer_, [&](Connection& conn) { return InsertVersion(conn, version, actor, Now()); });
+  return NotifyIfActive(InTransaction(
+      kOp, *writer_, [&](Connection& conn) { return InsertVersion(conn, version, actor, Now()); }));
 }
 
 absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int version,
@@ -1131,7 +1353,7 @@ absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int vers
   constexpr std::string_view kOp = "Promote";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+  return NotifyIfActive(InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
     STORAGE_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
     if (v.state == VersionState::kActive) return v;
     if (v.state != VersionState::kCandidate) {
@@ -1144,7 +1366,7 @@ absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int vers
         InsertAudit(conn, Now(), actor, "version.promote", DeviceTarget(device_id),
                     Cat("version ", version, " active", Displaced(displaced), Reason(reason))));
     return LoadVersion(conn, device_id, version);
-  });
+  }));
 }
 
 absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_version,
@@ -1152,7 +1374,7 @@ absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_
   constexpr std::string_view kOp = "Rollback";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+  return NotifyIfActive(InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
     STORAGE_ASSIGN_OR_RETURN(ParamVersion target, LoadVersion(conn, device_id, to_version));
     STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
     if (!active) {
@@ -1170,7 +1392,7 @@ absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_
                     Cat("version ", to_version, " (was ", VersionStateName(target.state),
                         ") active", Displaced(displaced), Reason(reason))));
     return LoadVersion(conn, device_id, to_version);
-  });
+  }));
 }
 
 absl::StatusOr<ParamVersion> Store::Reject(std::string_view device_id, int version,

@@ -8,12 +8,17 @@
 // then lose the last commits (the file stays consistent, never corrupt). FULL fsyncs every
 // commit: a disk flush (0.1-10 ms) per acknowledged batch, which with 100 robots streaming
 // would bound ingest by the disk's flush rate rather than by the CPU. Deployments that must keep
-// acknowledged data through a power cut choose StoreOptions::durability = kFull and accept that
-// cost (or the server batches several streams into one commit).
+// acknowledged data through a power cut choose StoreOptions::durability = kFull; the group
+// commit (AppendBatchAsync: every stream's batches that arrive during a commit share the next
+// one) amortises that flush over the streams.
 //
 // Threads: a Store is safe to share. Writes go through one connection, serialised by a mutex,
 // each call in one BEGIN IMMEDIATE transaction (which also serialises writers in other
-// processes on the same file). Reads use a small pool of read-only connections: WAL lets them
+// processes on the same file); AppendBatchAsync's groups are written by a committer thread.
+// Once AppendBatchAsync is used, WAL checkpoints no longer run inside commits (SQLite's automatic
+// checkpoint is off for the writer): a checkpoint thread runs PASSIVE checkpoints on a
+// connection of its own when the WAL has grown by kCheckpointPages pages, or every second, so no
+// stream's ack waits for one. Reads use a small pool of read-only connections: WAL lets them
 // run concurrently with each other and with the writer, each seeing the latest committed state
 // when its statement starts, so GetActive never waits behind an ingest commit.
 //
@@ -29,6 +34,7 @@
 #ifndef IMUCAL_STORAGE_STORE_H_
 #define IMUCAL_STORAGE_STORE_H_
 
+#include <atomic>
 #include <condition_variable>
 #include <cstdint>
 #include <functional>
@@ -37,6 +43,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -56,6 +63,10 @@ struct StoreOptions {
   int read_connections = 4;                     // the read pool; at least 1
   absl::Duration busy_timeout = absl::Seconds(5);
   std::function<absl::Time()> clock{};  // for tests; absl::Now when empty
+  // Called after every commit that changes a device's active version (an activating AddVersion
+  // or FinishSolve, Promote, Rollback), with the device id, on the committing thread; must be
+  // quick and must not call back into the store. For caches of the active version.
+  std::function<void(std::string_view device_id)> on_active_change{};
 };
 
 // Paging is by key: pass the last item of a page to get the next one. Every member has a
@@ -122,6 +133,13 @@ class Store {
   // the session is not open.
   absl::StatusOr<BatchAck> AppendBatch(std::string_view session_id, int64_t seq,
                                        std::string_view payload);
+  // Group commit: AppendBatch, asynchronously, with the same checks and answers. Batches
+  // submitted while a commit runs are written together in the next transaction (one COMMIT, and
+  // under kFull one WAL sync, for many streams). `done` runs once that transaction committed
+  // (the batch is durable, as above) or failed, on the store's committer thread (or at once, on
+  // the caller's, for a malformed batch); it must be quick and may call the store.
+  void AppendBatchAsync(std::string session_id, int64_t seq, std::string payload,
+                        std::function<void(absl::StatusOr<BatchAck>)> done);
   // The session's batches with seq > after_seq, in seq order.
   absl::StatusOr<std::vector<SampleBatch>> ReadBatches(std::string_view session_id,
                                                        int64_t after_seq = 0);
@@ -130,6 +148,12 @@ class Store {
   absl::Status PutPoses(std::string_view session_id, const std::vector<Pose>& poses,
                         std::string_view actor);
   absl::StatusOr<std::vector<Pose>> ListPoses(std::string_view session_id);
+  // The online segmentation's poses and pair verdicts as they are judged: each pose is written
+  // by (session, index), each pair by (session, pose_a, pose_b), replacing a row already there
+  // (a replay after a restart rewrites the same rows). Not audited: data, like a batch.
+  absl::Status SavePoses(std::string_view session_id, const std::vector<Pose>& poses,
+                         const std::vector<PosePair>& pairs = {});
+  absl::StatusOr<std::vector<PosePair>> ListPairs(std::string_view session_id);  // by pose_a
 
   // ---- Solves: the unit of work that turns a session's raw data into a parameter version.
   // StartSolve moves the session to `solving` (from open, solved or failed) and records a
@@ -186,15 +210,36 @@ class Store {
  private:
   class ReadLease;
   Store(StoreOptions options, std::unique_ptr<Connection> writer,
+        std::unique_ptr<Connection> checkpointer,
         std::vector<std::unique_ptr<Connection>> readers);
 
   absl::Time Now() const;
+  absl::StatusOr<ParamVersion> NotifyIfActive(absl::StatusOr<ParamVersion> version);
   ReadLease AcquireReader();
   void ReleaseReader(Connection* conn);
 
   StoreOptions options_;
   std::mutex write_mu_;
   std::unique_ptr<Connection> writer_;  // guarded by write_mu_
+
+  // Group commit (AppendBatchAsync) and background WAL checkpoints; both threads start with
+  // the first AppendBatchAsync (a store that only writes synchronously keeps SQLite's automatic
+  // checkpoint) and stop in the destructor after the submitted batches.
+  struct PendingAppend;
+  static constexpr int kCheckpointPages = 4096;  // 16 MiB of WAL at 4 KiB pages
+  void StartBackgroundThreads();
+  void CommitLoop();
+  void CheckpointLoop();
+  std::once_flag threads_started_;
+  std::mutex commit_mu_;
+  std::condition_variable commit_cv_;
+  std::condition_variable checkpoint_cv_;
+  std::vector<PendingAppend> pending_;  // guarded by commit_mu_
+  bool stopping_ = false;               // guarded by commit_mu_
+  std::atomic<int> wal_pages_{0};       // WAL pages written since the last checkpoint
+  std::thread committer_;
+  std::thread checkpoint_thread_;
+  std::unique_ptr<Connection> checkpointer_;  // its own connection: never waits for writes
 
   // Declared after writer_ so they close first (the writer, last out, checkpoints the WAL).
   std::vector<std::unique_ptr<Connection>> readers_;

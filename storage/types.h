@@ -65,8 +65,8 @@ struct SampleBatch {
   std::string payload;     // EncodeSamples() bytes
 };
 
-// A static pose found in a session (the report's `poses` entries). The detector re-evaluates
-// as data arrives, so a session's pose list is replaced as a whole (Store::PutPoses).
+// A static pose found in a session: the server's online segmentation stores each one as it is
+// judged (Store::SavePoses, by index); a whole list can also be replaced (Store::PutPoses).
 struct Pose {
   std::string session_id;
   int index = 0;  // 0, 1, 2, ... in time order
@@ -75,6 +75,20 @@ struct Pose {
   bool used = true;
   std::string reason;       // why it is unused, for a technician
   std::string detail_json;  // means, sample count, temperature...: opaque to storage
+  std::string face;         // six-face label ("Z+") when on a face, else empty
+};
+
+// A six-face pair verdict: two placements of one face, the second turned 180 degrees about the
+// vertical (core/protocol.h PairCheck), as the server's online check judged it.
+struct PosePair {
+  std::string session_id;
+  int pose_a = 0;  // pose indexes (Pose::index)
+  int pose_b = 0;
+  bool ok = false;
+  std::string face;          // "Z+"
+  double rotation_deg = 0.0;  // gyro-measured turn between the placements
+  double tilt_deg = 0.0;      // floor tilt (half the angle between the two up directions)
+  std::string reason;        // why rejected, in a technician's words
 };
 
 // One attempt to solve a session (a session can be re-solved from its raw data later).

@@ -15,6 +15,7 @@
 #include "absl/strings/str_join.h"
 #include "client/cli/args.h"
 #include "client/cli/commands.h"
+#include "client/cli/import_flags.h"
 #include "client/cli/server_common.h"
 #include "client/sdk/uploader.h"
 #include "core/capture_io.h"
@@ -127,8 +128,10 @@ constexpr char kSessionHelp[] =
     "usage: imucal session start --device D [--protocol six-face|positions|free|auto] [--json]\n"
     "       imucal session list [--device D] [--state open|solving|solved|failed|cancelled]\n"
     "       imucal session show ID [--json]\n"
+    "       imucal session poses ID [--json]\n"
     "       imucal session cancel ID\n"
-    "  Opens a calibration session (a device has at most one open), lists, shows or cancels.\n"
+    "  Opens a calibration session (a device has at most one open), lists, shows (with its poses\n"
+    "  and six-face pair verdicts as the server judged them while samples arrived), or cancels.\n"
     "options:\n"
     "  --gravity G       local gravity for `start`, m/s^2 (default 9.80665)\n";
 
@@ -138,6 +141,25 @@ void PrintSession(const pb::Session& s) {
               ProtocolName(s.protocol()).c_str(), static_cast<long long>(s.samples()),
               s.poses_accepted(), TimeText(s.created_at()).c_str(),
               s.version() > 0 ? absl::StrCat("  -> v", s.version()).c_str() : "");
+}
+
+grpc::Status ListPoses(const Server& server, const std::string& session_id,
+                       pb::ListPosesResponse* out) {
+  pb::ListPosesRequest req;
+  req.set_session_id(session_id);
+  return server.sessions->ListPoses(CallContext().get(), req, out);
+}
+
+void PrintPoses(const pb::ListPosesResponse& poses) {
+  for (const pb::PoseEvent& p : poses.poses()) {
+    std::printf("  pose %2d %-3s %7.1f-%7.1f s  %s\n", p.index(), p.face().c_str(), p.t_start_s(),
+                p.t_end_s(), p.accepted() ? "accepted" : ("rejected: " + p.reason()).c_str());
+  }
+  for (const pb::PairVerdict& p : poses.pairs()) {
+    std::printf("  pair %-3s poses %d, %d: %s (turn %.1f deg, tilt %.1f deg)\n", p.face().c_str(),
+                p.pose_a(), p.pose_b(), p.ok() ? "ok" : ("FAILED: " + p.reason()).c_str(),
+                p.rotation_deg(), p.tilt_deg());
+  }
 }
 
 absl::StatusOr<pb::SessionState> ParseState(const std::string& name) {
@@ -156,7 +178,8 @@ int RunSession(const std::vector<std::string>& argv) {
   if (!a.ok()) return UsageError(std::string(a.status().message()), kSessionHelp);
   if (a->Has("help")) return std::printf("%s%s", kSessionHelp, kServerFlagHelp), kExitOk;
   const auto& pos = a->positional();
-  if (pos.empty()) return UsageError("session needs start, list, show or cancel", kSessionHelp);
+  if (pos.empty())
+    return UsageError("session needs start, list, show, poses or cancel", kSessionHelp);
   Server server = Connect(*a);
   const bool as_json = a->Has("json");
   if (pos[0] == "start" && pos.size() == 1) {
@@ -197,6 +220,14 @@ int RunSession(const std::vector<std::string>& argv) {
     for (const auto& s : all.sessions()) PrintSession(s);
     return kExitOk;
   }
+  if (pos[0] == "poses" && pos.size() == 2) {
+    pb::ListPosesResponse poses;
+    if (grpc::Status st = ListPoses(server, pos[1], &poses); !st.ok()) return RpcError(server, st);
+    if (as_json) return std::printf("%s\n", ProtoJson(poses).c_str()), kExitOk;
+    if (poses.poses().empty()) std::printf("no poses yet\n");
+    PrintPoses(poses);
+    return kExitOk;
+  }
   if ((pos[0] == "show" || pos[0] == "cancel") && pos.size() == 2) {
     pb::Session s;
     grpc::Status st;
@@ -211,6 +242,12 @@ int RunSession(const std::vector<std::string>& argv) {
     if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
     if (pos[0] == "cancel") std::printf("cancelled session %s\n", s.id().c_str());
     PrintSession(s);
+    if (pos[0] == "show") {
+      pb::ListPosesResponse poses;
+      if (grpc::Status ps = ListPoses(server, pos[1], &poses); !ps.ok())
+        return RpcError(server, ps);
+      PrintPoses(poses);
+    }
     return kExitOk;
   }
   return UsageError(absl::StrCat("session: unexpected '", absl::StrJoin(pos, " "), "'"),
@@ -306,7 +343,7 @@ constexpr char kUploadHelp[] =
     "  again for the same session and file. FILE: imucal CSV or an imu_tk pair.\n"
     "options:\n"
     "  --protocol six-face|positions|free|auto   for a new session (default auto)\n"
-    "  --format auto|imucal|imutk   --accel-unit U   --gyro-unit U   input as for calibrate\n"
+    "  --format F   --accel-unit U   --gyro-unit U   input as for calibrate (and below)\n"
     "  --batch N          samples per batch (default 2000)\n"
     "  --solve            solve when the upload is complete and wait for the verdict\n"
     "  --json             print the session (and solve job) as JSON\n";
@@ -351,6 +388,7 @@ absl::StatusOr<core::ImportOptions> UploadImportOptions(const Args& a) {
       return absl::InvalidArgumentError(absl::StrCat("--gyro-unit: ", p.status().message()));
     o.gyro_unit = *p;
   }
+  if (absl::Status s = ApplyImportFlags(a, &o); !s.ok()) return s;
   return o;
 }
 
@@ -358,11 +396,13 @@ absl::StatusOr<core::ImportOptions> UploadImportOptions(const Args& a) {
 
 int RunUpload(const std::vector<std::string>& argv) {
   auto a = Args::Parse(argv,
-                       {"server", "device", "session", "protocol", "format", "accel-unit",
-                        "gyro-unit", "batch", "seed", "timeout"},
-                       {"solve", "json", "help"});
+                       WithImportValuedFlags({"server", "device", "session", "protocol", "format",
+                                              "accel-unit", "gyro-unit", "batch", "seed",
+                                              "timeout"}),
+                       WithImportSwitches({"solve", "json", "help"}));
   if (!a.ok()) return UsageError(std::string(a.status().message()), kUploadHelp);
-  if (a->Has("help")) return std::printf("%s%s", kUploadHelp, kServerFlagHelp), kExitOk;
+  if (a->Has("help"))
+    return std::printf("%s%s%s", kUploadHelp, kImportFlagsHelp, kServerFlagHelp), kExitOk;
   if (a->positional().empty()) return UsageError("upload needs a capture FILE", kUploadHelp);
   auto device = a->Get("device");
   auto session_id = a->Get("session");
@@ -695,7 +735,8 @@ namespace {
 constexpr char kExportHelp[] =
     "usage: imucal export --device D [--version N] --format json|kalibr|openvins [--out FILE]\n"
     "  A parameter version (default the active one) in another tool's format. What the format\n"
-    "  cannot hold (biases, second-order terms) is listed on stderr.\n"
+    "  cannot hold (biases, second-order terms) is listed on stderr. Supported now: json\n"
+    "  (imucal-params v1); kalibr and openvins are not supported yet (the server says so).\n"
     "options:\n";
 
 }  // namespace

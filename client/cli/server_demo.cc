@@ -3,8 +3,10 @@
 // technician's view; the guide starts the solve when the protocol is complete; the robot then
 // fetches its active parameters through the SDK and applies them; the error before and after is
 // printed.
+#include <algorithm>
 #include <cstdio>
 #include <thread>
+#include <utility>
 
 #include "absl/strings/str_cat.h"
 #include "absl/time/time.h"
@@ -18,11 +20,70 @@
 namespace imucal::cli {
 namespace pb = ::imucal::v1;
 
+namespace {
+
+// The technician botches the first 180-degree turn: the robot is set down a quarter turn into
+// it, held there for `hold_s`, then turned the rest of the way. The simulator moves every pose
+// by a rotation with no translation, so a reading during the turn is the static reading of that
+// orientation plus noise: the inserted hold is the turn's midpoint accelerometer reading (a few
+// samples averaged) plus the noise of the first pose's hold, and the first pose's gyroscope
+// readings (its bias plus noise). Later samples move by the inserted time.
+absl::StatusOr<core::Capture> BotchFirstTurn(const core::SimResult& sim, double hold_s) {
+  const core::Capture& in = sim.capture;
+  if (sim.poses.size() < 2) return absl::InvalidArgumentError("--botch-turn needs two poses");
+  const double t_mid = 0.5 * (sim.poses[0].t_end_s + sim.poses[1].t_start_s);
+  size_t mid = 0, first = in.size(), last = 0;
+  for (size_t i = 0; i < in.size(); ++i) {
+    if (in.t_s[i] <= t_mid) mid = i;
+    if (in.t_s[i] >= sim.poses[0].t_start_s && in.t_s[i] <= sim.poses[0].t_end_s) {
+      first = std::min(first, i);
+      last = i;
+    }
+  }
+  const double dt = in.MedianDt();
+  const size_t n = static_cast<size_t>(hold_s / dt);
+  if (first >= last || last - first < n || mid < 2 || mid + 3 > in.size())
+    return absl::InvalidArgumentError("--botch-turn: the first pose is too short");
+  Eigen::Vector3d accel_mid = Eigen::Vector3d::Zero(), accel_mean0 = Eigen::Vector3d::Zero();
+  for (size_t i = mid - 2; i <= mid + 2; ++i) accel_mid += in.accel[i] / 5.0;
+  const size_t src0 = last + 1 - n;  // the first pose's last n samples
+  for (size_t k = 0; k < n; ++k) accel_mean0 += in.accel[src0 + k] / static_cast<double>(n);
+
+  core::Capture out = in;
+  out.t_s.resize(mid + 1), out.accel.resize(mid + 1), out.gyro.resize(mid + 1);
+  if (in.has_temp()) out.temp.resize(mid + 1);
+  for (auto& column : out.extra_columns) column.resize(mid + 1);
+  for (size_t k = 0; k < n; ++k) {
+    out.t_s.push_back(in.t_s[mid] + static_cast<double>(k + 1) * dt);
+    out.accel.push_back(accel_mid + in.accel[src0 + k] - accel_mean0);
+    out.gyro.push_back(in.gyro[src0 + k]);
+    if (in.has_temp()) out.temp.push_back(in.temp[mid]);
+    for (size_t c = 0; c < out.extra_columns.size(); ++c)
+      out.extra_columns[c].push_back(in.extra_columns[c][mid]);
+  }
+  const double shift = static_cast<double>(n) * dt;
+  for (size_t i = mid + 1; i < in.size(); ++i) {
+    out.t_s.push_back(in.t_s[i] + shift);
+    out.accel.push_back(in.accel[i]);
+    out.gyro.push_back(in.gyro[i]);
+    if (in.has_temp()) out.temp.push_back(in.temp[i]);
+    for (size_t c = 0; c < out.extra_columns.size(); ++c)
+      out.extra_columns[c].push_back(in.extra_columns[c][i]);
+  }
+  if (absl::Status s = core::ValidateCapture(out); !s.ok()) return s;
+  return out;
+}
+
+}  // namespace
+
 int RunServerDemo(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "seed", "device"}, {"help"});
+  auto a = Args::Parse(argv, {"server", "seed", "device"}, {"help", "botch-turn"});
   if (!a.ok()) return UsageError(std::string(a.status().message()), "");
   if (a->Has("help")) {
-    std::printf("usage: imucal demo --server ADDR [--seed N] [--device ID]\n");
+    std::printf(
+        "usage: imucal demo --server ADDR [--seed N] [--device ID] [--botch-turn]\n"
+        "  --botch-turn  the robot's first 180-degree turn stops a quarter turn short and is\n"
+        "                finished after a hold: the guide shows the failed pair and its re-do\n");
     return kExitOk;
   }
   auto seed = a->GetInt("seed", 7);
@@ -34,6 +95,11 @@ int RunServerDemo(const std::vector<std::string>& argv) {
   const core::SimOptions so = DemoCaptureOptions(static_cast<uint64_t>(*seed), 1);
   auto sim = core::Simulate(so);
   if (!sim.ok()) return ReportError(sim.status());
+  if (a->Has("botch-turn")) {
+    absl::StatusOr<core::Capture> botched = BotchFirstTurn(*sim, so.hold_s);
+    if (!botched.ok()) return ReportError(botched.status());
+    sim->capture = *std::move(botched);
+  }
 
   std::printf("== 1. robot %s registers and a six-face session opens on %s\n", device.c_str(),
               server.address.c_str());
@@ -55,6 +121,8 @@ int RunServerDemo(const std::vector<std::string>& argv) {
 
   std::printf("== 2. the robot streams its capture (%zu samples) while the guide follows\n",
               sim->capture.size());
+  if (a->Has("botch-turn"))
+    std::printf("   (the first half turn stops a quarter turn short, is held, then finished)\n");
   std::fflush(stdout);
   absl::Status upload_status;
   std::thread robot([&] {
@@ -76,6 +144,28 @@ int RunServerDemo(const std::vector<std::string>& argv) {
     std::printf("   (the robot stopped streaming: its session closed for the solve)\n");
   }
   if (guide_rc != kExitOk) return guide_rc;
+  // A version that missed a quality gate with a warn verdict (e.g. six faces leave the
+  // second-order terms undetermined) stays a candidate: the technician reviews it and promotes
+  // it, as `imucal params promote` does.
+  pb::Session solved;
+  if (grpc::Status s = GetSession(server, session.id(), &solved); !s.ok())
+    return RpcError(server, s);
+  pb::GetParametersRequest get;
+  get.set_device_id(device);
+  get.set_version(solved.version());
+  pb::ParameterSet version;
+  if (grpc::Status s = server.params->GetParameters(CallContext().get(), get, &version); !s.ok())
+    return RpcError(server, s);
+  if (version.state() == pb::VERSION_STATE_CANDIDATE && version.verdict() == "warn") {
+    std::printf("== 2b. verdict warn: the technician reviews the report and promotes version %d\n",
+                version.version());
+    pb::PromoteRequest promote;
+    promote.set_device_id(device);
+    promote.set_version(version.version());
+    promote.set_reason("demo: warn verdict reviewed");
+    if (grpc::Status s = server.params->Promote(CallContext().get(), promote, &version); !s.ok())
+      return RpcError(server, s);
+  }
 
   std::printf("== 3. the robot fetches its active parameters through the SDK\n");
   sdk::ParamClient params(server.channel);

@@ -114,12 +114,27 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
   ASSERT_EQ(Run(RunParams, {"list", "--device", "robot-cli-3"}), kExitOk) << err_;
   EXPECT_NE(out_.find("v1"), std::string::npos) << out_;
 
-  // json: kalibr and openvins exports are still being written on the server side.
+  // json works: the document exactly as served; kalibr and openvins are not supported yet, and
+  // the message says so and names the format that is.
   const std::string out = (dir_ / "params.json").string();
   ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "json", "--out", out}), kExitOk)
       << err_;
   EXPECT_TRUE(fs::exists(out));
+  ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "json"}), kExitOk) << err_;
+  EXPECT_EQ(json::parse(out_)["format"], "imucal-params v1");
+  for (const std::string format : {"kalibr", "openvins"}) {
+    EXPECT_NE(Run(RunExport, {"--device", "robot-cli-3", "--format", format}), kExitOk);
+    EXPECT_NE(err_.find("export to " + format + " is not supported yet"), std::string::npos)
+        << err_;
+    EXPECT_NE(err_.find("the supported format is \"json\""), std::string::npos) << err_;
+  }
   EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "bogus"}), kExitUsage);
+  // The session's poses, as the server judged them while the capture streamed in.
+  ASSERT_EQ(Run(RunSession, {"show", session}), kExitOk) << err_;
+  EXPECT_NE(out_.find("pose  0 Z+"), std::string::npos) << out_;
+  EXPECT_NE(out_.find("pair Z+  poses 0, 1: ok"), std::string::npos) << out_;
+  ASSERT_EQ(Run(RunSession, {"poses", session, "--json"}), kExitOk) << err_;
+  EXPECT_EQ(json::parse(out_)["pairs"].size(), 6u) << out_;
 }
 
 TEST_F(CliServerTest, UploadAgainToTheSameSessionResumes) {

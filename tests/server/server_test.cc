@@ -24,6 +24,7 @@
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
 #include "imucal/v1/imucal.grpc.pb.h"
+#include "server/active_cache.h"
 #include "server/convert.h"
 #include "server/status_util.h"
 #include "storage/store.h"
@@ -212,6 +213,58 @@ class Watch {
 int AcceptedPoses(const std::vector<v1::SessionEvent>& events) {
   int n = 0;
   for (const auto& e : events) n += e.has_pose() && e.pose().accepted();
+  return n;
+}
+
+// The technician sets the robot down on its first face a second time without turning it: after
+// the first pose, a short wobble about the vertical and back (no net rotation), then a hold on
+// the same face, unturned; the rest of the capture follows, later in time. The online pair check
+// must reject that pair ("not turned") and then accept the third placement, which the capture's
+// real half turn makes 180 degrees from the first (CheckSixFacePairs's re-done placement).
+core::Capture WithUnturnedPlacement(const core::SimResult& sim) {
+  const core::Capture& in = sim.capture;
+  const double dt = in.MedianDt();
+  size_t end0 = 0;  // the first pose's last sample
+  for (size_t i = 0; i < in.size(); ++i)
+    if (in.t_s[i] <= sim.poses[0].t_end_s) end0 = i;
+  const size_t hold = static_cast<size_t>(4.0 / dt), wobble = static_cast<size_t>(0.6 / dt);
+  const size_t src = end0 + 1 - hold;  // the first pose's last `hold` samples
+  Eigen::Vector3d accel_mean = Eigen::Vector3d::Zero(), gyro_mean = Eigen::Vector3d::Zero();
+  for (size_t k = 0; k < hold; ++k) {
+    accel_mean += in.accel[src + k] / static_cast<double>(hold);
+    gyro_mean += in.gyro[src + k] / static_cast<double>(hold);
+  }
+  const Eigen::Vector3d up = accel_mean.normalized();
+  core::Capture out = in;
+  out.t_s.resize(end0 + 1), out.accel.resize(end0 + 1), out.gyro.resize(end0 + 1);
+  if (in.has_temp()) out.temp.resize(end0 + 1);
+  auto append = [&](double t, size_t from, const Eigen::Vector3d& extra_rate) {
+    out.t_s.push_back(t);
+    out.accel.push_back(in.accel[from]);
+    out.gyro.push_back(in.gyro[from] + extra_rate);
+    if (in.has_temp()) out.temp.push_back(in.temp[from]);
+  };
+  double t = in.t_s[end0];
+  for (size_t k = 0; k < wobble; ++k)  // one sine period: turns 0.2 rad and back
+    append(t += dt, src + k, up * std::sin(2 * M_PI * static_cast<double>(k + 1) / wobble));
+  for (size_t k = 0; k < hold; ++k) append(t += dt, src + k, Eigen::Vector3d::Zero());
+  const double shift = t - in.t_s[end0];
+  for (size_t i = end0 + 1; i < in.size(); ++i) append(in.t_s[i] + shift, i, Eigen::Vector3d::Zero());
+  EXPECT_TRUE(core::ValidateCapture(out).ok());
+  EXPECT_TRUE(out.extra_columns.empty());
+  return out;
+}
+
+std::vector<v1::PairVerdict> Pairs(const std::vector<v1::SessionEvent>& events) {
+  std::vector<v1::PairVerdict> out;
+  for (const auto& e : events)
+    if (e.has_pair()) out.push_back(e.pair());
+  return out;
+}
+
+int OkPairs(const std::vector<v1::SessionEvent>& events) {
+  int n = 0;
+  for (const auto& p : Pairs(events)) n += p.ok();
   return n;
 }
 
@@ -416,6 +469,12 @@ TEST_F(ServerTest, WatchGuidesSolveActivatesAndMatchesOfflineCalibrate) {
   EXPECT_TRUE(saw_z_minus);
   EXPECT_TRUE(saw_turn);
   EXPECT_TRUE(saw_stillness);
+  // Every six-face pair was judged while streaming, with the offline check: all pass here.
+  ASSERT_EQ(Pairs(watch.events()).size(), 6u);
+  for (const auto& p : Pairs(watch.events())) {
+    EXPECT_TRUE(p.ok()) << p.face() << ": " << p.reason();
+    EXPECT_NEAR(p.rotation_deg(), 180, 15) << p.face();
+  }
   EXPECT_GE(GetSession(session.id()).poses_accepted(), 11);
 
   v1::SolveSessionRequest solve;
@@ -491,6 +550,89 @@ TEST_F(ServerTest, WatchGuidesSolveActivatesAndMatchesOfflineCalibrate) {
             grpc::StatusCode::UNIMPLEMENTED);
 }
 
+// Pair verdicts while streaming: each six-face pair is judged as soon as its second pose is held;
+// a failed pair says why, the guidance asks for the re-do, and the re-done placement passes.
+// Poses and verdicts are stored as they are judged and survive a restart.
+TEST_F(ServerTest, PairVerdictsWhileStreamingWithARedoAndStoredPoses) {
+  Register("robot-pairs");
+  grpc::Status s;
+  const v1::Session session = Create("robot-pairs", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  const core::Capture capture = WithUnturnedPlacement(Sim());
+  auto watch = std::make_unique<Watch>(sessions_.get(), session.id());
+  ASSERT_TRUE(watch->WaitFor([](const auto& ev, bool) { return !ev.empty(); })) << "no snapshot";
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream(Batches(capture, session.id()), &acks).ok());
+  // The six faces' pairs are all judged while streaming (the X- pair's second pose is held
+  // before the extra poses start).
+  ASSERT_TRUE(watch->WaitFor([](const auto& ev, bool) { return OkPairs(ev) >= 6; }))
+      << OkPairs(watch->events()) << " ok pairs";
+  const std::vector<v1::SessionEvent> events = watch->events();
+  watch.reset();  // before the restart below: an open watch would hold the server's drain
+  const std::vector<v1::PairVerdict> pairs = Pairs(events);
+  ASSERT_EQ(pairs.size(), 7u);
+  EXPECT_FALSE(pairs[0].ok());
+  EXPECT_EQ(pairs[0].face(), "Z+");
+  EXPECT_EQ(pairs[0].pose_a(), 0);
+  EXPECT_EQ(pairs[0].pose_b(), 1);
+  EXPECT_LT(pairs[0].rotation_deg(), 20);
+  EXPECT_NE(pairs[0].reason().find("not turned"), std::string::npos) << pairs[0].reason();
+  EXPECT_TRUE(pairs[1].ok()) << pairs[1].reason();  // the re-done placement, from pose 0
+  EXPECT_EQ(pairs[1].pose_a(), 0);
+  EXPECT_EQ(pairs[1].pose_b(), 2);
+  EXPECT_NEAR(pairs[1].rotation_deg(), 180, 15);
+  for (size_t i = 1; i < pairs.size(); ++i) EXPECT_TRUE(pairs[i].ok()) << pairs[i].reason();
+  // After the pose that failed the pair: the guidance wants the Z+ turn again (not Z-), says
+  // why, and the protocol needs one pose more.
+  size_t failed_at = 0;
+  while (!(events[failed_at].has_pose() && events[failed_at].pose().index() == 1)) ++failed_at;
+  bool saw_redo = false, saw_wanted = false;
+  for (size_t i = failed_at; i < events.size() && !saw_redo; ++i) {
+    if (events[i].has_progress()) {
+      EXPECT_EQ(events[i].progress().poses_wanted(), 13);
+      saw_wanted = true;
+    }
+    if (!events[i].has_next_pose()) continue;
+    saw_redo = true;
+    EXPECT_EQ(events[i].next_pose().face(), "Z+");
+    EXPECT_TRUE(events[i].next_pose().turn_half());
+    EXPECT_NE(events[i].next_pose().instruction().find("Pair Z+ failed (not turned"),
+              std::string::npos)
+        << events[i].next_pose().instruction();
+  }
+  EXPECT_TRUE(saw_redo);
+  EXPECT_TRUE(saw_wanted);
+
+  // Stored as judged: listed now, and after a restart (with the rows of the poses lost, as a
+  // kill between a batch's commit and its poses' would leave them: the replay stores them again).
+  auto list = [&] {
+    v1::ListPosesRequest req;
+    req.set_session_id(session.id());
+    v1::ListPosesResponse out;
+    grpc::Status st = sessions_->ListPoses(Ctx().get(), req, &out);
+    EXPECT_TRUE(st.ok()) << st.error_message();
+    return out;
+  };
+  const v1::ListPosesResponse before = list();
+  EXPECT_EQ(before.pairs_size(), 7);
+  EXPECT_GE(before.poses_size(), 13);
+  int accepted = 0;
+  for (const auto& p : before.poses()) accepted += p.accepted();
+  EXPECT_EQ(accepted, AcceptedPoses(events));
+  EXPECT_EQ(before.poses(1).face(), "Z+");
+  EXPECT_EQ(before.pairs(0).reason(), pairs[0].reason());
+  server_.reset();
+  {
+    auto store = storage::Store::Open(options_.db_path);
+    ASSERT_TRUE(store.ok()) << store.status();
+    ASSERT_TRUE((*store)->PutPoses(session.id(), {}, "test").ok());  // lose the pose rows
+  }
+  StartServer();
+  EXPECT_EQ(GetSession(session.id()).poses_accepted(), accepted);  // loads the session
+  const v1::ListPosesResponse after = list();
+  EXPECT_EQ(after.DebugString(), before.DebugString());
+}
+
 TEST_F(ServerTest, ResolvePromoteAndRollback) {
   Register("robot-4");
   grpc::Status s;
@@ -517,6 +659,13 @@ TEST_F(ServerTest, ResolvePromoteAndRollback) {
   };
   const v1::SolveJob first = solve_and_wait(1);
   ASSERT_EQ(first.state(), v1::JOB_STATE_DONE) << first.error();
+  {  // cached now: the re-solve's activation below must replace it
+    v1::GetActiveParametersRequest fetch;
+    fetch.set_device_id("robot-4");
+    v1::ParameterSet fetched;
+    ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), fetch, &fetched).ok());
+    EXPECT_EQ(fetched.version(), 1);
+  }
   const v1::SolveJob second = solve_and_wait(2);  // a re-solve is a new version
   ASSERT_EQ(second.state(), v1::JOB_STATE_DONE) << second.error();
   EXPECT_EQ(second.version(), 2);
@@ -534,6 +683,16 @@ TEST_F(ServerTest, ResolvePromoteAndRollback) {
   ASSERT_TRUE(params_->ListVersions(Ctx().get(), list, &page).ok());
   ASSERT_EQ(page.versions_size(), 1);
   EXPECT_EQ(page.versions(0).state(), v1::VERSION_STATE_ACTIVE);
+
+  // The fetch is served from the cache from now on: a rollback and a promote must show at once.
+  v1::GetActiveParametersRequest fetch;
+  fetch.set_device_id("robot-4");
+  v1::ParameterSet fetched;
+  ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), fetch, &fetched).ok());
+  ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), fetch, &fetched).ok());
+  EXPECT_EQ(fetched.version(), 2);
+  EXPECT_FALSE(fetched.json().empty());
+  EXPECT_EQ(fetched.crc32c(), Crc32c(fetched.json()));
 
   v1::RollbackRequest rollback;
   rollback.set_device_id("robot-4");
@@ -558,6 +717,41 @@ TEST_F(ServerTest, ResolvePromoteAndRollback) {
   ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), active, &ps).ok());
   EXPECT_EQ(ps.version(), 1);
   EXPECT_NE(ps.crc32c(), 0u);
+}
+
+TEST(ActiveParamCacheTest, AFillThatRacedAnInvalidationIsDropped) {
+  ActiveParamCache cache;
+  auto entry = [](int version) {
+    auto e = std::make_shared<ActiveParamCache::Entry>();
+    e->version = version;
+    e->full = grpc::Slice(std::string(100, 'x'));
+    return e;
+  };
+  const uint64_t before_read = cache.generation();
+  cache.Invalidate("robot-1");  // a promote committed while the fill read the store
+  cache.Insert("robot-1", entry(1), before_read);
+  EXPECT_EQ(cache.Find("robot-1"), nullptr);
+  cache.Insert("robot-1", entry(2), cache.generation());
+  ASSERT_NE(cache.Find("robot-1"), nullptr);
+  EXPECT_EQ(cache.Find("robot-1")->version, 2);
+  cache.Invalidate("robot-1");
+  EXPECT_EQ(cache.Find("robot-1"), nullptr);
+  EXPECT_EQ(cache.bytes(), 0u);
+}
+
+TEST(ActiveParamCacheTest, MemoryIsBounded) {
+  ActiveParamCache cache(/*max_bytes=*/10000);
+  for (int i = 0; i < 1000; ++i) {
+    auto e = std::make_shared<ActiveParamCache::Entry>();
+    e->version = 1;
+    e->full = grpc::Slice(std::string(500, 'x'));
+    cache.Insert("robot-" + std::to_string(i), e, cache.generation());
+    if (i % 3 == 0) cache.Invalidate("robot-" + std::to_string(i - 1));
+    ASSERT_LE(cache.bytes(), 10000u);
+  }
+  EXPECT_GT(cache.size(), 5u);
+  EXPECT_NE(cache.Find("robot-999"), nullptr);  // the newest stays
+  EXPECT_EQ(cache.Find("robot-1"), nullptr);    // the oldest went
 }
 
 TEST_F(ServerTest, HealthIsServingAndUnknownsAreNotFound) {

@@ -54,8 +54,8 @@ TEST(MigrationsTest, FreshFileMigratesToLatest) {
   ASSERT_OK(Migrate(*conn));
   ASSERT_OK_AND_ASSIGN(int after, SchemaVersion(*conn));
   EXPECT_EQ(after, LatestSchemaVersion());
-  EXPECT_EQ(CountTables(*conn), 7);  // devices sessions sample_batches poses solves
-                                     // param_versions audit_log
+  EXPECT_EQ(CountTables(*conn), 8);  // devices sessions sample_batches poses solves
+                                     // param_versions audit_log pose_pairs
 }
 
 TEST(MigrationsTest, OpeningTwiceIsIdempotentAndKeepsData) {
@@ -88,11 +88,43 @@ TEST(MigrationsTest, TwoStoresOpenTheSameFileAtOnce) {
   ASSERT_OK(b->GetDevice("robot-1").status());
 }
 
+// A version-1 file (as the first release wrote it) upgrades to migration 2's pair table, its rows
+// kept, and the store then saves and lists poses and pairs in it.
+TEST(MigrationsTest, VersionOneFileUpgradesToPosePairs) {
+  const std::string path = TempDbPath("db");
+  {
+    ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
+    ASSERT_OK(Migrate(*conn, Migrations().first(1)));
+    ASSERT_OK_AND_ASSIGN(int version, SchemaVersion(*conn));
+    ASSERT_EQ(version, 1);
+    ASSERT_OK(
+        conn->Exec("INSERT INTO devices (id, sensor_model, nominal_rate_hz, accel_unit, gyro_unit, "
+                   "created_at_us) VALUES ('d1', 'm', 200, 'm/s^2', 'rad/s', 0)"));
+    ASSERT_OK(conn->Exec(
+        "INSERT INTO sessions (id, device_id, state, protocol, gravity_m_s2, created_at_us, "
+        "updated_at_us) VALUES ('s1', 'd1', 'open', 'six-face', 9.8, 0, 0)"));
+  }
+  ASSERT_OK_AND_ASSIGN(auto store, Store::Open(path));
+  ASSERT_OK_AND_ASSIGN(Session s, store->GetSession("s1"));
+  EXPECT_EQ(s.device_id, "d1");
+  Pose a, b;
+  a.index = 0, a.t_start_s = 1, a.t_end_s = 3;
+  b.index = 1, b.t_start_s = 5, b.t_end_s = 7;
+  PosePair pair;
+  pair.pose_a = 0, pair.pose_b = 1, pair.face = "Z+", pair.reason = "not turned";
+  ASSERT_OK(store->SavePoses("s1", {a, b}, {pair}));
+  ASSERT_OK_AND_ASSIGN(std::vector<PosePair> pairs, store->ListPairs("s1"));
+  ASSERT_EQ(pairs.size(), 1u);
+  EXPECT_EQ(pairs[0].reason, "not turned");
+  ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
+  ASSERT_OK_AND_ASSIGN(int version, SchemaVersion(*conn));
+  EXPECT_EQ(version, 2);
+}
+
 // A later migration, as a future schema change would add one.
-constexpr char kTestV2[] = R"sql(
-ALTER TABLE devices ADD COLUMN site TEXT NOT NULL DEFAULT 'unknown';
-PRAGMA user_version = 2;
-)sql";
+const int kNext = LatestSchemaVersion() + 1;
+const std::string kTestNext = "ALTER TABLE devices ADD COLUMN site TEXT NOT NULL DEFAULT "
+                              "'unknown'; PRAGMA user_version = " + std::to_string(kNext) + ";";
 
 TEST(MigrationsTest, UpgradeKeepsExistingRows) {
   const std::string path = TempDbPath("db");
@@ -103,12 +135,12 @@ TEST(MigrationsTest, UpgradeKeepsExistingRows) {
     ASSERT_OK(store->CreateDevice(d, "test").status());
   }
   std::vector<Migration> migrations(Migrations().begin(), Migrations().end());
-  migrations.push_back({2, kTestV2});
+  migrations.push_back({kNext, kTestNext.c_str()});
   ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
   ASSERT_OK(Migrate(*conn, migrations));
   ASSERT_OK(Migrate(*conn, migrations));
   ASSERT_OK_AND_ASSIGN(int version, SchemaVersion(*conn));
-  EXPECT_EQ(version, 2);
+  EXPECT_EQ(version, kNext);
   ASSERT_OK_AND_ASSIGN(std::string site,
                        QueryText(*conn, "SELECT site FROM devices WHERE id = 'robot-1'"));
   EXPECT_EQ(site, "unknown");
@@ -121,16 +153,17 @@ TEST(MigrationsTest, AFailedMigrationLeavesTheWholePreviousVersion) {
   const int tables = CountTables(*conn);
 
   std::vector<Migration> broken(Migrations().begin(), Migrations().end());
-  broken.push_back({2,
-                    "CREATE TABLE half_done (x INTEGER); SELECT no_such_column FROM devices;"
-                    " PRAGMA user_version = 2;"});
+  const std::string broken_sql =
+      "CREATE TABLE half_done (x INTEGER); SELECT no_such_column FROM devices; "
+      "PRAGMA user_version = " + std::to_string(kNext) + ";";
+  broken.push_back({kNext, broken_sql.c_str()});
   EXPECT_FALSE(Migrate(*conn, broken).ok());
   ASSERT_OK_AND_ASSIGN(int version, SchemaVersion(*conn));
-  EXPECT_EQ(version, 1);
+  EXPECT_EQ(version, LatestSchemaVersion());
   EXPECT_EQ(CountTables(*conn), tables);  // half_done rolled back
 
   std::vector<Migration> forgetful(Migrations().begin(), Migrations().end());
-  forgetful.push_back({2, "CREATE TABLE half_done (x INTEGER);"});
+  forgetful.push_back({kNext, "CREATE TABLE half_done (x INTEGER);"});
   absl::Status status = Migrate(*conn, forgetful);
   EXPECT_EQ(status.code(), absl::StatusCode::kInternal) << status;
   EXPECT_THAT(status.message(), HasSubstr("did not set user_version"));

@@ -6,6 +6,9 @@
 
 #include <algorithm>
 #include <atomic>
+#include <condition_variable>
+#include <future>
+#include <mutex>
 #include <cerrno>
 #include <cmath>
 #include <cstdint>
@@ -318,6 +321,94 @@ TEST_F(BatchTest, BatchesAreAcknowledgedInOrder) {
   ASSERT_OK_AND_ASSIGN(std::vector<SampleBatch> tail, store_->ReadBatches("S1", 2));
   ASSERT_EQ(tail.size(), 1u);
   EXPECT_EQ(tail[0].seq, 3);
+}
+
+// Group commit: many sessions' batches submitted at once share commits; each answer is the one
+// AppendBatch would give, a bad batch fails alone, and every acknowledged batch is stored.
+TEST_F(BatchTest, AsyncAppendsShareCommitsAndAnswerEachBatch) {
+  constexpr int kSessions = 8, kBatches = 30;
+  for (int i = 0; i < kSessions; ++i) {
+    const std::string device = "robot-g" + std::to_string(i);
+    ASSERT_OK(store_->CreateDevice(MakeDevice(device), kActor).status());
+    ASSERT_OK(store_->CreateSession(MakeSession(device, "G" + std::to_string(i)), kActor).status());
+  }
+  std::mutex mu;
+  std::condition_variable cv;
+  int answered = 0;
+  std::vector<std::vector<int64_t>> acked(kSessions);
+  std::vector<absl::Status> errors;
+  std::vector<std::thread> robots;
+  for (int i = 0; i < kSessions; ++i) {
+    robots.emplace_back([&, i] {
+      const std::string session = "G" + std::to_string(i);
+      for (int64_t seq = 1; seq <= kBatches; ++seq) {
+        std::promise<absl::StatusOr<BatchAck>> stored;
+        store_->AppendBatchAsync(session, seq, BatchPayload(seq),
+                                 [&](absl::StatusOr<BatchAck> a) { stored.set_value(a); });
+        absl::StatusOr<BatchAck> a = stored.get_future().get();  // one in flight, as a stream
+        std::lock_guard lock(mu);
+        if (a.ok()) acked[static_cast<size_t>(i)].push_back(a->last_acked_seq);
+        if (!a.ok()) errors.push_back(a.status());
+      }
+      // A gap fails this batch only (the others of its group are unaffected).
+      std::promise<absl::StatusOr<BatchAck>> gap;
+      store_->AppendBatchAsync(session, kBatches + 2, BatchPayload(kBatches + 2),
+                               [&](absl::StatusOr<BatchAck> a) { gap.set_value(a); });
+      EXPECT_EQ(gap.get_future().get().status().code(), absl::StatusCode::kFailedPrecondition);
+      std::lock_guard lock(mu);
+      ++answered;
+      cv.notify_all();
+    });
+  }
+  for (auto& t : robots) t.join();
+  EXPECT_EQ(answered, kSessions);
+  EXPECT_TRUE(errors.empty()) << errors.front();
+  for (int i = 0; i < kSessions; ++i) {
+    ASSERT_EQ(acked[static_cast<size_t>(i)].size(), static_cast<size_t>(kBatches));
+    for (int64_t k = 0; k < kBatches; ++k) EXPECT_EQ(acked[static_cast<size_t>(i)][k], k + 1);
+    ASSERT_OK_AND_ASSIGN(std::vector<SampleBatch> batches,
+                         store_->ReadBatches("G" + std::to_string(i)));
+    ASSERT_EQ(batches.size(), static_cast<size_t>(kBatches));
+    for (int64_t k = 0; k < kBatches; ++k) EXPECT_EQ(batches[k].payload, BatchPayload(k + 1));
+  }
+  // A malformed batch is answered at once, on the caller's thread.
+  bool answered_inline = false;
+  store_->AppendBatchAsync("G0", kBatches + 1, "garbage", [&](absl::StatusOr<BatchAck> a) {
+    answered_inline = a.status().code() == absl::StatusCode::kInvalidArgument;
+  });
+  EXPECT_TRUE(answered_inline);
+  // Retransmissions through the group commit are no-ops, as with AppendBatch.
+  std::promise<absl::StatusOr<BatchAck>> again;
+  store_->AppendBatchAsync("G0", 1, BatchPayload(1),
+                           [&](absl::StatusOr<BatchAck> a) { again.set_value(a); });
+  ASSERT_OK_AND_ASSIGN(BatchAck ack, again.get_future().get());
+  EXPECT_EQ(ack.last_acked_seq, kBatches);
+  // Everything acknowledged survives closing and reopening the file.
+  Reopen();
+  EXPECT_EQ(store_->GetSession("G7").value().last_acked_seq, kBatches);
+}
+
+TEST_F(BatchTest, SavePosesUpsertsPosesAndPairs) {
+  Pose a, b;
+  a.index = 0, a.t_start_s = 1, a.t_end_s = 2, a.face = "Z+";
+  b.index = 1, b.t_start_s = 4, b.t_end_s = 5, b.face = "Z+", b.used = false, b.reason = "moved";
+  PosePair p;
+  p.pose_a = 0, p.pose_b = 1, p.face = "Z+", p.rotation_deg = 91, p.reason = "turned 91";
+  ASSERT_OK(store_->SavePoses("S1", {a}, {}));
+  ASSERT_OK(store_->SavePoses("S1", {a, b}, {p}));  // a replay rewrites the same rows
+  ASSERT_OK_AND_ASSIGN(std::vector<Pose> poses, store_->ListPoses("S1"));
+  ASSERT_EQ(poses.size(), 2u);
+  EXPECT_EQ(poses[1].face, "Z+");
+  EXPECT_EQ(poses[1].reason, "moved");
+  EXPECT_EQ(store_->GetSession("S1").value().poses_accepted, 1);
+  ASSERT_OK_AND_ASSIGN(std::vector<PosePair> pairs, store_->ListPairs("S1"));
+  ASSERT_EQ(pairs.size(), 1u);
+  EXPECT_EQ(pairs[0].rotation_deg, 91);
+  EXPECT_FALSE(pairs[0].ok);
+  PosePair bad = p;
+  bad.pose_b = 0;
+  EXPECT_EQ(store_->SavePoses("S1", {}, {bad}).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(store_->SavePoses("nope", {a}, {}).code(), absl::StatusCode::kNotFound);
 }
 
 TEST_F(BatchTest, ARepeatedBatchIsANoOp) {
