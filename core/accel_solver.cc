@@ -171,6 +171,50 @@ absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses,
   return p;
 }
 
+absl::StatusOr<AccelParams> FitAxisEllipsoid(const std::vector<AccelPose>& poses,
+                                             double gravity_m_s2) {
+  const size_t n = poses.size();
+  if (n < 6) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "too few static poses: %d found, bias and scale alone need at least 6 (7 or more with "
+        "every axis pointing up and down)",
+        static_cast<int>(n)));
+  }
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (const auto& p : poses) c += p.mean;
+  c /= static_cast<double>(n);
+  double spread = 0;
+  for (const auto& p : poses) spread += (p.mean - c).squaredNorm();
+  spread = std::sqrt(spread / static_cast<double>(n));
+  if (!(spread > 0)) return absl::FailedPreconditionError("all static poses read the same value");
+  const double k = 1.0 / spread;
+  // a_j v_j^2 + beta_j v_j = 1 in the normalised coordinates v = k (u - c).
+  Eigen::MatrixXd x(static_cast<Eigen::Index>(n), 6);
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3d v = k * (poses[i].mean - c);
+    x.row(static_cast<Eigen::Index>(i)) << v.x() * v.x(), v.y() * v.y(), v.z() * v.z(), v.x(),
+        v.y(), v.z();
+  }
+  const Eigen::VectorXd theta =
+      x.colPivHouseholderQr().solve(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(n)));
+  const Eigen::Vector3d a = theta.head<3>(), beta = theta.tail<3>();
+  if (!(a.minCoeff() > 0)) {
+    return absl::FailedPreconditionError(
+        "the static poses do not determine bias and scale: add poses with each axis up and down");
+  }
+  const Eigen::Vector3d v0 = -0.5 * beta.cwiseQuotient(a);
+  const double rho = 1.0 + (a.array() * v0.array().square()).sum();
+  if (!(rho > 0)) {
+    return absl::FailedPreconditionError(
+        "the static poses do not lie on an ellipsoid: add poses with each axis up and down");
+  }
+  AccelParams p;
+  p.bias = c + v0 / k;
+  // s_j^2 (u_j - b_j)^2 summed = g^2  <=>  (a_j / rho) v_j^2 summed = 1, v = k (u - b).
+  p.scale = gravity_m_s2 * k * (a / rho).cwiseSqrt();
+  return p;
+}
+
 absl::StatusOr<AccelParams> FitKnownReferences(const std::vector<Eigen::Vector3d>& means,
                                                const std::vector<Eigen::Vector3d>& references) {
   const size_t n = means.size();

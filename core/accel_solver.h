@@ -56,6 +56,12 @@ double Rms(const std::vector<double>& v);
 absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses,
                                          double gravity_m_s2);
 
+// Stage 1 of the reduced model (bias and scale only, angles and quadratic 0) for captures with
+// too few poses for the ellipsoid: sum_j s_j^2 (u_j - b_j)^2 = g^2, linear in 6 unknowns.
+// Needs at least 6 poses with every axis both up and down (7 or more for any redundancy).
+absl::StatusOr<AccelParams> FitAxisEllipsoid(const std::vector<AccelPose>& poses,
+                                             double gravity_m_s2);
+
 // Stage 1 with known orientations (seeds/000): a = P^T [u; 1] by least squares against the
 // reference specific forces (m/s^2). Returns the full 12-parameter affine model, decomposed into
 // frame rotation * lower-triangular * scale (quadratic 0).
@@ -92,6 +98,10 @@ struct StageReport {
   int iterations = 0;
   int evaluations = 0;
   double ms = 0;
+  // |a| - g per used pose after this stage (m/s^2), in the order of `pose_indices` (report pose
+  // indices); the per-pose picture of what the stage changed. Filled by Calibrate.
+  std::vector<int> pose_indices;
+  std::vector<double> pose_residual_m_s2;
 };
 
 struct BsasStageOptions {

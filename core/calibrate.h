@@ -6,6 +6,13 @@
 //   pairs, duplicates) -> accelerometer stages ls, bsas, lm -> final gyroscope -> residuals
 //   in-sample and held-out -> observability -> effects the residual shows (core/effects.h),
 //   refitted jointly -> verdict.
+//
+// Captures that cannot determine everything still calibrate what they can, with a warning and a
+// "warn" verdict: fewer than 10 poses give bias and scale only (7 or more, every axis up and
+// down); the six faces held once each (ferraris) give the 12-parameter affine model from the
+// face references. Moves across a time gap (an interval over 3x the median) or whose gravity
+// change the gyroscope cannot explain (a cut in the data) are left out of the gyroscope fit and
+// the pair checks, with a warning naming them.
 #ifndef IMUCAL_CORE_CALIBRATE_H_
 #define IMUCAL_CORE_CALIBRATE_H_
 
@@ -14,6 +21,7 @@
 
 #include "absl/status/statusor.h"
 #include "core/accel_solver.h"
+#include "core/allan.h"
 #include "core/capture.h"
 #include "core/effects.h"
 #include "core/params.h"
@@ -32,6 +40,9 @@ struct CalibrateOptions {
   EffectSearchOptions effects;
   // Threshold multipliers tried (times the learnt noise variance).
   std::vector<double> multipliers = {2, 3, 4, 6, 8, 12, 16, 24, 32, 48};
+  // Tried only when `multipliers` find too few poses for the full model: poses held by hand
+  // shake more than a rest on a table (the noise is learnt there), up to 16x its std.
+  std::vector<double> escalation_multipliers = {64, 96, 128, 192, 256};
 };
 
 struct PoseReport {
@@ -48,6 +59,17 @@ struct MoveReport {
   double error_deg = 0;          // predicted vs measured gravity direction, in-sample
   double heldout_error_deg = std::numeric_limits<double>::quiet_NaN();
   double rotation_deg = 0;       // total rotation of the move
+};
+
+// A full turn (Ferraris et al. 1995) found in the capture: from a still orientation about one
+// axis back to it, whole turns; its known angle constrains the gyroscope's scale.
+struct TurnReport {
+  double t_start_s = 0, t_end_s = 0;
+  int turns = 1;                 // whole turns (360 degrees each)
+  Eigen::Vector3d axis_body = Eigen::Vector3d::Zero();  // unit, body frame; zero when unknown
+  std::string axis;              // "z (vertical)", "unknown (not vertical)"
+  double angle_deg = std::numeric_limits<double>::quiet_NaN();  // with the final gyroscope
+  double error_deg = std::numeric_limits<double>::quiet_NaN();  // |constraint residual|
 };
 
 struct Residuals {
@@ -71,6 +93,7 @@ struct CalibrationReport {
   std::vector<PoseReport> poses;
   std::vector<PairCheck> pairs;
   std::vector<MoveReport> moves;
+  std::vector<TurnReport> turns;
   std::vector<StageReport> stages;
   Residuals residual;
   ParamSet params;
@@ -79,13 +102,16 @@ struct CalibrationReport {
   std::vector<std::string> warnings;
   // What the residual search examined and found; its effects are in params.effects.
   EffectDiagnostics effect_diagnostics;
+  // Allan deviation curves of the interval params.noise was measured on (core/allan.h), for the
+  // plot; empty when no used interval was long enough.
+  AllanCurves allan;
   double total_ms = 0;
   // Wall time of each phase of the pipeline, in order: {"static", ms}, {"gyro_rough", ms}, ...
   std::vector<std::pair<std::string, double>> phase_ms;
 };
 
-// Errors: FailedPrecondition when the capture cannot determine the model (too few poses, poses
-// too alike), naming what to add; InvalidArgument for a capture that fails ValidateCapture.
+// Errors: FailedPrecondition when the capture cannot determine even bias and scale (fewer than
+// 7 usable poses and not the six faces, poses too alike), naming what to add; InvalidArgument for a capture that fails ValidateCapture.
 absl::StatusOr<CalibrationReport> Calibrate(const Capture& capture,
                                             const CalibrateOptions& options);
 

@@ -351,11 +351,27 @@ void SetAccelModelSigma(const State& st, const AccelMask& free,
 }
 
 // Leave-one-pose-out |a| - g (m/s^2), exact refits from the full fit.
+constexpr double kMaxHeldOutLeverage = 0.99;
+
 std::vector<double> AccelHeldOut(const State& st, const AccelMask& free,
                                  const std::vector<SignalArray>& signals, double g,
                                  const std::vector<EffectPose>& poses) {
   std::vector<double> out(poses.size(), kNaN);
+  // A pose with leverage near 1 is the only one that fixes some combination of the parameters
+  // (a face placed once, in a protocol without pairs): without it that combination is not
+  // determined, and "predicting" it measures nothing. Such poses stay NaN (left out of every
+  // held-out RMS; the notes say how many).
+  std::vector<EffectPose> all = poses;
+  SetAccelOffsets(st, signals, &all);
+  const Design d = AccelDesign(st, AccelPoses(all), free, signals, g);
+  Eigen::VectorXd leverage = Eigen::VectorXd::Ones(d.x.rows());
+  if (d.x.rows() > d.x.cols()) {
+    const Eigen::HouseholderQR<Eigen::MatrixXd> qr(d.x);
+    const Eigen::MatrixXd q = qr.householderQ() * Eigen::MatrixXd::Identity(d.x.rows(), d.x.cols());
+    leverage = q.rowwise().squaredNorm();
+  }
   for (size_t i = 0; i < poses.size(); ++i) {
+    if (leverage(static_cast<Eigen::Index>(i)) > kMaxHeldOutLeverage) continue;
     std::vector<EffectPose> rest = poses;
     std::vector<SignalArray> rest_signals = signals;
     rest.erase(rest.begin() + static_cast<long>(i));
@@ -1033,6 +1049,18 @@ class Search {
       }
     }
     const double accel_rms = RmsOf(fit.accel_residual);
+    const auto unpredictable = std::count_if(fit.accel_heldout.begin(), fit.accel_heldout.end(),
+                                             [](double v) { return !std::isfinite(v); });
+    if (unpredictable > 0) {
+      diag->notes.push_back(absl::StrFormat(
+          "%d of %d poses are each the only one to fix part of the accelerometer model (a face "
+          "placed once): the others cannot predict them, so the held-out figures leave them out%s",
+          static_cast<int>(unpredictable), static_cast<int>(fit.accel_heldout.size()),
+          unpredictable == static_cast<long>(fit.accel_heldout.size())
+              ? "; none is left, so accelerometer effects could not be judged held out. Place "
+                "each face twice (the six-face protocol) or add poses between the faces"
+              : ""));
+    }
     diag->notes.push_back(absl::StrFormat(
         "remaining accelerometer residual %.3f mg RMS (held out %.3f mg) against a noise floor "
         "of %.3f mg",

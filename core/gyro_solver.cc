@@ -46,6 +46,33 @@ struct PreparedMove {
   Eigen::Vector3d up_after = Eigen::Vector3d::UnitZ();
 };
 
+// A full turn reduces to its integral C = sum_k c_k: the residual is linear in M.
+struct PreparedTurn {
+  Eigen::Vector3d integral = Eigen::Vector3d::Zero();
+  Eigen::Vector3d axis = Eigen::Vector3d::Zero();  // zero: unknown
+  double angle = 0;
+};
+
+// r = M C - angle axis, dr/dvec(M) = C^T kron I3 (axis known); r = |M C| - angle,
+// dr/dvec(M) = (M C / |M C|)^T (C^T kron I3) (axis unknown, in component 0; the others 0).
+Eigen::Vector3d TurnResidual(const PreparedTurn& turn, const Eigen::Matrix3d& m,
+                             Eigen::Matrix<double, 3, 9>* jacobian) {
+  const Eigen::Vector3d v = m * turn.integral;
+  Eigen::Matrix<double, 3, 9> j = Eigen::Matrix<double, 3, 9>::Zero();
+  for (int c = 0; c < 3; ++c)
+    j.block<3, 3>(0, 3 * c) = turn.integral(c) * Eigen::Matrix3d::Identity();
+  if (turn.axis.squaredNorm() > 0) {
+    if (jacobian != nullptr) *jacobian = j;
+    return v - turn.angle * turn.axis;
+  }
+  const double norm = v.norm();
+  if (jacobian != nullptr) {
+    jacobian->setZero();
+    if (norm > 0) jacobian->row(0) = (v / norm).transpose() * j;
+  }
+  return Eigen::Vector3d(norm - turn.angle, 0, 0);
+}
+
 Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
   Eigen::Matrix3d k;
   k << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
@@ -364,6 +391,28 @@ class MoveCost final : public ceres::SizedCostFunction<3, 9> {
   const PreparedMove* move_;  // not owned; outlives the problem
 };
 
+class TurnCost final : public ceres::SizedCostFunction<3, 9> {
+ public:
+  static ceres::CostFunction* Create(const PreparedTurn* turn) { return new TurnCost(turn); }
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    const Eigen::Map<const Eigen::Matrix3d> matrix(parameters[0]);
+    Eigen::Map<Eigen::Vector3d> r(residuals);
+    Mat39 j;
+    r = TurnResidual(*turn_, matrix, &j);
+    if (jacobians != nullptr && jacobians[0] != nullptr) {
+      Eigen::Map<Eigen::Matrix<double, 3, 9, Eigen::RowMajor>> jacobian(jacobians[0]);
+      jacobian = j;
+    }
+    return r.allFinite() && j.allFinite();
+  }
+
+ private:
+  explicit TurnCost(const PreparedTurn* turn) : turn_(turn) {}
+  const PreparedTurn* turn_;  // not owned; outlives the problem
+};
+
 struct LmOutcome {
   Eigen::Matrix3d matrix;
   int iterations = 0;
@@ -372,6 +421,7 @@ struct LmOutcome {
 };
 
 absl::StatusOr<LmOutcome> RunLevenbergMarquardt(const std::vector<PreparedMove>& moves,
+                                                const std::vector<PreparedTurn>& turns,
                                                 const Eigen::Matrix3d& initial,
                                                 int max_iterations) {
   LmOutcome outcome;
@@ -379,6 +429,9 @@ absl::StatusOr<LmOutcome> RunLevenbergMarquardt(const std::vector<PreparedMove>&
   ceres::Problem problem;
   for (const PreparedMove& move : moves) {
     problem.AddResidualBlock(MoveCost::Create(&move), nullptr, outcome.matrix.data());
+  }
+  for (const PreparedTurn& turn : turns) {
+    problem.AddResidualBlock(TurnCost::Create(&turn), nullptr, outcome.matrix.data());
   }
   ceres::Solver::Options options;
   options.minimizer_type = ceres::TRUST_REGION;
@@ -414,7 +467,10 @@ struct Linearisation {
   Vec9 gradient = Vec9::Zero();   // J^T r
 };
 
-Linearisation Linearise(const std::vector<PreparedMove>& moves, const Eigen::Matrix3d& m) {
+// Moves first (their Jacobians and residuals are indexed like the moves), then the turns, which
+// enter only the Hessian and gradient.
+Linearisation Linearise(const std::vector<PreparedMove>& moves,
+                        const std::vector<PreparedTurn>& turns, const Eigen::Matrix3d& m) {
   Linearisation lin;
   for (const PreparedMove& move : moves) {
     Mat39 j;
@@ -424,7 +480,19 @@ Linearisation Linearise(const std::vector<PreparedMove>& moves, const Eigen::Mat
     lin.jacobians.push_back(j);
     lin.residuals.push_back(r);
   }
+  for (const PreparedTurn& turn : turns) {
+    Mat39 j;
+    const Eigen::Vector3d r = TurnResidual(turn, m, &j);
+    lin.hessian += j.transpose() * j;
+    lin.gradient += j.transpose() * r;
+  }
   return lin;
+}
+
+int TurnConstraints(const std::vector<PreparedTurn>& turns) {
+  int n = 0;
+  for (const PreparedTurn& t : turns) n += t.axis.squaredNorm() > 0 ? 3 : 1;
+  return n;
 }
 
 // Pseudo-inverse and null-space projector of a symmetric PSD 9x9 matrix.
@@ -483,10 +551,11 @@ void FindUndetermined(const SpectralSplit& split, const Mat99& covariance, doubl
   result->rank_deficient = split.rank < 9 || !result->undetermined.empty();
 }
 
-void AnalyseSolution(const std::vector<PreparedMove>& moves, const Linearisation& lin,
+void AnalyseSolution(const std::vector<PreparedMove>& moves,
+                     const std::vector<PreparedTurn>& turns, const Linearisation& lin,
                      const GyroSolveOptions& options, GyroSolveResult* result) {
   const SpectralSplit split = SplitSpectrum(lin.hessian);
-  const int dof = 2 * static_cast<int>(moves.size()) - split.rank;
+  const int dof = 2 * static_cast<int>(moves.size()) + TurnConstraints(turns) - split.rank;
   const double reduced_chi2 = dof > 0 ? 2.0 * result->cost / dof : kNaN;
   result->covariance = reduced_chi2 * split.pseudo_inverse;
   const double matrix_scale = result->matrix.norm() / std::sqrt(3.0);
@@ -494,6 +563,9 @@ void AnalyseSolution(const std::vector<PreparedMove>& moves, const Linearisation
   result->move_error_rad.reserve(moves.size());
   for (const PreparedMove& move : moves) {
     result->move_error_rad.push_back(MoveAngleError(move, result->matrix));
+  }
+  for (const PreparedTurn& turn : turns) {
+    result->turn_error_rad.push_back(TurnResidual(turn, result->matrix, nullptr).norm());
   }
 }
 
@@ -560,11 +632,45 @@ absl::StatusOr<GyroSolveResult> SolveGyroFromMoves(const std::vector<double>& t_
                                                    const std::vector<Eigen::Vector3d>& gyro_raw,
                                                    const std::vector<GyroMove>& moves,
                                                    const GyroSolveOptions& options) {
+  return SolveGyroFromMovesAndTurns(t_s, gyro_raw, moves, {}, options);
+}
+
+Eigen::Vector3d IntegrateRawTurn(const std::vector<double>& t_s,
+                                 const std::vector<Eigen::Vector3d>& gyro_raw,
+                                 const GyroFullTurn& turn, const GyroSolveOptions& options) {
+  GyroMove m;
+  m.begin = turn.begin;
+  m.end = turn.end;
+  m.bias_before = turn.bias_before;
+  m.bias_after = turn.bias_after;
+  if (!MoveIsValid(t_s, gyro_raw, m, 0).ok()) return Eigen::Vector3d::Constant(kNaN);
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& c :
+       PrepareMove(t_s, gyro_raw, m, options.bias, options.interpolate_bias).increments)
+    sum += c;
+  return sum;
+}
+
+absl::StatusOr<GyroSolveResult> SolveGyroFromMovesAndTurns(
+    const std::vector<double>& t_s, const std::vector<Eigen::Vector3d>& gyro_raw,
+    const std::vector<GyroMove>& moves, const std::vector<GyroFullTurn>& turns,
+    const GyroSolveOptions& options) {
   if (absl::Status status = OptionsAreValid(options); !status.ok()) return status;
   if (absl::Status status = ValidateGyroMoves(t_s, gyro_raw, moves); !status.ok()) {
     return status;
   }
-  if (moves.size() < 3) {
+  std::vector<PreparedTurn> prepared_turns;
+  for (size_t i = 0; i < turns.size(); ++i) {
+    PreparedTurn p;
+    p.integral = IntegrateRawTurn(t_s, gyro_raw, turns[i], options);
+    if (!p.integral.allFinite() || !(turns[i].angle_rad > 0) || !turns[i].axis.allFinite()) {
+      return absl::InvalidArgumentError(absl::StrCat("turn ", i, ": cannot be integrated"));
+    }
+    if (turns[i].axis.squaredNorm() > 0) p.axis = turns[i].axis.normalized();
+    p.angle = turns[i].angle_rad;
+    prepared_turns.push_back(p);
+  }
+  if (moves.size() < 3 && turns.empty()) {
     return absl::FailedPreconditionError(absl::StrCat(
         "gyro calibration needs at least 3 moves between static poses, got ", moves.size()));
   }
@@ -572,22 +678,31 @@ absl::StatusOr<GyroSolveResult> SolveGyroFromMoves(const std::vector<double>& t_
 
   GyroSolveResult result;
   Eigen::Matrix3d initial = options.initial_matrix;
-  if (options.scale_unknown) {
+  if (options.scale_unknown && !prepared_turns.empty()) {
+    double angle = 0, integral = 0;
+    for (const PreparedTurn& t : prepared_turns) angle += t.angle, integral += t.integral.norm();
+    result.initial_scale = integral > 0 ? angle / integral : kNaN;
+    if (!std::isfinite(result.initial_scale)) {
+      return absl::FailedPreconditionError("no gyro rate in any turn: cannot find its scale");
+    }
+    initial = result.initial_scale * Eigen::Matrix3d::Identity();
+  } else if (options.scale_unknown) {
     result.initial_scale = IsotropicScale(prepared);
     if (!std::isfinite(result.initial_scale)) {
       return absl::FailedPreconditionError("no gyro rate in any move: cannot find its scale");
     }
     initial = result.initial_scale * Eigen::Matrix3d::Identity();
   }
-  absl::StatusOr<LmOutcome> lm = RunLevenbergMarquardt(prepared, initial, options.max_iterations);
+  absl::StatusOr<LmOutcome> lm =
+      RunLevenbergMarquardt(prepared, prepared_turns, initial, options.max_iterations);
   if (!lm.ok()) return lm.status();
   result.matrix = lm->matrix;
   result.iterations = lm->iterations;
   result.cost = lm->cost;
   result.converged = lm->converged;
 
-  const Linearisation lin = Linearise(prepared, result.matrix);
-  AnalyseSolution(prepared, lin, options, &result);
+  const Linearisation lin = Linearise(prepared, prepared_turns, result.matrix);
+  AnalyseSolution(prepared, prepared_turns, lin, options, &result);
   if (options.compute_heldout)
     result.heldout_error_rad = HeldOutErrors(prepared, lin, result.matrix);
   return result;

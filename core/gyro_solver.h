@@ -55,6 +55,24 @@ struct GyroMove {
   Eigen::Vector3d bias_after = Eigen::Vector3d::Zero();
 };
 
+// A full turn (Ferraris et al. 1995): the robot turned about one axis from a static orientation
+// back to it, `turns` whole times. The integral of the body rate over it is then the rotation
+// vector of the whole path:
+//   sum_k M c_k = angle_rad * axis          (axis known: a turn about the vertical, axis = +-up)
+//   |sum_k M c_k| = |angle_rad|             (axis unknown: only the angle constrains M)
+// with c_k the bias-corrected increments of GyroMove's PREDICTION and angle_rad = 2 pi turns.
+// A turn about the vertical leaves gravity's direction unchanged, so a GyroMove over it says
+// nothing about the scale along that axis: the known angle does.
+struct GyroFullTurn {
+  size_t begin = 0;  // sample range [begin, end] to integrate, as GyroMove
+  size_t end = 0;
+  Eigen::Vector3d bias_before = Eigen::Vector3d::Zero();
+  Eigen::Vector3d bias_after = Eigen::Vector3d::Zero();
+  // Unit rotation axis in the body frame, or zero when unknown.
+  Eigen::Vector3d axis = Eigen::Vector3d::Zero();
+  double angle_rad = 2 * 3.14159265358979323846;  // 2 pi * whole turns (> 0)
+};
+
 struct GyroSolveOptions {
   // Starting M [rad/s per input unit]: the nominal factor times identity for rad/s or deg/s.
   Eigen::Matrix3d initial_matrix = Eigen::Matrix3d::Identity();
@@ -84,6 +102,9 @@ struct GyroSolveResult {
   Eigen::Matrix<double, 9, 9> covariance = Eigen::Matrix<double, 9, 9>::Zero();
   // In-sample error per move: angle between predicted and measured up after the move, rad.
   std::vector<double> move_error_rad;
+  // Per full turn: |integrated rotation vector - angle_rad * axis| (axis known) or
+  // ||integrated| - angle_rad| (axis unknown), rad, at the solution.
+  std::vector<double> turn_error_rad;
   // Leave-one-move-out error per move, rad: M_-i is ONE Gauss-Newton step from the full solution
   // without move i, (J^T J - J_i^T J_i)^+ (J^T r - J_i^T r_i), using the Jacobians and residuals
   // at the solution (the first-order LOO: exact for a linear model, close when the fit is good);
@@ -142,6 +163,22 @@ absl::StatusOr<GyroSolveResult> SolveGyroFromMoves(const std::vector<double>& t_
                                                    const std::vector<Eigen::Vector3d>& gyro_raw,
                                                    const std::vector<GyroMove>& moves,
                                                    const GyroSolveOptions& options);
+
+// The same with full turns (GyroFullTurn) as further residual blocks, each in rad like the moves'
+// (3 components when the axis is known, 1 otherwise). FailedPrecondition for fewer than 3 moves
+// and no turn; too few constraints (2 per move, 3 or 1 per turn, 9 unknowns) is a result:
+// rank_deficient and undetermined. With turns, scale_unknown starts from the scale that makes the
+// turns' mean angle exact. Moves and turns share the options' bias handling.
+absl::StatusOr<GyroSolveResult> SolveGyroFromMovesAndTurns(
+    const std::vector<double>& t_s, const std::vector<Eigen::Vector3d>& gyro_raw,
+    const std::vector<GyroMove>& moves, const std::vector<GyroFullTurn>& turns,
+    const GyroSolveOptions& options);
+
+// The bias-corrected integral sum_k c_k of a full turn (input unit * s), with the options' bias
+// handling: times M, the turn's integrated rotation vector.
+Eigen::Vector3d IntegrateRawTurn(const std::vector<double>& t_s,
+                                 const std::vector<Eigen::Vector3d>& gyro_raw,
+                                 const GyroFullTurn& turn, const GyroSolveOptions& options);
 
 }  // namespace imucal::core
 

@@ -4,6 +4,9 @@
 #ifndef IMUCAL_CORE_PARAMS_H_
 #define IMUCAL_CORE_PARAMS_H_
 
+#include <cstdint>
+#include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -39,6 +42,37 @@ struct ParamStdErrors {
   Eigen::Vector3d gyro_bias = Eigen::Vector3d::Zero();
 };
 
+// Noise figures of one sensor, per body axis (x, y, z), from the overlapping Allan deviation of
+// the calibrated signal at rest (core/allan.h). Densities are CONTINUOUS-TIME (what Kalibr,
+// OpenVINS and datasheets call "noise density"), not per-sample standard deviations:
+//   per-sample std = noise_density * sqrt(rate_hz)       (white noise sampled at rate_hz)
+// NaN where the data did not reach the figure (see NoiseFigures::notes).
+struct SensorNoise {
+  static constexpr double kUnknown = std::numeric_limits<double>::quiet_NaN();
+  // N: white noise density, read on the slope -1/2 line at tau = 1 s.
+  //    accel [m/s^2/sqrt(Hz)] (velocity random walk), gyro [rad/s/sqrt(Hz)] (angle random walk)
+  Eigen::Vector3d noise_density = Eigen::Vector3d::Constant(kUnknown);
+  // B: bias instability, the flat minimum of the curve / 0.664.  accel [m/s^2], gyro [rad/s]
+  Eigen::Vector3d bias_instability = Eigen::Vector3d::Constant(kUnknown);
+  // K: rate random walk, read on the slope +1/2 line at tau = 3 s.
+  //    accel [m/s^3/sqrt(Hz)], gyro [rad/s^2/sqrt(Hz)]  (Kalibr's *_random_walk)
+  Eigen::Vector3d random_walk = Eigen::Vector3d::Constant(kUnknown);
+  // When K is not reached: adev(tau_max) * sqrt(3 / tau_max), an upper bound on K (the curve
+  // lies above K sqrt(tau/3) everywhere); a bound, not a measurement. Same unit as K.
+  Eigen::Vector3d random_walk_bound = Eigen::Vector3d::Constant(kUnknown);
+};
+
+// The noise block of a parameter set: where it was measured and the figures.
+struct NoiseFigures {
+  double t_start_s = 0.0;  // the static interval analysed (capture time)
+  double t_end_s = 0.0;
+  int64_t samples = 0;
+  double rate_hz = 0.0;    // sample rate of that interval (1 / median interval)
+  SensorNoise accel;       // SI, calibrated body frame
+  SensorNoise gyro;
+  std::vector<std::string> notes;  // which figures the data did not reach, and why
+};
+
 struct ParamSet {
   std::string device;
   int version = 0;         // assigned by the server; 0 offline
@@ -56,6 +90,8 @@ struct ParamSet {
   double quality_gyro_static_rms_rad_s = 0.0;
   std::string source_session;
   std::string software;
+  // Allan-deviation noise figures (absent in parameter sets made before they existed).
+  std::optional<NoiseFigures> noise;
 };
 
 // The model text stored in every parameter set and export, so a reader never guesses.

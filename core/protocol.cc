@@ -2,6 +2,7 @@
 
 #include <array>
 #include <cmath>
+#include <limits>
 
 #include "Eigen/Geometry"
 #include "absl/strings/str_format.h"
@@ -58,6 +59,14 @@ PairCheck VerifyPair(const FacePose& a, const FacePose& b, const Eigen::Vector3d
   if (!(fa == fb)) {
     p.reason = absl::StrFormat("wrong face: %s was up, then %s; turn about the vertical only",
                                fa.Label(), fb.Label());
+  } else if (!b.rotation_known) {
+    p.ok = misalignment_deg <= 2 * kFaceToleranceDeg / 3;
+    p.rotation_deg = std::numeric_limits<double>::quiet_NaN();
+    if (!p.ok) {
+      p.reason = absl::StrFormat(
+          "horizontal components do not mirror (mean %.1f degrees off the face axis)",
+          misalignment_deg);
+    }
   } else if (turn.angle_deg < 20) {
     p.reason = absl::StrFormat(
         "not turned: only %.0f degrees between the placements; turn it half a turn about the "
@@ -88,6 +97,7 @@ std::string_view ProtocolKindName(ProtocolKind kind) {
     case ProtocolKind::kSixFace: return "six-face";
     case ProtocolKind::kPositions: return "positions";
     case ProtocolKind::kFree: return "free";
+    case ProtocolKind::kFerraris: return "ferraris";
   }
   return "auto";
 }
@@ -98,8 +108,10 @@ absl::StatusOr<ProtocolKind> ParseProtocolKind(std::string_view name) {
   if (name == "positions" || name == "positions24" || name == "positions36")
     return ProtocolKind::kPositions;
   if (name == "free") return ProtocolKind::kFree;
+  if (name == "ferraris") return ProtocolKind::kFerraris;
   return absl::InvalidArgumentError(absl::StrFormat(
-      "--protocol: '%s' is not one of auto, six-face, positions, positions24, positions36, free",
+      "--protocol: '%s' is not one of auto, six-face, positions, positions24, positions36, free, "
+      "ferraris",
       name));
 }
 
@@ -112,6 +124,22 @@ Face ClassifyFace(const Eigen::Vector3d& up_body) {
   f.sign = u(f.axis) >= 0 ? 1 : -1;
   f.off_axis_deg = std::acos(std::min(1.0, std::abs(u(f.axis)))) * kRadToDeg;
   return f;
+}
+
+std::array<std::vector<int>, 6> FacePlacements(const std::vector<Eigen::Vector3d>& ups) {
+  std::array<std::vector<int>, 6> out;
+  for (size_t i = 0; i < ups.size(); ++i) {
+    const Face f = ClassifyFace(ups[i]);
+    if (f.off_axis_deg <= kFaceToleranceDeg)
+      out[static_cast<size_t>(2 * f.axis + (f.sign > 0 ? 0 : 1))].push_back(static_cast<int>(i));
+  }
+  return out;
+}
+
+bool CoversSixFaces(const std::vector<Eigen::Vector3d>& ups) {
+  for (const auto& p : FacePlacements(ups))
+    if (p.empty()) return false;
+  return true;
 }
 
 ProtocolKind DetectProtocol(const std::vector<Eigen::Vector3d>& ups) {

@@ -3,9 +3,13 @@
 //             vertical; the pair's mean cancels the floor tilt to first order.
 //   positions (seeds/002): 24 or 36 positions, three groups turned about a horizontal axis.
 //   free      (Tedaldi, IMU-TK): hand-held poses anywhere on the sphere.
+//   ferraris  (Ferraris et al. 1995): each face up once (no 180-degree pair, so the floor tilt
+//             is not cancelled) plus full 360-degree turns, whose known angle gives the
+//             gyroscope's scale and misalignment. calibrate.cc detects the turns.
 #ifndef IMUCAL_CORE_PROTOCOL_H_
 #define IMUCAL_CORE_PROTOCOL_H_
 
+#include <array>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -15,9 +19,10 @@
 
 namespace imucal::core {
 
-enum class ProtocolKind { kAuto, kSixFace, kPositions, kFree };
+enum class ProtocolKind { kAuto, kSixFace, kPositions, kFree, kFerraris };
 
-std::string_view ProtocolKindName(ProtocolKind kind);  // "auto", "six-face", "positions", "free"
+// "auto", "six-face", "positions", "free", "ferraris"
+std::string_view ProtocolKindName(ProtocolKind kind);
 // Accepts the names above and "positions24", "positions36".
 absl::StatusOr<ProtocolKind> ParseProtocolKind(std::string_view name);
 
@@ -33,6 +38,12 @@ Face ClassifyFace(const Eigen::Vector3d& up_body);
 
 // Poses more than this far from every axis are not "on a face".
 inline constexpr double kFaceToleranceDeg = 20.0;
+
+// The placements of each face (indices into `ups`), in the order X+, X-, Y+, Y-, Z+, Z-: the
+// poses whose up direction is within kFaceToleranceDeg of that face's axis.
+std::array<std::vector<int>, 6> FacePlacements(const std::vector<Eigen::Vector3d>& ups);
+// True when every one of the six faces has at least one placement.
+bool CoversSixFaces(const std::vector<Eigen::Vector3d>& ups);
 
 // Auto-detection from the up directions of the usable poses (body frame, unit vectors), in
 // time order.
@@ -54,6 +65,9 @@ struct FacePose {
   // Rotation from the previous FacePose to this one (body frame rotation vector, rad), from the
   // calibrated gyroscope; ignored for the first pose.
   Eigen::Vector3d rotation_from_previous = Eigen::Vector3d::Zero();
+  // False when the gyroscope cannot measure that rotation (a time gap in the move): the pair's
+  // turn is then not checked, only its faces and mirrored components.
+  bool rotation_known = true;
 };
 
 // Pairs consecutive placements of the same face and verifies each: same face up, horizontal

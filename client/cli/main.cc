@@ -16,6 +16,8 @@ constexpr char kHelp[] =
     "  simulate --out FILE      write a simulated capture with known truth\n"
     "  demo                     simulate, calibrate, apply, print the error before and after\n"
     "                           (with --server ADDR: the same through the service, guided)\n"
+    "  export --params P --format F   a parameter set as json, kalibr, kalibr-intrinsics or\n"
+    "                           openvins (Kalibr / OpenVINS YAML)\n"
     "server commands (imucal [--server ADDR] COMMAND ...; default $IMUCAL_SERVER, else\n"
     "127.0.0.1:50051; exit code 6 when the server is unreachable):\n"
     "  devices [register ID ...|get ID]   list, register or show devices\n"
@@ -80,7 +82,17 @@ int main(int argc, char** argv) {
   if (command == "solve") return imucal::cli::RunSolve(args);
   if (command == "report") return imucal::cli::RunReport(args);
   if (command == "params") return imucal::cli::RunParams(args);
-  if (command == "export") return imucal::cli::RunExport(args);
+  if (command == "export") {
+    // A parameter set file (--params) is exported offline; a stored version (--device) by the
+    // server. Without either, the offline help.
+    bool has_device = false, has_params = false;
+    for (const std::string& a : args) {
+      has_device |= a == "--device" || a.rfind("--device=", 0) == 0;
+      has_params |= a == "--params" || a.rfind("--params=", 0) == 0;
+    }
+    if (has_params || !has_device) return imucal::cli::RunExportFile(args);
+    return imucal::cli::RunExport(args);
+  }
   std::fprintf(stderr, "imucal: unknown command '%s'\n\n%s", command.c_str(), kHelp);
   return imucal::cli::kExitUsage;
 }

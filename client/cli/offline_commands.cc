@@ -1,9 +1,10 @@
-// Offline commands: calibrate, apply, simulate, demo. They need no server.
+// Offline commands: calibrate, apply, simulate, demo, export. They need no server.
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <optional>
 #include <sstream>
 
 #include "absl/strings/str_format.h"
@@ -14,6 +15,7 @@
 #include "client/cli/args.h"
 #include "client/cli/commands.h"
 #include "client/cli/demo_common.h"
+#include "client/cli/export_flags.h"
 #include "client/cli/import_flags.h"
 #include "client/cli/plots.h"
 #include "client/cli/report_json.h"
@@ -22,6 +24,7 @@
 #include "client/sdk/params_json.h"
 #include "core/calibrate.h"
 #include "core/capture_io.h"
+#include "core/export.h"
 #include "core/simulator.h"
 #include "core/validation.h"
 
@@ -34,20 +37,6 @@ constexpr double kRadToDeg = 180.0 / M_PI;
 void StampParams(core::ParamSet* params) {
   params->software = "imucal " IMUCAL_VERSION;
   params->created_at = absl::FormatTime("%Y-%m-%dT%H:%M:%SZ", absl::Now(), absl::UTCTimeZone());
-}
-
-absl::Status WriteFileAtomically(const std::string& path, const std::string& text) {
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
-    if (!f) return absl::InvalidArgumentError(absl::StrFormat("%s: cannot write", path));
-    f << text;
-    if (!f.flush()) return absl::InvalidArgumentError(absl::StrFormat("%s: write failed", path));
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) return absl::InvalidArgumentError(absl::StrFormat("%s: %s", path, ec.message()));
-  return absl::OkStatus();
 }
 
 absl::StatusOr<std::string> ReadFile(const std::string& path) {
@@ -70,16 +59,17 @@ constexpr char kCalibrateHelp[] =
     "  EuRoC imu0/data.csv, a ROS 2 bag, or a vendor CSV with --columns (see below).\n"
     "options:\n"
     "  --format auto|imucal|euroc|imutk|columns|rosbag2   (default auto: from the content)\n"
-    "  --protocol auto|six-face|positions|free   (default auto: detected from the poses)\n"
+    "  --protocol auto|six-face|positions|free|ferraris   (default auto: from the poses)\n"
     "  --gravity G                   local gravity, m/s^2 (default: the file's, else 9.80665)\n"
     "  --accel-unit m/s^2|g|counts   --gyro-unit rad/s|deg/s|counts   override the units\n"
     "  --device ID                   device id for the report\n"
     "  --seed N                      BSAS random seed (default 1; same seed, same result)\n"
     "  --json                        print the JSON report (report.md) instead of the summary\n"
     "  --out FILE                    also write the JSON report to FILE\n"
-    "  --plots DIR                   write report.json, summary.txt and SVG plots (residual per\n"
-    "                                pose before/after the effects, each effect against its\n"
-    "                                regressor) into DIR\n"
+    "  --out DIR/, --plots DIR       write report.json, summary.txt and SVG plots into DIR:\n"
+    "                                residual per pose after each stage and before/after the\n"
+    "                                effects, pose coverage on the sphere, Allan deviation,\n"
+    "                                each effect against its regressor\n"
     "  --no-effects                  skip the search for effects the model misses\n"
     "  --apply-time-effects          apply a found dependence on time since power-on (reported\n"
     "                                only, by default)\n"
@@ -334,20 +324,22 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   }
   StampParams(&report->params);
   const std::string json = ReportToJson(*report);
+  // --out DIR (an existing directory, or a path ending in '/') and --plots DIR: the report,
+  // its summary and the plots. --out FILE: the JSON report alone.
+  std::optional<std::string> bundle_dir = a->Get("plots");
   if (auto out = a->Get("out")) {
-    if (absl::Status s = WriteFileAtomically(*out, json); !s.ok()) return ReportError(s);
+    if (std::filesystem::is_directory(*out) || out->ends_with('/')) {
+      bundle_dir = *out;
+    } else if (absl::Status s = WriteFileAtomically(*out, json); !s.ok()) {
+      return ReportError(s);
+    }
   }
   std::vector<std::string> plot_paths;
-  if (auto dir = a->Get("plots")) {
-    auto plots = WriteReportPlots(nlohmann::json::parse(json), *dir);
-    if (!plots.ok()) return ReportError(plots.status());
-    const std::string base = std::filesystem::path(*dir).string();
-    if (absl::Status s = WriteFileAtomically(base + "/report.json", json); !s.ok())
-      return ReportError(s);
-    if (absl::Status s = WriteFileAtomically(base + "/summary.txt", FormatSummary(*report));
-        !s.ok())
-      return ReportError(s);
-    plot_paths = std::move(*plots);
+  if (bundle_dir) {
+    auto written =
+        WriteReportBundle(nlohmann::json::parse(json), json, FormatSummary(*report), *bundle_dir);
+    if (!written.ok()) return ReportError(written.status());
+    plot_paths = std::move(*written);
   }
   if (auto out = a->Get("params-out")) {
     if (absl::Status s = WriteFileAtomically(*out, sdk::ParamSetToJson(report->params)); !s.ok())
@@ -362,7 +354,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
                 std::string(core::GyroUnitName(capture->gyro_unit)).c_str());
     for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
     std::fputs(FormatSummary(*report).c_str(), stdout);
-    for (const auto& p : plot_paths) std::printf("plot        %s\n", p.c_str());
+    for (const auto& p : plot_paths) std::printf("wrote       %s\n", p.c_str());
   }
   return report->verdict == "fail" ? kExitVerdictFail : kExitOk;
 }
@@ -460,6 +452,85 @@ int RunDemo(const std::vector<std::string>& argv) {
   std::printf("== 3. ");
   if (absl::Status s = PrintBeforeAfter(so, sim->truth, report->params); !s.ok())
     return ReportError(s);
+  return kExitOk;
+}
+
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// export (offline): a parameter set file in the formats robots' estimators load (core/export.h).
+
+constexpr char kExportFileHelp[] =
+    "usage: imucal export --params FILE --format json|kalibr|kalibr-intrinsics|openvins\n"
+    "                     [--out FILE] [--rostopic /imu0] [--rate HZ] [noise values]\n"
+    "  Writes a parameter set (or the one inside a report) for robots' estimators:\n"
+    "  json               imucal-params v1, as stored (everything, biases included)\n"
+    "  kalibr             Kalibr imu.yaml: noise densities, random walks, update_rate\n"
+    "  kalibr-intrinsics  Kalibr scale-misalignment model (M, A, C_gyro_i, T_i_b) + noise keys\n"
+    "  openvins           OpenVINS kalibr_imu_chain.yaml (Tw, R_IMUtoGYRO, Ta, R_IMUtoACC, Tg)\n"
+    "  The YAML formats hold no biases, second-order terms or effects: the file's header and\n"
+    "  this command say so. Matrix conventions: README, \"Exported formats\".\n"
+    "options:\n"
+    "  --out FILE              write FILE (default: standard output)\n";
+constexpr char kExportFileHelpTail[] =
+    "  (a stored version from the service: imucal --server ADDR export --device D --format F)\n"
+    "exit codes: 0 written, 1 usage, 2 bad input (unreadable file, raw counts, singular\n"
+    "            matrix, a noise figure or the rate neither measured nor given)\n";
+
+}  // namespace
+
+int RunExportFile(const std::vector<std::string>& argv) {
+  auto a = Args::Parse(argv,
+                       WithExportValuedFlags({"params", "format", "out", "server"}),
+                       {"help"});
+  if (!a.ok()) return Usage(std::string(a.status().message()), kExportFileHelp);
+  if (a->Has("help")) {
+    return std::printf("%s%s%s", kExportFileHelp, kExportOptionsHelp, kExportFileHelpTail),
+           kExitOk;
+  }
+  const auto params_path = a->Get("params");
+  const auto format_name = a->Get("format");
+  if (!params_path || !format_name)
+    return Usage("export needs --params and --format", kExportFileHelp);
+  if (!a->positional().empty())
+    return Usage("unexpected argument '" + a->positional()[0] + "'", kExportFileHelp);
+  std::optional<core::ExportFormat> format;
+  if (*format_name != "json") {
+    auto f = core::ParseExportFormat(*format_name);
+    if (!f.ok()) return Usage("--format: expected json, kalibr, kalibr-intrinsics or openvins",
+                              kExportFileHelp);
+    format = *f;
+  }
+  auto options = ExportOptionsFrom(*a);
+  if (!options.ok()) return Usage(std::string(options.status().message()), kExportFileHelp);
+
+  auto text = ReadFile(*params_path);
+  if (!text.ok()) return ReportError(text.status());
+  auto params = sdk::ParamSetFromJson(*text);
+  if (!params.ok()) {
+    return ReportError(absl::InvalidArgumentError(
+        absl::StrFormat("%s: %s", *params_path, params.status().message())));
+  }
+  std::string out;
+  if (format) {
+    auto exported = core::ExportParams(*params, *format, *options);
+    if (!exported.ok()) {
+      std::fprintf(stderr, "imucal: %s: %s\n", params_path->c_str(),
+                   std::string(exported.status().message()).c_str());
+      return kExitBadInput;  // the parameter set lacks what the format needs
+    }
+    out = *std::move(exported);
+    for (const std::string& n : core::ExportNotes(*params, *format, *options))
+      std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
+  } else {
+    out = sdk::ParamSetToJson(*params);
+  }
+  if (auto path = a->Get("out")) {
+    if (absl::Status s = WriteFileAtomically(*path, out); !s.ok()) return ReportError(s);
+    std::fprintf(stderr, "imucal: wrote %s (%s)\n", path->c_str(), format_name->c_str());
+  } else {
+    std::fputs(out.c_str(), stdout);
+  }
   return kExitOk;
 }
 

@@ -118,11 +118,40 @@ std::string ReportToJson(const core::CalibrationReport& r) {
   }
   j["stages"] = json::array();
   for (const auto& s : r.stages) {
-    j["stages"].push_back({{"name", s.name},
-                           {"accel_rms", s.accel_rms_m_s2},
-                           {"iterations", s.iterations},
-                           {"evaluations", s.evaluations},
-                           {"ms", s.ms}});
+    json stage = {{"name", s.name},
+                  {"accel_rms", s.accel_rms_m_s2},
+                  {"iterations", s.iterations},
+                  {"evaluations", s.evaluations},
+                  {"ms", s.ms}};
+    // |a| - g per used pose after the stage (m/s^2): the per-pose plot's data.
+    if (!s.pose_indices.empty()) {
+      stage["poses"] = s.pose_indices;
+      json residuals = json::array();
+      for (double v : s.pose_residual_m_s2) residuals.push_back(Num(v));
+      stage["pose_residual"] = std::move(residuals);
+    }
+    j["stages"].push_back(std::move(stage));
+  }
+  // Full turns about one axis (Ferraris): the known 360-degree angles that fix the gyro scale.
+  j["turns"] = json::array();
+  for (const auto& t : r.turns) {
+    j["turns"].push_back({{"t_start", t.t_start_s},
+                          {"t_end", t.t_end_s},
+                          {"turns", t.turns},
+                          {"axis", t.axis},
+                          {"axis_body", Vec(t.axis_body)},
+                          {"angle_deg", Num(t.angle_deg)},
+                          {"error_deg", Num(t.error_deg)}});
+  }
+  // Allan deviation of the calibrated signals over the rest the noise block was measured on.
+  if (!r.allan.tau_s.empty()) {
+    json accel = json::array(), gyro = json::array();
+    for (const auto& v : r.allan.accel_m_s2) accel.push_back(Vec(v));
+    for (const auto& v : r.allan.gyro_rad_s) gyro.push_back(Vec(v));
+    j["allan"] = {{"tau", r.allan.tau_s},
+                  {"accel", std::move(accel)},
+                  {"gyro", std::move(gyro)},
+                  {"units", "tau s; accel m/s^2; gyro rad/s (Allan deviation, per axis x y z)"}};
   }
   const core::Residuals& res = r.residual;
   j["residual"] = {{"accel_rms", res.accel_rms_m_s2},

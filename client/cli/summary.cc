@@ -56,8 +56,19 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                         Accel(res.accel_max_m_s2, g));
   absl::StrAppendFormat(&s, "            held out (leave one pose out) RMS %s, max %s\n",
                         Accel(res.accel_heldout_rms_m_s2, g), Accel(res.accel_heldout_max_m_s2, g));
-  absl::StrAppendFormat(&s, "gyro        static rate RMS %.3g deg/s\n",
-                        res.gyro_static_rms_rad_s * kRadToDeg);
+  if (p.gyro_unit == core::GyroUnit::kCounts && !p.gyro_calibrated) {
+    // No scale was determined: the residual rate is still in the sensor's counts.
+    absl::StrAppendFormat(&s, "gyro        static rate RMS %.3g counts (scale not calibrated)\n",
+                          res.gyro_static_rms_rad_s);
+  } else {
+    absl::StrAppendFormat(&s, "gyro        static rate RMS %.3g deg/s\n",
+                          res.gyro_static_rms_rad_s * kRadToDeg);
+  }
+  for (const auto& t : r.turns) {
+    absl::StrAppendFormat(&s, "  turn      %6.1f-%6.1f s  %d x 360 deg about %s: measured %.2f deg, "
+                          "error %.2f deg\n", t.t_start_s, t.t_end_s, t.turns, t.axis,
+                          t.angle_deg, t.error_deg);
+  }
   if (std::isfinite(res.move_rms_deg)) {
     absl::StrAppendFormat(
         &s, "            gravity direction after %d moves: RMS %.3f deg, max %.3f deg; held out "

@@ -79,6 +79,46 @@ OrderedJson EffectToJson(const core::Effect& e) {
   return out;
 }
 
+// The noise block (core/params.h NoiseFigures): units spelled out, NaN (not reached) as null.
+OrderedJson SensorNoiseToJson(const core::SensorNoise& s, double rate_hz) {
+  OrderedJson out = OrderedJson::object();
+  out["noise_density"] = Vec(s.noise_density);
+  out["bias_instability"] = Vec(s.bias_instability);
+  out["random_walk"] = Vec(s.random_walk);
+  out["random_walk_bound"] = Vec(s.random_walk_bound);
+  out["noise_std_per_sample"] = Vec(s.noise_density * std::sqrt(rate_hz));  // informational
+  return out;
+}
+
+OrderedJson NoiseToJson(const core::NoiseFigures& n) {
+  OrderedJson out = OrderedJson::object();
+  out["method"] =
+      "overlapping Allan deviation of the calibrated body-frame signal over the longest static "
+      "interval; noise_density N read at tau = 1 s on the slope -1/2 line, bias_instability B = "
+      "flat minimum / 0.664, random_walk K read at tau = 3 s on the slope +1/2 line; null where "
+      "the data did not reach the figure (see notes)";
+  OrderedJson interval = OrderedJson::object();
+  interval["t_start"] = Number(n.t_start_s);
+  interval["t_end"] = Number(n.t_end_s);
+  interval["samples"] = n.samples;
+  interval["rate_hz"] = Number(n.rate_hz);
+  out["interval"] = std::move(interval);
+  OrderedJson units = OrderedJson::object();
+  units["accel.noise_density"] = "m/s^2/sqrt(Hz) (continuous-time)";
+  units["accel.bias_instability"] = "m/s^2";
+  units["accel.random_walk"] = "m/s^3/sqrt(Hz)";
+  units["accel.noise_std_per_sample"] = "m/s^2 (discrete: noise_density * sqrt(rate_hz))";
+  units["gyro.noise_density"] = "rad/s/sqrt(Hz) (continuous-time)";
+  units["gyro.bias_instability"] = "rad/s";
+  units["gyro.random_walk"] = "rad/s^2/sqrt(Hz)";
+  units["gyro.noise_std_per_sample"] = "rad/s (discrete: noise_density * sqrt(rate_hz))";
+  out["units"] = std::move(units);
+  out["accel"] = SensorNoiseToJson(n.accel, n.rate_hz);
+  out["gyro"] = SensorNoiseToJson(n.gyro, n.rate_hz);
+  out["notes"] = n.notes;
+  return out;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Reading. Every reader takes the JSON path of the value it reads and names it in its error.
 
@@ -361,6 +401,57 @@ absl::Status ReadQuality(const Json& j, const std::string& path, core::ParamSet*
                 &out->quality_gyro_static_rms_rad_s);
 }
 
+absl::Status ReadInt64(const Json& j, const std::string& path, int64_t* out) {
+  if (!j.is_number_integer()) return PathError(path, "expected an integer");
+  *out = j.get<int64_t>();
+  return absl::OkStatus();
+}
+
+absl::Status ReadStrings(const Json& j, const std::string& path, std::vector<std::string>* out) {
+  if (!j.is_array()) return PathError(path, "expected an array of strings");
+  out->clear();
+  for (size_t i = 0; i < j.size(); ++i) {
+    out->emplace_back();
+    IMUCAL_RETURN_IF_ERROR(ReadString(j[i], Element(path, i), &out->back()));
+  }
+  return absl::OkStatus();
+}
+
+// noise_density is required in a noise block; the other figures may be missing or null (NaN).
+absl::Status ReadSensorNoise(const Json& j, const std::string& path, core::SensorNoise* out) {
+  IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
+  IMUCAL_RETURN_IF_ERROR(
+      Member(j, path, "noise_density", kRequired, Numbers(Null::kAsNan), &out->noise_density));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "bias_instability", kOptional, Numbers(Null::kAsNan),
+                                &out->bias_instability));
+  IMUCAL_RETURN_IF_ERROR(
+      Member(j, path, "random_walk", kOptional, Numbers(Null::kAsNan), &out->random_walk));
+  return Member(j, path, "random_walk_bound", kOptional, Numbers(Null::kAsNan),
+                &out->random_walk_bound);
+}
+
+absl::Status ReadNoiseInterval(const Json& j, const std::string& path, core::NoiseFigures* out) {
+  IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
+  IMUCAL_RETURN_IF_ERROR(
+      Member(j, path, "t_start", kOptional, Numbers(Null::kAsNan), &out->t_start_s));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "t_end", kOptional, Numbers(Null::kAsNan), &out->t_end_s));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "samples", kOptional, ReadInt64, &out->samples));
+  return Member(j, path, "rate_hz", kRequired, Numbers(Null::kReject), &out->rate_hz);
+}
+
+// Optional as a whole: parameter sets written before it existed have none.
+absl::Status ReadNoise(const Json& j, const std::string& path,
+                       std::optional<core::NoiseFigures>* out) {
+  IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
+  core::NoiseFigures n;
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "interval", kRequired, ReadNoiseInterval, &n));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "accel", kRequired, ReadSensorNoise, &n.accel));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "gyro", kRequired, ReadSensorNoise, &n.gyro));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "notes", kOptional, ReadStrings, &n.notes));
+  *out = std::move(n);
+  return absl::OkStatus();
+}
+
 absl::Status ReadSource(const Json& j, const std::string& path, core::ParamSet* out) {
   IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "session", kOptional, ReadString, &out->source_session));
@@ -385,6 +476,7 @@ absl::Status ReadParamSet(const Json& j, const std::string& path, core::ParamSet
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "gyro", kRequired, ReadGyro, out));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "effects", kOptional, ReadEffects, &out->effects));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "quality", kOptional, ReadQuality, out));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "noise", kOptional, ReadNoise, &out->noise));
   return Member(j, path, "source", kOptional, ReadSource, out);
 }
 
@@ -452,6 +544,7 @@ std::string ParamSetToJson(const core::ParamSet& params) {
   quality["accel_rms"] = Number(params.quality_accel_rms_m_s2);
   quality["gyro_static_rms"] = Number(params.quality_gyro_static_rms_rad_s);
   j["quality"] = std::move(quality);
+  if (params.noise) j["noise"] = NoiseToJson(*params.noise);
   OrderedJson source = OrderedJson::object();
   source["session"] = params.source_session;
   source["software"] = params.software;

@@ -24,6 +24,18 @@
 //                "coefficient": 0.0, "stderr": 0.0, "error_before": 0.0, "error_after": 0.0,
 //                "applied": true, "evidence": {"what": "..."}}],
 //   "quality": {"accel_rms": 0.0004, "gyro_static_rms": 0.00002},
+//   "noise": {                               // optional (core::NoiseFigures, core/allan.h)
+//     "method": "...",                       // informational, ignored on read
+//     "interval": {"t_start": 0.1, "t_end": 9.9, "samples": 1960, "rate_hz": 200},
+//     "units": {...},                        // each figure's unit spelled out; informational
+//     "accel": {"noise_density": [3],        // N, m/s^2/sqrt(Hz), CONTINUOUS-time density
+//               "bias_instability": [3],     // B, m/s^2
+//               "random_walk": [3],          // K, m/s^3/sqrt(Hz)
+//               "random_walk_bound": [3],    // upper bound on K when K was not reached
+//               "noise_std_per_sample": [3]},// N*sqrt(rate_hz), m/s^2; informational
+//     "gyro":  {... the same in rad/s/sqrt(Hz), rad/s, rad/s^2/sqrt(Hz), rad/s},
+//     "notes": ["gyro random walk not reached on x, y, z: ..."]
+//   },                                       // figures not reached are null (NaN)
 //   "source": {"session": "...", "software": "imucal x.y.z"}
 // }
 //
@@ -31,7 +43,9 @@
 // ParamSet -> JSON -> ParamSet is exact. Standard errors may be NaN (not determined by the data):
 // they are written as null, and null reads back as NaN. Every other number must be a number.
 //
-// Reading: "format", "accel" (bias, scale, tri_angles, frame_angles, quadratic, input_unit) and
+// Reading: "noise" is optional (older parameter sets have none); when present, its
+// interval.rate_hz and each sensor's noise_density are required (null allowed: NaN).
+// "format", "accel" (bias, scale, tri_angles, frame_angles, quadratic, input_unit) and
 // "gyro" (bias, matrix, input_unit) are required. Missing optional members take the ParamSet
 // defaults, except missing standard errors, which read as NaN (unknown). Unknown members are
 // ignored ("more fields are welcome"). Effect evidence is a string in core::Effect: it is written

@@ -7,6 +7,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <string>
 
@@ -45,17 +46,44 @@ TEST(PlotsTest, OneSvgPerEffectAndPerPoseResiduals) {
   std::filesystem::remove_all(dir);
   const absl::StatusOr<std::vector<std::string>> files = WriteReportPlots(report, dir);
   ASSERT_TRUE(files.ok()) << files.status();
-  ASSERT_EQ(files->size(), 3u);
-  const size_t poses = report["effect_diagnostics"]["poses"].size();
+  std::map<std::string, std::string> svg;  // file name -> content
   for (const std::string& f : *files) {
-    const std::string svg = Slurp(f);
-    EXPECT_EQ(svg.rfind("<svg xmlns=\"http://www.w3.org/2000/svg\"", 0), 0u) << f;
-    EXPECT_NE(svg.find("</svg>\n"), std::string::npos) << f;
-    // Two series of markers (before and after), one per used pose each.
-    EXPECT_EQ(Count(svg, "<circle"), static_cast<int>(2 * poses)) << f;
+    svg[std::filesystem::path(f).filename().string()] = Slurp(f);
+    EXPECT_EQ(svg.rbegin()->second.rfind("<svg xmlns=\"http://www.w3.org/2000/svg\"", 0), 0u)
+        << f;
+    EXPECT_NE(Slurp(f).find("</svg>\n"), std::string::npos) << f;
   }
-  EXPECT_NE((*files)[2].find("effect_1_gyro_y_ax.svg"), std::string::npos);
-  EXPECT_NE(Slurp((*files)[2]).find("fitted term"), std::string::npos);
+  for (const char* name : {"residual_stages_per_pose.svg", "coverage.svg", "allan_accel.svg",
+                           "allan_gyro.svg", "residual_accel_per_pose.svg",
+                           "residual_gyro_per_pose.svg", "effect_1_gyro_y_ax.svg"}) {
+    EXPECT_EQ(svg.count(name), 1u) << name;
+  }
+  EXPECT_EQ(files->size(), 7u);
+  // Residual plots: two series of markers (before and after), one per used pose each.
+  const size_t poses = report["effect_diagnostics"]["poses"].size();
+  for (const char* name : {"residual_accel_per_pose.svg", "residual_gyro_per_pose.svg",
+                           "effect_1_gyro_y_ax.svg"}) {
+    EXPECT_EQ(Count(svg[name], "<circle"), static_cast<int>(2 * poses)) << name;
+  }
+  EXPECT_NE(svg["effect_1_gyro_y_ax.svg"].find("fitted term"), std::string::npos);
+  // Stages: a line and a marker per used pose for each stage that ran.
+  const size_t stages = report["stages"].size();
+  EXPECT_GE(stages, 3u);  // ls, bsas, lm (and effects)
+  EXPECT_EQ(Count(svg["residual_stages_per_pose.svg"], "<polyline"), static_cast<int>(stages));
+  EXPECT_EQ(Count(svg["residual_stages_per_pose.svg"], "<circle"),
+            static_cast<int>(stages * poses));
+  EXPECT_NE(svg["residual_stages_per_pose.svg"].find("after lm"), std::string::npos);
+  // Coverage: the six faces, then one marker per pose with a direction; the two rims.
+  int with_up = 0;
+  for (const auto& p : report["poses"]) {
+    const double x = p["up"][0], y = p["up"][1], z = p["up"][2];
+    with_up += x * x + y * y + z * z > 0;
+  }
+  EXPECT_EQ(Count(svg["coverage.svg"], "<circle"), 6 + with_up);
+  EXPECT_EQ(Count(svg["coverage.svg"], "<polyline"), 2);
+  // Allan: log-log, three axes, decade ticks.
+  EXPECT_EQ(Count(svg["allan_gyro.svg"], "<polyline"), 3);
+  EXPECT_NE(svg["allan_gyro.svg"].find(">0.1<"), std::string::npos);  // tau decade label
 }
 
 TEST(PlotsTest, NoDiagnosticsNoPlotsAndMalformedEffectIsNamed) {
@@ -63,6 +91,12 @@ TEST(PlotsTest, NoDiagnosticsNoPlotsAndMalformedEffectIsNamed) {
   auto none = WriteReportPlots(nlohmann::json::object(), dir);
   ASSERT_TRUE(none.ok());
   EXPECT_TRUE(none->empty());
+  auto r0 = WriteReportPlots({{"allan", {{"tau", {1, 2}}, {"accel", {{1, 2, 3}}}}}}, dir);
+  ASSERT_FALSE(r0.ok());
+  EXPECT_NE(r0.status().message().find("allan.accel"), std::string::npos) << r0.status();
+  r0 = WriteReportPlots({{"poses", {{{"up", {1, 0}}}}}}, dir);
+  ASSERT_FALSE(r0.ok());
+  EXPECT_NE(r0.status().message().find("poses[0].up"), std::string::npos) << r0.status();
   nlohmann::json bad = {{"effect_diagnostics", {{"poses", nlohmann::json::array()}}},
                         {"effects", {{{"sensor", "accel"}, {"axis", "w"}, {"regressor", "ax"}}}}};
   auto r = WriteReportPlots(bad, dir);

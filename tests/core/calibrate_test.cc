@@ -460,5 +460,102 @@ INSTANTIATE_TEST_SUITE_P(Seeds, CalibrateCountsTest, testing::Values(51, 52, 53)
                            return absl::StrFormat("seed%d", param_info.param);
                          });
 
+
+// ---------------------------------------------------------------------------------------------
+// Time gaps (the importers keep a jump in a sample counter as a gap in time).
+
+// The scenario capture with `cut_s` of samples removed from the middle of the move after the
+// first extra pose: the gyroscope misses part of that rotation. Returns the gap's start time.
+double CutMove(const SimResult& sim, double cut_s, Capture* out) {
+  const SimPose* from = nullptr;
+  const SimPose* to = nullptr;
+  for (size_t i = 0; i + 1 < sim.poses.size(); ++i) {
+    if (sim.poses[i].label.rfind("extra", 0) == 0) {
+      from = &sim.poses[i];
+      to = &sim.poses[i + 1];
+      break;
+    }
+  }
+  EXPECT_NE(from, nullptr);
+  if (from == nullptr) return 0;
+  const double mid = 0.5 * (from->t_end_s + to->t_start_s);
+  const double lo = mid - cut_s / 2, hi = mid + cut_s / 2;
+  *out = sim.capture;
+  out->t_s.clear();
+  out->accel.clear();
+  out->gyro.clear();
+  out->temp.clear();
+  double gap_start = 0;
+  for (size_t k = 0; k < sim.capture.size(); ++k) {
+    const double t = sim.capture.t_s[k];
+    if (t > lo && t < hi) continue;
+    if (t <= lo) gap_start = t;
+    out->t_s.push_back(t);
+    out->accel.push_back(sim.capture.accel[k]);
+    out->gyro.push_back(sim.capture.gyro[k]);
+    if (sim.capture.has_temp()) out->temp.push_back(sim.capture.temp[k]);
+  }
+  return gap_start;
+}
+
+TEST(CalibrateTest, MoveAcrossATimeGapIsLeftOutOfTheGyroFitWithAWarning) {
+  const SimOptions options = Scenario(7);
+  const SimResult sim = MustSimulate(options);
+  Capture cut;
+  const double gap_start = CutMove(sim, 0.5, &cut);
+  ASSERT_LT(cut.size(), sim.capture.size());
+  CalibrateOptions co;
+  co.heldout = false;
+  const CalibrationReport intact = MustCalibrate(sim.capture, co);
+  const CalibrationReport gapped = MustCalibrate(cut, co);
+  SCOPED_TRACE(Summary(gapped));
+  EXPECT_EQ(gapped.verdict, intact.verdict);
+  ASSERT_TRUE(gapped.params.gyro_calibrated);
+  // One move fewer in the gyro fit: the matrix may move by its standard error, not more.
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) {
+      const double se = gapped.params.stderrs.gyro_matrix(i, j);
+      ASSERT_TRUE(std::isfinite(se));
+      EXPECT_NEAR(gapped.params.gyro.matrix(i, j), intact.params.gyro.matrix(i, j), 3 * se)
+          << "gyro matrix (" << i << "," << j << ")";
+    }
+  }
+  EXPECT_EQ(gapped.moves.size() + 1, intact.moves.size());
+  const Errors e = Validate(gapped.params, ValidationCapture(options, sim.truth));
+  EXPECT_LT(e.static_rate_max_deg_s, kStaticRateToleranceDegS);
+  EXPECT_LT(e.accel_rms_m_s2, kAccelTolerance);
+  bool warned = false;
+  const std::string where = absl::StrFormat("at %.3f s", gap_start);
+  for (const std::string& w : gapped.warnings)
+    warned |= w.find("time gap") != std::string::npos && w.find(where) != std::string::npos &&
+              w.find("left out of the gyroscope fit") != std::string::npos;
+  EXPECT_TRUE(warned) << "no warning naming the gap " << where;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fewer poses than the full model needs: the largest model they determine, with a warning.
+
+TEST(CalibrateTest, EightPosesGiveBiasAndScaleWithAWarnVerdict) {
+  SimOptions options;
+  options.protocol = SimProtocol::kFree;
+  options.free_poses = 8;
+  options.seed = 43;
+  const SimResult sim = MustSimulate(options);
+  const CalibrationReport r = MustCalibrate(sim.capture);
+  SCOPED_TRACE(Summary(r));
+  EXPECT_EQ(r.verdict, "warn");
+  bool warned = false;
+  for (const std::string& w : r.warnings)
+    warned |= w.find("only bias and scale were calibrated") != std::string::npos;
+  EXPECT_TRUE(warned);
+  EXPECT_EQ(r.params.accel.tri_angles, Eigen::Vector3d::Zero());
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_NEAR(r.params.accel.bias(i), sim.truth.accel.bias(i),
+                4 * r.params.stderrs.accel.bias(i) + 1e-3);
+    EXPECT_NEAR(r.params.accel.scale(i), sim.truth.accel.scale(i),
+                4 * r.params.stderrs.accel.scale(i) + 5e-3);
+  }
+}
+
 }  // namespace
 }  // namespace imucal::core

@@ -1,0 +1,270 @@
+#include "core/allan.h"
+
+#include <algorithm>
+#include <cmath>
+#include <utility>
+
+#include "absl/status/status.h"
+#include "core/str_util.h"
+
+namespace imucal::core {
+namespace {
+
+constexpr double kNaN = SensorNoise::kUnknown;
+constexpr size_t kMinSamples = 64;
+// A figure's region: local log-log slope within this of the figure's slope (-1/2, 0, +1/2).
+constexpr double kSlopeTolerance = 0.25;
+// The random walk needs this many cluster times on its slope past the minimum (~0.3 decade).
+constexpr int kMinRandomWalkPoints = 3;
+// ... and the curve must rise above its minimum by this factor (white noise alone scatters by
+// up to ~30% at the longest usable cluster time, so a smaller rise proves nothing).
+constexpr double kMinRise = 1.5;
+// IEEE Std 952: the flat part of the curve of flicker (bias instability) noise is
+// sqrt(2 ln 2 / pi) B = 0.664 B.
+constexpr double kFlickerFloor = 0.664;
+
+// Least-squares slope of log(adev) over log(tau) on points [lo, hi].
+double LocalSlope(const std::vector<double>& log_tau, const std::vector<double>& log_adev,
+                  size_t lo, size_t hi) {
+  const double n = static_cast<double>(hi - lo + 1);
+  double mx = 0, my = 0;
+  for (size_t i = lo; i <= hi; ++i) mx += log_tau[i], my += log_adev[i];
+  mx /= n;
+  my /= n;
+  double sxy = 0, sxx = 0;
+  for (size_t i = lo; i <= hi; ++i) {
+    sxy += (log_tau[i] - mx) * (log_adev[i] - my);
+    sxx += (log_tau[i] - mx) * (log_tau[i] - mx);
+  }
+  return sxx > 0 ? sxy / sxx : 0.0;
+}
+
+std::string AxisList(const std::vector<int>& axes) {
+  static constexpr const char* kNames[3] = {"x", "y", "z"};
+  std::string out;
+  for (size_t i = 0; i < axes.size(); ++i) AppendTo(&out, i ? ", " : "", kNames[axes[i]]);
+  return out;
+}
+
+// Notes for one sensor: which figure no axis (or only some axes) reached.
+void AddNotes(const char* sensor, const SensorNoise& s, double tau_max_s,
+              std::vector<std::string>* notes) {
+  auto missing = [](const Eigen::Vector3d& v) {
+    std::vector<int> axes;
+    for (int i = 0; i < 3; ++i)
+      if (std::isnan(v(i))) axes.push_back(i);
+    return axes;
+  };
+  if (auto a = missing(s.noise_density); !a.empty()) {
+    notes->push_back(Cat(sensor, " noise density not reached on ", AxisList(a),
+                         ": no part of the curve has slope -1/2 (quantised or correlated "
+                         "noise?)"));
+  }
+  if (auto a = missing(s.bias_instability); !a.empty()) {
+    notes->push_back(Cat(sensor, " bias instability not reached on ", AxisList(a),
+                         ": the curve still falls at the longest usable cluster time (", tau_max_s,
+                         " s); a longer rest would show its flat minimum"));
+  }
+  if (auto a = missing(s.random_walk); !a.empty()) {
+    notes->push_back(Cat(sensor, " random walk not reached on ", AxisList(a),
+                         ": the curve does not rise with slope +1/2 before ", tau_max_s,
+                         " s; random_walk_bound is an upper bound, not a measurement (typical "
+                         "MEMS needs a rest of an hour or more)"));
+  }
+}
+
+}  // namespace
+
+std::vector<double> OverlappingAllanDeviation(const std::vector<double>& x, double rate_hz,
+                                              const std::vector<size_t>& cluster_sizes) {
+  const size_t n = x.size();
+  const double tau0 = 1.0 / rate_hz;
+  // theta: the integral of x (cumulative sum times the sample interval), n + 1 values. The mean
+  // is removed first so that theta stays small and the second differences keep their digits.
+  double mean = 0;
+  for (double v : x) mean += v;
+  mean /= static_cast<double>(std::max<size_t>(n, 1));
+  std::vector<double> theta(n + 1, 0.0);
+  for (size_t i = 0; i < n; ++i) theta[i + 1] = theta[i] + (x[i] - mean) * tau0;
+  std::vector<double> out;
+  out.reserve(cluster_sizes.size());
+  for (size_t m : cluster_sizes) {
+    if (m == 0 || 2 * m > n) {
+      out.push_back(kNaN);
+      continue;
+    }
+    const double tau = static_cast<double>(m) * tau0;
+    double sum = 0;
+    const size_t terms = n - 2 * m + 1;
+    for (size_t k = 0; k < terms; ++k) {
+      const double d = theta[k + 2 * m] - 2.0 * theta[k + m] + theta[k];
+      sum += d * d;
+    }
+    out.push_back(std::sqrt(sum / (2.0 * tau * tau * static_cast<double>(terms))));
+  }
+  return out;
+}
+
+std::vector<size_t> LogSpacedClusterSizes(size_t n, int per_decade) {
+  std::vector<size_t> out;
+  if (n < 3) return out;
+  const size_t m_max = (n - 1) / 2;
+  for (int k = 0;; ++k) {
+    const auto m = static_cast<size_t>(std::llround(std::pow(10.0, k / double(per_decade))));
+    if (m > m_max) break;
+    if (out.empty() || m > out.back()) out.push_back(m);
+  }
+  return out;
+}
+
+AxisFigures FitAllanFigures(const std::vector<double>& tau_s, const std::vector<double>& adev,
+                            double duration_s) {
+  AxisFigures f;
+  // The usable points: enough independent clusters, a positive finite deviation.
+  std::vector<double> lt, la, w;
+  for (size_t i = 0; i < tau_s.size(); ++i) {
+    if (duration_s / tau_s[i] < kMinClustersForFit || !(adev[i] > 0) || !std::isfinite(adev[i]))
+      continue;
+    lt.push_back(std::log(tau_s[i]));
+    la.push_back(std::log(adev[i]));
+    w.push_back(duration_s / tau_s[i]);  // ~ independent clusters: the weight of the point
+  }
+  const size_t n = lt.size();
+  if (n < 3) return f;
+  f.tau_max_fit_s = std::exp(lt.back());
+  std::vector<double> slope(n);
+  for (size_t i = 0; i < n; ++i)
+    slope[i] = LocalSlope(lt, la, i < 2 ? 0 : i - 2, std::min(n - 1, i + 2));
+  auto near = [](double s, double target) { return std::abs(s - target) <= kSlopeTolerance; };
+
+  // N: the first run of points with slope -1/2; the line of slope -1/2 through them (weighted
+  // mean of log(adev sqrt(tau))), read at tau = 1 s.
+  size_t i = 0;
+  while (i < n && !near(slope[i], -0.5)) ++i;
+  double sw = 0, swl = 0;
+  for (; i < n && near(slope[i], -0.5); ++i) sw += w[i], swl += w[i] * (la[i] + 0.5 * lt[i]);
+  if (sw > 0) f.noise_density = std::exp(swl / sw);
+
+  // K: reached when, past the curve's minimum, at least kMinRandomWalkPoints cluster times
+  // have slope +1/2 and the curve has risen by kMinRise. Every point past the minimum then
+  // estimates K^2 = (avar - N^2 / tau) * 3 / tau (the white part removed, unbiased like avar);
+  // they are averaged with weights clusters * (share of the random walk in avar)^2, the inverse
+  // relative variance of each estimate, refined twice from the current K.
+  const size_t k_min = static_cast<size_t>(std::min_element(la.begin(), la.end()) - la.begin());
+  int rising = 0;
+  double highest_after_min = la[k_min];
+  for (size_t k = k_min + 1; k < n; ++k) {
+    rising += near(slope[k], 0.5);
+    highest_after_min = std::max(highest_after_min, la[k]);
+  }
+  if (rising >= kMinRandomWalkPoints && highest_after_min - la[k_min] > std::log(kMinRise)) {
+    const double white = std::isnan(f.noise_density) ? 0.0 : f.noise_density * f.noise_density;
+    double k2 = 0;
+    for (int pass = 0; pass < 3; ++pass) {
+      sw = swl = 0;
+      for (size_t k = k_min; k < n; ++k) {
+        const double tau = std::exp(lt[k]);
+        const double avar = std::exp(2 * la[k]);
+        const double share = pass == 0 ? 1.0 : (k2 * tau / 3) / (white / tau + k2 * tau / 3);
+        sw += w[k] * share * share;
+        swl += w[k] * share * share * (avar - white / tau) * 3.0 / tau;
+      }
+      k2 = sw > 0 ? swl / sw : 0.0;
+      if (!(k2 > 0)) break;
+    }
+    if (k2 > 0) f.random_walk = std::sqrt(k2);
+  }
+  if (std::isnan(f.random_walk)) {
+    f.random_walk_bound = std::exp(la.back()) * std::sqrt(3.0 / f.tau_max_fit_s);
+  }
+
+  // B: the minimum of the curve, if it is flat there (slope 0) after a falling part.
+  bool fell_before = false;
+  for (size_t k = 0; k < k_min; ++k) fell_before |= slope[k] < -kSlopeTolerance;
+  if (fell_before && near(slope[k_min], 0.0) && k_min + 1 < n) {
+    f.bias_instability = std::exp(la[k_min]) / kFlickerFloor;
+  }
+  return f;
+}
+
+absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
+                                           const AccelParams& accel, const GyroParams& gyro) {
+  if (begin >= end || end > capture.size()) {
+    return absl::InvalidArgumentError(
+        Cat("noise interval [", begin, ", ", end, ") outside the capture of ", capture.size(),
+            " samples"));
+  }
+  const size_t n = end - begin;
+  if (n < kMinSamples) {
+    return absl::FailedPreconditionError(
+        Cat("noise interval of ", n, " samples is too short for an Allan deviation (at least ",
+            kMinSamples, ")"));
+  }
+  // Uniform sampling is assumed: the rate is that of the median interval.
+  std::vector<double> dt;
+  dt.reserve(n - 1);
+  for (size_t i = begin + 1; i < end; ++i) dt.push_back(capture.t_s[i] - capture.t_s[i - 1]);
+  std::nth_element(dt.begin(), dt.begin() + static_cast<std::ptrdiff_t>(dt.size() / 2), dt.end());
+  const double median_dt = dt[dt.size() / 2];
+  if (!(median_dt > 0)) return absl::InvalidArgumentError("noise interval: time does not increase");
+  // Rounded to a micro-hertz: the median of float time stamps is a nominal rate plus noise
+  // (200.00000000000426 Hz), and the rate is written into files robots read.
+  const double rate_hz = std::round(1e6 / median_dt) / 1e6;
+
+  // The calibrated body-frame signals, one series per axis.
+  std::vector<double> series[6];
+  for (auto& s : series) s.reserve(n);
+  for (size_t i = begin; i < end; ++i) {
+    const Eigen::Vector3d a = accel.Apply(capture.accel[i]);
+    const Eigen::Vector3d g = gyro.Apply(capture.gyro[i], a);
+    for (int k = 0; k < 3; ++k) series[k].push_back(a(k)), series[3 + k].push_back(g(k));
+  }
+  const std::vector<size_t> m = LogSpacedClusterSizes(n);
+  NoiseAnalysis out;
+  NoiseFigures& nf = out.figures;
+  nf.t_start_s = capture.t_s[begin];
+  nf.t_end_s = capture.t_s[end - 1];
+  nf.samples = static_cast<int64_t>(n);
+  nf.rate_hz = rate_hz;
+  AllanCurves& c = out.curves;
+  for (size_t mi : m) c.tau_s.push_back(static_cast<double>(mi) / rate_hz);
+  c.accel_m_s2.assign(m.size(), Eigen::Vector3d::Zero());
+  c.gyro_rad_s.assign(m.size(), Eigen::Vector3d::Zero());
+  const double duration_s = static_cast<double>(n) / rate_hz;
+  double tau_max_s = 0;
+  for (int k = 0; k < 6; ++k) {
+    const std::vector<double> adev = OverlappingAllanDeviation(series[k], rate_hz, m);
+    for (size_t j = 0; j < m.size(); ++j) (k < 3 ? c.accel_m_s2 : c.gyro_rad_s)[j](k % 3) = adev[j];
+    const AxisFigures f = FitAllanFigures(c.tau_s, adev, duration_s);
+    SensorNoise& s = k < 3 ? nf.accel : nf.gyro;
+    s.noise_density(k % 3) = f.noise_density;
+    s.bias_instability(k % 3) = f.bias_instability;
+    s.random_walk(k % 3) = f.random_walk;
+    s.random_walk_bound(k % 3) = f.random_walk_bound;
+    tau_max_s = std::max(tau_max_s, f.tau_max_fit_s);
+  }
+  AddNotes("accel", nf.accel, tau_max_s, &nf.notes);
+  AddNotes("gyro", nf.gyro, tau_max_s, &nf.notes);
+  return out;
+}
+
+absl::StatusOr<NoiseAnalysis> NoiseFromLongestInterval(const Capture& capture,
+                                                       const std::vector<StaticInterval>& intervals,
+                                                       const ParamSet& params) {
+  const StaticInterval* longest = nullptr;
+  for (const StaticInterval& iv : intervals) {
+    if (iv.used && (longest == nullptr || iv.samples() > longest->samples())) longest = &iv;
+  }
+  if (longest == nullptr) return absl::FailedPreconditionError("no used static interval");
+  absl::StatusOr<NoiseAnalysis> out =
+      ComputeNoise(capture, longest->begin, longest->end, params.accel, params.gyro);
+  if (out.ok() && !params.gyro_calibrated && params.gyro_unit == GyroUnit::kCounts) {
+    // A nominal matrix on raw counts gives no rad/s: the gyro figures would be in counts.
+    out->figures.gyro = SensorNoise{};
+    out->figures.notes.push_back("gyro noise not stated: the gyroscope's scale (counts to rad/s) "
+                                 "was not determined");
+  }
+  return out;
+}
+
+}  // namespace imucal::core
