@@ -142,7 +142,9 @@ absl::Status WriteCoveragePlot(const json& report, const PlotWriter& write) {
   }
   Plot plot{"Pose coverage: gravity direction in the body frame (equal-area)",
             "left: +z hemisphere (x right, y up); right: -z hemisphere", "", {}};
-  plot.series = {rims, faces, used, unused};
+  // Room above the discs for the legend: an invisible point.
+  const PlotSeries headroom{"", {0.0}, {1.9}, "none"};
+  plot.series = {rims, faces, used, unused, headroom};
   plot.equal_aspect = true;
   plot.axes = false;
   return write("coverage.svg", plot);
@@ -205,7 +207,7 @@ std::string RenderSvg(const Plot& plot) {
   auto gx = [&](double x) { return kLeft + (x - xr.lo) / (xr.hi - xr.lo) * pw; };  // axis units
   auto gy = [&](double y) { return kTop + (yr.hi - y) / (yr.hi - yr.lo) * ph; };
   auto label = [](double v, bool log, double step) {
-    if (log) return absl::StrFormat("%g", std::pow(10.0, v));
+    if (log) return absl::StrFormat("%.2g", std::pow(10.0, v));
     return absl::StrFormat("%.4g", std::abs(v) < 1e-9 * step ? 0.0 : v);
   };
   std::string s = absl::StrFormat(
@@ -267,7 +269,7 @@ std::string RenderSvg(const Plot& plot) {
       }
       flush();
     } else {
-      for (size_t i = 0; i < ser.x.size() && i < ser.y.size(); ++i) {
+      for (size_t i = 0; ser.colour != "none" && i < ser.x.size() && i < ser.y.size(); ++i) {
         if (!std::isfinite(px(ser.x[i])) || !std::isfinite(py(ser.y[i]))) continue;
         absl::StrAppendFormat(&s, "<circle cx=\"%.1f\" cy=\"%.1f\" r=\"%s\" fill=\"%s\" stroke=\"%s\"/>\n",
                               px(ser.x[i]), py(ser.y[i]), ser.hollow ? "4.5" : "3",
