@@ -554,7 +554,7 @@ int main(int argc, char** argv) {
   Child child = ForkServer(dir + "/ingest.db", flags.server_cpu);
   PinToCpu(flags.client_cpu);  // after the fork: the server keeps its own core
   std::printf("imucal ingest bench: server pid %d on 127.0.0.1:%d, db %s/ingest.db "
-              "(WAL, synchronous=NORMAL: the Store default)\n",
+              "(WAL, synchronous=FULL: the Store default)\n",
               static_cast<int>(child.pid), child.port, dir.c_str());
   std::printf("batch %d samples (t, accel[3], gyro[3], temp per sample), window %d batch(es) "
               "per stream, %d channel(s), %.1f s per round, %ld cores\n\n",

@@ -99,6 +99,7 @@ inline Child ForkServer(const std::string& db_path, int cpu = -1) {
     PinToCpu(cpu);
     server::ServerOptions options;
     options.listen = "127.0.0.1:0";
+    options.security.insecure = true;  // plaintext on loopback, no tokens
     options.db_path = db_path;
     options.drain_deadline = absl::Seconds(5);
     absl::StatusOr<std::unique_ptr<server::Server>> server = server::Server::Start(options);

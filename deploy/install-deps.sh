@@ -6,7 +6,10 @@ packages=(
   g++ cmake ninja-build pkg-config
   libceres-dev libeigen3-dev libabsl-dev nlohmann-json3-dev libboost-math-dev
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler libsqlite3-dev
+  libtomlplusplus-dev  # imucald's configuration file (TOML)
   libgtest-dev libgmock-dev libbenchmark-dev tmux
+  clang libclang-rt-dev  # deploy/test.sh: libFuzzer targets (tests/fuzz)
+  libssl-dev openssl  # TLS and token hashing (libcrypto); the openssl CLI makes deploy/demo.sh's certificates
 )
 missing=()
 for p in "${packages[@]}"; do

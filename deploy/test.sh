@@ -1,6 +1,65 @@
 #!/usr/bin/env bash
-# The README's test command: installs, builds, runs every test (ctest, both cores).
+# The README's test command: installs, builds, runs every test (ctest, both cores), then the
+# robustness checks of README "## Robustness":
+#   1. the whole test suite again under AddressSanitizer + UndefinedBehaviorSanitizer (gcc, -O1,
+#      -fno-omit-frame-pointer, halt on the first error) in build-asan;
+#   2. the server tests under ThreadSanitizer in build-tsan;
+#   3. each libFuzzer target (clang, from install-deps.sh) for FUZZ_SECONDS (default 20) from
+#      its seed corpus.
+# IMUCAL_SANITIZERS=0 skips 1-3 (the plain tests only). Benchmarks are not built in 1-3.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+root="$(pwd)"
+jobs="$(nproc)"
+step() { printf '\n== %s (%ds since start)\n' "$1" "$SECONDS"; }
+
+step "build and test (build/)"
 deploy/build.sh
-ctest --test-dir build -j "$(nproc)" --output-on-failure --timeout 900
+ctest --test-dir build -j "$jobs" --output-on-failure --timeout 900
+
+if [ "${IMUCAL_SANITIZERS:-1}" = "0" ]; then
+  exit 0
+fi
+# 1. ASan + UBSan: every test. -O1 keeps the estimation tests fast enough; NDEBUG as in build/.
+step "ASan+UBSan build and test (build-asan/)"
+san="-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined"
+cmake -S . -B build-asan -G Ninja -DIMUCAL_BUILD_BENCH=OFF -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -g -DNDEBUG" "-DCMAKE_CXX_FLAGS=$san" \
+  "-DCMAKE_EXE_LINKER_FLAGS=$san" "-DCMAKE_SHARED_LINKER_FLAGS=$san" >/dev/null
+cmake --build build-asan -j "$jobs"
+ASAN_OPTIONS="halt_on_error=1:detect_leaks=1:strict_string_checks=1:detect_stack_use_after_return=1" \
+UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1" \
+  ctest --test-dir build-asan -j "$jobs" --output-on-failure --timeout 1800
+
+# 2. TSan: the server tests (gRPC handlers, reactors, the hub) and the store's (its group-commit
+# thread). Suppressions for third-party code only, documented in the file.
+step "TSan build and server tests (build-tsan/)"
+tsan="-fsanitize=thread"
+cmake -S . -B build-tsan -G Ninja -DIMUCAL_BUILD_BENCH=OFF -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -g -DNDEBUG" "-DCMAKE_CXX_FLAGS=$tsan" \
+  "-DCMAKE_EXE_LINKER_FLAGS=$tsan" >/dev/null
+cmake --build build-tsan -j "$jobs" --target server_test validation_test store_test sqlite_db_test
+TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$root/tests/tsan.supp" \
+  ctest --test-dir build-tsan -j "$jobs" --output-on-failure --timeout 1800 \
+  -R '^(ServerTest|ValidationTest|ParamCrcCacheTest|ActiveParamCacheTest|StatusUtilTest|StoreTest|BatchTest|SqliteDbTest|SqliteStatusTest)\.'
+
+# 3. Fuzzers: each target for FUZZ_SECONDS from its seeds; a crash fails the run and leaves
+# the input in build-fuzz/crashes/<target>/ (keep it in tests/fuzz/regressions/<target>/).
+step "fuzzers (build-fuzz/)"
+cmake -S . -B build-fuzz -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DIMUCAL_BUILD_FUZZERS=ON \
+  -DIMUCAL_BUILD_TESTS=OFF -DIMUCAL_BUILD_BENCH=OFF >/dev/null
+cmake --build build-fuzz -j "$jobs" --target imucal_fuzzers
+for target in capture_csv imutk columns euroc rosbag2_cdr sample_batch; do
+  work="build-fuzz/runs/$target"
+  rm -rf "$work"
+  mkdir -p "$work" "build-fuzz/crashes/$target"
+  "build-fuzz/tests/fuzz/fuzz_$target" -max_total_time="${FUZZ_SECONDS:-20}" -max_len=4096 \
+    -print_final_stats=1 -artifact_prefix="build-fuzz/crashes/$target/" \
+    "$work" "tests/fuzz/corpus/$target" >"$work.log" 2>&1 || {
+    tail -40 "$work.log"
+    echo "fuzz_$target found a crash: see build-fuzz/crashes/$target/" >&2
+    exit 1
+  }
+  printf '%-13s %s\n' "$target" "$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$work.log")"
+done
+step "all tests, sanitizers and fuzzers passed"

@@ -24,6 +24,7 @@ std::string ProtocolName(v1::Protocol protocol) {
     case v1::PROTOCOL_SIX_FACE: return "six-face";
     case v1::PROTOCOL_POSITIONS: return "positions";
     case v1::PROTOCOL_FREE: return "free";
+    case v1::PROTOCOL_FERRARIS: return "ferraris";
     default: return "auto";
   }
 }
@@ -32,6 +33,7 @@ v1::Protocol ParseProtocol(std::string_view stored) {
   if (stored == "six-face") return v1::PROTOCOL_SIX_FACE;
   if (stored == "positions") return v1::PROTOCOL_POSITIONS;
   if (stored == "free") return v1::PROTOCOL_FREE;
+  if (stored == "ferraris") return v1::PROTOCOL_FERRARIS;
   return v1::PROTOCOL_UNSPECIFIED;
 }
 
@@ -91,6 +93,7 @@ core::ProtocolKind ToProtocolKind(v1::Protocol protocol) {
     case v1::PROTOCOL_SIX_FACE: return core::ProtocolKind::kSixFace;
     case v1::PROTOCOL_POSITIONS: return core::ProtocolKind::kPositions;
     case v1::PROTOCOL_FREE: return core::ProtocolKind::kFree;
+    case v1::PROTOCOL_FERRARIS: return core::ProtocolKind::kFerraris;
     default: return core::ProtocolKind::kAuto;
   }
 }

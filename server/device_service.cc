@@ -30,10 +30,6 @@ absl::Status ValidateDevice(const v1::Device& device) {
 
 }  // namespace
 
-std::string ActorOf(const grpc::CallbackServerContext& context) {
-  return absl::StrCat("technician (", context.peer(), ")");
-}
-
 absl::StatusOr<int> PageSize(int page_size, int max_page_size) {
   if (page_size < 0 || page_size > max_page_size)
     return absl::InvalidArgumentError(absl::StrFormat("page_size: must be 0..%d", max_page_size));
@@ -43,11 +39,15 @@ absl::StatusOr<int> PageSize(int page_size, int max_page_size) {
 absl::Status DeviceServiceImpl::DoRegister(const grpc::CallbackServerContext& context,
                                            const v1::RegisterDeviceRequest& request,
                                            v1::Device* response) {
+  // A robot registers only itself.
+  absl::StatusOr<PrincipalRef> who =
+      auth_->AuthorizeForDevice(context, Rpc::kRegisterDevice, request.device().id());
+  if (!who.ok()) return who.status();
   if (absl::Status s = ValidateDevice(request.device()); !s.ok()) return s;
   // Robots register at every boot: the store returns the existing device for the same
   // metadata and AlreadyExists (naming the field) for different metadata.
   absl::StatusOr<storage::Device> stored =
-      store_->CreateDevice(FromProto(request.device()), ActorOf(context));
+      store_->CreateDevice(FromProto(request.device()), (*who)->actor);
   if (!stored.ok()) return stored.status();
   *response = ToProto(*stored);
   return absl::OkStatus();
@@ -62,6 +62,8 @@ grpc::ServerUnaryReactor* DeviceServiceImpl::RegisterDevice(
 grpc::ServerUnaryReactor* DeviceServiceImpl::GetDevice(grpc::CallbackServerContext* context,
                                                        const v1::GetDeviceRequest* request,
                                                        v1::Device* response) {
+  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetDevice); !who.ok())
+    return FinishUnary(context, who.status());
   if (request->device_id().empty())
     return FinishUnary(context, absl::InvalidArgumentError("device_id: required"));
   absl::StatusOr<storage::Device> device = store_->GetDevice(request->device_id());
@@ -73,6 +75,8 @@ grpc::ServerUnaryReactor* DeviceServiceImpl::GetDevice(grpc::CallbackServerConte
 grpc::ServerUnaryReactor* DeviceServiceImpl::ListDevices(grpc::CallbackServerContext* context,
                                                          const v1::ListDevicesRequest* request,
                                                          v1::ListDevicesResponse* response) {
+  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListDevices); !who.ok())
+    return FinishUnary(context, who.status());
   absl::StatusOr<int> size = PageSize(request->page_size(), 1000);
   if (!size.ok()) return FinishUnary(context, size.status());
   // One more than the page: whether there is a next page.

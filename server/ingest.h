@@ -1,11 +1,13 @@
 // Ingest of one SampleBatch: validate -> encode -> store (durable before the ack) -> segment.
 //
-// Checks, each naming the field at fault (INVALID_ARGUMENT) or the state (FAILED_PRECONDITION):
+// Checks (server/validate.h), each naming the batch, sample and field at fault
+// (INVALID_ARGUMENT), the limit (RESOURCE_EXHAUSTED) or the state (FAILED_PRECONDITION):
 //   seq          >= 1; a gap is FailedPrecondition naming the expected seq; seq <= last acked is
 //                a retransmission, a no-op when the content is the same (Store compares)
-//   t_s          not empty, finite, strictly increasing, after the session's last stored t
+//   t_s          1..max_batch_samples, finite, strictly increasing, after the session's last t
 //   accel, gyro  exactly 3 per sample, finite, within the unit's physical range
-//   temp_c       empty or 1 per sample, finite, within -100..200 degC
+//   temp_c       empty or 1 per sample, finite, within -60..150 degC
+//   the session  at most max_session_samples in all
 #ifndef IMUCAL_SERVER_INGEST_H_
 #define IMUCAL_SERVER_INGEST_H_
 
@@ -17,19 +19,12 @@
 #include "absl/status/statusor.h"
 #include "imucal/v1/imucal.pb.h"
 #include "server/session_hub.h"
+#include "server/validate.h"
 #include "storage/sample_codec.h"
 #include "storage/store.h"
 
 namespace imucal::server {
 
-inline constexpr int64_t kMaxBatchSamples = 100000;
-
-// Column sizes, finiteness and magnitudes, independent of the session's history. `accel_unit`
-// and `gyro_unit` are the device's units (they set the physical ranges).
-absl::Status ValidateBatchColumns(const v1::SampleBatch& batch, std::string_view accel_unit,
-                                  std::string_view gyro_unit);
-// The batch's times against the session's last stored sample time (NaN: none yet).
-absl::Status ValidateBatchTimes(const v1::SampleBatch& batch, double last_t_s);
 std::vector<storage::ImuSample> ToSamples(const v1::SampleBatch& batch);
 
 struct IngestResult {
@@ -49,13 +44,15 @@ struct PreparedBatch {
 // StreamSamples runs them asynchronously (the store's group commit in between, so that many
 // streams share a commit); IngestBatch runs them in a row.
 absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session,
-                                           const v1::SampleBatch& batch);
+                                           const v1::SampleBatch& batch,
+                                           const IngestLimits& limits = {});
 // After the store acknowledged the batch: the session's state, the online segmentation (its
 // poses and pair verdicts stored as they are judged) and the events for the watchers.
 IngestResult CompleteBatch(storage::Store& store, LiveSession& session,
                            const PreparedBatch& batch, const storage::BatchAck& ack);
 absl::StatusOr<IngestResult> IngestBatch(storage::Store& store, LiveSession& session,
-                                         const v1::SampleBatch& batch);
+                                         const v1::SampleBatch& batch,
+                                         const IngestLimits& limits = {});
 
 }  // namespace imucal::server
 

@@ -1,28 +1,73 @@
-// imucald: the imucal calibration service. Parses flags and runs the server until SIGTERM or
-// SIGINT, then shuts down gracefully (in-flight calls and queued solves finish) and exits 0.
+// imucald: the imucal calibration service. Reads its configuration (server/config.h), serves
+// until SIGTERM or SIGINT, then shuts down gracefully (in-flight calls and queued solves
+// finish) and exits 0. `imucald --help` lists the options; server/daemon_commands.h has the
+// health-check, backup and restore commands.
 #include <csignal>
 #include <cstdio>
 #include <cstring>
+#include <span>
 #include <string>
+#include <vector>
 
 #include <semaphore.h>
 
 #include "absl/synchronization/mutex.h"
+#include "server/config.h"
+#include "server/daemon_commands.h"
+#include "server/log.h"
 #include "server/server.h"
+#include "storage/backup.h"
+#include "storage/migrations.h"
 
 namespace {
+
+using imucal::server::Log;
+using imucal::server::LogLevel;
 
 sem_t g_stop;  // posted by the signal handler: sem_post is async-signal-safe
 
 void OnSignal(int) { sem_post(&g_stop); }
 
-int Usage(const char* problem) {
-  std::fprintf(stderr,
-               "%s\nusage: imucald [--listen HOST:PORT] [--db PATH]\n"
-               "  --listen  address to serve on (default 127.0.0.1:50051)\n"
-               "  --db      SQLite database file (default imucal.db)\n",
-               problem);
-  return 2;
+void WaitForStopSignal() {
+  sem_init(&g_stop, 0, 0);
+  struct sigaction sa;
+  std::memset(&sa, 0, sizeof(sa));
+  sa.sa_handler = OnSignal;
+  sigaction(SIGTERM, &sa, nullptr);
+  sigaction(SIGINT, &sa, nullptr);
+  while (sem_wait(&g_stop) != 0) {
+  }
+}
+
+int Serve(const imucal::server::DaemonConfig& config) {
+  imucal::server::ConfigureLog(config.log);
+  // The schema version before Store::Open migrates it: the start line says what was applied.
+  absl::StatusOr<int> before = imucal::storage::SchemaVersionOf(config.server.db_path);
+  const absl::Time start = absl::Now();
+  auto server = imucal::server::Server::Start(config.server);
+  if (!server.ok()) {
+    Log(LogLevel::kError, "server_start_failed",
+        {{"db", config.server.db_path}, {"error", server.status().message()}});
+    return 1;
+  }
+  const int schema_version = imucal::storage::LatestSchemaVersion();
+  Log(LogLevel::kInfo, "server_start",
+      {{"address", (*server)->address()},
+       {"db", config.server.db_path},
+       {"config", config.config_path},
+       {"version", IMUCAL_VERSION},
+       {"schema_version", schema_version},
+       {"migrations_applied", before.ok() ? schema_version - *before : -1},
+       {"solve_threads", config.server.sessions.solve_threads},
+       {"startup_ms", absl::ToDoubleMilliseconds(absl::Now() - start)}});
+  WaitForStopSignal();
+  Log(LogLevel::kInfo, "shutdown_begin",
+      {{"drain_deadline_s", absl::ToDoubleSeconds(config.server.drain_deadline)}});
+  const absl::Time stop = absl::Now();
+  (*server)->Shutdown();
+  Log(LogLevel::kInfo, "shutdown_done",
+      {{"drain_ms", absl::ToDoubleMilliseconds(absl::Now() - stop)}});
+  return 0;
 }
 
 }  // namespace
@@ -33,45 +78,23 @@ int main(int argc, char** argv) {
   // ~5% of the server's CPU in the GetActiveParameters fetch benchmark. Only imucald turns it
   // off: the test binaries (which never run this main) keep detecting lock-order cycles.
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
-  imucal::server::ServerOptions options;
-  for (int i = 1; i < argc; ++i) {
-    std::string arg = argv[i];
-    std::string value;
-    const size_t eq = arg.find('=');
-    if (eq != std::string::npos) {
-      value = arg.substr(eq + 1);
-      arg = arg.substr(0, eq);
-    } else if (arg == "--listen" || arg == "--db") {
-      if (i + 1 >= argc) return Usage(("missing value for " + arg).c_str());
-      value = argv[++i];
-    }
-    if (arg == "--listen") {
-      options.listen = value;
-    } else if (arg == "--db") {
-      options.db_path = value;
-    } else if (arg == "--help" || arg == "-h") {
-      Usage("imucald: the imucal calibration service");
-      return 0;
-    } else {
-      return Usage(("unknown flag " + arg).c_str());
-    }
+  const std::vector<std::string> args(argv + 1, argv + argc);
+  const std::span<const std::string> rest = std::span(args).subspan(args.empty() ? 0 : 1);
+  if (!args.empty() && args[0] == "backup") return imucal::server::RunBackupCommand(rest);
+  if (!args.empty() && args[0] == "restore") return imucal::server::RunRestoreCommand(rest);
+  if (!args.empty() && args[0] == "--health-check") {
+    return imucal::server::RunHealthCheckCommand(rest);
   }
-  sem_init(&g_stop, 0, 0);
-  struct sigaction sa;
-  std::memset(&sa, 0, sizeof(sa));
-  sa.sa_handler = OnSignal;
-  sigaction(SIGTERM, &sa, nullptr);
-  sigaction(SIGINT, &sa, nullptr);
-
-  auto server = imucal::server::Server::Start(options);
-  if (!server.ok()) {
-    std::fprintf(stderr, "imucald: %s\n", std::string(server.status().message()).c_str());
-    return 1;
+  absl::StatusOr<imucal::server::LoadedConfig> loaded =
+      imucal::server::LoadConfig(args, imucal::server::ProcessEnvironment());
+  if (!loaded.ok()) {
+    std::fprintf(stderr, "imucald: %s\n(imucald --help lists the options)\n",
+                 std::string(loaded.status().message()).c_str());
+    return 2;
   }
-  std::fprintf(stderr, "imucald: serving on %s\n", (*server)->address().c_str());
-  while (sem_wait(&g_stop) != 0) {
+  if (loaded->help) {
+    std::fputs(imucal::server::HelpText().c_str(), stdout);
+    return 0;
   }
-  std::fprintf(stderr, "imucald: shutting down\n");
-  (*server)->Shutdown();
-  return 0;
+  return Serve(loaded->config);
 }

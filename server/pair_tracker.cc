@@ -30,7 +30,7 @@ void PairTracker::AddGyro(double t_s, const Eigen::Vector3d& gyro) {
 
 std::vector<core::PairCheck> PairTracker::OnPoseAccepted(const core::PoseUpdate& pose) {
   std::vector<core::PairCheck> out;
-  if (!enabled_ || pose.accel_mean.norm() == 0) return out;
+  if (!enabled_ || pose.accel_mean.norm() == 0 || poses_.size() >= kMaxPoses) return out;
   core::FacePose fp;
   fp.index = pose.index;
   fp.up = pose.accel_mean.normalized();

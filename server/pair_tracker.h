@@ -27,6 +27,11 @@ namespace imucal::server {
 
 class PairTracker {
  public:
+  // Memory and the per-pose re-check stay bounded: a six-face session needs 12 poses (a few
+  // more with re-dos); after kMaxPoses accepted poses no more verdicts come online (the solve
+  // still checks every pair).
+  static constexpr size_t kMaxPoses = 64;
+
   // `enabled` false (not six-face): every call is a cheap no-op.
   PairTracker(bool enabled, std::string_view accel_unit, std::string_view gyro_unit);
 

@@ -1,7 +1,11 @@
+#include <cmath>
+#include <optional>
 #include <string>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "client/sdk/params_json.h"
+#include "core/export.h"
 #include "server/convert.h"
 #include "server/services.h"
 #include "server/unary.h"
@@ -16,6 +20,37 @@ absl::Status RequireDevice(const std::string& device_id) {
 absl::Status RequireVersion(int version, const char* field) {
   return version >= 1 ? absl::OkStatus()
                       : absl::InvalidArgumentError(absl::StrCat(field, ": must be 1 or more"));
+}
+
+// The export request's options; a 0 (or empty) field means "not given".
+absl::StatusOr<core::ExportOptions> ExportOptionsOf(const v1::ExportRequest& r) {
+  core::ExportOptions o;
+  if (!r.rostopic().empty()) o.rostopic = r.rostopic();
+  struct Field {
+    const char* name;
+    double value;
+    double* out;
+  };
+  for (const Field& f : {Field{"update_rate_hz", r.update_rate_hz(), &o.update_rate_hz},
+                         Field{"accel_noise_density", r.accel_noise_density(),
+                               &o.accel_noise_density},
+                         Field{"accel_random_walk", r.accel_random_walk(), &o.accel_random_walk},
+                         Field{"gyro_noise_density", r.gyro_noise_density(),
+                               &o.gyro_noise_density},
+                         Field{"gyro_random_walk", r.gyro_random_walk(), &o.gyro_random_walk}}) {
+    if (f.value == 0) continue;
+    if (!(std::isfinite(f.value) && f.value > 0))
+      return absl::InvalidArgumentError(
+          absl::StrCat(f.name, ": must be a positive finite number (0: not given)"));
+    *f.out = f.value;
+  }
+  if (r.openvins_model() == "rpng") {
+    o.openvins_model = core::OpenVinsModel::kRpng;
+  } else if (!r.openvins_model().empty() && r.openvins_model() != "kalibr") {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "openvins_model: unknown model \"", r.openvins_model(), "\" (kalibr or rpng)"));
+  }
+  return o;
 }
 
 }  // namespace
@@ -41,8 +76,11 @@ absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> ParameterServiceI
 grpc::ServerUnaryReactor* ParameterServiceImpl::GetActiveParameters(
     grpc::CallbackServerContext* context, const grpc::ByteBuffer* request,
     grpc::ByteBuffer* response) {
-  // The hot path: parse the small request, answer from the cache (a reference-counted slice,
-  // nothing serialised); a miss reads the store once (one indexed lookup) and fills it.
+  // The hot path: check the token (a cached lookup, server/auth.h), parse the small request,
+  // answer from the cache (a reference-counted slice, nothing serialised); a miss reads the
+  // store once (one indexed lookup) and fills it.
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetActiveParameters);
+  if (!who.ok()) return FinishUnary(context, who.status());
   v1::GetActiveParametersRequest req;
   {
     grpc::ByteBuffer copy(*request);  // Deserialize consumes its buffer
@@ -52,6 +90,10 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::GetActiveParameters(
       return FinishUnary(context, absl::InvalidArgumentError("request: not a GetActiveParametersRequest"));
   }
   if (absl::Status s = RequireDevice(req.device_id()); !s.ok()) return FinishUnary(context, s);
+  if (absl::Status s = auth_->AuthorizeDevice(*context, **who, Rpc::kGetActiveParameters,
+                                              req.device_id());
+      !s.ok())
+    return FinishUnary(context, s);
   absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> entry = ActiveEntry(req.device_id());
   if (!entry.ok()) return FinishUnary(context, entry.status());
   const bool unchanged = req.if_not_version() != 0 && req.if_not_version() == (*entry)->version;
@@ -63,6 +105,10 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::GetActiveParameters(
 grpc::ServerUnaryReactor* ParameterServiceImpl::GetParameters(
     grpc::CallbackServerContext* context, const v1::GetParametersRequest* request,
     v1::ParameterSet* response) {
+  if (absl::StatusOr<PrincipalRef> who =
+          auth_->AuthorizeForDevice(*context, Rpc::kGetParameters, request->device_id());
+      !who.ok())
+    return FinishUnary(context, who.status());
   absl::Status valid = RequireDevice(request->device_id());
   if (valid.ok()) valid = RequireVersion(request->version(), "version");
   if (!valid.ok()) return FinishUnary(context, valid);
@@ -76,6 +122,8 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::GetParameters(
 grpc::ServerUnaryReactor* ParameterServiceImpl::ListVersions(
     grpc::CallbackServerContext* context, const v1::ListVersionsRequest* request,
     v1::ListVersionsResponse* response) {
+  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListVersions); !who.ok())
+    return FinishUnary(context, who.status());
   if (absl::Status s = RequireDevice(request->device_id()); !s.ok())
     return FinishUnary(context, s);
   absl::StatusOr<int> size = PageSize(request->page_size(), 1000);
@@ -98,11 +146,13 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::ListVersions(
 grpc::ServerUnaryReactor* ParameterServiceImpl::Promote(grpc::CallbackServerContext* context,
                                                         const v1::PromoteRequest* request,
                                                         v1::ParameterSet* response) {
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kPromote);
+  if (!who.ok()) return FinishUnary(context, who.status());
   absl::Status valid = RequireDevice(request->device_id());
   if (valid.ok()) valid = RequireVersion(request->version(), "version");
   if (!valid.ok()) return FinishUnary(context, valid);
   absl::StatusOr<storage::ParamVersion> v =
-      store_->Promote(request->device_id(), request->version(), ActorOf(*context),
+      store_->Promote(request->device_id(), request->version(), (*who)->actor,
                       request->reason());
   if (!v.ok()) return FinishUnary(context, v.status());
   *response = ToProto(*v, /*with_json=*/true, &crc_cache_);
@@ -112,11 +162,13 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::Promote(grpc::CallbackServerCont
 grpc::ServerUnaryReactor* ParameterServiceImpl::Rollback(grpc::CallbackServerContext* context,
                                                          const v1::RollbackRequest* request,
                                                          v1::ParameterSet* response) {
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kRollback);
+  if (!who.ok()) return FinishUnary(context, who.status());
   absl::Status valid = RequireDevice(request->device_id());
   if (valid.ok()) valid = RequireVersion(request->to_version(), "to_version");
   if (!valid.ok()) return FinishUnary(context, valid);
   absl::StatusOr<storage::ParamVersion> v =
-      store_->Rollback(request->device_id(), request->to_version(), ActorOf(*context),
+      store_->Rollback(request->device_id(), request->to_version(), (*who)->actor,
                        request->reason());
   if (!v.ok()) return FinishUnary(context, v.status());
   *response = ToProto(*v, /*with_json=*/true, &crc_cache_);
@@ -127,27 +179,57 @@ absl::Status ParameterServiceImpl::DoExport(const v1::ExportRequest& request,
                                             v1::ExportResponse* response) {
   if (absl::Status s = RequireDevice(request.device_id()); !s.ok()) return s;
   if (request.version() < 0) return absl::InvalidArgumentError("version: must be 0 or more");
-  if (request.format() == "kalibr" || request.format() == "openvins")
-    return absl::UnimplementedError(absl::StrCat(
-        "format: export to ", request.format(),
-        " is not supported yet (the kalibr and openvins conversions come later); the supported "
-        "format is \"json\" (imucal-params v1)"));
-  if (request.format() != "json")
-    return absl::InvalidArgumentError(absl::StrCat(
-        "format: unknown format \"", request.format(),
-        "\"; the supported format is \"json\" (\"kalibr\" and \"openvins\" are not supported yet)"));
+  std::optional<core::ExportFormat> format;  // empty: json
+  if (request.format() != "json") {
+    absl::StatusOr<core::ExportFormat> f = core::ParseExportFormat(request.format());
+    if (!f.ok()) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "format: unknown format \"", request.format(),
+          "\" (json, kalibr, kalibr-intrinsics or openvins)"));
+    }
+    format = *f;
+  }
+  absl::StatusOr<core::ExportOptions> options = ExportOptionsOf(request);
+  if (!options.ok()) return options.status();
   absl::StatusOr<storage::ParamVersion> v =
       request.version() == 0 ? store_->GetActive(request.device_id())
                              : store_->GetVersion(request.device_id(), request.version());
   if (!v.ok()) return v.status();
-  response->set_content(v->params_json);
-  response->set_filename(absl::StrCat(v->device_id, "-v", v->version, ".imucal-params.json"));
+  const std::string stem = absl::StrCat(v->device_id, "-v", v->version);
+  if (!format) {
+    response->set_content(v->params_json);
+    response->set_filename(absl::StrCat(stem, ".imucal-params.json"));
+    return absl::OkStatus();
+  }
+  absl::StatusOr<core::ParamSet> params = sdk::ParamSetFromJson(v->params_json);
+  if (!params.ok()) {
+    return absl::InternalError(absl::StrCat("version ", v->version, " of ", v->device_id,
+                                            " does not parse: ", params.status().message()));
+  }
+  // The failures are the version's (raw counts, a noise figure missing): FailedPrecondition,
+  // with core's message naming what to supply.
+  absl::StatusOr<std::string> text = core::ExportParams(*params, *format, *options);
+  if (!text.ok()) {
+    return absl::Status(text.status().code() == absl::StatusCode::kInvalidArgument
+                            ? absl::StatusCode::kFailedPrecondition
+                            : text.status().code(),
+                        absl::StrCat("version ", v->version, ": ", text.status().message()));
+  }
+  response->set_content(*std::move(text));
+  response->set_filename(absl::StrCat(
+      stem, *format == core::ExportFormat::kOpenVins ? ".kalibr_imu_chain.yaml"
+            : *format == core::ExportFormat::kKalibrImu ? ".imu.yaml"
+                                                         : ".imu-intrinsics.yaml"));
+  for (std::string& note : core::ExportNotes(*params, *format, *options))
+    response->add_notes(std::move(note));
   return absl::OkStatus();
 }
 
 grpc::ServerUnaryReactor* ParameterServiceImpl::Export(grpc::CallbackServerContext* context,
                                                        const v1::ExportRequest* request,
                                                        v1::ExportResponse* response) {
+  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kExport); !who.ok())
+    return FinishUnary(context, who.status());
   return FinishUnary(context, DoExport(*request, response));
 }
 

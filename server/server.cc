@@ -1,12 +1,20 @@
 #include "server/server.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <chrono>
+#include <cstring>
+#include <optional>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/mutex.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "grpcpp/health_check_service_interface.h"
+#include "server/log.h"
 
 namespace imucal::server {
 namespace {
@@ -14,6 +22,51 @@ namespace {
 constexpr char kOrphanedSolveError[] =
     "the server stopped during this solve; solve the session again";
 constexpr char kStartupActor[] = "imucald";
+
+// Writes the first admin token's secret to `path`, readable by its owner only (0600 even if
+// the file existed with other permissions), and synced: the operator's only copy.
+absl::Status WriteSecretFile(const std::string& path, const std::string& secret) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_NOFOLLOW | O_CLOEXEC, 0600);
+  if (fd < 0) {
+    return absl::UnavailableError(
+        absl::StrCat("admin_token_file: cannot write ", path, ": ", std::strerror(errno)));
+  }
+  const std::string line = secret + "\n";
+  const bool ok = ::fchmod(fd, 0600) == 0 &&
+                  ::write(fd, line.data(), line.size()) == static_cast<ssize_t>(line.size()) &&
+                  ::fsync(fd) == 0;
+  const int err = errno;
+  ::close(fd);
+  if (!ok) {
+    return absl::UnavailableError(
+        absl::StrCat("admin_token_file: cannot write ", path, ": ", std::strerror(err)));
+  }
+  return absl::OkStatus();
+}
+
+// With TLS and no valid admin token (a new database, or every admin token revoked): the first
+// admin token, so that an operator can create the others (imucal admin token create). Returns the file written, or "" when there were
+// tokens already. A token whose file could not be written is revoked again.
+absl::StatusOr<std::string> BootstrapAdminToken(storage::TokenStore& tokens,
+                                                const ServerOptions& options) {
+  absl::StatusOr<std::optional<storage::NewToken>> first =
+      tokens.CreateFirstAdmin("bootstrap", kStartupActor);
+  if (!first.ok()) return first.status();
+  if (!first->has_value()) return std::string();
+  const std::string path = options.admin_token_file.empty()
+                               ? options.db_path + ".admin-token"
+                               : options.admin_token_file;
+  if (absl::Status s = WriteSecretFile(path, (*first)->secret); !s.ok()) {
+    tokens.Revoke((*first)->token.id, kStartupActor).IgnoreError();
+    return s;
+  }
+  Log(LogLevel::kWarning, "admin_token_created",
+      {{"token_id", (*first)->token.id},
+       {"file", path},
+       {"note", "the first admin token; create the others with imucal admin token create, "
+                "then keep this file safe or revoke the token"}});
+  return path;
+}
 
 }  // namespace
 
@@ -25,10 +78,15 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   const size_t colon = options.listen.rfind(':');
   if (colon == std::string::npos)
     return absl::InvalidArgumentError("listen: expected host:port");
+  if (absl::Status s = CheckRulesCoverServices(); !s.ok()) return s;
+  absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> credentials =
+      ListenerCredentials(options.listen, options.security);
+  if (!credentials.ok()) return credentials.status();
   // The fetch cache hears of every change of a device's active version from the store itself,
   // whichever service made it.
   auto cache = std::make_shared<ActiveParamCache>();
   storage::StoreOptions store_options;
+  store_options.durability = options.durability;
   store_options.on_active_change = [cache](std::string_view device_id) {
     cache->Invalidate(device_id);
   };
@@ -37,13 +95,19 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   if (!store.ok()) return store.status();
   // Solves still running were orphaned by a server that stopped (killed, crashed) mid-solve:
   // nothing will finish them, and their sessions would stay `solving` for ever. Fail them and
-  // reopen their sessions so that the technician can solve again.
+  // reopen their sessions so that the technician can solve again. A session whose device has
+  // opened its next session meanwhile cannot reopen (one open session per device): it is
+  // left failed instead, from where it can be solved again too.
   absl::StatusOr<std::vector<storage::Solve>> orphans = (*store)->ListRunningSolves();
   if (!orphans.ok()) return orphans.status();
   for (const storage::Solve& solve : *orphans) {
     absl::StatusOr<storage::Solve> failed = (*store)->FailSolve(
         solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
         storage::SessionState::kOpen);
+    if (absl::IsFailedPrecondition(failed.status())) {
+      failed = (*store)->FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"",
+                                   kStartupActor, storage::SessionState::kFailed);
+    }
     if (!failed.ok()) return failed.status();
   }
 
@@ -52,17 +116,55 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->drain_deadline_ = options.drain_deadline;
   s->active_cache_ = std::move(cache);
   s->store_ = *std::move(store);
-  s->devices_ = std::make_unique<DeviceServiceImpl>(s->store_.get());
-  s->sessions_ = std::make_unique<SessionServiceImpl>(s->store_.get(), options.sessions);
-  s->parameters_ = std::make_unique<ParameterServiceImpl>(s->store_.get(), s->active_cache_.get());
+  // Who may do what (server/auth.h). Insecure mode checks nothing: it is loopback-only.
+  AuthorizerOptions auth_options;
+  auth_options.enforce = !options.security.insecure;
+  auth_options.client_certificates = !options.security.client_ca_path.empty();
+  auth_options.deny_audit = options.deny_audit;
+  if (auth_options.enforce) {
+    absl::StatusOr<std::unique_ptr<storage::TokenStore>> tokens =
+        storage::TokenStore::Open(options.db_path);
+    if (!tokens.ok()) return tokens.status();
+    s->tokens_ = *std::move(tokens);
+    absl::StatusOr<std::string> written = BootstrapAdminToken(*s->tokens_, options);
+    if (!written.ok()) return written.status();
+    s->admin_token_written_ = *std::move(written);
+  } else {
+    Log(LogLevel::kWarning, "insecure_listener",
+        {{"listen", options.listen},
+         {"note", "plaintext and no authentication: every caller is the local admin"}});
+  }
+  s->auth_ = std::make_unique<Authorizer>(s->store_.get(), s->tokens_.get(), auth_options);
+  s->admin_ = std::make_unique<AdminServiceImpl>(s->auth_.get());
+  s->devices_ = std::make_unique<DeviceServiceImpl>(s->store_.get(), s->auth_.get());
+  s->sessions_ =
+      std::make_unique<SessionServiceImpl>(s->store_.get(), options.sessions, s->auth_.get());
+  s->parameters_ = std::make_unique<ParameterServiceImpl>(s->store_.get(), s->active_cache_.get(),
+                                                          s->auth_.get());
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
-  builder.AddListeningPort(options.listen, grpc::InsecureServerCredentials(), &s->port_);
+  builder.AddListeningPort(options.listen, *credentials, &s->port_);
+  builder.SetMaxReceiveMessageSize(options.max_receive_message_bytes);
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIME_MS,
+                             static_cast<int>(absl::ToInt64Milliseconds(options.keepalive_time)));
+  builder.AddChannelArgument(
+      GRPC_ARG_KEEPALIVE_TIMEOUT_MS,
+      static_cast<int>(absl::ToInt64Milliseconds(options.keepalive_timeout)));
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_PERMIT_WITHOUT_CALLS, 1);
+  // Keep pinging a stream that carries no data (a robot silent between batches): gRPC stops
+  // after 2 pings without data by default, and a dead peer would then go unnoticed.
+  builder.AddChannelArgument(GRPC_ARG_HTTP2_MAX_PINGS_WITHOUT_DATA, 0);
   builder.RegisterService(s->devices_.get());
   builder.RegisterService(s->sessions_.get());
   builder.RegisterService(s->parameters_.get());
+  builder.RegisterService(s->admin_.get());
+  if (options.log_rpcs) {
+    std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> creators;
+    creators.push_back(NewRpcLogInterceptorFactory());
+    builder.experimental().SetInterceptorCreators(std::move(creators));
+  }
   s->server_ = builder.BuildAndStart();
   if (s->server_ == nullptr || s->port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));

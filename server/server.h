@@ -10,8 +10,12 @@
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
 #include "grpcpp/grpcpp.h"
+#include "server/admin_service.h"
+#include "server/auth.h"
 #include "server/services.h"
+#include "server/tls.h"
 #include "storage/store.h"
+#include "storage/tokens.h"
 
 namespace imucal::server {
 
@@ -20,6 +24,25 @@ struct ServerOptions {
   std::string db_path = "imucal.db";
   SessionServiceOptions sessions;
   absl::Duration drain_deadline = absl::Seconds(30);
+  // Largest request message taken (gRPC answers RESOURCE_EXHAUSTED above it). 4 MiB, gRPC's
+  // default, said out loud: a batch at IngestLimits::max_batch_samples is about 1.1 MB.
+  int max_receive_message_bytes = 4 << 20;
+  // The server pings a connection idle for keepalive_time and closes it when a ping is not
+  // answered within keepalive_timeout: the streams of a robot that lost power or network end
+  // then, and its device's stream slot is free again (within 40 s by default).
+  absl::Duration keepalive_time = absl::Seconds(30);
+  absl::Duration keepalive_timeout = absl::Seconds(10);
+  // PRAGMA synchronous of the store (storage/store.h weighs kFull against kNormal).
+  storage::Durability durability = storage::StoreOptions().durability;
+  bool log_rpcs = false;  // log each RPC's completion (server/log.h); imucald turns it on
+  // The listener (server/tls.h): TLS with the server's certificate, robots' client certificates
+  // verified against client_ca_path when set; or, with `insecure`, plaintext on a loopback
+  // address only, and then no authentication (every caller is the local admin, server/auth.h).
+  ListenerSecurity security;
+  // With TLS, when no valid admin token exists (a new database), Start creates the first admin
+  // token and writes its secret to this file (mode 0600); empty: "<db_path>.admin-token".
+  std::string admin_token_file;
+  DenialAuditLimits deny_audit;  // how many audit rows refused calls may write (server/auth.h)
 };
 
 class Server {
@@ -31,6 +54,8 @@ class Server {
   std::string address() const;  // "host:port" with the selected port
   void Shutdown();
   void Wait() { server_->Wait(); }
+  // The file Start wrote the first admin token to; empty when it created none.
+  const std::string& admin_token_written() const { return admin_token_written_; }
 
  private:
   Server() = default;
@@ -40,6 +65,10 @@ class Server {
   absl::Duration drain_deadline_;
   std::shared_ptr<ActiveParamCache> active_cache_;  // before store_: it outlives the store
   std::unique_ptr<storage::Store> store_;
+  std::unique_ptr<storage::TokenStore> tokens_;
+  std::unique_ptr<Authorizer> auth_;  // after store_ and tokens_, before the services
+  std::unique_ptr<AdminServiceImpl> admin_;
+  std::string admin_token_written_;
   std::unique_ptr<DeviceServiceImpl> devices_;
   std::unique_ptr<SessionServiceImpl> sessions_;
   std::unique_ptr<ParameterServiceImpl> parameters_;

@@ -12,15 +12,17 @@
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "server/active_cache.h"
+#include "server/auth.h"
 #include "server/convert.h"
 #include "server/session_hub.h"
 #include "server/solve_pool.h"
+#include "server/stream_slots.h"
+#include "server/validate.h"
 #include "storage/store.h"
 
 namespace imucal::server {
 
-// Who did it, for the audit log: until authentication exists, "technician" and the peer.
-std::string ActorOf(const grpc::CallbackServerContext& context);
+// Every service checks its caller with an Authorizer (server/auth.h): not owned, outlives it.
 
 // Pages are by key (the store's paging): the token is the key of a page's last item. Returns
 // the page size to use (0 means 100; at most `max_page_size`).
@@ -28,7 +30,7 @@ absl::StatusOr<int> PageSize(int page_size, int max_page_size);
 
 class DeviceServiceImpl final : public v1::DeviceService::CallbackService {
  public:
-  explicit DeviceServiceImpl(storage::Store* store) : store_(store) {}
+  DeviceServiceImpl(storage::Store* store, Authorizer* auth) : store_(store), auth_(auth) {}
   grpc::ServerUnaryReactor* RegisterDevice(grpc::CallbackServerContext* context,
                                            const v1::RegisterDeviceRequest* request,
                                            v1::Device* response) override;
@@ -43,6 +45,7 @@ class DeviceServiceImpl final : public v1::DeviceService::CallbackService {
   absl::Status DoRegister(const grpc::CallbackServerContext& context,
                           const v1::RegisterDeviceRequest& request, v1::Device* response);
   storage::Store* store_;
+  Authorizer* auth_;
 };
 
 // GetActiveParameters, the hot path, is a raw method: its responses come pre-serialised from
@@ -58,8 +61,8 @@ using ParameterServiceBase = v1::ParameterService::WithRawCallbackMethod_GetActi
 class ParameterServiceImpl final : public ParameterServiceBase {
  public:
   // `cache` (not owned, outlives the service) is invalidated by the store's on_active_change.
-  ParameterServiceImpl(storage::Store* store, ActiveParamCache* cache)
-      : store_(store), cache_(cache) {}
+  ParameterServiceImpl(storage::Store* store, ActiveParamCache* cache, Authorizer* auth)
+      : store_(store), cache_(cache), auth_(auth) {}
   grpc::ServerUnaryReactor* GetActiveParameters(grpc::CallbackServerContext* context,
                                                 const grpc::ByteBuffer* request,
                                                 grpc::ByteBuffer* response) override;
@@ -86,17 +89,38 @@ class ParameterServiceImpl final : public ParameterServiceBase {
       const std::string& device_id);
   storage::Store* store_;
   ActiveParamCache* cache_;
+  Authorizer* auth_;
   ParamCrcCache crc_cache_;  // the CRC, once per version
 };
 
 struct SessionServiceOptions {
   int solve_threads = 2;
-  size_t solve_queue_limit = 16;
+  size_t solve_queue_limit = 16;  // solves waiting for a worker; RESOURCE_EXHAUSTED beyond
+  IngestLimits ingest;            // samples per batch and per session (server/validate.h)
+  // Concurrent StreamSamples per device (RESOURCE_EXHAUSTED beyond); a stream holds its slot
+  // from its first batch until it ends (a dead peer is found by keepalive, see ServerOptions).
+  int max_streams_per_device = 1;
+  int max_watchers_per_session = 16;  // concurrent WatchSession streams (RESOURCE_EXHAUSTED)
 };
 
-class SessionServiceImpl final : public v1::SessionService::CallbackService {
+// StreamSamples is a raw method (ByteBuffers in and out): a batch that is not a SampleBatch
+// then gets INVALID_ARGUMENT, where the generated reader would end the stream as if the robot
+// had closed it (gRPC reports a failed parse as a failed read).
+using SessionServiceBase = v1::SessionService::WithRawCallbackMethod_StreamSamples<
+    v1::SessionService::WithCallbackMethod_CreateSession<
+        v1::SessionService::WithCallbackMethod_GetSession<
+            v1::SessionService::WithCallbackMethod_ListSessions<
+                v1::SessionService::WithCallbackMethod_CancelSession<
+                    v1::SessionService::WithCallbackMethod_WatchSession<
+                        v1::SessionService::WithCallbackMethod_ListPoses<
+                            v1::SessionService::WithCallbackMethod_SolveSession<
+                                v1::SessionService::WithCallbackMethod_GetSolveJob<
+                                    v1::SessionService::WithCallbackMethod_GetReport<
+                                        v1::SessionService::Service>>>>>>>>>>;
+
+class SessionServiceImpl final : public SessionServiceBase {
  public:
-  SessionServiceImpl(storage::Store* store, SessionServiceOptions options);
+  SessionServiceImpl(storage::Store* store, SessionServiceOptions options, Authorizer* auth);
   ~SessionServiceImpl() override;
 
   grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* context,
@@ -111,7 +135,7 @@ class SessionServiceImpl final : public v1::SessionService::CallbackService {
   grpc::ServerUnaryReactor* CancelSession(grpc::CallbackServerContext* context,
                                           const v1::CancelSessionRequest* request,
                                           v1::Session* response) override;
-  grpc::ServerBidiReactor<v1::SampleBatch, v1::SampleAck>* StreamSamples(
+  grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* StreamSamples(
       grpc::CallbackServerContext* context) override;
   grpc::ServerWriteReactor<v1::SessionEvent>* WatchSession(
       grpc::CallbackServerContext* context, const v1::WatchSessionRequest* request) override;
@@ -150,7 +174,11 @@ class SessionServiceImpl final : public v1::SessionService::CallbackService {
   absl::StatusOr<v1::Session> SessionProto(const std::string& session_id);
 
   storage::Store* store_;
+  Authorizer* auth_;
+  const SessionServiceOptions options_;
   SessionHub hub_;
+  StreamSlots stream_slots_;   // StreamSamples per device
+  StreamSlots watcher_slots_;  // WatchSession per session
   std::mutex jobs_mu_;
   std::map<std::string, v1::SolveJob> jobs_;  // guarded by jobs_mu_
   // Serialises "predict the next version number, store the version": the params JSON carries

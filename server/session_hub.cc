@@ -128,6 +128,13 @@ absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Get(std::string_view se
   return it->second;
 }
 
+SessionHub::~SessionHub() {
+  std::lock_guard lock(mu_);
+  for (auto& [id, session] : sessions_) {
+    std::scoped_lock session_lock(session->mu, session->watchers_mu);
+  }
+}
+
 int SessionHub::PeekPosesAccepted(std::string_view session_id) {
   std::shared_ptr<LiveSession> s;
   {
@@ -167,6 +174,7 @@ absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Load(std::string_view s
     ToRows(events, &poses, &pairs);
     events.clear();
     if (!samples.empty()) live->last_t_s = samples.back().t_s;
+    live->samples += static_cast<int64_t>(samples.size());
     live->last_acked_seq = b.seq;
   }
   // A server killed between a batch's commit and its poses' leaves them missing: the replay

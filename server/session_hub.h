@@ -48,6 +48,7 @@ struct LiveSession {
   v1::Protocol protocol = v1::PROTOCOL_UNSPECIFIED;
   double gravity_m_s2 = core::kStandardGravity;
   int64_t last_acked_seq = 0;
+  int64_t samples = 0;  // stored in the session (IngestLimits::max_session_samples bounds it)
   double last_t_s = std::numeric_limits<double>::quiet_NaN();  // NaN: no sample yet
   std::unique_ptr<core::OnlineSegmenter> segmenter;
   std::unique_ptr<PairTracker> pairs;  // six-face pair verdicts while streaming
@@ -83,6 +84,10 @@ void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* po
 class SessionHub {
  public:
   explicit SessionHub(storage::Store* store) : store_(store) {}
+  // Takes each live session's locks once before freeing it: a batch still being segmented or
+  // published (on the store's committer thread) finishes first. The server has drained its calls by then;
+  // the lock also shows that order to ThreadSanitizer, which cannot see it through gRPC.
+  ~SessionHub();
 
   // The session's live state, loading it from storage on first use.
   absl::StatusOr<std::shared_ptr<LiveSession>> Get(std::string_view session_id);

@@ -84,8 +84,11 @@ v1::JobState ToJobState(storage::SolveState state) {
 
 }  // namespace
 
-SessionServiceImpl::SessionServiceImpl(storage::Store* store, SessionServiceOptions options)
+SessionServiceImpl::SessionServiceImpl(storage::Store* store, SessionServiceOptions options,
+                                       Authorizer* auth)
     : store_(store),
+      auth_(auth),
+      options_(options),
       hub_(store),
       pool_(options.solve_threads, options.solve_queue_limit) {}
 
@@ -107,6 +110,8 @@ absl::StatusOr<v1::Session> SessionServiceImpl::SessionProto(const std::string& 
 grpc::ServerUnaryReactor* SessionServiceImpl::CreateSession(
     grpc::CallbackServerContext* context, const v1::CreateSessionRequest* request,
     v1::Session* response) {
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kCreateSession);
+  if (!who.ok()) return FinishUnary(context, who.status());
   // validate
   absl::Status valid = absl::OkStatus();
   if (request->device_id().empty()) valid = absl::InvalidArgumentError("device_id: required");
@@ -121,7 +126,7 @@ grpc::ServerUnaryReactor* SessionServiceImpl::CreateSession(
   wanted.device_id = request->device_id();
   wanted.protocol = ProtocolName(request->protocol());
   wanted.gravity_m_s2 = g;
-  absl::StatusOr<storage::Session> created = store_->CreateSession(wanted, ActorOf(*context));
+  absl::StatusOr<storage::Session> created = store_->CreateSession(wanted, (*who)->actor);
   if (!created.ok()) return FinishUnary(context, created.status());
   // convert back
   *response = ToProto(*created);
@@ -131,16 +136,26 @@ grpc::ServerUnaryReactor* SessionServiceImpl::CreateSession(
 grpc::ServerUnaryReactor* SessionServiceImpl::GetSession(grpc::CallbackServerContext* context,
                                                          const v1::GetSessionRequest* request,
                                                          v1::Session* response) {
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetSession);
+  if (!who.ok()) return FinishUnary(context, who.status());
   if (absl::Status s = RequireSession(request->session_id()); !s.ok())
     return FinishUnary(context, s);
   absl::StatusOr<v1::Session> session = SessionProto(request->session_id());
-  if (session.ok()) *response = *std::move(session);
-  return FinishUnary(context, session.status());
+  if (!session.ok()) return FinishUnary(context, session.status());
+  // A robot reads only its own device's sessions (its uploader resumes from them).
+  if (absl::Status s = auth_->AuthorizeDevice(*context, **who, Rpc::kGetSession,
+                                              session->device_id());
+      !s.ok())
+    return FinishUnary(context, s);
+  *response = *std::move(session);
+  return FinishUnary(context, absl::OkStatus());
 }
 
 grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(
     grpc::CallbackServerContext* context, const v1::ListSessionsRequest* request,
     v1::ListSessionsResponse* response) {
+  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListSessions); !who.ok())
+    return FinishUnary(context, who.status());
   std::optional<storage::SessionState> state;
   if (request->state() != v1::SESSION_STATE_UNSPECIFIED) {
     absl::StatusOr<storage::SessionState> s = FromProto(request->state());
@@ -167,6 +182,8 @@ grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(
 grpc::ServerUnaryReactor* SessionServiceImpl::CancelSession(
     grpc::CallbackServerContext* context, const v1::CancelSessionRequest* request,
     v1::Session* response) {
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kCancelSession);
+  if (!who.ok()) return FinishUnary(context, who.status());
   if (absl::Status s = RequireSession(request->session_id()); !s.ok())
     return FinishUnary(context, s);
   absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(request->session_id());
@@ -175,7 +192,7 @@ grpc::ServerUnaryReactor* SessionServiceImpl::CancelSession(
   {
     std::lock_guard lock((*live)->mu);  // no batch is half ingested while it closes
     cancelled = store_->SetSessionState(request->session_id(), storage::SessionState::kCancelled,
-                                        ActorOf(*context));
+                                        (*who)->actor);
   }
   if (!cancelled.ok()) return FinishUnary(context, cancelled.status());
   absl::StatusOr<v1::Session> proto = SessionProto(request->session_id());
@@ -223,6 +240,8 @@ absl::Status SessionServiceImpl::DoListPoses(const v1::ListPosesRequest& request
 grpc::ServerUnaryReactor* SessionServiceImpl::ListPoses(grpc::CallbackServerContext* context,
                                                         const v1::ListPosesRequest* request,
                                                         v1::ListPosesResponse* response) {
+  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListPoses); !who.ok())
+    return FinishUnary(context, who.status());
   return FinishUnary(context, DoListPoses(*request, response));
 }
 
@@ -231,6 +250,8 @@ grpc::ServerUnaryReactor* SessionServiceImpl::ListPoses(grpc::CallbackServerCont
 absl::Status SessionServiceImpl::DoSolve(const grpc::CallbackServerContext& context,
                                          const v1::SolveSessionRequest& request,
                                          v1::SolveJob* response) {
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(context, Rpc::kSolveSession);
+  if (!who.ok()) return who.status();
   if (absl::Status s = RequireSession(request.session_id()); !s.ok()) return s;
   absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(request.session_id());
   if (!live.ok()) return live.status();
@@ -238,7 +259,7 @@ absl::Status SessionServiceImpl::DoSolve(const grpc::CallbackServerContext& cont
     return absl::ResourceExhaustedError(
         "the solve queue is full; retry in a minute (GetSolveJob shows running jobs)");
   }
-  const std::string actor = ActorOf(context);
+  const std::string actor = (*who)->actor;
   absl::StatusOr<storage::Solve> solve;
   std::vector<LiveEvent> last_pose;
   {
@@ -403,6 +424,8 @@ absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& req
 grpc::ServerUnaryReactor* SessionServiceImpl::GetSolveJob(grpc::CallbackServerContext* context,
                                                           const v1::GetSolveJobRequest* request,
                                                           v1::SolveJob* response) {
+  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetSolveJob); !who.ok())
+    return FinishUnary(context, who.status());
   return FinishUnary(context, DoGetSolveJob(*request, response));
 }
 
@@ -429,6 +452,8 @@ absl::Status SessionServiceImpl::DoGetReport(const v1::GetReportRequest& request
 grpc::ServerUnaryReactor* SessionServiceImpl::GetReport(grpc::CallbackServerContext* context,
                                                         const v1::GetReportRequest* request,
                                                         v1::Report* response) {
+  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetReport); !who.ok())
+    return FinishUnary(context, who.status());
   return FinishUnary(context, DoGetReport(*request, response));
 }
 

@@ -19,33 +19,67 @@ namespace {
 // everything acknowledged before it is stored. The store's group commit stores the batch: the
 // ack (and the batch's segmentation) follows on the store's committer thread once the
 // transaction holding it, shared with other streams' batches, has committed.
-class IngestReactor final : public grpc::ServerBidiReactor<v1::SampleBatch, v1::SampleAck> {
+//
+// Backpressure: the next StartRead follows the ack's OnWriteDone, which follows the commit, so
+// the server holds one batch per stream; what the robot writes meanwhile waits in HTTP/2 flow
+// control (the stream's window), and the robot's Write blocks once that is full.
+//
+// The method is raw: the reactor parses each batch itself, so that bytes that are not a
+// SampleBatch get INVALID_ARGUMENT (the generated reader reports a failed parse as the end of
+// the stream). The stream holds one of its device's slots (max_streams_per_device) from its
+// first batch until it ends or is cancelled.
+class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer> {
  public:
-  IngestReactor(storage::Store* store, SessionHub* hub) : store_(store), hub_(hub) {
-    StartRead(&batch_);
+  // `who` may call StreamSamples (Authorize passed); a robot still only for its own device's
+  // sessions, checked at the first batch (which names the session).
+  IngestReactor(storage::Store* store, SessionHub* hub, const SessionServiceOptions& options,
+                StreamSlots* slots, Authorizer* auth, const grpc::CallbackServerContext* context,
+                PrincipalRef who)
+      : store_(store),
+        hub_(hub),
+        options_(options),
+        slots_(slots),
+        auth_(auth),
+        context_(context),
+        who_(std::move(who)) {
+    StartRead(&request_);
   }
 
   void OnReadDone(bool ok) override {
     if (!ok) {  // the robot closed its side: everything read has been acknowledged
-      Finish(grpc::Status::OK);
+      End(grpc::Status::OK);
       return;
     }
-    if (absl::Status s = Submit(); !s.ok()) Finish(ToGrpcStatus(s));
+    if (absl::Status s = Submit(); !s.ok()) End(ToGrpcStatus(s));
   }
 
   void OnWriteDone(bool ok) override {
     if (!ok) {
-      Finish(grpc::Status(grpc::StatusCode::UNAVAILABLE, "the stream broke while acknowledging"));
+      End(grpc::Status(grpc::StatusCode::UNAVAILABLE, "the stream broke while acknowledging"));
       return;
     }
-    StartRead(&batch_);
+    StartRead(&request_);
   }
 
-  void OnDone() override { delete this; }
+  // The robot went away (or its deadline passed): the device may stream again at once.
+  void OnCancel() override { ReleaseSlot(); }
+
+  void OnDone() override {
+    ReleaseSlot();
+    delete this;
+  }
 
  private:
-  // validate -> convert -> store (asynchronously; OnStored continues).
+  // parse -> validate -> convert -> store (asynchronously; OnStored continues).
   absl::Status Submit() {
+    batch_.Clear();
+    ++messages_;
+    const size_t bytes = request_.Length();
+    if (!grpc::SerializationTraits<v1::SampleBatch>::Deserialize(&request_, &batch_).ok()) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "message ", messages_, " of the stream (after batch ", last_seq_, "): ", bytes,
+          " bytes that are not a SampleBatch (malformed protobuf)"));
+    }
     if (session_id_.empty()) {
       if (batch_.session_id().empty())
         return absl::InvalidArgumentError("session_id: required in the first batch of a stream");
@@ -57,12 +91,17 @@ class IngestReactor final : public grpc::ServerBidiReactor<v1::SampleBatch, v1::
     if (live_ == nullptr) {
       absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_->Get(session_id_);
       if (!live.ok()) return live.status();
+      if (absl::Status s = auth_->AuthorizeDevice(*context_, *who_, Rpc::kStreamSamples,
+                                                  (*live)->device.id);
+          !s.ok())
+        return s;
       live_ = *std::move(live);
+      if (absl::Status s = AcquireSlot(); !s.ok()) return s;
     }
     absl::StatusOr<PreparedBatch> prepared;
     {
       std::lock_guard lock(live_->mu);
-      prepared = PrepareBatch(*live_, batch_);
+      prepared = PrepareBatch(*live_, batch_, options_.ingest);
     }
     if (!prepared.ok()) return prepared.status();
     prepared_ = *std::move(prepared);
@@ -76,7 +115,7 @@ class IngestReactor final : public grpc::ServerBidiReactor<v1::SampleBatch, v1::
   // Durable (or refused): segment, tell the watchers, acknowledge.
   void OnStored(absl::StatusOr<storage::BatchAck> stored) {
     if (!stored.ok()) {
-      Finish(ToGrpcStatus(stored.status()));
+      End(ToGrpcStatus(stored.status()));
       return;
     }
     IngestResult result;
@@ -86,17 +125,63 @@ class IngestReactor final : public grpc::ServerBidiReactor<v1::SampleBatch, v1::
     }
     prepared_ = PreparedBatch();
     for (const v1::SessionEvent& e : result.events) hub_->Publish(*live_, e);
-    ack_ = std::move(result.ack);
-    StartWrite(&ack_);
+    last_seq_ = result.ack.last_acked_seq();
+    bool own_buffer = false;
+    response_.Clear();
+    if (grpc::Status s = grpc::SerializationTraits<v1::SampleAck>::Serialize(result.ack,
+                                                                             &response_,
+                                                                             &own_buffer);
+        !s.ok()) {
+      End(s);
+      return;
+    }
+    StartWrite(&response_);
+  }
+
+  // The slot is free before the status leaves: a robot that sees its stream end may open the
+  // next one at once.
+  void End(const grpc::Status& status) {
+    ReleaseSlot();
+    Finish(status);
+  }
+
+  absl::Status AcquireSlot() {
+    std::lock_guard lock(slot_mu_);
+    const std::string& device = live_->device.id;
+    if (!slots_->TryAcquire(device, options_.max_streams_per_device)) {
+      return absl::ResourceExhaustedError(absl::StrCat(
+          "device ", device, " already has ", options_.max_streams_per_device,
+          " sample stream(s) open, the most a device may have; end it (or wait for the server "
+          "to see that it broke) and resume from GetSession().last_acked_seq + 1"));
+    }
+    slot_device_ = device;
+    return absl::OkStatus();
+  }
+
+  void ReleaseSlot() {
+    std::lock_guard lock(slot_mu_);
+    if (slot_device_.empty()) return;
+    slots_->Release(slot_device_);
+    slot_device_.clear();
   }
 
   storage::Store* store_;
   SessionHub* hub_;
+  const SessionServiceOptions& options_;
+  StreamSlots* slots_;
+  Authorizer* auth_;
+  const grpc::CallbackServerContext* context_;  // the call's; valid until OnDone
+  PrincipalRef who_;
   std::string session_id_;
   std::shared_ptr<LiveSession> live_;
+  int64_t messages_ = 0;  // read on this stream, for error messages
+  int64_t last_seq_ = 0;  // the last acknowledged seq, for error messages
+  grpc::ByteBuffer request_;
+  grpc::ByteBuffer response_;
   v1::SampleBatch batch_;
   PreparedBatch prepared_;
-  v1::SampleAck ack_;
+  std::mutex slot_mu_;
+  std::string slot_device_;  // guarded by slot_mu_; empty when no slot is held
 };
 
 // WatchSession: a snapshot, then the session's events as they are published. The hub pushes
@@ -107,9 +192,10 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
  public:
   static constexpr size_t kMaxQueued = 256;
 
-  WatchReactor(SessionHub* hub, std::shared_ptr<LiveSession> live, v1::Session snapshot,
-               bool six_face_next, const core::NextPoseUpdate& next)
-      : hub_(hub), live_(std::move(live)) {
+  // Holds one of the session's watcher slots (taken by the caller), released in OnDone.
+  WatchReactor(SessionHub* hub, StreamSlots* slots, std::shared_ptr<LiveSession> live,
+               v1::Session snapshot, bool six_face_next, const core::NextPoseUpdate& next)
+      : hub_(hub), slots_(slots), live_(std::move(live)) {
     v1::SessionEvent first;
     ToTimestamp(absl::Now(), first.mutable_time());
     *first.mutable_session() = std::move(snapshot);
@@ -160,6 +246,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
 
   void OnDone() override {
     hub_->RemoveWatcher(*live_, this);
+    slots_->Release(live_->id);
     delete this;
   }
 
@@ -193,6 +280,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
   }
 
   SessionHub* hub_;
+  StreamSlots* slots_;
   std::shared_ptr<LiveSession> live_;
   std::mutex mu_;
   std::deque<v1::SessionEvent> queue_;  // guarded by mu_; the front is being written
@@ -202,6 +290,13 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
 };
 
 // A stream that fails before it starts.
+// A sample stream refused before it starts (its caller may not stream).
+class FailedStream final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer> {
+ public:
+  explicit FailedStream(const grpc::Status& status) { Finish(status); }
+  void OnDone() override { delete this; }
+};
+
 class FailedWriter final : public grpc::ServerWriteReactor<v1::SessionEvent> {
  public:
   explicit FailedWriter(const grpc::Status& status) { Finish(status); }
@@ -210,13 +305,18 @@ class FailedWriter final : public grpc::ServerWriteReactor<v1::SessionEvent> {
 
 }  // namespace
 
-grpc::ServerBidiReactor<v1::SampleBatch, v1::SampleAck>* SessionServiceImpl::StreamSamples(
-    grpc::CallbackServerContext* /*context*/) {
-  return new IngestReactor(store_, &hub_);
+grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* SessionServiceImpl::StreamSamples(
+    grpc::CallbackServerContext* context) {
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kStreamSamples);
+  if (!who.ok()) return new FailedStream(ToGrpcStatus(who.status()));
+  return new IngestReactor(store_, &hub_, options_, &stream_slots_, auth_, context,
+                           *std::move(who));
 }
 
 grpc::ServerWriteReactor<v1::SessionEvent>* SessionServiceImpl::WatchSession(
-    grpc::CallbackServerContext* /*context*/, const v1::WatchSessionRequest* request) {
+    grpc::CallbackServerContext* context, const v1::WatchSessionRequest* request) {
+  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kWatchSession); !who.ok())
+    return new FailedWriter(ToGrpcStatus(who.status()));
   if (request->session_id().empty())
     return new FailedWriter(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
                                          "session_id: required"));
@@ -231,7 +331,14 @@ grpc::ServerWriteReactor<v1::SessionEvent>* SessionServiceImpl::WatchSession(
     guide = snapshot->state() == v1::SESSION_STATE_OPEN;
     next = (*live)->segmenter->CurrentNextPose();
   }
-  auto* reactor = new WatchReactor(&hub_, *live, *std::move(snapshot), guide, next);
+  if (!watcher_slots_.TryAcquire(request->session_id(), options_.max_watchers_per_session)) {
+    return new FailedWriter(grpc::Status(
+        grpc::StatusCode::RESOURCE_EXHAUSTED,
+        absl::StrCat("session ", request->session_id(), " already has ",
+                     options_.max_watchers_per_session, " watchers, the most it may have")));
+  }
+  auto* reactor =
+      new WatchReactor(&hub_, &watcher_slots_, *live, *std::move(snapshot), guide, next);
   reactor->Attach();
   return reactor;
 }

@@ -127,9 +127,29 @@ CREATE TABLE pose_pairs (
 PRAGMA user_version = 2;
 )sql";
 
+// Version 3: API tokens (storage/tokens.h). Only the SHA-256 of a token's secret is stored: the
+// secret is a random 256-bit value, so a plain hash cannot be reversed by guessing and needs no
+// salt or slow KDF, and a lookup is one probe of the unique index on the hash. A robot token is
+// bound to one device (no foreign key: a robot may be provisioned before it first registers);
+// the other roles are bound to none. Revocation keeps the row (the audit log refers to it).
+constexpr char kSchemaV3[] = R"sql(
+CREATE TABLE tokens (
+  id INTEGER PRIMARY KEY,
+  secret_sha256 BLOB NOT NULL UNIQUE CHECK (length(secret_sha256) = 32),
+  role TEXT NOT NULL CHECK (role IN ('robot', 'technician', 'admin')),
+  device_id TEXT,
+  label TEXT NOT NULL,
+  created_at_us INTEGER NOT NULL,
+  revoked_at_us INTEGER,
+  CHECK ((role = 'robot') = (device_id IS NOT NULL))
+);
+PRAGMA user_version = 3;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, kSchemaV1},
     {2, kSchemaV2},
+    {3, kSchemaV3},
 };
 
 absl::Status ApplyOne(Connection& conn, const Migration& m) {

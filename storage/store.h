@@ -1,16 +1,18 @@
 // imucal's durable state: devices, sessions and their raw sample batches, poses, solves,
 // parameter versions and the audit log, in one SQLite file (schema: migrations.cc).
 //
-// Durability: the file is in WAL mode with synchronous=NORMAL by default. In WAL mode a commit
-// appends its pages to the -wal file with write() before returning, so an acknowledged batch is
-// in the OS page cache and survives the server being killed (SIGKILL, crash, OOM kill): the
-// service's requirement. NORMAL skips only the fsync of each commit; an OS crash or power cut can
-// then lose the last commits (the file stays consistent, never corrupt). FULL fsyncs every
-// commit: a disk flush (0.1-10 ms) per acknowledged batch, which with 100 robots streaming
-// would bound ingest by the disk's flush rate rather than by the CPU. Deployments that must keep
-// acknowledged data through a power cut choose StoreOptions::durability = kFull; the group
-// commit (AppendBatchAsync: every stream's batches that arrive during a commit share the next
-// one) amortises that flush over the streams.
+// Durability: the file is in WAL mode with synchronous=FULL by default. A commit appends its
+// pages to the -wal file and, under FULL, fsyncs it before COMMIT returns; only then is a batch
+// acknowledged, so an acknowledged batch survives the server being killed (SIGKILL, crash, OOM
+// kill) and also an OS crash or power cut: what the API promises ("acknowledged only after it
+// is committed to disk"). synchronous=NORMAL would skip that fsync (it syncs only at
+// checkpoints): still safe against a killed process, since the data is in the OS page cache,
+// and never corrupt, but an OS crash or power cut could roll back the last acknowledged
+// commits. The group commit (AppendBatchAsync: every stream's batches that arrive during a
+// commit share the next one) pays one fsync per group, not per batch: FULL adds about one
+// fsync to each ack's latency, not a limit on throughput (README "Durability and load" has the
+// figures). Durability::kNormal remains for stores whose last commits a power cut may take
+// (benchmarks of the CPU path, scratch files).
 //
 // Threads: a Store is safe to share. Writes go through one connection, serialised by a mutex,
 // each call in one BEGIN IMMEDIATE transaction (which also serialises writers in other
@@ -59,8 +61,8 @@ class Connection;  // sqlite_db.h: SQLite stays out of this header
 enum class Durability { kNormal, kFull };
 
 struct StoreOptions {
-  Durability durability = Durability::kNormal;  // see the header comment
-  int read_connections = 4;                     // the read pool; at least 1
+  Durability durability = Durability::kFull;  // see the header comment
+  int read_connections = 4;                   // the read pool; at least 1
   absl::Duration busy_timeout = absl::Seconds(5);
   std::function<absl::Time()> clock{};  // for tests; absl::Now when empty
   // Called after every commit that changes a device's active version (an activating AddVersion

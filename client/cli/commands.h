@@ -17,6 +17,7 @@ inline constexpr int kExitUndetermined = 3; // the capture cannot determine the 
 inline constexpr int kExitVerdictFail = 4;  // calibrated, but the result fails the quality gates
 inline constexpr int kExitInternal = 5;
 inline constexpr int kExitUnavailable = 6;  // the server could not be reached (or timed out)
+inline constexpr int kExitDenied = 7;       // the server refused the token or the role
 
 // Prints "imucal: <message>" to stderr and maps the status to an exit code.
 int ReportError(const absl::Status& status);
@@ -43,6 +44,15 @@ int RunReport(const std::vector<std::string>& args);
 int RunParams(const std::vector<std::string>& args);
 int RunExport(const std::vector<std::string>& args);
 int RunGuide(const std::vector<std::string>& args);
+// `imucal admin token create|list|revoke` (admin_commands.cc).
+int RunAdmin(const std::vector<std::string>& args);
+
+// Takes the connection flags --token T, --token-file F and --ca-cert PEM out of `argv`
+// wherever they stand (falling back to $IMUCAL_TOKEN, $IMUCAL_TOKEN_FILE, $IMUCAL_CA_CERT),
+// reads the files, and keeps the result for every server command's Connect()
+// (server_common.cc). InvalidArgument naming the flag or variable for a missing value, an
+// unreadable file, or a token without a CA certificate (a token is sent only over TLS).
+absl::Status TakeConnectionFlags(std::vector<std::string>* argv);
 
 }  // namespace imucal::cli
 

@@ -23,7 +23,7 @@ namespace {
 namespace pb = imucal::v1;
 
 constexpr char kGuideHelp[] =
-    "usage: imucal guide --device D [--protocol six-face|positions|free|auto] [--session S]\n"
+    "usage: imucal guide --device D [--protocol six-face|positions|free|ferraris|auto] [--session S]\n"
     "  Guides a calibration capture: opens a session for the device (or follows --session S),\n"
     "  then, while the robot streams its samples (e.g. `imucal upload FILE --session S`), says\n"
     "  which pose comes next, shows whether the robot is still and for how long it must hold,\n"
@@ -85,6 +85,8 @@ int RunGuide(const std::vector<std::string>& argv) {
   int drops = 0;
   while (!done) {
     grpc::ClientContext context;
+    // Every call has a deadline: a watch is re-opened (with a fresh snapshot) after an hour.
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::hours(1));
     pb::WatchSessionRequest req;
     req.set_session_id(session.id());
     auto stream = server.sessions->WatchSession(&context, req);

@@ -27,11 +27,26 @@ constexpr char kHelp[] =
     "  solve --session S [--wait]         solve a session\n"
     "  report --session S [--json]        the latest solve's report\n"
     "  params get|list|promote|rollback   parameter versions of a device\n"
-    "  export --device D --format F       a parameter version as json, kalibr or openvins\n";
+    "  export --device D --format F       a parameter version as json, kalibr or openvins\n"
+    "  admin token create|list|revoke     API tokens (admin role)\n"
+    "connection (any server command, anywhere on the line): --ca-cert PEM (CA of the server's\n"
+    "TLS certificate, else $IMUCAL_CA_CERT), --token-file F or --token T (bearer token, else\n"
+    "$IMUCAL_TOKEN_FILE or $IMUCAL_TOKEN); exit code 7 when the server refuses them\n";
 
 }  // namespace
 
 int main(int argc, char** argv) {
+  // The connection flags may stand anywhere; they are taken out before the command parses its
+  // own (server_common.cc keeps them for Connect).
+  std::vector<std::string> all(argv, argv + argc);
+  if (absl::Status s = imucal::cli::TakeConnectionFlags(&all); !s.ok()) {
+    std::fprintf(stderr, "imucal: %s\n", std::string(s.message()).c_str());
+    return imucal::cli::kExitUsage;
+  }
+  std::vector<char*> kept;
+  for (std::string& a : all) kept.push_back(a.data());
+  argc = static_cast<int>(kept.size());
+  argv = kept.data();
   if (argc < 2) {
     std::fputs(kHelp, stderr);
     return imucal::cli::kExitUsage;
@@ -82,6 +97,7 @@ int main(int argc, char** argv) {
   if (command == "solve") return imucal::cli::RunSolve(args);
   if (command == "report") return imucal::cli::RunReport(args);
   if (command == "params") return imucal::cli::RunParams(args);
+  if (command == "admin") return imucal::cli::RunAdmin(args);
   if (command == "export") {
     // A parameter set file (--params) is exported offline; a stored version (--device) by the
     // server. Without either, the offline help.

@@ -15,7 +15,9 @@
 #include "absl/strings/str_join.h"
 #include "client/cli/args.h"
 #include "client/cli/commands.h"
+#include "client/cli/export_flags.h"
 #include "client/cli/import_flags.h"
+#include "client/cli/plots.h"
 #include "client/cli/server_common.h"
 #include "client/sdk/uploader.h"
 #include "core/capture_io.h"
@@ -29,8 +31,11 @@ using nlohmann::json;
 
 constexpr char kServerFlagHelp[] =
     "  --server ADDR     the calibration service (default $IMUCAL_SERVER, else 127.0.0.1:50051)\n"
+    "  --ca-cert PEM     CA of the server's TLS certificate (default $IMUCAL_CA_CERT)\n"
+    "  --token-file F | --token T   bearer token (default $IMUCAL_TOKEN_FILE, $IMUCAL_TOKEN)\n"
     "exit codes: 0 ok, 1 usage, 2 bad input or unknown id, 3 the state forbids it (e.g. not\n"
-    "            enough poses yet), 4 verdict fail, 5 internal, 6 server unreachable\n";
+    "            enough poses yet), 4 verdict fail, 5 internal, 6 server unreachable,\n"
+    "            7 the server refused the token or its role\n";
 
 // ------------------------------------------------------------------------------------------
 // devices
@@ -125,7 +130,7 @@ int RunDevices(const std::vector<std::string>& argv) {
 namespace {
 
 constexpr char kSessionHelp[] =
-    "usage: imucal session start --device D [--protocol six-face|positions|free|auto] [--json]\n"
+    "usage: imucal session start --device D [--protocol six-face|positions|free|ferraris|auto] [--json]\n"
     "       imucal session list [--device D] [--state open|solving|solved|failed|cancelled]\n"
     "       imucal session show ID [--json]\n"
     "       imucal session poses ID [--json]\n"
@@ -342,7 +347,7 @@ constexpr char kUploadHelp[] =
     "  device. Resumes after the last acknowledged batch when the connection drops, and when run\n"
     "  again for the same session and file. FILE: imucal CSV or an imu_tk pair.\n"
     "options:\n"
-    "  --protocol six-face|positions|free|auto   for a new session (default auto)\n"
+    "  --protocol six-face|positions|free|ferraris|auto   for a new session (default auto)\n"
     "  --format F   --accel-unit U   --gyro-unit U   input as for calibrate (and below)\n"
     "  --batch N          samples per batch (default 2000)\n"
     "  --solve            solve when the upload is complete and wait for the verdict\n"
@@ -408,8 +413,9 @@ int RunUpload(const std::vector<std::string>& argv) {
   auto session_id = a->Get("session");
   if (!device && !session_id) return UsageError("upload needs --device or --session", kUploadHelp);
   auto batch = a->GetInt("batch", 2000);
-  if (!batch.ok() || *batch < 1 || *batch > 100000)
-    return UsageError("--batch: expected 1..100000 samples", kUploadHelp);
+  if (!batch.ok() || *batch < 1 || *batch > 20000)
+    return UsageError("--batch: expected 1..20000 samples (the server's limit per batch)",
+                      kUploadHelp);
   auto io = UploadImportOptions(*a);
   if (!io.ok()) return UsageError(std::string(io.status().message()), kUploadHelp);
   auto capture = core::ImportCapture(a->positional(), *io);
@@ -502,10 +508,13 @@ int RunUpload(const std::vector<std::string>& argv) {
 namespace {
 
 constexpr char kReportHelp[] =
-    "usage: imucal report --session S [--json]\n"
+    "usage: imucal report --session S [--json] [--out DIR]\n"
     "  The report of the session's latest solve: a summary, or with --json the\n"
     "  \"imucal-report v1\" document exactly as the server stores it.\n"
-    "options:\n";
+    "options:\n"
+    "  --out DIR     also write report.json, summary.txt and SVG plots into DIR (residual per\n"
+    "                pose after each stage, pose coverage on the sphere, Allan deviation, each\n"
+    "                effect against its regressor)\n";
 
 std::string Vec(const json& v, const char* fmt = "%+.5f") {
   if (!v.is_array()) return "-";
@@ -523,8 +532,10 @@ std::string Str(const json& j, const char* key) {
   return j.contains(key) && j[key].is_string() ? j[key].get<std::string>() : "";
 }
 
-void PrintReportSummary(const json& r) {
-  std::printf("device      %s   session %s\n", Str(r, "device").c_str(), Str(r, "session").c_str());
+// The server report as text: what `report` prints and `report --out DIR` keeps as summary.txt.
+std::string FormatReportSummary(const json& r) {
+  std::string out;
+  absl::StrAppendFormat(&out, "device      %s   session %s\n", Str(r, "device").c_str(), Str(r, "session").c_str());
   int used = 0, total = 0;
   if (r.contains("poses")) {
     for (const auto& p : r["poses"]) {
@@ -532,57 +543,59 @@ void PrintReportSummary(const json& r) {
       used += p.value("used", false);
     }
   }
-  std::printf("poses       %d found, %d used\n", total, used);
+  absl::StrAppendFormat(&out, "poses       %d found, %d used\n", total, used);
   if (r.contains("poses")) {
     for (const auto& p : r["poses"]) {
       if (!p.value("used", true))
-        std::printf("  pose %-3d  not used: %s\n", p.value("index", -1), Str(p, "reason").c_str());
+        absl::StrAppendFormat(&out, "  pose %-3d  not used: %s\n", p.value("index", -1), Str(p, "reason").c_str());
     }
   }
   if (r.contains("pairs")) {
     for (const auto& p : r["pairs"]) {
-      std::printf("  pair %-9s %-4s rotation %.1f deg, tilt %.1f deg  %s\n",
+      absl::StrAppendFormat(&out, "  pair %-9s %-4s rotation %.1f deg, tilt %.1f deg  %s\n",
                   p.contains("poses") ? p["poses"].dump().c_str() : "?", Str(p, "status").c_str(),
                   Num(p, "rotation_deg"), Num(p, "tilt_deg"), Str(p, "reason").c_str());
     }
   }
   if (r.contains("stages")) {
     for (const auto& s : r["stages"])
-      std::printf("stage       %-5s accel rms %.5f m/s^2 (%d iterations)\n", Str(s, "name").c_str(),
+      absl::StrAppendFormat(&out, "stage       %-5s accel rms %.5f m/s^2 (%d iterations)\n", Str(s, "name").c_str(),
                   Num(s, "accel_rms"), s.value("iterations", 0));
   }
   if (r.contains("residual")) {
     const json& res = r["residual"];
-    std::printf("residual    accel rms %.5f m/s^2, max %.5f m/s^2, gyro static rms %.6f rad/s\n",
+    absl::StrAppendFormat(&out, "residual    accel rms %.5f m/s^2, max %.5f m/s^2, gyro static rms %.6f rad/s\n",
                 Num(res, "accel_rms"), Num(res, "accel_max"), Num(res, "gyro_static_rms"));
   }
   if (r.contains("parameters") && r["parameters"].is_object()) {
     const json& p = r["parameters"];
     if (p.contains("accel")) {
-      std::printf("accel bias  %s\n", Vec(p["accel"]["bias"]).c_str());
-      std::printf("accel scale %s\n", Vec(p["accel"]["scale"]).c_str());
+      absl::StrAppendFormat(&out, "accel bias  %s\n", Vec(p["accel"]["bias"]).c_str());
+      absl::StrAppendFormat(&out, "accel scale %s\n", Vec(p["accel"]["scale"]).c_str());
     }
     if (p.contains("gyro"))
-      std::printf("gyro bias   %s\n", Vec(p["gyro"]["bias"], "%+.6f").c_str());
+      absl::StrAppendFormat(&out, "gyro bias   %s\n", Vec(p["gyro"]["bias"], "%+.6f").c_str());
   }
   if (r.contains("effects")) {
     for (const auto& e : r["effects"])
-      std::printf("effect      %s %s ~ %s: %.3g (held-out rms %.3g -> %.3g)\n",
+      absl::StrAppendFormat(&out, "effect      %s %s ~ %s: %.3g (%s; held-out rms %.3g -> %.3g)\n",
                   Str(e, "sensor").c_str(), Str(e, "axis").c_str(), Str(e, "regressor").c_str(),
-                  Num(e, "coefficient"), Num(e, "error_before"), Num(e, "error_after"));
+                  Num(e, "coefficient"), Str(e, "human").c_str(), Num(e, "error_before"),
+                  Num(e, "error_after"));
   }
   if (r.contains("warnings")) {
     for (const auto& w : r["warnings"])
-      std::printf("warning     %s\n",
+      absl::StrAppendFormat(&out, "warning     %s\n",
                   w.is_string() ? w.get<std::string>().c_str() : w.dump().c_str());
   }
-  std::printf("verdict     %s\n", Str(r, "verdict").c_str());
+  absl::StrAppendFormat(&out, "verdict     %s\n", Str(r, "verdict").c_str());
+  return out;
 }
 
 }  // namespace
 
 int RunReport(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "session"}, {"json", "help"});
+  auto a = Args::Parse(argv, {"server", "session", "out"}, {"json", "help"});
   if (!a.ok()) return UsageError(std::string(a.status().message()), kReportHelp);
   if (a->Has("help")) return std::printf("%s%s", kReportHelp, kServerFlagHelp), kExitOk;
   auto session = a->Get("session");
@@ -594,17 +607,24 @@ int RunReport(const std::vector<std::string>& argv) {
   auto ctx = CallContext();
   if (grpc::Status s = server.sessions->GetReport(ctx.get(), req, &report); !s.ok())
     return RpcError(server, s);
-  if (a->Has("json")) {
-    std::fputs(report.json().c_str(), stdout);
-    if (!report.json().empty() && report.json().back() != '\n') std::fputs("\n", stdout);
-    return kExitOk;
-  }
   json r = json::parse(report.json(), nullptr, /*allow_exceptions=*/false);
   if (r.is_discarded() || !r.is_object()) {
     std::fprintf(stderr, "imucal: the server's report is not valid JSON\n");
     return kExitInternal;
   }
-  PrintReportSummary(r);
+  const std::string summary = FormatReportSummary(r);
+  if (a->Has("json")) {
+    std::fputs(report.json().c_str(), stdout);
+    if (!report.json().empty() && report.json().back() != '\n') std::fputs("\n", stdout);
+  } else {
+    std::fputs(summary.c_str(), stdout);
+  }
+  if (auto dir = a->Get("out")) {
+    // The report, its summary and its plots, as the offline `calibrate --out DIR` writes them.
+    auto written = WriteReportBundle(r, report.json(), summary, *dir);
+    if (!written.ok()) return ReportError(written.status());
+    for (const auto& p : *written) std::fprintf(stderr, "imucal: wrote %s\n", p.c_str());
+  }
   return Str(r, "verdict") == "fail" ? kExitVerdictFail : kExitOk;
 }
 
@@ -733,35 +753,50 @@ int RunParams(const std::vector<std::string>& argv) {
 namespace {
 
 constexpr char kExportHelp[] =
-    "usage: imucal export --device D [--version N] --format json|kalibr|openvins [--out FILE]\n"
-    "  A parameter version (default the active one) in another tool's format. What the format\n"
-    "  cannot hold (biases, second-order terms) is listed on stderr. Supported now: json\n"
-    "  (imucal-params v1); kalibr and openvins are not supported yet (the server says so).\n"
-    "options:\n";
+    "usage: imucal export --device D [--version N]\n"
+    "                     --format json|kalibr|kalibr-intrinsics|openvins [--out FILE]\n"
+    "  A stored parameter version (default the active one) in another tool's format (see\n"
+    "  `imucal export --params FILE --help` for the formats). What the format cannot hold\n"
+    "  (biases, second-order terms, effects) is listed on stderr.\n"
+    "options:\n"
+    "  --out FILE              write FILE (default: standard output)\n";
 
 }  // namespace
 
 int RunExport(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "device", "version", "format", "out"}, {"help"});
+  auto a = Args::Parse(argv, WithExportValuedFlags({"server", "device", "version", "format", "out"}),
+                       {"help"});
   if (!a.ok()) return UsageError(std::string(a.status().message()), kExportHelp);
-  if (a->Has("help")) return std::printf("%s%s", kExportHelp, kServerFlagHelp), kExitOk;
+  if (a->Has("help"))
+    return std::printf("%s%s%s", kExportHelp, kExportOptionsHelp, kServerFlagHelp), kExitOk;
   auto device = a->Get("device");
   auto format = a->Get("format");
   auto version = a->GetInt("version", 0);
   if (!device || !format) return UsageError("export needs --device and --format", kExportHelp);
-  if (*format != "json" && *format != "kalibr" && *format != "openvins")
-    return UsageError("--format: expected json, kalibr or openvins", kExportHelp);
+  if (*format != "json" && !core::ParseExportFormat(*format).ok())
+    return UsageError("--format: expected json, kalibr, kalibr-intrinsics or openvins",
+                      kExportHelp);
   if (!version.ok()) return UsageError(std::string(version.status().message()), kExportHelp);
+  auto options = ExportOptionsFrom(*a);
+  if (!options.ok()) return UsageError(std::string(options.status().message()), kExportHelp);
   Server server = Connect(*a);
   pb::ExportRequest req;
   req.set_device_id(*device);
   req.set_version(static_cast<int32_t>(*version));
   req.set_format(*format);
+  auto given = [](double v) { return std::isfinite(v) ? v : 0.0; };  // 0: not given
+  if (a->Get("rostopic")) req.set_rostopic(options->rostopic);
+  req.set_update_rate_hz(given(options->update_rate_hz));
+  if (auto m = a->Get("openvins-model")) req.set_openvins_model(*m);
+  req.set_accel_noise_density(given(options->accel_noise_density));
+  req.set_accel_random_walk(given(options->accel_random_walk));
+  req.set_gyro_noise_density(given(options->gyro_noise_density));
+  req.set_gyro_random_walk(given(options->gyro_random_walk));
   pb::ExportResponse out;
   auto ctx = CallContext();
   if (grpc::Status s = server.params->Export(ctx.get(), req, &out); !s.ok())
     return RpcError(server, s);
-  for (const auto& note : out.notes()) std::fprintf(stderr, "note: %s\n", note.c_str());
+  for (const auto& note : out.notes()) std::fprintf(stderr, "imucal: note: %s\n", note.c_str());
   if (auto path = a->Get("out")) {
     std::FILE* f = std::fopen((*path + ".tmp").c_str(), "wb");
     if (f == nullptr) return ReportError(absl::NotFoundError(*path + ": cannot write"));

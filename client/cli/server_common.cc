@@ -3,6 +3,8 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <optional>
+#include <utility>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
@@ -21,13 +23,84 @@ std::string ServerAddress(const Args& args) {
   return kDefaultServer;
 }
 
-Server Connect(const Args& args) {
+namespace {
+
+sdk::ClientOptions& ConnectionSettings() {
+  static sdk::ClientOptions* settings = new sdk::ClientOptions();
+  return *settings;
+}
+
+// The value of `name` (--name V or --name=V) at argv[*i], advancing *i past it; nullopt when
+// argv[*i] is another argument.
+absl::StatusOr<std::optional<std::string>> FlagValue(const std::vector<std::string>& argv,
+                                                     size_t* i, const std::string& name) {
+  const std::string& arg = argv[*i];
+  if (arg == name) {
+    if (*i + 1 >= argv.size()) return absl::InvalidArgumentError(absl::StrCat(name, " needs a value"));
+    *i += 1;
+    return std::optional<std::string>(argv[*i]);
+  }
+  if (arg.rfind(name + "=", 0) == 0) return std::optional<std::string>(arg.substr(name.size() + 1));
+  return std::optional<std::string>();
+}
+
+std::string Env(const char* name) {
+  const char* value = std::getenv(name);
+  return value == nullptr ? std::string() : std::string(value);
+}
+
+}  // namespace
+
+absl::Status TakeConnectionFlags(std::vector<std::string>* argv) {
+  std::string token, token_file, ca_cert;
+  std::vector<std::string> kept;
+  for (size_t i = 0; i < argv->size(); ++i) {
+    bool taken = false;
+    for (auto [name, out] : {std::pair{"--token", &token}, std::pair{"--token-file", &token_file},
+                             std::pair{"--ca-cert", &ca_cert}}) {
+      absl::StatusOr<std::optional<std::string>> value = FlagValue(*argv, &i, name);
+      if (!value.ok()) return value.status();
+      if (!value->has_value()) continue;
+      if (value->value().empty()) return absl::InvalidArgumentError(absl::StrCat(name, ": empty"));
+      *out = **value;
+      taken = true;
+      break;
+    }
+    if (!taken) kept.push_back((*argv)[i]);
+  }
+  if (!token.empty() && !token_file.empty())
+    return absl::InvalidArgumentError("--token and --token-file: give one of them");
+  // The environment fills in what the command line left out.
+  if (token.empty() && token_file.empty()) {
+    token = Env("IMUCAL_TOKEN");
+    if (token.empty()) token_file = Env("IMUCAL_TOKEN_FILE");
+  }
+  if (ca_cert.empty()) ca_cert = Env("IMUCAL_CA_CERT");
+  absl::StatusOr<sdk::ClientOptions> options = sdk::ClientOptionsFromFiles(ca_cert, token_file);
+  if (!options.ok()) return options.status();
+  if (!token.empty()) options->bearer_token = token;
+  if (absl::Status s = sdk::ValidateClientOptions(*options); !s.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        s.message(), " (--ca-cert PEM or $IMUCAL_CA_CERT, with --token-file / --token)"));
+  }
+  ConnectionSettings() = *std::move(options);
+  *argv = std::move(kept);
+  return absl::OkStatus();
+}
+
+const sdk::ClientOptions& ConnectionOptions() { return ConnectionSettings(); }
+void SetConnectionOptions(sdk::ClientOptions options) { ConnectionSettings() = std::move(options); }
+
+Server Connect(const Args& args) { return ConnectWith(ServerAddress(args), ConnectionSettings()); }
+
+Server ConnectWith(const std::string& address, const sdk::ClientOptions& options) {
   Server s;
-  s.address = ServerAddress(args);
-  s.channel = sdk::MakeChannel(s.address);
+  s.address = address;
+  s.channel = sdk::MakeChannel(s.address, options);
   s.devices = pb::DeviceService::NewStub(s.channel);
   s.sessions = pb::SessionService::NewStub(s.channel);
   s.params = pb::ParameterService::NewStub(s.channel);
+  s.admin = pb::AdminService::NewStub(s.channel);
   return s;
 }
 
@@ -61,6 +134,12 @@ int RpcError(const Server& server, const absl::Status& status) {
                  std::string(status.message()).c_str());
     return kExitUnavailable;
   }
+  if (status.code() == absl::StatusCode::kUnauthenticated ||
+      status.code() == absl::StatusCode::kPermissionDenied) {
+    std::fprintf(stderr, "imucal: server %s refused the call: %s\n", server.address.c_str(),
+                 std::string(status.message()).c_str());
+    return kExitDenied;
+  }
   return ReportError(status);
 }
 
@@ -82,6 +161,8 @@ std::string ProtocolName(pb::Protocol protocol) {
       return "positions";
     case pb::PROTOCOL_FREE:
       return "free";
+    case pb::PROTOCOL_FERRARIS:
+      return "ferraris";
     default:
       return "auto";
   }
@@ -91,9 +172,10 @@ absl::StatusOr<pb::Protocol> ParseProtocol(const std::string& name) {
   if (name == "six-face") return pb::PROTOCOL_SIX_FACE;
   if (name == "positions") return pb::PROTOCOL_POSITIONS;
   if (name == "free") return pb::PROTOCOL_FREE;
+  if (name == "ferraris") return pb::PROTOCOL_FERRARIS;
   if (name == "auto") return pb::PROTOCOL_UNSPECIFIED;
   return absl::InvalidArgumentError(
-      absl::StrCat("--protocol: '", name, "' is not six-face, positions, free or auto"));
+      absl::StrCat("--protocol: '", name, "' is not six-face, positions, free, ferraris or auto"));
 }
 
 namespace {

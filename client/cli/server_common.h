@@ -8,6 +8,7 @@
 
 #include "absl/status/statusor.h"
 #include "client/cli/args.h"
+#include "client/sdk/client.h"
 #include "google/protobuf/timestamp.pb.h"
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
@@ -26,8 +27,15 @@ struct Server {
   std::unique_ptr<imucal::v1::DeviceService::Stub> devices;
   std::unique_ptr<imucal::v1::SessionService::Stub> sessions;
   std::unique_ptr<imucal::v1::ParameterService::Stub> params;
+  std::unique_ptr<imucal::v1::AdminService::Stub> admin;
 };
+// To ServerAddress(args) with the TLS and token settings TakeConnectionFlags kept (commands.h).
 Server Connect(const Args& args);
+// To `address` with explicit settings (the demo's robot, which has a token of its own).
+Server ConnectWith(const std::string& address, const sdk::ClientOptions& options);
+// The settings Connect uses; SetConnectionOptions replaces them (tests).
+const sdk::ClientOptions& ConnectionOptions();
+void SetConnectionOptions(sdk::ClientOptions options);
 
 // A context for a unary call: deadline 30 s (`--timeout S` where a command offers it).
 std::unique_ptr<grpc::ClientContext> CallContext(double timeout_s = 30.0);
@@ -43,7 +51,7 @@ grpc::Status CreateSession(const Server& server, const std::string& device_id,
 // Prints "imucal: <the server's message>" (for an unreachable server: which address) to stderr
 // and returns the exit code: kExitUnavailable for UNAVAILABLE / DEADLINE_EXCEEDED, kExitBadInput
 // for INVALID_ARGUMENT / NOT_FOUND / ALREADY_EXISTS, kExitUndetermined for FAILED_PRECONDITION,
-// kExitInternal otherwise.
+// kExitDenied for UNAUTHENTICATED / PERMISSION_DENIED, kExitInternal otherwise.
 int RpcError(const Server& server, const grpc::Status& status);
 // The same for an absl::Status that came from an RPC (same code numbers).
 int RpcError(const Server& server, const absl::Status& status);

@@ -77,11 +77,16 @@ absl::StatusOr<core::Capture> BotchFirstTurn(const core::SimResult& sim, double 
 }  // namespace
 
 int RunServerDemo(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "seed", "device"}, {"help", "botch-turn"});
+  auto a = Args::Parse(argv, {"server", "seed", "device", "robot-token-file"},
+                       {"help", "botch-turn"});
   if (!a.ok()) return UsageError(std::string(a.status().message()), "");
   if (a->Has("help")) {
     std::printf(
         "usage: imucal demo --server ADDR [--seed N] [--device ID] [--botch-turn]\n"
+        "                   [--robot-token-file F]\n"
+        "  --robot-token-file  the robot's own token (bound to --device): the robot registers,\n"
+        "                streams and fetches with it, the technician (--token-file) does the\n"
+        "                rest; without it both use the one connection\n"
         "  --botch-turn  the robot's first 180-degree turn stops a quarter turn short and is\n"
         "                finished after a hold: the guide shows the failed pair and its re-do\n");
     return kExitOk;
@@ -90,6 +95,17 @@ int RunServerDemo(const std::vector<std::string>& argv) {
   if (!seed.ok()) return UsageError(std::string(seed.status().message()), "");
   const std::string device = a->Get("device").value_or(absl::StrCat("demo-robot-", *seed));
   Server server = Connect(*a);
+  // The robot's connection: its own token when it has one (README "Security"), over the same
+  // TLS settings as the technician's.
+  sdk::ClientOptions robot_options = ConnectionOptions();
+  if (auto file = a->Get("robot-token-file")) {
+    absl::StatusOr<std::string> token = sdk::ReadTokenFile(*file);
+    if (!token.ok()) return UsageError(std::string(token.status().message()), "");
+    robot_options.bearer_token = *std::move(token);
+    if (absl::Status s = sdk::ValidateClientOptions(robot_options); !s.ok())
+      return UsageError(absl::StrCat("--robot-token-file: ", s.message()), "");
+  }
+  Server robot_server = ConnectWith(server.address, robot_options);
 
   // One extra pose after the six faces: the robot moves on, so the last face's pose closes.
   const core::SimOptions so = DemoCaptureOptions(static_cast<uint64_t>(*seed), 1);
@@ -111,9 +127,9 @@ int RunServerDemo(const std::vector<std::string>& argv) {
   d->set_accel_unit(std::string(core::AccelUnitName(sim->capture.accel_unit)));
   d->set_gyro_unit(std::string(core::GyroUnitName(sim->capture.gyro_unit)));
   pb::Device registered;
-  if (grpc::Status s = server.devices->RegisterDevice(CallContext().get(), reg, &registered);
+  if (grpc::Status s = robot_server.devices->RegisterDevice(CallContext().get(), reg, &registered);
       !s.ok())
-    return RpcError(server, s);
+    return RpcError(robot_server, s);
   pb::Session session;
   if (grpc::Status s = CreateSession(server, device, pb::PROTOCOL_SIX_FACE, 0.0, &session);
       !s.ok())
@@ -128,7 +144,7 @@ int RunServerDemo(const std::vector<std::string>& argv) {
   std::thread robot([&] {
     sdk::UploadOptions options;
     options.batch_samples = 400;
-    sdk::Uploader uploader(server.channel, options);
+    sdk::Uploader uploader(robot_server.channel, options);
     upload_status = uploader.Upload(session.id(), sim->capture).status();
   });
   const int guide_rc = RunGuide({"--server", server.address, "--device", device, "--session",
@@ -168,7 +184,7 @@ int RunServerDemo(const std::vector<std::string>& argv) {
   }
 
   std::printf("== 3. the robot fetches its active parameters through the SDK\n");
-  sdk::ParamClient params(server.channel);
+  sdk::ParamClient params(robot_server.channel);
   auto fetched = params.FetchActive(device, absl::Seconds(5));
   if (!fetched.ok()) return ReportError(fetched.status());
   std::printf("   version %d (crc32c checked)\n", fetched->params.version);

@@ -1,6 +1,8 @@
 // A robot's startup: get the IMU calibration from the service (or, when it is unreachable, from
 // the local cache), build the corrector, correct samples.
-//   robot_startup [SERVER] [DEVICE] [CACHE]   (defaults 127.0.0.1:50051 robot-0042 ./params.cache)
+//   robot_startup [SERVER] [DEVICE] [CACHE] [CA_PEM TOKEN_FILE]
+//   (defaults 127.0.0.1:50051 robot-0042 ./params.cache; without CA_PEM and TOKEN_FILE the
+//   channel is plaintext, for a server run with `insecure` on loopback)
 #include <cstdio>
 #include <string>
 
@@ -13,8 +15,12 @@ int main(int argc, char** argv) {
   const std::string server = argc > 1 ? argv[1] : "127.0.0.1:50051";
   const std::string device = argc > 2 ? argv[2] : "robot-0042";
   const std::string cache = argc > 3 ? argv[3] : "params.cache";
+  // TLS with the fleet's CA, and the robot's token (bound to this device) on every call.
+  absl::StatusOr<sdk::ClientOptions> tls =
+      argc > 5 ? sdk::ClientOptionsFromFiles(argv[4], argv[5]) : sdk::ClientOptions();
+  if (!tls.ok()) return std::fprintf(stderr, "%s\n", tls.status().ToString().c_str()), 1;
 
-  auto client = sdk::ParamClient::Create(server);
+  auto client = sdk::ParamClient::Create(server, *tls);
   if (!client.ok()) return std::fprintf(stderr, "%s\n", client.status().ToString().c_str()), 1;
   // A short deadline: a robot must boot even when the service is down (then from the cache).
   auto boot = sdk::LoadOrFetch(*client, device, cache, absl::Seconds(2));

@@ -1,7 +1,10 @@
 #include "client/sdk/client.h"
 
+#include <fstream>
+#include <sstream>
 #include <utility>
 
+#include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/sdk/grpc_status.h"
@@ -9,9 +12,80 @@
 
 namespace imucal::sdk {
 
+namespace {
+
+absl::StatusOr<std::string> ReadFile(const std::string& what, const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::InvalidArgumentError(absl::StrCat(what, ": cannot read ", path));
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+}  // namespace
+
+absl::StatusOr<ClientOptions> ClientOptionsFromFiles(const std::string& ca_cert_path,
+                                                     const std::string& token_path,
+                                                     const std::string& client_cert_path,
+                                                     const std::string& client_key_path) {
+  ClientOptions options;
+  struct File {
+    const char* what;
+    const std::string& path;
+    std::string* out;
+  };
+  for (const File& f : {File{"CA certificate", ca_cert_path, &options.ca_cert_pem},
+                        File{"client certificate", client_cert_path, &options.client_cert_pem},
+                        File{"client key", client_key_path, &options.client_key_pem}}) {
+    if (f.path.empty()) continue;
+    absl::StatusOr<std::string> text = ReadFile(f.what, f.path);
+    if (!text.ok()) return text.status();
+    *f.out = *std::move(text);
+  }
+  if (!token_path.empty()) {
+    absl::StatusOr<std::string> token = ReadTokenFile(token_path);
+    if (!token.ok()) return token.status();
+    options.bearer_token = *std::move(token);
+  }
+  if (absl::Status s = ValidateClientOptions(options); !s.ok()) return s;
+  return options;
+}
+
+absl::StatusOr<std::string> ReadTokenFile(const std::string& path) {
+  absl::StatusOr<std::string> text = ReadFile("token file", path);
+  if (!text.ok()) return text.status();
+  std::string token(absl::StripAsciiWhitespace(*text));
+  if (token.empty()) return absl::InvalidArgumentError(absl::StrCat("token file: ", path, " is empty"));
+  return token;
+}
+
+absl::Status ValidateClientOptions(const ClientOptions& options) {
+  if (options.credentials) return absl::OkStatus();
+  if (options.ca_cert_pem.empty() && !options.bearer_token.empty())
+    return absl::InvalidArgumentError(
+        "a bearer token is sent only over TLS: give the CA certificate of the server too");
+  if (options.ca_cert_pem.empty() && !options.client_cert_pem.empty())
+    return absl::InvalidArgumentError("a client certificate needs TLS: give the CA certificate");
+  if (options.client_cert_pem.empty() != options.client_key_pem.empty())
+    return absl::InvalidArgumentError("a client certificate and its key go together");
+  return absl::OkStatus();
+}
+
 std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target,
                                            const ClientOptions& options) {
-  auto credentials = options.credentials ? options.credentials : grpc::InsecureChannelCredentials();
+  if (options.credentials) return grpc::CreateChannel(target, options.credentials);
+  if (options.ca_cert_pem.empty() || !ValidateClientOptions(options).ok())
+    return grpc::CreateChannel(target, grpc::InsecureChannelCredentials());
+  grpc::SslCredentialsOptions tls;
+  tls.pem_root_certs = options.ca_cert_pem;
+  tls.pem_cert_chain = options.client_cert_pem;
+  tls.pem_private_key = options.client_key_pem;
+  std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::SslCredentials(tls);
+  // The token rides on every call as call credentials: "authorization: Bearer <token>".
+  if (!options.bearer_token.empty()) {
+    credentials = grpc::CompositeChannelCredentials(
+        credentials, grpc::AccessTokenCredentials(options.bearer_token));
+  }
   return grpc::CreateChannel(target, credentials);
 }
 
@@ -22,6 +96,7 @@ StoredParams FromProto(const imucal::v1::ParameterSet& set) {
 absl::StatusOr<ParamClient> ParamClient::Create(const std::string& target,
                                                 const ClientOptions& options) {
   if (target.empty()) return absl::InvalidArgumentError("server address is empty");
+  if (absl::Status s = ValidateClientOptions(options); !s.ok()) return s;
   return ParamClient(MakeChannel(target, options));
 }
 

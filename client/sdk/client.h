@@ -3,7 +3,8 @@
 // parameters link imucal::sdk alone; this (imucal::sdk_client) brings in gRPC.
 //
 // Typical startup (see client/examples/robot_startup.cc):
-//   auto client = sdk::ParamClient::Create("calib.fleet:50051");
+//   sdk::ClientOptions tls = *sdk::ClientOptionsFromFiles("/etc/imu/ca.pem", "/etc/imu/token");
+//   auto client = sdk::ParamClient::Create("calib.fleet:50051", tls);
 //   auto boot = sdk::LoadOrFetch(*client, "robot-0042", "/var/lib/imu/params.cache",
 //                                absl::Seconds(2));
 //   auto corrector = sdk::Corrector::Create(boot->loaded.params);
@@ -25,13 +26,41 @@ class ChannelCredentials;
 
 namespace imucal::sdk {
 
+// How to reach the service. imucald serves TLS and wants a bearer token on every call (README
+// "Security"); only a server started with `insecure` (loopback, tests) takes plaintext.
 struct ClientOptions {
-  // nullptr: plaintext (grpc::InsecureChannelCredentials), for a trusted fleet network.
+  // PEM of the CA that signed the server's certificate. Empty: plaintext.
+  std::string ca_cert_pem;
+  // Optional mutual TLS: the robot's certificate (common name = its device id) and key, PEM.
+  // The server accepts it in place of a token when it trusts the certificate's CA.
+  std::string client_cert_pem;
+  std::string client_key_pem;
+  // Sent as "authorization: Bearer <token>" on every call of the channel (gRPC call
+  // credentials, which gRPC sends only over TLS: a token needs ca_cert_pem).
+  std::string bearer_token;
+  // Overrides all of the above when set (e.g. credentials a test builds).
   std::shared_ptr<grpc::ChannelCredentials> credentials;
 };
 
+// Reads the PEM files and the token (a file holding the secret; surrounding whitespace is
+// dropped). Empty paths are left out. InvalidArgument naming the file that cannot be read.
+absl::StatusOr<ClientOptions> ClientOptionsFromFiles(const std::string& ca_cert_path,
+                                                     const std::string& token_path,
+                                                     const std::string& client_cert_path = "",
+                                                     const std::string& client_key_path = "");
+
+// The secret in a token file (surrounding whitespace dropped); InvalidArgument when the file
+// cannot be read or is empty.
+absl::StatusOr<std::string> ReadTokenFile(const std::string& path);
+
+// InvalidArgument for options that cannot work: a token or a client certificate without TLS
+// (ca_cert_pem), a client certificate without its key or the other way round.
+absl::Status ValidateClientOptions(const ClientOptions& options);
+
 // Creates a channel to `target` ("host:port", any gRPC target URI). The channel connects
-// lazily: an unreachable server shows up in the first call, not here.
+// lazily: an unreachable server shows up in the first call, not here. Options that fail
+// ValidateClientOptions give a plaintext channel without the token, whose calls the server
+// refuses: check them first (ParamClient::Create does).
 std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target,
                                            const ClientOptions& options = {});
 
@@ -40,7 +69,7 @@ StoredParams FromProto(const imucal::v1::ParameterSet& set);
 
 class ParamClient {
  public:
-  // InvalidArgument for an empty target.
+  // InvalidArgument for an empty target or options that fail ValidateClientOptions.
   static absl::StatusOr<ParamClient> Create(const std::string& target,
                                             const ClientOptions& options = {});
   explicit ParamClient(std::shared_ptr<grpc::Channel> channel);

@@ -32,10 +32,12 @@ absl::Status CheckOptions(const UploadOptions& o) {
 }
 
 // Codes after which the same batches may be sent again on a new stream: the connection broke
-// or the server went away; the session's last_acked_seq says what survived.
+// or the server went away; the session's last_acked_seq says what survived. RESOURCE_EXHAUSTED
+// too: after a reconnect the server may not have ended this device's previous stream yet (one
+// stream per device), and backing off lets it.
 bool IsRetryable(const absl::Status& s) {
   return absl::IsUnavailable(s) || absl::IsDeadlineExceeded(s) || absl::IsAborted(s) ||
-         absl::IsCancelled(s) || absl::IsUnknown(s);
+         absl::IsCancelled(s) || absl::IsUnknown(s) || absl::IsResourceExhausted(s);
 }
 
 pb::SampleBatch MakeBatch(const std::string& session_id, const SampleColumns& s, int64_t begin,
@@ -188,6 +190,7 @@ absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleCol
     if (cancelled_) return absl::CancelledError("upload cancelled");
     stream_context_ = &context;
   }
+  context.set_deadline(absl::ToChronoTime(absl::Now() + options_.stream_deadline));
   auto stream = stub_->StreamSamples(&context);
 
   // Window shared by the writer thread and this (reading) thread.

@@ -55,6 +55,9 @@ struct UploadOptions {
   absl::Duration initial_backoff = absl::Milliseconds(200);  // doubles per retry
   absl::Duration max_backoff = absl::Seconds(5);
   absl::Duration call_deadline = absl::Seconds(10);  // for GetSession
+  // Deadline of one StreamSamples stream. A stream that reaches it ends with DEADLINE_EXCEEDED
+  // and the upload resumes on a new one (a stalled server does not hold the robot for ever).
+  absl::Duration stream_deadline = absl::Minutes(10);
   // Called on the calling thread after each acknowledgement: samples of this capture stored in
   // the session, and the capture's total.
   std::function<void(int64_t acked_samples, int64_t total_samples)> progress;

@@ -5,7 +5,9 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <fstream>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -101,6 +103,23 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
   EXPECT_EQ(report["format"], "imucal-report v1");
   ASSERT_EQ(Run(RunReport, {"--session", session}), kExitOk) << err_;
   EXPECT_NE(out_.find("verdict"), std::string::npos) << out_;
+  // --out DIR: the stored report as is, the summary as printed, and the plots.
+  const fs::path report_dir = dir_ / "report";
+  ASSERT_EQ(Run(RunReport, {"--session", session, "--out", report_dir.string()}), kExitOk) << err_;
+  const std::string printed = out_;
+  for (const char* name : {"report.json", "summary.txt", "residual_stages_per_pose.svg",
+                           "coverage.svg", "allan_accel.svg", "allan_gyro.svg",
+                           "residual_accel_per_pose.svg"}) {
+    EXPECT_TRUE(fs::exists(report_dir / name)) << name << "\n" << err_;
+  }
+  {
+    std::ifstream f(report_dir / "summary.txt");
+    std::stringstream text;
+    text << f.rdbuf();
+    EXPECT_EQ(text.str(), printed);
+    std::ifstream rj(report_dir / "report.json");
+    EXPECT_EQ(json::parse(rj), report);
+  }
 
   ASSERT_EQ(Run(RunParams, {"get", "--device", "robot-cli-3", "--version", "1", "--json"}), kExitOk)
       << err_;
@@ -114,20 +133,31 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
   ASSERT_EQ(Run(RunParams, {"list", "--device", "robot-cli-3"}), kExitOk) << err_;
   EXPECT_NE(out_.find("v1"), std::string::npos) << out_;
 
-  // json works: the document exactly as served; kalibr and openvins are not supported yet, and
-  // the message says so and names the format that is.
+  // json: the document exactly as served. The YAML formats: the same text as the offline
+  // export of that document, with what the format cannot hold on stderr.
   const std::string out = (dir_ / "params.json").string();
   ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "json", "--out", out}), kExitOk)
       << err_;
   EXPECT_TRUE(fs::exists(out));
   ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "json"}), kExitOk) << err_;
   EXPECT_EQ(json::parse(out_)["format"], "imucal-params v1");
-  for (const std::string format : {"kalibr", "openvins"}) {
-    EXPECT_NE(Run(RunExport, {"--device", "robot-cli-3", "--format", format}), kExitOk);
-    EXPECT_NE(err_.find("export to " + format + " is not supported yet"), std::string::npos)
+  for (const std::string format : {"kalibr", "kalibr-intrinsics", "openvins"}) {
+    ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", format, "--rostopic",
+                              "/robot/imu"}),
+              kExitOk)
         << err_;
-    EXPECT_NE(err_.find("the supported format is \"json\""), std::string::npos) << err_;
+    const std::string served = out_;
+    EXPECT_NE(served.find("/robot/imu"), std::string::npos) << served;
+    EXPECT_NE(err_.find("NOT IN THIS FILE"), std::string::npos) << err_;
+    ASSERT_EQ(Run(RunExportFile, {"--params", out, "--format", format, "--rostopic", "/robot/imu"}),
+              kExitOk)
+        << err_;
+    EXPECT_EQ(served, out_) << format;
   }
+  EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "openvins", "--openvins-model",
+                            "bogus"}),
+            kExitUsage);
+  EXPECT_NE(err_.find("--openvins-model"), std::string::npos) << err_;
   EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "bogus"}), kExitUsage);
   // The session's poses, as the server judged them while the capture streamed in.
   ASSERT_EQ(Run(RunSession, {"show", session}), kExitOk) << err_;

@@ -42,6 +42,7 @@ class ServerTest : public testing::Test {
   void SetUp() override {
     static std::atomic<int> counter{0};
     options_.listen = "127.0.0.1:0";
+    options_.security.insecure = true;  // plaintext on loopback: auth_matrix_test covers TLS
     options_.db_path = testing::TempDir() + "/server_test_" + std::to_string(::getpid()) + "_" +
                        std::to_string(counter++) + ".db";
     StartServer();
@@ -545,9 +546,26 @@ TEST_F(ServerTest, WatchGuidesSolveActivatesAndMatchesOfflineCalibrate) {
   v1::ExportResponse exported;
   ASSERT_TRUE(params_->Export(Ctx().get(), exp, &exported).ok());
   EXPECT_EQ(exported.content(), ps.json().empty() ? exported.content() : ps.json());
+  exp.set_format("openvins");
+  exp.set_rostopic("/robot3/imu");
+  ASSERT_TRUE(params_->Export(Ctx().get(), exp, &exported).ok());
+  EXPECT_NE(exported.content().find("imu0:"), std::string::npos) << exported.content();
+  EXPECT_NE(exported.content().find("Tw:"), std::string::npos) << exported.content();
+  EXPECT_NE(exported.content().find("/robot3/imu"), std::string::npos);
+  EXPECT_NE(exported.filename().find("kalibr_imu_chain.yaml"), std::string::npos);
+  ASSERT_FALSE(exported.notes().empty());
+  EXPECT_NE(exported.notes(0).find("biases"), std::string::npos) << exported.notes(0);
+  // Bad requests name the field.
+  exp.set_format("bogus");
+  grpc::Status bad = params_->Export(Ctx().get(), exp, &exported);
+  EXPECT_EQ(bad.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(bad.error_message().find("format"), std::string::npos) << bad.error_message();
   exp.set_format("kalibr");
-  EXPECT_EQ(params_->Export(Ctx().get(), exp, &exported).error_code(),
-            grpc::StatusCode::UNIMPLEMENTED);
+  exp.set_gyro_random_walk(-1);
+  bad = params_->Export(Ctx().get(), exp, &exported);
+  EXPECT_EQ(bad.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(bad.error_message().find("gyro_random_walk"), std::string::npos)
+      << bad.error_message();
 }
 
 // Pair verdicts while streaming: each six-face pair is judged as soon as its second pose is held;

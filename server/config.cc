@@ -1,0 +1,430 @@
+#include "server/config.h"
+
+#include <cerrno>
+#include <charconv>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/string_view.h"
+#include "absl/time/time.h"
+#include "core/str_util.h"
+#include "toml++/toml.h"
+
+namespace imucal::server {
+namespace {
+
+using core::Cat;
+
+// ---- Value parsers shared by the file, the environment and the flags.
+
+template <typename Int>
+absl::StatusOr<Int> ParseInteger(std::string_view text, Int min, Int max) {
+  long long value = 0;
+  const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (text.empty() || ec != std::errc() || ptr != text.data() + text.size()) {
+    return absl::InvalidArgumentError(Cat("expected an integer, got '", text, "'"));
+  }
+  if (value < static_cast<long long>(min) || static_cast<unsigned long long>(value) >
+                                                 static_cast<unsigned long long>(max)) {
+    return absl::InvalidArgumentError(
+        Cat("must be between ", static_cast<long long>(min), " and ",
+            static_cast<unsigned long long>(max), ", got ", value));
+  }
+  return static_cast<Int>(value);
+}
+
+absl::StatusOr<absl::Duration> ParseNonNegativeDuration(std::string_view text) {
+  absl::Duration d;
+  if (!absl::ParseDuration(absl::string_view(text.data(), text.size()), &d) || d == absl::InfiniteDuration()) {
+    return absl::InvalidArgumentError(
+        Cat("expected a duration such as \"30s\", \"1m30s\" or \"500ms\", got '", text, "'"));
+  }
+  if (d < absl::ZeroDuration()) {
+    return absl::InvalidArgumentError(Cat("must not be negative, got '", text, "'"));
+  }
+  return d;
+}
+
+absl::StatusOr<bool> ParseBool(std::string_view text) {
+  if (text == "true" || text == "1" || text == "yes") return true;
+  if (text == "false" || text == "0" || text == "no") return false;
+  return absl::InvalidArgumentError(Cat("expected true or false, got '", text, "'"));
+}
+
+// ---- Option builders: each binds a key to one field of DaemonConfig.
+
+template <typename T>
+using Field = T& (*)(DaemonConfig&);
+
+ConfigOption StringOption(std::string_view key, std::string_view env, std::string_view value_name,
+                          std::string_view help, Field<std::string> field,
+                          bool allow_empty = false) {
+  return {key, env, OptionType::kString, value_name, help,
+          [field, allow_empty](std::string_view text, DaemonConfig& c) -> absl::Status {
+            if (text.empty() && !allow_empty) {
+              return absl::InvalidArgumentError("must not be empty");
+            }
+            field(c) = std::string(text);
+            return absl::OkStatus();
+          }};
+}
+
+template <typename Int>
+ConfigOption IntegerOption(std::string_view key, std::string_view env, std::string_view help,
+                           Int min, Int max, Field<Int> field) {
+  return {key, env, OptionType::kInteger, "N", help,
+          [field, min, max](std::string_view text, DaemonConfig& c) -> absl::Status {
+            absl::StatusOr<Int> value = ParseInteger<Int>(text, min, max);
+            if (!value.ok()) return value.status();
+            field(c) = *value;
+            return absl::OkStatus();
+          }};
+}
+
+ConfigOption DurationOption(std::string_view key, std::string_view env, std::string_view help,
+                            Field<absl::Duration> field) {
+  return {key, env, OptionType::kDuration, "DURATION", help,
+          [field](std::string_view text, DaemonConfig& c) -> absl::Status {
+            absl::StatusOr<absl::Duration> value = ParseNonNegativeDuration(text);
+            if (!value.ok()) return value.status();
+            field(c) = *value;
+            return absl::OkStatus();
+          }};
+}
+
+ConfigOption BoolOption(std::string_view key, std::string_view env, std::string_view help,
+                        Field<bool> field) {
+  return {key, env, OptionType::kBoolean, "BOOL", help,
+          [field](std::string_view text, DaemonConfig& c) -> absl::Status {
+            absl::StatusOr<bool> value = ParseBool(text);
+            if (!value.ok()) return value.status();
+            field(c) = *value;
+            return absl::OkStatus();
+          }};
+}
+
+// A string option whose text `parse` turns into an enum.
+template <typename E>
+ConfigOption ChoiceOption(std::string_view key, std::string_view env, std::string_view value_name,
+                          std::string_view help, absl::StatusOr<E> (*parse)(std::string_view),
+                          Field<E> field) {
+  return {key, env, OptionType::kString, value_name, help,
+          [field, parse](std::string_view text, DaemonConfig& c) -> absl::Status {
+            absl::StatusOr<E> value = parse(text);
+            if (!value.ok()) return value.status();
+            field(c) = *value;
+            return absl::OkStatus();
+          }};
+}
+
+absl::StatusOr<storage::Durability> ParseDurability(std::string_view text) {
+  if (text == "full") return storage::Durability::kFull;
+  if (text == "normal") return storage::Durability::kNormal;
+  return absl::InvalidArgumentError(Cat("expected full or normal, got '", text, "'"));
+}
+
+// ---- THE OPTION TABLE. To add an option: give ServerOptions (or DaemonConfig) a field, then
+// append one entry here with a builder above (StringOption, IntegerOption, DurationOption,
+// BoolOption, ChoiceOption): the TOML key, the flag (--key-with-dashes), the environment
+// variable, --help, deploy/imucald.toml and the errors all follow from it. Keep the help one
+// line and say the default; add the key, commented, to deploy/imucald.toml.
+std::vector<ConfigOption> BuildOptions() {
+  return {
+      StringOption("listen", "IMUCALD_LISTEN", "HOST:PORT",
+                   "address to serve gRPC on; port 0 picks a free one (default 127.0.0.1:50051)",
+                   [](DaemonConfig& c) -> std::string& { return c.server.listen; }),
+      StringOption("db", "IMUCALD_DB", "PATH",
+                   "SQLite database file, created and migrated on start (default imucal.db)",
+                   [](DaemonConfig& c) -> std::string& { return c.server.db_path; }),
+      ChoiceOption<storage::Durability>(
+          "durability", "IMUCALD_DURABILITY", "full|normal",
+          "full: fsync every commit, acknowledged data survives a power cut; normal: survives "
+          "a killed process only (default full)",
+          &ParseDurability, [](DaemonConfig& c) -> storage::Durability& {
+            return c.server.durability;
+          }),
+      IntegerOption<int>("solve_threads", "IMUCALD_SOLVE_THREADS",
+                         "threads that run calibration solves (default 2)", 1, 256,
+                         [](DaemonConfig& c) -> int& { return c.server.sessions.solve_threads; }),
+      IntegerOption<size_t>(
+          "solve_queue_limit", "IMUCALD_SOLVE_QUEUE_LIMIT",
+          "solves that may wait for a thread; more are refused with RESOURCE_EXHAUSTED "
+          "(default 16)",
+          1, 100000,
+          [](DaemonConfig& c) -> size_t& { return c.server.sessions.solve_queue_limit; }),
+      DurationOption("drain_deadline", "IMUCALD_DRAIN_DEADLINE",
+                     "on SIGTERM, how long in-flight calls may run before they are cancelled "
+                     "(default 30s); queued solves then finish",
+                     [](DaemonConfig& c) -> absl::Duration& { return c.server.drain_deadline; }),
+      ChoiceOption<LogFormat>("log_format", "IMUCALD_LOG_FORMAT", "json|text",
+                              "log lines as JSON objects or logfmt text (default json)",
+                              &ParseLogFormat,
+                              [](DaemonConfig& c) -> LogFormat& { return c.log.format; }),
+      ChoiceOption<LogLevel>("log_level", "IMUCALD_LOG_LEVEL", "debug|info|warning|error",
+                             "least severe level logged; debug adds each robot's parameter "
+                             "fetch (default info)",
+                             &ParseLogLevel,
+                             [](DaemonConfig& c) -> LogLevel& { return c.log.level; }),
+      BoolOption("log_rpcs", "IMUCALD_LOG_RPCS",
+                 "log each RPC's method, status code and duration (default true)",
+                 [](DaemonConfig& c) -> bool& { return c.server.log_rpcs; }),
+      IntegerOption<int>(
+          "max_receive_message_bytes", "IMUCALD_MAX_RECEIVE_MESSAGE_BYTES",
+          "largest request message taken, RESOURCE_EXHAUSTED above (default 4194304)", 1024,
+          1 << 30, [](DaemonConfig& c) -> int& { return c.server.max_receive_message_bytes; }),
+      DurationOption("keepalive_time", "IMUCALD_KEEPALIVE_TIME",
+                     "ping a connection idle this long, to notice robots gone (default 30s)",
+                     [](DaemonConfig& c) -> absl::Duration& { return c.server.keepalive_time; }),
+      DurationOption("keepalive_timeout", "IMUCALD_KEEPALIVE_TIMEOUT",
+                     "close a connection whose ping is not answered within this (default 10s)",
+                     [](DaemonConfig& c) -> absl::Duration& {
+                       return c.server.keepalive_timeout;
+                     }),
+      // Transport security and tokens (server/tls.h, server/auth.h; README "Security").
+      StringOption("tls_cert", "IMUCALD_TLS_CERT", "PATH",
+                   "PEM certificate (chain) the server presents; required unless insecure",
+                   [](DaemonConfig& c) -> std::string& { return c.server.security.tls_cert_path; }),
+      StringOption("tls_key", "IMUCALD_TLS_KEY", "PATH",
+                   "PEM private key of tls_cert; required unless insecure",
+                   [](DaemonConfig& c) -> std::string& { return c.server.security.tls_key_path; }),
+      StringOption("client_ca", "IMUCALD_CLIENT_CA", "PATH",
+                   "PEM CA of robots' client certificates: robots may then authenticate with one "
+                   "(common name = device id) instead of a token (default none)",
+                   [](DaemonConfig& c) -> std::string& {
+                     return c.server.security.client_ca_path;
+                   }),
+      BoolOption("insecure", "IMUCALD_INSECURE",
+                 "plaintext without authentication, refused unless listen is a loopback address; "
+                 "for tests and development only (default false)",
+                 [](DaemonConfig& c) -> bool& { return c.server.security.insecure; }),
+      StringOption("admin_token_file", "IMUCALD_ADMIN_TOKEN_FILE", "PATH",
+                   "where the first admin token is written (mode 0600) when the token table is "
+                   "empty (default <db>.admin-token)",
+                   [](DaemonConfig& c) -> std::string& { return c.server.admin_token_file; }),
+      // Limits (README "## Robustness"; server/validate.h, SessionServiceOptions).
+      IntegerOption<int64_t>(
+          "max_batch_samples", "IMUCALD_MAX_BATCH_SAMPLES",
+          "samples in one SampleBatch; more are refused with RESOURCE_EXHAUSTED (default 20000)",
+          1, 10'000'000,
+          [](DaemonConfig& c) -> int64_t& { return c.server.sessions.ingest.max_batch_samples; }),
+      IntegerOption<int64_t>(
+          "max_session_samples", "IMUCALD_MAX_SESSION_SAMPLES",
+          "samples one session may hold; more are refused with RESOURCE_EXHAUSTED "
+          "(default 10000000)",
+          1, int64_t{1} << 40,
+          [](DaemonConfig& c) -> int64_t& {
+            return c.server.sessions.ingest.max_session_samples;
+          }),
+      IntegerOption<int>(
+          "max_streams_per_device", "IMUCALD_MAX_STREAMS_PER_DEVICE",
+          "concurrent StreamSamples streams of one device; more are refused with "
+          "RESOURCE_EXHAUSTED (default 1)",
+          1, 1000,
+          [](DaemonConfig& c) -> int& { return c.server.sessions.max_streams_per_device; }),
+      IntegerOption<int>(
+          "max_watchers_per_session", "IMUCALD_MAX_WATCHERS_PER_SESSION",
+          "concurrent WatchSession streams of one session; more are refused with "
+          "RESOURCE_EXHAUSTED (default 16)",
+          1, 100000,
+          [](DaemonConfig& c) -> int& { return c.server.sessions.max_watchers_per_session; }),
+  };
+}
+
+std::string FlagOf(std::string_view key) {
+  std::string flag = Cat("--", key);
+  for (char& ch : flag) {
+    if (ch == '_') ch = '-';
+  }
+  return flag;
+}
+
+const ConfigOption* FindByKey(std::string_view key) {
+  for (const ConfigOption& option : ConfigOptions()) {
+    if (option.key == key) return &option;
+  }
+  return nullptr;
+}
+
+const ConfigOption* FindByFlag(std::string_view flag) {
+  for (const ConfigOption& option : ConfigOptions()) {
+    if (FlagOf(option.key) == flag) return &option;
+  }
+  return nullptr;
+}
+
+std::string_view TomlTypeName(toml::node_type type) {
+  switch (type) {
+    case toml::node_type::table: return "a table";
+    case toml::node_type::array: return "an array";
+    case toml::node_type::string: return "a string";
+    case toml::node_type::integer: return "an integer";
+    case toml::node_type::floating_point: return "a float";
+    case toml::node_type::boolean: return "a boolean";
+    case toml::node_type::date: return "a date";
+    case toml::node_type::time: return "a time";
+    case toml::node_type::date_time: return "a date-time";
+    default: return "nothing";
+  }
+}
+
+// The option's value in the file as the text its parser takes, or what was expected instead.
+absl::StatusOr<std::string> TomlValueText(const ConfigOption& option, const toml::node& node) {
+  switch (option.type) {
+    case OptionType::kString:
+    case OptionType::kDuration:
+      if (const auto* s = node.as_string()) return s->get();
+      return absl::InvalidArgumentError(
+          Cat("expected a string", option.type == OptionType::kDuration ? " such as \"30s\"" : "",
+              ", got ", TomlTypeName(node.type())));
+    case OptionType::kInteger:
+      if (const auto* i = node.as_integer()) return Cat(static_cast<int64_t>(i->get()));
+      return absl::InvalidArgumentError(
+          Cat("expected an integer, got ", TomlTypeName(node.type())));
+    case OptionType::kBoolean:
+      if (const auto* b = node.as_boolean()) return std::string(b->get() ? "true" : "false");
+      return absl::InvalidArgumentError(
+          Cat("expected true or false, got ", TomlTypeName(node.type())));
+  }
+  return absl::InternalError("unknown option type");
+}
+
+std::string Where(const std::string& path, const toml::source_region& region) {
+  return Cat(path, ":", static_cast<int64_t>(region.begin.line), ":",
+             static_cast<int64_t>(region.begin.column));
+}
+
+}  // namespace
+
+std::span<const ConfigOption> ConfigOptions() {
+  static const std::vector<ConfigOption>* options = new std::vector<ConfigOption>(BuildOptions());
+  return *options;
+}
+
+EnvLookup ProcessEnvironment() {
+  return [](std::string_view name) -> std::optional<std::string> {
+    const char* value = std::getenv(std::string(name).c_str());
+    if (value == nullptr) return std::nullopt;
+    return std::string(value);
+  };
+}
+
+absl::Status ApplyConfigFile(const std::string& path, DaemonConfig& config) {
+  {
+    std::ifstream probe(path);
+    if (!probe) {
+      return absl::InvalidArgumentError(
+          Cat("config file ", path, ": cannot read it: ", std::strerror(errno)));
+    }
+  }
+  toml::table table;
+  try {
+    table = toml::parse_file(path);
+  } catch (const toml::parse_error& e) {
+    return absl::InvalidArgumentError(Cat(Where(path, e.source()), ": ", e.description()));
+  }
+  for (const auto& [key, node] : table) {
+    const std::string where = Where(path, key.source());
+    const ConfigOption* option = FindByKey(key.str());
+    if (option == nullptr) {
+      return absl::InvalidArgumentError(
+          Cat(where, ": unknown key '", key.str(), "' (imucald --help lists the keys)"));
+    }
+    absl::StatusOr<std::string> text = TomlValueText(*option, node);
+    absl::Status status = text.ok() ? option->set(*text, config) : text.status();
+    if (!status.ok()) {
+      return absl::InvalidArgumentError(Cat(where, ": ", key.str(), ": ", status.message()));
+    }
+  }
+  config.config_path = path;
+  return absl::OkStatus();
+}
+
+absl::StatusOr<LoadedConfig> LoadConfig(std::span<const std::string> args, const EnvLookup& env) {
+  // Split the command line first: the file named by --config is applied before any flag.
+  struct FlagValue {
+    const ConfigOption* option;
+    std::string flag;
+    std::string value;
+  };
+  std::vector<FlagValue> flags;
+  std::optional<std::string> config_path;
+  LoadedConfig loaded;
+  for (size_t i = 0; i < args.size(); ++i) {
+    std::string flag = args[i];
+    std::optional<std::string> value;
+    if (const size_t eq = flag.find('='); flag.starts_with("--") && eq != std::string::npos) {
+      value = flag.substr(eq + 1);
+      flag.resize(eq);
+    }
+    if (flag == "--help" || flag == "-h") {
+      loaded.help = true;
+      continue;
+    }
+    const ConfigOption* option = FindByFlag(flag);
+    if (option == nullptr && flag != "--config") {
+      return absl::InvalidArgumentError(
+          Cat("unknown flag ", flag, " (imucald --help lists the flags)"));
+    }
+    if (!value.has_value()) {
+      if (option != nullptr && option->type == OptionType::kBoolean) {
+        value = "true";  // a bare boolean flag turns it on
+      } else if (i + 1 < args.size()) {
+        value = args[++i];
+      } else {
+        return absl::InvalidArgumentError(Cat(flag, ": missing value"));
+      }
+    }
+    if (option == nullptr) {
+      config_path = *value;
+    } else {
+      flags.push_back({option, flag, *value});
+    }
+  }
+  if (!config_path.has_value()) config_path = env("IMUCALD_CONFIG");
+  if (config_path.has_value()) {
+    if (config_path->empty()) return absl::InvalidArgumentError("--config: empty path");
+    if (absl::Status s = ApplyConfigFile(*config_path, loaded.config); !s.ok()) return s;
+  }
+  for (const ConfigOption& option : ConfigOptions()) {
+    const std::optional<std::string> value = env(option.env);
+    if (!value.has_value()) continue;
+    if (absl::Status s = option.set(*value, loaded.config); !s.ok()) {
+      return absl::InvalidArgumentError(Cat("environment ", option.env, ": ", s.message()));
+    }
+  }
+  for (const FlagValue& f : flags) {
+    if (absl::Status s = f.option->set(f.value, loaded.config); !s.ok()) {
+      return absl::InvalidArgumentError(Cat(f.flag, ": ", s.message()));
+    }
+  }
+  return loaded;
+}
+
+std::string HelpText() {
+  std::string text =
+      "imucald: the imucal calibration service (gRPC; state in one SQLite file)\n"
+      "\n"
+      "usage:\n"
+      "  imucald [--config FILE] [OPTIONS]       serve until SIGTERM/SIGINT, then drain and exit 0\n"
+      "  imucald --health-check HOST:PORT       exit 0 if the server there is SERVING, else 1\n"
+      "  imucald backup --db PATH --out FILE    online backup of a live database\n"
+      "  imucald restore --from FILE --db PATH  restore a backup (imucald must be stopped)\n"
+      "\n"
+      "Settings are read from, later ones winning: built-in defaults, the TOML file\n"
+      "(--config FILE, else $IMUCALD_CONFIG), the environment, the flags.\n"
+      "\n"
+      "options (flag / file key / environment variable):\n"
+      "  --config FILE  (-)  IMUCALD_CONFIG\n"
+      "      TOML file of the keys below (see deploy/imucald.toml)\n";
+  for (const ConfigOption& option : ConfigOptions()) {
+    core::AppendTo(&text, "  ", FlagOf(option.key), " ", option.value_name, "  ", option.key,
+                   "  ", option.env, "\n      ", option.help, "\n");
+  }
+  return text;
+}
+
+}  // namespace imucal::server

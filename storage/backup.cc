@@ -1,0 +1,243 @@
+#include "storage/backup.h"
+
+#include <fcntl.h>
+#include <sqlite3.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <memory>
+#include <system_error>
+#include <vector>
+
+#include "storage/migrations.h"
+#include "storage/sqlite_db.h"
+#include "storage/status_macros.h"
+#include "storage/str_util.h"
+
+namespace imucal::storage {
+namespace {
+
+// The tables every imucal schema since version 1 has: a file without them is not imucal's.
+constexpr const char* kRequiredTables[] = {"devices", "sessions", "sample_batches",
+                                           "param_versions"};
+
+absl::Status WithPrefix(std::string_view prefix, const absl::Status& status) {
+  if (status.ok()) return status;
+  return absl::Status(status.code(), Cat(prefix, ": ", status.message()));
+}
+
+// The first column of the first row of a constant query.
+absl::StatusOr<int64_t> QueryInt(Connection& conn, std::string_view sql) {
+  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(sql));
+  STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
+  if (!row) return absl::InternalError(Cat("no row from ", sql));
+  return st->ColumnInt64(0);
+}
+
+// PRAGMA integrity_check: "ok", or up to three of its complaints.
+absl::Status CheckIntegrity(Connection& conn) {
+  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare("PRAGMA integrity_check(3)"));
+  std::vector<std::string> lines;
+  while (true) {
+    STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
+    if (!row) break;
+    lines.push_back(st->ColumnText(0));
+  }
+  if (lines.size() == 1 && lines[0] == "ok") return absl::OkStatus();
+  return absl::DataLossError(Cat("integrity_check failed: ", core::Join(lines, "; ")));
+}
+
+absl::StatusOr<int64_t> CountTables(Connection& conn) {
+  STORAGE_ASSIGN_OR_RETURN(
+      ScopedStatement st,
+      conn.Prepare("SELECT count(*) FROM sqlite_schema WHERE type = 'table' AND name = ?1"));
+  int64_t found = 0;
+  for (const char* table : kRequiredTables) {
+    st->Reset();
+    st->BindText(1, table);
+    STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
+    if (row) found += st->ColumnInt64(0);
+  }
+  return found;
+}
+
+absl::StatusOr<DatabaseInfo> Inspect(Connection& conn, bool check_integrity) {
+  DatabaseInfo info;
+  // The first read of the file: a file that is not SQLite fails here with NOTADB (DataLoss).
+  STORAGE_ASSIGN_OR_RETURN(info.schema_version, SchemaVersion(conn));
+  if (check_integrity) STORAGE_RETURN_IF_ERROR(CheckIntegrity(conn));
+  if (info.schema_version <= 0) {
+    return absl::FailedPreconditionError(
+        "not an imucal database (schema version 0: no imucal migration was ever applied)");
+  }
+  if (info.schema_version > LatestSchemaVersion()) {
+    return absl::FailedPreconditionError(
+        Cat("schema version ", info.schema_version, " is newer than this imucald knows (",
+            LatestSchemaVersion(), "): use the imucald that wrote it, or a newer one"));
+  }
+  STORAGE_ASSIGN_OR_RETURN(int64_t tables, CountTables(conn));
+  if (tables != static_cast<int64_t>(std::size(kRequiredTables))) {
+    return absl::FailedPreconditionError(
+        "not an imucal database (tables devices, sessions, sample_batches, param_versions "
+        "missing)");
+  }
+  STORAGE_ASSIGN_OR_RETURN(info.page_count, QueryInt(conn, "PRAGMA page_count"));
+  STORAGE_ASSIGN_OR_RETURN(info.page_size_bytes, QueryInt(conn, "PRAGMA page_size"));
+  STORAGE_ASSIGN_OR_RETURN(info.devices, QueryInt(conn, "SELECT count(*) FROM devices"));
+  STORAGE_ASSIGN_OR_RETURN(info.param_versions,
+                           QueryInt(conn, "SELECT count(*) FROM param_versions"));
+  return info;
+}
+
+absl::Status CheckExists(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) {
+    return absl::NotFoundError(Cat(path, ": no such file"));
+  }
+  return absl::OkStatus();
+}
+
+// Copies every page of `src` into `dest` in one step (one read transaction on `src`).
+absl::Status CopyPages(Connection& src, Connection& dest, std::string_view what) {
+  sqlite3_backup* backup = sqlite3_backup_init(dest.db(), "main", src.db(), "main");
+  if (backup == nullptr) {
+    return SqliteStatus(sqlite3_extended_errcode(dest.db()), what, dest.db());
+  }
+  const int step_rc = sqlite3_backup_step(backup, -1);
+  const int finish_rc = sqlite3_backup_finish(backup);
+  if (step_rc != SQLITE_DONE) {
+    // READONLY here means the page sizes differ and the destination is in WAL mode.
+    return SqliteStatus(step_rc, what, step_rc == SQLITE_BUSY || step_rc == SQLITE_LOCKED
+                                           ? src.db()
+                                           : dest.db());
+  }
+  if (finish_rc != SQLITE_OK) return SqliteStatus(finish_rc, what, dest.db());
+  return absl::OkStatus();
+}
+
+absl::Status FsyncPath(const std::string& path, bool directory) {
+  const int fd = ::open(path.c_str(), (directory ? O_RDONLY | O_DIRECTORY : O_RDONLY) | O_CLOEXEC);
+  if (fd < 0) return absl::UnavailableError(Cat("open ", path, ": ", std::strerror(errno)));
+  const int rc = ::fsync(fd);
+  const int saved = errno;
+  ::close(fd);
+  if (rc != 0) return absl::UnavailableError(Cat("fsync ", path, ": ", std::strerror(saved)));
+  return absl::OkStatus();
+}
+
+std::string DirectoryOf(const std::string& path) {
+  std::filesystem::path parent = std::filesystem::path(path).parent_path();
+  return parent.empty() ? std::string(".") : parent.string();
+}
+
+// Makes a standalone copy of `src` at `path` (replacing it), in rollback-journal mode so that
+// it is one file; verifies it and makes it durable.
+absl::Status WriteStandaloneCopy(Connection& src, const std::string& path) {
+  const std::string tmp = Cat(path, ".tmp");
+  std::error_code ec;
+  std::filesystem::remove(tmp, ec);
+  {
+    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> dest,
+                             Connection::Open(tmp, ConnectionOptions{}));
+    STORAGE_RETURN_IF_ERROR(CopyPages(src, *dest, Cat("copy to ", tmp)));
+    // The pages came from a WAL database and say so in their header: make the copy a plain
+    // rollback-journal database, so that it is complete without a -wal beside it.
+    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, dest->Prepare("PRAGMA journal_mode = DELETE"));
+    STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
+    if (!row || st->ColumnText(0) != "delete") {
+      return absl::InternalError(Cat(tmp, ": cannot leave WAL mode"));
+    }
+  }
+  {
+    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> check,
+                             Connection::Open(tmp, ConnectionOptions{.read_only = true}));
+    STORAGE_RETURN_IF_ERROR(WithPrefix(tmp, Inspect(*check, /*check_integrity=*/true).status()));
+  }
+  STORAGE_RETURN_IF_ERROR(FsyncPath(tmp, /*directory=*/false));
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return absl::UnavailableError(Cat("rename ", tmp, " to ", path, ": ", ec.message()));
+  return FsyncPath(DirectoryOf(path), /*directory=*/true);
+}
+
+}  // namespace
+
+absl::StatusOr<DatabaseInfo> InspectDatabase(const std::string& path, bool check_integrity) {
+  STORAGE_RETURN_IF_ERROR(CheckExists(path));
+  absl::StatusOr<std::unique_ptr<Connection>> conn =
+      Connection::Open(path, ConnectionOptions{.read_only = true});
+  if (!conn.ok()) return WithPrefix(path, conn.status());
+  absl::StatusOr<DatabaseInfo> info = Inspect(**conn, check_integrity);
+  if (!info.ok()) return WithPrefix(path, info.status());
+  return info;
+}
+
+absl::StatusOr<int> SchemaVersionOf(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) return 0;
+  absl::StatusOr<std::unique_ptr<Connection>> conn =
+      Connection::Open(path, ConnectionOptions{.read_only = true});
+  if (!conn.ok()) return WithPrefix(path, conn.status());
+  absl::StatusOr<int> version = SchemaVersion(**conn);
+  if (!version.ok()) return WithPrefix(path, version.status());
+  return version;
+}
+
+absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path,
+                                            const std::string& out_path) {
+  if (out_path.empty()) return absl::InvalidArgumentError("backup: empty output path");
+  STORAGE_RETURN_IF_ERROR(CheckExists(db_path));
+  // Read-only: the backup never writes the live database (nor checkpoints its WAL).
+  absl::StatusOr<std::unique_ptr<Connection>> src =
+      Connection::Open(db_path, ConnectionOptions{.read_only = true});
+  if (!src.ok()) return WithPrefix(db_path, src.status());
+  if (absl::Status s = WithPrefix(db_path, Inspect(**src, false).status()); !s.ok()) return s;
+  STORAGE_RETURN_IF_ERROR(WriteStandaloneCopy(**src, out_path));
+  return InspectDatabase(out_path, /*check_integrity=*/false);
+}
+
+absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
+                                             const std::string& db_path) {
+  absl::StatusOr<DatabaseInfo> source = InspectDatabase(backup_path, /*check_integrity=*/true);
+  if (!source.ok()) {
+    return absl::Status(source.status().code(),
+                        Cat("refusing to restore: ", source.status().message()));
+  }
+  std::error_code ec;
+  const bool replacing = std::filesystem::exists(db_path, ec);
+  {
+    // Exclusive locking mode takes an EXCLUSIVE lock on the database file at the first access
+    // and keeps it until the connection closes. Every other connection, even an idle one of a
+    // running imucald (WAL connections hold a SHARED lock while open), makes that fail at once
+    // (busy timeout 0): restore never changes a database under a live server.
+    ConnectionOptions options;
+    options.busy_timeout = absl::ZeroDuration();
+    absl::StatusOr<std::unique_ptr<Connection>> dest = Connection::Open(db_path, options);
+    if (!dest.ok()) return WithPrefix(db_path, dest.status());
+    STORAGE_RETURN_IF_ERROR((*dest)->Exec("PRAGMA locking_mode = EXCLUSIVE"));
+    if (absl::Status s = (*dest)->Exec("BEGIN EXCLUSIVE; COMMIT"); !s.ok()) {
+      if (absl::IsUnavailable(s)) {
+        return absl::FailedPreconditionError(
+            Cat(db_path, " is in use (is imucald running?): stop it before restoring"));
+      }
+      return WithPrefix(db_path, s);
+    }
+    if (replacing) {
+      // Keep what was there: a restore of the wrong file can itself be undone.
+      STORAGE_RETURN_IF_ERROR(WriteStandaloneCopy(**dest, Cat(db_path, ".pre-restore")));
+    }
+    absl::StatusOr<std::unique_ptr<Connection>> src =
+        Connection::Open(backup_path, ConnectionOptions{.read_only = true});
+    if (!src.ok()) return WithPrefix(backup_path, src.status());
+    STORAGE_RETURN_IF_ERROR(CopyPages(**src, **dest, Cat("restore into ", db_path)));
+  }
+  absl::StatusOr<DatabaseInfo> restored = InspectDatabase(db_path, /*check_integrity=*/true);
+  if (!restored.ok()) {
+    return absl::Status(restored.status().code(),
+                        Cat("restored database failed its check: ", restored.status().message()));
+  }
+  return restored;
+}
+
+}  // namespace imucal::storage

@@ -1,0 +1,281 @@
+#include "storage/tokens.h"
+
+#include <openssl/evp.h>
+#include <openssl/rand.h>
+
+#include <regex>
+#include <utility>
+
+#include "storage/migrations.h"
+#include "storage/sqlite_db.h"
+#include "storage/status_macros.h"
+#include "storage/str_util.h"
+
+namespace imucal::storage {
+namespace {
+
+constexpr char kSecretPrefix[] = "imucal_";
+constexpr size_t kSecretBytes = 32;  // 256 bits
+constexpr size_t kMaxLabel = 256;
+
+constexpr char kInsertToken[] =
+    "INSERT INTO tokens (secret_sha256, role, device_id, label, created_at_us) "
+    "VALUES (?1, ?2, ?3, ?4, ?5)";
+constexpr char kSelectTokenById[] =
+    "SELECT id, role, device_id, label, created_at_us, revoked_at_us FROM tokens WHERE id = ?1";
+constexpr char kSelectTokenByHash[] =
+    "SELECT id, role, device_id, label, created_at_us, revoked_at_us FROM tokens "
+    "WHERE secret_sha256 = ?1";
+constexpr char kSelectTokens[] =
+    "SELECT id, role, device_id, label, created_at_us, revoked_at_us FROM tokens "
+    "WHERE ?1 OR revoked_at_us IS NULL ORDER BY id";
+constexpr char kCountValidAdmins[] =
+    "SELECT COUNT(*) FROM tokens WHERE role = 'admin' AND revoked_at_us IS NULL";
+constexpr char kRevokeToken[] =
+    "UPDATE tokens SET revoked_at_us = ?2 WHERE id = ?1 AND revoked_at_us IS NULL";
+constexpr char kInsertAudit[] =
+    "INSERT INTO audit_log (time_us, actor, action, target, detail) "
+    "VALUES (?1, ?2, ?3, ?4, ?5)";
+
+int64_t Micros(absl::Time t) { return absl::ToUnixMicros(t); }
+
+// Now, to the microsecond as stored, so that a returned token equals the one read back.
+absl::Time Now() { return absl::FromUnixMicros(Micros(absl::Now())); }
+
+absl::StatusOr<Token> ReadToken(const Statement& st) {
+  Token t;
+  t.id = st.ColumnInt64(0);
+  absl::StatusOr<Role> role = ParseRole(st.ColumnText(1));
+  if (!role.ok()) return absl::DataLossError(Cat("token ", t.id, ": ", role.status().message()));
+  t.role = *role;
+  t.device_id = st.ColumnText(2);
+  t.label = st.ColumnText(3);
+  t.created_at = absl::FromUnixMicros(st.ColumnInt64(4));
+  if (!st.ColumnIsNull(5)) t.revoked_at = absl::FromUnixMicros(st.ColumnInt64(5));
+  return t;
+}
+
+absl::Status ValidateNewToken(Role role, std::string_view device_id, std::string_view label) {
+  static const std::regex kDeviceId("[A-Za-z0-9._-]{1,64}");
+  if (role == Role::kRobot) {
+    if (!std::regex_match(device_id.begin(), device_id.end(), kDeviceId))
+      return absl::InvalidArgumentError(
+          "device_id: a robot token is bound to one device; must match [A-Za-z0-9._-]{1,64}");
+  } else if (!device_id.empty()) {
+    return absl::InvalidArgumentError(
+        Cat("device_id: only robot tokens are bound to a device, not ", RoleName(role), " tokens"));
+  }
+  if (label.size() > kMaxLabel)
+    return absl::InvalidArgumentError(Cat("label: at most ", kMaxLabel, " characters"));
+  for (char c : label) {
+    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f)
+      return absl::InvalidArgumentError("label: control characters are not allowed");
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::string> NewSecret() {
+  unsigned char bytes[kSecretBytes];
+  if (RAND_bytes(bytes, sizeof bytes) != 1)
+    return absl::UnavailableError("the random generator failed (OpenSSL RAND_bytes)");
+  static constexpr char kHex[] = "0123456789abcdef";
+  std::string secret = kSecretPrefix;
+  for (unsigned char b : bytes) {
+    secret.push_back(kHex[b >> 4]);
+    secret.push_back(kHex[b & 15]);
+  }
+  return secret;
+}
+
+std::string_view HashView(const TokenHash& hash) {
+  return std::string_view(reinterpret_cast<const char*>(hash.data()), hash.size());
+}
+
+absl::Status InsertAudit(Connection& conn, std::string_view actor, std::string_view action,
+                         int64_t token_id, std::string_view detail) {
+  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kInsertAudit));
+  st->BindInt64(1, Micros(absl::Now()));
+  st->BindText(2, actor);
+  st->BindText(3, action);
+  st->BindText(4, TokenTarget(token_id));
+  st->BindText(5, detail);
+  return st->Run();
+}
+
+absl::StatusOr<Token> SelectById(Connection& conn, int64_t id) {
+  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectTokenById));
+  st->BindInt64(1, id);
+  STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
+  if (!row) return absl::NotFoundError(Cat("token ", id, " does not exist"));
+  return ReadToken(*st);
+}
+
+absl::Status WithOp(std::string_view op, absl::Status s) {
+  if (s.ok()) return s;
+  return absl::Status(s.code(), Cat(op, ": ", s.message()));
+}
+
+}  // namespace
+
+std::string_view RoleName(Role role) {
+  switch (role) {
+    case Role::kRobot:
+      return "robot";
+    case Role::kTechnician:
+      return "technician";
+    case Role::kAdmin:
+      return "admin";
+  }
+  return "unknown";
+}
+
+absl::StatusOr<Role> ParseRole(std::string_view name) {
+  if (name == "robot") return Role::kRobot;
+  if (name == "technician") return Role::kTechnician;
+  if (name == "admin") return Role::kAdmin;
+  return absl::InvalidArgumentError(Cat("role: '", name, "' is not robot, technician or admin"));
+}
+
+TokenHash HashTokenSecret(std::string_view secret) {
+  TokenHash hash{};
+  unsigned int size = 0;
+  // EVP_Digest with SHA-256 cannot fail on a valid buffer; a zero hash would match no row.
+  EVP_Digest(secret.data(), secret.size(), hash.data(), &size, EVP_sha256(), nullptr);
+  return hash;
+}
+
+std::string TokenTarget(int64_t id) { return Cat("token:", id); }
+
+TokenStore::TokenStore(std::unique_ptr<Connection> conn) : conn_(std::move(conn)) {}
+TokenStore::~TokenStore() = default;
+
+absl::StatusOr<std::unique_ptr<TokenStore>> TokenStore::Open(const std::string& path,
+                                                             absl::Duration busy_timeout) {
+  ConnectionOptions options;
+  options.busy_timeout = busy_timeout;
+  absl::StatusOr<std::unique_ptr<Connection>> conn = Connection::Open(path, options);
+  if (!conn.ok()) return WithOp(Cat("open tokens of ", path), conn.status());
+  // WAL, as Store::Open sets it (a property of the file), so that readers never block a write.
+  if (absl::Status s = (*conn)->Exec("PRAGMA journal_mode = WAL"); !s.ok())
+    return WithOp(Cat("open tokens of ", path), s);
+  if (absl::Status s = Migrate(**conn); !s.ok()) return WithOp(Cat("open tokens of ", path), s);
+  return std::unique_ptr<TokenStore>(new TokenStore(*std::move(conn)));
+}
+
+absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view device_id,
+                                                  std::string_view label, std::string_view actor) {
+  STORAGE_RETURN_IF_ERROR(ValidateNewToken(role, device_id, label));
+  STORAGE_ASSIGN_OR_RETURN(std::string secret, NewSecret());
+  NewToken out;
+  out.token.role = role;
+  out.token.device_id = std::string(device_id);
+  out.token.label = std::string(label);
+  out.token.created_at = Now();
+  {
+    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn_->Prepare(kInsertToken));
+    st->BindBlob(1, HashView(HashTokenSecret(secret)));
+    st->BindText(2, RoleName(role));
+    if (role == Role::kRobot) {
+      st->BindText(3, device_id);
+    } else {
+      st->BindNull(3);
+    }
+    st->BindText(4, label);
+    st->BindInt64(5, Micros(out.token.created_at));
+    STORAGE_RETURN_IF_ERROR(st->Run());
+  }
+  out.token.id = sqlite3_last_insert_rowid(conn_->db());
+  std::string detail = Cat("role ", RoleName(role));
+  if (role == Role::kRobot) AppendTo(&detail, ", device ", device_id);
+  if (!label.empty()) AppendTo(&detail, ", label '", label, "'");
+  STORAGE_RETURN_IF_ERROR(InsertAudit(*conn_, actor, "token.create", out.token.id, detail));
+  out.secret = std::move(secret);
+  return out;
+}
+
+absl::StatusOr<NewToken> TokenStore::Create(Role role, std::string_view device_id,
+                                            std::string_view label, std::string_view actor) {
+  std::lock_guard lock(mu_);
+  absl::StatusOr<Transaction> txn = Transaction::Begin(*conn_);
+  if (!txn.ok()) return WithOp("CreateToken", txn.status());
+  absl::StatusOr<NewToken> created = InsertLocked(role, device_id, label, actor);
+  if (!created.ok()) return WithOp("CreateToken", created.status());
+  if (absl::Status s = txn->Commit(); !s.ok()) return WithOp("CreateToken", s);
+  return created;
+}
+
+absl::StatusOr<std::optional<NewToken>> TokenStore::CreateFirstAdmin(std::string_view label,
+                                                                     std::string_view actor) {
+  constexpr std::string_view kOp = "CreateFirstAdmin";
+  std::lock_guard lock(mu_);
+  absl::StatusOr<Transaction> txn = Transaction::Begin(*conn_);
+  if (!txn.ok()) return WithOp(kOp, txn.status());
+  int64_t count = 0;
+  {
+    absl::StatusOr<ScopedStatement> st = conn_->Prepare(kCountValidAdmins);
+    if (!st.ok()) return WithOp(kOp, st.status());
+    absl::StatusOr<bool> row = (*st)->Step();
+    if (!row.ok()) return WithOp(kOp, row.status());
+    count = *row ? (*st)->ColumnInt64(0) : 0;
+  }
+  if (count > 0) return std::optional<NewToken>();
+  absl::StatusOr<NewToken> created = InsertLocked(Role::kAdmin, "", label, actor);
+  if (!created.ok()) return WithOp(kOp, created.status());
+  if (absl::Status s = txn->Commit(); !s.ok()) return WithOp(kOp, s);
+  return std::optional<NewToken>(*std::move(created));
+}
+
+absl::StatusOr<std::vector<Token>> TokenStore::List(bool include_revoked) {
+  std::lock_guard lock(mu_);
+  absl::StatusOr<ScopedStatement> st = conn_->Prepare(kSelectTokens);
+  if (!st.ok()) return WithOp("ListTokens", st.status());
+  (*st)->BindInt64(1, include_revoked ? 1 : 0);
+  std::vector<Token> out;
+  while (true) {
+    absl::StatusOr<bool> row = (*st)->Step();
+    if (!row.ok()) return WithOp("ListTokens", row.status());
+    if (!*row) break;
+    absl::StatusOr<Token> t = ReadToken(**st);
+    if (!t.ok()) return t.status();
+    out.push_back(*std::move(t));
+  }
+  return out;
+}
+
+absl::StatusOr<Token> TokenStore::Revoke(int64_t id, std::string_view actor) {
+  constexpr std::string_view kOp = "RevokeToken";
+  std::lock_guard lock(mu_);
+  auto body = [&]() -> absl::StatusOr<Token> {
+    STORAGE_ASSIGN_OR_RETURN(Transaction txn, Transaction::Begin(*conn_));
+    STORAGE_ASSIGN_OR_RETURN(Token token, SelectById(*conn_, id));
+    if (token.revoked()) return token;  // already revoked: nothing to do or to audit
+    token.revoked_at = Now();
+    {
+      STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn_->Prepare(kRevokeToken));
+      st->BindInt64(1, id);
+      st->BindInt64(2, Micros(*token.revoked_at));
+      STORAGE_RETURN_IF_ERROR(st->Run());
+    }
+    std::string detail = Cat("role ", RoleName(token.role));
+    if (token.role == Role::kRobot) AppendTo(&detail, ", device ", token.device_id);
+    STORAGE_RETURN_IF_ERROR(InsertAudit(*conn_, actor, "token.revoke", id, detail));
+    STORAGE_RETURN_IF_ERROR(txn.Commit());
+    return token;
+  };
+  absl::StatusOr<Token> revoked = body();
+  if (!revoked.ok()) return WithOp(kOp, revoked.status());
+  return revoked;
+}
+
+absl::StatusOr<Token> TokenStore::Lookup(const TokenHash& hash) {
+  std::lock_guard lock(mu_);
+  absl::StatusOr<ScopedStatement> st = conn_->Prepare(kSelectTokenByHash);
+  if (!st.ok()) return WithOp("LookupToken", st.status());
+  (*st)->BindBlob(1, HashView(hash));
+  absl::StatusOr<bool> row = (*st)->Step();
+  if (!row.ok()) return WithOp("LookupToken", row.status());
+  if (!*row) return absl::NotFoundError("no such token");
+  return ReadToken(**st);
+}
+
+}  // namespace imucal::storage

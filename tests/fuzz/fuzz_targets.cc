@@ -1,0 +1,208 @@
+#include "tests/fuzz/fuzz_targets.h"
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "core/capture.h"
+#include "core/capture_io.h"
+#include "core/import_columns.h"
+#include "core/import_euroc.h"
+#include "google/protobuf/stubs/logging.h"
+#include "imucal/v1/imucal.pb.h"
+#include "server/validate.h"
+#include "storage/rosbag2_import.h"
+#include "storage/sample_codec.h"
+
+namespace imucal::fuzz {
+namespace {
+
+// A violated property: a crash that libFuzzer records (and the regression test reports).
+[[noreturn]] void Fail(const char* target, const std::string& what) {
+  std::fprintf(stderr, "fuzz property violated in %s: %s\n", target, what.c_str());
+  std::abort();
+}
+
+bool SameDouble(double a, double b) { return a == b || (std::isnan(a) && std::isnan(b)); }
+
+bool SameVector(const std::vector<double>& a, const std::vector<double>& b) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i)
+    if (!SameDouble(a[i], b[i])) return false;
+  return true;
+}
+
+bool SameVector3(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i)
+    for (int k = 0; k < 3; ++k)
+      if (!SameDouble(a[i][k], b[i][k])) return false;
+  return true;
+}
+
+// The fields a round trip must keep, first difference named.
+std::string CaptureDifference(const core::Capture& a, const core::Capture& b) {
+  if (a.device != b.device) return "device";
+  if (a.accel_unit != b.accel_unit) return "accel_unit";
+  if (a.gyro_unit != b.gyro_unit) return "gyro_unit";
+  if (a.temp_unit != b.temp_unit) return "temp_unit";
+  if (!SameDouble(a.gravity_m_s2, b.gravity_m_s2)) return "gravity_m_s2";
+  if (!SameDouble(a.rate_hz, b.rate_hz)) return "rate_hz";
+  if (a.extra_metadata != b.extra_metadata) return "extra_metadata";
+  if (!SameVector(a.t_s, b.t_s)) return "t_s";
+  if (!SameVector3(a.accel, b.accel)) return "accel";
+  if (!SameVector3(a.gyro, b.gyro)) return "gyro";
+  if (!SameVector(a.temp, b.temp)) return "temp";
+  if (a.extra_column_names != b.extra_column_names) return "extra_column_names";
+  if (a.extra_columns.size() != b.extra_columns.size()) return "extra_columns";
+  for (size_t c = 0; c < a.extra_columns.size(); ++c)
+    if (!SameVector(a.extra_columns[c], b.extra_columns[c])) return "extra_columns values";
+  return "";
+}
+
+// Every importer promises a capture that satisfies ValidateCapture, or an error.
+void CheckImported(const char* target, const absl::StatusOr<core::Capture>& capture) {
+  if (!capture.ok()) {
+    if (capture.status().message().empty()) Fail(target, "an error without a message");
+    return;
+  }
+  if (absl::Status s = core::ValidateCapture(*capture); !s.ok())
+    Fail(target, "accepted a capture that ValidateCapture refuses: " + s.ToString());
+}
+
+}  // namespace
+
+void FuzzCaptureCsv(std::string_view data) {
+  const absl::StatusOr<core::Capture> capture = core::ParseImucalCsv(data, "fuzz.csv");
+  CheckImported("capture_csv", capture);
+  if (!capture.ok() || !core::CheckCaptureWritable(*capture).ok()) return;
+  // A writable capture formats and parses back to itself, exactly.
+  const std::string text = core::FormatImucalCsv(*capture);
+  const absl::StatusOr<core::Capture> again = core::ParseImucalCsv(text, "formatted.csv");
+  if (!again.ok()) Fail("capture_csv", "its own output does not parse: " + again.status().ToString());
+  if (const std::string diff = CaptureDifference(*capture, *again); !diff.empty())
+    Fail("capture_csv", "format -> parse changed " + diff);
+}
+
+void FuzzImuTk(std::string_view data) {
+  // The accelerometer file, a NUL, the gyroscope file (no NUL: cut in half).
+  size_t cut = data.find('\0');
+  std::string_view accel, gyro;
+  if (cut == std::string_view::npos) {
+    cut = data.size() / 2;
+    accel = data.substr(0, cut);
+    gyro = data.substr(cut);
+  } else {
+    accel = data.substr(0, cut);
+    gyro = data.substr(cut + 1);
+  }
+  core::ImportOptions options;
+  std::vector<std::string> notes;
+  CheckImported("imutk", core::ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", options, &notes));
+}
+
+void FuzzColumns(std::string_view data) {
+  if (data.empty()) return;
+  // Byte 0 picks one of the option sets the CLI's --columns flags make.
+  const unsigned char pick = static_cast<unsigned char>(data[0]);
+  data.remove_prefix(1);
+  core::ImportOptions options;
+  core::ColumnCsvOptions& c = options.columns;
+  switch (pick % 5) {
+    case 0:  // named columns, time in seconds, temperature
+      c.map = "t=t,ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz,temp=temp";
+      break;
+    case 1:  // numbered columns, no header, sample counter at a rate
+      c.map = "t=1,ax=2,ay=3,az=4,gx=5,gy=6,gz=7";
+      c.no_header = true;
+      c.delimiter = ",";
+      c.time_unit = core::ColumnTimeUnit::kSampleIndex;
+      c.rate_hz = 100;
+      break;
+    case 2:  // no time column: rate from a preamble line ("Fs,100"), units given
+      c.map = "ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z";
+      c.rate_from_preamble = "Fs";
+      options.accel_unit = core::AccelUnit::kCounts;
+      options.gyro_unit = core::GyroUnit::kCounts;
+      break;
+    case 3:  // a file saved part by part: sorted by time, in milliseconds
+      c.map = "t=time,ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz";
+      c.time_unit = core::ColumnTimeUnit::kMilliseconds;
+      c.sort_by_time = true;
+      break;
+    default:  // ';' after one skipped line, nanoseconds
+      c.map = "t=1,ax=2,ay=3,az=4,gx=5,gy=6,gz=7";
+      c.delimiter = ";";
+      c.skip_lines = 1;
+      c.time_unit = core::ColumnTimeUnit::kNanoseconds;
+      break;
+  }
+  if (!core::CheckColumnCsvOptions(c).ok()) Fail("columns", "an option set of the fuzzer is invalid");
+  std::vector<std::string> notes;
+  CheckImported("columns", core::ParseColumnCsv(data, "vendor.csv", options, &notes));
+}
+
+void FuzzEuroc(std::string_view data) {
+  core::ImportOptions options;
+  std::vector<std::string> notes;
+  CheckImported("euroc", core::ParseEurocCsv(data, "data.csv", options, &notes));
+}
+
+void FuzzRosbag2Cdr(std::string_view data) {
+  const absl::StatusOr<storage::ImuMessage> m = storage::DecodeImuCdr(data);
+  if (!m.ok()) {
+    if (m.status().message().empty()) Fail("rosbag2_cdr", "an error without a message");
+    return;
+  }
+  if (m->stamp_nanosec >= 1'000'000'000u) Fail("rosbag2_cdr", "nanosec not below 1e9 accepted");
+  if (m->frame_id.size() > data.size()) Fail("rosbag2_cdr", "frame_id longer than the message");
+}
+
+void FuzzSampleBatch(std::string_view data) {
+  // Invalid UTF-8 in session_id is a parse error that protobuf also logs: keep the runs quiet.
+  static const bool quiet = (google::protobuf::SetLogHandler(nullptr), true);
+  (void)quiet;
+  v1::SampleBatch batch;
+  if (!batch.ParseFromArray(data.data(), static_cast<int>(data.size()))) return;
+  server::IngestLimits limits;
+  limits.max_batch_samples = 4096;
+  const char* units[][2] = {{"m/s^2", "rad/s"}, {"g", "deg/s"}, {"counts", "counts"}};
+  for (const auto& u : units) {
+    absl::Status s = server::ValidateBatchColumns(batch, u[0], u[1], limits);
+    if (s.ok()) s = server::ValidateBatchTimes(batch, std::numeric_limits<double>::quiet_NaN());
+    if (!s.ok()) {
+      if (s.message().empty()) Fail("sample_batch", "an error without a message");
+      continue;
+    }
+    // What validation accepts, the storage codec stores and gives back bit for bit.
+    const int n = batch.t_s_size();
+    std::vector<storage::ImuSample> samples(static_cast<size_t>(n));
+    for (int i = 0; i < n; ++i) {
+      storage::ImuSample& x = samples[static_cast<size_t>(i)];
+      x.t_s = batch.t_s(i);
+      for (int k = 0; k < 3; ++k) {
+        x.accel[static_cast<size_t>(k)] = batch.accel(3 * i + k);
+        x.gyro[static_cast<size_t>(k)] = batch.gyro(3 * i + k);
+      }
+      if (batch.temp_c_size() != 0) x.temp = batch.temp_c(i);
+    }
+    const absl::StatusOr<std::string> payload = storage::EncodeSamples(samples);
+    if (!payload.ok())
+      Fail("sample_batch", "validated but the codec refuses it: " + payload.status().ToString());
+    const absl::StatusOr<std::vector<storage::ImuSample>> back = storage::DecodeSamples(*payload);
+    if (!back.ok() || back->size() != samples.size())
+      Fail("sample_batch", "its payload does not decode");
+    for (size_t i = 0; i < samples.size(); ++i) {
+      const storage::ImuSample &a = samples[i], &b = (*back)[i];
+      bool same = SameDouble(a.t_s, b.t_s) && SameDouble(a.temp, b.temp);
+      for (size_t k = 0; k < 3; ++k)
+        same = same && SameDouble(a.accel[k], b.accel[k]) && SameDouble(a.gyro[k], b.gyro[k]);
+      if (!same) Fail("sample_batch", "sample " + std::to_string(i) + " changed in the codec");
+    }
+  }
+}
+
+}  // namespace imucal::fuzz

@@ -1,0 +1,596 @@
+// Every input validated at the boundary, and the limits: an in-process imucald on a loopback
+// port (port 0) with a SQLite file in a temp dir, driven by the generated stubs and, for bytes
+// that are not protobuf at all, by grpc::GenericStub.
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <future>
+#include <limits>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "client/sdk/uploader.h"
+#include "grpcpp/generic/generic_stub.h"
+#include "grpcpp/grpcpp.h"
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+#include "imucal/v1/imucal.grpc.pb.h"
+#include "server/server.h"
+#include "server/validate.h"
+#include "storage/sample_codec.h"
+#include "storage/store.h"
+
+namespace imucal::server {
+namespace {
+
+using std::chrono::seconds;
+using std::chrono::system_clock;
+using ::testing::HasSubstr;
+
+constexpr int kBatch = 200;
+constexpr double kRateHz = 200;
+
+// A robot at rest, z up: sample i of the session at t = i / rate.
+v1::SampleBatch RestBatch(const std::string& session, int64_t seq, int n = kBatch,
+                          bool with_temp = true) {
+  v1::SampleBatch b;
+  b.set_session_id(session);
+  b.set_seq(seq);
+  const int64_t first = (seq - 1) * kBatch;
+  for (int i = 0; i < n; ++i) {
+    const double k = static_cast<double>(first + i);
+    b.add_t_s(k / kRateHz);
+    b.add_accel(0.01 * std::sin(k));
+    b.add_accel(-0.02 * std::cos(k));
+    b.add_accel(9.80665 + 0.01 * std::sin(3 * k));
+    b.add_gyro(1e-3 * std::cos(k));
+    b.add_gyro(-1e-3 * std::sin(2 * k));
+    b.add_gyro(2e-3);
+    if (with_temp) b.add_temp_c(25.0 + 1e-3 * k);
+  }
+  return b;
+}
+
+grpc::ByteBuffer Buffer(const std::string& bytes) {
+  grpc::Slice slice(bytes);
+  return grpc::ByteBuffer(&slice, 1);
+}
+
+// A StreamSamples call through the generic stub: writes `messages` (raw bytes) one after the
+// other, then half-closes; counts the acks and returns the final status.
+class RawIngestStream final : public grpc::ClientBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer> {
+ public:
+  RawIngestStream(grpc::GenericStub* stub, std::vector<std::string> messages)
+      : messages_(std::move(messages)) {
+    ctx_.set_deadline(system_clock::now() + seconds(20));
+    stub->PrepareBidiStreamingCall(&ctx_, "/imucal.v1.SessionService/StreamSamples",
+                                   grpc::StubOptions(), this);
+    StartRead(&in_);
+    WriteNext();
+    StartCall();
+  }
+  void OnWriteDone(bool ok) override {
+    if (ok) WriteNext();
+  }
+  void OnReadDone(bool ok) override {
+    if (!ok) return;
+    ++acks_;
+    StartRead(&in_);
+  }
+  void OnDone(const grpc::Status& s) override { done_.set_value(s); }
+  grpc::Status Wait() { return done_.get_future().get(); }
+  int acks() const { return acks_; }  // after Wait()
+
+ private:
+  void WriteNext() {
+    if (next_ < messages_.size()) {
+      out_ = Buffer(messages_[next_++]);
+      StartWrite(&out_);
+    } else {
+      StartWritesDone();
+    }
+  }
+  grpc::ClientContext ctx_;
+  std::vector<std::string> messages_;
+  size_t next_ = 0;
+  grpc::ByteBuffer out_, in_;
+  int acks_ = 0;
+  std::promise<grpc::Status> done_;
+};
+
+class ValidationTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    static int counter = 0;
+    options_.listen = "127.0.0.1:0";
+    options_.security.insecure = true;  // loopback, no TLS: authentication is not under test
+    options_.db_path = testing::TempDir() + "/validation_test_" + std::to_string(::getpid()) +
+                       "_" + std::to_string(counter++) + ".db";
+  }
+  void TearDown() override { server_.reset(); }
+
+  void StartServer() {
+    server_.reset();
+    auto server = Server::Start(options_);
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = *std::move(server);
+    grpc::ChannelArguments args;
+    args.SetMaxSendMessageSize(64 << 20);  // the server's receive limit is under test
+    channel_ = grpc::CreateCustomChannel(server_->address(), grpc::InsecureChannelCredentials(),
+                                         args);
+    devices_ = v1::DeviceService::NewStub(channel_);
+    sessions_ = v1::SessionService::NewStub(channel_);
+  }
+
+  static std::unique_ptr<grpc::ClientContext> Ctx() {
+    auto ctx = std::make_unique<grpc::ClientContext>();
+    ctx->set_deadline(system_clock::now() + seconds(20));
+    return ctx;
+  }
+
+  // Registers `device` and opens a session on it; returns the session id.
+  std::string NewSession(const std::string& device, const std::string& accel_unit = "m/s^2",
+                         const std::string& gyro_unit = "rad/s") {
+    v1::RegisterDeviceRequest reg;
+    reg.mutable_device()->set_id(device);
+    reg.mutable_device()->set_sensor_model("sim");
+    reg.mutable_device()->set_nominal_rate_hz(kRateHz);
+    reg.mutable_device()->set_accel_unit(accel_unit);
+    reg.mutable_device()->set_gyro_unit(gyro_unit);
+    v1::Device d;
+    grpc::Status s = devices_->RegisterDevice(Ctx().get(), reg, &d);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    v1::CreateSessionRequest create;
+    create.set_device_id(device);
+    create.set_protocol(v1::PROTOCOL_FREE);
+    v1::Session session;
+    s = sessions_->CreateSession(Ctx().get(), create, &session);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return session.id();
+  }
+
+  // Streams `batches` on one stream, one ack awaited per batch.
+  grpc::Status Stream(const std::vector<v1::SampleBatch>& batches,
+                      std::vector<v1::SampleAck>* acks = nullptr) {
+    auto ctx = Ctx();
+    auto stream = sessions_->StreamSamples(ctx.get());
+    for (const v1::SampleBatch& b : batches) {
+      if (!stream->Write(b)) break;
+      v1::SampleAck ack;
+      if (!stream->Read(&ack)) break;
+      if (acks != nullptr) acks->push_back(ack);
+    }
+    stream->WritesDone();
+    v1::SampleAck extra;
+    while (stream->Read(&extra))
+      if (acks != nullptr) acks->push_back(extra);
+    return stream->Finish();
+  }
+
+  v1::Session GetSession(const std::string& id) {
+    v1::GetSessionRequest req;
+    req.set_session_id(id);
+    v1::Session out;
+    grpc::Status s = sessions_->GetSession(Ctx().get(), req, &out);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return out;
+  }
+
+  ServerOptions options_;
+  std::unique_ptr<Server> server_;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<v1::DeviceService::Stub> devices_;
+  std::unique_ptr<v1::SessionService::Stub> sessions_;
+};
+
+#define EXPECT_STATUS(status, code, text)                         \
+  do {                                                            \
+    const grpc::Status st_ = (status);                            \
+    EXPECT_EQ(st_.error_code(), grpc::StatusCode::code) << st_.error_message(); \
+    EXPECT_THAT(st_.error_message(), HasSubstr(text));            \
+  } while (0)
+
+TEST_F(ValidationTest, NonFiniteValuesNameBatchSampleAndField) {
+  StartServer();
+  const std::string s = NewSession("robot-nan");
+  v1::SampleBatch b = RestBatch(s, 1);
+  b.set_accel(3 * 3 + 1, std::nan(""));
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 3: accel.y (accel[10]) is NaN");
+  b = RestBatch(s, 1);
+  b.set_gyro(3 * 7 + 2, -std::numeric_limits<double>::infinity());
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 7: gyro.z (gyro[23]) is -infinity");
+  b = RestBatch(s, 1);
+  b.set_temp_c(5, std::numeric_limits<double>::infinity());
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 5: temp_c (temp_c[5]) is +infinity");
+  b = RestBatch(s, 1);
+  b.set_t_s(9, std::nan(""));
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 9: t_s (t_s[9]) is NaN");
+  b = RestBatch(s, 1);
+  b.mutable_gyro()->RemoveLast();
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT,
+                "batch 1: gyro has 599 values, expected 600 (3 per sample for the 200 samples");
+  b = RestBatch(s, 1);
+  b.clear_t_s();
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1: t_s is empty");
+  b = RestBatch(s, 1);
+  b.set_seq(0);
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 0: seq must be 1 or more");
+  b = RestBatch(s, 1);
+  b.clear_session_id();
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "session_id: required");
+  EXPECT_EQ(GetSession(s).samples(), 0);  // nothing refused was stored
+}
+
+// The bounds come from the units the device declared; a value just inside each is taken.
+TEST_F(ValidationTest, AbsurdMagnitudesByDeclaredUnit) {
+  StartServer();
+  struct Case {
+    std::string accel_unit, gyro_unit;
+    double accel_ok, accel_bad, gyro_ok, gyro_bad;
+  };
+  const std::vector<Case> cases = {
+      {"m/s^2", "rad/s", 980.0, 981.0, 99.0, 101.0},           // 100 g, 100 rad/s
+      {"g", "deg/s", 99.0, 101.0, 5700.0, 5800.0},             // 100 g, 5730 deg/s
+      {"counts", "counts", 2.0e9, 2.2e9, -2.0e9, -2.2e9},      // a signed 32-bit register
+  };
+  int device = 0;
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.accel_unit + " " + c.gyro_unit);
+    const std::string s = NewSession("robot-unit-" + std::to_string(device++), c.accel_unit,
+                                     c.gyro_unit);
+    v1::SampleBatch b = RestBatch(s, 1);
+    b.set_accel(3 * 4 + 0, c.accel_bad);
+    EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 4: accel.x (accel[12]) = ");
+    EXPECT_THAT(Stream({b}).error_message(), HasSubstr("outside the physical range"));
+    b = RestBatch(s, 1);
+    b.set_gyro(3 * 6 + 1, c.gyro_bad);
+    EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 6: gyro.y (gyro[19]) = ");
+    b = RestBatch(s, 1);
+    b.set_temp_c(2, 151);
+    EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT,
+                  "batch 1, sample 2: temp_c (temp_c[2]) = 151 degC is outside the physical "
+                  "range -60..150 degC");
+    b.set_temp_c(2, -61);
+    EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "temp_c (temp_c[2]) = -61 degC");
+    // Just inside every bound: stored.
+    b = RestBatch(s, 1);
+    b.set_accel(0, c.accel_ok);
+    b.set_gyro(1, c.gyro_ok);
+    b.set_temp_c(2, 149);
+    b.set_temp_c(3, -59);
+    std::vector<v1::SampleAck> acks;
+    const grpc::Status ok = Stream({b}, &acks);
+    EXPECT_TRUE(ok.ok()) << ok.error_message();
+    ASSERT_EQ(acks.size(), 1u);
+    EXPECT_EQ(acks[0].samples(), kBatch);
+  }
+}
+
+TEST_F(ValidationTest, TimeMustIncreaseWithinAndAcrossBatches) {
+  StartServer();
+  const std::string s = NewSession("robot-time");
+  v1::SampleBatch b = RestBatch(s, 1);
+  b.set_t_s(50, b.t_s(49));
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT,
+                "batch 1, sample 50: t_s (t_s[50]) = 0.245 s is not after the previous sample");
+  ASSERT_TRUE(Stream({RestBatch(s, 1)}).ok());
+  b = RestBatch(s, 2);
+  b.set_t_s(0, 0.5);  // batch 1 ended at 0.995 s
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT,
+                "batch 2, sample 0: t_s (t_s[0]) = 0.5 s is not after the session's last stored "
+                "sample (0.995 s)");
+  b.set_t_s(0, 1e13);
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "t_s (t_s[0]) = 1e+13 s is beyond");
+  EXPECT_EQ(GetSession(s).samples(), kBatch);
+}
+
+// A gap is FAILED_PRECONDITION naming the seq to resume from (the API's contract, which the SDK
+// resumes by); a duplicate is an idempotent no-op; the same seq with other content is refused.
+TEST_F(ValidationTest, GapsDuplicatesAndConflictingRetransmissions) {
+  StartServer();
+  const std::string s = NewSession("robot-seq");
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream({RestBatch(s, 1), RestBatch(s, 2)}, &acks).ok());
+  acks.clear();
+  const grpc::Status gap = Stream({RestBatch(s, 2), RestBatch(s, 4)}, &acks);
+  EXPECT_STATUS(gap, FAILED_PRECONDITION, "expected 3");
+  ASSERT_EQ(acks.size(), 1u);  // the duplicate of batch 2 is acknowledged again
+  EXPECT_EQ(acks[0].last_acked_seq(), 2);
+  EXPECT_EQ(acks[0].samples(), 2 * kBatch);
+  v1::SampleBatch other = RestBatch(s, 2);
+  other.set_accel(0, 1.0);
+  EXPECT_EQ(Stream({other}).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  const v1::Session after = GetSession(s);
+  EXPECT_EQ(after.last_acked_seq(), 2);
+  EXPECT_EQ(after.samples(), 2 * kBatch);
+}
+
+// Nothing acknowledged is lost or changed by a bad batch that follows it on the same stream,
+// and the session continues after it.
+TEST_F(ValidationTest, BadBatchAfterGoodOnesLosesNothing) {
+  StartServer();
+  const std::string s = NewSession("robot-keep");
+  std::vector<v1::SampleBatch> good;
+  for (int64_t seq = 1; seq <= 5; ++seq) good.push_back(RestBatch(s, seq));
+  v1::SampleBatch bad = RestBatch(s, 6);
+  bad.set_accel(3 * 11 + 2, std::nan(""));
+  std::vector<v1::SampleBatch> all = good;
+  all.push_back(bad);
+  std::vector<v1::SampleAck> acks;
+  EXPECT_STATUS(Stream(all, &acks), INVALID_ARGUMENT, "batch 6, sample 11: accel.z");
+  ASSERT_EQ(acks.size(), 5u);
+  EXPECT_EQ(acks.back().last_acked_seq(), 5);
+
+  // Every acknowledged sample is stored exactly as sent (read back from the file, with the
+  // server stopped).
+  server_.reset();
+  {
+    auto store = storage::Store::Open(options_.db_path);
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto batches = (*store)->ReadBatches(s);
+    ASSERT_TRUE(batches.ok()) << batches.status();
+    ASSERT_EQ(batches->size(), 5u);
+    for (size_t k = 0; k < 5; ++k) {
+      auto samples = storage::DecodeSamples((*batches)[k].payload);
+      ASSERT_TRUE(samples.ok()) << samples.status();
+      ASSERT_EQ(samples->size(), static_cast<size_t>(kBatch));
+      for (int i = 0; i < kBatch; ++i) {
+        const storage::ImuSample& x = (*samples)[static_cast<size_t>(i)];
+        ASSERT_EQ(x.t_s, good[k].t_s(i));
+        for (int a = 0; a < 3; ++a) {
+          ASSERT_EQ(x.accel[static_cast<size_t>(a)], good[k].accel(3 * i + a));
+          ASSERT_EQ(x.gyro[static_cast<size_t>(a)], good[k].gyro(3 * i + a));
+        }
+        ASSERT_EQ(x.temp, good[k].temp_c(i));
+      }
+    }
+  }
+  // The session continues where it stopped.
+  StartServer();
+  acks.clear();
+  ASSERT_TRUE(Stream({RestBatch(s, 6)}, &acks).ok());
+  ASSERT_EQ(acks.size(), 1u);
+  EXPECT_EQ(acks[0].last_acked_seq(), 6);
+  EXPECT_EQ(acks[0].samples(), 6 * kBatch);
+}
+
+TEST_F(ValidationTest, OversizedMessagesAndBatchesAreResourceExhausted) {
+  options_.max_receive_message_bytes = 64 << 10;
+  options_.sessions.ingest.max_batch_samples = 500;
+  StartServer();
+  const std::string s = NewSession("robot-big");
+  // 2000 samples with temperature: 2000 * 7 * 8 bytes = 112 kB > 64 KiB.
+  EXPECT_STATUS(Stream({RestBatch(s, 1, 2000)}), RESOURCE_EXHAUSTED, "larger than max");
+  // Under the byte limit but over the sample limit.
+  EXPECT_STATUS(Stream({RestBatch(s, 1, 501)}), RESOURCE_EXHAUSTED,
+                "batch 1: t_s has 501 samples, at most 500 per batch");
+  // The server goes on serving, and the session takes a batch within the limits.
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream({RestBatch(s, 1, 500)}, &acks).ok());
+  EXPECT_EQ(acks.at(0).samples(), 500);
+}
+
+TEST_F(ValidationTest, SessionSampleLimit) {
+  options_.sessions.ingest.max_session_samples = 2 * kBatch + 50;
+  StartServer();
+  const std::string s = NewSession("robot-full");
+  std::vector<v1::SampleAck> acks;
+  EXPECT_STATUS(Stream({RestBatch(s, 1), RestBatch(s, 2), RestBatch(s, 3)}, &acks),
+                RESOURCE_EXHAUSTED, "batch 3: session " + s + " holds 400 samples and may hold at most 450");
+  EXPECT_EQ(acks.size(), 2u);
+  EXPECT_EQ(GetSession(s).samples(), 2 * kBatch);
+  // A retransmission of a stored batch is still acknowledged.
+  acks.clear();
+  EXPECT_TRUE(Stream({RestBatch(s, 2)}, &acks).ok());
+  EXPECT_EQ(acks.at(0).last_acked_seq(), 2);
+}
+
+// One stream per device (the default): a second concurrent stream is RESOURCE_EXHAUSTED; the
+// slot is free as soon as the first stream ends, or is cancelled (the SDK's Uploader backs off
+// and retries); other devices are not affected.
+TEST_F(ValidationTest, OneConcurrentStreamPerDevice) {
+  StartServer();
+  const std::string s = NewSession("robot-one");
+  const std::string other = NewSession("robot-two");
+  auto first_ctx = Ctx();
+  auto first = sessions_->StreamSamples(first_ctx.get());
+  ASSERT_TRUE(first->Write(RestBatch(s, 1)));
+  v1::SampleAck ack;
+  ASSERT_TRUE(first->Read(&ack));  // the first stream holds the device's slot
+  EXPECT_EQ(ack.last_acked_seq(), 1);
+
+  std::vector<v1::SampleAck> acks;
+  EXPECT_STATUS(Stream({RestBatch(s, 2)}, &acks), RESOURCE_EXHAUSTED,
+                "device robot-one already has 1 sample stream(s) open");
+  EXPECT_TRUE(acks.empty());
+  EXPECT_TRUE(Stream({RestBatch(other, 1)}).ok());  // another device streams meanwhile
+
+  // The first stream goes on; once it ends, the device streams again at once.
+  ASSERT_TRUE(first->Write(RestBatch(s, 2)));
+  ASSERT_TRUE(first->Read(&ack));
+  first->WritesDone();
+  ASSERT_TRUE(first->Finish().ok());
+  ASSERT_TRUE(Stream({RestBatch(s, 3)}).ok());
+
+  // A stream cancelled by the robot frees the slot too: the Uploader resumes after it.
+  auto third_ctx = Ctx();
+  auto third = sessions_->StreamSamples(third_ctx.get());
+  ASSERT_TRUE(third->Write(RestBatch(s, 4)));
+  ASSERT_TRUE(third->Read(&ack));
+  third_ctx->TryCancel();
+  EXPECT_EQ(third->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  sdk::SampleColumns rest;
+  for (int64_t seq = 1; seq <= 8; ++seq) {
+    const v1::SampleBatch b = RestBatch(s, seq);
+    rest.t_s.insert(rest.t_s.end(), b.t_s().begin(), b.t_s().end());
+    rest.accel.insert(rest.accel.end(), b.accel().begin(), b.accel().end());
+    rest.gyro.insert(rest.gyro.end(), b.gyro().begin(), b.gyro().end());
+    rest.temp_c.insert(rest.temp_c.end(), b.temp_c().begin(), b.temp_c().end());
+  }
+  sdk::UploadOptions o;
+  o.batch_samples = kBatch;
+  o.initial_backoff = absl::Milliseconds(5);
+  sdk::Uploader uploader(channel_, o);
+  absl::StatusOr<sdk::UploadResult> r = uploader.Upload(s, rest);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->skipped_samples, 4 * kBatch);
+  EXPECT_EQ(GetSession(s).samples(), 8 * kBatch);
+}
+
+TEST_F(ValidationTest, WatchersPerSessionLimit) {
+  options_.sessions.max_watchers_per_session = 2;
+  StartServer();
+  const std::string s = NewSession("robot-watched");
+  std::vector<std::unique_ptr<grpc::ClientContext>> contexts;
+  std::vector<std::unique_ptr<grpc::ClientReader<v1::SessionEvent>>> readers;
+  v1::WatchSessionRequest req;
+  req.set_session_id(s);
+  for (int i = 0; i < 2; ++i) {
+    contexts.push_back(Ctx());
+    readers.push_back(sessions_->WatchSession(contexts.back().get(), req));
+    v1::SessionEvent first;
+    ASSERT_TRUE(readers.back()->Read(&first));  // the snapshot: the watcher is registered
+    EXPECT_TRUE(first.has_session());
+  }
+  auto ctx = Ctx();
+  auto third = sessions_->WatchSession(ctx.get(), req);
+  v1::SessionEvent e;
+  EXPECT_FALSE(third->Read(&e));
+  EXPECT_STATUS(third->Finish(), RESOURCE_EXHAUSTED, "already has 2 watchers");
+  // One watcher leaves: another may follow.
+  contexts[0]->TryCancel();
+  readers[0]->Finish();
+  // The server frees the slot when it sees the cancellation (asynchronously): the next watch
+  // is admitted then, each attempt a round trip, within a deadline.
+  bool admitted = false;
+  const auto deadline = system_clock::now() + seconds(10);
+  while (!admitted && system_clock::now() < deadline) {
+    auto c = Ctx();
+    auto r = sessions_->WatchSession(c.get(), req);
+    if (r->Read(&e)) {
+      admitted = true;
+      c->TryCancel();
+      r->Finish();
+    } else {
+      EXPECT_EQ(r->Finish().error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+    }
+  }
+  EXPECT_TRUE(admitted);
+  contexts[1]->TryCancel();
+  readers[1]->Finish();
+}
+
+// SolveSession beyond the queue's limit is RESOURCE_EXHAUSTED. No workers (solve_threads 0), so
+// the queued solves stay queued and the limit is reached deterministically.
+TEST_F(ValidationTest, SolveQueueLimitIsResourceExhausted) {
+  options_.sessions.solve_threads = 0;
+  options_.sessions.solve_queue_limit = 2;
+  StartServer();
+  std::vector<std::string> ids;
+  for (int i = 0; i < 3; ++i) {
+    ids.push_back(NewSession("robot-solve-" + std::to_string(i)));
+    ASSERT_TRUE(Stream({RestBatch(ids.back(), 1)}).ok());
+  }
+  for (int i = 0; i < 2; ++i) {
+    v1::SolveSessionRequest req;
+    req.set_session_id(ids[static_cast<size_t>(i)]);
+    v1::SolveJob job;
+    grpc::Status st = sessions_->SolveSession(Ctx().get(), req, &job);
+    ASSERT_TRUE(st.ok()) << st.error_message();
+    EXPECT_EQ(job.state(), v1::JOB_STATE_QUEUED);
+  }
+  v1::SolveSessionRequest req;
+  req.set_session_id(ids[2]);
+  v1::SolveJob job;
+  EXPECT_STATUS(sessions_->SolveSession(Ctx().get(), req, &job), RESOURCE_EXHAUSTED,
+                "the solve queue is full");
+  // The refused session is untouched: still open, its samples still there.
+  const v1::Session third = GetSession(ids[2]);
+  EXPECT_EQ(third.state(), v1::SESSION_STATE_OPEN);
+  EXPECT_EQ(third.samples(), kBatch);
+}
+
+// Bytes that are not protobuf: the ingest stream (a raw method) and the parameter fetch (raw too)
+// answer INVALID_ARGUMENT, the stream after acknowledging what came before. The other unary
+// methods are generated callback methods: gRPC 1.51 answers a request it cannot parse with
+// UNIMPLEMENTED and no message before any imucal code runs (its callback handler does so for a
+// failed parse). Either way the server keeps serving.
+TEST_F(ValidationTest, GarbageBytesAreRefusedAndTheServerKeepsServing) {
+  StartServer();
+  const std::string s = NewSession("robot-garbage");
+  grpc::GenericStub generic(channel_);
+  const std::string garbage("\x0a\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\x01", 12);
+  {
+    RawIngestStream stream(&generic, {RestBatch(s, 1).SerializeAsString(), garbage});
+    const grpc::Status st = stream.Wait();
+    EXPECT_STATUS(st, INVALID_ARGUMENT,
+                  "message 2 of the stream (after batch 1): 12 bytes that are not a SampleBatch");
+    EXPECT_EQ(stream.acks(), 1);
+  }
+  // Seeded random bytes: each answered (never OK for a stream that has no valid first batch),
+  // the server never falls over.
+  std::mt19937 rng(20240501);
+  int refused = 0;
+  for (int i = 0; i < 100; ++i) {
+    std::string bytes(1 + rng() % 64, '\0');
+    for (char& c : bytes) c = static_cast<char>(rng());
+    RawIngestStream stream(&generic, {bytes});
+    const grpc::Status st = stream.Wait();
+    EXPECT_TRUE(st.error_code() == grpc::StatusCode::INVALID_ARGUMENT ||
+                st.error_code() == grpc::StatusCode::NOT_FOUND)
+        << "bytes " << i << ": " << st.error_code() << " " << st.error_message();
+    refused += !st.ok();
+
+    grpc::ClientContext ctx;
+    ctx.set_deadline(system_clock::now() + seconds(10));
+    grpc::ByteBuffer request = Buffer(bytes), response;
+    std::promise<grpc::Status> done;
+    generic.UnaryCall(&ctx, "/imucal.v1.DeviceService/RegisterDevice", grpc::StubOptions(),
+                      &request, &response, [&](grpc::Status u) { done.set_value(u); });
+    const grpc::Status unary = done.get_future().get();
+    EXPECT_TRUE(unary.error_code() == grpc::StatusCode::INVALID_ARGUMENT ||
+                unary.error_code() == grpc::StatusCode::UNIMPLEMENTED)
+        << "bytes " << i << ": " << unary.error_code() << " " << unary.error_message();
+  }
+  EXPECT_EQ(refused, 100);
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(system_clock::now() + seconds(10));
+    grpc::ByteBuffer request = Buffer(garbage), response;
+    std::promise<grpc::Status> done;
+    generic.UnaryCall(&ctx, "/imucal.v1.ParameterService/GetActiveParameters",
+                      grpc::StubOptions(), &request, &response,
+                      [&](grpc::Status u) { done.set_value(u); });
+    EXPECT_STATUS(done.get_future().get(), INVALID_ARGUMENT,
+                  "not a GetActiveParametersRequest");
+  }
+  // Still serving, and the session intact.
+  const v1::Session after = GetSession(s);
+  EXPECT_EQ(after.samples(), kBatch);
+  EXPECT_TRUE(Stream({RestBatch(s, 2)}).ok());
+}
+
+// The SDK sets a deadline on its stream too: a stream that outlives it ends DEADLINE_EXCEEDED
+// and the upload gives up after its retries rather than waiting for ever.
+TEST_F(ValidationTest, UploaderStreamsHaveADeadline) {
+  StartServer();
+  const std::string s = NewSession("robot-deadline");
+  sdk::SampleColumns cols;
+  const v1::SampleBatch b = RestBatch(s, 1);
+  cols.t_s.assign(b.t_s().begin(), b.t_s().end());
+  cols.accel.assign(b.accel().begin(), b.accel().end());
+  cols.gyro.assign(b.gyro().begin(), b.gyro().end());
+  sdk::UploadOptions o;
+  o.batch_samples = 10;
+  o.max_retries = 1;
+  o.initial_backoff = absl::Milliseconds(1);
+  o.stream_deadline = absl::Microseconds(1);
+  sdk::Uploader uploader(channel_, o);
+  const absl::Status st = uploader.Upload(s, cols).status();
+  EXPECT_TRUE(absl::IsDeadlineExceeded(st)) << st;
+}
+
+}  // namespace
+}  // namespace imucal::server
