@@ -117,35 +117,12 @@ Flags ParseFlags(int argc, char** argv) {
   return f;
 }
 
-// ---- The samples: one simulated capture as flat columns, replayed lap after lap.
-struct Columns {
-  std::vector<double> t, accel, gyro, temp;
-  size_t n = 0;
-  double lap_s = 0;  // time shift per lap
-};
-
-Columns MakeColumns() {
+// ---- The samples: a simulated six-face capture (bench/service_bench_util.h), lap after lap.
+Columns SixFaceColumns() {
   imucal::core::SimOptions o;
   o.protocol = imucal::core::SimProtocol::kSixFace;
   o.seed = 42;
-  absl::StatusOr<imucal::core::SimResult> sim = imucal::core::Simulate(o);
-  if (!sim.ok()) {
-    std::fprintf(stderr, "simulate: %s\n", std::string(sim.status().message()).c_str());
-    std::exit(1);
-  }
-  const imucal::core::Capture& c = sim->capture;
-  Columns col;
-  col.n = c.size();
-  for (size_t i = 0; i < c.size(); ++i) {
-    col.t.push_back(c.t_s[i]);
-    for (int k = 0; k < 3; ++k) {
-      col.accel.push_back(c.accel[i](k));
-      col.gyro.push_back(c.gyro[i](k));
-    }
-    col.temp.push_back(c.has_temp() ? c.temp[i] : 25.0);
-  }
-  col.lap_s = c.t_s.back() - c.t_s.front() + 1.0 / o.rate_hz;
-  return col;
+  return MakeColumns(o);
 }
 
 // Fills `b` with batch `seq` (1-based) of `batch` samples: the replayed capture's samples
@@ -548,7 +525,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   const std::string dir = tmpl;
-  const Columns col = MakeColumns();
+  const Columns col = SixFaceColumns();
 
   // Fork before any gRPC object exists in this process.
   Child child = ForkServer(dir + "/ingest.db", flags.server_cpu);

@@ -147,34 +147,11 @@ std::string RobotId(int i) { return absl::StrFormat("load-robot-%05d", i); }
 std::string FleetId(int i) { return absl::StrFormat("fleet-%05d", i); }
 
 // ---- Samples: a simulated six-face capture as columns, replayed lap after lap.
-struct Columns {
-  std::vector<double> t, accel, gyro, temp;
-  size_t n = 0;
-  double lap_s = 0;
-};
-
-Columns MakeColumns(double rate_hz) {
+Columns RobotColumns(double rate_hz) {
   imucal::core::SimOptions o;
   o.seed = 7;
   o.rate_hz = rate_hz;
-  absl::StatusOr<imucal::core::SimResult> sim = imucal::core::Simulate(o);
-  if (!sim.ok()) {
-    std::fprintf(stderr, "simulate: %s\n", std::string(sim.status().message()).c_str());
-    std::exit(1);
-  }
-  const imucal::core::Capture& c = sim->capture;
-  Columns col;
-  col.n = c.size();
-  for (size_t i = 0; i < c.size(); ++i) {
-    col.t.push_back(c.t_s[i]);
-    for (int k = 0; k < 3; ++k) {
-      col.accel.push_back(c.accel[i](k));
-      col.gyro.push_back(c.gyro[i](k));
-    }
-    col.temp.push_back(c.has_temp() ? c.temp[i] : 25.0);
-  }
-  col.lap_s = c.t_s.back() - c.t_s.front() + 1.0 / rate_hz;
-  return col;
+  return MakeColumns(o);
 }
 
 // Batch `seq` (1-based) of `per` samples: samples [(seq-1)*per, seq*per) of the replayed
@@ -584,7 +561,7 @@ int main(int argc, char** argv) {
       flags.fetch_rate, flags.seconds, flags.channels, sysconf(_SC_NPROCESSORS_ONLN));
   const Clock::time_point setup0 = Clock::now();
   const std::vector<std::string> sessions = Populate(flags, db);
-  const Columns col = MakeColumns(flags.rate_hz);
+  const Columns col = RobotColumns(flags.rate_hz);
   std::printf("setup: %zu sessions, %d devices with an active version in %.1f s; load %s\n",
               sessions.size(), flags.devices, Seconds(Clock::now() - setup0), LoadAvg().c_str());
 

@@ -19,9 +19,39 @@
 #include <vector>
 
 #include "absl/time/time.h"
+#include "core/simulator.h"
 #include "server/server.h"
 
 namespace imucal::bench {
+
+// ---- The samples: one simulated capture as flat columns, replayed lap after lap.
+struct Columns {
+  std::vector<double> t, accel, gyro, temp;
+  size_t n = 0;
+  double lap_s = 0;  // time shift per lap
+};
+
+// The capture `o` simulates, as columns; exits with the simulator's message if it fails.
+inline Columns MakeColumns(const core::SimOptions& o) {
+  absl::StatusOr<core::SimResult> sim = core::Simulate(o);
+  if (!sim.ok()) {
+    std::fprintf(stderr, "simulate: %s\n", std::string(sim.status().message()).c_str());
+    std::exit(1);
+  }
+  const core::Capture& c = sim->capture;
+  Columns col;
+  col.n = c.size();
+  for (size_t i = 0; i < c.size(); ++i) {
+    col.t.push_back(c.t_s[i]);
+    for (int k = 0; k < 3; ++k) {
+      col.accel.push_back(c.accel[i](k));
+      col.gyro.push_back(c.gyro[i](k));
+    }
+    col.temp.push_back(c.has_temp() ? c.temp[i] : 25.0);
+  }
+  col.lap_s = c.t_s.back() - c.t_s.front() + 1.0 / o.rate_hz;
+  return col;
+}
 
 using Clock = std::chrono::steady_clock;
 

@@ -15,6 +15,7 @@
 #include "core/capture.h"
 #include "core/capture_io.h"
 #include "core/protocol.h"
+#include "tests/core/real_captures.h"
 
 namespace imucal::core {
 namespace {
@@ -115,12 +116,8 @@ TEST(RealDataTest, XsensCalibrationIsDeterministic) {
 // ---------------------------------------------------------------------------------------------
 // The captures read through the column-mapped importer (README "Vendor CSV").
 
-const std::string kRealDir = IMUCAL_SHARED_DIR "/data/real";
-
-absl::StatusOr<Capture> ImportColumns(const std::string& path, const ImportOptions& io) {
-  if (!std::filesystem::exists(path)) return absl::NotFoundError(path);
-  return ImportCapture({path}, io);
-}
+using real_captures::ImportColumns;
+using real_captures::kRealDir;
 
 std::vector<double> ReadNumbers(const std::string& path) {
   std::vector<double> out;
@@ -152,11 +149,7 @@ void PrintReport(const char* name, const CalibrationReport& r) {
 // poses shake (gyro std up to 11x the rest's), so the usual thresholds find only 7; the raised
 // threshold finds all 10 orientations that the repository's own detector found.
 TEST(RealDataTest, Mpu6050HandHeldPosesCalibrateAndAgreeWithTheRepository) {
-  ImportOptions io;
-  io.columns.map = "ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz";
-  io.columns.rate_from_preamble = "Fs";
-  io.accel_unit = AccelUnit::kCounts;
-  io.gyro_unit = GyroUnit::kCounts;
+  const ImportOptions io = real_captures::Mpu6050Options();
   const std::string dir = kRealDir + "/mpu6050-tedaldi-raw";
   const absl::StatusOr<Capture> capture = ImportColumns(dir + "/example_data_calibration.csv", io);
   if (absl::IsNotFound(capture.status())) GTEST_SKIP() << capture.status();
@@ -198,14 +191,8 @@ TEST(RealDataTest, Mpu6050HandHeldPosesCalibrateAndAgreeWithTheRepository) {
 // mad-lab-fau/imucal's Ferraris example: six faces once each and three full turns, in m/s^2 and
 // deg/s (nominally scaled, not calibrated).
 TEST(RealDataTest, FerrarisExampleSessionIsDetectedAndCalibrated) {
-  ImportOptions io;
-  io.columns.map = "t=n_samples,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z";
-  io.columns.time_unit = ColumnTimeUnit::kSampleIndex;
-  io.columns.rate_hz = 102.4;
-  io.accel_unit = AccelUnit::kMetersPerSecond2;
-  io.gyro_unit = GyroUnit::kDegPerSecond;
-  const absl::StatusOr<Capture> capture =
-      ImportColumns(kRealDir + "/imucal-ferraris/example_ferraris_session.csv", io);
+  const absl::StatusOr<Capture> capture = ImportColumns(
+      real_captures::kFerrarisExample, real_captures::FerrarisExampleOptions());
   if (absl::IsNotFound(capture.status())) GTEST_SKIP() << capture.status();
   ASSERT_TRUE(capture.ok()) << capture.status();
   const absl::StatusOr<CalibrationReport> report = Calibrate(*capture, CalibrateOptions{});
@@ -242,15 +229,8 @@ TEST(RealDataTest, FerrarisExampleSessionIsDetectedAndCalibrated) {
 // The same protocol, pre-cut into labelled parts (the labels are ignored): the six faces are
 // joined without the moves between them, and the turns' parts are cut short.
 TEST(RealDataTest, FerrarisAnnotatedSessionAgreesWithThePublishedCalibration) {
-  ImportOptions io;
-  io.columns.map = "t=samples,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z";
-  io.columns.time_unit = ColumnTimeUnit::kSampleIndex;
-  io.columns.rate_hz = 204.8;
-  io.columns.sort_by_time = true;
-  io.accel_unit = AccelUnit::kCounts;
-  io.gyro_unit = GyroUnit::kCounts;
-  const absl::StatusOr<Capture> capture =
-      ImportColumns(kRealDir + "/imucal-ferraris/annotated_session.csv", io);
+  const absl::StatusOr<Capture> capture = ImportColumns(
+      real_captures::kFerrarisAnnotated, real_captures::FerrarisAnnotatedOptions());
   if (absl::IsNotFound(capture.status())) GTEST_SKIP() << capture.status();
   ASSERT_TRUE(capture.ok()) << capture.status();
   const absl::StatusOr<CalibrationReport> report = Calibrate(*capture, CalibrateOptions{});

@@ -13,6 +13,7 @@
 #include "core/calibrate.h"
 #include "core/capture_io.h"
 #include "core/effects.h"
+#include "tests/core/real_captures.h"
 
 namespace imucal::core {
 namespace {
@@ -82,15 +83,9 @@ bool HasNote(const EffectDiagnostics& d, const std::string& text) {
 // cannot test. Most faces are placed once, so they cannot be predicted from the others: the
 // held-out figures leave them out, and say so.
 TEST(RealEffectsTest, FerrarisExampleNothingStaticAndARateTrendInTheMoves) {
-  const std::string path = IMUCAL_SHARED_DIR "/data/real/imucal-ferraris/example_ferraris_session.csv";
-  if (!std::filesystem::exists(path)) GTEST_SKIP() << "shared data not found: " << path;
-  ImportOptions io;
-  io.columns.map = "t=n_samples,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z";
-  io.columns.time_unit = ColumnTimeUnit::kSampleIndex;
-  io.columns.rate_hz = 102.4;
-  io.accel_unit = AccelUnit::kMetersPerSecond2;
-  io.gyro_unit = GyroUnit::kDegPerSecond;
-  const absl::StatusOr<Capture> cap = ImportCapture({path}, io);
+  const absl::StatusOr<Capture> cap = real_captures::ImportColumns(
+      real_captures::kFerrarisExample, real_captures::FerrarisExampleOptions());
+  if (absl::IsNotFound(cap.status())) GTEST_SKIP() << cap.status();
   ASSERT_TRUE(cap.ok()) << cap.status();
   const absl::StatusOr<CalibrationReport> r = Calibrate(*cap, CalibrateOptions{});
   ASSERT_TRUE(r.ok()) << r.status();
@@ -112,23 +107,11 @@ TEST(RealEffectsTest, FerrarisExampleNothingStaticAndARateTrendInTheMoves) {
 // MPU-6050 hand-held capture (10 poses) leave too few degrees of freedom beyond the model to
 // test anything: the search does not run, and the diagnostics say why.
 TEST(RealEffectsTest, TooFewPosesToSearchIsSaid) {
-  const std::string mpu = IMUCAL_SHARED_DIR "/data/real/mpu6050-tedaldi-raw/example_data_calibration.csv";
-  const std::string fer = IMUCAL_SHARED_DIR "/data/real/imucal-ferraris/annotated_session.csv";
-  if (!std::filesystem::exists(mpu) || !std::filesystem::exists(fer)) GTEST_SKIP();
-  ImportOptions mo;
-  mo.columns.map = "ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz";
-  mo.columns.rate_from_preamble = "Fs";
-  mo.accel_unit = AccelUnit::kCounts;
-  mo.gyro_unit = GyroUnit::kCounts;
-  ImportOptions fo;
-  fo.columns.map = "t=samples,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z";
-  fo.columns.time_unit = ColumnTimeUnit::kSampleIndex;
-  fo.columns.rate_hz = 204.8;
-  fo.columns.sort_by_time = true;
-  fo.accel_unit = AccelUnit::kCounts;
-  fo.gyro_unit = GyroUnit::kCounts;
-  for (const auto& [path, io] : {std::pair{mpu, mo}, std::pair{fer, fo}}) {
-    const absl::StatusOr<Capture> cap = ImportCapture({path}, io);
+  using namespace real_captures;
+  for (const auto& [path, io] : {std::pair{kMpu6050, Mpu6050Options()},
+                                 std::pair{kFerrarisAnnotated, FerrarisAnnotatedOptions()}}) {
+    const absl::StatusOr<Capture> cap = ImportColumns(path, io);
+    if (absl::IsNotFound(cap.status())) GTEST_SKIP() << cap.status();
     ASSERT_TRUE(cap.ok()) << cap.status();
     const absl::StatusOr<CalibrationReport> r = Calibrate(*cap, CalibrateOptions{});
     ASSERT_TRUE(r.ok()) << r.status();

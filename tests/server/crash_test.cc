@@ -47,6 +47,7 @@
 #include "storage/sample_codec.h"
 #include "storage/store.h"
 #include "tests/client/imucald_process.h"
+#include "tests/server/stored_samples.h"
 
 namespace imucal::server {
 namespace {
@@ -92,14 +93,7 @@ grpc::Status Retrying(Call call, const std::function<bool()>& give_up = nullptr)
   return s;
 }
 
-// Bit-for-bit equality of a stored sample with the capture's sample i.
-bool SameBytes(const storage::ImuSample& s, const core::Capture& cap, size_t i) {
-  const double want[8] = {cap.t_s[i],      cap.accel[i].x(), cap.accel[i].y(), cap.accel[i].z(),
-                          cap.gyro[i].x(), cap.gyro[i].y(),  cap.gyro[i].z(),  cap.temp[i]};
-  const double got[8] = {s.t_s,     s.accel[0], s.accel[1], s.accel[2],
-                         s.gyro[0], s.gyro[1],  s.gyro[2],  s.temp};
-  return std::memcmp(want, got, sizeof want) == 0;
-}
+using testing_util::SameBytes;  // tests/server/stored_samples.h
 
 core::Capture Simulate(uint64_t seed, int extra_poses, double accel_noise_m_s2 = 0.02) {
   core::SimOptions o;

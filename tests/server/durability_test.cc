@@ -22,6 +22,7 @@
 #include "storage/sample_codec.h"
 #include "storage/store.h"
 #include "tests/client/imucald_process.h"
+#include "tests/server/stored_samples.h"
 
 namespace imucal::server {
 namespace {
@@ -93,14 +94,7 @@ class DurabilityTest : public testing_util::ImucaldTest {
   }
 };
 
-// Bit-for-bit equality of stored sample `i` with the capture's.
-bool SameBytes(const storage::ImuSample& s, const core::Capture& cap, size_t i) {
-  const double want[8] = {cap.t_s[i],    cap.accel[i].x(), cap.accel[i].y(), cap.accel[i].z(),
-                          cap.gyro[i].x(), cap.gyro[i].y(), cap.gyro[i].z(),  cap.temp[i]};
-  const double got[8] = {s.t_s,     s.accel[0], s.accel[1], s.accel[2],
-                         s.gyro[0], s.gyro[1],  s.gyro[2],  s.temp};
-  return std::memcmp(want, got, sizeof want) == 0;
-}
+using testing_util::SameBytes;  // tests/server/stored_samples.h
 
 TEST_F(DurabilityTest, SigkillMidStreamKeepsEveryAckedSampleAndTheRobotResumes) {
   core::SimOptions sim;

@@ -1,0 +1,62 @@
+// How the tests read the real captures under ../shared/data/real through the column-mapped
+// importer (README "Vendor CSV"): the same options a user passes to `imucal calibrate`.
+// Shared by real_data_test (the calibration) and real_effects_test (the effect search).
+#ifndef IMUCAL_TESTS_CORE_REAL_CAPTURES_H_
+#define IMUCAL_TESTS_CORE_REAL_CAPTURES_H_
+
+#include <filesystem>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "core/capture_io.h"
+
+namespace imucal::core::real_captures {
+
+inline const std::string kRealDir = IMUCAL_SHARED_DIR "/data/real";
+inline const std::string kMpu6050 = kRealDir + "/mpu6050-tedaldi-raw/example_data_calibration.csv";
+inline const std::string kFerrarisExample =
+    kRealDir + "/imucal-ferraris/example_ferraris_session.csv";
+inline const std::string kFerrarisAnnotated = kRealDir + "/imucal-ferraris/annotated_session.csv";
+
+// MPU-6050: raw counts, the rate in the preamble ("Fs"), no time column.
+inline ImportOptions Mpu6050Options() {
+  ImportOptions io;
+  io.columns.map = "ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz";
+  io.columns.rate_from_preamble = "Fs";
+  io.accel_unit = AccelUnit::kCounts;
+  io.gyro_unit = GyroUnit::kCounts;
+  return io;
+}
+
+// mad-lab-fau/imucal's Ferraris example: m/s^2 and deg/s, a sample counter at 102.4 Hz.
+inline ImportOptions FerrarisExampleOptions() {
+  ImportOptions io;
+  io.columns.map = "t=n_samples,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z";
+  io.columns.time_unit = ColumnTimeUnit::kSampleIndex;
+  io.columns.rate_hz = 102.4;
+  io.accel_unit = AccelUnit::kMetersPerSecond2;
+  io.gyro_unit = GyroUnit::kDegPerSecond;
+  return io;
+}
+
+// The annotated session: raw counts at 204.8 Hz, saved part by part (rows out of time order).
+inline ImportOptions FerrarisAnnotatedOptions() {
+  ImportOptions io;
+  io.columns.map = "t=samples,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z";
+  io.columns.time_unit = ColumnTimeUnit::kSampleIndex;
+  io.columns.rate_hz = 204.8;
+  io.columns.sort_by_time = true;
+  io.accel_unit = AccelUnit::kCounts;
+  io.gyro_unit = GyroUnit::kCounts;
+  return io;
+}
+
+// NotFound when the shared data is not beside the checkout (the caller skips).
+inline absl::StatusOr<Capture> ImportColumns(const std::string& path, const ImportOptions& io) {
+  if (!std::filesystem::exists(path)) return absl::NotFoundError(path);
+  return ImportCapture({path}, io);
+}
+
+}  // namespace imucal::core::real_captures
+
+#endif  // IMUCAL_TESTS_CORE_REAL_CAPTURES_H_
