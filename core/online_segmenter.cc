@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
+#include <string>
+#include <vector>
 #include <utility>
 
 #include "absl/strings/str_cat.h"
@@ -24,15 +27,96 @@ constexpr std::array<SixFaceStep, OnlineSegmenter::kSixFaceSteps> kSixFace = {{
     {"Z+", true, "Now turn it half a turn about the vertical, top still up, and keep it still"},
     {"Z-", false, "Turn it upside down (-Z up) and keep it still"},
     {"Z-", true, "Now turn it half a turn about the vertical, still upside down"},
-    {"Y+", false, "Lay it on its left side (+Y up) and keep it still"},
-    {"Y+", true, "Now turn it half a turn about the vertical, still on its left side"},
-    {"Y-", false, "Lay it on its right side (-Y up) and keep it still"},
-    {"Y-", true, "Now turn it half a turn about the vertical, still on its right side"},
+    {"Y+", false, "Lay it on its right side (+Y up) and keep it still"},
+    {"Y+", true, "Now turn it half a turn about the vertical, still on its right side"},
+    {"Y-", false, "Lay it on its left side (-Y up) and keep it still"},
+    {"Y-", true, "Now turn it half a turn about the vertical, still on its left side"},
     {"X+", false, "Stand it on its back, nose up (+X up), and keep it still"},
     {"X+", true, "Now turn it half a turn about the vertical, nose still up"},
     {"X-", false, "Stand it on its nose (-X up) and keep it still"},
     {"X-", true, "Now turn it half a turn about the vertical, still on its nose"},
 }};
+
+// The 26 directions of a cube seen from its centre: components in {-1, 0, 1}, not all zero.
+struct CubeDirection {
+  Eigen::Vector3d unit;
+  int axes = 0;       // nonzero components: 1 face, 2 edge, 3 corner
+  std::string label;  // "Z+", "X+Z+", "X+Y-Z+"
+};
+
+const std::array<CubeDirection, 26>& CubeDirections() {
+  static const std::array<CubeDirection, 26> kDirections = [] {
+    std::array<CubeDirection, 26> out;
+    size_t n = 0;
+    // Faces first, then edges, then corners, each as the six-face protocol orders its faces
+    // (Z+ Z- Y+ Y- X+ X-): the order of the progress lists, and the guide's choice among
+    // equally near directions.
+    constexpr int kOrder[3] = {1, -1, 0};
+    for (int axes = 1; axes <= 3; ++axes) {
+      for (int z : kOrder) {
+        for (int y : kOrder) {
+          for (int x : kOrder) {
+            const Eigen::Vector3d v(x, y, z);
+            if ((v.array() != 0).count() != axes) continue;
+            CubeDirection& d = out[n++];
+            d.unit = v.normalized();
+            d.axes = axes;
+            for (int a = 0; a < 3; ++a)
+              if (v(a) != 0) absl::StrAppend(&d.label, std::string(1, "XYZ"[a]), v(a) > 0 ? "+" : "-");
+          }
+        }
+      }
+    }
+    return out;
+  }();
+  return kDirections;
+}
+
+size_t NearestDirection(const Eigen::Vector3d& up) {
+  const auto& dirs = CubeDirections();
+  size_t best = 0;
+  for (size_t i = 1; i < dirs.size(); ++i)
+    if (dirs[i].unit.dot(up) > dirs[best].unit.dot(up)) best = i;
+  return best;
+}
+
+bool Wanted(GuidedProtocol protocol, const CubeDirection& d) {
+  switch (protocol) {
+    case GuidedProtocol::kPositions:
+      return d.axes <= 2;
+    case GuidedProtocol::kFree:
+      return d.axes != 2;
+    default:
+      return false;
+  }
+}
+
+int PosesWanted(GuidedProtocol protocol) {
+  switch (protocol) {
+    case GuidedProtocol::kSixFace:
+      return OnlineSegmenter::kSixFaceSteps;
+    case GuidedProtocol::kPositions:
+      return 24;
+    case GuidedProtocol::kFree:
+      return 18;
+    default:
+      return 0;
+  }
+}
+
+// "its nose (+X) and its top (+Z)": the body parts that point up in direction `d` (body axes:
+// x forward, y left, z up).
+std::string PartsUp(const CubeDirection& d) {
+  static constexpr const char* kPart[3][2] = {
+      {"tail (-X)", "nose (+X)"}, {"right side (-Y)", "left side (+Y)"}, {"bottom (-Z)", "top (+Z)"}};
+  std::vector<std::string> parts;
+  for (int a = 0; a < 3; ++a)
+    if (d.unit(a) != 0) parts.push_back(absl::StrCat("its ", kPart[a][d.unit(a) > 0 ? 1 : 0]));
+  if (parts.size() == 1) return parts[0];
+  std::string out = parts[0];
+  for (size_t i = 1; i + 1 < parts.size(); ++i) absl::StrAppend(&out, ", ", parts[i]);
+  return absl::StrCat(out, " and ", parts.back());
+}
 
 // Per-axis q-quantile of a list of vectors.
 Eigen::Vector3d Quantile(const std::vector<Eigen::Vector3d>& v, double q) {
@@ -67,7 +151,12 @@ void OnlineSegmenter::LearnRate(double dt_s) {
 
 NextPoseUpdate OnlineSegmenter::CurrentNextPose() const {
   NextPoseUpdate next;
-  if (!options_.six_face) {
+  if (options_.protocol == GuidedProtocol::kPositions ||
+      options_.protocol == GuidedProtocol::kFree) {
+    return NextDirection(last_pose_.index >= 0 && last_pose_.accepted ? UpOf(last_pose_.accel_mean)
+                                                                       : Eigen::Vector3d::UnitZ());
+  }
+  if (options_.protocol != GuidedProtocol::kSixFace) {
     next.instruction = absl::StrFormat(
         "Put the robot in a new orientation and hold it still for %.1f s",
         options_.min_static_s + 2 * options_.trim_s);
@@ -82,6 +171,95 @@ NextPoseUpdate OnlineSegmenter::CurrentNextPose() const {
   next.turn_half = kSixFace[step_].turn_half;
   next.instruction = kSixFace[step_].instruction;
   return next;
+}
+
+NextPoseUpdate OnlineSegmenter::NextDirection(const Eigen::Vector3d& last_up) const {
+  NextPoseUpdate next;
+  const double hold_s = options_.min_static_s + 2 * options_.trim_s;
+  const std::array<bool, 26> covered = DirectionsCovered();
+  const auto& dirs = CubeDirections();
+  std::optional<size_t> best;
+  int missing = 0;
+  for (size_t i = 0; i < dirs.size(); ++i) {
+    if (!Wanted(options_.protocol, dirs[i]) || covered[i]) continue;
+    ++missing;
+    if (!best || dirs[i].unit.dot(last_up) > dirs[*best].unit.dot(last_up) + 1e-12) best = i;
+  }
+  if (!best) {
+    const int more = PosesWanted(options_.protocol) - poses_accepted_;
+    if (more <= 0) {
+      next.done = true;
+      next.instruction = "Every direction the protocol wants is in: the session can be solved";
+    } else {
+      next.instruction = absl::StrFormat(
+          "Every direction is covered; %d more pose%s in any new orientation, each held still "
+          "for %.1f s",
+          more, more == 1 ? "" : "s", hold_s);
+    }
+    return next;
+  }
+  const CubeDirection& d = dirs[*best];
+  next.face = d.label;
+  next.instruction =
+      d.axes == 1
+          ? absl::StrFormat("Turn it so that %s points straight up, and hold it still for %.1f s",
+                            PartsUp(d), hold_s)
+          : absl::StrFormat("Tilt it so that %s point up equally (%s), and hold it still for "
+                            "%.1f s",
+                            PartsUp(d), d.axes == 2 ? "45 degrees between them" : "a corner up",
+                            hold_s);
+  absl::StrAppend(&next.instruction,
+                  absl::StrFormat("  (%d direction%s to go)", missing, missing == 1 ? "" : "s"));
+  return next;
+}
+
+Eigen::Vector3d OnlineSegmenter::UpOf(const Eigen::Vector3d& accel_mean) const {
+  Eigen::Vector3d up = accel_mean;
+  if (options_.accel_unit == AccelUnit::kCounts) {
+    if (poses_accepted_ < 4) return Eigen::Vector3d::Zero();  // the offset is not known yet
+    up -= pose_mean_sum_ / poses_accepted_;
+  }
+  return up;
+}
+
+std::array<bool, 26> OnlineSegmenter::DirectionsCovered() const {
+  std::array<bool, 26> covered{};
+  for (const Eigen::Vector3d& mean : accepted_means_) {
+    const Eigen::Vector3d up = UpOf(mean);
+    if (up.norm() > 0) covered[NearestDirection(up)] = true;
+  }
+  return covered;
+}
+
+GuideProgress OnlineSegmenter::Progress() const {
+  GuideProgress p;
+  p.poses_accepted = poses_accepted_;
+  switch (options_.protocol) {
+    case GuidedProtocol::kAny:
+      return p;
+    case GuidedProtocol::kSixFace:
+      // The poses in so far (a wrong face or a failed pair's placement among them) and the
+      // steps of the protocol still to do.
+      p.poses_wanted = poses_accepted_ + kSixFaceSteps - step_;
+      p.done = FacesDone();
+      p.pending = FacesPending();
+      break;
+    case GuidedProtocol::kPositions:
+    case GuidedProtocol::kFree: {
+      const std::array<bool, 26> covered = DirectionsCovered();
+      const auto& dirs = CubeDirections();
+      for (size_t i = 0; i < dirs.size(); ++i) {
+        if (!Wanted(options_.protocol, dirs[i])) continue;
+        (covered[i] ? p.done : p.pending).push_back(dirs[i].label);
+      }
+      p.poses_wanted = std::max(PosesWanted(options_.protocol),
+                                poses_accepted_ + static_cast<int>(p.pending.size()));
+      break;
+    }
+  }
+  const size_t all = p.done.size() + p.pending.size();
+  p.coverage = all == 0 ? 0.0 : static_cast<double>(p.done.size()) / static_cast<double>(all);
+  return p;
 }
 
 std::vector<std::string> OnlineSegmenter::FacesDone() const {
@@ -257,7 +435,7 @@ void OnlineSegmenter::Flush(std::vector<SegmenterEvent>* events) {
 }
 
 bool OnlineSegmenter::RedoTurn(const std::string& face) {
-  if (!options_.six_face || step_ == 0) return false;
+  if (options_.protocol != GuidedProtocol::kSixFace || step_ == 0) return false;
   const SixFaceStep& done = kSixFace[static_cast<size_t>(step_ - 1)];
   if (!done.turn_half || face != done.face) return false;
   --step_;
@@ -351,6 +529,7 @@ void OnlineSegmenter::AcceptPose(PoseUpdate pose, std::vector<SegmenterEvent>* e
   pose.face = FaceOf(pose.accel_mean);  // before this pose counts, as the offset estimate
   ++poses_accepted_;
   pose_mean_sum_ += pose.accel_mean;
+  if (accepted_means_.size() < kMaxGuidePoses) accepted_means_.push_back(pose.accel_mean);
   run_accepted_ = in_run_;
   run_accepted_mean_ = pose.accel_mean;
   last_pose_ = pose;
@@ -370,11 +549,7 @@ void OnlineSegmenter::RefineFloor() {
 }
 
 std::string OnlineSegmenter::FaceOf(const Eigen::Vector3d& accel_mean) const {
-  Eigen::Vector3d up = accel_mean;
-  if (options_.accel_unit == AccelUnit::kCounts) {
-    if (poses_accepted_ < 4) return "";  // the register offset is not known yet
-    up -= pose_mean_sum_ / poses_accepted_;
-  }
+  const Eigen::Vector3d up = UpOf(accel_mean);
   if (up.norm() == 0) return "";
   const Face face = ClassifyFace(up);
   return face.off_axis_deg <= kFaceToleranceDeg ? face.Label() : "";
@@ -383,7 +558,7 @@ std::string OnlineSegmenter::FaceOf(const Eigen::Vector3d& accel_mean) const {
 void OnlineSegmenter::Guide(const PoseUpdate& pose, std::vector<SegmenterEvent>* events) {
   SegmenterEvent e;
   e.kind = SegmenterEvent::Kind::kNextPose;
-  if (options_.six_face && step_ < kSixFaceSteps) {
+  if (options_.protocol == GuidedProtocol::kSixFace && step_ < kSixFaceSteps) {
     if (pose.face == kSixFace[step_].face) {
       ++step_;
       e.next_pose = CurrentNextPose();
@@ -396,6 +571,24 @@ void OnlineSegmenter::Guide(const PoseUpdate& pose, std::vector<SegmenterEvent>*
     }
   } else {
     e.next_pose = CurrentNextPose();
+    // Positions and free: a pose on a direction that an earlier pose had covered adds a pose
+    // but no coverage; say so, as the six-face guidance does for a wrong face.
+    const Eigen::Vector3d up = UpOf(pose.accel_mean);
+    const bool direction_guidance = options_.protocol == GuidedProtocol::kPositions ||
+                                    options_.protocol == GuidedProtocol::kFree;
+    if (direction_guidance && !e.next_pose.done && up.norm() > 0 && !accepted_means_.empty() &&
+        accepted_means_.back() == pose.accel_mean) {
+      const size_t dir = NearestDirection(up);
+      const bool seen_before = std::any_of(
+          accepted_means_.begin(), accepted_means_.end() - 1, [&](const Eigen::Vector3d& m) {
+            const Eigen::Vector3d u = UpOf(m);
+            return u.norm() > 0 && NearestDirection(u) == dir;
+          });
+      if (seen_before) {
+        e.next_pose.instruction = absl::StrCat("That was ", CubeDirections()[dir].label,
+                                               " up again. ", e.next_pose.instruction);
+      }
+    }
   }
   events->push_back(std::move(e));
 }

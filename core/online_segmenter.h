@@ -29,6 +29,17 @@
 // unknown offset, so for counts the mean is centred by the running mean of the accepted pose
 // means once four poses are in (an approximation: exact only when opposite faces balance).
 //
+// Direction guidance (the positions and free protocols): the sphere of up directions is split
+// into the 26 directions of a cube seen from its centre (6 faces "Z+", 12 edges "X+Z+", 8
+// corners "X+Y-Z+"); each accepted pose covers the direction nearest to its up vector. The
+// 24-position protocol (seeds/002: three groups of 8 turns in 45-degree steps about a
+// horizontal x, y, z) puts each face up twice and each edge once, so it wants the 18 faces and
+// edges and 24 poses. The hand-held protocol (Tedaldi) wants the 6 faces (bias, scale and the
+// second-order terms are best seen with an axis along gravity) and the 8 corners (every pair
+// of axes tilted together, for the misalignment angles) and 18 poses: the 15-parameter model
+// plus the 3 degrees of freedom the effect search needs beyond it (core/effects.h). The next
+// pose asked for is the missing direction nearest to the last pose (the least turning).
+//
 // Memory is bounded: a ring of one window, the learning window (at most kMaxLearnSamples
 // variances) and at most kMaxChunks partial sums per still run, whatever the session length.
 #ifndef IMUCAL_CORE_ONLINE_SEGMENTER_H_
@@ -45,6 +56,14 @@
 
 namespace imucal::core {
 
+// The protocol the guidance follows (see the header comment).
+enum class GuidedProtocol {
+  kAny,        // any new orientation; no target, so no "complete"
+  kSixFace,    // the twelve six-face steps in order
+  kPositions,  // 24 positions: the 6 faces and 12 edges of the cube of directions
+  kFree,       // hand-held: the 6 faces and 8 corners, 18 poses
+};
+
 struct OnlineSegmenterOptions {
   double rate_hz = 0.0;        // nominal; 0: learnt from the first sample intervals
   double window_s = 0.5;       // variance window
@@ -54,7 +73,7 @@ struct OnlineSegmenterOptions {
   double multiplier = 6.0;     // threshold = multiplier * noise variance
   double learn_s = 2.0;        // initial rest used to learn the noise floor
   double stillness_period_s = 0.25;  // sample time between two stillness updates
-  bool six_face = false;       // emit six-face guidance (faces and the next pose wanted)
+  GuidedProtocol protocol = GuidedProtocol::kAny;  // the guidance and progress to emit
   AccelUnit accel_unit = AccelUnit::kMetersPerSecond2;
 };
 
@@ -79,9 +98,21 @@ struct PoseUpdate {
 
 struct NextPoseUpdate {
   std::string instruction;
-  std::string face;  // wanted face, "" for free poses or when done
+  std::string face;  // wanted face (six-face) or cube direction ("X+Z+"), "" when any or done
   bool turn_half = false;
-  bool done = false;  // the six-face sequence is complete
+  bool done = false;  // the protocol is complete (six-face, positions, free)
+};
+
+// What the protocol has and still needs, for the guide's progress line.
+struct GuideProgress {
+  int poses_accepted = 0;
+  // Poses the protocol needs in all (accepted so far plus the least still to do); 0 when the
+  // protocol sets no target (kAny). Complete when poses_accepted >= poses_wanted.
+  int poses_wanted = 0;
+  // Six-face: faces whose two steps are done / still wanted, in protocol order. Positions and
+  // free: the wanted cube directions ("Z+", "X+Z+", "X+Y-Z+") covered / not yet covered.
+  std::vector<std::string> done, pending;
+  double coverage = 0;  // done / (done + pending), 0..1; 0 for kAny
 };
 
 struct SegmenterEvent {
@@ -113,6 +144,8 @@ class OnlineSegmenter {
   // the caller's pair check; that turned placement is wanted again. Returns false (and changes
   // nothing) when the last step done is not `face`'s turned placement.
   bool RedoTurn(const std::string& face);
+  // The protocol's progress now.
+  GuideProgress Progress() const;
 
   int poses_accepted() const { return poses_accepted_; }
   int poses_total() const { return next_pose_index_; }
@@ -127,6 +160,12 @@ class OnlineSegmenter {
   // Six-face faces whose two steps are done, and those still wanted, in protocol order.
   std::vector<std::string> FacesDone() const;
   std::vector<std::string> FacesPending() const;
+  // Positions and free: for each of the 26 cube directions (core/online_segmenter.cc
+  // CubeDirections()), whether an accepted pose covers it. All false for counts until the
+  // offset is estimated (four poses).
+  std::array<bool, 26> DirectionsCovered() const;
+
+  static constexpr size_t kMaxGuidePoses = 1024;  // accepted up vectors kept for coverage
 
  private:
   struct Sample {
@@ -153,6 +192,10 @@ class OnlineSegmenter {
   void RefineFloor();
   void FinishLearning();
   std::string FaceOf(const Eigen::Vector3d& accel_mean) const;
+  // The up direction of an accelerometer mean (counts: centred as FaceOf does); zero when not
+  // known yet.
+  Eigen::Vector3d UpOf(const Eigen::Vector3d& accel_mean) const;
+  NextPoseUpdate NextDirection(const Eigen::Vector3d& last_up) const;
   void Guide(const PoseUpdate& pose, std::vector<SegmenterEvent>* events);
 
   OnlineSegmenterOptions options_;
@@ -191,6 +234,7 @@ class OnlineSegmenter {
   int next_pose_index_ = 0;
   int poses_accepted_ = 0;
   Eigen::Vector3d pose_mean_sum_ = Eigen::Vector3d::Zero();
+  std::vector<Eigen::Vector3d> accepted_means_;  // at most kMaxGuidePoses, input units
   int step_ = 0;
 };
 

@@ -24,7 +24,20 @@ core::OnlineSegmenterOptions SegmenterOptionsFor(const storage::Device& device,
                                                  v1::Protocol protocol) {
   core::OnlineSegmenterOptions opt;
   opt.rate_hz = device.nominal_rate_hz;
-  opt.six_face = protocol == v1::PROTOCOL_SIX_FACE;
+  switch (protocol) {
+    case v1::PROTOCOL_SIX_FACE:
+      opt.protocol = core::GuidedProtocol::kSixFace;
+      break;
+    case v1::PROTOCOL_POSITIONS:
+      opt.protocol = core::GuidedProtocol::kPositions;
+      break;
+    case v1::PROTOCOL_FREE:
+      opt.protocol = core::GuidedProtocol::kFree;
+      break;
+    default:  // unspecified, Ferraris (its turns are moves, not poses): no target
+      opt.protocol = core::GuidedProtocol::kAny;
+      break;
+  }
   if (auto unit = core::ParseAccelUnit(device.accel_unit); unit.ok()) opt.accel_unit = *unit;
   return opt;
 }
@@ -238,17 +251,12 @@ v1::SessionEvent SessionHub::NextPoseEvent(const core::NextPoseUpdate& next) {
 v1::SessionEvent SessionHub::ProgressEvent(const LiveSession& session) {
   v1::SessionEvent e = Stamped();
   v1::Progress* p = e.mutable_progress();
-  const core::OnlineSegmenter& seg = *session.segmenter;
-  p->set_poses_accepted(seg.poses_accepted());
-  if (session.protocol == v1::PROTOCOL_SIX_FACE) {
-    // The poses in so far (a wrong face or a failed pair's placement among them) and the steps
-    // of the protocol still to do.
-    p->set_poses_wanted(seg.poses_accepted() + core::OnlineSegmenter::kSixFaceSteps -
-                        seg.six_face_step());
-    for (const std::string& f : seg.FacesDone()) p->add_faces_done(f);
-    for (const std::string& f : seg.FacesPending()) p->add_faces_pending(f);
-    p->set_coverage(static_cast<double>(seg.FacesDone().size()) / 6.0);
-  }
+  const core::GuideProgress progress = session.segmenter->Progress();
+  p->set_poses_accepted(progress.poses_accepted);
+  p->set_poses_wanted(progress.poses_wanted);
+  for (const std::string& f : progress.done) p->add_faces_done(f);
+  for (const std::string& f : progress.pending) p->add_faces_pending(f);
+  p->set_coverage(progress.coverage);
   return e;
 }
 

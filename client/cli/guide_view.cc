@@ -100,7 +100,10 @@ void GuideView::OnPose(const pb::PoseEvent& p) {
 
 void GuideView::OnNextPose(const pb::NextPose& n) {
   std::string text = absl::StrCat("NEXT: ", n.instruction());
-  if (!n.face().empty()) absl::StrAppend(&text, "  [face ", n.face(), "]");
+  // A face is one axis ("Y+"); the positions and free protocols also ask for cube edges and
+  // corners ("X+Z+", "X+Y-Z+"), which are directions rather than faces.
+  if (!n.face().empty())
+    absl::StrAppend(&text, n.face().size() == 2 ? "  [face " : "  [up ", n.face(), "]");
   if (n.turn_half()) absl::StrAppend(&text, "  (turn it 180 degrees about the vertical)");
   if (text == last_instruction_) return;  // repeated in snapshots
   last_instruction_ = text;
@@ -123,9 +126,13 @@ void GuideView::OnPair(const pb::PairVerdict& p) {
 
 void GuideView::OnProgress(const pb::Progress& p) {
   progress_ = p;
-  std::string text = absl::StrFormat("progress: %d/%d poses", p.poses_accepted(), p.poses_wanted());
+  std::string text =
+      p.poses_wanted() > 0
+          ? absl::StrFormat("progress: %d/%d poses", p.poses_accepted(), p.poses_wanted())
+          : absl::StrFormat("progress: %d poses", p.poses_accepted());
   if (p.faces_done_size() > 0 || p.faces_pending_size() > 0) {
-    absl::StrAppend(&text, "; faces done: ",
+    const bool six_face = session_.protocol() == pb::PROTOCOL_SIX_FACE;
+    absl::StrAppend(&text, six_face ? "; faces done: " : "; directions done: ",
                     p.faces_done().empty() ? "none" : absl::StrJoin(p.faces_done(), " "));
     if (!p.faces_pending().empty())
       absl::StrAppend(&text, "; to do: ", absl::StrJoin(p.faces_pending(), " "));

@@ -72,13 +72,13 @@ TEST(GuideViewTest, LogModePrintsPlainLinesAndStillnessChangesOnly) {
   std::string out;
   GuideView view(false, [&](const std::string& s) { out += s; });
   EXPECT_FALSE(view.OnEvent(OpenSession()));
-  EXPECT_FALSE(view.OnEvent(Next("Lay the robot on its left side", "Y+", false)));
+  EXPECT_FALSE(view.OnEvent(Next("Lay the robot on its right side", "Y+", false)));
   EXPECT_FALSE(view.OnEvent(Still(false, 0)));
   EXPECT_FALSE(view.OnEvent(Still(true, 1.0)));
   EXPECT_FALSE(view.OnEvent(Still(true, 2.0)));  // no new line: same state
   EXPECT_FALSE(view.OnEvent(Still(true, 4.2)));
   EXPECT_EQ(out.find('\r'), std::string::npos) << out;
-  EXPECT_NE(out.find("NEXT: Lay the robot on its left side  [face Y+]\n"), std::string::npos);
+  EXPECT_NE(out.find("NEXT: Lay the robot on its right side  [face Y+]\n"), std::string::npos);
   EXPECT_NE(out.find("moving\n"), std::string::npos) << out;
   EXPECT_NE(out.find("still: hold for 4 s\n"), std::string::npos) << out;
   EXPECT_EQ(out.find("still: hold for 4 s\n"), out.rfind("still: hold for 4 s\n")) << out;

@@ -49,7 +49,7 @@ TEST_P(SixFaceTest, FindsTheTwelvePosesAndGuidesThroughThem) {
   ASSERT_TRUE(result.ok()) << result.status();
   OnlineSegmenterOptions opt;
   opt.rate_hz = sim.rate_hz;
-  opt.six_face = true;
+  opt.protocol = GuidedProtocol::kSixFace;
   opt.accel_unit = sim.accel_unit;
   OnlineSegmenter seg(opt);
   EXPECT_EQ(seg.CurrentNextPose().face, "Z+");
@@ -200,7 +200,7 @@ TEST(OnlineSegmenterTest, SixFaceCompletesWithoutFlush) {
   ASSERT_TRUE(result.ok()) << result.status();
   OnlineSegmenterOptions opt;
   opt.rate_hz = sim.rate_hz;
-  opt.six_face = true;
+  opt.protocol = GuidedProtocol::kSixFace;
   OnlineSegmenter seg(opt);
   std::vector<SegmenterEvent> events;
   const Capture& cap = result->capture;
@@ -236,6 +236,124 @@ TEST(OnlineSegmenterTest, LongRestIsOnePoseWithTheRightMean) {
   EXPECT_NEAR(pose.accel_mean(0), 0.1, 1e-3);
   EXPECT_NEAR(pose.accel_mean(2), 9.8, 1e-9);
   EXPECT_GT(pose.t_end_s - pose.t_start_s, 3590);
+}
+
+}  // namespace
+}  // namespace imucal::core
+
+namespace imucal::core {
+namespace {
+
+// The positions protocols (seeds/002) cover the 6 faces and 12 edges of the cube of
+// directions; the guide's target is those 18 and 24 poses.
+class PositionsTest : public testing::TestWithParam<SimProtocol> {};
+
+TEST_P(PositionsTest, CoversEveryFaceAndEdgeAndCompletes) {
+  SimOptions sim;
+  sim.seed = 3;
+  sim.protocol = GetParam();
+  auto result = Simulate(sim);
+  ASSERT_TRUE(result.ok()) << result.status();
+  OnlineSegmenterOptions opt;
+  opt.rate_hz = sim.rate_hz;
+  opt.protocol = GuidedProtocol::kPositions;
+  OnlineSegmenter seg(opt);
+  const GuideProgress before = seg.Progress();
+  EXPECT_EQ(before.poses_wanted, 24);
+  EXPECT_EQ(before.pending.size(), 18u);
+  EXPECT_EQ(before.coverage, 0.0);
+  EXPECT_EQ(seg.CurrentNextPose().face, "Z+");  // the direction nearest to top up
+  const Fed fed = FeedAll(seg, result->capture);
+  ASSERT_EQ(Accepted(fed).size(), result->poses.size());
+  const GuideProgress after = seg.Progress();
+  EXPECT_TRUE(after.pending.empty()) << "first missing: " << after.pending.front();
+  EXPECT_EQ(after.done.size(), 18u);
+  EXPECT_EQ(after.coverage, 1.0);
+  // Complete: the poses in (24 or 36) and nothing more to do.
+  EXPECT_EQ(after.poses_wanted, static_cast<int>(result->poses.size()));
+  ASSERT_FALSE(fed.next.empty());
+  EXPECT_TRUE(fed.next.back().done) << fed.next.back().instruction;
+}
+
+INSTANTIATE_TEST_SUITE_P(Protocols, PositionsTest,
+                         testing::Values(SimProtocol::kPositions24, SimProtocol::kPositions36));
+
+// A hand-held capture built pose by pose: 3 s still at each up direction (the first 5 s: it is
+// also the initial rest whose first 2 s teach the noise floor), 0.6 s of motion between poses.
+class HandHeld {
+ public:
+  void Hold(const Eigen::Vector3d& up_body) {
+    Append(up_body.normalized() * 9.80665, cap_.t_s.empty() ? 5.0 : 3.0, 0.02, 0.002);
+    Append(Eigen::Vector3d(3, -2, 7), 0.6, 3.0, 1.0);  // picked up and turned
+  }
+  const Capture& capture() const { return cap_; }
+
+ private:
+  void Append(const Eigen::Vector3d& accel, double seconds, double accel_sd, double gyro_sd) {
+    std::normal_distribution<double> n(0.0, 1.0);
+    for (int i = 0; i < static_cast<int>(seconds * 200); ++i) {
+      cap_.t_s.push_back(static_cast<double>(cap_.t_s.size()) / 200.0);
+      cap_.accel.push_back(accel + accel_sd * Eigen::Vector3d(n(rng_), n(rng_), n(rng_)));
+      cap_.gyro.push_back(gyro_sd * Eigen::Vector3d(n(rng_), n(rng_), n(rng_)));
+    }
+  }
+  std::mt19937 rng_{5};
+  Capture cap_;
+};
+
+TEST(FreeProtocolTest, AsksForTheNearestMissingFaceOrCornerUntilComplete) {
+  OnlineSegmenterOptions opt;
+  opt.rate_hz = 200;
+  opt.protocol = GuidedProtocol::kFree;
+  HandHeld robot;
+  for (const Eigen::Vector3d& up :
+       {Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(0, 0, -1), Eigen::Vector3d(0, 1, 0),
+        Eigen::Vector3d(0, -1, 0), Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(-1, 0, 0)})
+    robot.Hold(up);
+  OnlineSegmenter seg(opt);
+  Fed fed = FeedAll(seg, robot.capture());
+  ASSERT_EQ(Accepted(fed).size(), 6u);
+  GuideProgress p = seg.Progress();
+  EXPECT_EQ(p.done, (std::vector<std::string>{"Z+", "Z-", "Y+", "Y-", "X+", "X-"}));
+  EXPECT_EQ(p.pending.size(), 8u);  // the corners
+  EXPECT_EQ(p.poses_wanted, 18);
+  EXPECT_NEAR(p.coverage, 6.0 / 14.0, 1e-12);
+  // The last pose had its tail up: the next is a corner with the tail up, in words.
+  const NextPoseUpdate next = fed.next.back();
+  EXPECT_EQ(next.face.substr(0, 2), "X-");
+  EXPECT_EQ(next.face.size(), 6u);
+  EXPECT_NE(next.instruction.find("its tail (-X)"), std::string::npos) << next.instruction;
+  EXPECT_NE(next.instruction.find("(8 directions to go)"), std::string::npos) << next.instruction;
+  EXPECT_FALSE(next.done);
+
+  // A face again adds a pose, not coverage, and the guide says so.
+  HandHeld again;
+  for (const Eigen::Vector3d& up : {Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(0, 0, 1)}) again.Hold(up);
+  OnlineSegmenter seg2(opt);
+  const Fed fed2 = FeedAll(seg2, again.capture());
+  ASSERT_EQ(Accepted(fed2).size(), 2u);
+  EXPECT_EQ(fed2.next.back().instruction.rfind("That was Z+ up again. ", 0), 0u)
+      << fed2.next.back().instruction;
+  EXPECT_EQ(seg2.Progress().done.size(), 1u);
+
+  // The 8 corners, then 4 poses anywhere: complete at 18 poses.
+  for (int c = 0; c < 8; ++c)
+    robot.Hold(Eigen::Vector3d(c & 1 ? 1 : -1, c & 2 ? 1 : -1, c & 4 ? 1 : -1));
+  OnlineSegmenter seg3(opt);
+  fed = FeedAll(seg3, robot.capture());
+  ASSERT_EQ(Accepted(fed).size(), 14u);
+  p = seg3.Progress();
+  EXPECT_TRUE(p.pending.empty());
+  EXPECT_EQ(p.coverage, 1.0);
+  EXPECT_EQ(p.poses_wanted, 18);
+  EXPECT_NE(fed.next.back().instruction.find("4 more poses"), std::string::npos)
+      << fed.next.back().instruction;
+  for (int e = 0; e < 4; ++e) robot.Hold(Eigen::Vector3d(1, e & 1 ? 1 : -1, e & 2 ? 0.3 : -0.3));
+  OnlineSegmenter seg4(opt);
+  fed = FeedAll(seg4, robot.capture());
+  ASSERT_EQ(Accepted(fed).size(), 18u);
+  EXPECT_TRUE(fed.next.back().done) << fed.next.back().instruction;
+  EXPECT_EQ(seg4.Progress().poses_wanted, 18);
 }
 
 }  // namespace
