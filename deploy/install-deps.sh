@@ -8,6 +8,7 @@ packages=(
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler libsqlite3-dev
   libtomlplusplus-dev  # imucald's configuration file (TOML)
   libgtest-dev libgmock-dev libbenchmark-dev tmux
+  python3  # tests/tools: the independent ROS 2 bag and EuRoC writers (standard library only)
   clang libclang-rt-dev  # deploy/test.sh: libFuzzer targets (tests/fuzz)
   libssl-dev openssl  # TLS and token hashing (libcrypto); the openssl CLI makes deploy/demo.sh's certificates
 )
