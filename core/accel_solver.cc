@@ -3,6 +3,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 #include "Eigen/Cholesky"
 #include "Eigen/Dense"
@@ -363,9 +364,11 @@ AccelObservability AnalyseAccelObservability(const AccelParams& p,
     for (int c = 0, k = 0; c < kAccelParams; ++c) {
       if (!free[c]) continue;
       const double ratio = std::sqrt(post(k, k));
+      out.sigma(c) = ratio * prior(c);
       ++k;
       if (c / 3 == group && ratio > 0.5) {
         out.determined[c] = false;
+        out.sigma(c) = std::numeric_limits<double>::infinity();
         released = true;
         out.warnings.push_back(absl::StrFormat(
             "accel %s: not determined by these poses (the data leaves %.0f%% of the prior "

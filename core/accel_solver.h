@@ -15,6 +15,7 @@
 #define IMUCAL_CORE_ACCEL_SOLVER_H_
 
 #include <array>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -86,6 +87,9 @@ double EstimateModelSigma(const AccelParams& p, const std::vector<AccelPose>& po
 // first (quadratic, then angles), so a confounded pair keeps its lower-order member.
 struct AccelObservability {
   AccelMask determined{};
+  // Posterior standard deviation of each determined parameter from |a| = g on these poses
+  // (parameter units: m/s^2, scale, rad, 1/(m/s^2)); infinity for the undetermined.
+  AccelVector sigma = AccelVector::Constant(std::numeric_limits<double>::infinity());
   std::vector<std::string> warnings;  // "quadratic_x: not determined by these poses; ..."
 };
 AccelObservability AnalyseAccelObservability(const AccelParams& p,

@@ -991,20 +991,35 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   all.fill(true);
   if (bias_scale_only) all = BiasScaleMask();
   AccelObservability obs = AnalyseAccelObservability(*s1, poses, g, all);
-  // Six-face: at axis-aligned poses the non-orthogonality angles reach |a| only at second order,
-  // but the face references of stage 1 (seeds/000) determine them. Those stay at their stage-1
-  // value, held fixed, instead of being reported undetermined.
+  // Six-face: at axis-aligned poses the non-orthogonality angles reach |a| only at second order
+  // (through the floor's tilt), but the face references of stage 1 (seeds/000) determine them
+  // at first order. An angle stays at its stage-1 value, held fixed, when |a| = g on these
+  // poses would add less than a ninth of the faces' information (its standard error is over
+  // three times theirs): on a plain six-face capture |a| = g may "determine" an angle to
+  // 0.015 rad (15 mg across the axis) where the faces give 1e-4 rad, and refining on it only
+  // fits noise. Extra poses between the axes make the two comparable; the angle is then refined.
   AccelMask held_by_faces{};
   if (s1_from_faces) {
+    double faces_chi2 = kNaN;
+    const AccelMatrix faces_cov = AffineFitCovariance(faces, *s1, &faces_chi2);
     AccelMask candidates = all;
     for (int c = 6; c < 9; ++c) {
-      held_by_faces[static_cast<size_t>(c)] = !obs.determined[static_cast<size_t>(c)];
-      candidates[static_cast<size_t>(c)] = obs.determined[static_cast<size_t>(c)];
-      if (held_by_faces[static_cast<size_t>(c)]) {
+      const size_t k = static_cast<size_t>(c);
+      const double faces_sigma = std::sqrt(faces_cov(c, c));
+      const bool faces_better = std::isfinite(faces_sigma) && 3 * faces_sigma < obs.sigma(c);
+      held_by_faces[k] = !obs.determined[k] || faces_better;
+      candidates[k] = !held_by_faces[k];
+      if (!obs.determined[k]) {
         rep.warnings.push_back(absl::StrFormat(
             "accel %s: set by the six-face references (stage 1); |a| = g alone does not "
             "determine it, so later stages hold it",
             AccelParamName(c)));
+      } else if (faces_better) {
+        rep.warnings.push_back(absl::StrFormat(
+            "accel %s: set by the six-face references (stage 1, +-%.2g rad), which determine "
+            "it far better than |a| = g on these poses (+-%.2g rad); later stages hold it. "
+            "Poses with gravity between two axes would let |a| = g refine it",
+            AccelParamName(c), faces_sigma, obs.sigma(c)));
       }
     }
     obs = AnalyseAccelObservability(*s1, poses, g, candidates);
