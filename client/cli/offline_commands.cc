@@ -6,6 +6,7 @@
 #include <iostream>
 #include <optional>
 #include <sstream>
+#include <utility>
 
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
@@ -13,6 +14,7 @@
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
 #include "client/cli/args.h"
+#include "client/cli/botch.h"
 #include "client/cli/commands.h"
 #include "client/cli/demo_common.h"
 #include "client/cli/export_flags.h"
@@ -100,7 +102,11 @@ constexpr char kSimulateHelp[] =
     "  --no-temperature    no temp column\n"
     "  --effect SENSOR:AXIS:REGRESSOR:COEF   an extra effect, e.g. accel:y:temperature:0.005\n"
     "                      (repeat the flag for several)\n"
-    "  --truth FILE.json   write the true parameter set\n";
+    "  --truth FILE.json   write the true parameter set\n"
+    "  --botch-turn        six-face only: the first 180-degree turn stops a quarter turn short,\n"
+    "                      is held, then finished (as `imucal demo --server --botch-turn`):\n"
+    "                      streamed with `imucal upload`, the guide shows a failed pair and its\n"
+    "                      re-do\n";
 
 absl::StatusOr<core::ImportOptions> ImportOptionsFrom(const Args& a) {
   core::ImportOptions o;
@@ -392,14 +398,23 @@ int RunSimulate(const std::vector<std::string>& argv) {
                        {"out", "protocol", "seed", "rate", "extra-poses", "free-poses",
                         "accel-noise", "gyro-noise", "accel-unit", "gyro-unit", "floor-tilt",
                         "turn-error", "effect", "truth"},
-                       {"no-temperature", "help"});
+                       {"no-temperature", "botch-turn", "help"});
   if (!a.ok()) return Usage(std::string(a.status().message()), kSimulateHelp);
   if (a->Has("help")) return std::printf("%s", kSimulateHelp), kExitOk;
   if (!a->Get("out")) return Usage("simulate needs --out FILE.csv", kSimulateHelp);
   auto options = SimOptionsFrom(*a);
   if (!options.ok()) return Usage(std::string(options.status().message()), kSimulateHelp);
+  const bool botch = a->Has("botch-turn");
+  if (botch && options->protocol != core::SimProtocol::kSixFace)
+    return Usage("--botch-turn needs --protocol six-face (its first pair is a half turn)",
+                 kSimulateHelp);
   auto sim = core::Simulate(*options);
   if (!sim.ok()) return ReportError(sim.status());
+  if (botch) {
+    absl::StatusOr<core::Capture> botched = BotchFirstTurn(*sim, options->hold_s);
+    if (!botched.ok()) return ReportError(botched.status());
+    sim->capture = *std::move(botched);
+  }
   if (absl::Status s = core::WriteImucalCsvFile(sim->capture, *a->Get("out")); !s.ok())
     return ReportError(s);
   if (auto truth = a->Get("truth")) {
@@ -407,9 +422,10 @@ int RunSimulate(const std::vector<std::string>& argv) {
         !s.ok())
       return ReportError(s);
   }
-  std::printf("wrote %zu samples, %zu static poses (%s, seed %llu) to %s\n", sim->capture.size(),
-              sim->poses.size(), core::ProtocolName(options->protocol).c_str(),
-              static_cast<unsigned long long>(options->seed), a->Get("out")->c_str());
+  std::printf("wrote %zu samples, %zu static poses (%s, seed %llu%s) to %s\n",
+              sim->capture.size(), sim->poses.size(), core::ProtocolName(options->protocol).c_str(),
+              static_cast<unsigned long long>(options->seed),
+              botch ? ", first half turn botched: one more hold" : "", a->Get("out")->c_str());
   return kExitOk;
 }
 

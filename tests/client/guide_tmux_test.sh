@@ -1,8 +1,16 @@
 #!/usr/bin/env bash
-# End-to-end test of `imucal guide` as a technician sees it: imucald on a free loopback port with
-# a temp database, the guide running in a detached tmux pane (a real terminal), a simulated robot
-# streaming its capture with `imucal upload`, and assertions on `tmux capture-pane -p`.
-# Waiting is bounded polling with a deadline (no fixed sleeps).
+# End-to-end test of `imucal guide` as a technician uses it: imucald on a free loopback port with
+# a temp database; a shell in a detached tmux session (a real terminal) where the commands are
+# TYPED with send-keys: `imucal --server ADDR guide --device D --protocol six-face` in one window,
+# and in a second window the robot's `imucal upload capture.csv --device D --session S` (its
+# progress bar shows there). Assertions read the windows with `tmux capture-pane -p`.
+#   1. a clean six-face capture: the guide's instructions, progress, accepted poses, the result;
+#      the upload's progress bar; both exit codes (typed `echo $?`).
+#   2. a capture from `imucal simulate --botch-turn` (the first half turn stops a quarter turn
+#      short, is held, then finished): the failed pair with its reason, the re-do prompt, the
+#      re-done pair accepted, the last face, the result, the guide's exit code 0.
+# Waiting on a pane's content is bounded polling with a deadline (tmux offers nothing to wait on
+# for it); everything else waits on the command itself.
 # usage: guide_tmux_test.sh IMUCAL IMUCALD
 set -euo pipefail
 imucal=$1
@@ -33,55 +41,121 @@ wait_for() {
     sleep 0.2
   done
 }
-pane() { tmux -L "$sock" capture-pane -p -J -S - -t "${2:-guide}"; }
-pane_has() { pane "" "${2:-guide}" | grep -qF -- "$1"; }
+tm() { tmux -L "$sock" -f "$dir/tmux.conf" "$@"; }
+pane() { tm capture-pane -p -J -S - -t "tech:$1"; }
+pane_has() { pane "$1" | grep -qF -- "$2"; }
+pane_matches() { pane "$1" | grep -qE -- "$2"; }
 fail() {
   echo "FAIL: $*"
-  echo "---- pane ----"; pane || true
+  for w in $(tm list-windows -t tech -F '#W' 2>/dev/null); do
+    echo "---- window $w ----"; pane "$w" || true
+  done
   echo "---- imucald log ----"; tail -20 "$dir/imucald.log" || true
   exit 1
 }
+# expect WINDOW TEXT WHAT: the window shows TEXT (fixed string), else fail with WHAT
+expect() { pane_has "$1" "$2" || fail "$3 (no \"$2\" in window $1)"; }
+expect_re() { pane_matches "$1" "$2" || fail "$3 (nothing matches /$2/ in window $1)"; }
+
+# The shell's prompt is "tech$ ". at_new_prompt WINDOW N: the window shows more than N prompt
+# lines and its last line is a bare prompt (the shell waits for the next command). capture-pane
+# -J keeps trailing spaces.
+at_new_prompt() {
+  local text; text=$(pane "$1")
+  (($(grep -c '^tech\$' <<<"$text") > $2)) && grep -v '^ *$' <<<"$text" | tail -1 | grep -qx 'tech\$ *'
+}
+# type WINDOW TEXT: the technician types TEXT and Enter
+type_cmd() { tm send-keys -t "tech:$1" -l -- "$2"; tm send-keys -t "tech:$1" Enter; }
+# exit_code WINDOW NAME: types `echo NAME-EXIT=$?` and sets $code to the code it shows
+code=""
+exit_code() {
+  type_cmd "$1" "echo $2-EXIT=\$?"
+  wait_for 10 pane_matches "$1" "^$2-EXIT=[0-9]+" || fail "no exit code shown in window $1"
+  code=$(pane "$1" | grep -oE "^$2-EXIT=[0-9]+" | tail -1 | cut -d= -f2)
+}
 
 wait_for 20 "$imucal" --server "$addr" devices >/dev/null 2>&1 || fail "imucald did not come up"
-"$imucal" --server "$addr" devices register robot-tmux --sensor-model sim --rate 200 \
-  --accel-unit m/s^2 --gyro-unit rad/s >/dev/null
+for device in robot-tmux robot-botch; do
+  "$imucal" --server "$addr" devices register "$device" --sensor-model sim --rate 200 \
+    --accel-unit m/s^2 --gyro-unit rad/s >/dev/null
+done
 # One extra random pose after the protocol: the robot moves on after the last pose, which is
 # what closes that pose for the online segmentation (as a technician picking the robot up).
 "$imucal" simulate --out "$dir/capture.csv" --seed 11 --extra-poses 1 >/dev/null
-session=$("$imucal" --server "$addr" session start --device robot-tmux --protocol six-face --json |
-  python3 -c 'import json, sys; print(json.load(sys.stdin)["id"])')
+"$imucal" simulate --out "$dir/botched.csv" --seed 11 --extra-poses 1 --botch-turn >/dev/null
 
-tmux -L "$sock" new-session -d -s guide -x 160 -y 60 \
-  "'$imucal' --server '$addr' guide --session '$session'; echo GUIDE-EXIT=\$?; read -r _"
-wait_for 20 pane_has "Calibrating robot-tmux" || fail "the guide did not start"
+# A plain shell in a 160x60 terminal with `imucal` on its PATH, in the captures' directory.
+printf 'set -g history-limit 100000\n' >"$dir/tmux.conf"
+shell=(env -i HOME="$dir" TERM=xterm-256color PATH="$(cd "$(dirname "$imucal")" && pwd):/usr/bin:/bin"
+       PS1='tech$ ' bash --norc --noprofile)
+# The session's first window stays idle: each part opens its own two windows.
+tm new-session -d -s tech -n idle -x 160 -y 60 -c "$dir" "${shell[@]}"
+# open_window NAME: a new window with that shell, once its prompt shows
+open_window() {
+  tm new-window -d -t tech -n "$1" -c "$dir" "${shell[@]}"
+  wait_for 10 at_new_prompt "$1" 0 || fail "no shell prompt in window $1"
+}
 
-# The guide starts the solve as soon as the protocol is complete: a robot still streaming its
-# trailing samples then finds its session closed for the solve and stops (as the demo's does).
-if ! "$imucal" --server "$addr" upload "$dir/capture.csv" --session "$session" >"$dir/upload.log" 2>&1; then
-  grep -qF "is solving, not open" "$dir/upload.log" || fail "upload failed: $(cat "$dir/upload.log")"
-fi
+# run_guided N DEVICE CAPTURE: in fresh windows guideN and robotN, types the guide for DEVICE,
+# then the robot's upload of CAPTURE into the guide's session; returns when both are back at
+# their prompt.
+run_guided() {
+  local guide=guide$1 robot=robot$1 device=$2 capture=$3 session
+  open_window "$guide"
+  open_window "$robot"
+  type_cmd "$guide" "imucal --server $addr guide --device $device --protocol six-face"
+  wait_for 20 pane_has "$guide" "Calibrating $device: session " || fail "the guide did not start"
+  # The guide opened the device's session, and a device has one open session at a time:
+  # `upload --device` alone opens a new one and is refused, so the robot streams into the
+  # session the guide names on screen, as its "Start the robot's capture now" line says.
+  session=$(pane "$guide" |
+            sed -nE "s/^Calibrating $device: session ([^ ]+) \(protocol six-face\)\.\$/\1/p")
+  [[ -n "$session" ]] || fail "the guide did not name its session"
+  expect "$guide" "(e.g. imucal upload FILE --session $session)" \
+    "the guide does not say how to stream into its session"
+  type_cmd "$robot" "imucal --server $addr upload $capture --device $device --session $session"
+  wait_for 120 at_new_prompt "$robot" 1 || fail "the upload did not finish"
+  wait_for 180 at_new_prompt "$guide" 1 || fail "the guide did not finish"
+}
 
-wait_for 180 pane_has "GUIDE-EXIT=" || fail "the guide did not finish"
-pane_has "NEXT:" || fail "no next-pose instruction"
-pane_has "progress:" || fail "no progress line"
-pane_has "[ok]   pose" || fail "no accepted pose"
-pane_has "RESULT: version" || fail "no solve result"
-pane_has "GUIDE-EXIT=0" || fail "the guide's exit code was not 0"
-if [[ -n "${GUIDE_TMUX_SHOW:-}" ]]; then pane; fi
+# expect_upload N: the robot's upload in window robotN exited 0 having sent every sample, or (as
+# a robot does) was stopped by the session closing for the solve while it still streamed its
+# trailing samples. Either way its progress bar, redrawn in place, shows its last state.
+bar_re='^\[[#.]{30}\] +[0-9]+%  [0-9]+/[0-9]+ samples'
+expect_upload() {
+  local robot=robot$1
+  exit_code "$robot" UPLOAD
+  expect_re "$robot" "$bar_re" "no upload progress bar"
+  if [[ "$code" == 0 ]]; then
+    expect_re "$robot" '^\[#{30}\] 100%  ([0-9]+)/\1 samples' "the bar did not reach every sample"
+    expect "$robot" "uploaded " "no upload summary"
+  else
+    expect "$robot" "is solving, not open" "the upload failed with exit code $code"
+  fi
+}
 
-# 2. A failed pair and its re-do: the demo's robot (the SDK uploader) stops its first half turn a
-# quarter turn short, holds, then finishes the turn; the guide (in the pane) must reject the pair
-# with the reason, ask for the re-do, accept the re-done pair, and finish with a result.
-tmux -L "$sock" new-session -d -s botch -x 160 -y 60 \
-  "'$imucal' demo --server '$addr' --seed 11 --device robot-botch --botch-turn; echo DEMO-EXIT=\$?; read -r _"
-wait_for 240 pane_has "DEMO-EXIT=" botch || { pane "" botch; fail "the botched demo did not finish"; }
-botch_has() { pane_has "$1" botch || { echo "---- botch pane ----"; pane "" botch; fail "$2"; }; }
-botch_has "[redo] pair Z+ (poses 0, 1) FAILED: turned" "no failed-pair verdict"
-botch_has "-> REDO Z+" "no re-do prompt under the failed pair"
-botch_has "NEXT: Pair Z+ failed (turned" "the next-pose guidance does not ask for the re-do"
-botch_has "[ok]   pair Z+ (poses 0, 2)" "the re-done pair was not accepted"
-botch_has "[ok]   pair X- " "the session did not go on to the last face"
-botch_has "RESULT: version" "no solve result after the re-do"
-botch_has "DEMO-EXIT=0" "the demo's exit code was not 0"
-if [[ -n "${GUIDE_TMUX_SHOW:-}" ]]; then pane "" botch; fi
+# 1. A clean six-face session.
+run_guided 1 robot-tmux capture.csv
+expect_upload 1
+expect guide1 "NEXT:" "no next-pose instruction"
+expect guide1 "progress:" "no progress line"
+expect guide1 "[ok]   pose" "no accepted pose"
+expect guide1 "RESULT: version" "no solve result"
+exit_code guide1 GUIDE
+[[ "$code" == 0 ]] || fail "the guide's exit code was $code, not 0"
+if [[ -n "${GUIDE_TMUX_SHOW:-}" ]]; then pane guide1; pane robot1; fi
+
+# 2. A failed pair and its re-do: the guide must reject the pair with the reason, ask for the
+# re-do, accept the re-done pair, go on to the last face, and finish with a result.
+run_guided 2 robot-botch botched.csv
+expect_upload 2
+expect guide2 "[redo] pair Z+ (poses 0, 1) FAILED: turned" "no failed-pair verdict with its reason"
+expect guide2 "-> REDO Z+" "no re-do prompt under the failed pair"
+expect guide2 "NEXT: Pair Z+ failed (turned" "the next-pose guidance does not ask for the re-do"
+expect guide2 "[ok]   pair Z+ (poses 0, 2)" "the re-done pair was not accepted"
+expect guide2 "[ok]   pair X- " "the session did not go on to the last face"
+expect guide2 "RESULT: version" "no solve result after the re-do"
+exit_code guide2 GUIDE
+[[ "$code" == 0 ]] || fail "the guide's exit code was $code, not 0"
+if [[ -n "${GUIDE_TMUX_SHOW:-}" ]]; then pane guide2; pane robot2; fi
 echo "PASS: guide_tmux_test"
