@@ -12,8 +12,10 @@
 
 #include <chrono>
 #include <filesystem>
+#include <future>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -50,9 +52,12 @@ inline constexpr bool kHaveImucald =
 class ImucaldProcess {
  public:
   // Starts imucald with its database in `dir`; Unavailable if it does not come up in 20 s.
-  static absl::StatusOr<std::unique_ptr<ImucaldProcess>> Start(const std::string& dir) {
+  // `extra_args` follow the standard ones (e.g. {"--drain-deadline", "1s"}).
+  static absl::StatusOr<std::unique_ptr<ImucaldProcess>> Start(
+      const std::string& dir, std::vector<std::string> extra_args = {}) {
     auto p = std::unique_ptr<ImucaldProcess>(new ImucaldProcess);
     p->db_path_ = (std::filesystem::path(dir) / "imucal.db").string();
+    p->extra_args_ = std::move(extra_args);
     p->port_ = FreeLoopbackPort();
     if (absl::Status s = p->Launch(); !s.ok()) return s;
     return p;
@@ -82,6 +87,25 @@ class ImucaldProcess {
     ::waitpid(pid_, &status, 0);
     pid_ = -1;
   }
+  // Sends `signal` and waits at most `timeout` for imucald to exit. Returns its wait status
+  // (WIFEXITED, WEXITSTATUS), or DeadlineExceeded after which it is SIGKILLed. Either way it
+  // has stopped: Restart() starts it again on the same port and database.
+  absl::StatusOr<int> SignalAndWait(int signal, std::chrono::milliseconds timeout) {
+    if (pid_ <= 0) return absl::FailedPreconditionError("imucald is not running");
+    const pid_t pid = pid_;
+    pid_ = -1;
+    std::future<int> exited = std::async(std::launch::async, [pid] {
+      int status = 0;
+      ::waitpid(pid, &status, 0);
+      return status;
+    });
+    ::kill(pid, signal);
+    if (exited.wait_for(timeout) == std::future_status::ready) return exited.get();
+    ::kill(pid, SIGKILL);
+    exited.wait();
+    return absl::DeadlineExceededError(
+        absl::StrCat("imucald did not exit within ", timeout.count(), " ms of signal ", signal));
+  }
 
  private:
   ImucaldProcess() = default;
@@ -89,12 +113,15 @@ class ImucaldProcess {
   absl::Status Launch() {
 #ifdef IMUCAL_IMUCALD_PATH
     const std::string listen = address();
+    // Plaintext on loopback without tokens: these tests are not about authentication
+    // (auth_matrix_test is). Built before fork: the child only execs.
+    std::vector<const char*> argv = {IMUCAL_IMUCALD_PATH, "--listen", listen.c_str(),
+                                     "--db",              db_path_.c_str(), "--insecure"};
+    for (const std::string& arg : extra_args_) argv.push_back(arg.c_str());
+    argv.push_back(nullptr);
     pid_ = ::fork();
     if (pid_ == 0) {
-      // Plaintext on loopback without tokens: these tests are not about authentication
-      // (auth_matrix_test is).
-      ::execl(IMUCAL_IMUCALD_PATH, IMUCAL_IMUCALD_PATH, "--listen", listen.c_str(), "--db",
-              db_path_.c_str(), "--insecure", static_cast<char*>(nullptr));
+      ::execv(IMUCAL_IMUCALD_PATH, const_cast<char* const*>(argv.data()));
       ::_exit(127);
     }
     if (pid_ < 0) return absl::InternalError("fork failed");
@@ -117,6 +144,7 @@ class ImucaldProcess {
   }
 
   std::string db_path_;
+  std::vector<std::string> extra_args_;
   int port_ = 0;
   pid_t pid_ = -1;
 };
@@ -125,7 +153,8 @@ class ImucaldProcess {
 // imucald is not built). `prefix` names the directory, e.g. "imucal_uploader_test".
 class ImucaldTest : public ::testing::Test {
  protected:
-  explicit ImucaldTest(std::string prefix) : prefix_(std::move(prefix)) {}
+  explicit ImucaldTest(std::string prefix, std::vector<std::string> extra_args = {})
+      : prefix_(std::move(prefix)), extra_args_(std::move(extra_args)) {}
   void SetUp() override {
     if (!kHaveImucald) GTEST_SKIP() << "imucald is not built yet";
     dir_ = std::filesystem::path(::testing::TempDir()) /
@@ -134,7 +163,7 @@ class ImucaldTest : public ::testing::Test {
                         ::getpid());
     std::filesystem::remove_all(dir_);
     std::filesystem::create_directories(dir_);
-    auto server = ImucaldProcess::Start(dir_.string());
+    auto server = ImucaldProcess::Start(dir_.string(), extra_args_);
     ASSERT_TRUE(server.ok()) << server.status();
     server_ = *std::move(server);
   }
@@ -148,6 +177,7 @@ class ImucaldTest : public ::testing::Test {
 
  private:
   std::string prefix_;
+  std::vector<std::string> extra_args_;
 };
 
 }  // namespace imucal::testing_util
