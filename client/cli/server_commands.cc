@@ -343,9 +343,10 @@ namespace {
 
 constexpr char kUploadHelp[] =
     "usage: imucal upload FILE... --device D [--session S] [--solve] [options]\n"
-    "  Streams a capture's raw samples to a session: the given one, else a new one for the\n"
-    "  device. Resumes after the last acknowledged batch when the connection drops, and when run\n"
-    "  again for the same session and file. FILE: imucal CSV or an imu_tk pair.\n"
+    "  Streams a capture's raw samples to a session: the given one; else the device's open\n"
+    "  session while it holds no samples (the one `guide --device D` opened); else a new one.\n"
+    "  Resumes after the last acknowledged batch when the connection drops, and when run again\n"
+    "  for the same session and file. FILE: imucal CSV or an imu_tk pair.\n"
     "options:\n"
     "  --protocol six-face|positions|free|ferraris|auto   for a new session (default auto)\n"
     "  --format F   --accel-unit U   --gyro-unit U   input as for calibrate (and below)\n"
@@ -450,6 +451,35 @@ int RunUpload(const std::vector<std::string>& argv) {
                    accel.c_str(), gyro.c_str(), device_id.c_str(), d.accel_unit().c_str(),
                    d.gyro_unit().c_str());
       return kExitBadInput;
+    }
+  }
+  if (!session_id) {
+    // The device's open session, when there is one: the guide opened it for this capture. Only
+    // an empty one is joined: the uploader resumes by batch number, so a session that already
+    // holds another capture's batches would silently skip this capture's first ones.
+    pb::ListSessionsRequest req;
+    req.set_device_id(device_id);
+    req.set_state(pb::SESSION_STATE_OPEN);
+    pb::ListSessionsResponse open;
+    auto ctx = CallContext();
+    if (grpc::Status s = server.sessions->ListSessions(ctx.get(), req, &open); !s.ok())
+      return RpcError(server, s);
+    if (!open.sessions().empty()) {
+      const pb::Session& found = open.sessions(0);
+      if (found.samples() > 0) {
+        std::fprintf(stderr,
+                     "imucal: %s already has an open session %s holding %lld samples: to resume "
+                     "that capture run again with --session %s; to start over, cancel it "
+                     "(imucal session cancel %s)\n",
+                     device_id.c_str(), found.id().c_str(),
+                     static_cast<long long>(found.samples()), found.id().c_str(),
+                     found.id().c_str());
+        return kExitUndetermined;  // as the server's FAILED_PRECONDITION for it
+      }
+      session = found;
+      session_id = found.id();
+      if (!a->Has("json"))
+        std::printf("streaming into %s's open session %s\n", device_id.c_str(), found.id().c_str());
     }
   }
   if (!session_id) {

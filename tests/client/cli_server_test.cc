@@ -178,6 +178,27 @@ TEST_F(CliServerTest, UploadAgainToTheSameSessionResumes) {
   EXPECT_NE(out_.find("already stored"), std::string::npos) << out_;
 }
 
+// `guide --device D` opens the session; `upload FILE --device D` beside it streams into it.
+// A device's open session that already holds samples is not joined (the uploader resumes by
+// batch number and would skip this capture's first batches): the message says what to do.
+TEST_F(CliServerTest, UploadByDeviceJoinsItsEmptyOpenSessionOnly) {
+  Register("robot-cli-6");
+  ASSERT_EQ(Run(RunSession, {"start", "--device", "robot-cli-6", "--json"}), kExitOk) << err_;
+  const std::string id = json::parse(out_)["id"];
+  const std::string capture = WriteSimulatedCapture(8);
+  ASSERT_EQ(Run(RunUpload, {capture, "--device", "robot-cli-6"}), kExitOk) << err_;
+  EXPECT_NE(out_.find("streaming into robot-cli-6's open session " + id), std::string::npos)
+      << out_;
+  ASSERT_EQ(Run(RunSession, {"list", "--device", "robot-cli-6", "--json"}), kExitOk) << err_;
+  const json sessions = json::parse(out_)["sessions"];
+  ASSERT_EQ(sessions.size(), 1u) << out_;
+  EXPECT_GT(std::stoll(sessions[0]["samples"].get<std::string>()), 0) << out_;
+
+  EXPECT_EQ(Run(RunUpload, {capture, "--device", "robot-cli-6"}), kExitUndetermined);
+  EXPECT_NE(err_.find("already has an open session " + id), std::string::npos) << err_;
+  EXPECT_NE(err_.find("--session " + id), std::string::npos) << err_;
+}
+
 TEST_F(CliServerTest, UnitsDifferentFromTheDevicesAreRefused) {
   ASSERT_EQ(Run(RunDevices, {"register", "robot-cli-5", "--rate", "200", "--accel-unit", "g",
                              "--gyro-unit", "deg/s"}),
