@@ -27,9 +27,15 @@ constexpr double kAbsorbedFraction = 1e-3;
 constexpr double kExcitedRatio = 5.0;
 // Two candidates of one sensor explain the data equally well when their columns (beyond the
 // current model) are this collinear and their BIC differ by less than kAmbiguousBic (Kass and
-// Raftery: "not worth more than a bare mention").
+// Raftery: "not worth more than a bare mention"); among such ties the simpler one enters.
+// Up to kWeakEvidenceBic (Kass and Raftery: "positive", not yet "strong") the data favour one
+// but do not settle the question: the better one enters on its merit and the rival is still
+// named in the notes. In simulation a slow warm-up (temperature nearly linear in time) puts a
+// temperature effect 2-6 ahead of time in BIC (only the warm-up's curvature tells them apart),
+// which a note gated at 2 left unsaid.
 constexpr double kAmbiguousCorrelation = 0.9;
 constexpr double kAmbiguousBic = 2.0;
+constexpr double kWeakEvidenceBic = 6.0;
 
 // The accelerometer model's own terms: linear in the specific force (scale, misalignment) and
 // the square of the output axis's own signal (its quadratic). The model's observability and
@@ -965,12 +971,15 @@ class Search {
     }
   }
 
-  static bool Ambiguous(const RoundCandidate& a, const RoundCandidate& b) {
+  // True when `a` and `b` are nearly collinear beyond the current model and their BIC differ
+  // by less than `max_delta_bic`.
+  static bool Ambiguous(const RoundCandidate& a, const RoundCandidate& b,
+                        double max_delta_bic = kAmbiguousBic) {
     if (&a == &b || a.score.sensor != b.score.sensor) return false;
     if (a.score.sensor == Sensor::kGyro && a.score.axis != b.score.axis) return false;
     const double corr = std::abs(a.perp.dot(b.perp)) / (a.perp.norm() * b.perp.norm());
     return corr > kAmbiguousCorrelation &&
-           std::abs(a.score.delta_bic - b.score.delta_bic) < kAmbiguousBic;
+           std::abs(a.score.delta_bic - b.score.delta_bic) < max_delta_bic;
   }
 
   static void KeepTop(std::vector<RoundCandidate> cands, EffectDiagnostics* diag) {
@@ -984,13 +993,20 @@ class Search {
                        int tests, EffectDiagnostics* diag) {
     std::string rivals;
     for (const RoundCandidate& c : cands) {
-      if (&c == &win || !Ambiguous(win, c)) continue;
+      if (&c == &win || !Ambiguous(win, c, kWeakEvidenceBic)) continue;
       const std::string name = Describe(c.score.sensor, c.score.axis, c.regressor);
+      const std::string win_name = Describe(win.score.sensor, win.score.axis, win.regressor);
       rivals += Cat(rivals.empty() ? "" : ", ", name);
+      const double gap = std::abs(win.score.delta_bic - c.score.delta_bic);
+      const std::string favoured = win.score.delta_bic <= c.score.delta_bic ? win_name : name;
       diag->notes.push_back(Cat(
-          "ambiguous: ", Describe(win.score.sensor, win.score.axis, win.regressor),
-          " explains the residual about as well as ", name,
-          absl::StrFormat(" (BIC %+.1f vs %+.1f); ", win.score.delta_bic, c.score.delta_bic),
+          "ambiguous: ", win_name,
+          gap < kAmbiguousBic
+              ? Cat(" explains the residual about as well as ", name)
+              : Cat(" and ", name, " both explain the residual; the data favour ", favoured,
+                    " but not strongly"),
+          absl::StrFormat(" (BIC %+.1f vs %+.1f", win.score.delta_bic, c.score.delta_bic),
+          gap < kAmbiguousBic ? "); " : ", a difference under 6 is not strong evidence); ",
           Separator(win.regressor, c.regressor)));
     }
     return absl::StrFormat(

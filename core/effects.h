@@ -40,8 +40,11 @@
 // The passing candidate with the lowest BIC enters, the model is refitted jointly (accelerometer:
 // Ceres over the free model parameters and every accelerometer effect coefficient; gyroscope:
 // the static model is linear in its bias and coefficients, an exact weighted least squares), and
-// the search repeats until nothing passes. Candidates that explain the residual about as well as
-// the chosen one (chi^2 within 4, i.e. two sigma) are named: the data cannot tell them apart.
+// the search repeats until nothing passes. Candidates as collinear with the chosen one (beyond
+// the current model, correlation over 0.9) whose BIC is within 6 of it are named in the notes
+// with what would tell them apart: the data do not strongly prefer one (Kass and Raftery: a
+// BIC difference under 2 is "barely worth a mention", 2-6 "positive", over 6 "strong"). Within 2
+// the simpler regressor (and one without `time`) enters.
 #ifndef IMUCAL_CORE_EFFECTS_H_
 #define IMUCAL_CORE_EFFECTS_H_
 

@@ -6,7 +6,9 @@
 #define IMUCAL_TESTS_CORE_EFFECT_SCENARIOS_H_
 
 #include <cmath>
+#include <ostream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "Eigen/Core"
@@ -91,6 +93,9 @@ struct EffectCase {
   bool axis_identifiable = true;
 };
 
+// Test names carry the case; this keeps gtest from printing the struct's bytes.
+inline void PrintTo(const EffectCase& c, std::ostream* os) { *os << c.name; }
+
 inline SimEffect Fx(Sensor s, int axis, const char* regressor, double c) {
   return SimEffect{s, axis, regressor, c};
 }
@@ -105,6 +110,31 @@ inline const EffectCase kEffectCases[] = {
     {"GyroBiasDrift", {Fx(Sensor::kGyro, 0, "time", 0.01 * kDegS / 60)}},             // /min
     {"AccelCrossQuadratic", {Fx(Sensor::kAccel, 0, "ax*az", 3e-4)}, false},           // /(m/s^2)
 };
+
+// True when some effect of the case reads `temperature` (it needs a temperature channel).
+inline bool UsesTemperature(const EffectCase& c) {
+  for (const SimEffect& e : c.effects)
+    if (e.regressor.find("temperature") != std::string::npos) return true;
+  return false;
+}
+
+// Two undeclared effects at once, on different sensors, axes and regressors: an accelerometer
+// y bias that follows temperature and a gyroscope z g-sensitivity to the x specific force.
+// Datasheet magnitudes (field notes, section 7): 0.5 mg/degC, 0.05 deg/s/g.
+inline std::vector<SimEffect> TwoEffects() {
+  return {Fx(Sensor::kAccel, 1, "temperature", 0.5 * kMg),
+          Fx(Sensor::kGyro, 2, "ax", 0.05 * kDegS / kStandardGravity)};
+}
+
+// A slow warm-up that temperature follows almost linearly in time: EffectScenario's capture
+// (about 240 s) covers a fifth of a 1200 s time constant, 25 -> 33 degC, so only the slight
+// curvature of T(t) tells a temperature effect from a drift over time.
+inline SimOptions SlowWarmUpScenario(uint64_t seed, std::vector<SimEffect> effects) {
+  SimOptions o = EffectScenario(seed, std::move(effects));
+  o.temp_tau_s = 1200.0;
+  o.temp_rise_c = 45.0;
+  return o;
+}
 
 }  // namespace imucal::core
 

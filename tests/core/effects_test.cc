@@ -1,19 +1,27 @@
 // Closing the loop on simulated captures whose effect the solver is not told about: the search
 // (core/effects.h) must name the right sensor, axis and regressor, estimate the coefficient
 // within 3 standard errors of the truth, and bring the error of a fresh validation capture down
-// to its noise floor; clean captures must stay clean.
+// to its noise floor; clean captures must stay clean. Also: two effects at once, a warm-up that
+// leaves temperature and time hard to tell apart (the notes must say so), and a drift over time
+// that is reported but applied only on request.
 #include "core/effects.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <optional>
+#include <ostream>
 #include <string>
+#include <string_view>
+#include <tuple>
 #include <vector>
 
 #include "absl/strings/str_format.h"
 #include "client/sdk/corrector.h"
 #include "core/calibrate.h"
 #include "core/simulator.h"
+#include "core/str_util.h"
 #include "tests/core/effect_scenarios.h"
 
 namespace imucal::core {
@@ -48,17 +56,68 @@ std::string List(const ParamSet& p) {
   return s.empty() ? "none" : s;
 }
 
-class UndeclaredEffect : public testing::TestWithParam<std::tuple<EffectCase, int>> {};
+std::string Notes(const CalibrationReport& rep) {
+  std::string notes;
+  for (const std::string& n : rep.effect_diagnostics.notes) notes += n + "\n";
+  return notes;
+}
+
+// A fresh capture of the same unit (new poses and noise, same warm-up): `params` must bring the
+// error of its holds, through the SDK's Corrector, near the floor the true model gives: within
+// the floor plus the calibration's own parameter error (0.3 mg, 0.005 deg/s), and no worse than
+// without the effects.
+void ExpectValidationNearFloor(SimOptions validation, const SimResult& sim,
+                               const ParamSet& params) {
+  validation.seed += 500;
+  absl::StatusOr<SimResult> val_or = Simulate(validation, sim.truth);
+  ASSERT_TRUE(val_or.ok()) << val_or.status();
+  const SimResult& val = *val_or;
+  ParamSet without = params;
+  without.effects.clear();
+  const HoldError before = ErrorOn(val, without);
+  const HoldError after = ErrorOn(val, params);
+  const HoldError floor = ErrorOn(val, TruthParams(val));
+  SCOPED_TRACE(absl::StrFormat("accel before %.3f after %.3f floor %.3f mg; gyro before %.4f after "
+                               "%.4f floor %.4f deg/s",
+                               before.accel_m_s2 / kMg, after.accel_m_s2 / kMg,
+                               floor.accel_m_s2 / kMg, before.gyro_rad_s / kDegS,
+                               after.gyro_rad_s / kDegS, floor.gyro_rad_s / kDegS));
+  EXPECT_LT(after.accel_m_s2, floor.accel_m_s2 + 0.3 * kMg);
+  EXPECT_LT(after.gyro_rad_s, floor.gyro_rad_s + 0.005 * kDegS);
+  EXPECT_LE(after.accel_m_s2, before.accel_m_s2 * 1.05);
+  EXPECT_LE(after.gyro_rad_s, before.gyro_rad_s * 1.05);
+}
+
+// (case, temperature channel, seed). Cases whose effects read temperature run only with it.
+using UndeclaredParam = std::tuple<EffectCase, bool, int>;
+
+std::vector<UndeclaredParam> UndeclaredParams() {
+  std::vector<UndeclaredParam> out;
+  for (const EffectCase& c : kEffectCases) {
+    for (bool temperature : {true, false}) {
+      if (!temperature && UsesTemperature(c)) continue;
+      // Seeds 1-3 here; the detection rate over 20 seeds is measured by bench/effects_bench.
+      // Seed 4 of the two accelerometer temperature cases attributes the effect to time (BIC
+      // 4.7-6.1 apart over the 120 s warm-up): reported as ambiguous, not applied by default,
+      // so its validation error stays above the floor. That is an open finding (README,
+      // "Closing the loop"), not a tolerance to widen.
+      for (int seed = 1; seed <= 3; ++seed) out.emplace_back(c, temperature, seed);
+    }
+  }
+  return out;
+}
+
+class UndeclaredEffect : public testing::TestWithParam<UndeclaredParam> {};
 
 TEST_P(UndeclaredEffect, FoundWithinThreeSigmaAndValidationDropsToNoiseFloor) {
-  const auto& [c, seed] = GetParam();
-  const SimResult sim = MustSimulate(EffectScenario(static_cast<uint64_t>(seed), c.effects));
+  const auto& [c, temperature, seed] = GetParam();
+  const SimOptions options = EffectScenario(static_cast<uint64_t>(seed), c.effects, temperature);
+  const SimResult sim = MustSimulate(options);
   // Time effects are applied only when the user opts in: opt in to validate them.
   bool time = false;
   for (const SimEffect& e : c.effects) time |= e.regressor.find("time") != std::string::npos;
   const CalibrationReport rep = MustCalibrate(sim.capture, time);
-  std::string notes;
-  for (const std::string& n : rep.effect_diagnostics.notes) notes += n + "\n";
+  const std::string notes = Notes(rep);
   SCOPED_TRACE(List(rep.params) + "\n" + notes);
   if (!c.axis_identifiable) {
     ASSERT_FALSE(rep.params.effects.empty());
@@ -80,35 +139,302 @@ TEST_P(UndeclaredEffect, FoundWithinThreeSigmaAndValidationDropsToNoiseFloor) {
         << want.regressor << " truth " << want.coefficient;
     EXPECT_LT(got->error_after, got->error_before);
   }
-  // A fresh capture of the same unit (new poses and noise, same warm-up).
-  SimOptions v = EffectScenario(static_cast<uint64_t>(seed) + 500, c.effects);
-  absl::StatusOr<SimResult> val_or = Simulate(v, sim.truth);
-  ASSERT_TRUE(val_or.ok()) << val_or.status();
-  const SimResult& val = *val_or;
-  ParamSet without = rep.params;
-  without.effects.clear();
-  const HoldError before = ErrorOn(val, without);
-  const HoldError after = ErrorOn(val, rep.params);
-  const HoldError floor = ErrorOn(val, TruthParams(val));
-  SCOPED_TRACE(absl::StrFormat("accel before %.3f after %.3f floor %.3f mg; gyro before %.4f after "
-                               "%.4f floor %.4f deg/s",
-                               before.accel_m_s2 / kMg, after.accel_m_s2 / kMg,
-                               floor.accel_m_s2 / kMg, before.gyro_rad_s / kDegS,
-                               after.gyro_rad_s / kDegS, floor.gyro_rad_s / kDegS));
-  // Near the floor: within the floor plus the calibration's own parameter error (0.3 mg, 0.005
-  // deg/s), and no worse than without the effects.
-  EXPECT_LT(after.accel_m_s2, floor.accel_m_s2 + 0.3 * kMg);
-  EXPECT_LT(after.gyro_rad_s, floor.gyro_rad_s + 0.005 * kDegS);
-  EXPECT_LE(after.accel_m_s2, before.accel_m_s2 * 1.05);
-  EXPECT_LE(after.gyro_rad_s, before.gyro_rad_s * 1.05);
+  ExpectValidationNearFloor(options, sim, rep.params);
 }
 
-INSTANTIATE_TEST_SUITE_P(Effects, UndeclaredEffect,
-                         testing::Combine(testing::ValuesIn(kEffectCases), testing::Range(1, 4)),
+INSTANTIATE_TEST_SUITE_P(Effects, UndeclaredEffect, testing::ValuesIn(UndeclaredParams()),
+                         [](const auto& param_info) {
+                           const UndeclaredParam& p = param_info.param;
+                           return absl::StrFormat("%s_%s_seed%d", std::get<0>(p).name,
+                                                  std::get<1>(p) ? "Temp" : "NoTemp",
+                                                  std::get<2>(p));
+                         });
+
+// True when `text` names the term `name` ("gyro x ~ time") and not a longer one that starts
+// with it ("gyro x ~ time^2", "gyro x ~ temperature*time").
+bool NamesTerm(const std::string& text, const std::string& name) {
+  for (size_t at = text.find(name); at != std::string::npos; at = text.find(name, at + 1)) {
+    const size_t end = at + name.size();
+    if (end == text.size() || std::string_view(" ,;)").find(text[end]) != std::string_view::npos)
+      return true;
+  }
+  return false;
+}
+
+// Two undeclared effects on different sensors, axes and regressors: the search adds one, looks
+// again and finds the other; both within 3 standard errors; the notes state the remaining
+// residual next to the noise floor, and the residual is down at that floor.
+class TwoUndeclaredEffects : public testing::TestWithParam<int> {};
+
+TEST_P(TwoUndeclaredEffects, BothFoundAndResidualStatedAgainstNoiseFloor) {
+  const SimOptions options = EffectScenario(static_cast<uint64_t>(GetParam()), TwoEffects());
+  const SimResult sim = MustSimulate(options);
+  const CalibrationReport rep = MustCalibrate(sim.capture);
+  const EffectDiagnostics& diag = rep.effect_diagnostics;
+  SCOPED_TRACE(List(rep.params) + "\n" + Notes(rep));
+  ASSERT_EQ(rep.params.effects.size(), 2u);
+  // One round per effect added and a last one that found nothing more.
+  EXPECT_EQ(diag.rounds, 3);
+  for (const SimEffect& want : sim.effects) {
+    const std::string prefix = Cat(want.sensor == Sensor::kAccel ? "accel " : "gyro ",
+                                   std::string(1, "xyz"[want.axis]), " ~ ");
+    const Effect* got = FindEffect(rep.params, want);
+    if (got == nullptr) {
+      // Only an equivalent explanation on the same sensor and axis that the data favour over the
+      // true one by less than strong evidence (`temperature*ax` is nearly 29 degC times `ax` on
+      // a 25-32 degC capture), and then the notes must name the true one beside it.
+      const Effect* other = nullptr;
+      for (const Effect& e : rep.params.effects)
+        if (e.sensor == want.sensor && e.axis == want.axis) other = &e;
+      ASSERT_NE(other, nullptr) << "missing " << prefix << want.regressor;
+      bool noted = false;
+      for (const std::string& n : diag.notes) {
+        noted |= n.starts_with("ambiguous: ") && NamesTerm(n, prefix + other->regressor) &&
+                 NamesTerm(n, prefix + want.regressor);
+      }
+      EXPECT_TRUE(noted) << prefix << other->regressor << " entered for " << prefix
+                         << want.regressor << " without a note naming both";
+      EXPECT_TRUE(other->applied);
+      continue;
+    }
+    EXPECT_TRUE(got->applied) << want.regressor;
+    EXPECT_GT(got->std_error, 0) << want.regressor;
+    EXPECT_LT(std::abs(got->coefficient - want.coefficient), 3 * got->std_error)
+        << want.regressor << " truth " << want.coefficient;
+    EXPECT_LT(got->error_after, got->error_before) << want.regressor;
+  }
+  // The final notes put the remaining residual (the stored model's, as in rep.residual) next
+  // to the noise floor, for each sensor.
+  const std::string accel_note = absl::StrFormat(
+      "remaining accelerometer residual %.3f mg RMS (held out %.3f mg) against a noise floor of "
+      "%.3f mg",
+      rep.residual.accel_rms_m_s2 / kMg, diag.accel_heldout_after_m_s2 / kMg,
+      diag.accel_noise_floor_m_s2 / kMg);
+  const std::string gyro_note = absl::StrFormat(
+      "remaining gyroscope static residual %.4f deg/s RMS (held out %.4f deg/s) against a noise "
+      "floor of %.4f deg/s",
+      rep.residual.gyro_static_rms_rad_s / kDegS, diag.gyro_heldout_after_rad_s / kDegS,
+      diag.gyro_noise_floor_rad_s / kDegS);
+  EXPECT_NE(std::find(diag.notes.begin(), diag.notes.end(), accel_note), diag.notes.end())
+      << accel_note;
+  EXPECT_NE(std::find(diag.notes.begin(), diag.notes.end(), gyro_note), diag.notes.end())
+      << gyro_note;
+  // Both effects explained: the residual is at the floor, where it started well above it.
+  EXPECT_GT(diag.accel_heldout_before_m_s2, 3 * diag.accel_noise_floor_m_s2);
+  EXPECT_GT(diag.gyro_heldout_before_rad_s, 3 * diag.gyro_noise_floor_rad_s);
+  EXPECT_LT(rep.residual.accel_rms_m_s2, 1.5 * diag.accel_noise_floor_m_s2);
+  EXPECT_LT(rep.residual.gyro_static_rms_rad_s, 1.5 * diag.gyro_noise_floor_rad_s);
+  ExpectValidationNearFloor(options, sim, rep.params);
+}
+
+INSTANTIATE_TEST_SUITE_P(Effects, TwoUndeclaredEffects, testing::Range(1, 6),
+                         [](const auto& param_info) {
+                           return "seed" + std::to_string(param_info.param);
+                         });
+
+// A slow warm-up: temperature follows time almost linearly, so a temperature effect is nearly
+// a drift over time (and the reverse). Whichever enters, the notes must say that the two are
+// hard to tell apart and what would separate them. Before the note's gate was widened to a BIC
+// difference of 6, these captures (BIC 2-6 apart) got no note at all.
+class WarmUpAmbiguity : public testing::TestWithParam<std::tuple<EffectCase, int>> {};
+
+TEST_P(WarmUpAmbiguity, NotesSayTemperatureAndTimeAreHardToTellApart) {
+  const auto& [c, seed] = GetParam();
+  const SimOptions options = SlowWarmUpScenario(static_cast<uint64_t>(seed), c.effects);
+  const SimResult sim = MustSimulate(options);
+  const CalibrationReport rep = MustCalibrate(sim.capture);
+  const std::string notes = Notes(rep);
+  SCOPED_TRACE(List(rep.params) + "\n" + notes);
+  const SimEffect& want = c.effects[0];
+  // One effect, on the right sensor and axis, explained by temperature or by time.
+  ASSERT_EQ(rep.params.effects.size(), 1u);
+  const Effect& got = rep.params.effects[0];
+  EXPECT_EQ(got.sensor, want.sensor);
+  EXPECT_EQ(got.axis, want.axis);
+  // (temperature, time, their squares or product: the warm-up makes them all alike.)
+  const std::optional<Regressor> r = ParseRegressor(got.regressor);
+  ASSERT_TRUE(r.has_value()) << got.regressor;
+  for (int f = 0; f < r->num_factors; ++f) {
+    EXPECT_TRUE(r->factors[f] == static_cast<int>(Signal::kTemperature) ||
+                r->factors[f] == static_cast<int>(Signal::kTime))
+        << got.regressor;
+  }
+  // A note pairs the entering term with a rival that differs from it in temperature versus
+  // time, and says what would tell them apart.
+  const std::string term = Cat(want.sensor == Sensor::kAccel ? "accel " : "gyro ",
+                               std::string(1, "xyz"[want.axis]), " ~ ", got.regressor);
+  bool said = false;
+  for (const std::string& n : rep.effect_diagnostics.notes) {
+    said |= n.starts_with("ambiguous: ") && NamesTerm(n, term) &&
+            n.find("temperature and time rose together in this capture; a capture at a steady "
+                   "temperature") != std::string::npos;
+  }
+  EXPECT_TRUE(said) << "no note that " << term
+                    << " is hard to tell from a time (or temperature) explanation, and how to "
+                       "separate them";
+  // The entering effect's evidence names its rival too.
+  EXPECT_NE(got.evidence.find("ambiguous with"), std::string::npos) << got.evidence;
+  // A temperature effect chosen for a temperature truth is also right in size.
+  if (got.regressor == want.regressor) {
+    EXPECT_LT(std::abs(got.coefficient - want.coefficient), 3 * got.std_error)
+        << "truth " << want.coefficient;
+  }
+  // Time effects are not applied by default: only a temperature explanation corrects the
+  // validation capture (same warm-up), which it must then do down to the floor.
+  if (got.applied) ExpectValidationNearFloor(options, sim, rep.params);
+}
+
+const EffectCase kWarmUpCases[] = {
+    {"GyroBiasTemperature", {Fx(Sensor::kGyro, 0, "temperature", 0.02 * kDegS)}},  // /degC
+    {"AccelBiasTemperature", {Fx(Sensor::kAccel, 0, "temperature", 0.5 * kMg)}},   // /degC
+    {"GyroBiasDrift", {Fx(Sensor::kGyro, 0, "time", 0.01 * kDegS / 60)}},          // /min
+};
+
+INSTANTIATE_TEST_SUITE_P(Effects, WarmUpAmbiguity,
+                         testing::Combine(testing::ValuesIn(kWarmUpCases), testing::Range(1, 6)),
                          [](const auto& param_info) {
                            return std::get<0>(param_info.param).name + "_seed" +
                                   std::to_string(std::get<1>(param_info.param));
                          });
+
+// Samples of a capture as the SDK takes them.
+std::vector<sdk::RawSample> RawSamples(const Capture& cap) {
+  std::vector<sdk::RawSample> out;
+  for (size_t k = 0; k < cap.size(); ++k) {
+    sdk::RawSample in;
+    in.t_s = cap.t_s[k];
+    for (int j = 0; j < 3; ++j) in.accel[j] = cap.accel[k](j), in.gyro[j] = cap.gyro[k](j);
+    if (cap.has_temp()) in.temp_c = cap.temp[k];
+    out.push_back(in);
+  }
+  return out;
+}
+
+// Least-squares slope of y over x.
+double Slope(const std::vector<double>& x, const std::vector<double>& y) {
+  const auto n = static_cast<double>(x.size());
+  double mx = 0, my = 0;
+  for (size_t i = 0; i < x.size(); ++i) mx += x[i] / n, my += y[i] / n;
+  double sxy = 0, sxx = 0;
+  for (size_t i = 0; i < x.size(); ++i) {
+    sxy += (x[i] - mx) * (y[i] - my);
+    sxx += (x[i] - mx) * (x[i] - mx);
+  }
+  return sxy / sxx;
+}
+
+// A gyroscope bias drift over time (the default warm-up, which tells it from temperature):
+// found and reported at the Calibrate level, applied only with apply_time_effects.
+class TimeEffect : public testing::TestWithParam<int> {};
+
+TEST_P(TimeEffect, ReportedButAppliedOnlyOnOptIn) {
+  const SimEffect drift = Fx(Sensor::kGyro, 0, "time", 0.01 * kDegS / 60);  // 0.01 deg/s/min
+  const SimOptions options = EffectScenario(static_cast<uint64_t>(GetParam()), {drift});
+  const SimResult sim = MustSimulate(options);
+  const CalibrationReport off = MustCalibrate(sim.capture, /*apply_time_effects=*/false);
+  const CalibrationReport on = MustCalibrate(sim.capture, /*apply_time_effects=*/true);
+  SCOPED_TRACE("default: " + List(off.params) + "\n" + Notes(off) + "opt-in: " + List(on.params));
+
+  // Default: found, within 3 standard errors, reported as not applied.
+  ASSERT_EQ(off.params.effects.size(), 1u);
+  const Effect* found = FindEffect(off.params, drift);
+  ASSERT_NE(found, nullptr);
+  EXPECT_FALSE(found->applied);
+  EXPECT_LT(std::abs(found->coefficient - drift.coefficient), 3 * found->std_error);
+  EXPECT_NE(Notes(off).find("gyro x ~ time: a dependence on time since the capture started is "
+                            "reported, not applied"),
+            std::string::npos);
+
+  // The stored model is refitted without it: its residual keeps the drift (slope ~ the
+  // coefficient over the poses' times) around a zero mean (the bias took the drift's mean over
+  // the capture), while the fit with every effect found has no slope left.
+  std::vector<double> t_s, after_x, all_x;
+  for (const EffectPoseRow& row : off.effect_diagnostics.rows) {
+    t_s.push_back(row.signals[static_cast<size_t>(Signal::kTime)]);
+    after_x.push_back(row.gyro_after_rad_s.x());
+    all_x.push_back(row.gyro_all_rad_s.x());
+  }
+  ASSERT_GE(t_s.size(), 20u);
+  EXPECT_NEAR(Slope(t_s, after_x), found->coefficient, 3 * found->std_error);
+  EXPECT_NEAR(Slope(t_s, all_x), 0.0, 3 * found->std_error);
+  double mean_after_x = 0;
+  for (double r : after_x) mean_after_x += r / static_cast<double>(after_x.size());
+  EXPECT_LT(std::abs(mean_after_x), off.effect_diagnostics.gyro_noise_floor_rad_s);
+
+  // The SDK ignores the unapplied effect: no time origin needed, and the output is exactly that
+  // of the same parameters without it.
+  absl::StatusOr<sdk::Corrector> off_corrector = sdk::Corrector::Create(off.params);
+  ASSERT_TRUE(off_corrector.ok()) << off_corrector.status();
+  EXPECT_EQ(off_corrector->num_applied_effects(), 0);
+  EXPECT_FALSE(off_corrector->NeedsTime());
+  ParamSet bare_off = off.params;
+  bare_off.effects.clear();
+  absl::StatusOr<sdk::Corrector> bare_off_corrector = sdk::Corrector::Create(bare_off);
+  ASSERT_TRUE(bare_off_corrector.ok()) << bare_off_corrector.status();
+
+  // Opt-in: the same effect, applied, in the SDK as -c (t - t0) on gyro x.
+  ASSERT_EQ(on.params.effects.size(), 1u);
+  const Effect* applied = FindEffect(on.params, drift);
+  ASSERT_NE(applied, nullptr);
+  EXPECT_TRUE(applied->applied);
+  EXPECT_LT(std::abs(applied->coefficient - drift.coefficient), 3 * applied->std_error);
+  const double t0 = sim.capture.t_s.front();
+  EXPECT_FALSE(sdk::Corrector::Create(on.params).ok())
+      << "an applied time effect needs a time origin";
+  absl::StatusOr<sdk::Corrector> on_corrector = sdk::Corrector::Create(on.params, t0);
+  ASSERT_TRUE(on_corrector.ok()) << on_corrector.status();
+  EXPECT_EQ(on_corrector->num_applied_effects(), 1);
+  EXPECT_TRUE(on_corrector->NeedsTime());
+
+  // Over the capture: the default model's output differs from the opt-in model's only on gyro
+  // x, by c (t - t_mid): zero where the default bias holds the drift's mean, mid-capture, not
+  // at the start (which it would be had the term just been dropped from the opt-in model).
+  std::vector<double> t_rel, diff_x;
+  double max_other = 0, max_bare = 0;
+  for (const sdk::RawSample& in : RawSamples(sim.capture)) {
+    sdk::CalibratedSample a, b, bare;
+    off_corrector->Apply(in, &a);
+    on_corrector->Apply(in, &b);
+    bare_off_corrector->Apply(in, &bare);
+    for (int j = 0; j < 3; ++j) {
+      max_bare = std::max({max_bare, std::abs(a.accel_m_s2[j] - bare.accel_m_s2[j]),
+                           std::abs(a.gyro_rad_s[j] - bare.gyro_rad_s[j])});
+      max_other = std::max(max_other, std::abs(a.accel_m_s2[j] - b.accel_m_s2[j]));
+      if (j > 0) max_other = std::max(max_other, std::abs(a.gyro_rad_s[j] - b.gyro_rad_s[j]));
+    }
+    t_rel.push_back(in.t_s - t0);
+    diff_x.push_back(a.gyro_rad_s[0] - b.gyro_rad_s[0]);
+  }
+  EXPECT_EQ(max_bare, 0.0);
+  EXPECT_LT(max_other, 1e-12);
+  const double slope = Slope(t_rel, diff_x);
+  EXPECT_NEAR(slope, applied->coefficient, 1e-9 * std::abs(applied->coefficient));
+  const auto samples = static_cast<double>(t_rel.size());
+  double mean_t = 0, mean_d = 0;
+  for (size_t k = 0; k < t_rel.size(); ++k) {
+    mean_t += t_rel[k] / samples;
+    mean_d += diff_x[k] / samples;
+  }
+  const double t_zero_s = mean_t - mean_d / slope;
+  double pose_mean_t = 0;
+  for (double t : t_s) pose_mean_t += t / static_cast<double>(t_s.size());
+  EXPECT_NEAR(t_zero_s, pose_mean_t, 15.0) << "capture " << t_rel.back() << " s";
+
+  // On a fresh capture of the same unit, only the opt-in model removes the drift.
+  SimOptions v = options;
+  v.seed += 500;
+  absl::StatusOr<SimResult> val = Simulate(v, sim.truth);
+  ASSERT_TRUE(val.ok()) << val.status();
+  const HoldError err_off = ErrorOn(*val, off.params);
+  const HoldError err_on = ErrorOn(*val, on.params);
+  const HoldError floor = ErrorOn(*val, TruthParams(*val));
+  EXPECT_LT(err_on.gyro_rad_s, floor.gyro_rad_s + 0.005 * kDegS);
+  EXPECT_GT(err_off.gyro_rad_s, err_on.gyro_rad_s + 0.002 * kDegS);
+}
+
+INSTANTIATE_TEST_SUITE_P(Effects, TimeEffect, testing::Range(1, 6), [](const auto& param_info) {
+  return "seed" + std::to_string(param_info.param);
+});
 
 // Clean captures, with and without a temperature channel: nothing added.
 class CleanCapture : public testing::TestWithParam<std::tuple<bool, int>> {};
@@ -123,7 +449,7 @@ TEST_P(CleanCapture, AddsNoEffect) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Effects, CleanCapture,
-                         testing::Combine(testing::Bool(), testing::Range(1, 6)),
+                         testing::Combine(testing::Bool(), testing::Range(1, 11)),
                          [](const auto& param_info) {
                            return absl::StrFormat("%s_seed%d",
                                                   std::get<0>(param_info.param) ? "Temp" : "NoTemp",
