@@ -103,7 +103,7 @@ absl::Status CheckHealth(const std::string& address, const HealthCheckOptions& o
     grpc::SslCredentialsOptions ssl;
     if (!options.ca_path.empty()) {
       std::ifstream in(options.ca_path);
-      if (!in) return absl::InvalidArgumentError(Cat("--ca: cannot read ", options.ca_path));
+      if (!in) return absl::InvalidArgumentError(Cat("--ca-cert: cannot read ", options.ca_path));
       std::stringstream pem;
       pem << in.rdbuf();
       ssl.pem_root_certs = pem.str();
@@ -147,7 +147,7 @@ absl::Status CheckHealth(const std::string& address, const HealthCheckOptions& o
 
 int RunHealthCheckCommand(std::span<const std::string> args) {
   constexpr char kUsage[] =
-      "imucald --health-check [HOST:PORT] [--config FILE] [--ca FILE] [--server-name NAME] "
+      "imucald --health-check [HOST:PORT] [--config FILE] [--ca-cert FILE] [--server-name NAME] "
       "[--insecure] [--timeout 5s]";
   std::string address;
   if (!args.empty() && !args[0].starts_with("-")) {
@@ -166,7 +166,7 @@ int RunHealthCheckCommand(std::span<const std::string> args) {
     }
   }
   absl::StatusOr<std::map<std::string, std::string>> flags =
-      ParseFlags(pairs, {"--config", "--ca", "--server-name", "--timeout"});
+      ParseFlags(pairs, {"--config", "--ca-cert", "--ca", "--server-name", "--timeout"});
   if (!flags.ok()) return UsageError("--health-check", flags.status(), kUsage);
   if (auto it = flags->find("--timeout"); it != flags->end()) {
     if (!absl::ParseDuration(it->second, &options.timeout) ||
@@ -187,7 +187,9 @@ int RunHealthCheckCommand(std::span<const std::string> args) {
   if (address.empty()) address = ProbeAddress(server.listen);
   options.insecure = insecure_flag || server.security.insecure;
   options.ca_path = server.security.tls_cert_path;
-  if (auto it = flags->find("--ca"); it != flags->end()) options.ca_path = it->second;
+  // --ca-cert as the imucal CLI spells it; --ca, its first name, still works.
+  for (const char* flag : {"--ca", "--ca-cert"})
+    if (auto it = flags->find(flag); it != flags->end()) options.ca_path = it->second;
   if (auto it = flags->find("--server-name"); it != flags->end()) {
     options.server_name = it->second;
   }
