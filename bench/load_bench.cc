@@ -20,9 +20,13 @@
 //   build/bench/load_bench [--robots=1000] [--batch-ms=500] [--rate-hz=200] [--watchers=20]
 //                          [--devices=10000] [--fetch-rate=1000] [--seconds=60] [--channels=8]
 //                          [--imucald=PATH] [--server-args="--insecure ..."] [--keep]
-//                          [--server-cpu=N] [--client-cpu=N]
+//                          [--server-cpu=N] [--client-cpu=N] [--tls]
 // (--server-args: imucald's other flags, default --insecure: plaintext on loopback; e.g. add
 // --durability=normal or --log-rpcs=false to compare.)
+// --tls: as production runs it: a throwaway certificate for 127.0.0.1 (the openssl CLI),
+// imucald with --tls-cert/--tls-key and its bootstrap admin token, and every call of the bench
+// over TLS with that token as its bearer token (checked, hashed and looked up on every call;
+// one token for all callers, so the server's token cache holds one entry).
 //
 // Setup (not measured): a fresh SQLite file populated through storage::Store (synchronous=
 // NORMAL for the setup only: it is scratch until the server opens it with its own, FULL,
@@ -57,6 +61,7 @@
 #include <random>
 #include <sstream>
 #include <string>
+#include <iterator>
 #include <thread>
 #include <vector>
 
@@ -89,6 +94,7 @@ struct Flags {
   // imucald's flags besides --listen and --db: plaintext on loopback (no TLS, no tokens).
   std::vector<std::string> server_args = {"--insecure"};
   bool keep = false;
+  bool tls = false;
   int server_cpu = -1;
   int client_cpu = -1;
 };
@@ -123,6 +129,8 @@ Flags ParseFlags(int argc, char** argv) {
       f.server_args = absl::StrSplit(*sa, ' ', absl::SkipEmpty());
     } else if (a == "--keep") {
       f.keep = true;
+    } else if (a == "--tls") {
+      f.tls = true;
     } else if (auto sc = value("--server-cpu=")) {
       f.server_cpu = std::atoi(sc->c_str());
     } else if (auto cc = value("--client-cpu=")) {
@@ -565,16 +573,59 @@ int main(int argc, char** argv) {
   std::printf("setup: %zu sessions, %d devices with an active version in %.1f s; load %s\n",
               sessions.size(), flags.devices, Seconds(Clock::now() - setup0), LoadAvg().c_str());
 
+  // --tls: a certificate for 127.0.0.1 and imucald's flags to serve it (replacing --insecure).
+  Flags run_flags = flags;
+  const std::string cert = dir + "/server.crt", key = dir + "/server.key";
+  const std::string token_file = dir + "/admin-token";
+  if (flags.tls) {
+    const std::string openssl = absl::StrCat(
+        "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -days 1 "
+        "-subj /CN=localhost -addext subjectAltName=IP:127.0.0.1 -keyout '", key, "' -out '",
+        cert, "' 2>/dev/null");
+    if (std::system(openssl.c_str()) != 0) {
+      std::fprintf(stderr, "--tls: the openssl CLI could not make a certificate\n");
+      return 1;
+    }
+    std::erase(run_flags.server_args, std::string("--insecure"));
+    for (const std::string& a : {std::string("--tls-cert"), cert, std::string("--tls-key"), key,
+                                 std::string("--admin-token-file"), token_file})
+      run_flags.server_args.push_back(a);
+  }
+
   // Fork before any gRPC object exists in this process.
   const std::string listen = absl::StrCat("127.0.0.1:", FreeLoopbackPort());
-  const pid_t server = StartImucald(flags, db, listen);
+  const pid_t server = StartImucald(run_flags, db, listen);
   PinToCpu(flags.client_cpu);
+  // imucald writes its first admin token before it listens: once a TLS connection (without
+  // the token, which is a per-call credential) is up, the file is there.
+  std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
+  if (flags.tls) {
+    std::ifstream cert_in(cert);
+    grpc::SslCredentialsOptions ssl;
+    ssl.pem_root_certs.assign(std::istreambuf_iterator<char>(cert_in),
+                              std::istreambuf_iterator<char>());
+    auto probe = grpc::CreateChannel(listen, grpc::SslCredentials(ssl));
+    std::string token;
+    if (probe->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60))) {
+      std::ifstream in(token_file);
+      std::getline(in, token);
+    }
+    if (token.empty()) {
+      std::fprintf(stderr, "--tls: imucald did not come up with an admin token in %s\n",
+                   token_file.c_str());
+      kill(server, SIGKILL);
+      waitpid(server, nullptr, 0);
+      return 1;
+    }
+    credentials = grpc::CompositeChannelCredentials(grpc::SslCredentials(ssl),
+                                                    grpc::AccessTokenCredentials(token));
+  }
   std::vector<std::shared_ptr<grpc::Channel>> channels;
   for (int i = 0; i < flags.channels; ++i) {
     grpc::ChannelArguments args;
     args.SetInt("imucal.bench.channel", i);  // distinct args: a connection per channel
     args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-    channels.push_back(grpc::CreateCustomChannel(listen, grpc::InsecureChannelCredentials(), args));
+    channels.push_back(grpc::CreateCustomChannel(listen, credentials, args));
   }
   for (auto& ch : channels) {
     if (!ch->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60))) {
