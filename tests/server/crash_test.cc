@@ -48,6 +48,7 @@
 #include "storage/store.h"
 #include "tests/client/imucald_process.h"
 #include "tests/server/stored_samples.h"
+#include "tests/server/watch.h"
 
 namespace imucal::server {
 namespace {
@@ -452,17 +453,7 @@ class CrashSolveTest : public CrashTest, public testing::WithParamInterface<uint
     grpc::Status s =
         Retrying([&](grpc::ClientContext* c) { return stub->SolveSession(c, req, &job); });
     EXPECT_TRUE(s.ok()) << s.error_message();
-    {
-      grpc::ClientContext c;
-      c.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
-      pb::WatchSessionRequest watch;
-      watch.set_session_id(session);
-      auto reader = stub->WatchSession(&c, watch);
-      pb::SessionEvent e;
-      while (reader->Read(&e)) {
-      }
-      EXPECT_TRUE(reader->Finish().ok());
-    }
+    EXPECT_TRUE(testing_util::FollowToEnd(stub.get(), session, std::chrono::seconds(120)).ok());
     pb::GetSolveJobRequest get;
     get.set_job_id(job.id());
     s = Retrying([&](grpc::ClientContext* c) { return stub->GetSolveJob(c, get, &job); });

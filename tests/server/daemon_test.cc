@@ -42,6 +42,7 @@
 #include "storage/store.h"
 #include "tests/client/imucald_process.h"
 #include "tests/server/stored_samples.h"
+#include "tests/server/watch.h"
 
 namespace imucal::server {
 namespace {
@@ -191,17 +192,7 @@ class DaemonTest : public testing_util::ImucaldTest {
   pb::SolveJob SolveAndWait(const std::string& session, uint64_t seed) {
     pb::SolveJob job = StartSolve(session, seed);
     auto stub = pb::SessionService::NewStub(server_->NewChannel());
-    {
-      grpc::ClientContext c;
-      c.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
-      pb::WatchSessionRequest watch;
-      watch.set_session_id(session);
-      auto reader = stub->WatchSession(&c, watch);
-      pb::SessionEvent e;
-      while (reader->Read(&e)) {
-      }
-      EXPECT_TRUE(reader->Finish().ok());
-    }
+    EXPECT_TRUE(testing_util::FollowToEnd(stub.get(), session, std::chrono::seconds(60)).ok());
     return GetSolveJob(*server_, job.id());
   }
 

@@ -40,6 +40,7 @@
 #include "gtest/gtest.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "tests/client/imucald_process.h"
+#include "tests/server/watch.h"
 
 namespace imucal::server {
 namespace {
@@ -57,64 +58,8 @@ std::unique_ptr<grpc::ClientContext> Ctx() {
   return ctx;
 }
 
-// A WatchSession stream read on its own thread (as `imucal guide` reads it); the test waits on
-// its events with a deadline.
-class Watch {
- public:
-  Watch(pb::SessionService::Stub* stub, const std::string& session_id) {
-    ctx_.set_deadline(system_clock::now() + seconds(60));
-    pb::WatchSessionRequest req;
-    req.set_session_id(session_id);
-    reader_ = stub->WatchSession(&ctx_, req);
-    thread_ = std::thread([this] {
-      pb::SessionEvent e;
-      while (reader_->Read(&e)) {
-        std::lock_guard lock(mu_);
-        events_.push_back(e);
-        cv_.notify_all();
-      }
-      grpc::Status s = reader_->Finish();
-      std::lock_guard lock(mu_);
-      status_ = s;
-      ended_ = true;
-      cv_.notify_all();
-    });
-  }
-  ~Watch() {
-    ctx_.TryCancel();
-    thread_.join();
-  }
-  // Waits until pred(events, ended) holds; false on timeout.
-  bool WaitFor(const std::function<bool(const std::vector<pb::SessionEvent>&, bool)>& pred,
-               seconds timeout = seconds(20)) {
-    std::unique_lock lock(mu_);
-    return cv_.wait_for(lock, timeout, [&] { return pred(events_, ended_); });
-  }
-  std::vector<pb::SessionEvent> events() {
-    std::lock_guard lock(mu_);
-    return events_;
-  }
-  grpc::Status status() {
-    std::lock_guard lock(mu_);
-    return status_;
-  }
-
- private:
-  grpc::ClientContext ctx_;
-  std::unique_ptr<grpc::ClientReader<pb::SessionEvent>> reader_;
-  std::thread thread_;
-  std::mutex mu_;
-  std::condition_variable cv_;
-  std::vector<pb::SessionEvent> events_;
-  bool ended_ = false;
-  grpc::Status status_;
-};
-
-int AcceptedPoses(const std::vector<pb::SessionEvent>& events) {
-  int n = 0;
-  for (const auto& e : events) n += e.has_pose() && e.pose().accepted();
-  return n;
-}
+using testing_util::AcceptedPoses;  // tests/server/watch.h
+using testing_util::Watch;
 
 int OkPairs(const std::vector<pb::SessionEvent>& events) {
   int n = 0;

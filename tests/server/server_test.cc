@@ -28,6 +28,7 @@
 #include "server/convert.h"
 #include "server/status_util.h"
 #include "storage/store.h"
+#include "tests/server/watch.h"
 
 namespace imucal::server {
 namespace {
@@ -159,63 +160,8 @@ class ServerTest : public testing::Test {
   std::unique_ptr<v1::ParameterService::Stub> params_;
 };
 
-// A WatchSession stream read on its own thread; tests wait on its events with a deadline.
-class Watch {
- public:
-  Watch(v1::SessionService::Stub* stub, const std::string& session_id) {
-    ctx_.set_deadline(system_clock::now() + seconds(60));
-    v1::WatchSessionRequest req;
-    req.set_session_id(session_id);
-    reader_ = stub->WatchSession(&ctx_, req);
-    thread_ = std::thread([this] {
-      v1::SessionEvent e;
-      while (reader_->Read(&e)) {
-        std::lock_guard lock(mu_);
-        events_.push_back(e);
-        cv_.notify_all();
-      }
-      grpc::Status s = reader_->Finish();
-      std::lock_guard lock(mu_);
-      status_ = s;
-      ended_ = true;
-      cv_.notify_all();
-    });
-  }
-  ~Watch() {
-    ctx_.TryCancel();
-    thread_.join();
-  }
-  // Waits until pred(events, ended) holds; false on timeout.
-  bool WaitFor(const std::function<bool(const std::vector<v1::SessionEvent>&, bool)>& pred,
-               seconds timeout = seconds(15)) {
-    std::unique_lock lock(mu_);
-    return cv_.wait_for(lock, timeout, [&] { return pred(events_, ended_); });
-  }
-  std::vector<v1::SessionEvent> events() {
-    std::lock_guard lock(mu_);
-    return events_;
-  }
-  grpc::Status status() {
-    std::lock_guard lock(mu_);
-    return status_;
-  }
-
- private:
-  grpc::ClientContext ctx_;
-  std::unique_ptr<grpc::ClientReader<v1::SessionEvent>> reader_;
-  std::thread thread_;
-  std::mutex mu_;
-  std::condition_variable cv_;
-  std::vector<v1::SessionEvent> events_;
-  bool ended_ = false;
-  grpc::Status status_;
-};
-
-int AcceptedPoses(const std::vector<v1::SessionEvent>& events) {
-  int n = 0;
-  for (const auto& e : events) n += e.has_pose() && e.pose().accepted();
-  return n;
-}
+using testing_util::AcceptedPoses;  // tests/server/watch.h
+using testing_util::Watch;
 
 // The technician sets the robot down on its first face a second time without turning it: after
 // the first pose, a short wobble about the vertical and back (no net rotation), then a hold on
