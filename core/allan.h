@@ -19,7 +19,9 @@
 // Figures are read only from cluster times with at least kMinClustersForFit independent
 // clusters, and only where the curve has the figure's slope (local log-log slope within
 // +-0.25 of it): a figure the data does not reach is NaN, with a note that says so (a 10 s rest
-// gives N, but neither B nor K, which need minutes to hours of rest).
+// gives N, but neither B nor K, which need minutes to hours of rest). B, a minimum, is looked
+// for only where there are at least 30 clusters (allan.cc kMinClustersForFloor): a minimum
+// searched over the scattered last cluster times finds their dips, also in pure white noise.
 #ifndef IMUCAL_CORE_ALLAN_H_
 #define IMUCAL_CORE_ALLAN_H_
 

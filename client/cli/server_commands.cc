@@ -19,6 +19,8 @@
 #include "client/cli/import_flags.h"
 #include "client/cli/plots.h"
 #include "client/cli/server_common.h"
+#include "client/cli/summary.h"
+#include "client/sdk/params_json.h"
 #include "client/sdk/uploader.h"
 #include "core/capture_io.h"
 #include "nlohmann/json.hpp"
@@ -598,6 +600,14 @@ std::string FormatReportSummary(const json& r) {
                 Num(res, "accel_rms"), Num(res, "accel_max"), Num(res, "gyro_static_rms"));
   }
   if (r.contains("parameters") && r["parameters"].is_object()) {
+    // The Allan figures of the parameter set's noise block, read back with the SDK's reader and
+    // printed as `calibrate`'s summary prints them.
+    absl::StatusOr<core::ParamSet> params = sdk::ParamSetFromJson(r["parameters"].dump());
+    if (params.ok()) {
+      out += FormatAllanFigures(params->noise);
+    } else {
+      absl::StrAppendFormat(&out, "allan       not shown: %s\n", params.status().message());
+    }
     const json& p = r["parameters"];
     if (p.contains("accel")) {
       absl::StrAppendFormat(&out, "accel bias  %s\n", Vec(p["accel"]["bias"]).c_str());

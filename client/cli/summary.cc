@@ -20,7 +20,53 @@ std::string Vec(const Eigen::Vector3d& v, int digits) {
   return absl::StrFormat("[%.*g, %.*g, %.*g]", digits, v.x(), digits, v.y(), digits, v.z());
 }
 
+// One figure's three axes: "%.3g", "<%.3g" for an upper bound (bound given, value NaN), "n/a".
+std::string Figure(const Eigen::Vector3d& v, const Eigen::Vector3d* bound, bool* bounded) {
+  std::string out = "[";
+  for (int i = 0; i < 3; ++i) {
+    if (i > 0) out += ", ";
+    if (std::isfinite(v(i))) {
+      absl::StrAppendFormat(&out, "%.3g", v(i));
+    } else if (bound != nullptr && std::isfinite((*bound)(i))) {
+      absl::StrAppendFormat(&out, "<%.3g", (*bound)(i));
+      *bounded = true;
+    } else {
+      out += "n/a";
+    }
+  }
+  return out + "]";
+}
+
+void AppendSensorFigures(const char* sensor, const core::SensorNoise& s, const char* unit_n,
+                         const char* unit_b, const char* unit_k, std::string* out) {
+  bool bounded = false;
+  const std::string n = Figure(s.noise_density, nullptr, &bounded);
+  const std::string b = Figure(s.bias_instability, nullptr, &bounded);
+  const std::string k = Figure(s.random_walk, &s.random_walk_bound, &bounded);
+  absl::StrAppendFormat(out, "  %-5s N   %s %s  white-noise density\n", sensor, n, unit_n);
+  absl::StrAppendFormat(out, "  %-5s B   %s %s  bias instability\n", sensor, b, unit_b);
+  absl::StrAppendFormat(out, "  %-5s K   %s %s  rate random walk%s\n", sensor, k, unit_k,
+                        bounded ? "; <: UPPER BOUND, not reached by the rest (not a measurement)"
+                                : "");
+}
+
 }  // namespace
+
+std::string FormatAllanFigures(const std::optional<core::NoiseFigures>& noise) {
+  if (!noise.has_value()) {
+    return "allan       no noise figures (no used static interval long enough for an Allan "
+           "deviation)\n";
+  }
+  const core::NoiseFigures& n = *noise;
+  std::string s = absl::StrFormat(
+      "allan       Allan deviation over the rest %.1f-%.1f s (%d samples at %g Hz), calibrated, "
+      "continuous-time; n/a: not reached\n",
+      n.t_start_s, n.t_end_s, static_cast<int>(n.samples), n.rate_hz);
+  AppendSensorFigures("accel", n.accel, "m/s^2/sqrt(Hz)", "m/s^2", "m/s^3/sqrt(Hz)", &s);
+  AppendSensorFigures("gyro", n.gyro, "rad/s/sqrt(Hz)", "rad/s", "rad/s^2/sqrt(Hz)", &s);
+  for (const std::string& note : n.notes) absl::StrAppendFormat(&s, "  note: %s\n", note);
+  return s;
+}
 
 std::string FormatSummary(const core::CalibrationReport& r) {
   const double g = r.gravity_m_s2;
@@ -35,6 +81,7 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                         Vec(r.noise.accel_std, 3), core::AccelUnitName(p.accel_unit),
                         Vec(r.noise.gyro_std, 3), core::GyroUnitName(p.gyro_unit),
                         r.noise.source);
+  s += FormatAllanFigures(p.noise);
   absl::StrAppendFormat(&s, "poses       %d static intervals, %d used (threshold %.0fx noise)\n",
                         static_cast<int>(r.poses.size()), used, r.threshold_multiplier);
   for (const auto& pose : r.poses) {

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -103,6 +104,21 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
   EXPECT_EQ(report["format"], "imucal-report v1");
   ASSERT_EQ(Run(RunReport, {"--session", session}), kExitOk) << err_;
   EXPECT_NE(out_.find("verdict"), std::string::npos) << out_;
+  // The summary states the Allan figures of the stored parameter set's noise block, units spelt
+  // out (the accelerometer's x density as the report holds it).
+  {
+    const json& noise = report["parameters"]["noise"];
+    ASSERT_TRUE(noise.is_object()) << report.dump(2);
+    char density[48];
+    std::snprintf(density, sizeof density, "accel N   [%.3g, ",
+                  noise["accel"]["noise_density"][0].get<double>());
+    EXPECT_NE(out_.find(density), std::string::npos) << density << "\n" << out_;
+    for (const char* text : {"m/s^2/sqrt(Hz)  white-noise density", "m/s^3/sqrt(Hz)  rate random walk",
+                             "rad/s/sqrt(Hz)  white-noise density", "rad/s^2/sqrt(Hz)  rate random walk",
+                             "m/s^2  bias instability", "rad/s  bias instability"}) {
+      EXPECT_NE(out_.find(text), std::string::npos) << text << "\n" << out_;
+    }
+  }
   // --out DIR: the stored report as is, the summary as printed, and the plots.
   const fs::path report_dir = dir_ / "report";
   ASSERT_EQ(Run(RunReport, {"--session", session, "--out", report_dir.string()}), kExitOk) << err_;

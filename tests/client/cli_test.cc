@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -168,6 +169,28 @@ TEST_F(CliTest, ApplyRejectsParametersForOtherUnits) {
   // The summary (no --json) is for people: it is not JSON and names the verdict.
   EXPECT_NE(out_.find("verdict     pass"), std::string::npos) << out_;
   EXPECT_FALSE(json::accept(out_));
+  // ... and states the Allan figures of the parameter set's noise block, units spelt out: the
+  // accelerometer's x density as written to params.json, and the random walk, which a short
+  // simulated rest does not reach, as a labelled upper bound.
+  {
+    absl::StatusOr<core::ParamSet> written = sdk::ParamSetFromJson(ReadText(params));
+    ASSERT_TRUE(written.ok()) << written.status();
+    ASSERT_TRUE(written->noise.has_value());
+    char density[32];
+    std::snprintf(density, sizeof density, "accel N   [%.3g, ", written->noise->accel.noise_density.x());
+    EXPECT_NE(out_.find(density), std::string::npos) << density << "\n" << out_;
+    for (const char* text : {"m/s^2/sqrt(Hz)  white-noise density", "m/s^2  bias instability",
+                             "m/s^3/sqrt(Hz)  rate random walk", "rad/s/sqrt(Hz)  white-noise density",
+                             "rad/s  bias instability", "rad/s^2/sqrt(Hz)  rate random walk",
+                             "UPPER BOUND, not reached"}) {
+      EXPECT_NE(out_.find(text), std::string::npos) << text << "\n" << out_;
+    }
+    if (written->noise->accel.random_walk.array().isNaN().all()) {
+      std::snprintf(density, sizeof density, "accel K   [<%.3g, ",
+                    written->noise->accel.random_walk_bound.x());
+      EXPECT_NE(out_.find(density), std::string::npos) << density << "\n" << out_;
+    }
+  }
 
   // A capture in counts cannot take parameters for m/s^2.
   const std::string counts = Path("counts.csv"), out = Path("out.csv");

@@ -2,7 +2,8 @@
 //
 // White noise: the simulator draws a per-sample std sigma, so the density is N = sigma /
 // sqrt(rate). Random walk: generated here, b_{k+1} = b_k + K sqrt(dt) n_k, whose Allan
-// deviation is K sqrt(tau / 3).
+// deviation is K sqrt(tau / 3). Bias instability: flicker built from a bank of Gauss-Markov
+// processes (NoiseAxis below), whose Allan deviation is 0.664 B.
 #include "core/allan.h"
 
 #include <gtest/gtest.h>
@@ -96,6 +97,11 @@ TEST(AllanTest, WhiteNoiseDensityFromSimulatedRest) {
       worst_accel = std::max(worst_accel, ea);
       worst_gyro = std::max(worst_gyro, eg);
       // A 30 s rest reaches neither the random walk nor the bias instability: said, not guessed.
+      // (White noise has no flat floor: a B here would be a dip of the few-cluster tail.)
+      EXPECT_TRUE(f.accel.bias_instability.array().isNaN().all())
+          << "seed " << seed << " rate " << rate << ": " << f.accel.bias_instability.transpose();
+      EXPECT_TRUE(f.gyro.bias_instability.array().isNaN().all())
+          << "seed " << seed << " rate " << rate << ": " << f.gyro.bias_instability.transpose();
       EXPECT_TRUE(f.accel.random_walk.array().isNaN().all()) << f.accel.random_walk.transpose();
       EXPECT_TRUE(f.gyro.random_walk.array().isNaN().all()) << f.gyro.random_walk.transpose();
       EXPECT_TRUE(f.accel.random_walk_bound.allFinite());
@@ -171,6 +177,196 @@ TEST(AllanTest, RandomWalkRecovered) {
   EXPECT_LT(std::abs(mean_k), 0.10);
   std::printf("white + random walk: worst N error %.4f, worst K error %.4f, mean K error %+.4f\n",
               worst_n, worst_k, mean_k);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bias instability and random walk within 10% (issue 6). The noise is built here, one axis at a
+// time, from the three IEEE Std 952 Annex C terms with their rate PSDs (two-sided, the
+// standard's convention: avar(tau) = 4 int_0^inf S(f) sin^4(pi f tau) / (pi f tau)^2 df):
+//   white            S(f) = N^2                   avar = N^2 / tau
+//   flicker          S(f) = B^2 / (2 pi f)        avar = (2 ln 2 / pi) B^2, adev = 0.664 B
+//   rate random walk S(f) = (K / 2 pi)^2 / f^2    avar = K^2 tau / 3
+//
+// Flicker is the sum of first-order Gauss-Markov processes (exact AR(1) steps) with time
+// constants T_i = kFlickerT0 * r^i, r = 4, each of stationary variance q. One such process has
+// S(f) = 2 q T / (1 + (2 pi f T)^2); summed over log-spaced T it is (1 / ln r) times the integral
+// over ln T, q / (2 f ln r), for 1 / (2 pi T_max) << f << 1 / (2 pi T_min). (Poisson summation:
+// the ripple about that is 2 sech(pi^2 / ln r) = 0.3% at r = 4.) Equal to B^2 / (2 pi f) when
+//   q = B^2 ln r / pi.
+// The exact Allan variance of one process, q (T/tau)^2 (2 tau/T - 3 + 4 e^(-tau/T) - e^(-2 tau/T))
+// (IEEE Std 952 C.1.5), summed over the bank is checked below to be 0.664 B within 1% over the
+// cluster times where B is read: the simulated noise has the bias instability it claims.
+constexpr double kFlickerT0 = 0.01;     // s: the shortest time constant (one sample at 100 Hz)
+constexpr double kFlickerRatio = 4.0;   // between neighbouring time constants
+constexpr int kFlickerProcesses = 11;   // 0.01 s ... 1.0e4 s (the record is 3600 s)
+
+class NoiseAxis {
+ public:
+  // n: white density, b: bias instability, k: rate random walk (continuous-time, any one unit).
+  NoiseAxis(double n, double b, double k, double rate_hz, std::mt19937_64* rng)
+      : rng_(rng), white_sd_(n * std::sqrt(rate_hz)), walk_sd_(k / std::sqrt(rate_hz)) {
+    const double q = b * b * std::log(kFlickerRatio) / M_PI;
+    double t = kFlickerT0;
+    for (int i = 0; b > 0 && i < kFlickerProcesses; ++i, t *= kFlickerRatio) {
+      const double phi = std::exp(-1.0 / (rate_hz * t));
+      phi_.push_back(phi);
+      drive_sd_.push_back(std::sqrt(q * (1 - phi * phi)));
+      state_.push_back(std::sqrt(q) * normal_(*rng_));  // stationary from the start
+    }
+  }
+  double Next() {
+    double x = walk_ + white_sd_ * normal_(*rng_);
+    for (size_t i = 0; i < state_.size(); ++i) {
+      x += state_[i];
+      state_[i] = phi_[i] * state_[i] + drive_sd_[i] * normal_(*rng_);
+    }
+    walk_ += walk_sd_ * normal_(*rng_);
+    return x;
+  }
+
+ private:
+  std::mt19937_64* rng_;
+  std::normal_distribution<double> normal_;
+  double white_sd_, walk_sd_, walk_ = 0;
+  std::vector<double> phi_, drive_sd_, state_;
+};
+
+// The Allan variance the flicker bank has in expectation (the formula above).
+double FlickerBankAvar(double b, double tau_s) {
+  const double q = b * b * std::log(kFlickerRatio) / M_PI;
+  double sum = 0, t = kFlickerT0;
+  for (int i = 0; i < kFlickerProcesses; ++i, t *= kFlickerRatio) {
+    const double x = tau_s / t;
+    sum += q / (x * x) * (2 * x - 3 + 4 * std::exp(-x) - std::exp(-2 * x));
+  }
+  return sum;
+}
+
+struct AxisNoise {
+  double n, b, k;
+};
+
+// A capture at rest (gravity on z) whose six axes carry independent noise of the given figures.
+Capture SimulateRest(const AxisNoise& accel, const AxisNoise& gyro, double rate_hz,
+                     double duration_s, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::vector<NoiseAxis> axes;
+  for (int k = 0; k < 6; ++k) {
+    const AxisNoise& f = k < 3 ? accel : gyro;
+    axes.emplace_back(f.n, f.b, f.k, rate_hz, &rng);
+  }
+  const auto n = static_cast<size_t>(duration_s * rate_hz);
+  Capture cap;
+  cap.rate_hz = rate_hz;
+  cap.t_s.reserve(n);
+  cap.accel.reserve(n);
+  cap.gyro.reserve(n);
+  for (size_t i = 0; i < n; ++i) {
+    Eigen::Vector3d a, g;
+    for (int k = 0; k < 3; ++k) a(k) = axes[k].Next(), g(k) = axes[3 + k].Next();
+    cap.t_s.push_back(static_cast<double>(i) / rate_hz);
+    cap.accel.push_back(a + Eigen::Vector3d(0, 0, kStandardGravity));
+    cap.gyro.push_back(g);
+  }
+  return cap;
+}
+
+// White + flicker + rate random walk, a MEMS-like curve with a real minimum: B within 10% on
+// every axis of every seed.
+// The design (P = 0.664 B, the plateau): white meets the plateau at tau_w = N^2 / P^2 = 0.044 s
+// (nine samples at 200 Hz: the curve visibly falls first, as the estimator requires), the random
+// walk at tau_r = 3 P^2 / K^2 = 41 s. The true minimum lies above the plateau by
+// sqrt(1 + 2 sqrt(tau_w / tau_r)) - 1 = +3.1% (computed exactly below, with the bank's own
+// flicker), near tau* = sqrt(tau_w tau_r) = 1.3 s, where the 3600 s record has ~2700 clusters:
+// flicker's overlapping estimate has edf ~ 1.25 x clusters (NIST SP 1065 Table 5), so the
+// deviation scatters by 1 / sqrt(2 edf) = 1.2% there and by <= 2.1% over the bowl (0.45-4 s, the
+// points within 10% of the floor); picking the lowest of those reads ~1% low. The estimator takes
+// the curve's global minimum, so the bowl must end well before the few-cluster tail (6-30
+// clusters, scatter 15-35%, where a dip would pass for the floor): the random walk has doubled
+// the deviation by T / 30 = 120 s and quadrupled it by T / 6 = 600 s.
+// Measured over 20 seeds x 6 axes (120 estimates): mean +2.5%, standard deviation 1.3%, range
+// -1.0% ... +5.3%. 10% is 5.7 standard deviations from the mean.
+TEST(AllanTest, BiasInstabilityRecovered) {
+  const double rate = 200.0, duration = 3600.0;
+  const AxisNoise accel{1.4e-4, 1e-3, 1.8e-4};  // m/s^2/sqrt(Hz), m/s^2, m/s^3/sqrt(Hz)
+  const AxisNoise gyro{1.4e-5, 1e-4, 1.8e-5};   // rad/s/sqrt(Hz), rad/s, rad/s^2/sqrt(Hz)
+  // The simulation is what it claims: the bank's flicker is 0.664 B within 0.75% from 1 s to the
+  // longest usable cluster time (1.1% low at 0.3 s, where white noise still dominates).
+  const double plateau = std::sqrt(2 * std::log(2.0) / M_PI);  // = 0.664
+  for (double tau : {1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 600.0}) {
+    EXPECT_NEAR(std::sqrt(FlickerBankAvar(1.0, tau)) / plateau, 1.0, 0.0075) << "tau " << tau;
+  }
+  EXPECT_NEAR(std::sqrt(FlickerBankAvar(1.0, 0.3)) / plateau, 1.0, 0.012);
+  // The exact expected minimum of white + flicker + random walk, relative to 0.664 B: the bias
+  // the estimator has even on infinitely long data.
+  double expected_min = INFINITY;
+  for (double tau = 0.01; tau < 600; tau *= 1.01) {
+    const double avar = gyro.n * gyro.n / tau + FlickerBankAvar(gyro.b, tau) +
+                        gyro.k * gyro.k * tau / 3;
+    expected_min = std::min(expected_min, std::sqrt(avar) / (plateau * gyro.b));
+  }
+  EXPECT_LT(expected_min, 1.05);  // the design's bias stays well inside the 10%
+  double worst = 0, sum = 0;
+  int count = 0;
+  for (uint64_t seed : {101u, 102u, 103u}) {
+    const Capture cap = SimulateRest(accel, gyro, rate, duration, seed);
+    absl::StatusOr<NoiseAnalysis> na = ComputeNoise(cap, 0, cap.size(), AccelParams(), GyroParams());
+    ASSERT_TRUE(na.ok()) << na.status();
+    const NoiseFigures& f = na->figures;
+    for (int k = 0; k < 3; ++k) {
+      const double ea = f.accel.bias_instability(k) / accel.b - 1;
+      const double eg = f.gyro.bias_instability(k) / gyro.b - 1;
+      EXPECT_LT(std::abs(ea), 0.10) << "seed " << seed << " axis " << k;
+      EXPECT_LT(std::abs(eg), 0.10) << "seed " << seed << " axis " << k;
+      worst = std::max({worst, std::abs(ea), std::abs(eg)});
+      sum += ea + eg;
+      count += 2;
+    }
+  }
+  std::printf("bias instability: expected minimum %.4f x 0.664 B; worst B error %.4f, mean %+.4f "
+              "over %d axes\n", expected_min, worst, sum / count, count);
+}
+
+// White + rate random walk: N and K within 10% on every axis of every seed.
+// Why this design: K is read from the cluster times past the minimum, tau* = sqrt(3) N / K,
+// and a record of T holds only ~T / tau* independent random-walk increments of that length, so
+// no estimator knows K^2 better than sqrt(2 tau* / T) or K better than half that. The 30-minute
+// record of RandomWalkRecovered (tau* = 3.5 s) bounds K at 3.1% and the Allan fit measures 5.7%
+// (1.8x the bound): 10% there is only 1.75 standard deviations. Here tau* = 0.87 s over 3600 s:
+// the bound is 1.1%, the expected scatter 1.8 x 1.1% = 2.0%, so 10% is ~5 standard deviations.
+// Measured over 20 seeds x 6 axes (120 estimates): mean -0.2%, standard deviation 2.0%, worst
+// 5.2%. (No flicker here: B is not checked, the minimum of a white + random-walk bowl is no
+// floor.)
+TEST(AllanTest, RandomWalkWithinTenPercent) {
+  const double rate = 100.0, duration = 3600.0;
+  const AxisNoise accel{5e-4, 0.0, 1e-3};  // m/s^2/sqrt(Hz), -, m/s^3/sqrt(Hz)
+  const AxisNoise gyro{5e-5, 0.0, 1e-4};   // rad/s/sqrt(Hz), -, rad/s^2/sqrt(Hz)
+  double worst_n = 0, worst_k = 0, sum_k = 0;
+  int count = 0;
+  for (uint64_t seed : {201u, 202u, 203u}) {
+    const Capture cap = SimulateRest(accel, gyro, rate, duration, seed);
+    absl::StatusOr<NoiseAnalysis> na = ComputeNoise(cap, 0, cap.size(), AccelParams(), GyroParams());
+    ASSERT_TRUE(na.ok()) << na.status();
+    const NoiseFigures& f = na->figures;
+    for (int k = 0; k < 3; ++k) {
+      const double en_a = f.accel.noise_density(k) / accel.n - 1;
+      const double en_g = f.gyro.noise_density(k) / gyro.n - 1;
+      const double ek_a = f.accel.random_walk(k) / accel.k - 1;
+      const double ek_g = f.gyro.random_walk(k) / gyro.k - 1;
+      EXPECT_LT(std::abs(en_a), 0.10) << "seed " << seed << " axis " << k;
+      EXPECT_LT(std::abs(en_g), 0.10) << "seed " << seed << " axis " << k;
+      EXPECT_LT(std::abs(ek_a), 0.10) << "seed " << seed << " axis " << k;
+      EXPECT_LT(std::abs(ek_g), 0.10) << "seed " << seed << " axis " << k;
+      worst_n = std::max({worst_n, std::abs(en_a), std::abs(en_g)});
+      worst_k = std::max({worst_k, std::abs(ek_a), std::abs(ek_g)});
+      sum_k += ek_a + ek_g;
+      count += 2;
+    }
+    EXPECT_TRUE(f.accel.random_walk_bound.array().isNaN().all());
+    EXPECT_TRUE(f.gyro.random_walk_bound.array().isNaN().all());
+  }
+  std::printf("white + random walk (1 h): worst N error %.4f, worst K error %.4f, mean K error "
+              "%+.4f over %d axes\n", worst_n, worst_k, sum_k / count, count);
 }
 
 TEST(AllanTest, RejectsShortOrOutOfRangeIntervals) {
