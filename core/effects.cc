@@ -916,13 +916,7 @@ class Search {
         {"time", "per minute", 60, [](const EffectMoveResidual& r) { return r.time_s; }},
         {"temperature", "per degC", 1, [](const EffectMoveResidual& r) { return r.temp_c; }},
     };
-    struct MoveTrend {
-      const char* name;
-      double f, slope_deg;
-      const char* unit;
-      double dof;
-    };
-    std::vector<MoveTrend> trends;
+    std::vector<MoveTrend>& trends = diag->move_trends;
     int tested = 0;
     std::vector<std::string> found;
     const auto n = static_cast<Eigen::Index>(m.size());
@@ -943,12 +937,23 @@ class Search {
       const double rss0 = (y.array() - y.mean()).matrix().squaredNorm();
       const double dof = static_cast<double>(n - 2);
       const double f = (rss0 - rss1) / std::max(1e-300, rss1 / dof);
-      trends.push_back({sig.name, f, b(1) * sig.scale * kRadToDeg, sig.unit, dof});
+      // The slope's standard error: sqrt(s^2 / Sxx), s^2 the residual variance about the line.
+      const double sxx = (x.col(1).array() - x.col(1).mean()).matrix().squaredNorm();
+      MoveTrend t;
+      t.signal = sig.name;
+      t.unit = Cat("deg ", sig.unit);
+      t.slope_deg = b(1) * sig.scale * kRadToDeg;
+      t.slope_std_error_deg = std::sqrt(rss1 / dof / sxx) * sig.scale * kRadToDeg;
+      t.f = f;
+      trends.push_back(std::move(t));
     }
-    for (const MoveTrend& r : trends) {
-      if (r.f > FThreshold(0.01, tested, static_cast<Eigen::Index>(r.dof))) {
-        found.push_back(absl::StrFormat("%s (%+.3f deg %s, F %.1f)", r.name, r.slope_deg,
-                                        r.unit, r.f));
+    const auto dof = static_cast<Eigen::Index>(n - 2);
+    for (MoveTrend& r : trends) {
+      r.f_threshold = FThreshold(0.01, tested, dof);
+      r.significant = r.f > r.f_threshold;
+      if (r.significant) {
+        found.push_back(absl::StrFormat("%s (%+.3f +- %.3f %s, F %.1f)", r.signal, r.slope_deg,
+                                        r.slope_std_error_deg, r.unit, r.f));
       }
     }
     double ss = 0;

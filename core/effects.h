@@ -121,6 +121,16 @@ struct FaceResidual {
   Eigen::Vector3d residual_m_s2 = Eigen::Vector3d::Zero();  // body frame, with the stored model
 };
 
+// One signal's linear trend in the gravity-direction error after the moves (see
+// EffectSearchInput::moves): slope and its standard error in the reported unit.
+struct MoveTrend {
+  std::string signal;  // "the rotation angle", "time", "temperature"
+  std::string unit;    // the slope's: "deg per 100 deg", "deg per minute", "deg per degC"
+  double slope_deg = 0, slope_std_error_deg = 0;
+  double f = 0, f_threshold = 0;  // F(1, moves - 2) of the slope, 1% over the signals tested
+  bool significant = false;       // f > f_threshold: named in the notes
+};
+
 struct EffectDiagnostics {
   bool ran = false;
   int rounds = 0;
@@ -137,6 +147,7 @@ struct EffectDiagnostics {
   std::vector<CandidateScore> top;  // the best few candidates of the first round
   std::vector<EffectPoseRow> rows;
   std::vector<FaceResidual> faces;  // six-face only, filled by the pipeline
+  std::vector<MoveTrend> move_trends;  // every signal tested on the moves (6 moves or more)
   std::vector<std::string> notes;   // ambiguities, what was not testable, residual vs floor
 };
 

@@ -1,4 +1,5 @@
 // Offline commands: calibrate, apply, simulate, demo, export. They need no server.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -9,6 +10,7 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
+#include "absl/strings/match.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
 #include "absl/time/clock.h"
@@ -28,6 +30,7 @@
 #include "core/capture_io.h"
 #include "core/export.h"
 #include "core/simulator.h"
+#include "core/static_detector.h"
 #include "core/validation.h"
 
 namespace imucal::cli {
@@ -293,6 +296,60 @@ int ReportError(const absl::Status& status) {
   }
 }
 
+// A capture refused for too few static poses is often not a calibration capture at all: one
+// rest (a noise or bias-stability recording), or a rest, a move and a rest (a check of a known
+// rotation). Says which, from the still intervals at the loosest usual threshold, and what such
+// a capture can and cannot give; empty when it looks like a calibration attempt.
+std::string DescribeFewOrientations(const core::Capture& cap, const core::CalibrateOptions& co) {
+  const core::MotionSignal motion = core::ComputeMotionSignal(cap, co.detector);
+  const core::NoiseLevel noise = core::EstimateNoise(cap, motion);
+  const double multiplier = co.multipliers.empty() ? 48.0 : co.multipliers.back();
+  const std::vector<core::StaticInterval> ivs =
+      core::DetectStatic(cap, motion, noise, multiplier, co.detector);
+  // Orientations: still intervals whose raw gravity directions lie within 5 deg of each other
+  // are one orientation (raw, so only as good as the sensor's uncalibrated axes).
+  constexpr double kSameOrientationDeg = 5.0;
+  std::vector<Eigen::Vector3d> dirs;
+  std::vector<double> still_s;
+  double longest_s = 0, total_s = 0;
+  int intervals = 0;
+  for (const core::StaticInterval& iv : ivs) {
+    if (!iv.used || iv.accel_mean.norm() <= 0) continue;
+    ++intervals;
+    const double d_s = iv.t_end_s - iv.t_start_s;
+    longest_s = std::max(longest_s, d_s);
+    total_s += d_s;
+    const Eigen::Vector3d u = iv.accel_mean.normalized();
+    size_t k = 0;
+    while (k < dirs.size() &&
+           std::acos(std::clamp(dirs[k].dot(u), -1.0, 1.0)) * kRadToDeg > kSameOrientationDeg)
+      ++k;
+    if (k == dirs.size()) dirs.push_back(u), still_s.push_back(0);
+    still_s[k] += d_s;
+  }
+  const double span_s = cap.size() > 1 ? cap.t_s.back() - cap.t_s.front() : 0;
+  if (dirs.empty() || dirs.size() > 3) return "";
+  if (dirs.size() == 1) {
+    return absl::StrFormat(
+        "this capture holds one orientation (still %.0f s of %.0f s, longest rest %.0f s): a "
+        "rest recording. It cannot calibrate: the scales and cross-axis terms need the sensor "
+        "turned, at least 7 orientations with every axis up and down. A rest gives the noise "
+        "(Allan deviation: white noise from seconds of rest, bias instability from minutes) and "
+        "the bias drift; imucal reads them from the longest rest of a calibration capture, so "
+        "record this rest at the start of a multi-pose capture of the same unit",
+        total_s, span_s, longest_s);
+  }
+  const double angle_deg =
+      std::acos(std::clamp(dirs[0].dot(dirs[1]), -1.0, 1.0)) * kRadToDeg;
+  return absl::StrFormat(
+      "this capture holds %d orientations (%d still intervals, %.0f s still of %.0f s; the "
+      "first two %.0f deg apart, raw): too few to calibrate, which needs at least 7 with every "
+      "axis up and down. A rest, a known move and a rest checks a calibration (the gyroscope's "
+      "turn against the change of the gravity direction), it cannot make one: calibrate a "
+      "multi-pose capture of the same unit, then apply its parameters to this one",
+      static_cast<int>(dirs.size()), intervals, total_s, span_s, angle_deg);
+}
+
 int RunCalibrate(const std::vector<std::string>& argv) {
   auto a = Args::Parse(argv,
                        WithImportValuedFlags({"format", "protocol", "gravity", "accel-unit",
@@ -326,7 +383,13 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   if (!report.ok()) {
     // What the import decided (units, time base, gaps) often explains why poses are missing.
     for (const auto& n : import.notes) std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
-    return ReportError(report.status());
+    const int code = ReportError(report.status());
+    if (absl::IsFailedPrecondition(report.status()) &&
+        absl::StartsWith(report.status().message(), "too few static poses")) {
+      if (const std::string what = DescribeFewOrientations(*capture, co); !what.empty())
+        std::fprintf(stderr, "imucal: %s\n", what.c_str());
+    }
+    return code;
   }
   StampParams(&report->params);
   const std::string json = ReportToJson(*report);

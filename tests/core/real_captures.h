@@ -14,6 +14,16 @@ namespace imucal::core::real_captures {
 
 inline const std::string kRealDir = IMUCAL_SHARED_DIR "/data/real";
 inline const std::string kMpu6050 = kRealDir + "/mpu6050-tedaldi-raw/example_data_calibration.csv";
+// The same MPU-6050 (same Arduino logger and format): one long rest (449 s), a short rest
+// (100 s), and a rest, one turn of about 90 deg about x, and a rest (100 s).
+inline const std::string kMpu6050LongRest =
+    kRealDir + "/mpu6050-tedaldi-raw/example_data_tinit_calc.csv";
+inline const std::string kMpu6050ShortRest = kRealDir + "/mpu6050-tedaldi-raw/imu_static_test.csv";
+inline const std::string kMpu6050TurnX90 = kRealDir + "/mpu6050-tedaldi-raw/imu_90_x_rot.csv";
+// The MPU-6050's datasheet sensitivities at the logger's ranges (+-2 g, +-250 deg/s; the
+// source's README): counts per g and counts per deg/s. Nominal, not calibrated.
+inline constexpr double kMpu6050CountsPerG = 16384.0;
+inline constexpr double kMpu6050CountsPerDegS = 131.0;
 inline const std::string kFerrarisExample =
     kRealDir + "/imucal-ferraris/example_ferraris_session.csv";
 inline const std::string kFerrarisAnnotated = kRealDir + "/imucal-ferraris/annotated_session.csv";
