@@ -31,17 +31,19 @@ ASAN_OPTIONS="halt_on_error=1:detect_leaks=1:strict_string_checks=1:detect_stack
 UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1" \
   ctest --test-dir build-asan -j "$jobs" --output-on-failure --timeout 1800
 
-# 2. TSan: the server tests (gRPC handlers, reactors, the hub) and the store's (its group-commit
-# thread). Suppressions for third-party code only, documented in the file.
+# 2. TSan: the server tests (gRPC handlers, reactors, the hub, and the in-process servers of the
+# auth, log and config tests) and the store's (its group-commit thread). Suppressions for
+# third-party code only, documented in the file.
 step "TSan build and server tests (build-tsan/)"
 tsan="-fsanitize=thread"
 cmake -S . -B build-tsan -G Ninja -DIMUCAL_BUILD_BENCH=OFF -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -g -DNDEBUG" "-DCMAKE_CXX_FLAGS=$tsan" \
   "-DCMAKE_EXE_LINKER_FLAGS=$tsan" >/dev/null
-cmake --build build-tsan -j "$jobs" --target server_test validation_test store_test sqlite_db_test
+cmake --build build-tsan -j "$jobs" --target server_test validation_test store_test sqlite_db_test \
+  auth_matrix_test log_test config_test
 TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$root/tests/tsan.supp" \
   ctest --test-dir build-tsan -j "$jobs" --output-on-failure --timeout 1800 \
-  -R '^(ServerTest|ValidationTest|ParamCrcCacheTest|ActiveParamCacheTest|StatusUtilTest|StoreTest|BatchTest|SqliteDbTest|SqliteStatusTest)\.'
+  -R '^(ServerTest|ValidationTest|ParamCrcCacheTest|ActiveParamCacheTest|StatusUtilTest|StoreTest|BatchTest|SqliteDbTest|SqliteStatusTest|AuthRules|AuthTest|LogTest|RpcLogTest|ConfigTest)\.'
 
 # 3. Fuzzers: each target for FUZZ_SECONDS from its seeds; a crash fails the run and leaves
 # the input in build-fuzz/crashes/<target>/ (keep it in tests/fuzz/regressions/<target>/).
@@ -49,7 +51,7 @@ step "fuzzers (build-fuzz/)"
 cmake -S . -B build-fuzz -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DIMUCAL_BUILD_FUZZERS=ON \
   -DIMUCAL_BUILD_TESTS=OFF -DIMUCAL_BUILD_BENCH=OFF >/dev/null
 cmake --build build-fuzz -j "$jobs" --target imucal_fuzzers
-for target in capture_csv imutk columns euroc rosbag2_cdr sample_batch; do
+for target in capture_csv imutk columns euroc rosbag2_cdr rosbag2_metadata sample_batch; do
   work="build-fuzz/runs/$target"
   rm -rf "$work"
   mkdir -p "$work" "build-fuzz/crashes/$target"
@@ -60,6 +62,6 @@ for target in capture_csv imutk columns euroc rosbag2_cdr sample_batch; do
     echo "fuzz_$target found a crash: see build-fuzz/crashes/$target/" >&2
     exit 1
   }
-  printf '%-13s %s\n' "$target" "$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$work.log")"
+  printf '%-16s %s\n' "$target" "$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$work.log")"
 done
 step "all tests, sanitizers and fuzzers passed"

@@ -147,13 +147,6 @@ long SplitIndex(std::string_view name) {
   return std::stol(std::string(name.substr(digits)));
 }
 
-// "storage_identifier: sqlite3" and the "relative_file_paths:" list of metadata.yaml. A full
-// YAML parser is not needed for these two keys of rosbag2's flat layout.
-struct BagMetadata {
-  std::string storage_identifier;
-  std::vector<std::string> relative_file_paths;
-};
-
 std::string_view Unquoted(std::string_view s) {
   s = core::io_internal::TrimText(s);
   if (s.size() >= 2 && (s.front() == '"' || s.front() == '\'') && s.back() == s.front()) {
@@ -162,7 +155,9 @@ std::string_view Unquoted(std::string_view s) {
   return s;
 }
 
-BagMetadata ParseMetadata(std::string_view yaml) {
+}  // namespace
+
+BagMetadata ParseBagMetadata(std::string_view yaml) {
   BagMetadata metadata;
   core::io_internal::LineCursor lines(yaml);
   std::string_view line;
@@ -188,6 +183,8 @@ BagMetadata ParseMetadata(std::string_view yaml) {
   return metadata;
 }
 
+namespace {
+
 // The .db3 files of the bag at `path`, in split order.
 absl::StatusOr<std::vector<std::string>> BagFiles(const std::string& path) {
   if (!IsDirectory(path)) return std::vector<std::string>{path};
@@ -198,7 +195,7 @@ absl::StatusOr<std::vector<std::string>> BagFiles(const std::string& path) {
     return absl::InvalidArgumentError(
         Cat(path, ": not a rosbag2 directory (", yaml.status().message(), ")"));
   }
-  const BagMetadata metadata = ParseMetadata(*yaml);
+  const BagMetadata metadata = ParseBagMetadata(*yaml);
   if (!metadata.storage_identifier.empty() && metadata.storage_identifier != "sqlite3") {
     return absl::InvalidArgumentError(Cat(path, ": storage '", metadata.storage_identifier,
                                           "' is not supported (only sqlite3; convert with "

@@ -31,6 +31,7 @@
 #include <cstdint>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "Eigen/Core"
 #include "absl/status/statusor.h"
@@ -50,6 +51,16 @@ struct ImuMessage {
 // Decodes one CDR-serialised message (encapsulation header included). Errors are
 // InvalidArgument naming the field and the offset; never reads out of bounds.
 absl::StatusOr<ImuMessage> DecodeImuCdr(std::string_view data);
+
+// The two keys of a bag directory's metadata.yaml the importer reads (rosbag2's flat layout;
+// a full YAML parser is not needed for them): "storage_identifier: sqlite3" (empty when absent)
+// and the "relative_file_paths:" list ("- bag_0.db3" lines; quotes around a value dropped).
+// Never fails: anything else in the file is ignored. Exposed for the fuzzer.
+struct BagMetadata {
+  std::string storage_identifier;
+  std::vector<std::string> relative_file_paths;
+};
+BagMetadata ParseBagMetadata(std::string_view yaml);
 
 // Reads the bag at `path` (directory or .db3) into a capture.
 absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path,

@@ -161,6 +161,29 @@ void FuzzRosbag2Cdr(std::string_view data) {
   if (m->frame_id.size() > data.size()) Fail("rosbag2_cdr", "frame_id longer than the message");
 }
 
+void FuzzRosbag2Metadata(std::string_view data) {
+  const storage::BagMetadata m = storage::ParseBagMetadata(data);
+  // Every value comes from one line of the file (a file name the importer opens).
+  auto from_one_line = [&](const std::string& value) {
+    return value.find('\n') == std::string::npos && value.size() <= data.size();
+  };
+  if (!from_one_line(m.storage_identifier))
+    Fail("rosbag2_metadata", "storage_identifier spans lines");
+  for (const std::string& path : m.relative_file_paths)
+    if (!from_one_line(path)) Fail("rosbag2_metadata", "a relative_file_paths entry spans lines");
+  // What it read, written back in rosbag2's layout (every value quoted), reads back the same:
+  // the quoting and trimming rules lose nothing a metadata.yaml can say.
+  std::string yaml = "rosbag2_bagfile_information:\n  version: 5\n";
+  yaml += "  storage_identifier: '" + m.storage_identifier + "'\n  relative_file_paths:\n";
+  for (const std::string& path : m.relative_file_paths) yaml += "    - '" + path + "'\n";
+  yaml += "  duration:\n    nanoseconds: 0\n";
+  const storage::BagMetadata again = storage::ParseBagMetadata(yaml);
+  if (again.storage_identifier != m.storage_identifier)
+    Fail("rosbag2_metadata", "storage_identifier changed in a write -> parse round trip");
+  if (again.relative_file_paths != m.relative_file_paths)
+    Fail("rosbag2_metadata", "relative_file_paths changed in a write -> parse round trip");
+}
+
 void FuzzSampleBatch(std::string_view data) {
   // Invalid UTF-8 in session_id is a parse error that protobuf also logs: keep the runs quiet.
   static const bool quiet = (google::protobuf::SetLogHandler(nullptr), true);

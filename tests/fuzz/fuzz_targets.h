@@ -1,7 +1,8 @@
 // One function per fuzzed parser: feeds `data` through it and checks what must hold for any
 // input (an accepted capture satisfies ValidateCapture; an accepted imucal CSV that is writable
-// formats and parses back to itself; a SampleBatch that validation accepts encodes and decodes
-// to the same samples). A violated property aborts with a message (a crash for libFuzzer).
+// formats and parses back to itself, and so does a bag's metadata.yaml; a SampleBatch that
+// validation accepts encodes and decodes to the same samples). A violated property aborts with
+// a message (a crash for libFuzzer).
 //
 // The libFuzzer binaries (tests/fuzz/CMakeLists.txt, IMUCAL_BUILD_FUZZERS) call them; so does
 // fuzz_regression_test in the ordinary build, over the seed corpora and every crashing input
@@ -13,12 +14,13 @@
 
 namespace imucal::fuzz {
 
-void FuzzCaptureCsv(std::string_view data);   // core::ParseImucalCsv (+ format round trip)
-void FuzzImuTk(std::string_view data);        // core::ParseImuTkPair (the bytes cut in two)
-void FuzzColumns(std::string_view data);      // core::ParseColumnCsv (options from byte 0)
-void FuzzEuroc(std::string_view data);        // core::ParseEurocCsv
-void FuzzRosbag2Cdr(std::string_view data);   // storage::DecodeImuCdr (sensor_msgs/Imu)
-void FuzzSampleBatch(std::string_view data);  // v1::SampleBatch bytes -> server validation
+void FuzzCaptureCsv(std::string_view data);       // core::ParseImucalCsv (+ format round trip)
+void FuzzImuTk(std::string_view data);            // core::ParseImuTkPair (the bytes cut in two)
+void FuzzColumns(std::string_view data);          // core::ParseColumnCsv (options from byte 0)
+void FuzzEuroc(std::string_view data);            // core::ParseEurocCsv
+void FuzzRosbag2Cdr(std::string_view data);       // storage::DecodeImuCdr (sensor_msgs/Imu)
+void FuzzRosbag2Metadata(std::string_view data);  // storage::ParseBagMetadata (+ round trip)
+void FuzzSampleBatch(std::string_view data);      // v1::SampleBatch bytes -> server validation
 
 // The targets by name (the directory names under tests/fuzz/corpus and regressions).
 struct FuzzTarget {
@@ -26,9 +28,13 @@ struct FuzzTarget {
   void (*run)(std::string_view);
 };
 inline constexpr FuzzTarget kFuzzTargets[] = {
-    {"capture_csv", FuzzCaptureCsv}, {"imutk", FuzzImuTk},
-    {"columns", FuzzColumns},        {"euroc", FuzzEuroc},
-    {"rosbag2_cdr", FuzzRosbag2Cdr}, {"sample_batch", FuzzSampleBatch},
+    {"capture_csv", FuzzCaptureCsv},
+    {"imutk", FuzzImuTk},
+    {"columns", FuzzColumns},
+    {"euroc", FuzzEuroc},
+    {"rosbag2_cdr", FuzzRosbag2Cdr},
+    {"sample_batch", FuzzSampleBatch},
+    {"rosbag2_metadata", FuzzRosbag2Metadata},
 };
 
 }  // namespace imucal::fuzz

@@ -124,3 +124,23 @@ def batch(n, seq, temp=True):
 
 write("sample_batch", "three_samples.pb", batch(3, 1))
 write("sample_batch", "no_temp.pb", batch(5, 7, temp=False))
+
+
+# rosbag2_metadata: a bag directory's metadata.yaml (storage/rosbag2_import.h ParseBagMetadata).
+def bag_metadata(storage, files, quote="", eol="\n"):
+    lines = ["rosbag2_bagfile_information:", "  version: 5",
+             "  storage_identifier: %s%s%s" % (quote, storage, quote), "  relative_file_paths:"]
+    lines += ["    - %s%s%s" % (quote, f, quote) for f in files]
+    lines += ["  duration:", "    nanoseconds: 2000000000", "  message_count: 400",
+              "  topics_with_message_count:", "    - topic_metadata:", "        name: /imu",
+              "        type: sensor_msgs/msg/Imu", "        serialization_format: cdr",
+              "      message_count: 400", "  compression_format: \"\"", "  compression_mode: \"\""]
+    return eol.join(lines) + eol
+
+
+write("rosbag2_metadata", "one_file.yaml", bag_metadata("sqlite3", ["bag_0.db3"]))
+write("rosbag2_metadata", "split_quoted_crlf.yaml",
+      bag_metadata("sqlite3", ["bag_0.db3", "bag_1.db3", "bag_10.db3"], quote="'", eol="\r\n"))
+write("rosbag2_metadata", "mcap.yaml", bag_metadata("mcap", ["bag_0.mcap"], quote='"'))
+write("rosbag2_metadata", "no_paths.yaml",
+      "rosbag2_bagfile_information:\n  version: 1\n  storage_identifier: sqlite3\n")
