@@ -438,8 +438,46 @@ std::vector<std::string> ExportNotes(const ParamSet& p, ExportFormat format,
   return notes;
 }
 
+absl::Status ValidateRosTopic(std::string_view topic) {
+  // Printable for the message: control characters and quotes as \xNN.
+  std::string shown;
+  for (const char c : topic) {
+    const auto u = static_cast<unsigned char>(c);
+    if (u < 0x20 || u >= 0x7f || c == '"' || c == '\\') {
+      static constexpr char kHex[] = "0123456789abcdef";
+      shown += Cat("\\x", std::string(1, kHex[u >> 4]), std::string(1, kHex[u & 15]));
+    } else {
+      shown += c;
+    }
+  }
+  auto bad = [&](std::string_view why) {
+    return absl::InvalidArgumentError(
+        Cat("rostopic: \"", shown, "\" is not a ROS 2 topic name: ", why));
+  };
+  auto is_alnum = [](char c) {
+    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9');
+  };
+  if (topic.empty()) return bad("it is empty");
+  for (size_t i = 0; i < topic.size(); ++i) {
+    const char c = topic[i];
+    if (!(is_alnum(c) || c == '_' || c == '/' || c == '{' || c == '}' || (c == '~' && i == 0))) {
+      return bad(Cat("character ", i + 1,
+                     " is not a letter, digit, underscore, slash, brace or leading tilde"));
+    }
+    const bool token_start = i == 0 || topic[i - 1] == '/' || (i == 1 && topic[0] == '~');
+    if (token_start && c >= '0' && c <= '9')
+      return bad(Cat("a name starts with a digit at character ", i + 1));
+  }
+  if (topic.find("//") != std::string_view::npos) return bad("it repeats a slash");
+  if (topic.find("__") != std::string_view::npos) return bad("it repeats an underscore");
+  if (topic == "/") return bad("it names no topic");
+  if (topic.back() == '/') return bad("it ends with a slash");
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::string> ExportParams(const ParamSet& params, ExportFormat format,
                                          const ExportOptions& options) {
+  if (absl::Status s = ValidateRosTopic(options.rostopic); !s.ok()) return s;
   absl::StatusOr<SiModel> model = ToSi(params);
   if (!model.ok()) return model.status();
   absl::StatusOr<Noise> noise = ResolveNoise(params, options);

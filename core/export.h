@@ -82,8 +82,15 @@ struct ExportOptions {
   bool random_walk_bound_as_value = true;
 };
 
-// The file text. InvalidArgument when the parameter set is in raw counts, a matrix is singular
-// or a value is not finite; FailedPrecondition naming each noise figure (or the rate) that
+// OK when `topic` is a valid ROS 2 topic name (design.ros2.org "Topic and Service name
+// mapping"): not empty; only letters, digits, '_', '/', a leading '~' and '{' '}' for
+// substitutions; no token starting with a digit; no "//" or "__"; no trailing '/'. It is
+// written into the YAML as is, so anything else (a newline, a quote, ': ') could change the
+// file's meaning. InvalidArgument naming `rostopic` and the offending character otherwise.
+absl::Status ValidateRosTopic(std::string_view topic);
+
+// The file text. InvalidArgument when the parameter set is in raw counts, a matrix is singular,
+// a value is not finite or options.rostopic is not a topic name (ValidateRosTopic); FailedPrecondition naming each noise figure (or the rate) that
 // neither the noise block nor `options` provides, and the option that supplies it.
 absl::StatusOr<std::string> ExportParams(const ParamSet& params, ExportFormat format,
                                          const ExportOptions& options);

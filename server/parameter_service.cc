@@ -25,7 +25,12 @@ absl::Status RequireVersion(int version, const char* field) {
 // The export request's options; a 0 (or empty) field means "not given".
 absl::StatusOr<core::ExportOptions> ExportOptionsOf(const v1::ExportRequest& r) {
   core::ExportOptions o;
-  if (!r.rostopic().empty()) o.rostopic = r.rostopic();
+  if (!r.rostopic().empty()) {
+    // Written into the YAML as is: a request field, so INVALID_ARGUMENT here rather than the
+    // exporter's refusal of the stored version.
+    if (absl::Status s = core::ValidateRosTopic(r.rostopic()); !s.ok()) return s;
+    o.rostopic = r.rostopic();
+  }
   struct Field {
     const char* name;
     double value;

@@ -175,6 +175,11 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
             kExitUsage);
   EXPECT_NE(err_.find("--openvins-model"), std::string::npos) << err_;
   EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "bogus"}), kExitUsage);
+  // ExportRequest.rostopic goes into the YAML: not a topic name is INVALID_ARGUMENT, named.
+  EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "kalibr", "--rostopic",
+                            "/imu0\nextra: 1"}),
+            kExitBadInput);
+  EXPECT_NE(err_.find("rostopic: "), std::string::npos) << err_;
   // The session's poses, as the server judged them while the capture streamed in.
   ASSERT_EQ(Run(RunSession, {"show", session}), kExitOk) << err_;
   EXPECT_NE(out_.find("pose  0 Z+"), std::string::npos) << out_;

@@ -429,6 +429,29 @@ TEST(ExportTest, RefusesRawCounts) {
   EXPECT_NE(r.status().message().find("counts"), std::string::npos);
 }
 
+// The topic is written into the YAML as is: anything but a ROS 2 topic name is refused, so a
+// newline cannot add keys to the file (found by review of the server's ExportRequest).
+TEST(ExportTest, RostopicMustBeATopicName) {
+  for (const char* ok : {"/imu0", "imu/data", "~/imu_raw", "/robot_{ns}/imu"})
+    EXPECT_TRUE(ValidateRosTopic(ok).ok()) << ok << ": " << ValidateRosTopic(ok);
+  for (const char* bad : {"", "/", "/imu0\nTw: [1]", "/imu 0", "/imu0/", "//imu", "/0imu",
+                          "/a__b", "/imu: x", "'/imu'", "/im~u"})
+    EXPECT_EQ(ValidateRosTopic(bad).code(), absl::StatusCode::kInvalidArgument) << bad;
+  const absl::Status nl = ValidateRosTopic("/imu0\nTw: [1]");
+  EXPECT_NE(nl.message().find("rostopic: \"/imu0\\x0aTw: [1]\""), std::string::npos)
+      << nl.message();
+  EXPECT_NE(nl.message().find("character 6"), std::string::npos) << nl.message();
+
+  ParamSet p = TestParams(AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond);
+  ExportOptions o;
+  o.rostopic = "/imu0\nextra_key: 1";
+  for (ExportFormat f : {ExportFormat::kKalibrImu, ExportFormat::kKalibrIntrinsics,
+                         ExportFormat::kOpenVins}) {
+    const absl::StatusOr<std::string> r = ExportParams(p, f, o);
+    EXPECT_EQ(r.status().code(), absl::StatusCode::kInvalidArgument) << ExportFormatName(f);
+  }
+}
+
 // What the formats cannot hold is said at the top of the file and in ExportNotes.
 TEST(ExportTest, SaysWhatIsLeftOut) {
   ParamSet p = TestParams(AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond);
