@@ -174,6 +174,8 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
 
 Server::~Server() { Shutdown(); }
 
+size_t Server::live_sessions() const { return sessions_->live_sessions(); }
+
 std::string Server::address() const { return absl::StrCat(host_, ":", port_); }
 
 void Server::Shutdown() {

@@ -56,6 +56,9 @@ class Server {
   void Wait() { server_->Wait(); }
   // The file Start wrote the first admin token to; empty when it created none.
   const std::string& admin_token_written() const { return admin_token_written_; }
+  // Sessions whose live state is in memory (SessionHub::LiveSessions): what bounds the
+  // server's memory per session.
+  size_t live_sessions() const;
 
  private:
   Server() = default;

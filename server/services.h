@@ -122,6 +122,7 @@ class SessionServiceImpl final : public SessionServiceBase {
  public:
   SessionServiceImpl(storage::Store* store, SessionServiceOptions options, Authorizer* auth);
   ~SessionServiceImpl() override;
+  size_t live_sessions() { return hub_.LiveSessions(); }  // SessionHub::LiveSessions
 
   grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* context,
                                           const v1::CreateSessionRequest* request,

@@ -148,6 +148,11 @@ SessionHub::~SessionHub() {
   }
 }
 
+size_t SessionHub::LiveSessions() {
+  std::lock_guard lock(mu_);
+  return sessions_.size();
+}
+
 int SessionHub::PeekPosesAccepted(std::string_view session_id) {
   std::shared_ptr<LiveSession> s;
   {

@@ -93,6 +93,9 @@ class SessionHub {
   absl::StatusOr<std::shared_ptr<LiveSession>> Get(std::string_view session_id);
   // The online segmenter's accepted poses if the session is live in memory, else -1.
   int PeekPosesAccepted(std::string_view session_id);
+  // Sessions whose live state is in memory: the open ones touched since the start, and those
+  // being solved. Closed sessions are forgotten when they close and are never loaded to be read.
+  size_t LiveSessions();
 
   void Publish(LiveSession& session, const v1::SessionEvent& event);
   void AddWatcher(LiveSession& session, Watcher* watcher);

@@ -97,6 +97,12 @@ SessionServiceImpl::~SessionServiceImpl() { pool_.Shutdown(); }
 absl::StatusOr<v1::Session> SessionServiceImpl::SessionProto(const std::string& session_id) {
   absl::StatusOr<storage::Session> session = store_->GetSession(session_id);
   if (!session.ok()) return session.status();
+  // A session in memory gives its live count. One that is not open is answered from its stored
+  // poses: loading it into the hub would decode every stored batch and keep that state until
+  // the server stops, so reading old sessions would grow memory without bound. An open one is
+  // loaded: its robot is streaming (or about to, after a restart) and segmentation goes on.
+  if (const int live = hub_.PeekPosesAccepted(session_id); live >= 0) return ToProto(*session, live);
+  if (session->state != storage::SessionState::kOpen) return ToProto(*session, -1);
   absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(session_id);
   if (!live.ok()) return live.status();
   int poses = 0;

@@ -303,6 +303,21 @@ class FailedWriter final : public grpc::ServerWriteReactor<v1::SessionEvent> {
   void OnDone() override { delete this; }
 };
 
+// A session that is closed and not in memory: its snapshot, then the end of the stream (what
+// a watcher of a live session gets when the session closes), without loading it into the hub.
+class SnapshotWriter final : public grpc::ServerWriteReactor<v1::SessionEvent> {
+ public:
+  explicit SnapshotWriter(v1::Session snapshot) {
+    ToTimestamp(absl::Now(), event_.mutable_time());
+    *event_.mutable_session() = std::move(snapshot);
+    StartWriteAndFinish(&event_, grpc::WriteOptions(), grpc::Status::OK);
+  }
+  void OnDone() override { delete this; }
+
+ private:
+  v1::SessionEvent event_;
+};
+
 }  // namespace
 
 grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* SessionServiceImpl::StreamSamples(
@@ -320,6 +335,13 @@ grpc::ServerWriteReactor<v1::SessionEvent>* SessionServiceImpl::WatchSession(
   if (request->session_id().empty())
     return new FailedWriter(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
                                          "session_id: required"));
+  // A closed session that is not in memory is not loaded (SessionProto says why).
+  if (hub_.PeekPosesAccepted(request->session_id()) < 0) {
+    absl::StatusOr<v1::Session> snapshot = SessionProto(request->session_id());
+    if (!snapshot.ok()) return new FailedWriter(ToGrpcStatus(snapshot.status()));
+    if (snapshot->state() != v1::SESSION_STATE_OPEN)
+      return new SnapshotWriter(*std::move(snapshot));
+  }
   absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(request->session_id());
   if (!live.ok()) return new FailedWriter(ToGrpcStatus(live.status()));
   absl::StatusOr<v1::Session> snapshot = SessionProto(request->session_id());

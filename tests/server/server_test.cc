@@ -597,6 +597,42 @@ TEST_F(ServerTest, PairVerdictsWhileStreamingWithARedoAndStoredPoses) {
   EXPECT_EQ(after.DebugString(), before.DebugString());
 }
 
+// Memory per session is bounded: a closed session's live state is forgotten when it closes,
+// and reading it afterwards (GetSession, WatchSession), before or after a restart, answers from
+// storage without loading it back.
+TEST_F(ServerTest, ReadingAClosedSessionDoesNotLoadIt) {
+  Register("robot-mem");
+  grpc::Status s;
+  const v1::Session session = Create("robot-mem", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream(Batches(Sim().capture, session.id()), &acks).ok());
+  EXPECT_EQ(server_->live_sessions(), 1u);  // open, streamed into
+  v1::SolveSessionRequest req;
+  req.set_session_id(session.id());
+  v1::SolveJob job;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+  ASSERT_TRUE(testing_util::FollowToEnd(sessions_.get(), session.id(), seconds(30)).ok());
+
+  for (int round = 0; round < 2; ++round) {  // then again after a restart
+    SCOPED_TRACE(round == 0 ? "running since the solve" : "after a restart");
+    EXPECT_EQ(server_->live_sessions(), 0u);
+    v1::GetSessionRequest get;
+    get.set_session_id(session.id());
+    v1::Session got;
+    ASSERT_TRUE(sessions_->GetSession(Ctx().get(), get, &got).ok());
+    EXPECT_EQ(got.state(), v1::SESSION_STATE_SOLVED);
+    EXPECT_GE(got.poses_accepted(), 12);  // from the stored poses
+    Watch watch(sessions_.get(), session.id());
+    ASSERT_TRUE(watch.WaitFor([](const auto&, bool ended) { return ended; }));
+    EXPECT_TRUE(watch.status().ok()) << watch.status().error_message();
+    ASSERT_EQ(watch.events().size(), 1u);  // the snapshot, then the end
+    EXPECT_EQ(watch.events()[0].session().poses_accepted(), got.poses_accepted());
+    EXPECT_EQ(server_->live_sessions(), 0u);
+    StartServer();
+  }
+}
+
 TEST_F(ServerTest, ResolvePromoteAndRollback) {
   Register("robot-4");
   grpc::Status s;
