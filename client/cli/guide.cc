@@ -25,11 +25,14 @@ namespace pb = imucal::v1;
 constexpr char kGuideHelp[] =
     "usage: imucal guide --device D [--protocol six-face|positions|free|ferraris|auto] [--session S]\n"
     "  Guides a calibration capture: opens a session for the device (or follows --session S),\n"
-    "  then, while the robot streams its samples (e.g. `imucal upload FILE --session S`), says\n"
+    "  then, while the robot streams its samples (e.g. `imucal upload FILE --device D`), says\n"
     "  which pose comes next, shows whether the robot is still and for how long it must hold,\n"
     "  each pose and 180-degree pair's verdict (with what to redo), the progress, and at the end\n"
     "  the solve result and verdict.\n"
     "options:\n"
+    "  --protocol P       six-face (default): faces and 180-degree pairs; positions: the 24\n"
+    "                     positions (faces and edges); free: hand-held (faces and corners);\n"
+    "                     ferraris, auto: no target, so the guide shows poses but never solves\n"
     "  --no-solve         do not start the solve when the protocol is complete\n"
     "  --seed N           BSAS seed for the solve\n"
     "  --reconnects N     re-open the event stream at most N times if it drops (default 5)\n"
@@ -63,7 +66,8 @@ int RunGuide(const std::vector<std::string>& argv) {
     if (grpc::Status s = GetSession(server, *session_id, &session); !s.ok())
       return RpcError(server, s);
   } else {
-    auto protocol = ParseProtocol(a->Get("protocol").value_or("auto"));
+    // six-face unless told: a guide must know what to ask for (auto sets no target).
+    auto protocol = ParseProtocol(a->Get("protocol").value_or("six-face"));
     if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kGuideHelp);
     if (grpc::Status s = CreateSession(server, *device, *protocol, 0.0, &session); !s.ok())
       return RpcError(server, s);

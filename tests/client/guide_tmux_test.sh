@@ -8,7 +8,9 @@
 #      the upload's progress bar; both exit codes (typed `echo $?`).
 #   2. a capture from `imucal simulate --botch-turn` (the first half turn stops a quarter turn
 #      short, is held, then finished): the failed pair with its reason, the re-do prompt, the
-#      re-done pair accepted, the last face, the result, the guide's exit code 0.
+#      re-done pair accepted, the last face, the result, the guide's exit code 0. Typed short, as
+#      a technician would: `guide --device D` (six-face by default) and `upload FILE --device D`,
+#      which streams into the session the guide opened.
 # Waiting on a pane's content is bounded polling with a deadline (tmux offers nothing to wait on
 # for it); everything else waits on the command itself.
 # usage: guide_tmux_test.sh IMUCAL IMUCALD
@@ -96,14 +98,20 @@ open_window() {
   wait_for 10 at_new_prompt "$1" 0 || fail "no shell prompt in window $1"
 }
 
-# run_guided N DEVICE CAPTURE: in fresh windows guideN and robotN, types the guide for DEVICE,
-# then the robot's upload of CAPTURE into the guide's session; returns when both are back at
-# their prompt.
+# run_guided N DEVICE CAPTURE [short]: in fresh windows guideN and robotN, types the guide for
+# DEVICE, then the robot's upload of CAPTURE into the guide's session; returns when both are back
+# at their prompt. "short" types what a technician would: the guide without --protocol
+# (six-face is its default) and `upload --device` alone, which streams into the device's open,
+# still empty session (the guide's).
 run_guided() {
-  local guide=guide$1 robot=robot$1 device=$2 capture=$3 session
+  local guide=guide$1 robot=robot$1 device=$2 capture=$3 short=${4:-} session
   open_window "$guide"
   open_window "$robot"
-  type_cmd "$guide" "imucal --server $addr guide --device $device --protocol six-face"
+  if [[ -n "$short" ]]; then
+    type_cmd "$guide" "imucal --server $addr guide --device $device"
+  else
+    type_cmd "$guide" "imucal --server $addr guide --device $device --protocol six-face"
+  fi
   wait_for 20 pane_has "$guide" "Calibrating $device: session " || fail "the guide did not start"
   # The guide opened the device's session, and a device has one open session at a time:
   # `upload --device` alone opens a new one and is refused, so the robot streams into the
@@ -113,7 +121,13 @@ run_guided() {
   [[ -n "$session" ]] || fail "the guide did not name its session"
   expect "$guide" "(e.g. imucal upload FILE --session $session)" \
     "the guide does not say how to stream into its session"
-  type_cmd "$robot" "imucal --server $addr upload $capture --device $device --session $session"
+  if [[ -n "$short" ]]; then
+    type_cmd "$robot" "imucal --server $addr upload $capture --device $device"
+    wait_for 20 pane_has "$robot" "streaming into $device's open session $session" ||
+      fail "upload --device did not stream into the guide's session $session"
+  else
+    type_cmd "$robot" "imucal --server $addr upload $capture --device $device --session $session"
+  fi
   wait_for 120 at_new_prompt "$robot" 1 || fail "the upload did not finish"
   wait_for 180 at_new_prompt "$guide" 1 || fail "the guide did not finish"
 }
@@ -147,7 +161,7 @@ if [[ -n "${GUIDE_TMUX_SHOW:-}" ]]; then pane guide1; pane robot1; fi
 
 # 2. A failed pair and its re-do: the guide must reject the pair with the reason, ask for the
 # re-do, accept the re-done pair, go on to the last face, and finish with a result.
-run_guided 2 robot-botch botched.csv
+run_guided 2 robot-botch botched.csv short
 expect_upload 2
 expect guide2 "[redo] pair Z+ (poses 0, 1) FAILED: turned" "no failed-pair verdict with its reason"
 expect guide2 "-> REDO Z+" "no re-do prompt under the failed pair"
