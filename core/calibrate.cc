@@ -994,10 +994,13 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   // Six-face: at axis-aligned poses the non-orthogonality angles reach |a| only at second order
   // (through the floor's tilt), but the face references of stage 1 (seeds/000) determine them
   // at first order. An angle stays at its stage-1 value, held fixed, when |a| = g on these
-  // poses would add less than a ninth of the faces' information (its standard error is over
-  // three times theirs): on a plain six-face capture |a| = g may "determine" an angle to
-  // 0.015 rad (15 mg across the axis) where the faces give 1e-4 rad, and refining on it only
-  // fits noise. Extra poses between the axes make the two comparable; the angle is then refined.
+  // poses is nearly blind to it: less than a hundredth of the faces' information (its standard
+  // error over ten times theirs). On a plain six-face capture |a| = g may "determine" an angle
+  // to 0.015 rad (15 mg across the axis) where the faces give 1e-4 rad (a ratio near 100), and
+  // refining on it only fits noise. A few extra poses between the axes bring the ratio to 2-5:
+  // then holding the angle against what |a| = g says pushes the misfit into the weakly
+  // determined second-order terms, which trade off against the biases (k g^2 on a face), so
+  // the angle is refined as before.
   AccelMask held_by_faces{};
   if (s1_from_faces) {
     double faces_chi2 = kNaN;
@@ -1006,7 +1009,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     for (int c = 6; c < 9; ++c) {
       const size_t k = static_cast<size_t>(c);
       const double faces_sigma = std::sqrt(faces_cov(c, c));
-      const bool faces_better = std::isfinite(faces_sigma) && 3 * faces_sigma < obs.sigma(c);
+      const bool faces_better = std::isfinite(faces_sigma) && 10 * faces_sigma < obs.sigma(c);
       held_by_faces[k] = !obs.determined[k] || faces_better;
       candidates[k] = !held_by_faces[k];
       if (!obs.determined[k]) {
