@@ -229,14 +229,17 @@ void SessionHub::RemoveWatcher(LiveSession& session, Watcher* watcher) {
 }
 
 void SessionHub::CloseSession(LiveSession& session) {
+  // Forgotten before the watchers' streams end: a client that sees its watch end finds the
+  // session no longer live (a read then answers from storage, which the caller has already
+  // updated), never a closed session still held in memory.
   {
-    std::lock_guard lock(session.watchers_mu);
-    session.closed = true;
-    for (Watcher* w : session.watchers) w->Close();
-    session.watchers.clear();
+    std::lock_guard lock(mu_);
+    sessions_.erase(session.id);
   }
-  std::lock_guard lock(mu_);
-  sessions_.erase(session.id);
+  std::lock_guard lock(session.watchers_mu);
+  session.closed = true;
+  for (Watcher* w : session.watchers) w->Close();
+  session.watchers.clear();
 }
 
 void SessionHub::Reopen(LiveSession& session) {
