@@ -1,5 +1,6 @@
 #include "core/calibrate.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -678,7 +679,8 @@ void SetModelSigma(const AccelParams& p, double g, const AccelMask& free,
 // effects and residuals into the report.
 absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>& ivs,
                            const std::vector<int>& used, const std::vector<AccelPose>& poses,
-                           const AccelMask& free, bool gyro_si, const EffectSearchOptions& opt,
+                           const AccelMask& free, bool gyro_si, const std::vector<PlannedMove>& planned,
+                           const GyroStage& gyro, const EffectSearchOptions& opt,
                            CalibrationReport* rep) {
   EffectSearchInput in;
   in.gravity_m_s2 = cap.gravity_m_s2;
@@ -708,6 +710,35 @@ absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>
     mr.time_s = 0.5 * (a.t_end_s + b.t_start_s) - t0;
     mr.temp_c = 0.5 * (a.temp_mean + b.temp_mean);
     in.moves.push_back(mr);
+  }
+  // The rotations between poses, for the accelerometer explanations that |a| - g cannot tell
+  // apart: the gyroscope refitted (as in step 8) to the directions each explanation gives.
+  if (gyro.calibrated && planned.size() >= 3) {
+    std::vector<std::pair<size_t, size_t>> ends;  // per planned move: its poses' index in `used`
+    for (const PlannedMove& m : planned) {
+      const auto from = std::find(used.begin(), used.end(), m.from_pose);
+      const auto to = std::find(used.begin(), used.end(), m.to_pose);
+      if (from == used.end() || to == used.end()) return absl::InternalError("move off the used poses");
+      ends.emplace_back(from - used.begin(), to - used.begin());
+    }
+    in.move_fit = [&cap, &planned, &gyro, ends](const std::vector<Eigen::Vector3d>& up)
+        -> std::optional<MoveFit> {
+      std::vector<GyroMove> moves;
+      for (size_t k = 0; k < planned.size(); ++k) {
+        GyroMove m = planned[k].move;
+        m.up_before = up[ends[k].first];
+        m.up_after = up[ends[k].second];
+        moves.push_back(m);
+      }
+      GyroSolveOptions go;
+      go.bias = gyro.params.bias;
+      go.interpolate_bias = true;
+      go.initial_matrix = gyro.params.matrix;
+      go.compute_heldout = false;
+      const absl::StatusOr<GyroSolveResult> r = SolveGyroFromMoves(cap.t_s, cap.gyro, moves, go);
+      if (!r.ok() || r->rank_deficient) return std::nullopt;
+      return MoveFit{r->move_error_rad};
+    };
   }
   absl::StatusOr<EffectSearchResult> res = FindEffects(in, opt);
   if (!res.ok()) return res.status();
@@ -1223,7 +1254,8 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   // (Not with the face references alone: no pose is spare to test an effect on.)
   if (opt.effects.enabled && !affine_only) {
     const bool gyro_si = gyro.calibrated || !std::isnan(NominalGyroToSi(cap.gyro_unit));
-    absl::Status s = SearchEffects(cap, ivs, used, poses, free, gyro_si, opt.effects, &rep);
+    absl::Status s =
+        SearchEffects(cap, ivs, used, poses, free, gyro_si, planned, gyro, opt.effects, &rep);
     if (!s.ok()) return s;
     timer.Mark("effects");
   } else if (opt.effects.enabled) {

@@ -11,6 +11,7 @@
 #include "Eigen/Dense"
 #include "absl/strings/str_format.h"
 #include "boost/math/distributions/fisher_f.hpp"
+#include "boost/math/distributions/students_t.hpp"
 #include "ceres/ceres.h"
 #include "core/str_util.h"
 
@@ -36,6 +37,9 @@ constexpr double kExcitedRatio = 5.0;
 constexpr double kAmbiguousCorrelation = 0.9;
 constexpr double kAmbiguousBic = 2.0;
 constexpr double kWeakEvidenceBic = 6.0;
+// The rotations between poses judge at most this many passing accelerometer candidates per
+// round (each costs a gyroscope refit over every move).
+constexpr size_t kMaxMoveJudged = 8;
 
 // The accelerometer model's own terms: linear in the specific force (scale, misalignment) and
 // the square of the output axis's own signal (its quadratic). The model's observability and
@@ -562,6 +566,17 @@ struct RoundCandidate {
   CandidateScore score;
   Regressor regressor;
   Eigen::VectorXd perp;
+  // Set when the rotations between poses were consulted (Search::ResolveByMoves): the
+  // gravity-direction error after each move (rad) with the gyroscope refitted to this
+  // candidate's pose directions.
+  std::vector<double> move_error_rad;
+
+  bool Judged() const { return !move_error_rad.empty(); }
+  double MoveRms() const {
+    double s = 0;
+    for (double e : move_error_rad) s += e * e;
+    return std::sqrt(s / static_cast<double>(std::max<size_t>(1, move_error_rad.size())));
+  }
 };
 
 std::string Describe(Sensor sensor, int axis, const Regressor& r) {
@@ -578,6 +593,16 @@ std::string Separator(const Regressor& a, const Regressor& b) {
   }
   return "poses that vary one of them without the other, or per-axis references (known "
          "orientations), would tell them apart";
+}
+
+// The regressor with every `time` factor read as `temperature` (`time*ay` -> `temperature*ay`).
+Regressor TemperatureTwin(Regressor r) {
+  for (int i = 0; i < r.num_factors; ++i)
+    if (r.factors[i] == static_cast<int>(Signal::kTime)) r.factors[i] = static_cast<int>(Signal::kTemperature);
+  // Factors stay sorted (Regressor's invariant); at most kMaxRegressorFactors, so insertion.
+  for (int i = 1; i < r.num_factors; ++i)
+    for (int k = i; k > 0 && r.factors[k - 1] > r.factors[k]; --k) std::swap(r.factors[k - 1], r.factors[k]);
+  return r;
 }
 
 std::string TermName(const Term& t) { return Describe(t.sensor, t.axis, t.regressor); }
@@ -761,6 +786,28 @@ class Search {
             rank(cands[c].regressor) < rank(cands[static_cast<size_t>(best)].regressor))
           best = static_cast<int>(c);
       }
+      // A time effect that the data favour over its temperature twin, but not strongly (BIC
+      // within kWeakEvidenceBic; the same sensor and axis, the regressor with temperature in
+      // place of time: `time*ay` against `temperature*ay`), gives way to it. The choice decides what the robot gets: a time
+      // effect is not applied (time since power-on grows without bound once the warm-up is
+      // over), so choosing it on weak evidence leaves a real temperature effect uncorrected;
+      // choosing temperature corrects the warm-up the capture saw either way, and stays bounded
+      // by the temperatures the robot meets. The notes still name both and what would tell them
+      // apart (a capture at a steady temperature).
+      if (UsesSignal(cands[static_cast<size_t>(best)].regressor, Signal::kTime)) {
+        const RoundCandidate& timed = cands[static_cast<size_t>(best)];
+        int swap = -1;
+        for (size_t c = 0; c < cands.size(); ++c) {
+          const RoundCandidate& x = cands[c];
+          if (x.score.passed && x.score.sensor == timed.score.sensor &&
+              x.score.axis == timed.score.axis && x.regressor == TemperatureTwin(timed.regressor) &&
+              Ambiguous(timed, x, kWeakEvidenceBic))
+            swap = static_cast<int>(c);
+        }
+        if (swap >= 0) best = swap;
+      }
+      const int static_best = best;
+      ResolveByMoves(st, &cands, &best);
       const RoundCandidate& win = cands[static_cast<size_t>(best)];
       Term term;
       term.sensor = win.score.sensor;
@@ -777,7 +824,7 @@ class Search {
       const bool accel = term.sensor == Sensor::kAccel;
       e.error_before = accel ? RmsOf(fit.accel_heldout) : GyroRms(fit.gyro_heldout);
       e.error_after = accel ? RmsOf(after->accel_heldout) : GyroRms(after->gyro_heldout);
-      e.evidence = Evidence(win, cands, tests, &diag);
+      e.evidence = Evidence(win, cands[static_cast<size_t>(static_best)], cands, tests, &diag);
       st = next;
       fit = *after;
       out.effects.push_back(e);
@@ -976,15 +1023,119 @@ class Search {
     }
   }
 
-  // True when `a` and `b` are nearly collinear beyond the current model and their BIC differ
-  // by less than `max_delta_bic`.
-  static bool Ambiguous(const RoundCandidate& a, const RoundCandidate& b,
-                        double max_delta_bic = kAmbiguousBic) {
+  // True when `a` and `b` are one explanation to the static residual: nearly collinear beyond
+  // the current model.
+  static bool Collinear(const RoundCandidate& a, const RoundCandidate& b) {
     if (&a == &b || a.score.sensor != b.score.sensor) return false;
     if (a.score.sensor == Sensor::kGyro && a.score.axis != b.score.axis) return false;
     const double corr = std::abs(a.perp.dot(b.perp)) / (a.perp.norm() * b.perp.norm());
-    return corr > kAmbiguousCorrelation &&
-           std::abs(a.score.delta_bic - b.score.delta_bic) < max_delta_bic;
+    return corr > kAmbiguousCorrelation;
+  }
+
+  // True when `a` and `b` are collinear and their BIC differ by less than `max_delta_bic`.
+  static bool Ambiguous(const RoundCandidate& a, const RoundCandidate& b,
+                        double max_delta_bic = kAmbiguousBic) {
+    return Collinear(a, b) && std::abs(a.score.delta_bic - b.score.delta_bic) < max_delta_bic;
+  }
+
+  // True when `a` and `b` act on the same output axis through the same specific-force factors,
+  // differing only in temperature or time (`temperature*ay` and `time*ay` on y, `temperature`
+  // and `temperature^2`). The moves see a candidate only through the pose directions it gives;
+  // such two give the same pattern over the poses up to how temperature follows time, which the
+  // moves, made during the same warm-up, know no better than the static poses.
+  static bool SameGeometry(const RoundCandidate& a, const RoundCandidate& b) {
+    if (a.score.sensor != b.score.sensor || a.score.axis != b.score.axis) return false;
+    const auto force = [](const Regressor& r) {
+      std::vector<int> f;
+      for (int i = 0; i < r.num_factors; ++i)
+        if (r.factors[i] >= static_cast<int>(Signal::kAx) && r.factors[i] <= static_cast<int>(Signal::kAz))
+          f.push_back(r.factors[i]);
+      return f;
+    };
+    return force(a.regressor) == force(b.regressor);
+  }
+
+  // One-sided paired t of the moves' squared errors: positive when `b`'s directions fit the
+  // rotations between poses better than `a`'s. NaN unless both were judged.
+  static double MovePairedT(const RoundCandidate& a, const RoundCandidate& b) {
+    const size_t n = a.move_error_rad.size();
+    if (n < 3 || b.move_error_rad.size() != n) return kNaN;
+    double mean = 0, ss = 0;
+    for (size_t k = 0; k < n; ++k)
+      mean += (std::pow(a.move_error_rad[k], 2) - std::pow(b.move_error_rad[k], 2)) / n;
+    for (size_t k = 0; k < n; ++k)
+      ss += std::pow(std::pow(a.move_error_rad[k], 2) - std::pow(b.move_error_rad[k], 2) - mean, 2);
+    const double sd = std::sqrt(ss / static_cast<double>(n - 1));
+    return sd > 0 ? mean / (sd / std::sqrt(static_cast<double>(n))) : kNaN;
+  }
+
+  // The one-sided t quantile for `tests` comparisons over `moves` moves at the family alpha.
+  double MoveTThreshold(int tests, size_t moves) const {
+    if (tests < 1 || moves < 3) return std::numeric_limits<double>::infinity();
+    const boost::math::students_t t(static_cast<double>(moves - 1));
+    return boost::math::quantile(boost::math::complement(t, opt_.family_alpha / tests));
+  }
+
+  // The specific-force direction of every pose (unit, body frame) with the state's
+  // accelerometer model and terms, as the SDK's Corrector computes it.
+  std::vector<Eigen::Vector3d> Directions(const State& st) const {
+    std::vector<Eigen::Vector3d> out;
+    for (size_t i = 0; i < poses_.size(); ++i) {
+      Eigen::Vector3d a = st.accel.Apply(poses_[i].accel.mean);
+      for (const Term& t : st.terms)
+        if (t.sensor == Sensor::kAccel) a(t.axis) -= t.coefficient * t.regressor.Evaluate(signals_[i]);
+      out.push_back(a.normalized());
+    }
+    return out;
+  }
+
+  // The moves' judgement (effects.h, SELECTION: THE MOVES). `best` is the static choice; it
+  // becomes the candidate whose directions the rotations between poses fit significantly
+  // better, if any.
+  // Why the moves separate what |a| - g cannot: `ax*az` on x and `ax^2` on z move |a| alike,
+  // but the first tilts a pose's direction about y and the second about x, by amounts that
+  // differ from pose to pose; the gyroscope, integrating the rotation from pose to pose, sees
+  // which one the poses went through. Its matrix, refitted per candidate, absorbs what a
+  // misalignment of the gyroscope would explain, not a quadratic pattern over the poses.
+  void ResolveByMoves(const State& st, std::vector<RoundCandidate>* cands, int* best) const {
+    const size_t b = static_cast<size_t>(*best);
+    if (!in_.move_fit || (*cands)[b].score.sensor != Sensor::kAccel) return;
+    std::vector<size_t> group = {b};
+    std::vector<size_t> others;
+    for (size_t c = 0; c < cands->size(); ++c)
+      if (c != b && (*cands)[c].score.passed && (*cands)[c].score.sensor == Sensor::kAccel &&
+          !SameGeometry((*cands)[b], (*cands)[c]))
+        others.push_back(c);
+    std::sort(others.begin(), others.end(), [&](size_t x, size_t y) {
+      return (*cands)[x].score.delta_bic < (*cands)[y].score.delta_bic;
+    });
+    for (size_t c : others)
+      if (group.size() < kMaxMoveJudged) group.push_back(c);
+    if (group.size() < 2) return;
+    for (size_t c : group) {
+      State trial = st;
+      Term term;
+      term.sensor = Sensor::kAccel;
+      term.axis = (*cands)[c].score.axis;
+      term.regressor = (*cands)[c].regressor;
+      term.coefficient = (*cands)[c].score.coefficient;
+      trial.terms.push_back(term);
+      AccelGaussNewton(in_.accel_free, signals_, in_.gravity_m_s2, poses_, &trial, 8);
+      const std::optional<MoveFit> f = in_.move_fit(Directions(trial));
+      if (!f || f->error_rad.size() < 3) return;  // the moves say nothing: the static choice
+      for (double e : f->error_rad)
+        if (!std::isfinite(e)) return;
+      (*cands)[c].move_error_rad = f->error_rad;
+    }
+    const RoundCandidate& chosen = (*cands)[b];
+    const double t_crit =
+        MoveTThreshold(static_cast<int>(group.size() - 1), chosen.move_error_rad.size());
+    for (size_t c : group) {
+      const RoundCandidate& x = (*cands)[c];
+      if (c == b || !(MovePairedT(chosen, x) > t_crit)) continue;
+      if (static_cast<size_t>(*best) == b || x.MoveRms() < (*cands)[static_cast<size_t>(*best)].MoveRms())
+        *best = static_cast<int>(c);
+    }
   }
 
   static void KeepTop(std::vector<RoundCandidate> cands, EffectDiagnostics* diag) {
@@ -994,13 +1145,37 @@ class Search {
     for (size_t k = 0; k < cands.size() && k < 8; ++k) diag->top.push_back(cands[k].score);
   }
 
-  std::string Evidence(const RoundCandidate& win, const std::vector<RoundCandidate>& cands,
-                       int tests, EffectDiagnostics* diag) {
+  // The entering effect's evidence, and notes on the candidates it was weighed against:
+  // `static_best` is the static choice (it differs from `win` when the moves overruled it).
+  std::string Evidence(const RoundCandidate& win, const RoundCandidate& static_best,
+                       const std::vector<RoundCandidate>& cands, int tests,
+                       EffectDiagnostics* diag) {
+    const std::string win_name = Describe(win.score.sensor, win.score.axis, win.regressor);
+    const auto judged = static_cast<int>(
+        std::count_if(cands.begin(), cands.end(), [](const auto& c) { return c.Judged(); }));
+    const double t_crit = MoveTThreshold(judged - 1, win.move_error_rad.size());
+    const auto by_moves = [&](const RoundCandidate& lost, const char* why) {
+      diag->notes.push_back(absl::StrFormat(
+          "resolved by the rotations between poses: %s rather than %s, %s (BIC %+.1f vs %+.1f); "
+          "the gyroscope, refitted to each one's pose directions, leaves %.4f vs %.4f deg RMS "
+          "after the %d moves (paired t %.1f > %.1f)",
+          win_name, Describe(lost.score.sensor, lost.score.axis, lost.regressor), why,
+          win.score.delta_bic, lost.score.delta_bic, win.MoveRms() * kRadToDeg,
+          lost.MoveRms() * kRadToDeg, static_cast<int>(win.move_error_rad.size()),
+          MovePairedT(lost, win), t_crit));
+    };
+    if (&win != &static_best) by_moves(static_best, "which |a| - g preferred");
     std::string rivals;
     for (const RoundCandidate& c : cands) {
-      if (&c == &win || !Ambiguous(win, c, kWeakEvidenceBic)) continue;
+      if (&c == &win || &c == &static_best || !Ambiguous(win, c, kWeakEvidenceBic)) continue;
+      // |a| - g does not tell them apart; the moves may, unless they differ in temperature or
+      // time only.
+      const double t = SameGeometry(win, c) ? kNaN : MovePairedT(c, win);
+      if (t > t_crit) {
+        by_moves(c, "which explains |a| - g as well");
+        continue;
+      }
       const std::string name = Describe(c.score.sensor, c.score.axis, c.regressor);
-      const std::string win_name = Describe(win.score.sensor, win.score.axis, win.regressor);
       rivals += Cat(rivals.empty() ? "" : ", ", name);
       const double gap = std::abs(win.score.delta_bic - c.score.delta_bic);
       const std::string favoured = win.score.delta_bic <= c.score.delta_bic ? win_name : name;
@@ -1012,13 +1187,20 @@ class Search {
                     " but not strongly"),
           absl::StrFormat(" (BIC %+.1f vs %+.1f", win.score.delta_bic, c.score.delta_bic),
           gap < kAmbiguousBic ? "); " : ", a difference under 6 is not strong evidence); ",
+          std::isfinite(t)
+              ? absl::StrFormat("the rotations between poses do not separate them either (%.4f "
+                                "vs %.4f deg RMS after the moves, paired t %.1f); ",
+                                win.MoveRms() * kRadToDeg, c.MoveRms() * kRadToDeg, t)
+              : "",
           Separator(win.regressor, c.regressor)));
     }
     return absl::StrFormat(
         "F %.1f > %.1f (F(1,dof) at %.2g/%d candidates, Bonferroni); BIC %+.1f; held-out sum of "
-        "squares -%.1f (noise units)%s",
+        "squares -%.1f (noise units)%s%s",
         win.score.f, win.score.f_threshold, opt_.family_alpha, tests, win.score.delta_bic,
-        win.score.press_gain, rivals.empty() ? "" : Cat("; ambiguous with ", rivals));
+        win.score.press_gain,
+        &win != &static_best ? "; chosen over the static choice by the rotations between poses" : "",
+        rivals.empty() ? "" : Cat("; ambiguous with ", rivals));
   }
 
   void NoiseFloors(EffectDiagnostics* diag) const {

@@ -22,10 +22,11 @@
 // the poses (rates at rest: the static rate is the residual itself) is "not excited".
 // The magnitude |a| - g cannot tell every pair apart: `ax*az` on x moves |a| exactly as `ax^2`
 // on z (both by ax^2 az / |a|), so a cross-axis quadratic and a per-axis quadratic of another
-// axis are one explanation to the static residual, and the search reports the tie rather than
-// pretending to know the axis. (The gyroscope's rotations between poses could separate them, but
-// only in a joint accelerometer-gyroscope refit over the moves: the gyro matrix fitted to the
-// uncorrected directions absorbs most of the difference.)
+// axis are one explanation to the static residual. The rotations between poses tell them apart
+// (THE MOVES, below): each candidate's pose directions, with the gyroscope refitted to them (a
+// gyroscope fitted once to the uncorrected directions would absorb most of the difference).
+// Without moves, or when they do not decide, the search reports the tie rather than pretending
+// to know the axis.
 //
 // SELECTION, forward stepwise. Each round scores every candidate by linearised least squares
 // against the current model (weights 1 / (sigma_i^2 + tau^2): sigma_i the pose mean's noise from
@@ -44,11 +45,27 @@
 // the current model, correlation over 0.9) whose BIC is within 6 of it are named in the notes
 // with what would tell them apart: the data do not strongly prefer one (Kass and Raftery: a
 // BIC difference under 2 is "barely worth a mention", 2-6 "positive", over 6 "strong"). Within 2
-// the simpler regressor (and one without `time`) enters.
+// the simpler regressor (and one without `time`) enters. A `time` term that wins by less than
+// 6 over its temperature twin (the same term with temperature in place of time) gives way to
+// it: the twin is applied on the robot, a time term is not, so a weak preference for time would
+// leave a real temperature effect uncorrected (the note still names both).
+// THE MOVES then judge accelerometer candidates when the pipeline gives EffectSearchInput::
+// move_fit: the best passing ones by BIC (up to 8) that differ from the chosen one in their
+// output axis or specific-force factors (not only in temperature or time, which the moves,
+// made during the same warm-up, cannot tell apart any better) are each added to the model, refitted, and
+// their pose directions handed to the gyroscope, refitted to them. A candidate whose directions
+// the rotations between poses fit better than the chosen one's (one-sided paired t over the
+// moves' squared errors, at alpha over the number compared) replaces it; among several, the one
+// the moves fit best. A paired test over moves, not a likelihood over their components: a
+// pose's direction enters the move before it and the one after it, so the components are not
+// independent, and the test must not count them as if they were. This is what tells `ax*az` on
+// x from `ax^2` on z, and it overrules the static ranking only on significant evidence.
 #ifndef IMUCAL_CORE_EFFECTS_H_
 #define IMUCAL_CORE_EFFECTS_H_
 
+#include <functional>
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -77,6 +94,12 @@ struct EffectMoveResidual {
   double rotation_rad = 0;  // total rotation of the move
   double time_s = 0;        // the move's middle, s from capture start
   double temp_c = std::numeric_limits<double>::quiet_NaN();
+};
+
+// The gyroscope refitted to a set of pose directions: the gravity-direction error after each
+// move (rad), in a fixed order of the moves.
+struct MoveFit {
+  std::vector<double> error_rad;
 };
 
 struct EffectSearchOptions {
@@ -164,6 +187,12 @@ struct EffectSearchInput {
   // what static poses cannot test, a rate-dependent gyro effect, shows up here. Reported as a
   // note; nothing is added to the model from it.
   std::vector<EffectMoveResidual> moves;
+  // The rotations between poses as a second, independent view of the accelerometer (optional).
+  // Given every pose's calibrated specific-force direction (unit, body frame, in the order of
+  // `poses`), refits the gyroscope matrix to them and returns the gravity-direction residuals
+  // after the moves. Static |a| - g cannot tell `ax*az` on x from `ax^2` on z; the directions
+  // they give differ, and so do the rotations that connect them (SELECTION, above).
+  std::function<std::optional<MoveFit>(const std::vector<Eigen::Vector3d>& up)> move_fit;
 };
 
 struct EffectSearchResult {

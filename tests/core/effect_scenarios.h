@@ -87,10 +87,6 @@ inline ParamSet TruthParams(const SimResult& sim) {
 struct EffectCase {
   std::string name;
   std::vector<SimEffect> effects;
-  // False where the static residual |a| - g cannot tell the output axis (core/effects.h: `ax*az`
-  // on x moves |a| exactly as `ax^2` on z): then an equivalent accelerometer explanation must be
-  // found and the tie reported, and the validation error must still drop to the floor.
-  bool axis_identifiable = true;
 };
 
 // Test names carry the case; this keeps gtest from printing the struct's bytes.
@@ -108,7 +104,7 @@ inline const EffectCase kEffectCases[] = {
     {"AccelScaleTemperature", {Fx(Sensor::kAccel, 1, "temperature*ay", 2e-4)}},       // 0.02 %/degC
     {"GyroGSensitivity", {Fx(Sensor::kGyro, 1, "ax", 0.05 * kDegS / kStandardGravity)}},  // /g
     {"GyroBiasDrift", {Fx(Sensor::kGyro, 0, "time", 0.01 * kDegS / 60)}},             // /min
-    {"AccelCrossQuadratic", {Fx(Sensor::kAccel, 0, "ax*az", 3e-4)}, false},           // /(m/s^2)
+    {"AccelCrossQuadratic", {Fx(Sensor::kAccel, 0, "ax*az", 3e-4)}},                  // /(m/s^2)
 };
 
 // True when some effect of the case reads `temperature` (it needs a temperature channel).
