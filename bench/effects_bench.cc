@@ -9,7 +9,10 @@
 // Scenarios and magnitudes: tests/core/effect_scenarios.h (six-face + 24 extra poses, 200 Hz,
 // 2 mg noise, an 8 degC warm-up). Time effects are applied (opt-in) for the validation.
 //
-// Usage: effects_bench [--seeds=N]
+// Usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N]
+//   --case and --seed run one scenario (a name of tests/core/effect_scenarios.h) or one seed,
+//   to look at a capture the table lists; with IMUCAL_DEBUG_EFFECTS=1 the search prints each
+//   round's best candidates.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -56,7 +59,13 @@ bool Same(const Effect& e, const SimEffect& s) {
   return e.sensor == s.sensor && e.axis == s.axis && e.regressor == s.regressor;
 }
 
-int Main(int seeds) {
+// What to run when not everything: one case by name, one seed.
+struct Only {
+  std::string name;
+  int seed = 0;
+};
+
+int Main(int seeds, const Only& only) {
   std::printf("effects_bench: %d seeds per row; six-face + 24 extra poses, 200 Hz, 2 mg noise, "
               "8 degC warm-up\n\n", seeds);
   std::printf("%-30s %9s %9s %9s | %-25s | %-27s\n", "effect (truth)", "found", "within3se",
@@ -64,10 +73,13 @@ int Main(int seeds) {
   std::printf("%-30s %9s %9s %9s | %7s %7s %7s   | %8s %8s %8s\n", "", "", "", "", "before",
               "after", "floor", "before", "after", "floor");
   std::vector<double> search_ms, base_ms;
+  std::string misses;
   for (const EffectCase& c : kEffectCases) {
+    if (!only.name.empty() && c.name != only.name) continue;
     int found = 0, within = 0, other = 0;
     std::vector<double> ab, aa, af, gb, ga, gf;
     for (int seed = 1; seed <= seeds; ++seed) {
+      if (only.seed > 0 && seed != only.seed) continue;
       absl::StatusOr<SimResult> sim = Simulate(EffectScenario(static_cast<uint64_t>(seed), c.effects));
       if (!sim.ok()) return 1;
       bool time = false;
@@ -84,8 +96,16 @@ int Main(int seeds) {
       }
       found += all;
       within += all3;
-      other += static_cast<int>(run.report.params.effects.size()) >
-               static_cast<int>(all ? c.effects.size() : 0);
+      const bool extra = static_cast<int>(run.report.params.effects.size()) >
+                         static_cast<int>(all ? c.effects.size() : 0);
+      other += extra;
+      if (!all || extra) {  // what was found instead, to read beside the table
+        std::string got;
+        for (const Effect& e : run.report.params.effects)
+          got += absl::StrFormat(" %s %c~%s", e.sensor == Sensor::kAccel ? "accel" : "gyro",
+                                 "xyz"[e.axis], e.regressor);
+        misses += absl::StrFormat("  %s seed %d:%s\n", c.name, seed, got.empty() ? " nothing" : got);
+      }
       absl::StatusOr<SimResult> val =
           Simulate(EffectScenario(static_cast<uint64_t>(seed) + 500, c.effects), sim->truth);
       if (!val.ok()) return 1;
@@ -105,6 +125,8 @@ int Main(int seeds) {
                 truth.c_str(), found, seeds, within, seeds, other, seeds, Median(ab), Median(aa),
                 Median(af), Median(gb), Median(ga), Median(gf));
   }
+  if (!misses.empty()) std::printf("\nnot found as simulated, or found with more:\n%s", misses.c_str());
+  if (!only.name.empty() || only.seed > 0) return 0;  // one scenario looked at: no summary
   std::printf("\nclean captures (no effect simulated): captures with any effect added\n");
   for (bool temperature : {true, false}) {
     int alarms = 0;
@@ -138,14 +160,19 @@ int Main(int seeds) {
 
 int main(int argc, char** argv) {
   int seeds = 20;
+  imucal::core::Only only;
   for (int i = 1; i < argc; ++i) {
     const std::string_view a = argv[i];
     if (a.rfind("--seeds=", 0) == 0) {
       seeds = std::atoi(argv[i] + 8);
+    } else if (a.rfind("--case=", 0) == 0) {
+      only.name = std::string(a.substr(7));
+    } else if (a.rfind("--seed=", 0) == 0) {
+      only.seed = std::atoi(argv[i] + 7);
     } else {
-      std::fprintf(stderr, "usage: effects_bench [--seeds=N]\n");
+      std::fprintf(stderr, "usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N]\n");
       return 1;
     }
   }
-  return imucal::core::Main(std::max(1, seeds));
+  return imucal::core::Main(std::max(1, seeds), only);
 }
