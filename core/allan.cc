@@ -5,6 +5,7 @@
 #include <utility>
 
 #include "absl/status/status.h"
+#include "absl/strings/str_format.h"
 #include "core/str_util.h"
 
 namespace imucal::core {
@@ -68,13 +69,13 @@ void AddNotes(const char* sensor, const SensorNoise& s, double tau_max_s,
     notes->push_back(Cat(sensor, " bias instability not reached on ", AxisList(a),
                          ": the curve still falls at the longest cluster time with ",
                          kMinClustersForFloor, " clusters (~",
-                         tau_max_s * kMinClustersForFit / kMinClustersForFloor,
+                         absl::StrFormat("%.3g", tau_max_s * kMinClustersForFit / kMinClustersForFloor),
                          " s); a longer rest would show its flat minimum"));
   }
   if (auto a = missing(s.random_walk); !a.empty()) {
     notes->push_back(Cat(sensor, " random walk not reached on ", AxisList(a),
-                         ": the curve does not rise with slope +1/2 before ", tau_max_s,
-                         " s; random_walk_bound is an upper bound, not a measurement (typical "
+                         ": the curve does not rise with slope +1/2 before ",
+                         absl::StrFormat("%.3g", tau_max_s), " s; random_walk_bound is an upper bound, not a measurement (typical "
                          "MEMS needs a rest of an hour or more)"));
   }
 }

@@ -82,6 +82,18 @@ json DiagnosticsJson(const core::EffectDiagnostics& d) {
   j["faces"] = json::array();
   for (const core::FaceResidual& f : d.faces)
     j["faces"].push_back({{"face", f.face}, {"residual", Vec(f.residual_m_s2)}});
+  // The gravity-direction error after the moves regressed on each signal of the moves (the
+  // rotation residuals; effects.h MoveTrend): slope and standard error in `unit`.
+  j["move_trends"] = json::array();
+  for (const core::MoveTrend& t : d.move_trends) {
+    j["move_trends"].push_back({{"signal", t.signal},
+                                {"unit", t.unit},
+                                {"slope", Num(t.slope_deg)},
+                                {"stderr", Num(t.slope_std_error_deg)},
+                                {"f", Num(t.f)},
+                                {"f_threshold", Num(t.f_threshold)},
+                                {"significant", t.significant}});
+  }
   j["notes"] = d.notes;
   return j;
 }

@@ -42,6 +42,14 @@ TEST(PlotsTest, OneSvgPerEffectAndPerPoseResiduals) {
   ASSERT_TRUE(rep.ok()) << rep.status();
   ASSERT_EQ(rep->params.effects.size(), 1u);
   const nlohmann::json report = nlohmann::json::parse(ReportToJson(*rep));
+  // The rotation residuals' trends are in the report too: one per signal the moves carry
+  // (rotation angle, time, temperature), each with its unit and a finite slope.
+  const nlohmann::json& trends = report["effect_diagnostics"]["move_trends"];
+  ASSERT_EQ(trends.size(), 3u) << trends.dump();
+  for (const auto& t : trends) {
+    EXPECT_TRUE(t["slope"].is_number() && t["stderr"].is_number()) << t.dump();
+    EXPECT_EQ(t["unit"].get<std::string>().rfind("deg per ", 0), 0u) << t.dump();
+  }
   const std::string dir = testing::TempDir() + "/plots_test";
   std::filesystem::remove_all(dir);
   const absl::StatusOr<std::vector<std::string>> files = WriteReportPlots(report, dir);

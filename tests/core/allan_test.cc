@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <regex>
 #include <cstdint>
 #include <cstdio>
 #include <random>
@@ -106,6 +107,11 @@ TEST(AllanTest, WhiteNoiseDensityFromSimulatedRest) {
       EXPECT_TRUE(f.gyro.random_walk.array().isNaN().all()) << f.gyro.random_walk.transpose();
       EXPECT_TRUE(f.accel.random_walk_bound.allFinite());
       EXPECT_FALSE(f.notes.empty());
+      // The notes give cluster times to 3 digits ("before 3.98 s"), not a double's 16.
+      for (const std::string& note : f.notes) {
+        EXPECT_TRUE(std::regex_search(note, std::regex("[ ~][0-9.]+ s[;)]"))) << note;
+        EXPECT_FALSE(std::regex_search(note, std::regex("[0-9]\\.[0-9]{4,}"))) << note;
+      }
       // The curve for the plot.
       EXPECT_EQ(na->curves.tau_s.size(), na->curves.accel_m_s2.size());
       EXPECT_EQ(na->curves.tau_s.size(), na->curves.gyro_rad_s.size());
