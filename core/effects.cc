@@ -1112,6 +1112,7 @@ class Search {
     for (size_t c : others)
       if (group.size() < kMaxMoveJudged) group.push_back(c);
     if (group.size() < 2) return;
+    std::vector<std::vector<double>> errors;  // per group member; kept only if all were judged
     for (size_t c : group) {
       State trial = st;
       Term term;
@@ -1125,8 +1126,9 @@ class Search {
       if (!f || f->error_rad.size() < 3) return;  // the moves say nothing: the static choice
       for (double e : f->error_rad)
         if (!std::isfinite(e)) return;
-      (*cands)[c].move_error_rad = f->error_rad;
+      errors.push_back(f->error_rad);
     }
+    for (size_t k = 0; k < group.size(); ++k) (*cands)[group[k]].move_error_rad = std::move(errors[k]);
     const RoundCandidate& chosen = (*cands)[b];
     const double t_crit =
         MoveTThreshold(static_cast<int>(group.size() - 1), chosen.move_error_rad.size());
@@ -1188,9 +1190,10 @@ class Search {
           absl::StrFormat(" (BIC %+.1f vs %+.1f", win.score.delta_bic, c.score.delta_bic),
           gap < kAmbiguousBic ? "); " : ", a difference under 6 is not strong evidence); ",
           std::isfinite(t)
-              ? absl::StrFormat("the rotations between poses do not separate them either (%.4f "
-                                "vs %.4f deg RMS after the moves, paired t %.1f); ",
-                                win.MoveRms() * kRadToDeg, c.MoveRms() * kRadToDeg, t)
+              ? absl::StrFormat("the rotations between poses do not decide between them either "
+                                "(%.4f vs %.4f deg RMS after the moves, paired t %.1f against "
+                                "%.1f); ",
+                                win.MoveRms() * kRadToDeg, c.MoveRms() * kRadToDeg, t, t_crit)
               : "",
           Separator(win.regressor, c.regressor)));
     }
