@@ -34,8 +34,10 @@ v1::SessionEvent Stamped() {
   return e;
 }
 
-// The session's stored batches as a core::Capture in the device's units.
-absl::StatusOr<core::Capture> LoadCapture(storage::Store& store, const LiveSession& live) {
+// The session's stored batches as a core::Capture in the device's units. What the capture
+// had to leave out is said in `warnings` (it goes into the report).
+absl::StatusOr<core::Capture> LoadCapture(storage::Store& store, const LiveSession& live,
+                                          std::vector<std::string>* warnings) {
   absl::StatusOr<std::vector<storage::SampleBatch>> batches = store.ReadBatches(live.id);
   if (!batches.ok()) return batches.status();
   std::vector<storage::ImuSample> samples;
@@ -61,14 +63,18 @@ absl::StatusOr<core::Capture> LoadCapture(storage::Store& store, const LiveSessi
     cap.gyro.emplace_back(x.gyro[0], x.gyro[1], x.gyro[2]);
     if (has_temp) cap.temp.push_back(std::isnan(x.temp) ? 0.0 : x.temp);
   }
-  // Batches with and without temperature may mix: then the capture has none.
-  if (has_temp) {
-    for (const storage::ImuSample& x : samples) {
-      if (std::isnan(x.temp)) {
-        cap.temp.clear();
-        break;
-      }
-    }
+  // Batches with and without temperature may mix (a robot whose sensor driver dropped the
+  // channel for a while): then the capture has none, and the report says so, since temperature
+  // effects can then not be tested.
+  size_t without = 0;
+  for (const storage::ImuSample& x : samples) without += std::isnan(x.temp) ? 1 : 0;
+  if (without > 0 && without < samples.size()) {
+    cap.temp.clear();
+    warnings->push_back(absl::StrFormat(
+        "temperature left out of the solve: %d of the session's %d samples came in batches "
+        "without temp_c, and a capture has temperature for every sample or none; temperature "
+        "effects were not tested. Send temp_c in every batch (or in none)",
+        static_cast<int>(without), static_cast<int>(samples.size())));
   }
   return cap;
 }
@@ -328,7 +334,8 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
   absl::Status failure = live.status();
   if (failure.ok()) {
     // read -> decode -> calibrate -> JSON -> store (the version becomes active if it passes).
-    absl::StatusOr<core::Capture> capture = LoadCapture(*store_, **live);
+    std::vector<std::string> load_warnings;
+    absl::StatusOr<core::Capture> capture = LoadCapture(*store_, **live, &load_warnings);
     core::CalibrateOptions options;
     options.protocol = ToProtocolKind((*live)->protocol);
     options.seed = task.seed;
@@ -336,6 +343,7 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
         capture.ok() ? core::Calibrate(*capture, options)
                      : absl::StatusOr<core::CalibrationReport>(capture.status());
     if (report.ok()) {
+      for (std::string& w : load_warnings) report->warnings.push_back(std::move(w));
       std::lock_guard lock(version_mu_);
       absl::StatusOr<std::vector<storage::ParamVersion>> versions =
           store_->ListVersions((*live)->device.id);

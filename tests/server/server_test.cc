@@ -719,6 +719,43 @@ TEST_F(ServerTest, ResolvePromoteAndRollback) {
   EXPECT_NE(ps.crc32c(), 0u);
 }
 
+// A robot whose driver dropped the temperature channel for part of the session: the solve runs
+// without temperature (a capture has it for every sample or none), and the stored report says
+// so, with how many samples lacked it, instead of silently testing no temperature effect.
+TEST_F(ServerTest, MixedTemperatureBatchesAreSaidInTheReport) {
+  Register("robot-8");
+  grpc::Status s;
+  const v1::Session session = Create("robot-8", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  const core::SimResult sim = Sim();
+  ASSERT_TRUE(sim.capture.has_temp());
+  std::vector<v1::SampleBatch> batches = Batches(sim.capture, session.id());
+  int dropped = 0;
+  for (size_t b = 1; b < batches.size(); b += 2) {
+    dropped += batches[b].temp_c_size();
+    batches[b].clear_temp_c();
+  }
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream(batches, &acks).ok());
+  v1::SolveSessionRequest req;
+  req.set_session_id(session.id());
+  req.set_seed(1);
+  v1::SolveJob job;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+  Watch watch(sessions_.get(), session.id());
+  ASSERT_TRUE(watch.WaitFor([](const auto&, bool ended) { return ended; }, seconds(30)));
+  v1::GetSolveJobRequest get;
+  get.set_job_id(job.id());
+  ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
+  ASSERT_EQ(job.state(), v1::JOB_STATE_DONE) << job.error();
+  const std::string report = ReportOf(session.id());
+  const std::string said = "temperature left out of the solve: " + std::to_string(dropped) +
+                           " of the session's " + std::to_string(sim.capture.size()) + " samples";
+  EXPECT_NE(report.find(said), std::string::npos) << report.substr(0, 2000);
+  EXPECT_NE(report.find("no temperature channel: temperature effects could not be tested"),
+            std::string::npos);
+}
+
 TEST(ActiveParamCacheTest, AFillThatRacedAnInvalidationIsDropped) {
   ActiveParamCache cache;
   auto entry = [](int version) {
