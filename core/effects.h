@@ -8,7 +8,10 @@
 //
 // SIGNALS of a pose: temperature (mean, degC), time (pose middle, s from capture start), the
 // calibrated specific force ax, ay, az (m/s^2) and rate gx, gy, gz (rad/s) of the model before
-// any effect, as the SDK's Corrector computes them at run time.
+// any effect, as the SDK's Corrector computes them at run time. Pose order is not a signal of
+// its own: poses come one after another, so an effect that grows with the order grows with
+// `time`, which the robot can evaluate and the spec names (an order index would only reshape
+// time by the hold lengths). Rates are zero at rest; they are tested on the moves.
 //
 // DICTIONARY (generic, nothing listed by hand): every regressor of one or two factors over the
 // signals the capture has (core/regressor.h: `temperature`, `ax*az`, `time^2`, ...), acting
