@@ -9,7 +9,9 @@
 // Scenarios and magnitudes: tests/core/effect_scenarios.h (six-face + 24 extra poses, 200 Hz,
 // 2 mg noise, an 8 degC warm-up). Time effects are applied (opt-in) for the validation.
 //
-// Usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N]
+// Usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N] [--no-temperature]
+//   --no-temperature runs the cases that do not need a temperature channel on captures without
+//   one (the clean rows measure both anyway).
 //   --case and --seed run one scenario (a name of tests/core/effect_scenarios.h) or one seed,
 //   to look at a capture the table lists; with IMUCAL_DEBUG_EFFECTS=1 the search prints each
 //   round's best candidates.
@@ -63,6 +65,7 @@ bool Same(const Effect& e, const SimEffect& s) {
 struct Only {
   std::string name;
   int seed = 0;
+  bool no_temperature = false;  // the captures without a temperature channel
 };
 
 int Main(int seeds, const Only& only) {
@@ -76,11 +79,13 @@ int Main(int seeds, const Only& only) {
   std::string misses;
   for (const EffectCase& c : kEffectCases) {
     if (!only.name.empty() && c.name != only.name) continue;
+    if (only.no_temperature && UsesTemperature(c)) continue;  // needs the channel
+    const bool temperature = !only.no_temperature;
     int found = 0, within = 0, other = 0;
     std::vector<double> ab, aa, af, gb, ga, gf;
     for (int seed = 1; seed <= seeds; ++seed) {
       if (only.seed > 0 && seed != only.seed) continue;
-      absl::StatusOr<SimResult> sim = Simulate(EffectScenario(static_cast<uint64_t>(seed), c.effects));
+      absl::StatusOr<SimResult> sim = Simulate(EffectScenario(static_cast<uint64_t>(seed), c.effects, temperature));
       if (!sim.ok()) return 1;
       bool time = false;
       for (const SimEffect& e : c.effects) time |= e.regressor.find("time") != std::string::npos;
@@ -107,7 +112,7 @@ int Main(int seeds, const Only& only) {
         misses += absl::StrFormat("  %s seed %d:%s\n", c.name, seed, got.empty() ? " nothing" : got);
       }
       absl::StatusOr<SimResult> val =
-          Simulate(EffectScenario(static_cast<uint64_t>(seed) + 500, c.effects), sim->truth);
+          Simulate(EffectScenario(static_cast<uint64_t>(seed) + 500, c.effects, temperature), sim->truth);
       if (!val.ok()) return 1;
       ParamSet without = run.report.params;
       without.effects.clear();
@@ -126,7 +131,8 @@ int Main(int seeds, const Only& only) {
                 Median(af), Median(gb), Median(ga), Median(gf));
   }
   if (!misses.empty()) std::printf("\nnot found as simulated, or found with more:\n%s", misses.c_str());
-  if (!only.name.empty() || only.seed > 0) return 0;  // one scenario looked at: no summary
+  // One scenario looked at: no summary.
+  if (!only.name.empty() || only.seed > 0 || only.no_temperature) return 0;
   std::printf("\nclean captures (no effect simulated): captures with any effect added\n");
   for (bool temperature : {true, false}) {
     int alarms = 0;
@@ -167,10 +173,12 @@ int main(int argc, char** argv) {
       seeds = std::atoi(argv[i] + 8);
     } else if (a.rfind("--case=", 0) == 0) {
       only.name = std::string(a.substr(7));
+    } else if (a == "--no-temperature") {
+      only.no_temperature = true;
     } else if (a.rfind("--seed=", 0) == 0) {
       only.seed = std::atoi(argv[i] + 7);
     } else {
-      std::fprintf(stderr, "usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N]\n");
+      std::fprintf(stderr, "usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N] [--no-temperature]\n");
       return 1;
     }
   }
