@@ -98,6 +98,11 @@ int Main(int seeds, const Only& only) {
           if (Same(e, want)) got = &e;
         all &= got != nullptr;
         all3 &= got != nullptr && std::abs(got->coefficient - want.coefficient) < 3 * got->std_error;
+        if (got != nullptr && std::abs(got->coefficient - want.coefficient) >= 3 * got->std_error)
+          misses += absl::StrFormat("  %s seed %d: %s %.4g +- %.2g, truth %.4g (%.1f se off)\n",
+                                    c.name, seed, want.regressor, got->coefficient, got->std_error,
+                                    want.coefficient,
+                                    std::abs(got->coefficient - want.coefficient) / got->std_error);
       }
       found += all;
       within += all3;
@@ -130,7 +135,7 @@ int Main(int seeds, const Only& only) {
                 truth.c_str(), found, seeds, within, seeds, other, seeds, Median(ab), Median(aa),
                 Median(af), Median(gb), Median(ga), Median(gf));
   }
-  if (!misses.empty()) std::printf("\nnot found as simulated, or found with more:\n%s", misses.c_str());
+  if (!misses.empty()) std::printf("\nnot found as simulated, found with more, or beyond 3 standard errors:\n%s", misses.c_str());
   // One scenario looked at: no summary.
   if (!only.name.empty() || only.seed > 0 || only.no_temperature) return 0;
   std::printf("\nclean captures (no effect simulated): captures with any effect added\n");
