@@ -711,8 +711,9 @@ absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>
     mr.temp_c = 0.5 * (a.temp_mean + b.temp_mean);
     in.moves.push_back(mr);
   }
-  // The rotations between poses, for the accelerometer explanations that |a| - g cannot tell
-  // apart: the gyroscope refitted (as in step 8) to the directions each explanation gives.
+  // The rotations between poses, for the accelerometer candidates the search weighs (|a| - g
+  // cannot tell every one apart): the gyroscope refitted (as in step 8) to the pose directions
+  // each candidate gives; core/effects.h, THE MOVES.
   if (gyro.calibrated && planned.size() >= 3) {
     std::vector<std::pair<size_t, size_t>> ends;  // per planned move: its poses' index in `used`
     for (const PlannedMove& m : planned) {
