@@ -2,7 +2,6 @@
 // driven by the generated stubs.
 #include "server/server.h"
 
-#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cmath>
@@ -29,6 +28,7 @@
 #include "server/status_util.h"
 #include "storage/store.h"
 #include "tests/server/watch.h"
+#include "tests/test_dir.h"
 
 namespace imucal::server {
 namespace {
@@ -41,11 +41,9 @@ constexpr int kBatch = 200;
 class ServerTest : public testing::Test {
  protected:
   void SetUp() override {
-    static std::atomic<int> counter{0};
     options_.listen = "127.0.0.1:0";
     options_.security.insecure = true;  // plaintext on loopback: auth_matrix_test covers TLS
-    options_.db_path = testing::TempDir() + "/server_test_" + std::to_string(::getpid()) + "_" +
-                       std::to_string(counter++) + ".db";
+    options_.db_path = dir_.File("imucal.db");
     StartServer();
   }
 
@@ -152,6 +150,7 @@ class ServerTest : public testing::Test {
     return s.ok() ? report.json() : s.error_message();
   }
 
+  testing_util::TestDir dir_{"server_test"};  // first: outlives the server that uses it
   ServerOptions options_;
   std::unique_ptr<Server> server_;
   std::shared_ptr<grpc::Channel> channel_;

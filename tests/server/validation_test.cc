@@ -21,6 +21,7 @@
 #include "server/validate.h"
 #include "storage/sample_codec.h"
 #include "storage/store.h"
+#include "tests/test_dir.h"
 
 namespace imucal::server {
 namespace {
@@ -103,11 +104,9 @@ class RawIngestStream final : public grpc::ClientBidiReactor<grpc::ByteBuffer, g
 class ValidationTest : public testing::Test {
  protected:
   void SetUp() override {
-    static int counter = 0;
     options_.listen = "127.0.0.1:0";
     options_.security.insecure = true;  // loopback, no TLS: authentication is not under test
-    options_.db_path = testing::TempDir() + "/validation_test_" + std::to_string(::getpid()) +
-                       "_" + std::to_string(counter++) + ".db";
+    options_.db_path = dir_.File("imucal.db");
   }
   void TearDown() override { server_.reset(); }
 
@@ -178,6 +177,7 @@ class ValidationTest : public testing::Test {
     return out;
   }
 
+  testing_util::TestDir dir_{"validation_test"};  // first: outlives the server that uses it
   ServerOptions options_;
   std::unique_ptr<Server> server_;
   std::shared_ptr<grpc::Channel> channel_;
