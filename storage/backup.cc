@@ -132,6 +132,18 @@ std::string DirectoryOf(const std::string& path) {
   return parent.empty() ? std::string(".") : parent.string();
 }
 
+// The directory that is to hold `path` exists: SQLite's own error for a missing one ("unable
+// to open database file") names neither the directory nor what to do.
+absl::Status CheckDirectoryOf(const std::string& path) {
+  const std::string dir = DirectoryOf(path);
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir, ec)) {
+    return absl::NotFoundError(
+        Cat(path, ": the directory ", dir, " does not exist (nothing creates it: make it first)"));
+  }
+  return absl::OkStatus();
+}
+
 // Makes a standalone copy of `src` at `path` (replacing it), in rollback-journal mode so that
 // it is one file; verifies it and makes it durable.
 absl::Status WriteStandaloneCopy(Connection& src, const std::string& path) {
@@ -188,6 +200,7 @@ absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path,
                                             const std::string& out_path) {
   if (out_path.empty()) return absl::InvalidArgumentError("backup: empty output path");
   STORAGE_RETURN_IF_ERROR(CheckExists(db_path));
+  STORAGE_RETURN_IF_ERROR(CheckDirectoryOf(out_path));
   // Read-only: the backup never writes the live database (nor checkpoints its WAL).
   absl::StatusOr<std::unique_ptr<Connection>> src =
       Connection::Open(db_path, ConnectionOptions{.read_only = true});
@@ -204,6 +217,7 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
     return absl::Status(source.status().code(),
                         Cat("refusing to restore: ", source.status().message()));
   }
+  STORAGE_RETURN_IF_ERROR(CheckDirectoryOf(db_path));
   std::error_code ec;
   const bool replacing = std::filesystem::exists(db_path, ec);
   {

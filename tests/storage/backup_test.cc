@@ -258,6 +258,27 @@ TEST(BackupTest, BackupOfAMissingDatabaseIsNotFoundAndCreatesNothing) {
   EXPECT_FALSE(std::filesystem::exists(missing)) << "a backup must not create its source";
 }
 
+// SQLite alone would say "unable to open database file"; the error names the missing directory,
+// and neither call makes it (a typo in a path must not grow a tree).
+TEST(BackupTest, AMissingDirectoryIsNamedAndNotCreated) {
+  const std::string db = TempDbPath("source");
+  { ASSERT_OK(OpenStore(db).status()); }
+  const std::string nowhere = TempDbPath("nowhere") + ".d";
+  std::filesystem::remove_all(nowhere);
+  const std::string out = nowhere + "/backup.db";
+  absl::StatusOr<DatabaseInfo> r = BackupDatabase(db, out);
+  EXPECT_EQ(r.status().code(), absl::StatusCode::kNotFound) << r.status();
+  EXPECT_THAT(Message(r.status()), HasSubstr("the directory " + nowhere + " does not exist"));
+  EXPECT_FALSE(std::filesystem::exists(nowhere));
+
+  const std::string backup = TempDbPath("backup");
+  ASSERT_OK(BackupDatabase(db, backup).status());
+  r = RestoreDatabase(backup, nowhere + "/imucal.db");
+  EXPECT_EQ(r.status().code(), absl::StatusCode::kNotFound) << r.status();
+  EXPECT_THAT(Message(r.status()), HasSubstr("the directory " + nowhere + " does not exist"));
+  EXPECT_FALSE(std::filesystem::exists(nowhere));
+}
+
 TEST(BackupTest, SchemaVersionOfANewPathIsZeroAndOfAStoreIsTheLatest) {
   const std::string db = TempDbPath("versions");
   ASSERT_OK_AND_ASSIGN(int none, SchemaVersionOf(db));
