@@ -114,8 +114,7 @@ template <Kind kKind>
 inline void HandApply(const HandParams& h, const RawSample& in, CalibratedSample* out) {
   double a[3];
   if constexpr (kKind == Kind::kLinear) {
-    const double u0 = in.accel[0] - h.ab[0], u1 = in.accel[1] - h.ab[1],
-                 u2 = in.accel[2] - h.ab[2];
+    const double u0 = in.accel[0] - h.ab[0], u1 = in.accel[1] - h.ab[1], u2 = in.accel[2] - h.ab[2];
     for (int i = 0; i < 3; ++i) a[i] = h.A[3 * i] * u0 + h.A[3 * i + 1] * u1 + h.A[3 * i + 2] * u2;
   } else {
     double z[3];

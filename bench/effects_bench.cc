@@ -69,8 +69,10 @@ struct Only {
 };
 
 int Main(int seeds, const Only& only) {
-  std::printf("effects_bench: %d seeds per row; six-face + 24 extra poses, 200 Hz, 2 mg noise, "
-              "8 degC warm-up\n\n", seeds);
+  std::printf(
+      "effects_bench: %d seeds per row; six-face + 24 extra poses, 200 Hz, 2 mg noise, "
+      "8 degC warm-up\n\n",
+      seeds);
   std::printf("%-30s %9s %9s %9s | %-25s | %-27s\n", "effect (truth)", "found", "within3se",
               "other", "validation accel mg", "validation gyro deg/s");
   std::printf("%-30s %9s %9s %9s | %7s %7s %7s   | %8s %8s %8s\n", "", "", "", "", "before",
@@ -85,7 +87,8 @@ int Main(int seeds, const Only& only) {
     std::vector<double> ab, aa, af, gb, ga, gf;
     for (int seed = 1; seed <= seeds; ++seed) {
       if (only.seed > 0 && seed != only.seed) continue;
-      absl::StatusOr<SimResult> sim = Simulate(EffectScenario(static_cast<uint64_t>(seed), c.effects, temperature));
+      absl::StatusOr<SimResult> sim =
+          Simulate(EffectScenario(static_cast<uint64_t>(seed), c.effects, temperature));
       if (!sim.ok()) return 1;
       bool time = false;
       for (const SimEffect& e : c.effects) time |= e.regressor.find("time") != std::string::npos;
@@ -97,7 +100,8 @@ int Main(int seeds, const Only& only) {
         for (const Effect& e : run.report.params.effects)
           if (Same(e, want)) got = &e;
         all &= got != nullptr;
-        all3 &= got != nullptr && std::abs(got->coefficient - want.coefficient) < 3 * got->std_error;
+        all3 &=
+            got != nullptr && std::abs(got->coefficient - want.coefficient) < 3 * got->std_error;
         if (got != nullptr && std::abs(got->coefficient - want.coefficient) >= 3 * got->std_error)
           misses += absl::StrFormat("  %s seed %d: %s %.4g +- %.2g, truth %.4g (%.1f se off)\n",
                                     c.name, seed, want.regressor, got->coefficient, got->std_error,
@@ -114,17 +118,20 @@ int Main(int seeds, const Only& only) {
         for (const Effect& e : run.report.params.effects)
           got += absl::StrFormat(" %s %c~%s", e.sensor == Sensor::kAccel ? "accel" : "gyro",
                                  "xyz"[e.axis], e.regressor);
-        misses += absl::StrFormat("  %s seed %d:%s\n", c.name, seed, got.empty() ? " nothing" : got);
+        misses +=
+            absl::StrFormat("  %s seed %d:%s\n", c.name, seed, got.empty() ? " nothing" : got);
       }
-      absl::StatusOr<SimResult> val =
-          Simulate(EffectScenario(static_cast<uint64_t>(seed) + 500, c.effects, temperature), sim->truth);
+      absl::StatusOr<SimResult> val = Simulate(
+          EffectScenario(static_cast<uint64_t>(seed) + 500, c.effects, temperature), sim->truth);
       if (!val.ok()) return 1;
       ParamSet without = run.report.params;
       without.effects.clear();
       const HoldError b = ErrorOn(*val, without), a = ErrorOn(*val, run.report.params),
                       f = ErrorOn(*val, TruthParams(*val));
-      ab.push_back(b.accel_m_s2 / kMg), aa.push_back(a.accel_m_s2 / kMg), af.push_back(f.accel_m_s2 / kMg);
-      gb.push_back(b.gyro_rad_s / kDegS), ga.push_back(a.gyro_rad_s / kDegS), gf.push_back(f.gyro_rad_s / kDegS);
+      ab.push_back(b.accel_m_s2 / kMg), aa.push_back(a.accel_m_s2 / kMg),
+          af.push_back(f.accel_m_s2 / kMg);
+      gb.push_back(b.gyro_rad_s / kDegS), ga.push_back(a.gyro_rad_s / kDegS),
+          gf.push_back(f.gyro_rad_s / kDegS);
     }
     std::string truth;
     for (const SimEffect& e : c.effects)
@@ -135,7 +142,9 @@ int Main(int seeds, const Only& only) {
                 truth.c_str(), found, seeds, within, seeds, other, seeds, Median(ab), Median(aa),
                 Median(af), Median(gb), Median(ga), Median(gf));
   }
-  if (!misses.empty()) std::printf("\nnot found as simulated, found with more, or beyond 3 standard errors:\n%s", misses.c_str());
+  if (!misses.empty())
+    std::printf("\nnot found as simulated, found with more, or beyond 3 standard errors:\n%s",
+                misses.c_str());
   // One scenario looked at: no summary.
   if (!only.name.empty() || only.seed > 0 || only.no_temperature) return 0;
   std::printf("\nclean captures (no effect simulated): captures with any effect added\n");
@@ -143,7 +152,8 @@ int Main(int seeds, const Only& only) {
     int alarms = 0;
     std::string which;
     for (int seed = 1; seed <= seeds; ++seed) {
-      absl::StatusOr<SimResult> sim = Simulate(EffectScenario(static_cast<uint64_t>(seed) + 1000, {}, temperature));
+      absl::StatusOr<SimResult> sim =
+          Simulate(EffectScenario(static_cast<uint64_t>(seed) + 1000, {}, temperature));
       if (!sim.ok()) return 1;
       const Run with = CalibrateTimed(sim->capture, true, false);
       const Run without = CalibrateTimed(sim->capture, false, false);
@@ -161,8 +171,9 @@ int Main(int seeds, const Only& only) {
                 temperature ? "with temperature:" : "without temperature:", alarms, seeds,
                 100.0 * (seeds - alarms) / seeds, which.c_str());
   }
-  std::printf("\ncalibrate median %.1f ms with the effect search, %.1f ms without (clean captures)\n",
-              Median(search_ms), Median(base_ms));
+  std::printf(
+      "\ncalibrate median %.1f ms with the effect search, %.1f ms without (clean captures)\n",
+      Median(search_ms), Median(base_ms));
   return 0;
 }
 
@@ -183,7 +194,8 @@ int main(int argc, char** argv) {
     } else if (a.rfind("--seed=", 0) == 0) {
       only.seed = std::atoi(argv[i] + 7);
     } else {
-      std::fprintf(stderr, "usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N] [--no-temperature]\n");
+      std::fprintf(
+          stderr, "usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N] [--no-temperature]\n");
       return 1;
     }
   }

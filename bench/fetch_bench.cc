@@ -4,7 +4,8 @@
 //   ninja -C build-perf fetch_bench
 //   build-perf/bench/fetch_bench [--devices=10000] [--versions=10] [--seconds=3]
 //                                [--callers=1,64] [--channels=1]
-//                                [--db=PATH (populated there if missing, reused if present)] [--keep]
+//                                [--db=PATH (populated there if missing, reused if present)]
+//                                [--keep]
 //                                [--warm] [--server-cpu=N] [--client-cpu=N]
 //
 // --warm fetches every device once before the rows (a fleet whose robots have all booted since
@@ -172,8 +173,8 @@ void Populate(const Flags& flags, const std::string& path) {
   }
   std::mt19937_64 rng(1);
   // A stand-in for the version's "imucal-report v1" document (same row, not read by GetActive).
-  const std::string report_json = "{\"format\":\"imucal-report v1\",\"padding\":\"" +
-                            std::string(8000, 'x') + "\"}";
+  const std::string report_json =
+      "{\"format\":\"imucal-report v1\",\"padding\":\"" + std::string(8000, 'x') + "\"}";
   const Clock::time_point t0 = Clock::now();
   size_t json_bytes = 0;
   for (int i = 0; i < flags.devices; ++i) {
@@ -207,22 +208,17 @@ void Populate(const Flags& flags, const std::string& path) {
         std::exit(1);
       }
     }
-    std::fprintf(stderr, "  populated versions up to %d (%.1f s)\n", v,
-                 Seconds(Clock::now() - t1));
+    std::fprintf(stderr, "  populated versions up to %d (%.1f s)\n", v, Seconds(Clock::now() - t1));
   }
   const double versions_s = Seconds(Clock::now() - t1);
   const int64_t total = static_cast<int64_t>(flags.devices) * flags.versions;
-  std::printf("populated %d devices in %.1f s (%.0f/s), %lld versions in %.1f s (%.0f/s); "
-              "params_json %.0f bytes on average\n",
-              flags.devices, devices_s, flags.devices / devices_s, static_cast<long long>(total),
-              versions_s, static_cast<double>(total) / versions_s,
-              static_cast<double>(json_bytes) / static_cast<double>(total));
+  std::printf(
+      "populated %d devices in %.1f s (%.0f/s), %lld versions in %.1f s (%.0f/s); "
+      "params_json %.0f bytes on average\n",
+      flags.devices, devices_s, flags.devices / devices_s, static_cast<long long>(total),
+      versions_s, static_cast<double>(total) / versions_s,
+      static_cast<double>(json_bytes) / static_cast<double>(total));
 }
-
-
-
-
-
 
 // One chain of calls: each completion records its latency and issues the next call.
 struct Run {
@@ -254,7 +250,7 @@ class Chain {
     request_.set_if_not_version(run_->if_not_version ? run_->active_version[d] : 0);
     start_ = Clock::now();
     stub_->async()->GetActiveParameters(context_.get(), &request_, &response_,
-                                             [this](grpc::Status s) { Done(std::move(s)); });
+                                        [this](grpc::Status s) { Done(std::move(s)); });
   }
 
  private:
@@ -291,7 +287,6 @@ class Chain {
   int64_t bytes_ = 0;
 };
 
-
 void PrintRow(const char* what, int callers, std::vector<double>& lat, double wall_s,
               int64_t errors, double cli_cpu, double srv_cpu, const std::string& load) {
   const double mx = lat.empty() ? 0 : *std::max_element(lat.begin(), lat.end());
@@ -322,8 +317,7 @@ int main(int argc, char** argv) {
     std::printf("reusing %s\n", db.c_str());
   }
   std::error_code ec;
-  std::printf("db size %.1f MB\n\n",
-              static_cast<double>(std::filesystem::file_size(db, ec)) / 1e6);
+  std::printf("db size %.1f MB\n\n", static_cast<double>(std::filesystem::file_size(db, ec)) / 1e6);
 
   // The active version per device (the last one added): for the if_not_version rows.
   std::vector<int> active(static_cast<size_t>(flags.devices), flags.versions);
@@ -354,14 +348,15 @@ int main(int argc, char** argv) {
         return 1;
       }
     }
-    std::printf("GetActiveParameters, random device of %d, %.1f s per row, %d channel(s), "
-                "server pid %d, %s, server cpu %d, client cpu %d (-1: any):\n",
-                flags.devices, flags.seconds, flags.channels, static_cast<int>(child.pid),
-                flags.warm ? "every device fetched once before" : "a tenth fetched before",
-                flags.server_cpu, flags.client_cpu);
-    std::printf("%-22s %7s %9s %10s %8s %8s %8s %8s %6s %8s %8s  %s\n", "call", "callers",
-                "calls", "calls/s", "p50_ms", "p99_ms", "p999_ms", "max_ms", "errors",
-                "cli_cpu", "srv_cpu", "loadavg(before)");
+    std::printf(
+        "GetActiveParameters, random device of %d, %.1f s per row, %d channel(s), "
+        "server pid %d, %s, server cpu %d, client cpu %d (-1: any):\n",
+        flags.devices, flags.seconds, flags.channels, static_cast<int>(child.pid),
+        flags.warm ? "every device fetched once before" : "a tenth fetched before",
+        flags.server_cpu, flags.client_cpu);
+    std::printf("%-22s %7s %9s %10s %8s %8s %8s %8s %6s %8s %8s  %s\n", "call", "callers", "calls",
+                "calls/s", "p50_ms", "p99_ms", "p999_ms", "max_ms", "errors", "cli_cpu", "srv_cpu",
+                "loadavg(before)");
     for (int if_not : {0, 1}) {
       for (int c : flags.callers) {
         Run run;
@@ -384,8 +379,8 @@ int main(int argc, char** argv) {
           run.cv.wait(lock, [&] { return run.running == 0; });
         }
         const double wall = Seconds(Clock::now() - t0);
-        PrintRow(if_not ? "GetActive (unchanged)" : "GetActive (full)", c, run.latencies_us,
-                 wall, run.errors, SelfCpuS() - cli0, ProcCpuS(child.pid) - srv0, load);
+        PrintRow(if_not ? "GetActive (unchanged)" : "GetActive (full)", c, run.latencies_us, wall,
+                 run.errors, SelfCpuS() - cli0, ProcCpuS(child.pid) - srv0, load);
         if (run.errors > 0) std::fprintf(stderr, "  first error: %s\n", run.first_error.c_str());
       }
     }
@@ -416,7 +411,9 @@ int main(int argc, char** argv) {
       PrintRow("Store::GetActive (no rpc)", 1, lat, wall, 0, SelfCpuS() - cli0, 0, load);
     }
   }
-  if (!dir.empty() && !flags.keep) std::filesystem::remove_all(dir, ec);
-  else if (!dir.empty()) std::printf("kept %s\n", dir.c_str());
+  if (!dir.empty() && !flags.keep)
+    std::filesystem::remove_all(dir, ec);
+  else if (!dir.empty())
+    std::printf("kept %s\n", dir.c_str());
   return 0;
 }

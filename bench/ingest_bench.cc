@@ -161,9 +161,9 @@ struct Shared {
   Clock::time_point deadline;
   std::mutex mu;
   std::condition_variable cv;
-  int running = 0;           // guarded by mu
-  int failed = 0;            // guarded by mu
-  std::string first_error;   // guarded by mu
+  int running = 0;                   // guarded by mu
+  int failed = 0;                    // guarded by mu
+  std::string first_error;           // guarded by mu
   std::vector<double> latencies_us;  // guarded by mu (merged at OnDone)
   int64_t acked_samples = 0;         // guarded by mu
   int64_t acked_batches = 0;         // guarded by mu
@@ -244,8 +244,10 @@ class Robot final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAc
       return;
     }
     if (next_seq_ - 1 - acked_seq_ >= shared_->window) return;
-    if (next_seq_ == 1) batch_.set_session_id(session_id_);
-    else batch_.clear_session_id();
+    if (next_seq_ == 1)
+      batch_.set_session_id(session_id_);
+    else
+      batch_.clear_session_id();
     FillBatch(*shared_->col, shared_->batch, next_seq_, &batch_);
     SentAt(next_seq_) = Clock::now();
     ++next_seq_;
@@ -271,7 +273,6 @@ class Robot final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAc
   std::vector<Clock::time_point> sent_at_;  // ring, indexed by seq
   std::vector<double> latencies_us_;
 };
-
 
 struct RoundResult {
   int n = 0;
@@ -394,8 +395,7 @@ void Breakdown(const Flags& flags, const Columns& col, const std::string& dir) {
                 static_cast<double>(wire.size()) / per);
   }
   const std::string db = dir + "/breakdown.db";
-  absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store =
-      imucal::storage::Store::Open(db);
+  absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store = imucal::storage::Store::Open(db);
   if (!store.ok()) {
     std::fprintf(stderr, "breakdown store: %s\n", std::string(store.status().message()).c_str());
     return;
@@ -469,7 +469,8 @@ void Breakdown(const Flags& flags, const Columns& col, const std::string& dir) {
     Clock::time_point t0 = Clock::now();
     for (int64_t i = 0; i < k * per; ++i) {
       const size_t j = static_cast<size_t>(i);
-      seg.Add(col.t[j], Eigen::Vector3d(col.accel[3 * j], col.accel[3 * j + 1], col.accel[3 * j + 2]),
+      seg.Add(col.t[j],
+              Eigen::Vector3d(col.accel[3 * j], col.accel[3 * j + 1], col.accel[3 * j + 2]),
               Eigen::Vector3d(col.gyro[3 * j], col.gyro[3 * j + 1], col.gyro[3 * j + 2]), &events);
     }
     report("  of which online segmenter", k, Seconds(Clock::now() - t0));
@@ -509,9 +510,10 @@ void Breakdown(const Flags& flags, const Columns& col, const std::string& dir) {
     double slow = 0;  // time spent in calls over 1 ms (WAL checkpoints: write + fsync)
     for (double x : lat_us)
       if (x > 1000) slow += x;
-    std::printf("    AppendBatch per call: mean %.0f us, p50 %.0f us, p99 %.0f us, p99.9 %.0f us, "
-                "max %.1f ms; calls > 1 ms take %.0f%% of the time; thread cpu %.0f%% of wall\n",
-                mean, p50, p99, p999, lat_us.back() / 1e3, 100 * slow / sum, 100 * cpu / wall);
+    std::printf(
+        "    AppendBatch per call: mean %.0f us, p50 %.0f us, p99 %.0f us, p99.9 %.0f us, "
+        "max %.1f ms; calls > 1 ms take %.0f%% of the time; thread cpu %.0f%% of wall\n",
+        mean, p50, p99, p999, lat_us.back() / 1e3, 100 * slow / sum, 100 * cpu / wall);
   }
 }
 
@@ -530,13 +532,14 @@ int main(int argc, char** argv) {
   // Fork before any gRPC object exists in this process.
   Child child = ForkServer(dir + "/ingest.db", flags.server_cpu);
   PinToCpu(flags.client_cpu);  // after the fork: the server keeps its own core
-  std::printf("imucal ingest bench: server pid %d on 127.0.0.1:%d, db %s/ingest.db "
-              "(WAL, synchronous=FULL: the Store default)\n",
-              static_cast<int>(child.pid), child.port, dir.c_str());
-  std::printf("batch %d samples (t, accel[3], gyro[3], temp per sample), window %d batch(es) "
-              "per stream, %d channel(s), %.1f s per round, %ld cores\n\n",
-              flags.batch, flags.window, flags.channels, flags.seconds,
-              sysconf(_SC_NPROCESSORS_ONLN));
+  std::printf(
+      "imucal ingest bench: server pid %d on 127.0.0.1:%d, db %s/ingest.db "
+      "(WAL, synchronous=FULL: the Store default)\n",
+      static_cast<int>(child.pid), child.port, dir.c_str());
+  std::printf(
+      "batch %d samples (t, accel[3], gyro[3], temp per sample), window %d batch(es) "
+      "per stream, %d channel(s), %.1f s per round, %ld cores\n\n",
+      flags.batch, flags.window, flags.channels, flags.seconds, sysconf(_SC_NPROCESSORS_ONLN));
 
   std::vector<std::shared_ptr<grpc::Channel>> channels;
   for (int i = 0; i < flags.channels; ++i) {
@@ -553,11 +556,10 @@ int main(int argc, char** argv) {
   int round = 0;
   for (int n : flags.ns) {
     RoundResult r = RunRound(flags, col, child, channels, n, round++);
-    std::printf("%6d %8.2f %11lld %12.0f %10.0f %9.2f %9.2f %9.2f %7.0f%% %7.0f%% %6d  %s\n",
-                r.n, r.wall_s, static_cast<long long>(r.samples), r.samples_per_s,
-                r.batches_per_s, r.p50_us / 1e3, r.p99_us / 1e3, r.max_us / 1e3,
-                100 * r.client_cpu_s / r.wall_s, 100 * r.server_cpu_s / r.wall_s, r.failed,
-                r.load.c_str());
+    std::printf("%6d %8.2f %11lld %12.0f %10.0f %9.2f %9.2f %9.2f %7.0f%% %7.0f%% %6d  %s\n", r.n,
+                r.wall_s, static_cast<long long>(r.samples), r.samples_per_s, r.batches_per_s,
+                r.p50_us / 1e3, r.p99_us / 1e3, r.max_us / 1e3, 100 * r.client_cpu_s / r.wall_s,
+                100 * r.server_cpu_s / r.wall_s, r.failed, r.load.c_str());
     std::fflush(stdout);
   }
   channels.clear();

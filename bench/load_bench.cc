@@ -54,6 +54,7 @@
 #include <deque>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -61,7 +62,6 @@
 #include <random>
 #include <sstream>
 #include <string>
-#include <iterator>
 #include <thread>
 #include <vector>
 
@@ -580,8 +580,8 @@ int main(int argc, char** argv) {
   if (flags.tls) {
     const std::string openssl = absl::StrCat(
         "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -days 1 "
-        "-subj /CN=localhost -addext subjectAltName=IP:127.0.0.1 -keyout '", key, "' -out '",
-        cert, "' 2>/dev/null");
+        "-subj /CN=localhost -addext subjectAltName=IP:127.0.0.1 -keyout '",
+        key, "' -out '", cert, "' 2>/dev/null");
     if (std::system(openssl.c_str()) != 0) {
       std::fprintf(stderr, "--tls: the openssl CLI could not make a certificate\n");
       return 1;

@@ -149,8 +149,7 @@ inline Child ForkServer(const std::string& db_path, int cpu = -1) {
   Child child;
   child.pid = pid;
   child.stop_fd = stop_pipe[1];
-  if (read(port_pipe[0], &child.port, sizeof child.port) != sizeof child.port ||
-      child.port == 0) {
+  if (read(port_pipe[0], &child.port, sizeof child.port) != sizeof child.port || child.port == 0) {
     std::fprintf(stderr, "the server did not start\n");
     std::exit(1);
   }

@@ -128,8 +128,7 @@ double Rms(const std::vector<double>& v) {
   return std::sqrt(s / static_cast<double>(v.size()));
 }
 
-absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses,
-                                         double gravity_m_s2) {
+absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses, double gravity_m_s2) {
   const size_t n = poses.size();
   if (n < 9) {
     return absl::FailedPreconditionError(absl::StrFormat(
@@ -220,9 +219,9 @@ absl::StatusOr<AccelParams> FitKnownReferences(const std::vector<Eigen::Vector3d
                                                const std::vector<Eigen::Vector3d>& references) {
   const size_t n = means.size();
   if (n < 4 || references.size() != n) {
-    return absl::FailedPreconditionError(absl::StrFormat(
-        "the affine least-squares fit needs at least 4 reference poses, got %d",
-        static_cast<int>(n)));
+    return absl::FailedPreconditionError(
+        absl::StrFormat("the affine least-squares fit needs at least 4 reference poses, got %d",
+                        static_cast<int>(n)));
   }
   Eigen::MatrixXd x(static_cast<Eigen::Index>(n), 4), y(static_cast<Eigen::Index>(n), 3);
   for (size_t i = 0; i < n; ++i) {
@@ -290,10 +289,12 @@ std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<Acce
     const Eigen::Vector3d a =
         l * (y + p.quadratic.cwiseProduct(y.cwiseProduct(y))) - pose.offset_m_s2;
     const Eigen::Vector3d d = Eigen::Vector3d(
-        (a.normalized().transpose() * l).transpose().cwiseProduct(
-            (Eigen::Vector3d::Ones() + 2 * p.quadratic.cwiseProduct(y)).cwiseProduct(p.scale)));
-    out.push_back(std::max(1e-12, std::hypot(d.cwiseProduct(pose.mean_std).norm(),
-                                             pose.model_sigma_m_s2)));
+        (a.normalized().transpose() * l)
+            .transpose()
+            .cwiseProduct(
+                (Eigen::Vector3d::Ones() + 2 * p.quadratic.cwiseProduct(y)).cwiseProduct(p.scale)));
+    out.push_back(
+        std::max(1e-12, std::hypot(d.cwiseProduct(pose.mean_std).norm(), pose.model_sigma_m_s2)));
   }
   return out;
 }
@@ -357,9 +358,9 @@ AccelObservability AnalyseAccelObservability(const AccelParams& p,
     for (int c = 0, k = 0; c < kAccelParams; ++c)
       if (free[c]) d(k++) = prior(c);
     const Eigen::MatrixXd info = d.asDiagonal() * (jw.transpose() * jw) * d.asDiagonal();
-    const Eigen::MatrixXd post =
-        (info + Eigen::MatrixXd::Identity(n_free, n_free)).ldlt().solve(
-            Eigen::MatrixXd::Identity(n_free, n_free));
+    const Eigen::MatrixXd post = (info + Eigen::MatrixXd::Identity(n_free, n_free))
+                                     .ldlt()
+                                     .solve(Eigen::MatrixXd::Identity(n_free, n_free));
     bool released = false;
     for (int c = 0, k = 0; c < kAccelParams; ++c) {
       if (!free[c]) continue;
@@ -435,9 +436,9 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
   int n_free = 0;
   for (bool f : free) n_free += f;
   if (static_cast<int>(poses.size()) <= n_free) {
-    return absl::FailedPreconditionError(absl::StrFormat(
-        "%d static poses cannot determine %d accelerometer parameters; add poses",
-        static_cast<int>(poses.size()), n_free));
+    return absl::FailedPreconditionError(
+        absl::StrFormat("%d static poses cannot determine %d accelerometer parameters; add poses",
+                        static_cast<int>(poses.size()), n_free));
   }
   LmResult out;
   out.params = start;
@@ -477,7 +478,8 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
   const Eigen::VectorXd rw = WeightedResiduals(p, poses, MagnitudeSigmas(p, poses), gravity_m_s2);
   const int dof = static_cast<int>(poses.size()) - n_free;
   out.chi2_reduced = rw.squaredNorm() / dof;
-  Eigen::MatrixXd cov = (jw.transpose() * jw).ldlt().solve(Eigen::MatrixXd::Identity(n_free, n_free));
+  Eigen::MatrixXd cov =
+      (jw.transpose() * jw).ldlt().solve(Eigen::MatrixXd::Identity(n_free, n_free));
   if (out.chi2_reduced > 1) {
     cov *= out.chi2_reduced;
     out.covariance_scaled = true;
@@ -528,8 +530,8 @@ AccelVector AccelStdErrors(const AccelParams& p, const std::vector<AccelPose>& p
                            const AccelMask& free) {
   AccelVector out = AccelVector::Zero();
   const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free);
-  const Eigen::MatrixXd cov = (jw.transpose() * jw).ldlt().solve(
-      Eigen::MatrixXd::Identity(jw.cols(), jw.cols()));
+  const Eigen::MatrixXd cov =
+      (jw.transpose() * jw).ldlt().solve(Eigen::MatrixXd::Identity(jw.cols(), jw.cols()));
   for (int c = 0, k = 0; c < kAccelParams; ++c)
     if (free[static_cast<size_t>(c)]) out(c) = std::sqrt(std::max(0.0, cov(k, k))), ++k;
   return out;

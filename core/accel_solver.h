@@ -33,7 +33,7 @@ using AccelMask = std::array<bool, kAccelParams>;  // true = estimated, false = 
 
 // A static pose as the accelerometer solver sees it.
 struct AccelPose {
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();  // mean raw reading, input units
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();      // mean raw reading, input units
   Eigen::Vector3d mean_std = Eigen::Vector3d::Ones();  // std of that mean per axis, input units
   // Error of |a| that the model leaves, common to all poses, m/s^2 (see EstimateModelSigma).
   double model_sigma_m_s2 = 0.0;
@@ -54,8 +54,7 @@ double Rms(const std::vector<double>& v);
 
 // Stage 1 without orientations: the ellipsoid through the pose means, in the triangular gauge.
 // Needs at least 9 poses spread over the sphere. Data-driven start: no nominal scale needed.
-absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses,
-                                         double gravity_m_s2);
+absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses, double gravity_m_s2);
 
 // Stage 1 of the reduced model (bias and scale only, angles and quadratic 0) for captures with
 // too few poses for the ellipsoid: sum_j s_j^2 (u_j - b_j)^2 = g^2, linear in 6 unknowns.
@@ -115,14 +114,13 @@ struct BsasStageOptions {
 };
 // Stage 2. `unit` is the normalisation (one unit per parameter), typically stage-1 std errors.
 AccelParams RefineAccelBsas(const AccelParams& start, const std::vector<AccelPose>& poses,
-                            double gravity_m_s2, const AccelMask& free,
-                            const AccelVector& unit, const BsasStageOptions& options,
-                            StageReport* report);
+                            double gravity_m_s2, const AccelMask& free, const AccelVector& unit,
+                            const BsasStageOptions& options, StageReport* report);
 
 struct LmResult {
   AccelParams params;
   AccelMatrix covariance = AccelMatrix::Zero();  // zero rows/cols for fixed parameters
-  double chi2_reduced = 0;  // weighted residual^2 / dof; >1: model misfit beyond noise
+  double chi2_reduced = 0;         // weighted residual^2 / dof; >1: model misfit beyond noise
   bool covariance_scaled = false;  // covariance multiplied by chi2_reduced (> 1)
 };
 // Stage 3. Fails (FailedPrecondition) when there are fewer poses than free parameters, and

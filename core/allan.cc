@@ -66,16 +66,18 @@ void AddNotes(const char* sensor, const SensorNoise& s, double tau_max_s,
                          "noise?)"));
   }
   if (auto a = missing(s.bias_instability); !a.empty()) {
-    notes->push_back(Cat(sensor, " bias instability not reached on ", AxisList(a),
-                         ": the curve still falls at the longest cluster time with ",
-                         kMinClustersForFloor, " clusters (~",
-                         absl::StrFormat("%.3g", tau_max_s * kMinClustersForFit / kMinClustersForFloor),
-                         " s); a longer rest would show its flat minimum"));
+    notes->push_back(
+        Cat(sensor, " bias instability not reached on ", AxisList(a),
+            ": the curve still falls at the longest cluster time with ", kMinClustersForFloor,
+            " clusters (~",
+            absl::StrFormat("%.3g", tau_max_s * kMinClustersForFit / kMinClustersForFloor),
+            " s); a longer rest would show its flat minimum"));
   }
   if (auto a = missing(s.random_walk); !a.empty()) {
     notes->push_back(Cat(sensor, " random walk not reached on ", AxisList(a),
                          ": the curve does not rise with slope +1/2 before ",
-                         absl::StrFormat("%.3g", tau_max_s), " s; random_walk_bound is an upper bound, not a measurement (typical "
+                         absl::StrFormat("%.3g", tau_max_s),
+                         " s; random_walk_bound is an upper bound, not a measurement (typical "
                          "MEMS needs a rest of an hour or more)"));
   }
 }
@@ -210,9 +212,8 @@ AxisFigures FitAllanFigures(const std::vector<double>& tau_s, const std::vector<
 absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
                                            const AccelParams& accel, const GyroParams& gyro) {
   if (begin >= end || end > capture.size()) {
-    return absl::InvalidArgumentError(
-        Cat("noise interval [", begin, ", ", end, ") outside the capture of ", capture.size(),
-            " samples"));
+    return absl::InvalidArgumentError(Cat("noise interval [", begin, ", ", end,
+                                          ") outside the capture of ", capture.size(), " samples"));
   }
   const size_t n = end - begin;
   if (n < kMinSamples) {
@@ -281,8 +282,9 @@ absl::StatusOr<NoiseAnalysis> NoiseFromLongestInterval(const Capture& capture,
   if (out.ok() && !params.gyro_calibrated && params.gyro_unit == GyroUnit::kCounts) {
     // A nominal matrix on raw counts gives no rad/s: the gyro figures would be in counts.
     out->figures.gyro = SensorNoise{};
-    out->figures.notes.push_back("gyro noise not stated: the gyroscope's scale (counts to rad/s) "
-                                 "was not determined");
+    out->figures.notes.push_back(
+        "gyro noise not stated: the gyroscope's scale (counts to rad/s) "
+        "was not determined");
   }
   return out;
 }

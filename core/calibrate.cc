@@ -60,7 +60,8 @@ std::vector<AccelPose> ToAccelPoses(const std::vector<StaticInterval>& ivs,
     const StaticInterval& s = ivs[static_cast<size_t>(i)];
     AccelPose p;
     p.mean = s.accel_mean;
-    p.mean_std = s.accel_std.cwiseMax(noise.accel_std) / std::sqrt(static_cast<double>(s.samples()));
+    p.mean_std =
+        s.accel_std.cwiseMax(noise.accel_std) / std::sqrt(static_cast<double>(s.samples()));
     out.push_back(p);
   }
   return out;
@@ -105,9 +106,8 @@ struct SweepResult {
   bool escalated = false;  // found only above the usual multipliers
 };
 
-SweepResult ScoreMultiplier(const Capture& cap, const MotionSignal& motion,
-                            const NoiseLevel& noise, const CalibrateOptions& opt, double m,
-                            size_t* most_poses) {
+SweepResult ScoreMultiplier(const Capture& cap, const MotionSignal& motion, const NoiseLevel& noise,
+                            const CalibrateOptions& opt, double m, size_t* most_poses) {
   SweepResult out;
   out.multiplier = m;
   const double g = cap.gravity_m_s2;
@@ -152,8 +152,8 @@ SweepResult SweepThreshold(const Capture& cap, const MotionSignal& motion, const
     for (double m : multipliers) {
       SweepResult r = ScoreMultiplier(cap, motion, noise, opt, m, most_poses);
       r.escalated = escalated;
-      if (r.tier > best.tier || (r.tier == best.tier && r.tier != SweepTier::kNone &&
-                                 r.press < best.press)) {
+      if (r.tier > best.tier ||
+          (r.tier == best.tier && r.tier != SweepTier::kNone && r.press < best.press)) {
         best = std::move(r);
       }
     }
@@ -300,7 +300,7 @@ std::vector<GyroMove> OnlyMoves(const std::vector<PlannedMove>& planned) {
 // A full-turn candidate: its samples, end up directions and raw integral.
 struct TurnCandidate {
   GyroFullTurn turn;
-  Eigen::Vector3d up = Eigen::Vector3d::UnitZ();  // mean of the two ends' up directions
+  Eigen::Vector3d up = Eigen::Vector3d::UnitZ();           // mean of the two ends' up directions
   Eigen::Vector3d raw_integral = Eigen::Vector3d::Zero();  // sum of c_k, input unit * s
 };
 
@@ -310,8 +310,7 @@ struct TurnCandidate {
 // one axis in one direction. The angle is checked once the scale is known (AcceptTurns).
 std::vector<TurnCandidate> FindTurnCandidates(const Capture& cap,
                                               const std::vector<StaticInterval>& anchors,
-                                              const AccelParams& accel,
-                                              const Eigen::Vector3d& bias,
+                                              const AccelParams& accel, const Eigen::Vector3d& bias,
                                               const std::vector<size_t>& gaps) {
   std::vector<TurnCandidate> out;
   std::vector<const StaticInterval*> still;
@@ -391,7 +390,8 @@ GyroParams RoughGyro(const Capture& cap, const std::vector<StaticInterval>& ivs,
     GyroSolveOptions go;
     go.bias = g.bias;
     go.interpolate_bias = true;
-    std::vector<GyroMove> moves = OnlyMoves(PlanMoves(cap, ivs, used, accel, gaps, nullptr, nullptr));
+    std::vector<GyroMove> moves =
+        OnlyMoves(PlanMoves(cap, ivs, used, accel, gaps, nullptr, nullptr));
     if (!turn_candidates.empty()) {
       std::vector<double> s;
       for (const TurnCandidate& c : turn_candidates) s.push_back(2 * M_PI / c.raw_integral.norm());
@@ -430,8 +430,8 @@ GyroStage SolveGyro(const Capture& cap, const std::vector<StaticInterval>& ivs,
   (void)ivs;
   auto r = moves.size() >= 3 || !full_turns.empty()
                ? SolveGyroFromMovesAndTurns(cap.t_s, cap.gyro, moves, full_turns, go)
-               : absl::StatusOr<GyroSolveResult>(absl::FailedPreconditionError(
-                     "fewer than 3 moves between static poses"));
+               : absl::StatusOr<GyroSolveResult>(
+                     absl::FailedPreconditionError("fewer than 3 moves between static poses"));
   if (!r.ok()) {
     out.warnings.push_back(absl::StrFormat(
         "gyroscope: only the bias was calibrated (%s). Scale and misalignment need rotations "
@@ -580,8 +580,9 @@ AccelMatrix AffineFitCovariance(const FaceReferences& faces, const AccelParams& 
 // Six-face stage 1 (seeds/000): the affine least-squares fit to the verified faces.
 absl::StatusOr<AccelParams> FitVerifiedFaces(const FaceReferences& faces) {
   if (faces.means.size() < 6) {
-    return absl::FailedPreconditionError(absl::StrFormat(
-        "only %d of 6 faces have a verified 180-degree pair", static_cast<int>(faces.means.size())));
+    return absl::FailedPreconditionError(
+        absl::StrFormat("only %d of 6 faces have a verified 180-degree pair",
+                        static_cast<int>(faces.means.size())));
   }
   return FitKnownReferences(faces.means, faces.refs);
 }
@@ -617,7 +618,8 @@ AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& po
   const Eigen::MatrixXd cov =
       info.ldlt().solve(Eigen::MatrixXd::Identity(info.rows(), info.cols()));
   for (size_t a = 0; a < idx.size(); ++a) {
-    const double s = std::sqrt(std::abs(cov(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(a))));
+    const double s =
+        std::sqrt(std::abs(cov(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(a))));
     if (std::isfinite(s) && s > 0) unit(idx[a]) = s;
   }
   return unit;
@@ -627,9 +629,8 @@ AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& po
 // 15-parameter model is the default, and a term is dropped only where leaving it out predicts
 // held-out poses better. With few poses at intermediate angles a second-order term fits noise
 // (the Xsens capture's quadratic_x does); where it is real, dropping it biases that axis' bias.
-AccelMask SelectQuadratics(const AccelParams& start, const std::vector<AccelPose>& poses,
-                           double g, const AccelMask& determined,
-                           std::vector<std::string>* notes) {
+AccelMask SelectQuadratics(const AccelParams& start, const std::vector<AccelPose>& poses, double g,
+                           const AccelMask& determined, std::vector<std::string>* notes) {
   AccelMask mask = determined;
   auto press = [&](const AccelMask& m) {
     return PressRms(RefineAccelGaussNewton(start, poses, g, m, 10), poses, g, m);
@@ -679,9 +680,9 @@ void SetModelSigma(const AccelParams& p, double g, const AccelMask& free,
 // effects and residuals into the report.
 absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>& ivs,
                            const std::vector<int>& used, const std::vector<AccelPose>& poses,
-                           const AccelMask& free, bool gyro_si, const std::vector<PlannedMove>& planned,
-                           const GyroStage& gyro, const EffectSearchOptions& opt,
-                           CalibrationReport* rep) {
+                           const AccelMask& free, bool gyro_si,
+                           const std::vector<PlannedMove>& planned, const GyroStage& gyro,
+                           const EffectSearchOptions& opt, CalibrationReport* rep) {
   EffectSearchInput in;
   in.gravity_m_s2 = cap.gravity_m_s2;
   in.accel = rep->params.accel;
@@ -719,11 +720,12 @@ absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>
     for (const PlannedMove& m : planned) {
       const auto from = std::find(used.begin(), used.end(), m.from_pose);
       const auto to = std::find(used.begin(), used.end(), m.to_pose);
-      if (from == used.end() || to == used.end()) return absl::InternalError("move off the used poses");
+      if (from == used.end() || to == used.end())
+        return absl::InternalError("move off the used poses");
       ends.emplace_back(from - used.begin(), to - used.begin());
     }
-    in.move_fit = [&cap, &planned, &gyro, ends](const std::vector<Eigen::Vector3d>& up)
-        -> std::optional<MoveFit> {
+    in.move_fit = [&cap, &planned, &gyro,
+                   ends](const std::vector<Eigen::Vector3d>& up) -> std::optional<MoveFit> {
       std::vector<GyroMove> moves;
       for (size_t k = 0; k < planned.size(); ++k) {
         GyroMove m = planned[k].move;
@@ -760,7 +762,8 @@ absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>
     for (int k = 0; k < 3; ++k) sig[static_cast<size_t>(Signal::kAx) + k] = a(k);
     for (const Effect& e : res->effects) {
       const std::optional<Regressor> r = ParseRegressor(e.regressor);
-      if (e.sensor == Sensor::kAccel && e.applied && r) a(e.axis) -= e.coefficient * r->Evaluate(sig);
+      if (e.sensor == Sensor::kAccel && e.applied && r)
+        a(e.axis) -= e.coefficient * r->Evaluate(sig);
     }
     const Face f = ClassifyFace(a.normalized());
     Eigen::Vector3d ref = Eigen::Vector3d::Zero();
@@ -895,7 +898,8 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
       AcceptTurns(cap, std::move(turn_candidates), rough_gyro.matrix(0, 0), &rep.turns);
   timer.Mark("gyro_rough");
   std::vector<Eigen::Vector3d> ups(ivs.size(), Eigen::Vector3d::Zero());
-  for (size_t i = 0; i < ivs.size(); ++i) ups[i] = sweep.accel.Apply(ivs[i].accel_mean).normalized();
+  for (size_t i = 0; i < ivs.size(); ++i)
+    ups[i] = sweep.accel.Apply(ivs[i].accel_mean).normalized();
 
   // 3. Protocol and its checks.
   std::vector<Eigen::Vector3d> used_ups;
@@ -921,9 +925,9 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
         const long gap = GapIn(gaps, begin, end);
         if (gap >= 0) {
           fp.rotation_known = false;
-          rep.warnings.push_back(absl::StrFormat(
-              "the turn from pose %d to pose %d was not checked: %s", used[k - 1], used[k],
-              DescribeGap(cap, static_cast<size_t>(gap))));
+          rep.warnings.push_back(
+              absl::StrFormat("the turn from pose %d to pose %d was not checked: %s", used[k - 1],
+                              used[k], DescribeGap(cap, static_cast<size_t>(gap))));
         }
       }
       fps.push_back(fp);
@@ -1091,7 +1095,8 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     double chi2 = kNaN;
     affine.covariance = AffineFitCovariance(faces, *s1, &chi2);
     // Its standard errors cover the face-set angles too.
-    for (int c = 6; c < 9; ++c) free[static_cast<size_t>(c)] |= held_by_faces[static_cast<size_t>(c)];
+    for (int c = 6; c < 9; ++c)
+      free[static_cast<size_t>(c)] |= held_by_faces[static_cast<size_t>(c)];
     affine.chi2_reduced = chi2;
     lm = affine;
     rep.warnings.push_back(absl::StrFormat(
@@ -1140,7 +1145,8 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     if (std::isnan(p.rotation_deg)) continue;  // across a time gap: not measured
     p.rotation_deg = IntegrateRotation(cap, ivs[static_cast<size_t>(p.pose_a)].end - 1,
                                        ivs[static_cast<size_t>(p.pose_b)].begin, gyro.params)
-                         .norm() * kRadToDeg;
+                         .norm() *
+                     kRadToDeg;
   }
 
   // 8. Residuals, in-sample and held out.
@@ -1227,10 +1233,10 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   AccelVector se_or_nan = se;
   for (int c = 0; c < kAccelParams; ++c)
     if (!free[static_cast<size_t>(c)]) se_or_nan(c) = kNaN;
-  ps.stderrs.accel = UnpackAccel(
-      se_or_nan, Eigen::Vector3d::Constant(s1_from_faces ? kNaN : 0.0));
+  ps.stderrs.accel = UnpackAccel(se_or_nan, Eigen::Vector3d::Constant(s1_from_faces ? kNaN : 0.0));
   if (gyro.result) {
-    for (int c = 0; c < 9; ++c) ps.stderrs.gyro_matrix(c % 3, c / 3) = std::sqrt(gyro.result->covariance(c, c));
+    for (int c = 0; c < 9; ++c)
+      ps.stderrs.gyro_matrix(c % 3, c / 3) = std::sqrt(gyro.result->covariance(c, c));
   } else {
     ps.stderrs.gyro_matrix.setConstant(kNaN);
   }
@@ -1238,7 +1244,8 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   if (used.size() >= 2) {
     Eigen::Vector3d ss = Eigen::Vector3d::Zero();
     for (int i : used) ss += (ivs[static_cast<size_t>(i)].gyro_mean - gyro.params.bias).cwiseAbs2();
-    ps.stderrs.gyro_bias = (ss / static_cast<double>(used.size() - 1) / static_cast<double>(used.size())).cwiseSqrt();
+    ps.stderrs.gyro_bias =
+        (ss / static_cast<double>(used.size() - 1) / static_cast<double>(used.size())).cwiseSqrt();
   }
   ps.quality_accel_rms_m_s2 = rep.residual.accel_rms_m_s2;
   ps.quality_gyro_static_rms_rad_s = rep.residual.gyro_static_rms_rad_s;

@@ -47,8 +47,8 @@ struct CalibrateOptions {
 
 struct PoseReport {
   int index = 0;
-  StaticInterval interval;  // times, means (input units), used/reason
-  std::string face;         // "Z+" when on a face, else ""
+  StaticInterval interval;                       // times, means (input units), used/reason
+  std::string face;                              // "Z+" when on a face, else ""
   Eigen::Vector3d up = Eigen::Vector3d::Zero();  // calibrated up direction, body frame
   double residual_m_s2 = std::numeric_limits<double>::quiet_NaN();  // |a| - g, in-sample
   double heldout_m_s2 = std::numeric_limits<double>::quiet_NaN();   // |a| - g, pose left out
@@ -56,18 +56,18 @@ struct PoseReport {
 
 struct MoveReport {
   int from_pose = 0, to_pose = 0;
-  double error_deg = 0;          // predicted vs measured gravity direction, in-sample
+  double error_deg = 0;  // predicted vs measured gravity direction, in-sample
   double heldout_error_deg = std::numeric_limits<double>::quiet_NaN();
-  double rotation_deg = 0;       // total rotation of the move
+  double rotation_deg = 0;  // total rotation of the move
 };
 
 // A full turn (Ferraris et al. 1995) found in the capture: from a still orientation about one
 // axis back to it, whole turns; its known angle constrains the gyroscope's scale.
 struct TurnReport {
   double t_start_s = 0, t_end_s = 0;
-  int turns = 1;                 // whole turns (360 degrees each)
+  int turns = 1;                                        // whole turns (360 degrees each)
   Eigen::Vector3d axis_body = Eigen::Vector3d::Zero();  // unit, body frame; zero when unknown
-  std::string axis;              // "z (vertical)", "unknown (not vertical)"
+  std::string axis;                                     // "z (vertical)", "unknown (not vertical)"
   double angle_deg = std::numeric_limits<double>::quiet_NaN();  // with the final gyroscope
   double error_deg = std::numeric_limits<double>::quiet_NaN();  // |constraint residual|
 };
@@ -111,7 +111,8 @@ struct CalibrationReport {
 };
 
 // Errors: FailedPrecondition when the capture cannot determine even bias and scale (fewer than
-// 7 usable poses and not the six faces, poses too alike), naming what to add; InvalidArgument for a capture that fails ValidateCapture.
+// 7 usable poses and not the six faces, poses too alike), naming what to add; InvalidArgument for a
+// capture that fails ValidateCapture.
 absl::StatusOr<CalibrationReport> Calibrate(const Capture& capture,
                                             const CalibrateOptions& options);
 

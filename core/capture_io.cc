@@ -37,7 +37,6 @@
 namespace imucal::core {
 namespace {
 
-
 // ---------------------------------------------------------------------------------------------
 // Text helpers shared by the readers. They work on string_views into the file buffer, so a
 // 50,000-line capture costs no allocation per line or per value.
@@ -1272,8 +1271,7 @@ absl::StatusOr<Capture> ImportCapture(const std::vector<std::string>& paths,
 
 namespace io_internal {
 
-absl::StatusOr<std::string> ReadFileText(const std::string& path,
-                                         std::optional<size_t> max_bytes) {
+absl::StatusOr<std::string> ReadFileText(const std::string& path, std::optional<size_t> max_bytes) {
   return ReadFileBytes(path, max_bytes);
 }
 

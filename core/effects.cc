@@ -1,9 +1,9 @@
 #include "core/effects.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <cmath>
 #include <limits>
 #include <memory>
 #include <utility>
@@ -151,7 +151,8 @@ void SetAccelOffsets(const State& st, const std::vector<SignalArray>& signals,
   for (size_t i = 0; i < poses->size(); ++i) {
     Eigen::Vector3d body = Eigen::Vector3d::Zero();
     for (const Term& t : st.terms)
-      if (t.sensor == Sensor::kAccel) body(t.axis) += t.coefficient * t.regressor.Evaluate(signals[i]);
+      if (t.sensor == Sensor::kAccel)
+        body(t.axis) += t.coefficient * t.regressor.Evaluate(signals[i]);
     (*poses)[i].accel.offset_m_s2 = rt * body;
   }
 }
@@ -210,7 +211,8 @@ Design AccelDesign(const State& st, const std::vector<AccelPose>& poses, const A
     for (int c : cols) d.x(i, k++) = j(i, c) * w;
     for (const Term* t : terms)
       d.x(i, k++) = AccelEffectDerivative(st.accel, poses[static_cast<size_t>(i)], t->axis,
-                                          t->regressor.Evaluate(signals[static_cast<size_t>(i)])) * w;
+                                          t->regressor.Evaluate(signals[static_cast<size_t>(i)])) *
+                    w;
   }
   return d;
 }
@@ -250,7 +252,8 @@ class AccelEffectCost : public ceres::CostFunction {
       : pose_(pose), frame_(frame_angles), terms_(std::move(terms)), g_(g), w_(inv_sigma) {
     set_num_residuals(1);
     for (int b = 0; b < 4; ++b) mutable_parameter_block_sizes()->push_back(3);
-    if (!terms_.empty()) mutable_parameter_block_sizes()->push_back(static_cast<int>(terms_.size()));
+    if (!terms_.empty())
+      mutable_parameter_block_sizes()->push_back(static_cast<int>(terms_.size()));
   }
 
   bool Evaluate(double const* const* params, double* residual, double** jacobians) const override {
@@ -263,7 +266,8 @@ class AccelEffectCost : public ceres::CostFunction {
     AccelPose pose = pose_;
     const Eigen::Matrix3d rt = ExpSo3<double>(frame_).transpose();
     Eigen::Vector3d body = Eigen::Vector3d::Zero();
-    for (size_t k = 0; k < terms_.size(); ++k) body(terms_[k].first) += params[4][k] * terms_[k].second;
+    for (size_t k = 0; k < terms_.size(); ++k)
+      body(terms_[k].first) += params[4][k] * terms_[k].second;
     pose.offset_m_s2 = rt * body;
     const std::vector<AccelPose> one = {pose};
     residual[0] = MagnitudeResiduals(p, one, g_)[0] * w_;
@@ -354,9 +358,9 @@ void SetAccelModelSigma(const State& st, const AccelMask& free,
   int n_free = 0;
   for (bool f : free) n_free += f;
   for (const Term& t : st.terms) n_free += t.sensor == Sensor::kAccel;
-  const double tau = CommonModelSigma(MagnitudeResiduals(st.accel, bare, g),
-                                      MagnitudeSigmas(st.accel, bare),
-                                      static_cast<double>(poses->size()) - n_free);
+  const double tau =
+      CommonModelSigma(MagnitudeResiduals(st.accel, bare, g), MagnitudeSigmas(st.accel, bare),
+                       static_cast<double>(poses->size()) - n_free);
   for (EffectPose& p : *poses) p.accel.model_sigma_m_s2 = tau;
 }
 
@@ -400,8 +404,8 @@ std::vector<double> AccelHeldOut(const State& st, const AccelMask& free,
 // Per gyro axis, the static-rate model offset_j + sum_k c_k x_ik is linear: exact weighted least
 // squares. Returns the residuals (rad/s) and, through `heldout`, the exact leave-one-out ones.
 struct GyroAxisFit {
-  Eigen::VectorXd residual;  // rad/s
-  Eigen::VectorXd heldout;   // rad/s
+  Eigen::VectorXd residual;    // rad/s
+  Eigen::VectorXd heldout;     // rad/s
   Eigen::MatrixXd covariance;  // over [offset | coefficients], scaled by chi^2 when above 1
   Eigen::VectorXd solution;
   Design design;  // weighted, at the solution
@@ -549,7 +553,8 @@ std::array<bool, kNumSignals> ExcitedSignals(const std::vector<EffectPose>& pose
         noise2 += m.row(k).transpose().cwiseProduct(poses[i].accel.mean_std).squaredNorm() / n;
       } else if (s >= static_cast<int>(Signal::kGx)) {
         const int k = s - static_cast<int>(Signal::kGx);
-        noise2 += gyro.matrix.row(k).transpose().cwiseProduct(poses[i].gyro_mean_std).squaredNorm() / n;
+        noise2 +=
+            gyro.matrix.row(k).transpose().cwiseProduct(poses[i].gyro_mean_std).squaredNorm() / n;
       }
     }
     // At rest the true rate is zero: a measured static rate is the gyroscope's residual itself,
@@ -598,10 +603,12 @@ std::string Separator(const Regressor& a, const Regressor& b) {
 // The regressor with every `time` factor read as `temperature` (`time*ay` -> `temperature*ay`).
 Regressor TemperatureTwin(Regressor r) {
   for (int i = 0; i < r.num_factors; ++i)
-    if (r.factors[i] == static_cast<int>(Signal::kTime)) r.factors[i] = static_cast<int>(Signal::kTemperature);
+    if (r.factors[i] == static_cast<int>(Signal::kTime))
+      r.factors[i] = static_cast<int>(Signal::kTemperature);
   // Factors stay sorted (Regressor's invariant); at most kMaxRegressorFactors, so insertion.
   for (int i = 1; i < r.num_factors; ++i)
-    for (int k = i; k > 0 && r.factors[k - 1] > r.factors[k]; --k) std::swap(r.factors[k - 1], r.factors[k]);
+    for (int k = i; k > 0 && r.factors[k - 1] > r.factors[k]; --k)
+      std::swap(r.factors[k - 1], r.factors[k]);
   return r;
 }
 
@@ -628,10 +635,10 @@ double RmsOf(const std::vector<double>& v) {
 // The whole model's fit: accelerometer (Ceres joint) and gyroscope (linear) with `st`'s terms.
 // Fills the standard errors of the terms and the residuals.
 struct Fit {
-  std::vector<double> accel_residual, accel_heldout;    // m/s^2
+  std::vector<double> accel_residual, accel_heldout;         // m/s^2
   std::vector<Eigen::Vector3d> gyro_residual, gyro_heldout;  // rad/s
-  std::vector<double> term_stderr;  // per st.terms
-  Eigen::MatrixXd accel_cov;        // over [free | accel coefficients]
+  std::vector<double> term_stderr;                           // per st.terms
+  Eigen::MatrixXd accel_cov;                                 // over [free | accel coefficients]
 };
 
 class Search {
@@ -754,16 +761,21 @@ class Search {
         s.f_threshold = FThreshold(opt_.family_alpha, tests, DofAfter(st, s.sensor, s.axis));
         s.passed = s.f > s.f_threshold && s.delta_bic < 0 && s.press_gain > s.f_threshold;
         // Ranked by BIC, which compares candidates of different axes on one scale.
-        if (s.passed && (best < 0 || s.delta_bic < cands[static_cast<size_t>(best)].score.delta_bic))
+        if (s.passed &&
+            (best < 0 || s.delta_bic < cands[static_cast<size_t>(best)].score.delta_bic))
           best = static_cast<int>(c);
       }
       if (round == 0) KeepTop(cands, &diag);
       if (std::getenv("IMUCAL_DEBUG_EFFECTS") != nullptr) {
         std::vector<RoundCandidate> sorted = cands;
-        std::sort(sorted.begin(), sorted.end(), [](const auto& a, const auto& b) { return a.score.f > b.score.f; });
+        std::sort(sorted.begin(), sorted.end(),
+                  [](const auto& a, const auto& b) { return a.score.f > b.score.f; });
         for (size_t k = 0; k < 6 && k < sorted.size(); ++k) {
           const auto& sc = sorted[k].score;
-          fprintf(stderr, "round %d: %s %s %s F %.1f thr %.1f bic %.1f press %.1f c %.3g %s\n", round, SensorName(sc.sensor), AxisName(sc.axis), sc.regressor.c_str(), sc.f, sc.f_threshold, sc.delta_bic, sc.press_gain, sc.coefficient, sc.passed ? "PASS" : "");
+          fprintf(stderr, "round %d: %s %s %s F %.1f thr %.1f bic %.1f press %.1f c %.3g %s\n",
+                  round, SensorName(sc.sensor), AxisName(sc.axis), sc.regressor.c_str(), sc.f,
+                  sc.f_threshold, sc.delta_bic, sc.press_gain, sc.coefficient,
+                  sc.passed ? "PASS" : "");
         }
       }
       if (best < 0) break;
@@ -788,12 +800,12 @@ class Search {
       }
       // A time effect that the data favour over its temperature twin, but not strongly (BIC
       // within kWeakEvidenceBic; the same sensor and axis, the regressor with temperature in
-      // place of time: `time*ay` against `temperature*ay`), gives way to it. The choice decides what the robot gets: a time
-      // effect is not applied (time since power-on grows without bound once the warm-up is
-      // over), so choosing it on weak evidence leaves a real temperature effect uncorrected;
-      // choosing temperature corrects the warm-up the capture saw either way, and stays bounded
-      // by the temperatures the robot meets. The notes still name both and what would tell them
-      // apart (a capture at a steady temperature).
+      // place of time: `time*ay` against `temperature*ay`), gives way to it. The choice decides
+      // what the robot gets: a time effect is not applied (time since power-on grows without bound
+      // once the warm-up is over), so choosing it on weak evidence leaves a real temperature effect
+      // uncorrected; choosing temperature corrects the warm-up the capture saw either way, and
+      // stays bounded by the temperatures the robot meets. The notes still name both and what would
+      // tell them apart (a capture at a steady temperature).
       if (UsesSignal(cands[static_cast<size_t>(best)].regressor, Signal::kTime)) {
         const RoundCandidate& timed = cands[static_cast<size_t>(best)];
         int swap = -1;
@@ -893,8 +905,7 @@ class Search {
       std::vector<const Term*> terms;
       for (const Term& t : st.terms)
         if (t.sensor == Sensor::kGyro && t.axis == j) terms.push_back(&t);
-      const GyroAxisFit g =
-          FitGyroAxis(j, rates_, gyro_sigma_, GyroTau(j, terms), terms, signals_);
+      const GyroAxisFit g = FitGyroAxis(j, rates_, gyro_sigma_, GyroTau(j, terms), terms, signals_);
       gyro_scorers.push_back(std::make_unique<Scorer>(g.design));
       gyro_w.push_back(g.design.weight);
     }
@@ -931,7 +942,8 @@ class Search {
           c.score.sensor = sensor == 0 ? Sensor::kAccel : Sensor::kGyro;
           c.score.axis = axis;
           c.score.regressor = r.Name();
-          const Scorer& scorer = sensor == 0 ? accel_scorer : *gyro_scorers[static_cast<size_t>(axis)];
+          const Scorer& scorer =
+              sensor == 0 ? accel_scorer : *gyro_scorers[static_cast<size_t>(axis)];
           if (!scorer.Score(col, &c.score, &c.perp)) {
             ++*absorbed;
             continue;
@@ -1048,7 +1060,8 @@ class Search {
     const auto force = [](const Regressor& r) {
       std::vector<int> f;
       for (int i = 0; i < r.num_factors; ++i)
-        if (r.factors[i] >= static_cast<int>(Signal::kAx) && r.factors[i] <= static_cast<int>(Signal::kAz))
+        if (r.factors[i] >= static_cast<int>(Signal::kAx) &&
+            r.factors[i] <= static_cast<int>(Signal::kAz))
           f.push_back(r.factors[i]);
       return f;
     };
@@ -1083,7 +1096,8 @@ class Search {
     for (size_t i = 0; i < poses_.size(); ++i) {
       Eigen::Vector3d a = st.accel.Apply(poses_[i].accel.mean);
       for (const Term& t : st.terms)
-        if (t.sensor == Sensor::kAccel) a(t.axis) -= t.coefficient * t.regressor.Evaluate(signals_[i]);
+        if (t.sensor == Sensor::kAccel)
+          a(t.axis) -= t.coefficient * t.regressor.Evaluate(signals_[i]);
       out.push_back(a.normalized());
     }
     return out;
@@ -1128,14 +1142,16 @@ class Search {
         if (!std::isfinite(e)) return;
       errors.push_back(f->error_rad);
     }
-    for (size_t k = 0; k < group.size(); ++k) (*cands)[group[k]].move_error_rad = std::move(errors[k]);
+    for (size_t k = 0; k < group.size(); ++k)
+      (*cands)[group[k]].move_error_rad = std::move(errors[k]);
     const RoundCandidate& chosen = (*cands)[b];
     const double t_crit =
         MoveTThreshold(static_cast<int>(group.size() - 1), chosen.move_error_rad.size());
     for (size_t c : group) {
       const RoundCandidate& x = (*cands)[c];
       if (c == b || !(MovePairedT(chosen, x) > t_crit)) continue;
-      if (static_cast<size_t>(*best) == b || x.MoveRms() < (*cands)[static_cast<size_t>(*best)].MoveRms())
+      if (static_cast<size_t>(*best) == b ||
+          x.MoveRms() < (*cands)[static_cast<size_t>(*best)].MoveRms())
         *best = static_cast<int>(c);
     }
   }
@@ -1183,10 +1199,9 @@ class Search {
       const std::string favoured = win.score.delta_bic <= c.score.delta_bic ? win_name : name;
       diag->notes.push_back(Cat(
           "ambiguous: ", win_name,
-          gap < kAmbiguousBic
-              ? Cat(" explains the residual about as well as ", name)
-              : Cat(" and ", name, " both explain the residual; the data favour ", favoured,
-                    " but not strongly"),
+          gap < kAmbiguousBic ? Cat(" explains the residual about as well as ", name)
+                              : Cat(" and ", name, " both explain the residual; the data favour ",
+                                    favoured, " but not strongly"),
           absl::StrFormat(" (BIC %+.1f vs %+.1f", win.score.delta_bic, c.score.delta_bic),
           gap < kAmbiguousBic ? "); " : ", a difference under 6 is not strong evidence); ",
           std::isfinite(t)
@@ -1202,7 +1217,8 @@ class Search {
         "squares -%.1f (noise units)%s%s",
         win.score.f, win.score.f_threshold, opt_.family_alpha, tests, win.score.delta_bic,
         win.score.press_gain,
-        &win != &static_best ? "; chosen over the static choice by the rotations between poses" : "",
+        &win != &static_best ? "; chosen over the static choice by the rotations between poses"
+                             : "",
         rivals.empty() ? "" : Cat("; ambiguous with ", rivals));
   }
 
@@ -1245,13 +1261,13 @@ class Search {
     for (const EffectPose& p : poses_) has_temp &= std::isfinite(p.temp_c);
     for (const Term& t : st.terms) {
       if (UsesSignal(t.regressor, Signal::kTime)) {
-        diag->notes.push_back(Cat(
-            TermName(t), ": a dependence on time since the capture started",
-            t.applied ? " (applied: the user opted in)"
-                      : " is reported, not applied (opt in to apply it at run time)",
-            has_temp ? ""
-                     : "; the capture has no temperature channel, so a warm-up would look the "
-                       "same: record temperature to tell them apart"));
+        diag->notes.push_back(
+            Cat(TermName(t), ": a dependence on time since the capture started",
+                t.applied ? " (applied: the user opted in)"
+                          : " is reported, not applied (opt in to apply it at run time)",
+                has_temp ? ""
+                         : "; the capture has no temperature channel, so a warm-up would look the "
+                           "same: record temperature to tell them apart"));
       }
     }
     const double accel_rms = RmsOf(fit.accel_residual);
@@ -1278,8 +1294,7 @@ class Search {
         GyroRms(fit.gyro_residual) * kRadToDeg, GyroRms(fit.gyro_heldout) * kRadToDeg,
         diag->gyro_noise_floor_rad_s * kRadToDeg));
     if (!has_temp) {
-      diag->notes.push_back(
-          "no temperature channel: temperature effects could not be tested");
+      diag->notes.push_back("no temperature channel: temperature effects could not be tested");
     }
     if (!in_.gyro_output_si) {
       diag->notes.push_back(

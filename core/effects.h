@@ -55,10 +55,10 @@
 // THE MOVES then judge accelerometer candidates when the pipeline gives EffectSearchInput::
 // move_fit: the best passing ones by BIC (up to 8) that differ from the chosen one in their
 // output axis or specific-force factors (not only in temperature or time, which the moves,
-// made during the same warm-up, cannot tell apart any better) are each added to the model, refitted, and
-// their pose directions handed to the gyroscope, refitted to them. A candidate whose directions
-// the rotations between poses fit better than the chosen one's (one-sided paired t over the
-// moves' squared errors, at alpha over the number compared) replaces it; among several, the one
+// made during the same warm-up, cannot tell apart any better) are each added to the model,
+// refitted, and their pose directions handed to the gyroscope, refitted to them. A candidate whose
+// directions the rotations between poses fit better than the chosen one's (one-sided paired t over
+// the moves' squared errors, at alpha over the number compared) replaces it; among several, the one
 // the moves fit best. A paired test over moves, not a likelihood over their components: a
 // pose's direction enters the move before it and the one after it, so the components are not
 // independent, and the test must not count them as if they were. This is what tells `ax*az` on
@@ -84,8 +84,8 @@ namespace imucal::core {
 struct EffectPose {
   int pose_index = 0;  // index in CalibrationReport::poses
   AccelPose accel;     // raw mean and its std (input units); offset and model sigma are set here
-  Eigen::Vector3d gyro_mean = Eigen::Vector3d::Zero();      // raw, input units
-  Eigen::Vector3d gyro_mean_std = Eigen::Vector3d::Ones();  // std of that mean, input units
+  Eigen::Vector3d gyro_mean = Eigen::Vector3d::Zero();       // raw, input units
+  Eigen::Vector3d gyro_mean_std = Eigen::Vector3d::Ones();   // std of that mean, input units
   double temp_c = std::numeric_limits<double>::quiet_NaN();  // NaN: no temperature channel
   double time_s = 0.0;  // the pose's middle, s from capture start
 };
@@ -119,10 +119,10 @@ struct CandidateScore {
   Sensor sensor = Sensor::kAccel;
   int axis = 0;
   std::string regressor;
-  double f = 0;          // dRSS / s^2
+  double f = 0;  // dRSS / s^2
   double f_threshold = 0;
-  double delta_bic = 0;  // < 0: the criterion prefers the effect
-  double press_gain = 0; // held-out weighted sum of squares before - after
+  double delta_bic = 0;    // < 0: the criterion prefers the effect
+  double press_gain = 0;   // held-out weighted sum of squares before - after
   double coefficient = 0;  // linearised, SI per regressor unit
   bool passed = false;
 };
@@ -135,7 +135,7 @@ struct EffectPoseRow {
   // before: no effects; after: the stored model (applied effects); all: every effect found,
   // applied or not (the fit the coefficients come from).
   double accel_before_m_s2 = 0, accel_after_m_s2 = 0, accel_all_m_s2 = 0;  // |a| - g
-  Eigen::Vector3d gyro_before_rad_s = Eigen::Vector3d::Zero();  // static rate
+  Eigen::Vector3d gyro_before_rad_s = Eigen::Vector3d::Zero();             // static rate
   Eigen::Vector3d gyro_after_rad_s = Eigen::Vector3d::Zero();
   Eigen::Vector3d gyro_all_rad_s = Eigen::Vector3d::Zero();
 };
@@ -143,7 +143,7 @@ struct EffectPoseRow {
 // Six-face protocols fix each face's orientation: the per-axis residual of a verified face (its
 // 180-degree pair averaged, which cancels the floor tilt), calibrated minus +-g on the face axis.
 struct FaceResidual {
-  std::string face;  // "X+", ...
+  std::string face;                                         // "X+", ...
   Eigen::Vector3d residual_m_s2 = Eigen::Vector3d::Zero();  // body frame, with the stored model
 };
 
@@ -160,9 +160,9 @@ struct MoveTrend {
 struct EffectDiagnostics {
   bool ran = false;
   int rounds = 0;
-  int candidates = 0;  // distinct candidates tested in the first round
-  int absorbed = 0;    // skipped: the model already spans them
-  int not_excited = 0; // skipped: the regressor does not vary over the poses
+  int candidates = 0;   // distinct candidates tested in the first round
+  int absorbed = 0;     // skipped: the model already spans them
+  int not_excited = 0;  // skipped: the regressor does not vary over the poses
   // Noise floors: the RMS the static residual would have if the model were perfect, from the
   // scatter within each pose.
   double accel_noise_floor_m_s2 = 0;
@@ -172,9 +172,9 @@ struct EffectDiagnostics {
   double gyro_heldout_before_rad_s = 0, gyro_heldout_after_rad_s = 0;
   std::vector<CandidateScore> top;  // the best few candidates of the first round
   std::vector<EffectPoseRow> rows;
-  std::vector<FaceResidual> faces;  // six-face only, filled by the pipeline
+  std::vector<FaceResidual> faces;     // six-face only, filled by the pipeline
   std::vector<MoveTrend> move_trends;  // every signal tested on the moves (6 moves or more)
-  std::vector<std::string> notes;   // ambiguities, what was not testable, residual vs floor
+  std::vector<std::string> notes;      // ambiguities, what was not testable, residual vs floor
 };
 
 struct EffectSearchInput {

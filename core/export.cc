@@ -127,9 +127,8 @@ struct SiModel {
 };
 
 bool AllFinite(const ParamSet& p) {
-  return p.accel.bias.allFinite() && p.accel.scale.allFinite() &&
-         p.accel.tri_angles.allFinite() && p.accel.frame_angles.allFinite() &&
-         p.gyro.matrix.allFinite() && p.gyro.bias.allFinite() &&
+  return p.accel.bias.allFinite() && p.accel.scale.allFinite() && p.accel.tri_angles.allFinite() &&
+         p.accel.frame_angles.allFinite() && p.gyro.matrix.allFinite() && p.gyro.bias.allFinite() &&
          p.gyro.accel_coupling.allFinite();
 }
 
@@ -146,8 +145,8 @@ absl::StatusOr<SiModel> ToSi(const ParamSet& p) {
   m.k_accel = NominalAccelToSi(p.accel_unit, kStandardGravity);
   m.k_gyro = p.gyro_unit == GyroUnit::kDegPerSecond ? kPi / 180.0 : 1.0;
   m.frame = ExpSo3<double>(p.accel.frame_angles);
-  m.accel_lower = LowerMisalignment<double>(p.accel.tri_angles) * p.accel.scale.asDiagonal() /
-                  m.k_accel;
+  m.accel_lower =
+      LowerMisalignment<double>(p.accel.tri_angles) * p.accel.scale.asDiagonal() / m.k_accel;
   m.accel_linear = m.frame * m.accel_lower;
   m.gyro = p.gyro.matrix / m.k_gyro;
   m.coupling = p.gyro.accel_coupling;
@@ -182,13 +181,15 @@ absl::StatusOr<Noise> ResolveNoise(const ParamSet& p, const ExportOptions& o) {
       n.lines.push_back(Cat(key, ": measured, largest axis of ", VecText(*per_axis), " ", unit));
     } else if (std::isfinite(user)) {
       *out = user;
-      n.lines.push_back(Cat(key, ": NOT measured (", block ? "the noise block lacks it" :
-                                                         "the parameter set has no noise block",
-                            "); the value supplied to the export, ", Num(user), " ", unit));
+      n.lines.push_back(
+          Cat(key, ": NOT measured (",
+              block ? "the noise block lacks it" : "the parameter set has no noise block",
+              "); the value supplied to the export, ", Num(user), " ", unit));
     } else if (o.random_walk_bound_as_value && bound != nullptr && Largest(*bound) > 0) {
       // Conservative: the filter is told of more bias wander than the sensor has, never less.
       *out = Largest(*bound);
-      n.lines.push_back(Cat(key, ": NOT measured (the capture's rest is too short to reach it); "
+      n.lines.push_back(Cat(key,
+                            ": NOT measured (the capture's rest is too short to reach it); "
                             "the UPPER BOUND the data gives, largest axis of ",
                             VecText(*bound), " ", unit, ". Pass ", flag,
                             " (e.g. the datasheet's) to replace it"));
@@ -206,12 +207,10 @@ absl::StatusOr<Noise> ResolveNoise(const ParamSet& p, const ExportOptions& o) {
   pick("accelerometer_noise_density", "--accel-noise-density", "m/s^2/sqrt(Hz)",
        Largest(a.noise_density), &a.noise_density, nullptr, o.accel_noise_density,
        &n.accel_density);
-  pick("accelerometer_random_walk", "--accel-random-walk", "m/s^3/sqrt(Hz)",
-       Largest(a.random_walk), &a.random_walk, block ? &a.random_walk_bound : &nan3,
-       o.accel_random_walk, &n.accel_walk);
+  pick("accelerometer_random_walk", "--accel-random-walk", "m/s^3/sqrt(Hz)", Largest(a.random_walk),
+       &a.random_walk, block ? &a.random_walk_bound : &nan3, o.accel_random_walk, &n.accel_walk);
   pick("gyroscope_noise_density", "--gyro-noise-density", "rad/s/sqrt(Hz)",
-       Largest(g.noise_density), &g.noise_density, nullptr, o.gyro_noise_density,
-       &n.gyro_density);
+       Largest(g.noise_density), &g.noise_density, nullptr, o.gyro_noise_density, &n.gyro_density);
   pick("gyroscope_random_walk", "--gyro-random-walk", "rad/s^2/sqrt(Hz)", Largest(g.random_walk),
        &g.random_walk, block ? &g.random_walk_bound : &nan3, o.gyro_random_walk, &n.gyro_walk);
   if (std::isfinite(o.update_rate_hz) && o.update_rate_hz > 0) {
@@ -222,15 +221,16 @@ absl::StatusOr<Noise> ResolveNoise(const ParamSet& p, const ExportOptions& o) {
     missing.push_back("update_rate (no noise block states the capture's rate): pass --rate HZ");
   }
   if (!missing.empty()) {
-    return absl::FailedPreconditionError(
-        Cat("cannot write the noise keys: ", Join(missing, "; ")));
+    return absl::FailedPreconditionError(Cat("cannot write the noise keys: ", Join(missing, "; ")));
   }
   if (block != nullptr) {
-    n.lines.push_back(Cat("measured: overlapping Allan deviation of the calibrated signal over "
-                          "the rest t = ",
-                          block->t_start_s, "..", block->t_end_s, " s (", block->samples,
-                          " samples, ", block->rate_hz, " Hz); continuous-time densities, "
-                          "per-sample std = density * sqrt(rate)"));
+    n.lines.push_back(
+        Cat("measured: overlapping Allan deviation of the calibrated signal over "
+            "the rest t = ",
+            block->t_start_s, "..", block->t_end_s, " s (", block->samples, " samples, ",
+            block->rate_hz,
+            " Hz); continuous-time densities, "
+            "per-sample std = density * sqrt(rate)"));
   }
   return n;
 }
@@ -271,8 +271,8 @@ void AppendNoiseComment(std::string* out, const Noise& n) {
   for (const std::string& l : n.lines) AppendTo(out, "# noise: ", l, "\n");
 }
 
-std::string KalibrImu(const ParamSet& p, const ExportOptions& o, const SiModel& m,
-                      const Noise& n, const std::vector<std::string>& notes) {
+std::string KalibrImu(const ParamSet& p, const ExportOptions& o, const SiModel& m, const Noise& n,
+                      const std::vector<std::string>& notes) {
   std::string out;
   AppendHeader(&out, p, ExportFormat::kKalibrImu, m, notes);
   AppendNoiseComment(&out, n);
@@ -375,22 +375,20 @@ absl::StatusOr<ExportFormat> ParseExportFormat(std::string_view name) {
 std::vector<std::string> ExportNotes(const ParamSet& p, ExportFormat format,
                                      const ExportOptions& options) {
   std::vector<std::string> notes;
-  const double ka = p.accel_unit == AccelUnit::kCounts
-                        ? 1.0
-                        : NominalAccelToSi(p.accel_unit, kStandardGravity);
+  const double ka =
+      p.accel_unit == AccelUnit::kCounts ? 1.0 : NominalAccelToSi(p.accel_unit, kStandardGravity);
   const double kg = p.gyro_unit == GyroUnit::kDegPerSecond ? kPi / 180.0 : 1.0;
   if (format != ExportFormat::kKalibrImu) {
-    notes.push_back(Cat("NOT IN THIS FILE: biases (the format holds none; estimate them online). "
-                        "imucal's, in the measurement's SI unit: accel ",
-                        VecText(p.accel.bias * ka), " m/s^2, gyro ", VecText(p.gyro.bias * kg),
-                        " rad/s"));
+    notes.push_back(
+        Cat("NOT IN THIS FILE: biases (the format holds none; estimate them online). "
+            "imucal's, in the measurement's SI unit: accel ",
+            VecText(p.accel.bias * ka), " m/s^2, gyro ", VecText(p.gyro.bias * kg), " rad/s"));
     if (!p.accel.quadratic.isZero(0.0)) {
-      notes.push_back(Cat("NOT IN THIS FILE: accel second-order terms (quadratic ",
-                          VecText(p.accel.quadratic),
-                          " 1/(m/s^2)); the format is linear, so the exported model differs from "
-                          "imucal's by quadratic_i * y_i^2 (",
-                          Num(p.accel.quadratic.cwiseAbs().maxCoeff() * 9.80665 * 9.80665),
-                          " m/s^2 at 1 g)"));
+      notes.push_back(
+          Cat("NOT IN THIS FILE: accel second-order terms (quadratic ", VecText(p.accel.quadratic),
+              " 1/(m/s^2)); the format is linear, so the exported model differs from "
+              "imucal's by quadratic_i * y_i^2 (",
+              Num(p.accel.quadratic.cwiseAbs().maxCoeff() * 9.80665 * 9.80665), " m/s^2 at 1 g)"));
     } else {
       notes.push_back("NOT IN THIS FILE: second-order terms (zero in this parameter set)");
     }
@@ -398,8 +396,9 @@ std::vector<std::string> ExportNotes(const ParamSet& p, ExportFormat format,
       notes.push_back("the gyroscope matrix is nominal: the capture determined only its bias");
     }
   } else {
-    notes.push_back("NOT IN THIS FILE: biases, scale, misalignment and second-order terms (the "
-                    "format holds noise only; see --format kalibr-intrinsics or openvins)");
+    notes.push_back(
+        "NOT IN THIS FILE: biases, scale, misalignment and second-order terms (the "
+        "format holds noise only; see --format kalibr-intrinsics or openvins)");
   }
   if (!p.effects.empty()) {
     std::vector<std::string> names;
@@ -414,8 +413,9 @@ std::vector<std::string> ExportNotes(const ParamSet& p, ExportFormat format,
     notes.push_back("NOT IN THIS FILE: effects (none in this parameter set)");
   }
   auto user = [&](double v, const char* key) {
-    if (std::isfinite(v)) notes.push_back(Cat(key, " supplied to the export: ", Num(v),
-                                              " (used only if the noise block lacks it)"));
+    if (std::isfinite(v))
+      notes.push_back(Cat(key, " supplied to the export: ", Num(v),
+                          " (used only if the noise block lacks it)"));
   };
   user(options.accel_noise_density, "accelerometer_noise_density");
   user(options.accel_random_walk, "accelerometer_random_walk");

@@ -90,8 +90,9 @@ struct ExportOptions {
 absl::Status ValidateRosTopic(std::string_view topic);
 
 // The file text. InvalidArgument when the parameter set is in raw counts, a matrix is singular,
-// a value is not finite or options.rostopic is not a topic name (ValidateRosTopic); FailedPrecondition naming each noise figure (or the rate) that
-// neither the noise block nor `options` provides, and the option that supplies it.
+// a value is not finite or options.rostopic is not a topic name (ValidateRosTopic);
+// FailedPrecondition naming each noise figure (or the rate) that neither the noise block nor
+// `options` provides, and the option that supplies it.
 absl::StatusOr<std::string> ExportParams(const ParamSet& params, ExportFormat format,
                                          const ExportOptions& options);
 

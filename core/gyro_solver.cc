@@ -551,9 +551,9 @@ void FindUndetermined(const SpectralSplit& split, const Mat99& covariance, doubl
   result->rank_deficient = split.rank < 9 || !result->undetermined.empty();
 }
 
-void AnalyseSolution(const std::vector<PreparedMove>& moves,
-                     const std::vector<PreparedTurn>& turns, const Linearisation& lin,
-                     const GyroSolveOptions& options, GyroSolveResult* result) {
+void AnalyseSolution(const std::vector<PreparedMove>& moves, const std::vector<PreparedTurn>& turns,
+                     const Linearisation& lin, const GyroSolveOptions& options,
+                     GyroSolveResult* result) {
   const SpectralSplit split = SplitSpectrum(lin.hessian);
   const int dof = 2 * static_cast<int>(moves.size()) + TurnConstraints(turns) - split.rank;
   const double reduced_chi2 = dof > 0 ? 2.0 * result->cost / dof : kNaN;

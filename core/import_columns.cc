@@ -73,8 +73,8 @@ absl::StatusOr<ColumnMap> ParseColumnMap(std::string_view spec) {
     const std::string_view value = TrimText(entry.substr(equals + 1));
     const auto known = std::find(kFieldNames.begin(), kFieldNames.end(), key);
     if (known == kFieldNames.end()) {
-      return MapError(Cat("unknown field ", QuoteText(key), " (known: ", Join(kFieldNames, ", "),
-                          ")"));
+      return MapError(
+          Cat("unknown field ", QuoteText(key), " (known: ", Join(kFieldNames, ", "), ")"));
     }
     const size_t field = static_cast<size_t>(known - kFieldNames.begin());
     if (map.refs[field].has_value()) return MapError(Cat("field '", key, "' given twice"));
@@ -167,7 +167,8 @@ struct Layout {
   char delimiter = ',';
   int header_line = 0;  // 0: no header
   std::vector<std::string> header;
-  std::vector<std::string_view> preamble;  // lines before the header (or the first row), from line 1
+  std::vector<std::string_view>
+      preamble;                        // lines before the header (or the first row), from line 1
   std::array<int, kFieldCount> index;  // 0-based field index, -1 when not mapped
   std::vector<std::string> labels;     // per capture field, for error messages
   size_t max_index = 0;
@@ -183,9 +184,9 @@ bool HeaderHasNames(const std::vector<std::string_view>& fields, const ColumnMap
 
 // Finds the header line (or, without one, the first row) and the preamble before it. On return
 // `lines` is positioned after the header (or before the first row).
-absl::Status FindHeader(std::string_view source,
-                        const ColumnCsvOptions& options, const ColumnMap& map,
-                        std::optional<char> delimiter, Layout* layout, LineCursor* lines) {
+absl::Status FindHeader(std::string_view source, const ColumnCsvOptions& options,
+                        const ColumnMap& map, std::optional<char> delimiter, Layout* layout,
+                        LineCursor* lines) {
   std::vector<std::string_view> fields;
   std::string_view line;
   const int skip = options.skip_lines.value_or(0);
@@ -286,9 +287,8 @@ absl::Status ResolveColumns(std::string_view source, const ColumnMap& map, Layou
     layout->index[f] = index;
     layout->max_index = std::max(layout->max_index, static_cast<size_t>(index));
     // Errors then read "column 'acc_x': ..." (or "column 'ax = column 3': ..." without a header).
-    layout->labels[f] = layout->header_line > 0
-                            ? header[static_cast<size_t>(index)]
-                            : Cat(kFieldNames[f], " = column ", index + 1);
+    layout->labels[f] = layout->header_line > 0 ? header[static_cast<size_t>(index)]
+                                                : Cat(kFieldNames[f], " = column ", index + 1);
   }
   return absl::OkStatus();
 }
@@ -313,8 +313,8 @@ absl::StatusOr<double> RateFromPreamble(std::string_view source, const Layout& l
     }
     return rate;
   }
-  return absl::InvalidArgumentError(Cat(source, ": no preamble line starts with '", key,
-                                        "' (", layout.preamble.size(),
+  return absl::InvalidArgumentError(Cat(source, ": no preamble line starts with '", key, "' (",
+                                        layout.preamble.size(),
                                         " preamble lines) to read the rate from"));
 }
 
@@ -363,15 +363,15 @@ absl::Status ParseRows(LineCursor* lines, std::string_view source, const Layout&
                          Cat("expected ", expected_fields, " fields, found ", fields.size()));
     }
     if (layout.max_index >= fields.size()) {
-      return LineErrorAt(source, line_number,
-                         Cat("has ", fields.size(), " fields, but the map uses column ",
-                             layout.max_index + 1));
+      return LineErrorAt(
+          source, line_number,
+          Cat("has ", fields.size(), " fields, but the map uses column ", layout.max_index + 1));
     }
     for (size_t f = 0; f < kFieldCount; ++f) {
       if (layout.index[f] < 0) continue;
-      if (absl::Status s = io_internal::ParseNumberField(
-              fields[static_cast<size_t>(layout.index[f])], source, line_number,
-              layout.labels[f], &values[f]);
+      if (absl::Status s =
+              io_internal::ParseNumberField(fields[static_cast<size_t>(layout.index[f])], source,
+                                            line_number, layout.labels[f], &values[f]);
           !s.ok()) {
         return s;
       }
@@ -522,8 +522,8 @@ absl::Status CheckColumnCsvOptions(const ColumnCsvOptions& options) {
   if (options.no_header) {
     for (size_t f = 0; f < kFieldCount; ++f) {
       if (map->refs[f].has_value() && map->refs[f]->number == 0) {
-        return absl::InvalidArgumentError(Cat("--no-header: map ", kFieldNames[f],
-                                              " by column number, not by name"));
+        return absl::InvalidArgumentError(
+            Cat("--no-header: map ", kFieldNames[f], " by column number, not by name"));
       }
     }
   }
@@ -542,8 +542,7 @@ absl::StatusOr<Capture> ParseColumnCsv(std::string_view text, std::string_view s
 
   Layout layout;
   LineCursor lines(text);
-  if (absl::Status s =
-          FindHeader(source_name, columns, *map, *delimiter, &layout, &lines);
+  if (absl::Status s = FindHeader(source_name, columns, *map, *delimiter, &layout, &lines);
       !s.ok()) {
     return s;
   }
@@ -627,12 +626,12 @@ void NoteTimeGaps(const Capture& capture, std::vector<std::string>* notes) {
     }
   }
   if (gaps == 0) return;
-  notes->push_back(Cat(
-      "time has ", gaps, " gap", gaps == 1 ? "" : "s", " (an interval over ", kGapFactor,
-      "x the median ", DoubleText(median), " s; the largest ",
-      DoubleText(capture.t_s[largest] - capture.t_s[largest - 1]), " s after t=",
-      DoubleText(capture.t_s[largest - 1]),
-      " s): nothing was recorded there, so a rotation inside a gap is not measured"));
+  notes->push_back(
+      Cat("time has ", gaps, " gap", gaps == 1 ? "" : "s", " (an interval over ", kGapFactor,
+          "x the median ", DoubleText(median), " s; the largest ",
+          DoubleText(capture.t_s[largest] - capture.t_s[largest - 1]),
+          " s after t=", DoubleText(capture.t_s[largest - 1]),
+          " s): nothing was recorded there, so a rotation inside a gap is not measured"));
 }
 
 const CaptureImporter* ColumnCsvImporter() {

@@ -69,7 +69,7 @@ std::vector<std::string_view> SplitCommas(std::string_view line) {
 
 struct EurocHeader {
   std::array<size_t, kEurocColumns.size()> index{};  // field index of each column
-  std::vector<std::string> names;                     // every header field, for messages
+  std::vector<std::string> names;                    // every header field, for messages
   std::vector<std::string> ignored;
 };
 
@@ -101,8 +101,9 @@ absl::StatusOr<EurocHeader> ParseHeader(std::string_view line, std::string_view 
   }
   for (size_t k = 0; k < kEurocColumns.size(); ++k) {
     if (!seen[k]) {
-      return LineErrorAt(source, 1, Cat("missing column '", kEurocColumns[k].name, " [",
-                                        kEurocColumns[k].unit, "]'"));
+      return LineErrorAt(
+          source, 1,
+          Cat("missing column '", kEurocColumns[k].name, " [", kEurocColumns[k].unit, "]'"));
     }
   }
   return header;
@@ -113,9 +114,10 @@ absl::Status ParseTimestamp(std::string_view field, std::string_view source, int
   const std::string_view text = TrimText(field);
   const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), *ns);
   if (text.empty() || ec != std::errc() || ptr != text.data() + text.size()) {
-    return LineErrorAt(source, line_number,
-                       Cat("column '", column, "': ", text.empty() ? "empty field" : QuoteText(text),
-                           text.empty() ? "" : " is not an integer number of nanoseconds"));
+    return LineErrorAt(
+        source, line_number,
+        Cat("column '", column, "': ", text.empty() ? "empty field" : QuoteText(text),
+            text.empty() ? "" : " is not an integer number of nanoseconds"));
   }
   return absl::OkStatus();
 }
@@ -217,11 +219,12 @@ absl::StatusOr<Capture> ParseEurocCsv(std::string_view text, std::string_view so
     capture.accel.emplace_back(values[4], values[5], values[6]);
   }
   if (capture.t_s.empty()) {
-    return LineErrorAt(source_name, std::max(lines.line_number(), 1), "no samples after the header");
+    return LineErrorAt(source_name, std::max(lines.line_number(), 1),
+                       "no samples after the header");
   }
   capture.extra_metadata.emplace_back(std::string(kEurocOriginKey), Cat(t0_ns));
-  notes->push_back(Cat("time counts from the first timestamp, ", t0_ns, " ns (kept as ",
-                       kEurocOriginKey, ")"));
+  notes->push_back(
+      Cat("time counts from the first timestamp, ", t0_ns, " ns (kept as ", kEurocOriginKey, ")"));
   if (!header->ignored.empty()) {
     notes->push_back(Cat("ignored columns: ", Join(header->ignored, ", ")));
   }

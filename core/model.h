@@ -83,9 +83,7 @@ struct AccelModel {
     return ExpSo3<Scalar>(frame_angles) * LowerMisalignment<Scalar>(tri_angles);
   }
   // Raw reading (input unit) -> body-frame specific force (m/s^2).
-  Vec3<Scalar> Apply(const Vec3<Scalar>& raw) const {
-    return Misalignment() * PerAxis(raw);
-  }
+  Vec3<Scalar> Apply(const Vec3<Scalar>& raw) const { return Misalignment() * PerAxis(raw); }
   // The per-axis part z (before misalignment). |a| does not depend on frame_angles.
   Vec3<Scalar> PerAxis(const Vec3<Scalar>& raw) const {
     Vec3<Scalar> y = scale.cwiseProduct(raw - bias);

@@ -4,8 +4,8 @@
 #include <cmath>
 #include <optional>
 #include <string>
-#include <vector>
 #include <utility>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -62,7 +62,8 @@ const std::array<CubeDirection, 26>& CubeDirections() {
             d.unit = v.normalized();
             d.axes = axes;
             for (int a = 0; a < 3; ++a)
-              if (v(a) != 0) absl::StrAppend(&d.label, std::string(1, "XYZ"[a]), v(a) > 0 ? "+" : "-");
+              if (v(a) != 0)
+                absl::StrAppend(&d.label, std::string(1, "XYZ"[a]), v(a) > 0 ? "+" : "-");
           }
         }
       }
@@ -107,8 +108,9 @@ int PosesWanted(GuidedProtocol protocol) {
 // "its nose (+X) and its top (+Z)": the body parts that point up in direction `d` (body axes:
 // x forward, y left, z up).
 std::string PartsUp(const CubeDirection& d) {
-  static constexpr const char* kPart[3][2] = {
-      {"tail (-X)", "nose (+X)"}, {"right side (-Y)", "left side (+Y)"}, {"bottom (-Z)", "top (+Z)"}};
+  static constexpr const char* kPart[3][2] = {{"tail (-X)", "nose (+X)"},
+                                              {"right side (-Y)", "left side (+Y)"},
+                                              {"bottom (-Z)", "top (+Z)"}};
   std::vector<std::string> parts;
   for (int a = 0; a < 3; ++a)
     if (d.unit(a) != 0) parts.push_back(absl::StrCat("its ", kPart[a][d.unit(a) > 0 ? 1 : 0]));
@@ -154,12 +156,12 @@ NextPoseUpdate OnlineSegmenter::CurrentNextPose() const {
   if (options_.protocol == GuidedProtocol::kPositions ||
       options_.protocol == GuidedProtocol::kFree) {
     return NextDirection(last_pose_.index >= 0 && last_pose_.accepted ? UpOf(last_pose_.accel_mean)
-                                                                       : Eigen::Vector3d::UnitZ());
+                                                                      : Eigen::Vector3d::UnitZ());
   }
   if (options_.protocol != GuidedProtocol::kSixFace) {
-    next.instruction = absl::StrFormat(
-        "Put the robot in a new orientation and hold it still for %.1f s",
-        options_.min_static_s + 2 * options_.trim_s);
+    next.instruction =
+        absl::StrFormat("Put the robot in a new orientation and hold it still for %.1f s",
+                        options_.min_static_s + 2 * options_.trim_s);
     return next;
   }
   if (step_ >= kSixFaceSteps) {
@@ -204,10 +206,10 @@ NextPoseUpdate OnlineSegmenter::NextDirection(const Eigen::Vector3d& last_up) co
       d.axes == 1
           ? absl::StrFormat("Turn it so that %s points straight up, and hold it still for %.1f s",
                             PartsUp(d), hold_s)
-          : absl::StrFormat("Tilt it so that %s point up equally (%s), and hold it still for "
-                            "%.1f s",
-                            PartsUp(d), d.axes == 2 ? "45 degrees between them" : "a corner up",
-                            hold_s);
+          : absl::StrFormat(
+                "Tilt it so that %s point up equally (%s), and hold it still for "
+                "%.1f s",
+                PartsUp(d), d.axes == 2 ? "45 degrees between them" : "a corner up", hold_s);
   absl::StrAppend(&next.instruction,
                   absl::StrFormat("  (%d direction%s to go)", missing, missing == 1 ? "" : "s"));
   return next;
@@ -564,10 +566,10 @@ void OnlineSegmenter::Guide(const PoseUpdate& pose, std::vector<SegmenterEvent>*
       e.next_pose = CurrentNextPose();
     } else {
       e.next_pose = CurrentNextPose();
-      e.next_pose.instruction = absl::StrCat(
-          pose.face.empty() ? std::string("That pose was not on a face")
-                            : absl::StrCat("That was ", pose.face, " up"),
-          "; wanted ", kSixFace[step_].face, ". ", e.next_pose.instruction);
+      e.next_pose.instruction =
+          absl::StrCat(pose.face.empty() ? std::string("That pose was not on a face")
+                                         : absl::StrCat("That was ", pose.face, " up"),
+                       "; wanted ", kSixFace[step_].face, ". ", e.next_pose.instruction);
     }
   } else {
     e.next_pose = CurrentNextPose();
@@ -579,11 +581,11 @@ void OnlineSegmenter::Guide(const PoseUpdate& pose, std::vector<SegmenterEvent>*
     if (direction_guidance && !e.next_pose.done && up.norm() > 0 && !accepted_means_.empty() &&
         accepted_means_.back() == pose.accel_mean) {
       const size_t dir = NearestDirection(up);
-      const bool seen_before = std::any_of(
-          accepted_means_.begin(), accepted_means_.end() - 1, [&](const Eigen::Vector3d& m) {
-            const Eigen::Vector3d u = UpOf(m);
-            return u.norm() > 0 && NearestDirection(u) == dir;
-          });
+      const bool seen_before = std::any_of(accepted_means_.begin(), accepted_means_.end() - 1,
+                                           [&](const Eigen::Vector3d& m) {
+                                             const Eigen::Vector3d u = UpOf(m);
+                                             return u.norm() > 0 && NearestDirection(u) == dir;
+                                           });
       if (seen_before) {
         e.next_pose.instruction = absl::StrCat("That was ", CubeDirections()[dir].label,
                                                " up again. ", e.next_pose.instruction);

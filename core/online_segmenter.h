@@ -65,13 +65,13 @@ enum class GuidedProtocol {
 };
 
 struct OnlineSegmenterOptions {
-  double rate_hz = 0.0;        // nominal; 0: learnt from the first sample intervals
-  double window_s = 0.5;       // variance window
-  double min_static_s = 1.0;   // after trimming
-  double trim_s = 0.1;         // removed from each end of a still run
-  double moved_sigma = 8.0;    // as StaticDetectorOptions::moved_sigma
-  double multiplier = 6.0;     // threshold = multiplier * noise variance
-  double learn_s = 2.0;        // initial rest used to learn the noise floor
+  double rate_hz = 0.0;              // nominal; 0: learnt from the first sample intervals
+  double window_s = 0.5;             // variance window
+  double min_static_s = 1.0;         // after trimming
+  double trim_s = 0.1;               // removed from each end of a still run
+  double moved_sigma = 8.0;          // as StaticDetectorOptions::moved_sigma
+  double multiplier = 6.0;           // threshold = multiplier * noise variance
+  double learn_s = 2.0;              // initial rest used to learn the noise floor
   double stillness_period_s = 0.25;  // sample time between two stillness updates
   GuidedProtocol protocol = GuidedProtocol::kAny;  // the guidance and progress to emit
   AccelUnit accel_unit = AccelUnit::kMetersPerSecond2;
@@ -180,8 +180,8 @@ class OnlineSegmenter {
   };
 
   void LearnRate(double t_s);
-  void Classify(const Sample& s, const Eigen::Vector3d& accel_var,
-                const Eigen::Vector3d& gyro_var, std::vector<SegmenterEvent>* events);
+  void Classify(const Sample& s, const Eigen::Vector3d& accel_var, const Eigen::Vector3d& gyro_var,
+                std::vector<SegmenterEvent>* events);
   void AddToRun(const Sample& s);
   void EndRun(std::vector<SegmenterEvent>* events);
   // Judges the run's trimmed samples so far (index and face left unset); false when fewer than
@@ -216,11 +216,11 @@ class OnlineSegmenter {
   // The current still run.
   bool in_run_ = false;
   double run_start_t_s_ = 0;
-  size_t run_seen_ = 0;             // samples of the run so far (before trimming)
-  std::deque<Sample> run_tail_;     // the last trim samples, not yet summed
+  size_t run_seen_ = 0;          // samples of the run so far (before trimming)
+  std::deque<Sample> run_tail_;  // the last trim samples, not yet summed
   size_t trim_n_ = 0;
   std::vector<Chunk> chunks_;
-  size_t chunk_n_ = 1;              // samples per chunk (doubles when kMaxChunks is reached)
+  size_t chunk_n_ = 1;  // samples per chunk (doubles when kMaxChunks is reached)
   Eigen::Vector3d run_offset_a_ = Eigen::Vector3d::Zero();
   double run_first_t_s_ = 0, run_last_t_s_ = 0;
   Eigen::Vector3d run_var_a_ = Eigen::Vector3d::Zero(), run_var_g_ = Eigen::Vector3d::Zero();

@@ -27,7 +27,7 @@ struct Effect {
   int axis = 0;  // 0 = x, 1 = y, 2 = z
   std::string regressor;
   double coefficient = 0.0;
-  double std_error = 0.0;  // one-sigma standard error of coefficient
+  double std_error = 0.0;     // one-sigma standard error of coefficient
   double error_before = 0.0;  // held-out RMS without the effect, SI
   double error_after = 0.0;   // held-out RMS with the effect, SI
   bool applied = true;        // time effects are reported but applied only if the user opts in
@@ -67,8 +67,8 @@ struct NoiseFigures {
   double t_start_s = 0.0;  // the static interval analysed (capture time)
   double t_end_s = 0.0;
   int64_t samples = 0;
-  double rate_hz = 0.0;    // sample rate of that interval (1 / median interval)
-  SensorNoise accel;       // SI, calibrated body frame
+  double rate_hz = 0.0;  // sample rate of that interval (1 / median interval)
+  SensorNoise accel;     // SI, calibrated body frame
   SensorNoise gyro;
   std::vector<std::string> notes;  // which figures the data did not reach, and why
 };

@@ -70,7 +70,8 @@ PairCheck VerifyPair(const FacePose& a, const FacePose& b, const Eigen::Vector3d
   } else if (turn.angle_deg < 20) {
     p.reason = absl::StrFormat(
         "not turned: only %.0f degrees between the placements; turn it half a turn about the "
-        "vertical", turn.angle_deg);
+        "vertical",
+        turn.angle_deg);
   } else if (std::abs(turn.angle_deg - 180) > tolerance_deg) {
     p.reason = absl::StrFormat(
         "turned %.0f degrees instead of 180; place it again, half a turn from the first placement",
@@ -80,9 +81,9 @@ PairCheck VerifyPair(const FacePose& a, const FacePose& b, const Eigen::Vector3d
         "the turn was about an axis %.0f degrees from vertical; keep the face on the floor",
         turn.axis_off_vertical_deg);
   } else if (misalignment_deg > 2 * kFaceToleranceDeg / 3) {
-    p.reason = absl::StrFormat(
-        "horizontal components do not mirror (mean %.1f degrees off the face axis)",
-        misalignment_deg);
+    p.reason =
+        absl::StrFormat("horizontal components do not mirror (mean %.1f degrees off the face axis)",
+                        misalignment_deg);
   } else {
     p.ok = true;
   }
@@ -93,11 +94,16 @@ PairCheck VerifyPair(const FacePose& a, const FacePose& b, const Eigen::Vector3d
 
 std::string_view ProtocolKindName(ProtocolKind kind) {
   switch (kind) {
-    case ProtocolKind::kAuto: return "auto";
-    case ProtocolKind::kSixFace: return "six-face";
-    case ProtocolKind::kPositions: return "positions";
-    case ProtocolKind::kFree: return "free";
-    case ProtocolKind::kFerraris: return "ferraris";
+    case ProtocolKind::kAuto:
+      return "auto";
+    case ProtocolKind::kSixFace:
+      return "six-face";
+    case ProtocolKind::kPositions:
+      return "positions";
+    case ProtocolKind::kFree:
+      return "free";
+    case ProtocolKind::kFerraris:
+      return "ferraris";
   }
   return "auto";
 }
@@ -115,7 +121,9 @@ absl::StatusOr<ProtocolKind> ParseProtocolKind(std::string_view name) {
       name));
 }
 
-std::string Face::Label() const { return absl::StrFormat("%c%c", "XYZ"[axis], sign > 0 ? '+' : '-'); }
+std::string Face::Label() const {
+  return absl::StrFormat("%c%c", "XYZ"[axis], sign > 0 ? '+' : '-');
+}
 
 Face ClassifyFace(const Eigen::Vector3d& up_body) {
   Face f;
@@ -195,8 +203,8 @@ SixFaceCheck CheckSixFacePairs(const std::vector<FacePose>& poses, double turn_t
       ++i;
       continue;
     }
-    PairCheck check = VerifyPair(poses[i], poses[i + 1], poses[i + 1].rotation_from_previous,
-                                 turn_tolerance_deg);
+    PairCheck check =
+        VerifyPair(poses[i], poses[i + 1], poses[i + 1].rotation_from_previous, turn_tolerance_deg);
     check.pose_a = poses[i].index;
     check.pose_b = poses[i + 1].index;
     if (!check.ok && i + 2 < poses.size() && ClassifyFace(poses[i + 2].up) == fa) {

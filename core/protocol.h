@@ -28,9 +28,9 @@ absl::StatusOr<ProtocolKind> ParseProtocolKind(std::string_view name);
 
 // The face that is up: the body axis closest to the measured up (specific-force) direction.
 struct Face {
-  int axis = 2;  // 0 x, 1 y, 2 z
-  int sign = 1;  // +1: that axis points up (reads +g)
-  double off_axis_deg = 0;  // angle between up and that axis
+  int axis = 2;               // 0 x, 1 y, 2 z
+  int sign = 1;               // +1: that axis points up (reads +g)
+  double off_axis_deg = 0;    // angle between up and that axis
   std::string Label() const;  // "Z+", "X-", ...
   bool operator==(const Face& o) const { return axis == o.axis && sign == o.sign; }
 };
@@ -55,13 +55,13 @@ struct PairCheck {
   double tilt_deg = 0;      // half the angle between the two up directions (floor tilt)
   double rotation_deg = 0;  // gyro-integrated rotation between the poses about the vertical
   std::string face;
-  std::string reason;       // why rejected, in a technician's words
+  std::string reason;  // why rejected, in a technician's words
 };
 
 // What the six-face check needs to know about one usable pose, in time order.
 struct FacePose {
-  int index = -1;          // the caller's pose index
-  Eigen::Vector3d up;      // unit up direction, body frame
+  int index = -1;      // the caller's pose index
+  Eigen::Vector3d up;  // unit up direction, body frame
   // Rotation from the previous FacePose to this one (body frame rotation vector, rad), from the
   // calibrated gyroscope; ignored for the first pose.
   Eigen::Vector3d rotation_from_previous = Eigen::Vector3d::Zero();

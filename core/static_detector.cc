@@ -218,11 +218,10 @@ std::vector<StaticInterval> DetectStatic(const Capture& capture, const MotionSig
       const StaticInterval h2 = SummariseInterval(capture, mid, e);
       const Eigen::Vector3d shift = (h2.accel_mean - h1.accel_mean).cwiseAbs();
       const Eigen::Vector3d sigma_means =
-          noise.accel_std * std::sqrt(1.0 / static_cast<double>(mid - b) +
-                                      1.0 / static_cast<double>(e - mid));
+          noise.accel_std *
+          std::sqrt(1.0 / static_cast<double>(mid - b) + 1.0 / static_cast<double>(e - mid));
       for (int k = 0; k < 3; ++k) {
-        if (shift(k) > options.moved_sigma * sigma_means(k) &&
-            shift(k) > 3 * noise.accel_std(k)) {
+        if (shift(k) > options.moved_sigma * sigma_means(k) && shift(k) > 3 * noise.accel_std(k)) {
           s.used = false;
           s.reason = absl::StrFormat(
               "moved during capture: axis %c shifted by %.1f noise std between the first and "

@@ -19,8 +19,7 @@ Eigen::Matrix3d BestFitRotation(const std::vector<Eigen::Vector3d>& estimate,
 
 double VectorRmsError(const std::vector<Eigen::Vector3d>& estimate,
                       const std::vector<Eigen::Vector3d>& truth, bool align) {
-  const Eigen::Matrix3d r =
-      align ? BestFitRotation(estimate, truth) : Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d r = align ? BestFitRotation(estimate, truth) : Eigen::Matrix3d::Identity();
   double ss = 0;
   const size_t n = std::min(estimate.size(), truth.size());
   for (size_t i = 0; i < n; ++i) ss += (r * estimate[i] - truth[i]).squaredNorm();

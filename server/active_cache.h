@@ -42,8 +42,7 @@ class ActiveParamCache {
   // Read before the store read of a fill; pass to Insert.
   uint64_t generation() const;
   // Caches `entry` unless an invalidation happened since `generation` was read.
-  void Insert(std::string_view device_id, std::shared_ptr<const Entry> entry,
-              uint64_t generation);
+  void Insert(std::string_view device_id, std::shared_ptr<const Entry> entry, uint64_t generation);
   void Invalidate(std::string_view device_id);
 
   size_t size() const;

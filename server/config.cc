@@ -28,18 +28,18 @@ absl::StatusOr<Int> ParseInteger(std::string_view text, Int min, Int max) {
   if (text.empty() || ec != std::errc() || ptr != text.data() + text.size()) {
     return absl::InvalidArgumentError(Cat("expected an integer, got '", text, "'"));
   }
-  if (value < static_cast<long long>(min) || static_cast<unsigned long long>(value) >
-                                                 static_cast<unsigned long long>(max)) {
-    return absl::InvalidArgumentError(
-        Cat("must be between ", static_cast<long long>(min), " and ",
-            static_cast<unsigned long long>(max), ", got ", value));
+  if (value < static_cast<long long>(min) ||
+      static_cast<unsigned long long>(value) > static_cast<unsigned long long>(max)) {
+    return absl::InvalidArgumentError(Cat("must be between ", static_cast<long long>(min), " and ",
+                                          static_cast<unsigned long long>(max), ", got ", value));
   }
   return static_cast<Int>(value);
 }
 
 absl::StatusOr<absl::Duration> ParseNonNegativeDuration(std::string_view text) {
   absl::Duration d;
-  if (!absl::ParseDuration(absl::string_view(text.data(), text.size()), &d) || d == absl::InfiniteDuration()) {
+  if (!absl::ParseDuration(absl::string_view(text.data(), text.size()), &d) ||
+      d == absl::InfiniteDuration()) {
     return absl::InvalidArgumentError(
         Cat("expected a duration such as \"30s\", \"1m30s\" or \"500ms\", got '", text, "'"));
   }
@@ -63,7 +63,11 @@ using Field = T& (*)(DaemonConfig&);
 ConfigOption StringOption(std::string_view key, std::string_view env, std::string_view value_name,
                           std::string_view help, Field<std::string> field,
                           bool allow_empty = false) {
-  return {key, env, OptionType::kString, value_name, help,
+  return {key,
+          env,
+          OptionType::kString,
+          value_name,
+          help,
           [field, allow_empty](std::string_view text, DaemonConfig& c) -> absl::Status {
             if (text.empty() && !allow_empty) {
               return absl::InvalidArgumentError("must not be empty");
@@ -76,7 +80,11 @@ ConfigOption StringOption(std::string_view key, std::string_view env, std::strin
 template <typename Int>
 ConfigOption IntegerOption(std::string_view key, std::string_view env, std::string_view help,
                            Int min, Int max, Field<Int> field) {
-  return {key, env, OptionType::kInteger, "N", help,
+  return {key,
+          env,
+          OptionType::kInteger,
+          "N",
+          help,
           [field, min, max](std::string_view text, DaemonConfig& c) -> absl::Status {
             absl::StatusOr<Int> value = ParseInteger<Int>(text, min, max);
             if (!value.ok()) return value.status();
@@ -87,7 +95,11 @@ ConfigOption IntegerOption(std::string_view key, std::string_view env, std::stri
 
 ConfigOption DurationOption(std::string_view key, std::string_view env, std::string_view help,
                             Field<absl::Duration> field) {
-  return {key, env, OptionType::kDuration, "DURATION", help,
+  return {key,
+          env,
+          OptionType::kDuration,
+          "DURATION",
+          help,
           [field](std::string_view text, DaemonConfig& c) -> absl::Status {
             absl::StatusOr<absl::Duration> value = ParseNonNegativeDuration(text);
             if (!value.ok()) return value.status();
@@ -98,7 +110,11 @@ ConfigOption DurationOption(std::string_view key, std::string_view env, std::str
 
 ConfigOption BoolOption(std::string_view key, std::string_view env, std::string_view help,
                         Field<bool> field) {
-  return {key, env, OptionType::kBoolean, "BOOL", help,
+  return {key,
+          env,
+          OptionType::kBoolean,
+          "BOOL",
+          help,
           [field](std::string_view text, DaemonConfig& c) -> absl::Status {
             absl::StatusOr<bool> value = ParseBool(text);
             if (!value.ok()) return value.status();
@@ -112,7 +128,11 @@ template <typename E>
 ConfigOption ChoiceOption(std::string_view key, std::string_view env, std::string_view value_name,
                           std::string_view help, absl::StatusOr<E> (*parse)(std::string_view),
                           Field<E> field) {
-  return {key, env, OptionType::kString, value_name, help,
+  return {key,
+          env,
+          OptionType::kString,
+          value_name,
+          help,
           [field, parse](std::string_view text, DaemonConfig& c) -> absl::Status {
             absl::StatusOr<E> value = parse(text);
             if (!value.ok()) return value.status();
@@ -144,9 +164,8 @@ std::vector<ConfigOption> BuildOptions() {
           "durability", "IMUCALD_DURABILITY", "full|normal",
           "full: fsync every commit, acknowledged data survives a power cut; normal: survives "
           "a killed process only (default full)",
-          &ParseDurability, [](DaemonConfig& c) -> storage::Durability& {
-            return c.server.durability;
-          }),
+          &ParseDurability,
+          [](DaemonConfig& c) -> storage::Durability& { return c.server.durability; }),
       IntegerOption<int>("solve_threads", "IMUCALD_SOLVE_THREADS",
                          "threads that run calibration solves (default 2)", 1, 256,
                          [](DaemonConfig& c) -> int& { return c.server.sessions.solve_threads; }),
@@ -181,9 +200,7 @@ std::vector<ConfigOption> BuildOptions() {
                      [](DaemonConfig& c) -> absl::Duration& { return c.server.keepalive_time; }),
       DurationOption("keepalive_timeout", "IMUCALD_KEEPALIVE_TIMEOUT",
                      "close a connection whose ping is not answered within this (default 10s)",
-                     [](DaemonConfig& c) -> absl::Duration& {
-                       return c.server.keepalive_timeout;
-                     }),
+                     [](DaemonConfig& c) -> absl::Duration& { return c.server.keepalive_timeout; }),
       // Transport security and tokens (server/tls.h, server/auth.h; README "Security").
       StringOption("tls_cert", "IMUCALD_TLS_CERT", "PATH",
                    "PEM certificate (chain) the server presents; required unless insecure",
@@ -191,12 +208,11 @@ std::vector<ConfigOption> BuildOptions() {
       StringOption("tls_key", "IMUCALD_TLS_KEY", "PATH",
                    "PEM private key of tls_cert; required unless insecure",
                    [](DaemonConfig& c) -> std::string& { return c.server.security.tls_key_path; }),
-      StringOption("client_ca", "IMUCALD_CLIENT_CA", "PATH",
-                   "PEM CA of robots' client certificates: robots may then authenticate with one "
-                   "(common name = device id) instead of a token (default none)",
-                   [](DaemonConfig& c) -> std::string& {
-                     return c.server.security.client_ca_path;
-                   }),
+      StringOption(
+          "client_ca", "IMUCALD_CLIENT_CA", "PATH",
+          "PEM CA of robots' client certificates: robots may then authenticate with one "
+          "(common name = device id) instead of a token (default none)",
+          [](DaemonConfig& c) -> std::string& { return c.server.security.client_ca_path; }),
       BoolOption("insecure", "IMUCALD_INSECURE",
                  "plaintext without authentication, refused unless listen is a loopback address; "
                  "for tests and development only (default false)",
@@ -208,17 +224,15 @@ std::vector<ConfigOption> BuildOptions() {
       // Limits (README "## Robustness"; server/validate.h, SessionServiceOptions).
       IntegerOption<int64_t>(
           "max_batch_samples", "IMUCALD_MAX_BATCH_SAMPLES",
-          "samples in one SampleBatch; more are refused with RESOURCE_EXHAUSTED (default 20000)",
-          1, 10'000'000,
+          "samples in one SampleBatch; more are refused with RESOURCE_EXHAUSTED (default 20000)", 1,
+          10'000'000,
           [](DaemonConfig& c) -> int64_t& { return c.server.sessions.ingest.max_batch_samples; }),
       IntegerOption<int64_t>(
           "max_session_samples", "IMUCALD_MAX_SESSION_SAMPLES",
           "samples one session may hold; more are refused with RESOURCE_EXHAUSTED "
           "(default 10000000)",
           1, int64_t{1} << 40,
-          [](DaemonConfig& c) -> int64_t& {
-            return c.server.sessions.ingest.max_session_samples;
-          }),
+          [](DaemonConfig& c) -> int64_t& { return c.server.sessions.ingest.max_session_samples; }),
       IntegerOption<int>(
           "max_streams_per_device", "IMUCALD_MAX_STREAMS_PER_DEVICE",
           "concurrent StreamSamples streams of one device; more are refused with "
@@ -258,16 +272,26 @@ const ConfigOption* FindByFlag(std::string_view flag) {
 
 std::string_view TomlTypeName(toml::node_type type) {
   switch (type) {
-    case toml::node_type::table: return "a table";
-    case toml::node_type::array: return "an array";
-    case toml::node_type::string: return "a string";
-    case toml::node_type::integer: return "an integer";
-    case toml::node_type::floating_point: return "a float";
-    case toml::node_type::boolean: return "a boolean";
-    case toml::node_type::date: return "a date";
-    case toml::node_type::time: return "a time";
-    case toml::node_type::date_time: return "a date-time";
-    default: return "nothing";
+    case toml::node_type::table:
+      return "a table";
+    case toml::node_type::array:
+      return "an array";
+    case toml::node_type::string:
+      return "a string";
+    case toml::node_type::integer:
+      return "an integer";
+    case toml::node_type::floating_point:
+      return "a float";
+    case toml::node_type::boolean:
+      return "a boolean";
+    case toml::node_type::date:
+      return "a date";
+    case toml::node_type::time:
+      return "a time";
+    case toml::node_type::date_time:
+      return "a date-time";
+    default:
+      return "nothing";
   }
 }
 
@@ -409,7 +433,8 @@ std::string HelpText() {
       "imucald: the imucal calibration service (gRPC; state in one SQLite file)\n"
       "\n"
       "usage:\n"
-      "  imucald [--config FILE] [OPTIONS]       serve until SIGTERM/SIGINT, then drain and exit 0\n"
+      "  imucald [--config FILE] [OPTIONS]       serve until SIGTERM/SIGINT, then drain and exit "
+      "0\n"
       "  imucald --health-check HOST:PORT       exit 0 if the server there is SERVING, else 1\n"
       "  imucald backup --db PATH --out FILE    online backup of a live database\n"
       "  imucald restore --from FILE --db PATH  restore a backup (imucald must be stopped)\n"
@@ -421,8 +446,8 @@ std::string HelpText() {
       "  --config FILE  (-)  IMUCALD_CONFIG\n"
       "      TOML file of the keys below (see deploy/imucald.toml)\n";
   for (const ConfigOption& option : ConfigOptions()) {
-    core::AppendTo(&text, "  ", FlagOf(option.key), " ", option.value_name, "  ", option.key,
-                   "  ", option.env, "\n      ", option.help, "\n");
+    core::AppendTo(&text, "  ", FlagOf(option.key), " ", option.value_name, "  ", option.key, "  ",
+                   option.env, "\n      ", option.help, "\n");
   }
   return text;
 }

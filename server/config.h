@@ -37,8 +37,8 @@ struct DaemonConfig {
 enum class OptionType { kString, kInteger, kBoolean, kDuration };
 
 struct ConfigOption {
-  std::string_view key;   // TOML key; the flag is "--" + key with '_' -> '-'
-  std::string_view env;   // environment variable, IMUCALD_<KEY>
+  std::string_view key;  // TOML key; the flag is "--" + key with '_' -> '-'
+  std::string_view env;  // environment variable, IMUCALD_<KEY>
   OptionType type;
   std::string_view value_name;  // for --help: HOST:PORT, PATH, N, ...
   std::string_view help;        // one line; says the default

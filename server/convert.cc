@@ -21,11 +21,16 @@ std::array<uint32_t, 256> MakeCrcTable() {
 
 std::string ProtocolName(v1::Protocol protocol) {
   switch (protocol) {
-    case v1::PROTOCOL_SIX_FACE: return "six-face";
-    case v1::PROTOCOL_POSITIONS: return "positions";
-    case v1::PROTOCOL_FREE: return "free";
-    case v1::PROTOCOL_FERRARIS: return "ferraris";
-    default: return "auto";
+    case v1::PROTOCOL_SIX_FACE:
+      return "six-face";
+    case v1::PROTOCOL_POSITIONS:
+      return "positions";
+    case v1::PROTOCOL_FREE:
+      return "free";
+    case v1::PROTOCOL_FERRARIS:
+      return "ferraris";
+    default:
+      return "auto";
   }
 }
 
@@ -68,33 +73,49 @@ storage::Device FromProto(const v1::Device& device) {
 
 v1::SessionState ToProto(storage::SessionState state) {
   switch (state) {
-    case storage::SessionState::kOpen: return v1::SESSION_STATE_OPEN;
-    case storage::SessionState::kSolving: return v1::SESSION_STATE_SOLVING;
-    case storage::SessionState::kSolved: return v1::SESSION_STATE_SOLVED;
-    case storage::SessionState::kFailed: return v1::SESSION_STATE_FAILED;
-    case storage::SessionState::kCancelled: return v1::SESSION_STATE_CANCELLED;
+    case storage::SessionState::kOpen:
+      return v1::SESSION_STATE_OPEN;
+    case storage::SessionState::kSolving:
+      return v1::SESSION_STATE_SOLVING;
+    case storage::SessionState::kSolved:
+      return v1::SESSION_STATE_SOLVED;
+    case storage::SessionState::kFailed:
+      return v1::SESSION_STATE_FAILED;
+    case storage::SessionState::kCancelled:
+      return v1::SESSION_STATE_CANCELLED;
   }
   return v1::SESSION_STATE_UNSPECIFIED;
 }
 
 absl::StatusOr<storage::SessionState> FromProto(v1::SessionState state) {
   switch (state) {
-    case v1::SESSION_STATE_OPEN: return storage::SessionState::kOpen;
-    case v1::SESSION_STATE_SOLVING: return storage::SessionState::kSolving;
-    case v1::SESSION_STATE_SOLVED: return storage::SessionState::kSolved;
-    case v1::SESSION_STATE_FAILED: return storage::SessionState::kFailed;
-    case v1::SESSION_STATE_CANCELLED: return storage::SessionState::kCancelled;
-    default: return absl::InvalidArgumentError("state: unknown session state");
+    case v1::SESSION_STATE_OPEN:
+      return storage::SessionState::kOpen;
+    case v1::SESSION_STATE_SOLVING:
+      return storage::SessionState::kSolving;
+    case v1::SESSION_STATE_SOLVED:
+      return storage::SessionState::kSolved;
+    case v1::SESSION_STATE_FAILED:
+      return storage::SessionState::kFailed;
+    case v1::SESSION_STATE_CANCELLED:
+      return storage::SessionState::kCancelled;
+    default:
+      return absl::InvalidArgumentError("state: unknown session state");
   }
 }
 
 core::ProtocolKind ToProtocolKind(v1::Protocol protocol) {
   switch (protocol) {
-    case v1::PROTOCOL_SIX_FACE: return core::ProtocolKind::kSixFace;
-    case v1::PROTOCOL_POSITIONS: return core::ProtocolKind::kPositions;
-    case v1::PROTOCOL_FREE: return core::ProtocolKind::kFree;
-    case v1::PROTOCOL_FERRARIS: return core::ProtocolKind::kFerraris;
-    default: return core::ProtocolKind::kAuto;
+    case v1::PROTOCOL_SIX_FACE:
+      return core::ProtocolKind::kSixFace;
+    case v1::PROTOCOL_POSITIONS:
+      return core::ProtocolKind::kPositions;
+    case v1::PROTOCOL_FREE:
+      return core::ProtocolKind::kFree;
+    case v1::PROTOCOL_FERRARIS:
+      return core::ProtocolKind::kFerraris;
+    default:
+      return core::ProtocolKind::kAuto;
   }
 }
 
@@ -115,11 +136,15 @@ v1::Session ToProto(const storage::Session& session, int live_poses_accepted) {
 
 v1::VersionState ToProto(storage::VersionState state) {
   switch (state) {
-    case storage::VersionState::kCandidate: return v1::VERSION_STATE_CANDIDATE;
-    case storage::VersionState::kActive: return v1::VERSION_STATE_ACTIVE;
-    case storage::VersionState::kSuperseded: return v1::VERSION_STATE_SUPERSEDED;
+    case storage::VersionState::kCandidate:
+      return v1::VERSION_STATE_CANDIDATE;
+    case storage::VersionState::kActive:
+      return v1::VERSION_STATE_ACTIVE;
+    case storage::VersionState::kSuperseded:
+      return v1::VERSION_STATE_SUPERSEDED;
     // The API has no "rejected" state yet: a rejected version is a candidate that never was.
-    case storage::VersionState::kRejected: return v1::VERSION_STATE_CANDIDATE;
+    case storage::VersionState::kRejected:
+      return v1::VERSION_STATE_CANDIDATE;
   }
   return v1::VERSION_STATE_UNSPECIFIED;
 }

@@ -55,7 +55,7 @@ class ParamCrcCache {
   };
   mutable std::mutex mu_;
   std::map<std::pair<std::string, int>, Entry> entries_;  // guarded by mu_
-  size_t hits_ = 0;                                      // guarded by mu_
+  size_t hits_ = 0;                                       // guarded by mu_
 };
 
 // Parameter versions. `with_json` false leaves json empty (listings, if_not_version hits).

@@ -5,10 +5,10 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <sstream>
 #include <future>
 #include <map>
 #include <set>
+#include <sstream>
 #include <system_error>
 #include <vector>
 
@@ -123,8 +123,8 @@ absl::Status CheckHealth(const std::string& address, const HealthCheckOptions& o
   context.set_deadline(std::chrono::system_clock::now() +
                        absl::ToChronoMilliseconds(options.timeout));
   std::promise<grpc::Status> done;
-  stub.UnaryCall(&context, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request,
-                 &response, [&done](grpc::Status status) { done.set_value(std::move(status)); });
+  stub.UnaryCall(&context, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
+                 [&done](grpc::Status status) { done.set_value(std::move(status)); });
   const grpc::Status status = done.get_future().get();
   if (!status.ok()) {
     return absl::UnavailableError(Cat(address, ": health check failed: ", status.error_message(),
@@ -171,11 +171,11 @@ int RunHealthCheckCommand(std::span<const std::string> args) {
   if (auto it = flags->find("--timeout"); it != flags->end()) {
     if (!absl::ParseDuration(it->second, &options.timeout) ||
         options.timeout <= absl::ZeroDuration()) {
-      return UsageError("--health-check",
-                        absl::InvalidArgumentError(
-                            Cat("--timeout: expected a positive duration such as 5s, got '",
-                                it->second, "'")),
-                        kUsage);
+      return UsageError(
+          "--health-check",
+          absl::InvalidArgumentError(
+              Cat("--timeout: expected a positive duration such as 5s, got '", it->second, "'")),
+          kUsage);
     }
   }
   // The rest comes from the configuration imucald itself reads (file, environment).
@@ -238,7 +238,8 @@ int RunBackupCommand(std::span<const std::string> args) {
     if (!to_dir || !absl::SimpleAtoi(it->second, &keep) || keep < 1) {
       return UsageError("backup",
                         absl::InvalidArgumentError(Cat("--keep: expected a count of at least 1 "
-                                                       "with --out-dir, got '", it->second, "'")),
+                                                       "with --out-dir, got '",
+                                                       it->second, "'")),
                         kUsage);
     }
   }
@@ -250,7 +251,9 @@ int RunBackupCommand(std::span<const std::string> args) {
   } else {
     std::error_code ec;
     std::filesystem::create_directories(flags->at("--out-dir"), ec);
-    if (ec) return Fail("backup", absl::UnavailableError(Cat(flags->at("--out-dir"), ": ", ec.message())));
+    if (ec)
+      return Fail("backup",
+                  absl::UnavailableError(Cat(flags->at("--out-dir"), ": ", ec.message())));
     out = (std::filesystem::path(flags->at("--out-dir")) / BackupFileName(absl::Now())).string();
   }
   absl::StatusOr<storage::DatabaseInfo> info = storage::BackupDatabase(*db, out);

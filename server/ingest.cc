@@ -22,8 +22,7 @@ std::vector<storage::ImuSample> ToSamples(const v1::SampleBatch& batch) {
   return out;
 }
 
-absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session,
-                                           const v1::SampleBatch& batch,
+absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session, const v1::SampleBatch& batch,
                                            const IngestLimits& limits) {
   // validate
   if (batch.seq() < 1) {
@@ -36,8 +35,8 @@ absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session,
         session.last_acked_seq + 1, session.id, session.last_acked_seq, batch.seq(),
         session.last_acked_seq + 1));
   }
-  if (absl::Status s = ValidateBatchColumns(batch, session.device.accel_unit,
-                                            session.device.gyro_unit, limits);
+  if (absl::Status s =
+          ValidateBatchColumns(batch, session.device.accel_unit, session.device.gyro_unit, limits);
       !s.ok())
     return s;
   PreparedBatch out;
@@ -56,8 +55,8 @@ absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session,
   return out;
 }
 
-IngestResult CompleteBatch(storage::Store& store, LiveSession& session,
-                           const PreparedBatch& batch, const storage::BatchAck& ack) {
+IngestResult CompleteBatch(storage::Store& store, LiveSession& session, const PreparedBatch& batch,
+                           const storage::BatchAck& ack) {
   IngestResult result;
   // A retransmission (or a batch another stream of the session stored first) changes nothing.
   if (!batch.retransmission && ack.last_acked_seq > session.last_acked_seq) {
@@ -82,8 +81,7 @@ IngestResult CompleteBatch(storage::Store& store, LiveSession& session,
 }
 
 absl::StatusOr<IngestResult> IngestBatch(storage::Store& store, LiveSession& session,
-                                         const v1::SampleBatch& batch,
-                                         const IngestLimits& limits) {
+                                         const v1::SampleBatch& batch, const IngestLimits& limits) {
   absl::StatusOr<PreparedBatch> prepared = PrepareBatch(session, batch, limits);
   if (!prepared.ok()) return prepared.status();
   // call: durable before the ack (a retransmission is compared with the stored batch)

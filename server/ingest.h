@@ -43,13 +43,12 @@ struct PreparedBatch {
 // The three steps of one batch; the caller holds `session.mu` during the first and the last.
 // StreamSamples runs them asynchronously (the store's group commit in between, so that many
 // streams share a commit); IngestBatch runs them in a row.
-absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session,
-                                           const v1::SampleBatch& batch,
+absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session, const v1::SampleBatch& batch,
                                            const IngestLimits& limits = {});
 // After the store acknowledged the batch: the session's state, the online segmentation (its
 // poses and pair verdicts stored as they are judged) and the events for the watchers.
-IngestResult CompleteBatch(storage::Store& store, LiveSession& session,
-                           const PreparedBatch& batch, const storage::BatchAck& ack);
+IngestResult CompleteBatch(storage::Store& store, LiveSession& session, const PreparedBatch& batch,
+                           const storage::BatchAck& ack);
 absl::StatusOr<IngestResult> IngestBatch(storage::Store& store, LiveSession& session,
                                          const v1::SampleBatch& batch,
                                          const IngestLimits& limits = {});

@@ -43,11 +43,21 @@ void AppendJsonString(std::string* out, std::string_view s) {
   out->push_back('"');
   for (const char c : s) {
     switch (c) {
-      case '"': out->append("\\\""); break;
-      case '\\': out->append("\\\\"); break;
-      case '\n': out->append("\\n"); break;
-      case '\r': out->append("\\r"); break;
-      case '\t': out->append("\\t"); break;
+      case '"':
+        out->append("\\\"");
+        break;
+      case '\\':
+        out->append("\\\\");
+        break;
+      case '\n':
+        out->append("\\n");
+        break;
+      case '\r':
+        out->append("\\r");
+        break;
+      case '\t':
+        out->append("\\t");
+        break;
       default:
         if (static_cast<unsigned char>(c) < 0x20) {
           static constexpr char kHex[] = "0123456789abcdef";
@@ -127,10 +137,14 @@ absl::StatusOr<LogFormat> ParseLogFormat(std::string_view name) {
 
 std::string_view LogLevelName(LogLevel level) {
   switch (level) {
-    case LogLevel::kDebug: return "debug";
-    case LogLevel::kInfo: return "info";
-    case LogLevel::kWarning: return "warning";
-    case LogLevel::kError: return "error";
+    case LogLevel::kDebug:
+      return "debug";
+    case LogLevel::kInfo:
+      return "info";
+    case LogLevel::kWarning:
+      return "warning";
+    case LogLevel::kError:
+      return "error";
   }
   return "info";
 }
@@ -191,22 +205,37 @@ namespace {
 constexpr char kHealthMethods[] = "/grpc.health.v1.Health/";
 
 std::string_view CodeName(grpc::StatusCode code) {
-  static constexpr std::array<std::string_view, 17> kNames = {
-      "OK",           "CANCELLED",          "UNKNOWN",  "INVALID_ARGUMENT",  "DEADLINE_EXCEEDED",
-      "NOT_FOUND",    "ALREADY_EXISTS",     "PERMISSION_DENIED", "RESOURCE_EXHAUSTED",
-      "FAILED_PRECONDITION", "ABORTED",     "OUT_OF_RANGE", "UNIMPLEMENTED", "INTERNAL",
-      "UNAVAILABLE",  "DATA_LOSS",          "UNAUTHENTICATED"};
+  static constexpr std::array<std::string_view, 17> kNames = {"OK",
+                                                              "CANCELLED",
+                                                              "UNKNOWN",
+                                                              "INVALID_ARGUMENT",
+                                                              "DEADLINE_EXCEEDED",
+                                                              "NOT_FOUND",
+                                                              "ALREADY_EXISTS",
+                                                              "PERMISSION_DENIED",
+                                                              "RESOURCE_EXHAUSTED",
+                                                              "FAILED_PRECONDITION",
+                                                              "ABORTED",
+                                                              "OUT_OF_RANGE",
+                                                              "UNIMPLEMENTED",
+                                                              "INTERNAL",
+                                                              "UNAVAILABLE",
+                                                              "DATA_LOSS",
+                                                              "UNAUTHENTICATED"};
   const int i = static_cast<int>(code);
   return i >= 0 && i < static_cast<int>(kNames.size()) ? kNames[i] : "UNKNOWN";
 }
 
 LogLevel LevelOf(grpc::StatusCode code, bool quiet) {
   switch (code) {
-    case grpc::StatusCode::OK: return quiet ? LogLevel::kDebug : LogLevel::kInfo;
+    case grpc::StatusCode::OK:
+      return quiet ? LogLevel::kDebug : LogLevel::kInfo;
     case grpc::StatusCode::INTERNAL:
     case grpc::StatusCode::UNKNOWN:
-    case grpc::StatusCode::DATA_LOSS: return LogLevel::kWarning;
-    default: return LogLevel::kInfo;
+    case grpc::StatusCode::DATA_LOSS:
+      return LogLevel::kWarning;
+    default:
+      return LogLevel::kInfo;
   }
 }
 
@@ -257,9 +286,9 @@ class RpcLogInterceptorFactory final
   grpc::experimental::Interceptor* CreateServerInterceptor(
       grpc::experimental::ServerRpcInfo* info) override {
     const char* method = info->method();
-    const bool quiet = method != nullptr && (std::strcmp(method, kHotPathMethod) == 0 ||
-                                             std::strncmp(method, kHealthMethods,
-                                                          sizeof(kHealthMethods) - 1) == 0);
+    const bool quiet = method != nullptr &&
+                       (std::strcmp(method, kHotPathMethod) == 0 ||
+                        std::strncmp(method, kHealthMethods, sizeof(kHealthMethods) - 1) == 0);
     // Quiet methods are not intercepted unless their successes would be logged: no
     // allocation, no hook, nothing on the robots' fetch (bench/fetch_bench measures it).
     if (quiet && !LogEnabled(LogLevel::kDebug)) return nullptr;

@@ -34,7 +34,7 @@ namespace imucal::server {
 enum class LogLevel { kDebug, kInfo, kWarning, kError };
 enum class LogFormat { kJson, kText };
 
-absl::StatusOr<LogLevel> ParseLogLevel(std::string_view name);  // "debug", "info", ...
+absl::StatusOr<LogLevel> ParseLogLevel(std::string_view name);    // "debug", "info", ...
 absl::StatusOr<LogFormat> ParseLogFormat(std::string_view name);  // "json", "text"
 std::string_view LogLevelName(LogLevel level);
 

@@ -2,14 +2,14 @@
 // until SIGTERM or SIGINT, then shuts down gracefully (in-flight calls and queued solves
 // finish) and exits 0. `imucald --help` lists the options; server/daemon_commands.h has the
 // health-check, backup and restore commands.
+#include <semaphore.h>
+
 #include <csignal>
 #include <cstdio>
 #include <cstring>
 #include <span>
 #include <string>
 #include <vector>
-
-#include <semaphore.h>
 
 #include "absl/synchronization/mutex.h"
 #include "server/config.h"

@@ -21,7 +21,8 @@ void PairTracker::AddGyro(double t_s, const Eigen::Vector3d& gyro) {
     const Eigen::Vector3d w = gyro_to_rad_s_ * (0.5 * (gyro + previous_gyro_) - bias_);
     const Eigen::Vector3d phi = w * (t_s - previous_t_s_);
     const double angle = phi.norm();
-    if (angle > 0) rotation_ = rotation_ * Eigen::Quaterniond(Eigen::AngleAxisd(angle, phi / angle));
+    if (angle > 0)
+      rotation_ = rotation_ * Eigen::Quaterniond(Eigen::AngleAxisd(angle, phi / angle));
   }
   have_previous_ = true;
   previous_t_s_ = t_s;

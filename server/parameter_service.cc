@@ -36,13 +36,12 @@ absl::StatusOr<core::ExportOptions> ExportOptionsOf(const v1::ExportRequest& r) 
     double value;
     double* out;
   };
-  for (const Field& f : {Field{"update_rate_hz", r.update_rate_hz(), &o.update_rate_hz},
-                         Field{"accel_noise_density", r.accel_noise_density(),
-                               &o.accel_noise_density},
-                         Field{"accel_random_walk", r.accel_random_walk(), &o.accel_random_walk},
-                         Field{"gyro_noise_density", r.gyro_noise_density(),
-                               &o.gyro_noise_density},
-                         Field{"gyro_random_walk", r.gyro_random_walk(), &o.gyro_random_walk}}) {
+  for (const Field& f :
+       {Field{"update_rate_hz", r.update_rate_hz(), &o.update_rate_hz},
+        Field{"accel_noise_density", r.accel_noise_density(), &o.accel_noise_density},
+        Field{"accel_random_walk", r.accel_random_walk(), &o.accel_random_walk},
+        Field{"gyro_noise_density", r.gyro_noise_density(), &o.gyro_noise_density},
+        Field{"gyro_random_walk", r.gyro_random_walk(), &o.gyro_random_walk}}) {
     if (f.value == 0) continue;
     if (!(std::isfinite(f.value) && f.value > 0))
       return absl::InvalidArgumentError(
@@ -52,8 +51,8 @@ absl::StatusOr<core::ExportOptions> ExportOptionsOf(const v1::ExportRequest& r) 
   if (r.openvins_model() == "rpng") {
     o.openvins_model = core::OpenVinsModel::kRpng;
   } else if (!r.openvins_model().empty() && r.openvins_model() != "kalibr") {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "openvins_model: unknown model \"", r.openvins_model(), "\" (kalibr or rpng)"));
+    return absl::InvalidArgumentError(absl::StrCat("openvins_model: unknown model \"",
+                                                   r.openvins_model(), "\" (kalibr or rpng)"));
   }
   return o;
 }
@@ -92,14 +91,16 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::GetActiveParameters(
     if (grpc::Status s =
             grpc::SerializationTraits<v1::GetActiveParametersRequest>::Deserialize(&copy, &req);
         !s.ok())
-      return FinishUnary(context, absl::InvalidArgumentError("request: not a GetActiveParametersRequest"));
+      return FinishUnary(context,
+                         absl::InvalidArgumentError("request: not a GetActiveParametersRequest"));
   }
   if (absl::Status s = RequireDevice(req.device_id()); !s.ok()) return FinishUnary(context, s);
-  if (absl::Status s = auth_->AuthorizeDevice(*context, **who, Rpc::kGetActiveParameters,
-                                              req.device_id());
+  if (absl::Status s =
+          auth_->AuthorizeDevice(*context, **who, Rpc::kGetActiveParameters, req.device_id());
       !s.ok())
     return FinishUnary(context, s);
-  absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> entry = ActiveEntry(req.device_id());
+  absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> entry =
+      ActiveEntry(req.device_id());
   if (!entry.ok()) return FinishUnary(context, entry.status());
   const bool unchanged = req.if_not_version() != 0 && req.if_not_version() == (*entry)->version;
   grpc::Slice slice = unchanged ? (*entry)->header : (*entry)->full;
@@ -124,18 +125,19 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::GetParameters(
   return FinishUnary(context, absl::OkStatus());
 }
 
-grpc::ServerUnaryReactor* ParameterServiceImpl::ListVersions(
-    grpc::CallbackServerContext* context, const v1::ListVersionsRequest* request,
-    v1::ListVersionsResponse* response) {
+grpc::ServerUnaryReactor* ParameterServiceImpl::ListVersions(grpc::CallbackServerContext* context,
+                                                             const v1::ListVersionsRequest* request,
+                                                             v1::ListVersionsResponse* response) {
   if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListVersions); !who.ok())
     return FinishUnary(context, who.status());
-  if (absl::Status s = RequireDevice(request->device_id()); !s.ok())
-    return FinishUnary(context, s);
+  if (absl::Status s = RequireDevice(request->device_id()); !s.ok()) return FinishUnary(context, s);
   absl::StatusOr<int> size = PageSize(request->page_size(), 1000);
   if (!size.ok()) return FinishUnary(context, size.status());
   storage::VersionQuery query;
-  if (!request->page_token().empty() && !absl::SimpleAtoi(request->page_token(), &query.after_version))
-    return FinishUnary(context, absl::InvalidArgumentError("page_token: not a token of this listing"));
+  if (!request->page_token().empty() &&
+      !absl::SimpleAtoi(request->page_token(), &query.after_version))
+    return FinishUnary(context,
+                       absl::InvalidArgumentError("page_token: not a token of this listing"));
   query.limit = *size + 1;  // one more: whether there is a next page
   absl::StatusOr<std::vector<storage::ParamVersion>> versions =
       store_->ListVersions(request->device_id(), query);
@@ -157,8 +159,7 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::Promote(grpc::CallbackServerCont
   if (valid.ok()) valid = RequireVersion(request->version(), "version");
   if (!valid.ok()) return FinishUnary(context, valid);
   absl::StatusOr<storage::ParamVersion> v =
-      store_->Promote(request->device_id(), request->version(), (*who)->actor,
-                      request->reason());
+      store_->Promote(request->device_id(), request->version(), (*who)->actor, request->reason());
   if (!v.ok()) return FinishUnary(context, v.status());
   *response = ToProto(*v, /*with_json=*/true, &crc_cache_);
   return FinishUnary(context, absl::OkStatus());
@@ -172,9 +173,8 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::Rollback(grpc::CallbackServerCon
   absl::Status valid = RequireDevice(request->device_id());
   if (valid.ok()) valid = RequireVersion(request->to_version(), "to_version");
   if (!valid.ok()) return FinishUnary(context, valid);
-  absl::StatusOr<storage::ParamVersion> v =
-      store_->Rollback(request->device_id(), request->to_version(), (*who)->actor,
-                       request->reason());
+  absl::StatusOr<storage::ParamVersion> v = store_->Rollback(
+      request->device_id(), request->to_version(), (*who)->actor, request->reason());
   if (!v.ok()) return FinishUnary(context, v.status());
   *response = ToProto(*v, /*with_json=*/true, &crc_cache_);
   return FinishUnary(context, absl::OkStatus());
@@ -188,9 +188,9 @@ absl::Status ParameterServiceImpl::DoExport(const v1::ExportRequest& request,
   if (request.format() != "json") {
     absl::StatusOr<core::ExportFormat> f = core::ParseExportFormat(request.format());
     if (!f.ok()) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "format: unknown format \"", request.format(),
-          "\" (json, kalibr, kalibr-intrinsics or openvins)"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("format: unknown format \"", request.format(),
+                       "\" (json, kalibr, kalibr-intrinsics or openvins)"));
     }
     format = *f;
   }
@@ -221,10 +221,10 @@ absl::Status ParameterServiceImpl::DoExport(const v1::ExportRequest& request,
                         absl::StrCat("version ", v->version, ": ", text.status().message()));
   }
   response->set_content(*std::move(text));
-  response->set_filename(absl::StrCat(
-      stem, *format == core::ExportFormat::kOpenVins ? ".kalibr_imu_chain.yaml"
-            : *format == core::ExportFormat::kKalibrImu ? ".imu.yaml"
-                                                         : ".imu-intrinsics.yaml"));
+  response->set_filename(
+      absl::StrCat(stem, *format == core::ExportFormat::kOpenVins    ? ".kalibr_imu_chain.yaml"
+                         : *format == core::ExportFormat::kKalibrImu ? ".imu.yaml"
+                                                                     : ".imu-intrinsics.yaml"));
   for (std::string& note : core::ExportNotes(*params, *format, *options))
     response->add_notes(std::move(note));
   return absl::OkStatus();

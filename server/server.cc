@@ -45,17 +45,17 @@ absl::Status WriteSecretFile(const std::string& path, const std::string& secret)
 }
 
 // With TLS and no valid admin token (a new database, or every admin token revoked): the first
-// admin token, so that an operator can create the others (imucal admin token create). Returns the file written, or "" when there were
-// tokens already. A token whose file could not be written is revoked again.
+// admin token, so that an operator can create the others (imucal admin token create). Returns the
+// file written, or "" when there were tokens already. A token whose file could not be written is
+// revoked again.
 absl::StatusOr<std::string> BootstrapAdminToken(storage::TokenStore& tokens,
                                                 const ServerOptions& options) {
   absl::StatusOr<std::optional<storage::NewToken>> first =
       tokens.CreateFirstAdmin("bootstrap", kStartupActor);
   if (!first.ok()) return first.status();
   if (!first->has_value()) return std::string();
-  const std::string path = options.admin_token_file.empty()
-                               ? options.db_path + ".admin-token"
-                               : options.admin_token_file;
+  const std::string path = options.admin_token_file.empty() ? options.db_path + ".admin-token"
+                                                            : options.admin_token_file;
   if (absl::Status s = WriteSecretFile(path, (*first)->secret); !s.ok()) {
     tokens.Revoke((*first)->token.id, kStartupActor).IgnoreError();
     return s;
@@ -63,8 +63,9 @@ absl::StatusOr<std::string> BootstrapAdminToken(storage::TokenStore& tokens,
   Log(LogLevel::kWarning, "admin_token_created",
       {{"token_id", (*first)->token.id},
        {"file", path},
-       {"note", "the first admin token; create the others with imucal admin token create, "
-                "then keep this file safe or revoke the token"}});
+       {"note",
+        "the first admin token; create the others with imucal admin token create, "
+        "then keep this file safe or revoke the token"}});
   return path;
 }
 
@@ -76,8 +77,7 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   // under load (perf). The server's own locks are std::mutex; turn it off for the process.
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
   const size_t colon = options.listen.rfind(':');
-  if (colon == std::string::npos)
-    return absl::InvalidArgumentError("listen: expected host:port");
+  if (colon == std::string::npos) return absl::InvalidArgumentError("listen: expected host:port");
   if (absl::Status s = CheckRulesCoverServices(); !s.ok()) return s;
   absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> credentials =
       ListenerCredentials(options.listen, options.security);
@@ -101,12 +101,12 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   absl::StatusOr<std::vector<storage::Solve>> orphans = (*store)->ListRunningSolves();
   if (!orphans.ok()) return orphans.status();
   for (const storage::Solve& solve : *orphans) {
-    absl::StatusOr<storage::Solve> failed = (*store)->FailSolve(
-        solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
-        storage::SessionState::kOpen);
+    absl::StatusOr<storage::Solve> failed =
+        (*store)->FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
+                            storage::SessionState::kOpen);
     if (absl::IsFailedPrecondition(failed.status())) {
-      failed = (*store)->FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"",
-                                   kStartupActor, storage::SessionState::kFailed);
+      failed = (*store)->FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
+                                   storage::SessionState::kFailed);
     }
     if (!failed.ok()) return failed.status();
   }
@@ -183,8 +183,7 @@ void Server::Shutdown() {
   shut_down_ = true;
   // New calls are refused at once; in-flight ones get until the deadline, then are cancelled.
   server_->GetHealthCheckService()->Shutdown();
-  server_->Shutdown(std::chrono::system_clock::now() +
-                    absl::ToChronoMilliseconds(drain_deadline_));
+  server_->Shutdown(std::chrono::system_clock::now() + absl::ToChronoMilliseconds(drain_deadline_));
   server_->Wait();
   sessions_->DrainSolves();  // queued solves finish and store their results
 }

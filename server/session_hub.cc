@@ -121,8 +121,8 @@ void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* po
       p.face = u.face;
       p.detail_json = absl::StrFormat(
           R"({"samples": %d, "accel_mean": [%.9g, %.9g, %.9g], "gyro_mean": [%.9g, %.9g, %.9g]})",
-          u.samples, u.accel_mean.x(), u.accel_mean.y(), u.accel_mean.z(),
-          u.gyro_mean.x(), u.gyro_mean.y(), u.gyro_mean.z());
+          u.samples, u.accel_mean.x(), u.accel_mean.y(), u.accel_mean.z(), u.gyro_mean.x(),
+          u.gyro_mean.y(), u.gyro_mean.z());
       poses->push_back(std::move(p));
     }
   }

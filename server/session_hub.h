@@ -85,8 +85,8 @@ class SessionHub {
  public:
   explicit SessionHub(storage::Store* store) : store_(store) {}
   // Takes each live session's locks once before freeing it: a batch still being segmented or
-  // published (on the store's committer thread) finishes first. The server has drained its calls by then;
-  // the lock also shows that order to ThreadSanitizer, which cannot see it through gRPC.
+  // published (on the store's committer thread) finishes first. The server has drained its calls by
+  // then; the lock also shows that order to ThreadSanitizer, which cannot see it through gRPC.
   ~SessionHub();
 
   // The session's live state, loading it from storage on first use.

@@ -6,9 +6,9 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
-#include "absl/strings/strip.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/strip.h"
 #include "absl/time/clock.h"
 #include "client/cli/report_json.h"
 #include "client/sdk/params_json.h"
@@ -24,8 +24,7 @@ namespace {
 constexpr char kJobPrefix[] = "solve-";
 
 absl::Status RequireSession(const std::string& session_id) {
-  return session_id.empty() ? absl::InvalidArgumentError("session_id: required")
-                            : absl::OkStatus();
+  return session_id.empty() ? absl::InvalidArgumentError("session_id: required") : absl::OkStatus();
 }
 
 v1::SessionEvent Stamped() {
@@ -81,9 +80,12 @@ absl::StatusOr<core::Capture> LoadCapture(storage::Store& store, const LiveSessi
 
 v1::JobState ToJobState(storage::SolveState state) {
   switch (state) {
-    case storage::SolveState::kRunning: return v1::JOB_STATE_RUNNING;
-    case storage::SolveState::kSucceeded: return v1::JOB_STATE_DONE;
-    case storage::SolveState::kFailed: return v1::JOB_STATE_FAILED;
+    case storage::SolveState::kRunning:
+      return v1::JOB_STATE_RUNNING;
+    case storage::SolveState::kSucceeded:
+      return v1::JOB_STATE_DONE;
+    case storage::SolveState::kFailed:
+      return v1::JOB_STATE_FAILED;
   }
   return v1::JOB_STATE_UNSPECIFIED;
 }
@@ -107,7 +109,8 @@ absl::StatusOr<v1::Session> SessionServiceImpl::SessionProto(const std::string& 
   // poses: loading it into the hub would decode every stored batch and keep that state until
   // the server stops, so reading old sessions would grow memory without bound. An open one is
   // loaded: its robot is streaming (or about to, after a restart) and segmentation goes on.
-  if (const int live = hub_.PeekPosesAccepted(session_id); live >= 0) return ToProto(*session, live);
+  if (const int live = hub_.PeekPosesAccepted(session_id); live >= 0)
+    return ToProto(*session, live);
   if (session->state != storage::SessionState::kOpen) return ToProto(*session, -1);
   absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(session_id);
   if (!live.ok()) return live.status();
@@ -119,9 +122,9 @@ absl::StatusOr<v1::Session> SessionServiceImpl::SessionProto(const std::string& 
   return ToProto(*session, poses);
 }
 
-grpc::ServerUnaryReactor* SessionServiceImpl::CreateSession(
-    grpc::CallbackServerContext* context, const v1::CreateSessionRequest* request,
-    v1::Session* response) {
+grpc::ServerUnaryReactor* SessionServiceImpl::CreateSession(grpc::CallbackServerContext* context,
+                                                            const v1::CreateSessionRequest* request,
+                                                            v1::Session* response) {
   absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kCreateSession);
   if (!who.ok()) return FinishUnary(context, who.status());
   // validate
@@ -155,17 +158,17 @@ grpc::ServerUnaryReactor* SessionServiceImpl::GetSession(grpc::CallbackServerCon
   absl::StatusOr<v1::Session> session = SessionProto(request->session_id());
   if (!session.ok()) return FinishUnary(context, session.status());
   // A robot reads only its own device's sessions (its uploader resumes from them).
-  if (absl::Status s = auth_->AuthorizeDevice(*context, **who, Rpc::kGetSession,
-                                              session->device_id());
+  if (absl::Status s =
+          auth_->AuthorizeDevice(*context, **who, Rpc::kGetSession, session->device_id());
       !s.ok())
     return FinishUnary(context, s);
   *response = *std::move(session);
   return FinishUnary(context, absl::OkStatus());
 }
 
-grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(
-    grpc::CallbackServerContext* context, const v1::ListSessionsRequest* request,
-    v1::ListSessionsResponse* response) {
+grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(grpc::CallbackServerContext* context,
+                                                           const v1::ListSessionsRequest* request,
+                                                           v1::ListSessionsResponse* response) {
   if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListSessions); !who.ok())
     return FinishUnary(context, who.status());
   std::optional<storage::SessionState> state;
@@ -191,9 +194,9 @@ grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(
   return FinishUnary(context, absl::OkStatus());
 }
 
-grpc::ServerUnaryReactor* SessionServiceImpl::CancelSession(
-    grpc::CallbackServerContext* context, const v1::CancelSessionRequest* request,
-    v1::Session* response) {
+grpc::ServerUnaryReactor* SessionServiceImpl::CancelSession(grpc::CallbackServerContext* context,
+                                                            const v1::CancelSessionRequest* request,
+                                                            v1::Session* response) {
   absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kCancelSession);
   if (!who.ok()) return FinishUnary(context, who.status());
   if (absl::Status s = RequireSession(request->session_id()); !s.ok())
@@ -397,9 +400,9 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
   hub_.CloseSession(**live);
 }
 
-grpc::ServerUnaryReactor* SessionServiceImpl::SolveSession(
-    grpc::CallbackServerContext* context, const v1::SolveSessionRequest* request,
-    v1::SolveJob* response) {
+grpc::ServerUnaryReactor* SessionServiceImpl::SolveSession(grpc::CallbackServerContext* context,
+                                                           const v1::SolveSessionRequest* request,
+                                                           v1::SolveJob* response) {
   return FinishUnary(context, DoSolve(*context, *request, response));
 }
 
@@ -427,7 +430,8 @@ absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& req
   if (solve->version > 0) {
     absl::StatusOr<storage::Session> session = store_->GetSession(solve->session_id);
     if (!session.ok()) return session.status();
-    absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, solve->version);
+    absl::StatusOr<storage::ParamVersion> v =
+        store_->GetVersion(session->device_id, solve->version);
     if (!v.ok()) return v.status();
     response->set_verdict(std::string(storage::VerdictName(v->verdict)));
     response->set_activated(v->state != storage::VersionState::kCandidate);

@@ -76,23 +76,23 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     ++messages_;
     const size_t bytes = request_.Length();
     if (!grpc::SerializationTraits<v1::SampleBatch>::Deserialize(&request_, &batch_).ok()) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "message ", messages_, " of the stream (after batch ", last_seq_, "): ", bytes,
-          " bytes that are not a SampleBatch (malformed protobuf)"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("message ", messages_, " of the stream (after batch ", last_seq_,
+                       "): ", bytes, " bytes that are not a SampleBatch (malformed protobuf)"));
     }
     if (session_id_.empty()) {
       if (batch_.session_id().empty())
         return absl::InvalidArgumentError("session_id: required in the first batch of a stream");
       session_id_ = batch_.session_id();
     } else if (!batch_.session_id().empty() && batch_.session_id() != session_id_) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "session_id: the stream is for session ", session_id_, ", not ", batch_.session_id()));
+      return absl::InvalidArgumentError(absl::StrCat("session_id: the stream is for session ",
+                                                     session_id_, ", not ", batch_.session_id()));
     }
     if (live_ == nullptr) {
       absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_->Get(session_id_);
       if (!live.ok()) return live.status();
-      if (absl::Status s = auth_->AuthorizeDevice(*context_, *who_, Rpc::kStreamSamples,
-                                                  (*live)->device.id);
+      if (absl::Status s =
+              auth_->AuthorizeDevice(*context_, *who_, Rpc::kStreamSamples, (*live)->device.id);
           !s.ok())
         return s;
       live_ = *std::move(live);
@@ -105,10 +105,9 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     }
     if (!prepared.ok()) return prepared.status();
     prepared_ = *std::move(prepared);
-    store_->AppendBatchAsync(session_id_, prepared_.seq, std::move(prepared_.payload),
-                             [this](absl::StatusOr<storage::BatchAck> ack) {
-                               OnStored(std::move(ack));
-                             });
+    store_->AppendBatchAsync(
+        session_id_, prepared_.seq, std::move(prepared_.payload),
+        [this](absl::StatusOr<storage::BatchAck> ack) { OnStored(std::move(ack)); });
     return absl::OkStatus();
   }
 
@@ -128,8 +127,7 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     last_seq_ = result.ack.last_acked_seq();
     bool own_buffer = false;
     response_.Clear();
-    if (grpc::Status s = grpc::SerializationTraits<v1::SampleAck>::Serialize(result.ack,
-                                                                             &response_,
+    if (grpc::Status s = grpc::SerializationTraits<v1::SampleAck>::Serialize(result.ack, &response_,
                                                                              &own_buffer);
         !s.ok()) {
       End(s);
@@ -333,8 +331,8 @@ grpc::ServerWriteReactor<v1::SessionEvent>* SessionServiceImpl::WatchSession(
   if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kWatchSession); !who.ok())
     return new FailedWriter(ToGrpcStatus(who.status()));
   if (request->session_id().empty())
-    return new FailedWriter(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
-                                         "session_id: required"));
+    return new FailedWriter(
+        grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "session_id: required"));
   // A closed session that is not in memory is not loaded (SessionProto says why).
   if (hub_.PeekPosesAccepted(request->session_id()) < 0) {
     absl::StatusOr<v1::Session> snapshot = SessionProto(request->session_id());

@@ -2,8 +2,8 @@
 
 #include <cstdio>
 
-#include "absl/strings/str_cat.h"
 #include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
 
@@ -13,8 +13,8 @@ namespace {
 // A token that names a file: an absolute or relative path, or a database file. Units such as
 // "m/s^2" contain a slash too, so only tokens that start like a path count.
 bool LooksLikePath(absl::string_view token) {
-  while (!token.empty() && (token.front() == '\'' || token.front() == '"' ||
-                            token.front() == '(' || token.front() == '['))
+  while (!token.empty() && (token.front() == '\'' || token.front() == '"' || token.front() == '(' ||
+                            token.front() == '['))
     token.remove_prefix(1);
   if (token.empty()) return false;
   if (token.front() == '/' || absl::StartsWith(token, "./") || absl::StartsWith(token, "../") ||

@@ -13,11 +13,11 @@ namespace {
 constexpr char kAxes[] = "xyz";
 
 // "batch 17, sample 3: accel.y (accel[10])"
-std::string Where(const v1::SampleBatch& batch, int sample, std::string_view column,
-                  int per_sample, int index) {
+std::string Where(const v1::SampleBatch& batch, int sample, std::string_view column, int per_sample,
+                  int index) {
   if (per_sample == 1) {
-    return absl::StrFormat("batch %d, sample %d: %s (%s[%d])", batch.seq(), sample, column,
-                           column, index);
+    return absl::StrFormat("batch %d, sample %d: %s (%s[%d])", batch.seq(), sample, column, column,
+                           index);
   }
   return absl::StrFormat("batch %d, sample %d: %s.%c (%s[%d])", batch.seq(), sample, column,
                          kAxes[index % per_sample], column, index);
@@ -32,8 +32,8 @@ std::string NonFinite(double v) {
 // within [-limit, limit] (or [min, max] when given).
 absl::Status CheckColumn(const v1::SampleBatch& batch,
                          const google::protobuf::RepeatedField<double>& column,
-                         std::string_view name, int per_sample, int samples, double min,
-                         double max, std::string_view unit) {
+                         std::string_view name, int per_sample, int samples, double min, double max,
+                         std::string_view unit) {
   if (column.size() != per_sample * samples) {
     return absl::InvalidArgumentError(absl::StrFormat(
         "batch %d: %s has %d values, expected %d (%d per sample for the %d samples in t_s)",
@@ -47,9 +47,8 @@ absl::Status CheckColumn(const v1::SampleBatch& batch,
     }
     if (v < min || v > max) {
       return absl::InvalidArgumentError(absl::StrFormat(
-          "%s = %g %s is outside the physical range %g..%g %s", Where(batch, i / per_sample, name,
-                                                                     per_sample, i),
-          v, unit, min, max, unit));
+          "%s = %g %s is outside the physical range %g..%g %s",
+          Where(batch, i / per_sample, name, per_sample, i), v, unit, min, max, unit));
     }
   }
   return absl::OkStatus();
@@ -86,8 +85,7 @@ absl::Status ValidateBatchColumns(const v1::SampleBatch& batch, std::string_view
                         batch.seq(), n, limits.max_batch_samples));
   }
   const double a = AccelLimit(accel_unit), g = GyroLimit(gyro_unit);
-  if (absl::Status s = CheckColumn(batch, batch.accel(), "accel", 3, n, -a, a, accel_unit);
-      !s.ok())
+  if (absl::Status s = CheckColumn(batch, batch.accel(), "accel", 3, n, -a, a, accel_unit); !s.ok())
     return s;
   if (absl::Status s = CheckColumn(batch, batch.gyro(), "gyro", 3, n, -g, g, gyro_unit); !s.ok())
     return s;

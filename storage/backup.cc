@@ -109,9 +109,8 @@ absl::Status CopyPages(Connection& src, Connection& dest, std::string_view what)
   const int finish_rc = sqlite3_backup_finish(backup);
   if (step_rc != SQLITE_DONE) {
     // READONLY here means the page sizes differ and the destination is in WAL mode.
-    return SqliteStatus(step_rc, what, step_rc == SQLITE_BUSY || step_rc == SQLITE_LOCKED
-                                           ? src.db()
-                                           : dest.db());
+    return SqliteStatus(step_rc, what,
+                        step_rc == SQLITE_BUSY || step_rc == SQLITE_LOCKED ? src.db() : dest.db());
   }
   if (finish_rc != SQLITE_OK) return SqliteStatus(finish_rc, what, dest.db());
   return absl::OkStatus();

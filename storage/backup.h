@@ -30,7 +30,7 @@ struct DatabaseInfo {
   int schema_version = 0;  // PRAGMA user_version; 0 for a file that does not exist yet
   int64_t page_count = 0;
   int64_t page_size_bytes = 0;
-  int64_t devices = 0;          // rows, for the operator's eye after a backup or restore
+  int64_t devices = 0;  // rows, for the operator's eye after a backup or restore
   int64_t param_versions = 0;
 };
 
@@ -44,7 +44,8 @@ absl::StatusOr<DatabaseInfo> InspectDatabase(const std::string& path, bool check
 absl::StatusOr<int> SchemaVersionOf(const std::string& path);
 
 // Online backup of `db_path` (may be in use) to `out_path`; returns what the backup holds.
-absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path, const std::string& out_path);
+absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path,
+                                            const std::string& out_path);
 
 // Replaces the database at `db_path` (which no process may have open) with the backup at
 // `backup_path`; returns what the restored database holds.

@@ -228,8 +228,7 @@ absl::StatusOr<std::unique_ptr<Connection>> OpenBagFile(const std::string& file)
   options.read_only = true;
   absl::StatusOr<std::unique_ptr<Connection>> connection = Connection::Open(file, options);
   if (!connection.ok()) {
-    return absl::Status(connection.status().code(),
-                        Cat(file, ": ", connection.status().message()));
+    return absl::Status(connection.status().code(), Cat(file, ": ", connection.status().message()));
   }
   return connection;
 }
@@ -244,7 +243,8 @@ absl::StatusOr<std::vector<Topic>> ReadTopics(Connection& db, const std::string&
   std::vector<Topic> topics;
   while (true) {
     absl::StatusOr<bool> row = (*select)->Step();
-    if (!row.ok()) return absl::Status(row.status().code(), Cat(file, ": ", row.status().message()));
+    if (!row.ok())
+      return absl::Status(row.status().code(), Cat(file, ": ", row.status().message()));
     if (!*row) break;
     topics.push_back(Topic{(*select)->ColumnInt64(0), (*select)->ColumnText(1),
                            (*select)->ColumnText(2), (*select)->ColumnText(3)});
@@ -302,8 +302,8 @@ struct Sample {
 absl::Status ReadMessages(Connection& db, const std::string& file, const Topic& topic,
                           size_t* index, std::vector<Sample>* samples,
                           std::vector<std::string>* frame_ids) {
-  absl::StatusOr<ScopedStatement> select = db.Prepare(
-      "SELECT timestamp, data FROM messages WHERE topic_id = ?1 ORDER BY timestamp, id");
+  absl::StatusOr<ScopedStatement> select =
+      db.Prepare("SELECT timestamp, data FROM messages WHERE topic_id = ?1 ORDER BY timestamp, id");
   if (!select.ok()) {
     return absl::InvalidArgumentError(
         Cat(file, ": not a rosbag2 sqlite3 file (", select.status().message(), ")"));
@@ -311,22 +311,21 @@ absl::Status ReadMessages(Connection& db, const std::string& file, const Topic& 
   (*select)->BindInt64(1, topic.id);
   while (true) {
     absl::StatusOr<bool> row = (*select)->Step();
-    if (!row.ok()) return absl::Status(row.status().code(), Cat(file, ": ", row.status().message()));
+    if (!row.ok())
+      return absl::Status(row.status().code(), Cat(file, ": ", row.status().message()));
     if (!*row) break;
     const int64_t bag_ns = (*select)->ColumnInt64(0);
     absl::StatusOr<ImuMessage> message = DecodeImuCdr((*select)->ColumnBlobView(1));
     if (!message.ok()) {
-      return absl::InvalidArgumentError(Cat(file, ": message ", *index, " (t=", bag_ns,
-                                            " ns) on ", topic.name, ": ",
-                                            message.status().message()));
+      return absl::InvalidArgumentError(Cat(file, ": message ", *index, " (t=", bag_ns, " ns) on ",
+                                            topic.name, ": ", message.status().message()));
     }
     const int64_t stamp_ns =
         int64_t{message->stamp_sec} * 1'000'000'000 + int64_t{message->stamp_nanosec};
     samples->push_back(
         Sample{stamp_ns, bag_ns, message->angular_velocity, message->linear_acceleration});
     if (frame_ids->empty() || frame_ids->back() != message->frame_id) {
-      if (std::find(frame_ids->begin(), frame_ids->end(), message->frame_id) ==
-          frame_ids->end()) {
+      if (std::find(frame_ids->begin(), frame_ids->end(), message->frame_id) == frame_ids->end()) {
         frame_ids->push_back(message->frame_id);
       }
     }
@@ -430,13 +429,11 @@ absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path,
     absl::StatusOr<Topic> chosen = ChooseTopic(*topics, topic ? topic->name : options.topic, file);
     if (!chosen.ok()) return chosen.status();
     if (chosen->serialization_format != "cdr") {
-      return absl::InvalidArgumentError(Cat(file, ": topic ", chosen->name,
-                                            " is serialised as '", chosen->serialization_format,
-                                            "', not cdr"));
+      return absl::InvalidArgumentError(Cat(file, ": topic ", chosen->name, " is serialised as '",
+                                            chosen->serialization_format, "', not cdr"));
     }
     topic = *chosen;
-    if (absl::Status s = ReadMessages(**db, file, *topic, &index, &samples, &frame_ids);
-        !s.ok()) {
+    if (absl::Status s = ReadMessages(**db, file, *topic, &index, &samples, &frame_ids); !s.ok()) {
       return s;
     }
   }
@@ -444,8 +441,8 @@ absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path,
     return absl::InvalidArgumentError(Cat(path, ": topic ", topic->name, " has no messages"));
   }
 
-  const bool stamped = std::any_of(samples.begin(), samples.end(),
-                                   [](const Sample& s) { return s.stamp_ns != 0; });
+  const bool stamped =
+      std::any_of(samples.begin(), samples.end(), [](const Sample& s) { return s.stamp_ns != 0; });
   auto time_of = [&](const Sample& s) { return stamped ? s.stamp_ns : s.bag_ns; };
   const std::string_view clock = stamped ? "header.stamp" : "bag timestamp";
   core::Capture capture;
@@ -458,10 +455,10 @@ absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path,
   for (size_t i = 0; i < samples.size(); ++i) {
     const int64_t ns = time_of(samples[i]);
     if (i > 0 && ns <= time_of(samples[i - 1])) {
-      return absl::InvalidArgumentError(
-          Cat(path, ": message ", i, " (t=", samples[i].bag_ns, " ns) on ", topic->name, ": ",
-              clock, " ", ns, " ns does not increase (message ", i - 1, ": ",
-              time_of(samples[i - 1]), " ns)"));
+      return absl::InvalidArgumentError(Cat(path, ": message ", i, " (t=", samples[i].bag_ns,
+                                            " ns) on ", topic->name, ": ", clock, " ", ns,
+                                            " ns does not increase (message ", i - 1, ": ",
+                                            time_of(samples[i - 1]), " ns)"));
     }
     // Integer difference first: a 1.7e18 ns origin would cost double precision.
     capture.t_s.push_back(static_cast<double>(ns - t0_ns) / 1e9);
@@ -474,12 +471,12 @@ absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path,
     capture.extra_metadata.emplace_back("frame_id", frame_ids[0]);
   }
   notes->push_back(Cat("topic ", topic->name, ": ", samples.size(), " messages from ",
-                       files->size(), " file", files->size() == 1 ? "" : "s",
-                       "; time = ", clock, " from ", t0_ns, " ns (kept as t0_ns)"));
+                       files->size(), " file", files->size() == 1 ? "" : "s", "; time = ", clock,
+                       " from ", t0_ns, " ns (kept as t0_ns)"));
   if (!stamped) notes->push_back("every header.stamp is zero: used the bag's receive time");
   if (frame_ids.size() > 1) {
-    notes->push_back(Cat("the messages name ", frame_ids.size(), " frames: ",
-                         Join(frame_ids, ", ")));
+    notes->push_back(
+        Cat("the messages name ", frame_ids.size(), " frames: ", Join(frame_ids, ", ")));
   }
   core::io_internal::ApplyImportOverrides(options, &capture, notes);
   core::NoteTimeGaps(capture, notes);

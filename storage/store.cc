@@ -667,9 +667,8 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
                              Annotate(op, Connection::Open(path, conn_options)));
     readers.push_back(std::move(reader));
   }
-  return std::unique_ptr<Store>(
-      new Store(std::move(options), std::move(writer), std::move(checkpointer),
-                std::move(readers)));
+  return std::unique_ptr<Store>(new Store(std::move(options), std::move(writer),
+                                          std::move(checkpointer), std::move(readers)));
 }
 
 absl::StatusOr<ParamVersion> Store::NotifyIfActive(absl::StatusOr<ParamVersion> version) {
@@ -958,8 +957,8 @@ void Store::AppendBatchAsync(std::string session_id, int64_t seq, std::string pa
   std::call_once(threads_started_, [this] { StartBackgroundThreads(); });
   {
     std::lock_guard lock(commit_mu_);
-    pending_.push_back(PendingAppend{std::move(session_id), seq, std::move(payload), *info,
-                                     std::move(done)});
+    pending_.push_back(
+        PendingAppend{std::move(session_id), seq, std::move(payload), *info, std::move(done)});
   }
   commit_cv_.notify_one();
 }
@@ -1229,38 +1228,41 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
   constexpr std::string_view kOp = "FinishSolve";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return NotifyIfActive(InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
-    STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
-    if (solve.state != SolveState::kRunning) {
-      return absl::FailedPreconditionError(
-          Cat("solve ", solve_id, " is ", SolveStateName(solve.state), ", not running"));
-    }
-    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
-    ParamVersion v = version;
-    if (v.device_id.empty()) v.device_id = session.device_id;
-    if (v.session_id.empty()) v.session_id = session.id;
-    if (v.device_id != session.device_id || v.session_id != session.id) {
-      return absl::InvalidArgumentError(Cat("solve ", solve_id, " is of session '", session.id,
-                                            "' of device '", session.device_id, "', not of '",
-                                            v.session_id, "' of '", v.device_id, "'"));
-    }
-    const absl::Time now = Now();
-    STORAGE_ASSIGN_OR_RETURN(ParamVersion added, InsertVersion(conn, v, actor, now));
-    {
-      STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kFinishSolve));
-      st->BindInt64(1, solve_id);
-      st->BindText(2, SolveStateName(SolveState::kSucceeded));
-      st->BindInt64(3, Micros(now));
-      st->BindInt64(4, added.version);
-      st->BindText(5, "");
-      st->BindText(6, "");  // the report is the version's
-      STORAGE_RETURN_IF_ERROR(st->Run());
-    }
-    STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, SessionState::kSolved, actor, now));
-    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.finish", SessionTarget(session.id),
-                                        Cat("solve ", solve_id, " -> version ", added.version)));
-    return added;
-  }));
+  return NotifyIfActive(
+      InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+        STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
+        if (solve.state != SolveState::kRunning) {
+          return absl::FailedPreconditionError(
+              Cat("solve ", solve_id, " is ", SolveStateName(solve.state), ", not running"));
+        }
+        STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
+        ParamVersion v = version;
+        if (v.device_id.empty()) v.device_id = session.device_id;
+        if (v.session_id.empty()) v.session_id = session.id;
+        if (v.device_id != session.device_id || v.session_id != session.id) {
+          return absl::InvalidArgumentError(Cat("solve ", solve_id, " is of session '", session.id,
+                                                "' of device '", session.device_id, "', not of '",
+                                                v.session_id, "' of '", v.device_id, "'"));
+        }
+        const absl::Time now = Now();
+        STORAGE_ASSIGN_OR_RETURN(ParamVersion added, InsertVersion(conn, v, actor, now));
+        {
+          STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kFinishSolve));
+          st->BindInt64(1, solve_id);
+          st->BindText(2, SolveStateName(SolveState::kSucceeded));
+          st->BindInt64(3, Micros(now));
+          st->BindInt64(4, added.version);
+          st->BindText(5, "");
+          st->BindText(6, "");  // the report is the version's
+          STORAGE_RETURN_IF_ERROR(st->Run());
+        }
+        STORAGE_RETURN_IF_ERROR(
+            ChangeSessionState(conn, session, SessionState::kSolved, actor, now));
+        STORAGE_RETURN_IF_ERROR(
+            InsertAudit(conn, now, actor, "solve.finish", SessionTarget(session.id),
+                        Cat("solve ", solve_id, " -> version ", added.version)));
+        return added;
+      }));
 }
 
 absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
@@ -1353,20 +1355,21 @@ absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int vers
   constexpr std::string_view kOp = "Promote";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return NotifyIfActive(InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
-    STORAGE_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
-    if (v.state == VersionState::kActive) return v;
-    if (v.state != VersionState::kCandidate) {
-      return absl::FailedPreconditionError(
-          Cat("version ", version, " of device '", device_id, "' is ", VersionStateName(v.state),
+  return NotifyIfActive(
+      InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+        STORAGE_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
+        if (v.state == VersionState::kActive) return v;
+        if (v.state != VersionState::kCandidate) {
+          return absl::FailedPreconditionError(Cat(
+              "version ", version, " of device '", device_id, "' is ", VersionStateName(v.state),
               "; only a candidate can be promoted (Rollback makes an older version active)"));
-    }
-    STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, version));
-    STORAGE_RETURN_IF_ERROR(
-        InsertAudit(conn, Now(), actor, "version.promote", DeviceTarget(device_id),
-                    Cat("version ", version, " active", Displaced(displaced), Reason(reason))));
-    return LoadVersion(conn, device_id, version);
-  }));
+        }
+        STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, version));
+        STORAGE_RETURN_IF_ERROR(
+            InsertAudit(conn, Now(), actor, "version.promote", DeviceTarget(device_id),
+                        Cat("version ", version, " active", Displaced(displaced), Reason(reason))));
+        return LoadVersion(conn, device_id, version);
+      }));
 }
 
 absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_version,
@@ -1374,25 +1377,26 @@ absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_
   constexpr std::string_view kOp = "Rollback";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return NotifyIfActive(InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
-    STORAGE_ASSIGN_OR_RETURN(ParamVersion target, LoadVersion(conn, device_id, to_version));
-    STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
-    if (!active) {
-      return absl::FailedPreconditionError(
-          Cat("device '", device_id, "' has no active version to roll back from"));
-    }
-    if (to_version >= active->version) {
-      return absl::FailedPreconditionError(Cat("version ", to_version,
-                                               " is not older than the active version ",
-                                               active->version, " of device '", device_id, "'"));
-    }
-    STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, to_version));
-    STORAGE_RETURN_IF_ERROR(
-        InsertAudit(conn, Now(), actor, "version.rollback", DeviceTarget(device_id),
-                    Cat("version ", to_version, " (was ", VersionStateName(target.state),
-                        ") active", Displaced(displaced), Reason(reason))));
-    return LoadVersion(conn, device_id, to_version);
-  }));
+  return NotifyIfActive(
+      InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+        STORAGE_ASSIGN_OR_RETURN(ParamVersion target, LoadVersion(conn, device_id, to_version));
+        STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
+        if (!active) {
+          return absl::FailedPreconditionError(
+              Cat("device '", device_id, "' has no active version to roll back from"));
+        }
+        if (to_version >= active->version) {
+          return absl::FailedPreconditionError(
+              Cat("version ", to_version, " is not older than the active version ", active->version,
+                  " of device '", device_id, "'"));
+        }
+        STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, to_version));
+        STORAGE_RETURN_IF_ERROR(
+            InsertAudit(conn, Now(), actor, "version.rollback", DeviceTarget(device_id),
+                        Cat("version ", to_version, " (was ", VersionStateName(target.state),
+                            ") active", Displaced(displaced), Reason(reason))));
+        return LoadVersion(conn, device_id, to_version);
+      }));
 }
 
 absl::StatusOr<ParamVersion> Store::Reject(std::string_view device_id, int version,

@@ -212,8 +212,7 @@ class Store {
  private:
   class ReadLease;
   Store(StoreOptions options, std::unique_ptr<Connection> writer,
-        std::unique_ptr<Connection> checkpointer,
-        std::vector<std::unique_ptr<Connection>> readers);
+        std::unique_ptr<Connection> checkpointer, std::vector<std::unique_ptr<Connection>> readers);
 
   absl::Time Now() const;
   absl::StatusOr<ParamVersion> NotifyIfActive(absl::StatusOr<ParamVersion> version);

@@ -85,10 +85,10 @@ struct PosePair {
   int pose_a = 0;  // pose indexes (Pose::index)
   int pose_b = 0;
   bool ok = false;
-  std::string face;          // "Z+"
+  std::string face;           // "Z+"
   double rotation_deg = 0.0;  // gyro-measured turn between the placements
   double tilt_deg = 0.0;      // floor tilt (half the angle between the two up directions)
-  std::string reason;        // why rejected, in a technician's words
+  std::string reason;         // why rejected, in a technician's words
 };
 
 // One attempt to solve a session (a session can be re-solved from its raw data later).

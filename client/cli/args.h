@@ -55,9 +55,7 @@ class Args {
   }
 
   const std::vector<std::string>& positional() const { return positional_; }
-  bool Has(const std::string& name) const {
-    return switches_.count(name) || values_.count(name);
-  }
+  bool Has(const std::string& name) const { return switches_.count(name) || values_.count(name); }
   std::optional<std::string> Get(const std::string& name) const {
     auto it = values_.find(name);
     return it == values_.end() ? std::nullopt : std::optional<std::string>(it->second);

@@ -10,11 +10,11 @@
 namespace imucal::cli {
 
 // Exit codes, stable for scripts.
-inline constexpr int kExitOk = 0;           // done (verdict pass or warn)
-inline constexpr int kExitUsage = 1;        // bad command line
-inline constexpr int kExitBadInput = 2;     // unreadable or malformed input
-inline constexpr int kExitUndetermined = 3; // the capture cannot determine the calibration
-inline constexpr int kExitVerdictFail = 4;  // calibrated, but the result fails the quality gates
+inline constexpr int kExitOk = 0;            // done (verdict pass or warn)
+inline constexpr int kExitUsage = 1;         // bad command line
+inline constexpr int kExitBadInput = 2;      // unreadable or malformed input
+inline constexpr int kExitUndetermined = 3;  // the capture cannot determine the calibration
+inline constexpr int kExitVerdictFail = 4;   // calibrated, but the result fails the quality gates
 inline constexpr int kExitInternal = 5;
 inline constexpr int kExitUnavailable = 6;  // the server could not be reached (or timed out)
 inline constexpr int kExitDenied = 7;       // the server refused the token or the role

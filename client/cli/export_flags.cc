@@ -31,11 +31,11 @@ absl::StatusOr<core::ExportOptions> ExportOptionsFrom(const Args& a) {
     const char* name;
     double* value;
   };
-  for (const Flag& f : {Flag{"rate", &o.update_rate_hz},
-                        Flag{"accel-noise-density", &o.accel_noise_density},
-                        Flag{"accel-random-walk", &o.accel_random_walk},
-                        Flag{"gyro-noise-density", &o.gyro_noise_density},
-                        Flag{"gyro-random-walk", &o.gyro_random_walk}}) {
+  for (const Flag& f :
+       {Flag{"rate", &o.update_rate_hz}, Flag{"accel-noise-density", &o.accel_noise_density},
+        Flag{"accel-random-walk", &o.accel_random_walk},
+        Flag{"gyro-noise-density", &o.gyro_noise_density},
+        Flag{"gyro-random-walk", &o.gyro_random_walk}}) {
     auto v = a.GetDouble(f.name, core::ExportOptions::kUnset);
     if (!v.ok()) return v.status();
     if (a.Get(f.name) && !(*v > 0 && std::isfinite(*v)))

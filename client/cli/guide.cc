@@ -23,7 +23,8 @@ namespace {
 namespace pb = imucal::v1;
 
 constexpr char kGuideHelp[] =
-    "usage: imucal guide --device D [--protocol six-face|positions|free|ferraris|auto] [--session S]\n"
+    "usage: imucal guide --device D [--protocol six-face|positions|free|ferraris|auto] [--session "
+    "S]\n"
     "  Guides a calibration capture: opens a session for the device (or follows --session S),\n"
     "  then, while the robot streams its samples (e.g. `imucal upload FILE --device D`), says\n"
     "  which pose comes next, shows whether the robot is still and for how long it must hold,\n"

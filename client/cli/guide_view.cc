@@ -118,9 +118,10 @@ void GuideView::OnPair(const pb::PairVerdict& p) {
   } else {
     Line(absl::StrFormat("[redo] pair%s (poses %d, %d) FAILED: %s", face, p.pose_a(), p.pose_b(),
                          p.reason().empty() ? "rejected" : p.reason()));
-    Line(absl::StrFormat("       -> REDO%s: put it back on%s, half a turn about the vertical "
-                         "from pose %d, and hold it still",
-                         face, face, p.pose_a()));
+    Line(
+        absl::StrFormat("       -> REDO%s: put it back on%s, half a turn about the vertical "
+                        "from pose %d, and hold it still",
+                        face, face, p.pose_a()));
   }
 }
 

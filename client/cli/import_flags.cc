@@ -16,9 +16,11 @@ const char kImportFlagsHelp[] =
     "input formats (--format, default auto): imucal CSV, EuRoC imu0/data.csv, imu_tk pair,\n"
     "  ROS 2 bag (directory with metadata.yaml, or .db3), and vendor CSV with --columns:\n"
     "  --columns ax=C,ay=C,az=C,gx=C,gy=C,gz=C[,t=C][,temp=C]   C: header name or column number\n"
-    "  --time-unit s|ms|us|ns|index   unit of the t column (index: a sample counter; needs a rate)\n"
+    "  --time-unit s|ms|us|ns|index   unit of the t column (index: a sample counter; needs a "
+    "rate)\n"
     "  --rate HZ | --rate-from-preamble KEY   sample rate (needed without t, or with index)\n"
-    "  --skip-lines N    preamble lines before the header (default: up to the line naming the columns)\n"
+    "  --skip-lines N    preamble lines before the header (default: up to the line naming the "
+    "columns)\n"
     "  --delimiter ,|;|tab|space   (default: detected)   --no-header   columns by number only\n"
     "  --sort-time       sort rows by time (a file saved part by part) instead of an error\n"
     "  --temp-unit C|counts\n"
@@ -26,9 +28,8 @@ const char kImportFlagsHelp[] =
 
 namespace {
 
-const std::vector<std::string> kColumnValued = {"columns",    "time-unit", "rate",
-                                                "rate-from-preamble", "skip-lines",
-                                                "delimiter", "temp-unit"};
+const std::vector<std::string> kColumnValued = {
+    "columns", "time-unit", "rate", "rate-from-preamble", "skip-lines", "delimiter", "temp-unit"};
 const std::vector<std::string> kColumnSwitches = {"no-header", "sort-time"};
 
 absl::Status FlagError(const std::string& flag, absl::string_view message) {

@@ -9,8 +9,8 @@
 #include <sstream>
 #include <utility>
 
-#include "absl/strings/str_format.h"
 #include "absl/strings/match.h"
+#include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
 #include "absl/time/clock.h"
@@ -116,12 +116,14 @@ absl::StatusOr<core::ImportOptions> ImportOptionsFrom(const Args& a) {
   if (auto f = a.Get("format")) o.format = *f;
   if (auto u = a.Get("accel-unit")) {
     auto p = core::ParseAccelUnit(*u);
-    if (!p.ok()) return absl::InvalidArgumentError("--accel-unit: " + std::string(p.status().message()));
+    if (!p.ok())
+      return absl::InvalidArgumentError("--accel-unit: " + std::string(p.status().message()));
     o.accel_unit = *p;
   }
   if (auto u = a.Get("gyro-unit")) {
     auto p = core::ParseGyroUnit(*u);
-    if (!p.ok()) return absl::InvalidArgumentError("--gyro-unit: " + std::string(p.status().message()));
+    if (!p.ok())
+      return absl::InvalidArgumentError("--gyro-unit: " + std::string(p.status().message()));
     o.gyro_unit = *p;
   }
   if (a.Get("gravity")) {
@@ -234,7 +236,6 @@ absl::StatusOr<core::Capture> ApplyParams(const core::ParamSet& params, const co
   return out;
 }
 
-
 core::SimOptions DemoCaptureOptions(uint64_t seed, int extra_poses) {
   core::SimOptions so;
   so.protocol = core::SimProtocol::kSixFace;
@@ -267,7 +268,8 @@ absl::Status PrintBeforeAfter(const core::SimOptions& capture_options, const cor
   const double g = vo.gravity_m_s2;
   const double before_a = core::VectorRmsError(nominal_a, val->true_accel_m_s2, false);
   const double after_a = core::VectorRmsError(calibrated->accel, val->true_accel_m_s2, false);
-  const double after_a_aligned = core::VectorRmsError(calibrated->accel, val->true_accel_m_s2, true);
+  const double after_a_aligned =
+      core::VectorRmsError(calibrated->accel, val->true_accel_m_s2, true);
   const double before_g = core::VectorRmsError(nominal_g, val->true_gyro_rad_s, false);
   const double after_g = core::VectorRmsError(calibrated->gyro, val->true_gyro_rad_s, false);
   std::printf(
@@ -339,8 +341,7 @@ std::string DescribeFewOrientations(const core::Capture& cap, const core::Calibr
         "record this rest at the start of a multi-pose capture of the same unit",
         total_s, span_s, longest_s);
   }
-  const double angle_deg =
-      std::acos(std::clamp(dirs[0].dot(dirs[1]), -1.0, 1.0)) * kRadToDeg;
+  const double angle_deg = std::acos(std::clamp(dirs[0].dot(dirs[1]), -1.0, 1.0)) * kRadToDeg;
   return absl::StrFormat(
       "this capture holds %d orientations (%d still intervals, %.0f s still of %.0f s; the "
       "first two %.0f deg apart, raw): too few to calibrate, which needs at least 7 with every "
@@ -351,12 +352,12 @@ std::string DescribeFewOrientations(const core::Capture& cap, const core::Calibr
 }
 
 int RunCalibrate(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv,
-                       WithImportValuedFlags({"format", "protocol", "gravity", "accel-unit",
-                                              "gyro-unit", "device", "seed", "out",
-                                              "params-out", "plots"}),
-                       WithImportSwitches({"json", "no-bsas", "no-heldout", "no-effects",
-                                           "apply-time-effects", "help"}));
+  auto a =
+      Args::Parse(argv,
+                  WithImportValuedFlags({"format", "protocol", "gravity", "accel-unit", "gyro-unit",
+                                         "device", "seed", "out", "params-out", "plots"}),
+                  WithImportSwitches({"json", "no-bsas", "no-heldout", "no-effects",
+                                      "apply-time-effects", "help"}));
   if (!a.ok()) return Usage(std::string(a.status().message()), kCalibrateHelp);
   if (a->Has("help")) return std::printf("%s%s", kCalibrateHelp, kImportFlagsHelp), kExitOk;
   if (a->positional().empty()) return Usage("calibrate needs a capture FILE", kCalibrateHelp);
@@ -418,8 +419,8 @@ int RunCalibrate(const std::vector<std::string>& argv) {
     std::fputs(json.c_str(), stdout);
   } else {
     std::printf("input       %s (%s, %zu samples, accel %s, gyro %s)\n",
-                absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(),
-                capture->size(), std::string(core::AccelUnitName(capture->accel_unit)).c_str(),
+                absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(), capture->size(),
+                std::string(core::AccelUnitName(capture->accel_unit)).c_str(),
                 std::string(core::GyroUnitName(capture->gyro_unit)).c_str());
     for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
     std::fputs(FormatSummary(*report).c_str(), stdout);
@@ -457,11 +458,11 @@ int RunApply(const std::vector<std::string>& argv) {
 }
 
 int RunSimulate(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv,
-                       {"out", "protocol", "seed", "rate", "extra-poses", "free-poses",
-                        "accel-noise", "gyro-noise", "accel-unit", "gyro-unit", "floor-tilt",
-                        "turn-error", "effect", "truth"},
-                       {"no-temperature", "botch-turn", "help"});
+  auto a = Args::Parse(
+      argv,
+      {"out", "protocol", "seed", "rate", "extra-poses", "free-poses", "accel-noise", "gyro-noise",
+       "accel-unit", "gyro-unit", "floor-tilt", "turn-error", "effect", "truth"},
+      {"no-temperature", "botch-turn", "help"});
   if (!a.ok()) return Usage(std::string(a.status().message()), kSimulateHelp);
   if (a->Has("help")) return std::printf("%s", kSimulateHelp), kExitOk;
   if (!a->Get("out")) return Usage("simulate needs --out FILE.csv", kSimulateHelp);
@@ -485,8 +486,8 @@ int RunSimulate(const std::vector<std::string>& argv) {
         !s.ok())
       return ReportError(s);
   }
-  std::printf("wrote %zu samples, %zu static poses (%s, seed %llu%s) to %s\n",
-              sim->capture.size(), sim->poses.size(), core::ProtocolName(options->protocol).c_str(),
+  std::printf("wrote %zu samples, %zu static poses (%s, seed %llu%s) to %s\n", sim->capture.size(),
+              sim->poses.size(), core::ProtocolName(options->protocol).c_str(),
               static_cast<unsigned long long>(options->seed),
               botch ? ", first half turn botched: one more hold" : "", a->Get("out")->c_str());
   return kExitOk;
@@ -497,8 +498,9 @@ int RunSimulate(const std::vector<std::string>& argv) {
 int RunDemo(const std::vector<std::string>& argv) {
   auto a = Args::Parse(argv, {"out-dir", "seed", "extra-poses"}, {"help", "no-bsas"});
   if (!a.ok() || a->Has("help")) {
-    std::printf("usage: imucal demo [--out-dir DIR] [--seed N] [--extra-poses N] [--no-bsas]\n"
-                "       imucal demo --server ADDR [--seed N]   (the same through the service)\n");
+    std::printf(
+        "usage: imucal demo [--out-dir DIR] [--seed N] [--extra-poses N] [--no-bsas]\n"
+        "       imucal demo --server ADDR [--seed N]   (the same through the service)\n");
     return a.ok() ? kExitOk : kExitUsage;
   }
   const std::string dir = a->Get("out-dir").value_or("imucal-demo");
@@ -508,8 +510,8 @@ int RunDemo(const std::vector<std::string>& argv) {
   if (!extra.ok()) return Usage(std::string(extra.status().message()), "");
   std::filesystem::create_directories(dir);
 
-  const core::SimOptions so = DemoCaptureOptions(static_cast<uint64_t>(*seed),
-                                                 static_cast<int>(*extra));
+  const core::SimOptions so =
+      DemoCaptureOptions(static_cast<uint64_t>(*seed), static_cast<int>(*extra));
   auto sim = core::Simulate(so);
   if (!sim.ok()) return ReportError(sim.status());
   sim->capture.device = "demo-robot";
@@ -559,13 +561,11 @@ constexpr char kExportFileHelpTail[] =
 }  // namespace
 
 int RunExportFile(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv,
-                       WithExportValuedFlags({"params", "format", "out", "server"}),
-                       {"help"});
+  auto a =
+      Args::Parse(argv, WithExportValuedFlags({"params", "format", "out", "server"}), {"help"});
   if (!a.ok()) return Usage(std::string(a.status().message()), kExportFileHelp);
   if (a->Has("help")) {
-    return std::printf("%s%s%s", kExportFileHelp, kExportOptionsHelp, kExportFileHelpTail),
-           kExitOk;
+    return std::printf("%s%s%s", kExportFileHelp, kExportOptionsHelp, kExportFileHelpTail), kExitOk;
   }
   const auto params_path = a->Get("params");
   const auto format_name = a->Get("format");
@@ -576,8 +576,9 @@ int RunExportFile(const std::vector<std::string>& argv) {
   std::optional<core::ExportFormat> format;
   if (*format_name != "json") {
     auto f = core::ParseExportFormat(*format_name);
-    if (!f.ok()) return Usage("--format: expected json, kalibr, kalibr-intrinsics or openvins",
-                              kExportFileHelp);
+    if (!f.ok())
+      return Usage("--format: expected json, kalibr, kalibr-intrinsics or openvins",
+                   kExportFileHelp);
     format = *f;
   }
   auto options = ExportOptionsFrom(*a);

@@ -15,19 +15,23 @@ namespace {
 
 using nlohmann::json;
 
-constexpr double kW = 720, kH = 440;                          // canvas, px
+constexpr double kW = 720, kH = 440;                                // canvas, px
 constexpr double kLeft = 80, kRight = 20, kTop = 40, kBottom = 60;  // margins, px
-constexpr double kMg = 9.80665e-3;                            // m/s^2 per mg
+constexpr double kMg = 9.80665e-3;                                  // m/s^2 per mg
 constexpr double kRadToDeg = 180.0 / M_PI;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 std::string Escape(const std::string& s) {
   std::string out;
   for (char c : s) {
-    if (c == '<') out += "&lt;";
-    else if (c == '>') out += "&gt;";
-    else if (c == '&') out += "&amp;";
-    else out += c;
+    if (c == '<')
+      out += "&lt;";
+    else if (c == '>')
+      out += "&gt;";
+    else if (c == '&')
+      out += "&amp;";
+    else
+      out += c;
   }
   return out;
 }
@@ -48,15 +52,14 @@ struct Range {
   }
   void Pad() {
     if (!std::isfinite(lo)) lo = 0, hi = 1;
-    if (hi - lo < 1e-12 * (std::abs(lo) + 1)) lo -= 0.5 * (std::abs(lo) + 1e-9), hi += 0.5 * (std::abs(hi) + 1e-9);
+    if (hi - lo < 1e-12 * (std::abs(lo) + 1))
+      lo -= 0.5 * (std::abs(lo) + 1e-9), hi += 0.5 * (std::abs(hi) + 1e-9);
     const double pad = 0.05 * (hi - lo);
     lo -= pad, hi += pad;
   }
 };
 
-json Get(const json& j, const char* key) {
-  return j.contains(key) ? j.at(key) : json();
-}
+json Get(const json& j, const char* key) { return j.contains(key) ? j.at(key) : json(); }
 
 double Num(const json& j) {
   return j.is_number() ? j.get<double>() : std::numeric_limits<double>::quiet_NaN();
@@ -80,10 +83,14 @@ absl::Status WriteStagePlot(const json& report, const PlotWriter& write) {
     std::vector<std::pair<double, double>> pts;
     for (size_t i = 0; i < poses.size(); ++i) pts.emplace_back(Num(poses[i]), Num(res[i]) / kMg);
     std::sort(pts.begin(), pts.end());
-    const std::string name = Get(stages[k], "name").is_string() ? Get(stages[k], "name").get<std::string>() : "";
-    PlotSeries line{absl::StrFormat("after %s (rms %.3g mg)", name,
-                                    Num(Get(stages[k], "accel_rms")) / kMg),
-                    {}, {}, kColours[k % 6], true};
+    const std::string name =
+        Get(stages[k], "name").is_string() ? Get(stages[k], "name").get<std::string>() : "";
+    PlotSeries line{
+        absl::StrFormat("after %s (rms %.3g mg)", name, Num(Get(stages[k], "accel_rms")) / kMg),
+        {},
+        {},
+        kColours[k % 6],
+        true};
     for (const auto& [x, y] : pts) line.x.push_back(x), line.y.push_back(y);
     PlotSeries dots = line;
     dots.line = false;
@@ -108,8 +115,8 @@ absl::Status WriteCoveragePlot(const json& report, const PlotWriter& write) {
   };
   PlotSeries rims{"hemisphere rims (left +z, right -z)", {}, {}, "#888888", true};
   PlotSeries faces{"the six faces' directions", {}, {}, "#aaaaaa", false, true};
-  PlotSeries used{"pose used", {}, {}, "#1f77b4"}, unused{"pose not used", {}, {}, "#d62728",
-                                                          false, true};
+  PlotSeries used{"pose used", {}, {}, "#1f77b4"},
+      unused{"pose not used", {}, {}, "#d62728", false, true};
   for (double side : {-kOffset, kOffset}) {
     for (int i = 0; i <= 72; ++i) {
       const double t = 2 * M_PI * i / 72;
@@ -135,13 +142,14 @@ absl::Status WriteCoveragePlot(const json& report, const PlotWriter& write) {
     if (!(n > 0)) continue;  // a pose without a direction (not calibrated)
     double u = 0, v = 0;
     project(Num(up[0]) / n, Num(up[1]) / n, Num(up[2]) / n, &u, &v);
-    PlotSeries& s = Get(poses[i], "used").is_boolean() && Get(poses[i], "used").get<bool>()
-                        ? used
-                        : unused;
+    PlotSeries& s =
+        Get(poses[i], "used").is_boolean() && Get(poses[i], "used").get<bool>() ? used : unused;
     s.x.push_back(u), s.y.push_back(v);
   }
   Plot plot{"Pose coverage: gravity direction in the body frame (equal-area)",
-            "left: +z hemisphere (x right, y up); right: -z hemisphere", "", {}};
+            "left: +z hemisphere (x right, y up); right: -z hemisphere",
+            "",
+            {}};
   // Room above the discs for the legend: an invisible point.
   const PlotSeries headroom{"", {0.0}, {1.9}, "none"};
   plot.series = {rims, faces, used, unused, headroom};
@@ -165,7 +173,9 @@ absl::Status WriteAllanPlots(const json& report, const PlotWriter& write) {
     const bool accel = std::string(sensor) == "accel";
     Plot plot{absl::StrFormat("Allan deviation, %s (calibrated, at rest)",
                               accel ? "accelerometer" : "gyroscope"),
-              "tau [s]", accel ? "Allan deviation [m/s^2]" : "Allan deviation [rad/s]", {}};
+              "tau [s]",
+              accel ? "Allan deviation [m/s^2]" : "Allan deviation [rad/s]",
+              {}};
     plot.log_x = plot.log_y = true;
     for (int a = 0; a < 3; ++a) {
       PlotSeries s{std::string(1, "xyz"[a]), {}, {}, kColours[a], true};
@@ -234,8 +244,9 @@ std::string RenderSvg(const Plot& plot) {
                           label(y, plot.log_y, ys));
   }
   if (plot.axes && !plot.log_y && yr.lo < 0 && yr.hi > 0) {
-    absl::StrAppendFormat(&s, "<line x1=\"%.0f\" y1=\"%.1f\" x2=\"%.0f\" y2=\"%.1f\" stroke=\"#888\"/>\n",
-                          kLeft, gy(0), kLeft + pw, gy(0));
+    absl::StrAppendFormat(
+        &s, "<line x1=\"%.0f\" y1=\"%.1f\" x2=\"%.0f\" y2=\"%.1f\" stroke=\"#888\"/>\n", kLeft,
+        gy(0), kLeft + pw, gy(0));
   }
   if (plot.axes) {
     absl::StrAppendFormat(&s,
@@ -257,8 +268,9 @@ std::string RenderSvg(const Plot& plot) {
       std::string pts;
       auto flush = [&] {
         if (!pts.empty())
-          absl::StrAppendFormat(&s, "<polyline points=\"%s\" fill=\"none\" stroke=\"%s\" stroke-width=\"1.5\"/>\n",
-                                pts, ser.colour);
+          absl::StrAppendFormat(
+              &s, "<polyline points=\"%s\" fill=\"none\" stroke=\"%s\" stroke-width=\"1.5\"/>\n",
+              pts, ser.colour);
         pts.clear();
       };
       for (size_t i = 0; i < ser.x.size() && i < ser.y.size(); ++i) {
@@ -271,9 +283,10 @@ std::string RenderSvg(const Plot& plot) {
     } else {
       for (size_t i = 0; ser.colour != "none" && i < ser.x.size() && i < ser.y.size(); ++i) {
         if (!std::isfinite(px(ser.x[i])) || !std::isfinite(py(ser.y[i]))) continue;
-        absl::StrAppendFormat(&s, "<circle cx=\"%.1f\" cy=\"%.1f\" r=\"%s\" fill=\"%s\" stroke=\"%s\"/>\n",
-                              px(ser.x[i]), py(ser.y[i]), ser.hollow ? "4.5" : "3",
-                              ser.hollow ? "none" : ser.colour, ser.colour);
+        absl::StrAppendFormat(
+            &s, "<circle cx=\"%.1f\" cy=\"%.1f\" r=\"%s\" fill=\"%s\" stroke=\"%s\"/>\n",
+            px(ser.x[i]), py(ser.y[i]), ser.hollow ? "4.5" : "3", ser.hollow ? "none" : ser.colour,
+            ser.colour);
       }
     }
     if (ser.label.empty()) continue;
@@ -293,7 +306,8 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
   std::vector<std::string> written;
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
-  if (ec) return absl::InvalidArgumentError(absl::StrFormat("%s: cannot create (%s)", dir, ec.message()));
+  if (ec)
+    return absl::InvalidArgumentError(absl::StrFormat("%s: cannot create (%s)", dir, ec.message()));
   auto write = [&](const std::string& name, const Plot& plot) -> absl::Status {
     const std::string path = (std::filesystem::path(dir) / name).string();
     std::ofstream f(path, std::ios::trunc);
@@ -342,9 +356,11 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
   for (size_t k = 0; effects.is_array() && k < effects.size(); ++k) {
     const json& e = effects[k];
     const std::string field = absl::StrFormat("effects[%d]", static_cast<int>(k));
-    const std::string sensor = Get(e, "sensor").is_string() ? Get(e, "sensor").get<std::string>() : "";
+    const std::string sensor =
+        Get(e, "sensor").is_string() ? Get(e, "sensor").get<std::string>() : "";
     const std::string axis = Get(e, "axis").is_string() ? Get(e, "axis").get<std::string>() : "";
-    const std::string name = Get(e, "regressor").is_string() ? Get(e, "regressor").get<std::string>() : "";
+    const std::string name =
+        Get(e, "regressor").is_string() ? Get(e, "regressor").get<std::string>() : "";
     const std::optional<core::Regressor> reg = core::ParseRegressor(name);
     const int ax = axis == "x" ? 0 : axis == "y" ? 1 : axis == "z" ? 2 : -1;
     if (!reg || ax < 0 || (sensor != "accel" && sensor != "gyro")) {
@@ -360,7 +376,8 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
       core::SignalArray sig{};
       const json s = Get(r, "signals");
       for (int q = 0; q < core::kNumSignals; ++q)
-        sig[static_cast<size_t>(q)] = Num(Get(s, std::string(core::kSignalNames[static_cast<size_t>(q)]).c_str()));
+        sig[static_cast<size_t>(q)] =
+            Num(Get(s, std::string(core::kSignalNames[static_cast<size_t>(q)]).c_str()));
       double x = reg->Evaluate(sig);
       double res = 0;
       if (is_accel) {
@@ -381,14 +398,17 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
     }
     std::string safe = name;
     for (char& ch : safe)
-      if (ch == '*') ch = 'x';
-      else if (ch == '^') ch = 'p';
-    Plot p{absl::StrFormat("%s %s ~ %s%s", sensor, axis, name, applied ? "" : " (reported, not applied)"),
+      if (ch == '*')
+        ch = 'x';
+      else if (ch == '^')
+        ch = 'p';
+    Plot p{absl::StrFormat("%s %s ~ %s%s", sensor, axis, name,
+                           applied ? "" : " (reported, not applied)"),
            is_accel ? absl::StrFormat("%s x gravity direction on %s", name, axis) : name,
            is_accel ? "|a| - g [mg]" : absl::StrFormat("rate %s [deg/s]", axis),
            {after, before, line}};
-    const std::string file = absl::StrFormat("effect_%d_%s_%s_%s.svg", static_cast<int>(k) + 1,
-                                             sensor, axis, safe);
+    const std::string file =
+        absl::StrFormat("effect_%d_%s_%s_%s.svg", static_cast<int>(k) + 1, sensor, axis, safe);
     if (absl::Status s = write(file, p); !s.ok()) return s;
   }
   return written;
@@ -416,9 +436,11 @@ absl::StatusOr<std::vector<std::string>> WriteReportBundle(const json& report,
   if (!written.ok()) return written.status();
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);  // WriteReportPlots made it if it drew anything
-  if (ec) return absl::InvalidArgumentError(absl::StrFormat("%s: cannot create (%s)", dir, ec.message()));
-  for (const auto& [name, text] : {std::pair<const char*, const std::string*>{"report.json", &report_text},
-                                   {"summary.txt", &summary}}) {
+  if (ec)
+    return absl::InvalidArgumentError(absl::StrFormat("%s: cannot create (%s)", dir, ec.message()));
+  for (const auto& [name, text] :
+       {std::pair<const char*, const std::string*>{"report.json", &report_text},
+        {"summary.txt", &summary}}) {
     const std::string path = (std::filesystem::path(dir) / name).string();
     if (absl::Status s = WriteFileAtomically(path, *text); !s.ok()) return s;
     written->insert(written->begin(), path);

@@ -132,7 +132,8 @@ int RunDevices(const std::vector<std::string>& argv) {
 namespace {
 
 constexpr char kSessionHelp[] =
-    "usage: imucal session start --device D [--protocol six-face|positions|free|ferraris|auto] [--json]\n"
+    "usage: imucal session start --device D [--protocol six-face|positions|free|ferraris|auto] "
+    "[--json]\n"
     "       imucal session list [--device D] [--state open|solving|solved|failed|cancelled]\n"
     "       imucal session show ID [--json]\n"
     "       imucal session poses ID [--json]\n"
@@ -403,11 +404,11 @@ absl::StatusOr<core::ImportOptions> UploadImportOptions(const Args& a) {
 }  // namespace
 
 int RunUpload(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv,
-                       WithImportValuedFlags({"server", "device", "session", "protocol", "format",
-                                              "accel-unit", "gyro-unit", "batch", "seed",
-                                              "timeout"}),
-                       WithImportSwitches({"solve", "json", "help"}));
+  auto a =
+      Args::Parse(argv,
+                  WithImportValuedFlags({"server", "device", "session", "protocol", "format",
+                                         "accel-unit", "gyro-unit", "batch", "seed", "timeout"}),
+                  WithImportSwitches({"solve", "json", "help"}));
   if (!a.ok()) return UsageError(std::string(a.status().message()), kUploadHelp);
   if (a->Has("help"))
     return std::printf("%s%s%s", kUploadHelp, kImportFlagsHelp, kServerFlagHelp), kExitOk;
@@ -473,9 +474,8 @@ int RunUpload(const std::vector<std::string>& argv) {
                      "imucal: %s already has an open session %s holding %lld samples: to resume "
                      "that capture run again with --session %s; to start over, cancel it "
                      "(imucal session cancel %s)\n",
-                     device_id.c_str(), found.id().c_str(),
-                     static_cast<long long>(found.samples()), found.id().c_str(),
-                     found.id().c_str());
+                     device_id.c_str(), found.id().c_str(), static_cast<long long>(found.samples()),
+                     found.id().c_str(), found.id().c_str());
         return kExitUndetermined;  // as the server's FAILED_PRECONDITION for it
       }
       session = found;
@@ -487,8 +487,8 @@ int RunUpload(const std::vector<std::string>& argv) {
   if (!session_id) {
     auto protocol = ParseProtocol(a->Get("protocol").value_or("auto"));
     if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kUploadHelp);
-    if (grpc::Status s = CreateSession(server, device_id, *protocol, capture->gravity_m_s2,
-                                       &session);
+    if (grpc::Status s =
+            CreateSession(server, device_id, *protocol, capture->gravity_m_s2, &session);
         !s.ok())
       return RpcError(server, s);
     if (!a->Has("json"))
@@ -567,7 +567,8 @@ std::string Str(const json& j, const char* key) {
 // The server report as text: what `report` prints and `report --out DIR` keeps as summary.txt.
 std::string FormatReportSummary(const json& r) {
   std::string out;
-  absl::StrAppendFormat(&out, "device      %s   session %s\n", Str(r, "device").c_str(), Str(r, "session").c_str());
+  absl::StrAppendFormat(&out, "device      %s   session %s\n", Str(r, "device").c_str(),
+                        Str(r, "session").c_str());
   int used = 0, total = 0;
   if (r.contains("poses")) {
     for (const auto& p : r["poses"]) {
@@ -579,25 +580,28 @@ std::string FormatReportSummary(const json& r) {
   if (r.contains("poses")) {
     for (const auto& p : r["poses"]) {
       if (!p.value("used", true))
-        absl::StrAppendFormat(&out, "  pose %-3d  not used: %s\n", p.value("index", -1), Str(p, "reason").c_str());
+        absl::StrAppendFormat(&out, "  pose %-3d  not used: %s\n", p.value("index", -1),
+                              Str(p, "reason").c_str());
     }
   }
   if (r.contains("pairs")) {
     for (const auto& p : r["pairs"]) {
       absl::StrAppendFormat(&out, "  pair %-9s %-4s rotation %.1f deg, tilt %.1f deg  %s\n",
-                  p.contains("poses") ? p["poses"].dump().c_str() : "?", Str(p, "status").c_str(),
-                  Num(p, "rotation_deg"), Num(p, "tilt_deg"), Str(p, "reason").c_str());
+                            p.contains("poses") ? p["poses"].dump().c_str() : "?",
+                            Str(p, "status").c_str(), Num(p, "rotation_deg"), Num(p, "tilt_deg"),
+                            Str(p, "reason").c_str());
     }
   }
   if (r.contains("stages")) {
     for (const auto& s : r["stages"])
-      absl::StrAppendFormat(&out, "stage       %-5s accel rms %.5f m/s^2 (%d iterations)\n", Str(s, "name").c_str(),
-                  Num(s, "accel_rms"), s.value("iterations", 0));
+      absl::StrAppendFormat(&out, "stage       %-5s accel rms %.5f m/s^2 (%d iterations)\n",
+                            Str(s, "name").c_str(), Num(s, "accel_rms"), s.value("iterations", 0));
   }
   if (r.contains("residual")) {
     const json& res = r["residual"];
-    absl::StrAppendFormat(&out, "residual    accel rms %.5f m/s^2, max %.5f m/s^2, gyro static rms %.6f rad/s\n",
-                Num(res, "accel_rms"), Num(res, "accel_max"), Num(res, "gyro_static_rms"));
+    absl::StrAppendFormat(
+        &out, "residual    accel rms %.5f m/s^2, max %.5f m/s^2, gyro static rms %.6f rad/s\n",
+        Num(res, "accel_rms"), Num(res, "accel_max"), Num(res, "gyro_static_rms"));
   }
   if (r.contains("parameters") && r["parameters"].is_object()) {
     // The Allan figures of the parameter set's noise block, read back with the SDK's reader and
@@ -619,14 +623,14 @@ std::string FormatReportSummary(const json& r) {
   if (r.contains("effects")) {
     for (const auto& e : r["effects"])
       absl::StrAppendFormat(&out, "effect      %s %s ~ %s: %.3g (%s; held-out rms %.3g -> %.3g)\n",
-                  Str(e, "sensor").c_str(), Str(e, "axis").c_str(), Str(e, "regressor").c_str(),
-                  Num(e, "coefficient"), Str(e, "human").c_str(), Num(e, "error_before"),
-                  Num(e, "error_after"));
+                            Str(e, "sensor").c_str(), Str(e, "axis").c_str(),
+                            Str(e, "regressor").c_str(), Num(e, "coefficient"),
+                            Str(e, "human").c_str(), Num(e, "error_before"), Num(e, "error_after"));
   }
   if (r.contains("warnings")) {
     for (const auto& w : r["warnings"])
       absl::StrAppendFormat(&out, "warning     %s\n",
-                  w.is_string() ? w.get<std::string>().c_str() : w.dump().c_str());
+                            w.is_string() ? w.get<std::string>().c_str() : w.dump().c_str());
   }
   absl::StrAppendFormat(&out, "verdict     %s\n", Str(r, "verdict").c_str());
   return out;
@@ -804,8 +808,8 @@ constexpr char kExportHelp[] =
 }  // namespace
 
 int RunExport(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, WithExportValuedFlags({"server", "device", "version", "format", "out"}),
-                       {"help"});
+  auto a = Args::Parse(
+      argv, WithExportValuedFlags({"server", "device", "version", "format", "out"}), {"help"});
   if (!a.ok()) return UsageError(std::string(a.status().message()), kExportHelp);
   if (a->Has("help"))
     return std::printf("%s%s%s", kExportHelp, kExportOptionsHelp, kServerFlagHelp), kExitOk;

@@ -36,7 +36,8 @@ absl::StatusOr<std::optional<std::string>> FlagValue(const std::vector<std::stri
                                                      size_t* i, const std::string& name) {
   const std::string& arg = argv[*i];
   if (arg == name) {
-    if (*i + 1 >= argv.size()) return absl::InvalidArgumentError(absl::StrCat(name, " needs a value"));
+    if (*i + 1 >= argv.size())
+      return absl::InvalidArgumentError(absl::StrCat(name, " needs a value"));
     *i += 1;
     return std::optional<std::string>(argv[*i]);
   }
@@ -111,8 +112,7 @@ std::unique_ptr<grpc::ClientContext> CallContext(double timeout_s) {
   return context;
 }
 
-grpc::Status GetSession(const Server& server, const std::string& session_id,
-                        pb::Session* session) {
+grpc::Status GetSession(const Server& server, const std::string& session_id, pb::Session* session) {
   pb::GetSessionRequest req;
   req.set_session_id(session_id);
   return server.sessions->GetSession(CallContext().get(), req, session);

@@ -21,8 +21,8 @@ namespace imucal::cli {
 namespace pb = ::imucal::v1;
 
 int RunServerDemo(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "seed", "device", "robot-token-file"},
-                       {"help", "botch-turn"});
+  auto a =
+      Args::Parse(argv, {"server", "seed", "device", "robot-token-file"}, {"help", "botch-turn"});
   if (!a.ok()) return UsageError(std::string(a.status().message()), "");
   if (a->Has("help")) {
     std::printf(
@@ -75,8 +75,7 @@ int RunServerDemo(const std::vector<std::string>& argv) {
       !s.ok())
     return RpcError(robot_server, s);
   pb::Session session;
-  if (grpc::Status s = CreateSession(server, device, pb::PROTOCOL_SIX_FACE, 0.0, &session);
-      !s.ok())
+  if (grpc::Status s = CreateSession(server, device, pb::PROTOCOL_SIX_FACE, 0.0, &session); !s.ok())
     return RpcError(server, s);
 
   std::printf("== 2. the robot streams its capture (%zu samples) while the guide follows\n",
@@ -91,8 +90,8 @@ int RunServerDemo(const std::vector<std::string>& argv) {
     sdk::Uploader uploader(robot_server.channel, options);
     upload_status = uploader.Upload(session.id(), sim->capture).status();
   });
-  const int guide_rc = RunGuide({"--server", server.address, "--device", device, "--session",
-                                 session.id(), "--seed", "1"});
+  const int guide_rc = RunGuide(
+      {"--server", server.address, "--device", device, "--session", session.id(), "--seed", "1"});
   robot.join();
   if (!upload_status.ok()) {
     // The guide starts the solve as soon as the protocol is complete; a robot still streaming

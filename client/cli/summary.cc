@@ -45,9 +45,9 @@ void AppendSensorFigures(const char* sensor, const core::SensorNoise& s, const c
   const std::string k = Figure(s.random_walk, &s.random_walk_bound, &bounded);
   absl::StrAppendFormat(out, "  %-5s N   %s %s  white-noise density\n", sensor, n, unit_n);
   absl::StrAppendFormat(out, "  %-5s B   %s %s  bias instability\n", sensor, b, unit_b);
-  absl::StrAppendFormat(out, "  %-5s K   %s %s  rate random walk%s\n", sensor, k, unit_k,
-                        bounded ? "; <: UPPER BOUND, not reached by the rest (not a measurement)"
-                                : "");
+  absl::StrAppendFormat(
+      out, "  %-5s K   %s %s  rate random walk%s\n", sensor, k, unit_k,
+      bounded ? "; <: UPPER BOUND, not reached by the rest (not a measurement)" : "");
 }
 
 }  // namespace
@@ -79,8 +79,7 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                         r.protocol_detected ? " (detected)" : " (declared)");
   absl::StrAppendFormat(&s, "noise       accel %s %s, gyro %s %s per sample; from the %s\n",
                         Vec(r.noise.accel_std, 3), core::AccelUnitName(p.accel_unit),
-                        Vec(r.noise.gyro_std, 3), core::GyroUnitName(p.gyro_unit),
-                        r.noise.source);
+                        Vec(r.noise.gyro_std, 3), core::GyroUnitName(p.gyro_unit), r.noise.source);
   s += FormatAllanFigures(p.noise);
   absl::StrAppendFormat(&s, "poses       %d static intervals, %d used (threshold %.0fx noise)\n",
                         static_cast<int>(r.poses.size()), used, r.threshold_multiplier);
@@ -96,7 +95,8 @@ std::string FormatSummary(const core::CalibrationReport& r) {
   }
   s += "stages      ";
   for (const auto& st : r.stages)
-    absl::StrAppendFormat(&s, "%s %.1f ug (%.1f ms)   ", st.name, 1e6 * st.accel_rms_m_s2 / g, st.ms);
+    absl::StrAppendFormat(&s, "%s %.1f ug (%.1f ms)   ", st.name, 1e6 * st.accel_rms_m_s2 / g,
+                          st.ms);
   s += "\n";
   const core::Residuals& res = r.residual;
   absl::StrAppendFormat(&s, "accel       |a|-g RMS %s, max %s\n", Accel(res.accel_rms_m_s2, g),
@@ -112,14 +112,16 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                           res.gyro_static_rms_rad_s * kRadToDeg);
   }
   for (const auto& t : r.turns) {
-    absl::StrAppendFormat(&s, "  turn      %6.1f-%6.1f s  %d x 360 deg about %s: measured %.2f deg, "
-                          "error %.2f deg\n", t.t_start_s, t.t_end_s, t.turns, t.axis,
-                          t.angle_deg, t.error_deg);
+    absl::StrAppendFormat(&s,
+                          "  turn      %6.1f-%6.1f s  %d x 360 deg about %s: measured %.2f deg, "
+                          "error %.2f deg\n",
+                          t.t_start_s, t.t_end_s, t.turns, t.axis, t.angle_deg, t.error_deg);
   }
   if (std::isfinite(res.move_rms_deg)) {
     absl::StrAppendFormat(
-        &s, "            gravity direction after %d moves: RMS %.3f deg, max %.3f deg; held out "
-            "RMS %.3f deg, max %.3f deg\n",
+        &s,
+        "            gravity direction after %d moves: RMS %.3f deg, max %.3f deg; held out "
+        "RMS %.3f deg, max %.3f deg\n",
         static_cast<int>(r.moves.size()), res.move_rms_deg, res.move_max_deg,
         res.move_heldout_rms_deg, res.move_heldout_max_deg);
   }
@@ -139,19 +141,20 @@ std::string FormatSummary(const core::CalibrationReport& r) {
   const core::EffectDiagnostics& d = r.effect_diagnostics;
   if (d.ran) {
     absl::StrAppendFormat(
-        &s, "effects     %d found among %d candidates (%d are the model's own terms, %d not "
-            "testable at rest)\n",
+        &s,
+        "effects     %d found among %d candidates (%d are the model's own terms, %d not "
+        "testable at rest)\n",
         static_cast<int>(p.effects.size()), d.candidates, d.absorbed, d.not_excited);
     for (const core::Effect& e : p.effects) {
       const bool accel = e.sensor == core::Sensor::kAccel;
-      absl::StrAppendFormat(
-          &s, "  %s %c ~ %-16s %s; held-out %s %s -> %s%s\n", accel ? "accel" : "gyro ",
-          "xyz"[e.axis], e.regressor, core::HumanCoefficient(e), accel ? "|a|-g" : "rate",
-          accel ? absl::StrFormat("%.3f mg", 1e3 * e.error_before / g)
-                : absl::StrFormat("%.4f deg/s", e.error_before * kRadToDeg),
-          accel ? absl::StrFormat("%.3f mg", 1e3 * e.error_after / g)
-                : absl::StrFormat("%.4f deg/s", e.error_after * kRadToDeg),
-          e.applied ? "" : "  (reported, not applied)");
+      absl::StrAppendFormat(&s, "  %s %c ~ %-16s %s; held-out %s %s -> %s%s\n",
+                            accel ? "accel" : "gyro ", "xyz"[e.axis], e.regressor,
+                            core::HumanCoefficient(e), accel ? "|a|-g" : "rate",
+                            accel ? absl::StrFormat("%.3f mg", 1e3 * e.error_before / g)
+                                  : absl::StrFormat("%.4f deg/s", e.error_before * kRadToDeg),
+                            accel ? absl::StrFormat("%.3f mg", 1e3 * e.error_after / g)
+                                  : absl::StrFormat("%.4f deg/s", e.error_after * kRadToDeg),
+                            e.applied ? "" : "  (reported, not applied)");
     }
     for (const auto& n : d.notes) absl::StrAppendFormat(&s, "  %s\n", n);
     if (!d.faces.empty()) {

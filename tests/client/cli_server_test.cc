@@ -113,9 +113,10 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
     std::snprintf(density, sizeof density, "accel N   [%.3g, ",
                   noise["accel"]["noise_density"][0].get<double>());
     EXPECT_NE(out_.find(density), std::string::npos) << density << "\n" << out_;
-    for (const char* text : {"m/s^2/sqrt(Hz)  white-noise density", "m/s^3/sqrt(Hz)  rate random walk",
-                             "rad/s/sqrt(Hz)  white-noise density", "rad/s^2/sqrt(Hz)  rate random walk",
-                             "m/s^2  bias instability", "rad/s  bias instability"}) {
+    for (const char* text :
+         {"m/s^2/sqrt(Hz)  white-noise density", "m/s^3/sqrt(Hz)  rate random walk",
+          "rad/s/sqrt(Hz)  white-noise density", "rad/s^2/sqrt(Hz)  rate random walk",
+          "m/s^2  bias instability", "rad/s  bias instability"}) {
       EXPECT_NE(out_.find(text), std::string::npos) << text << "\n" << out_;
     }
   }
@@ -123,9 +124,9 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
   const fs::path report_dir = dir_ / "report";
   ASSERT_EQ(Run(RunReport, {"--session", session, "--out", report_dir.string()}), kExitOk) << err_;
   const std::string printed = out_;
-  for (const char* name : {"report.json", "summary.txt", "residual_stages_per_pose.svg",
-                           "coverage.svg", "allan_accel.svg", "allan_gyro.svg",
-                           "residual_accel_per_pose.svg"}) {
+  for (const char* name :
+       {"report.json", "summary.txt", "residual_stages_per_pose.svg", "coverage.svg",
+        "allan_accel.svg", "allan_gyro.svg", "residual_accel_per_pose.svg"}) {
     EXPECT_TRUE(fs::exists(report_dir / name)) << name << "\n" << err_;
   }
   {
@@ -158,9 +159,9 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
   ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "json"}), kExitOk) << err_;
   EXPECT_EQ(json::parse(out_)["format"], "imucal-params v1");
   for (const std::string format : {"kalibr", "kalibr-intrinsics", "openvins"}) {
-    ASSERT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", format, "--rostopic",
-                              "/robot/imu"}),
-              kExitOk)
+    ASSERT_EQ(
+        Run(RunExport, {"--device", "robot-cli-3", "--format", format, "--rostopic", "/robot/imu"}),
+        kExitOk)
         << err_;
     const std::string served = out_;
     EXPECT_NE(served.find("/robot/imu"), std::string::npos) << served;
@@ -170,14 +171,14 @@ TEST_F(CliServerTest, UploadSolveReportParamsExport) {
         << err_;
     EXPECT_EQ(served, out_) << format;
   }
-  EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "openvins", "--openvins-model",
-                            "bogus"}),
+  EXPECT_EQ(Run(RunExport,
+                {"--device", "robot-cli-3", "--format", "openvins", "--openvins-model", "bogus"}),
             kExitUsage);
   EXPECT_NE(err_.find("--openvins-model"), std::string::npos) << err_;
   EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "bogus"}), kExitUsage);
   // ExportRequest.rostopic goes into the YAML: not a topic name is INVALID_ARGUMENT, named.
-  EXPECT_EQ(Run(RunExport, {"--device", "robot-cli-3", "--format", "kalibr", "--rostopic",
-                            "/imu0\nextra: 1"}),
+  EXPECT_EQ(Run(RunExport,
+                {"--device", "robot-cli-3", "--format", "kalibr", "--rostopic", "/imu0\nextra: 1"}),
             kExitBadInput);
   EXPECT_NE(err_.find("rostopic: "), std::string::npos) << err_;
   // The session's poses, as the server judged them while the capture streamed in.

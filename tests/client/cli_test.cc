@@ -1,6 +1,7 @@
 // The offline CLI commands driven in-process: simulate -> calibrate -> apply round trips in a
 // temporary directory, the documented exit codes, and the JSON report's keys (report.md).
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <cstdint>
@@ -10,8 +11,6 @@
 #include <sstream>
 #include <string>
 #include <vector>
-
-#include <unistd.h>
 
 #include "Eigen/Core"
 #include "absl/strings/str_cat.h"
@@ -84,10 +83,10 @@ core::SimOptions CliSimOptions(uint64_t seed, int extra_poses, bool noise) {
 // header), column az.
 std::string CaptureWithBadValue(int bad_line) {
   std::string text =
-      "# imucal-capture v1\n"      // line 1
-      "# accel_unit=m/s^2\n"       // line 2
-      "# gyro_unit=rad/s\n"        // line 3
-      "t,ax,ay,az,gx,gy,gz\n";     // line 4
+      "# imucal-capture v1\n"   // line 1
+      "# accel_unit=m/s^2\n"    // line 2
+      "# gyro_unit=rad/s\n"     // line 3
+      "t,ax,ay,az,gx,gy,gz\n";  // line 4
   for (int line = 5; line <= 20; ++line) {
     const double t = 0.01 * (line - 5);
     text += absl::StrCat(t, ",0.01,-0.02,", line == bad_line ? "abc" : "9.81", ",0.001,0,0\n");
@@ -101,9 +100,9 @@ std::string CaptureWithBadValue(int bad_line) {
 TEST_F(CliTest, SimulateCalibrateApplyRoundTrip) {
   const std::string capture = Path("capture.csv"), report = Path("report.json"),
                     params = Path("params.json"), truth = Path("truth.json");
-  ASSERT_EQ(Run(RunSimulate, {"--out", capture, "--seed", "5", "--extra-poses", "24", "--truth",
-                              truth}),
-            kExitOk)
+  ASSERT_EQ(
+      Run(RunSimulate, {"--out", capture, "--seed", "5", "--extra-poses", "24", "--truth", truth}),
+      kExitOk)
       << err_;
   EXPECT_NE(out_.find(capture), std::string::npos) << out_;
   ASSERT_TRUE(fs::exists(capture));
@@ -129,8 +128,8 @@ TEST_F(CliTest, SimulateCalibrateApplyRoundTrip) {
 
   // Apply the report to a noise-free capture of the same unit (same seed: same truth and poses).
   const std::string clean = Path("clean.csv"), calibrated = Path("calibrated.csv");
-  ASSERT_EQ(Run(RunSimulate, {"--out", clean, "--seed", "5", "--extra-poses", "24",
-                              "--accel-noise", "0", "--gyro-noise", "0"}),
+  ASSERT_EQ(Run(RunSimulate, {"--out", clean, "--seed", "5", "--extra-poses", "24", "--accel-noise",
+                              "0", "--gyro-noise", "0"}),
             kExitOk)
       << err_;
   ASSERT_EQ(Run(RunApply, {"--params", report, clean, calibrated}), kExitOk) << err_;
@@ -143,8 +142,8 @@ TEST_F(CliTest, SimulateCalibrateApplyRoundTrip) {
   EXPECT_EQ(out->accel_unit, core::AccelUnit::kMetersPerSecond2);
   EXPECT_EQ(out->gyro_unit, core::GyroUnit::kRadPerSecond);
   ASSERT_EQ(out->size(), in->size());
-  EXPECT_EQ(out->t_s, in->t_s);                // t kept exactly
-  EXPECT_EQ(out->temp, in->temp);              // temp kept exactly
+  EXPECT_EQ(out->t_s, in->t_s);                        // t kept exactly
+  EXPECT_EQ(out->temp, in->temp);                      // temp kept exactly
   EXPECT_EQ(out->extra_metadata, in->extra_metadata);  // header metadata kept
 
   const absl::StatusOr<core::SimResult> sim = core::Simulate(CliSimOptions(5, 24, false));
@@ -164,8 +163,7 @@ TEST_F(CliTest, ApplyRejectsParametersForOtherUnits) {
   const std::string capture = Path("capture.csv"), params = Path("params.json");
   ASSERT_EQ(Run(RunSimulate, {"--out", capture, "--seed", "6", "--extra-poses", "12"}), kExitOk)
       << err_;
-  ASSERT_EQ(Run(RunCalibrate, {capture, "--params-out", params, "--no-heldout"}), kExitOk)
-      << err_;
+  ASSERT_EQ(Run(RunCalibrate, {capture, "--params-out", params, "--no-heldout"}), kExitOk) << err_;
   // The summary (no --json) is for people: it is not JSON and names the verdict.
   EXPECT_NE(out_.find("verdict     pass"), std::string::npos) << out_;
   EXPECT_FALSE(json::accept(out_));
@@ -177,12 +175,13 @@ TEST_F(CliTest, ApplyRejectsParametersForOtherUnits) {
     ASSERT_TRUE(written.ok()) << written.status();
     ASSERT_TRUE(written->noise.has_value());
     char density[32];
-    std::snprintf(density, sizeof density, "accel N   [%.3g, ", written->noise->accel.noise_density.x());
+    std::snprintf(density, sizeof density, "accel N   [%.3g, ",
+                  written->noise->accel.noise_density.x());
     EXPECT_NE(out_.find(density), std::string::npos) << density << "\n" << out_;
     for (const char* text : {"m/s^2/sqrt(Hz)  white-noise density", "m/s^2  bias instability",
-                             "m/s^3/sqrt(Hz)  rate random walk", "rad/s/sqrt(Hz)  white-noise density",
-                             "rad/s  bias instability", "rad/s^2/sqrt(Hz)  rate random walk",
-                             "UPPER BOUND, not reached"}) {
+                             "m/s^3/sqrt(Hz)  rate random walk",
+                             "rad/s/sqrt(Hz)  white-noise density", "rad/s  bias instability",
+                             "rad/s^2/sqrt(Hz)  rate random walk", "UPPER BOUND, not reached"}) {
       EXPECT_NE(out_.find(text), std::string::npos) << text << "\n" << out_;
     }
     if (written->noise->accel.random_walk.array().isNaN().all()) {
@@ -222,8 +221,7 @@ TEST_F(CliTest, ApplyNonNumericValueNamesFileAndLineAndWritesNothing) {
   const std::string capture = Path("capture.csv"), params = Path("params.json");
   ASSERT_EQ(Run(RunSimulate, {"--out", capture, "--seed", "7", "--extra-poses", "12"}), kExitOk)
       << err_;
-  ASSERT_EQ(Run(RunCalibrate, {capture, "--params-out", params, "--no-heldout"}), kExitOk)
-      << err_;
+  ASSERT_EQ(Run(RunCalibrate, {capture, "--params-out", params, "--no-heldout"}), kExitOk) << err_;
   const std::string bad = Path("bad.csv"), out = Path("out.csv");
   WriteText(bad, CaptureWithBadValue(13));
   EXPECT_EQ(Run(RunApply, {"--params", params, bad, out}), kExitBadInput);
@@ -272,10 +270,10 @@ TEST_F(CliTest, MissingArgumentsAndBadValuesAreUsageErrors) {
   EXPECT_EQ(Run(RunCalibrate, {"x.csv", "--protocol", "sixface"}), kExitUsage);
   EXPECT_NE(err_.find("sixface"), std::string::npos) << err_;
   EXPECT_EQ(Run(RunCalibrate, {"x.csv", "--out"}), kExitUsage);  // --out needs a value
-  EXPECT_EQ(Run(RunApply, {"a.csv", "b.csv"}), kExitUsage);       // no --params
+  EXPECT_EQ(Run(RunApply, {"a.csv", "b.csv"}), kExitUsage);      // no --params
   EXPECT_NE(err_.find("--params"), std::string::npos) << err_;
   EXPECT_EQ(Run(RunApply, {"--params", "p.json", "b.csv"}), kExitUsage);  // no OUT
-  EXPECT_EQ(Run(RunSimulate, {}), kExitUsage);  // no --out
+  EXPECT_EQ(Run(RunSimulate, {}), kExitUsage);                            // no --out
   EXPECT_EQ(Run(RunSimulate, {"--out", Path("s.csv"), "--protocol", "hexagon"}), kExitUsage);
   EXPECT_FALSE(fs::exists(Path("s.csv")));
   EXPECT_EQ(Run(RunCalibrate, {"--help"}), kExitOk);
@@ -356,7 +354,8 @@ TEST_F(CliTest, JsonReportHasTheDocumentedKeys) {
   EXPECT_GT(residual.at("accel_rms").get<double>(), 0.0);
   EXPECT_GE(residual.at("accel_max").get<double>(), residual["accel_rms"].get<double>());
   EXPECT_TRUE(residual.at("gyro_static_rms").is_number());
-  EXPECT_DOUBLE_EQ(residual["accel_rms"].get<double>(), j["stages"].back()["accel_rms"].get<double>());
+  EXPECT_DOUBLE_EQ(residual["accel_rms"].get<double>(),
+                   j["stages"].back()["accel_rms"].get<double>());
 
   EXPECT_TRUE(j.at("effects").is_array());
   const json& parameters = j.at("parameters");

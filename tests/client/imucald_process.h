@@ -115,8 +115,8 @@ class ImucaldProcess {
     const std::string listen = address();
     // Plaintext on loopback without tokens: these tests are not about authentication
     // (auth_matrix_test is). Built before fork: the child only execs.
-    std::vector<const char*> argv = {IMUCAL_IMUCALD_PATH, "--listen", listen.c_str(),
-                                     "--db",              db_path_.c_str(), "--insecure"};
+    std::vector<const char*> argv = {IMUCAL_IMUCALD_PATH, "--listen",  listen.c_str(), "--db",
+                                     db_path_.c_str(),    "--insecure"};
     for (const std::string& arg : extra_args_) argv.push_back(arg.c_str());
     argv.push_back(nullptr);
     pid_ = ::fork();
@@ -157,10 +157,10 @@ class ImucaldTest : public ::testing::Test {
       : prefix_(std::move(prefix)), extra_args_(std::move(extra_args)) {}
   void SetUp() override {
     if (!kHaveImucald) GTEST_SKIP() << "imucald is not built yet";
-    dir_ = std::filesystem::path(::testing::TempDir()) /
-           absl::StrCat(prefix_, "_",
-                        ::testing::UnitTest::GetInstance()->current_test_info()->name(), "_",
-                        ::getpid());
+    dir_ =
+        std::filesystem::path(::testing::TempDir()) /
+        absl::StrCat(prefix_, "_", ::testing::UnitTest::GetInstance()->current_test_info()->name(),
+                     "_", ::getpid());
     std::filesystem::remove_all(dir_);
     std::filesystem::create_directories(dir_);
     auto server = ImucaldProcess::Start(dir_.string(), extra_args_);

@@ -57,20 +57,19 @@ TEST(PlotsTest, OneSvgPerEffectAndPerPoseResiduals) {
   std::map<std::string, std::string> svg;  // file name -> content
   for (const std::string& f : *files) {
     svg[std::filesystem::path(f).filename().string()] = Slurp(f);
-    EXPECT_EQ(svg.rbegin()->second.rfind("<svg xmlns=\"http://www.w3.org/2000/svg\"", 0), 0u)
-        << f;
+    EXPECT_EQ(svg.rbegin()->second.rfind("<svg xmlns=\"http://www.w3.org/2000/svg\"", 0), 0u) << f;
     EXPECT_NE(Slurp(f).find("</svg>\n"), std::string::npos) << f;
   }
-  for (const char* name : {"residual_stages_per_pose.svg", "coverage.svg", "allan_accel.svg",
-                           "allan_gyro.svg", "residual_accel_per_pose.svg",
-                           "residual_gyro_per_pose.svg", "effect_1_gyro_y_ax.svg"}) {
+  for (const char* name :
+       {"residual_stages_per_pose.svg", "coverage.svg", "allan_accel.svg", "allan_gyro.svg",
+        "residual_accel_per_pose.svg", "residual_gyro_per_pose.svg", "effect_1_gyro_y_ax.svg"}) {
     EXPECT_EQ(svg.count(name), 1u) << name;
   }
   EXPECT_EQ(files->size(), 7u);
   // Residual plots: two series of markers (before and after), one per used pose each.
   const size_t poses = report["effect_diagnostics"]["poses"].size();
-  for (const char* name : {"residual_accel_per_pose.svg", "residual_gyro_per_pose.svg",
-                           "effect_1_gyro_y_ax.svg"}) {
+  for (const char* name :
+       {"residual_accel_per_pose.svg", "residual_gyro_per_pose.svg", "effect_1_gyro_y_ax.svg"}) {
     EXPECT_EQ(Count(svg[name], "<circle"), static_cast<int>(2 * poses)) << name;
   }
   EXPECT_NE(svg["effect_1_gyro_y_ax.svg"].find("fitted term"), std::string::npos);

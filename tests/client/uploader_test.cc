@@ -211,7 +211,6 @@ class UploaderImucaldTest : public testing_util::ImucaldTest {
     EXPECT_TRUE(s.ok()) << s.error_message();
     return session;
   }
-
 };
 
 SampleColumns SimulatedColumns() {

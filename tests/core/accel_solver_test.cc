@@ -109,7 +109,10 @@ void ExpectMagnitudeParamsNear(const AccelParams& got, const AccelParams& want, 
   const AccelVector g = PackAccel(got), w = PackAccel(want);
   for (int c = 0; c < kAccelParams; ++c) {
     // Natural sizes: bias ~ |scale|^-1 m/s^2, scale ~ |scale|, angles 1 rad, quadratic 1e-3.
-    const double size = c < 3 ? 1.0 / std::abs(want.scale(c)) : c < 6 ? std::abs(w(c)) : c < 9 ? 1.0 : 1e-3;
+    const double size = c < 3   ? 1.0 / std::abs(want.scale(c))
+                        : c < 6 ? std::abs(w(c))
+                        : c < 9 ? 1.0
+                                : 1e-3;
     EXPECT_NEAR(g(c), w(c), tol * size) << AccelParamName(c);
   }
 }
@@ -226,8 +229,7 @@ TEST(AccelSolverTest, RefineLmConvergesToTruthFromPerturbedStart) {
     EXPECT_GT(report.iterations, 0);
     // A free parameter has a (finite, non-negative) variance; the covariance is symmetric.
     for (int c = 0; c < kAccelParams; ++c) EXPECT_GE(lm->covariance(c, c), 0.0);
-    EXPECT_LT((lm->covariance - lm->covariance.transpose()).norm(),
-              1e-9 * lm->covariance.norm());
+    EXPECT_LT((lm->covariance - lm->covariance.transpose()).norm(), 1e-9 * lm->covariance.norm());
   }
 }
 
@@ -251,8 +253,8 @@ TEST(AccelSolverTest, MagnitudeJacobianMatchesCentralDifferences) {
     SCOPED_TRACE(absl::StrFormat("seed %d", seed));
     const AccelParams p = RandomTruth(seed, /*quadratic=*/true, /*frame=*/true);
     // Evaluate away from the truth so that the residuals are not zero.
-    std::vector<AccelPose> poses = PosesFor(RandomTruth(seed + 100, true, false),
-                                            RandomDirections(seed, 15));
+    std::vector<AccelPose> poses =
+        PosesFor(RandomTruth(seed + 100, true, false), RandomDirections(seed, 15));
     const Eigen::MatrixXd j = MagnitudeJacobian(p, poses);
     ASSERT_EQ(j.rows(), 15);
     ASSERT_EQ(j.cols(), kAccelParams);
@@ -262,8 +264,10 @@ TEST(AccelSolverTest, MagnitudeJacobianMatchesCentralDifferences) {
       AccelVector plus = theta, minus = theta;
       plus(c) += h;
       minus(c) -= h;
-      const std::vector<double> rp = MagnitudeResiduals(UnpackAccel(plus, p.frame_angles), poses, kG);
-      const std::vector<double> rm = MagnitudeResiduals(UnpackAccel(minus, p.frame_angles), poses, kG);
+      const std::vector<double> rp =
+          MagnitudeResiduals(UnpackAccel(plus, p.frame_angles), poses, kG);
+      const std::vector<double> rm =
+          MagnitudeResiduals(UnpackAccel(minus, p.frame_angles), poses, kG);
       for (int i = 0; i < 15; ++i) {
         const double numeric = (rp[i] - rm[i]) / (2 * h);
         EXPECT_NEAR(j(i, c), numeric, 1e-6 * std::max(1.0, std::abs(numeric)))
@@ -287,7 +291,8 @@ TEST(AccelSolverTest, ObservabilityFlagsQuadraticButNotBiasOnSixFacePoses) {
     for (int c = 9; c < 12; ++c) {
       EXPECT_FALSE(obs.determined[c]) << AccelParamName(c);
       bool warned = false;
-      for (const std::string& w : obs.warnings) warned |= w.find(AccelParamName(c)) != std::string::npos;
+      for (const std::string& w : obs.warnings)
+        warned |= w.find(AccelParamName(c)) != std::string::npos;
       EXPECT_TRUE(warned) << AccelParamName(c) << " has no warning";
     }
     for (const std::string& w : obs.warnings) {
@@ -363,8 +368,7 @@ std::vector<AccelPose> NoisyPoses(const AccelParams& truth, uint64_t seed, int n
     AccelPose p;
     const double extra = tau * rng.Normal();
     // Raw noise of mean_std per axis, scaled so that the calibrated noise is mean_std m/s^2.
-    p.mean = truth.Invert((kG + extra) * d) +
-             rng.Normal3(mean_std).cwiseQuotient(truth.scale);
+    p.mean = truth.Invert((kG + extra) * d) + rng.Normal3(mean_std).cwiseQuotient(truth.scale);
     p.mean_std = Eigen::Vector3d::Constant(mean_std).cwiseQuotient(truth.scale);
     poses.push_back(p);
   }

@@ -10,10 +10,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <regex>
 #include <cstdint>
 #include <cstdio>
 #include <random>
+#include <regex>
 #include <vector>
 
 #include "Eigen/Core"
@@ -118,9 +118,10 @@ TEST(AllanTest, WhiteNoiseDensityFromSimulatedRest) {
       EXPECT_NEAR(na->curves.tau_s.front(), 1.0 / rate, 1e-9);
     }
   }
-  std::printf("white-noise density, worst relative error over 3 rates x 3 seeds x 3 axes: "
-              "accel %.4f, gyro %.4f\n",
-              worst_accel, worst_gyro);
+  std::printf(
+      "white-noise density, worst relative error over 3 rates x 3 seeds x 3 axes: "
+      "accel %.4f, gyro %.4f\n",
+      worst_accel, worst_gyro);
 }
 
 // White plus bias random walk, generated here: N within 10%, K within 25% per axis and seed,
@@ -202,9 +203,9 @@ TEST(AllanTest, RandomWalkRecovered) {
 // The exact Allan variance of one process, q (T/tau)^2 (2 tau/T - 3 + 4 e^(-tau/T) - e^(-2 tau/T))
 // (IEEE Std 952 C.1.5), summed over the bank is checked below to be 0.664 B within 1% over the
 // cluster times where B is read: the simulated noise has the bias instability it claims.
-constexpr double kFlickerT0 = 0.01;     // s: the shortest time constant (one sample at 100 Hz)
-constexpr double kFlickerRatio = 4.0;   // between neighbouring time constants
-constexpr int kFlickerProcesses = 11;   // 0.01 s ... 1.0e4 s (the record is 3600 s)
+constexpr double kFlickerT0 = 0.01;    // s: the shortest time constant (one sample at 100 Hz)
+constexpr double kFlickerRatio = 4.0;  // between neighbouring time constants
+constexpr int kFlickerProcesses = 11;  // 0.01 s ... 1.0e4 s (the record is 3600 s)
 
 class NoiseAxis {
  public:
@@ -307,8 +308,8 @@ TEST(AllanTest, BiasInstabilityRecovered) {
   // the estimator has even on infinitely long data.
   double expected_min = INFINITY;
   for (double tau = 0.01; tau < 600; tau *= 1.01) {
-    const double avar = gyro.n * gyro.n / tau + FlickerBankAvar(gyro.b, tau) +
-                        gyro.k * gyro.k * tau / 3;
+    const double avar =
+        gyro.n * gyro.n / tau + FlickerBankAvar(gyro.b, tau) + gyro.k * gyro.k * tau / 3;
     expected_min = std::min(expected_min, std::sqrt(avar) / (plateau * gyro.b));
   }
   EXPECT_LT(expected_min, 1.05);  // the design's bias stays well inside the 10%
@@ -316,7 +317,8 @@ TEST(AllanTest, BiasInstabilityRecovered) {
   int count = 0;
   for (uint64_t seed : {101u, 102u, 103u}) {
     const Capture cap = SimulateRest(accel, gyro, rate, duration, seed);
-    absl::StatusOr<NoiseAnalysis> na = ComputeNoise(cap, 0, cap.size(), AccelParams(), GyroParams());
+    absl::StatusOr<NoiseAnalysis> na =
+        ComputeNoise(cap, 0, cap.size(), AccelParams(), GyroParams());
     ASSERT_TRUE(na.ok()) << na.status();
     const NoiseFigures& f = na->figures;
     for (int k = 0; k < 3; ++k) {
@@ -329,8 +331,10 @@ TEST(AllanTest, BiasInstabilityRecovered) {
       count += 2;
     }
   }
-  std::printf("bias instability: expected minimum %.4f x 0.664 B; worst B error %.4f, mean %+.4f "
-              "over %d axes\n", expected_min, worst, sum / count, count);
+  std::printf(
+      "bias instability: expected minimum %.4f x 0.664 B; worst B error %.4f, mean %+.4f "
+      "over %d axes\n",
+      expected_min, worst, sum / count, count);
 }
 
 // White + rate random walk: N and K within 10% on every axis of every seed.
@@ -351,7 +355,8 @@ TEST(AllanTest, RandomWalkWithinTenPercent) {
   int count = 0;
   for (uint64_t seed : {201u, 202u, 203u}) {
     const Capture cap = SimulateRest(accel, gyro, rate, duration, seed);
-    absl::StatusOr<NoiseAnalysis> na = ComputeNoise(cap, 0, cap.size(), AccelParams(), GyroParams());
+    absl::StatusOr<NoiseAnalysis> na =
+        ComputeNoise(cap, 0, cap.size(), AccelParams(), GyroParams());
     ASSERT_TRUE(na.ok()) << na.status();
     const NoiseFigures& f = na->figures;
     for (int k = 0; k < 3; ++k) {
@@ -371,8 +376,10 @@ TEST(AllanTest, RandomWalkWithinTenPercent) {
     EXPECT_TRUE(f.accel.random_walk_bound.array().isNaN().all());
     EXPECT_TRUE(f.gyro.random_walk_bound.array().isNaN().all());
   }
-  std::printf("white + random walk (1 h): worst N error %.4f, worst K error %.4f, mean K error "
-              "%+.4f over %d axes\n", worst_n, worst_k, sum_k / count, count);
+  std::printf(
+      "white + random walk (1 h): worst N error %.4f, worst K error %.4f, mean K error "
+      "%+.4f over %d axes\n",
+      worst_n, worst_k, sum_k / count, count);
 }
 
 TEST(AllanTest, RejectsShortOrOutOfRangeIntervals) {

@@ -112,8 +112,8 @@ std::string Summary(const CalibrationReport& r) {
   for (const StageReport& s : r.stages)
     out += absl::StrFormat("  stage %s rms %.3g\n", s.name, s.accel_rms_m_s2);
   for (const PairCheck& p : r.pairs)
-    out += absl::StrFormat("  pair %d-%d %s ok=%d rot %.1f: %s\n", p.pose_a, p.pose_b, p.face,
-                           p.ok, p.rotation_deg, p.reason);
+    out += absl::StrFormat("  pair %d-%d %s ok=%d rot %.1f: %s\n", p.pose_a, p.pose_b, p.face, p.ok,
+                           p.rotation_deg, p.reason);
   for (const std::string& w : r.warnings) out += "  warning: " + w + "\n";
   return out;
 }
@@ -175,8 +175,7 @@ TEST_P(CalibrateSeedTest, SixFacePlusExtraMeetsTheAccuracyFigures) {
   EXPECT_EQ(report.params.gyro_unit, GyroUnit::kRadPerSecond);
 }
 
-INSTANTIATE_TEST_SUITE_P(Seeds, CalibrateSeedTest,
-                         testing::Values(1, 2, 3, 4, 5, 6, 7, 8, 9, 10),
+INSTANTIATE_TEST_SUITE_P(Seeds, CalibrateSeedTest, testing::Values(1, 2, 3, 4, 5, 6, 7, 8, 9, 10),
                          [](const testing::TestParamInfo<uint64_t>& param_info) {
                            return absl::StrFormat("seed%d", param_info.param);
                          });
@@ -378,8 +377,8 @@ TEST(CalibrateTest, RestWithTinyMovesIsFailedPrecondition) {
   // The initial rest, then 14 placements that differ from it by under a degree of tilt: static
   // intervals exist, but they cannot determine the accelerometer (nor the gyroscope).
   SimOptions options;
-  const SimTruth truth = RandomTruth(44, AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond,
-                                     options);
+  const SimTruth truth =
+      RandomTruth(44, AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond, options);
   std::vector<Eigen::Matrix3d> orientations;
   for (int k = 0; k < 15; ++k) {
     const double a = 0.7 * k;
@@ -405,7 +404,8 @@ TEST(CalibrateTest, HandBuiltCaptureOfSpreadOrientationsCalibrates) {
   for (int k = 0; k < 29; ++k) {
     Eigen::Vector4d q;
     for (int i = 0; i < 4; ++i) q(i) = static_cast<double>(rng() >> 11) * 0x1.0p-53 - 0.5;
-    orientations.push_back(Eigen::Quaterniond(q(0), q(1), q(2), q(3)).normalized().toRotationMatrix());
+    orientations.push_back(
+        Eigen::Quaterniond(q(0), q(1), q(2), q(3)).normalized().toRotationMatrix());
   }
   const Capture c = CaptureOfOrientations(orientations, truth, 45);
   CalibrateOptions co;
@@ -447,8 +447,8 @@ TEST(CalibrateTest, GyroThatSawNoRotationIsReportedNotCalibrated) {
   // 90c36ed the rank-deficient solver's matrix was stored instead, entries of several thousand
   // rad/s per rad/s against a truth of ~1.0, and the SDK applied it.)
   const Eigen::Matrix3d nominal = Eigen::Matrix3d::Identity() * NominalGyroToSi(c.gyro_unit);
-  EXPECT_TRUE(r->params.gyro.matrix.isApprox(nominal, 1e-9))
-      << "stored gyro matrix\n" << r->params.gyro.matrix;
+  EXPECT_TRUE(r->params.gyro.matrix.isApprox(nominal, 1e-9)) << "stored gyro matrix\n"
+                                                             << r->params.gyro.matrix;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -484,7 +484,6 @@ INSTANTIATE_TEST_SUITE_P(Seeds, CalibrateCountsTest, testing::Values(51, 52, 53)
                          [](const testing::TestParamInfo<uint64_t>& param_info) {
                            return absl::StrFormat("seed%d", param_info.param);
                          });
-
 
 // ---------------------------------------------------------------------------------------------
 // Time gaps (the importers keep a jump in a sample counter as a gap in time).

@@ -22,7 +22,8 @@ constexpr double kMg = 1e-3 * kStandardGravity;  // m/s^2
 constexpr double kDegS = M_PI / 180.0;           // rad/s
 
 // Six-face + 24 extra poses at 200 Hz, 2 mg accel noise, a warm-up of 8 degC.
-inline SimOptions EffectScenario(uint64_t seed, std::vector<SimEffect> effects, bool temperature = true) {
+inline SimOptions EffectScenario(uint64_t seed, std::vector<SimEffect> effects,
+                                 bool temperature = true) {
   SimOptions o;
   o.protocol = SimProtocol::kSixFace;
   o.seed = seed;
@@ -98,13 +99,13 @@ inline SimEffect Fx(Sensor s, int axis, const char* regressor, double c) {
 
 // Magnitudes from the field notes' datasheet table.
 inline const EffectCase kEffectCases[] = {
-    {"AccelBiasTemperature", {Fx(Sensor::kAccel, 0, "temperature", 0.5 * kMg)}},       // /degC
-    {"GyroBiasTemperature", {Fx(Sensor::kGyro, 2, "temperature", 0.02 * kDegS)}},      // /degC
+    {"AccelBiasTemperature", {Fx(Sensor::kAccel, 0, "temperature", 0.5 * kMg)}},   // /degC
+    {"GyroBiasTemperature", {Fx(Sensor::kGyro, 2, "temperature", 0.02 * kDegS)}},  // /degC
     {"GyroBiasTemperatureNonlinear", {Fx(Sensor::kGyro, 0, "temperature^2", 0.002 * kDegS)}},
-    {"AccelScaleTemperature", {Fx(Sensor::kAccel, 1, "temperature*ay", 2e-4)}},       // 0.02 %/degC
+    {"AccelScaleTemperature", {Fx(Sensor::kAccel, 1, "temperature*ay", 2e-4)}},  // 0.02 %/degC
     {"GyroGSensitivity", {Fx(Sensor::kGyro, 1, "ax", 0.05 * kDegS / kStandardGravity)}},  // /g
-    {"GyroBiasDrift", {Fx(Sensor::kGyro, 0, "time", 0.01 * kDegS / 60)}},             // /min
-    {"AccelCrossQuadratic", {Fx(Sensor::kAccel, 0, "ax*az", 3e-4)}},                  // /(m/s^2)
+    {"GyroBiasDrift", {Fx(Sensor::kGyro, 0, "time", 0.01 * kDegS / 60)}},                 // /min
+    {"AccelCrossQuadratic", {Fx(Sensor::kAccel, 0, "ax*az", 3e-4)}},  // /(m/s^2)
 };
 
 // True when some effect of the case reads `temperature` (it needs a temperature channel).

@@ -77,11 +77,11 @@ void ExpectValidationNearFloor(SimOptions validation, const SimResult& sim,
   const HoldError before = ErrorOn(val, without);
   const HoldError after = ErrorOn(val, params);
   const HoldError floor = ErrorOn(val, TruthParams(val));
-  SCOPED_TRACE(absl::StrFormat("accel before %.3f after %.3f floor %.3f mg; gyro before %.4f after "
-                               "%.4f floor %.4f deg/s",
-                               before.accel_m_s2 / kMg, after.accel_m_s2 / kMg,
-                               floor.accel_m_s2 / kMg, before.gyro_rad_s / kDegS,
-                               after.gyro_rad_s / kDegS, floor.gyro_rad_s / kDegS));
+  SCOPED_TRACE(absl::StrFormat(
+      "accel before %.3f after %.3f floor %.3f mg; gyro before %.4f after "
+      "%.4f floor %.4f deg/s",
+      before.accel_m_s2 / kMg, after.accel_m_s2 / kMg, floor.accel_m_s2 / kMg,
+      before.gyro_rad_s / kDegS, after.gyro_rad_s / kDegS, floor.gyro_rad_s / kDegS));
   EXPECT_LT(after.accel_m_s2, floor.accel_m_s2 + 0.3 * kMg);
   EXPECT_LT(after.gyro_rad_s, floor.gyro_rad_s + 0.005 * kDegS);
   EXPECT_LE(after.accel_m_s2, before.accel_m_s2 * 1.05);
@@ -262,8 +262,9 @@ TEST_P(WarmUpAmbiguity, NotesSayTemperatureAndTimeAreHardToTellApart) {
   bool said = false;
   for (const std::string& n : rep.effect_diagnostics.notes) {
     said |= n.starts_with("ambiguous: ") && NamesTerm(n, term) &&
-            n.find("temperature and time rose together in this capture; a capture at a steady "
-                   "temperature") != std::string::npos;
+            n.find(
+                "temperature and time rose together in this capture; a capture at a steady "
+                "temperature") != std::string::npos;
   }
   EXPECT_TRUE(said) << "no note that " << term
                     << " is hard to tell from a time (or temperature) explanation, and how to "
@@ -303,7 +304,8 @@ TEST(TemperatureTwin, WeaklyFavouredTimeGivesWayToTemperature) {
   int exercised = 0;
   for (const EffectCase& c : kWarmUpCases) {
     for (int seed = 1; seed <= 5; ++seed) {
-      const SimResult sim = MustSimulate(SlowWarmUpScenario(static_cast<uint64_t>(seed), c.effects));
+      const SimResult sim =
+          MustSimulate(SlowWarmUpScenario(static_cast<uint64_t>(seed), c.effects));
       const CalibrationReport rep = MustCalibrate(sim.capture);
       SCOPED_TRACE(c.name + " seed " + std::to_string(seed) + ": " + List(rep.params) + "\n" +
                    Notes(rep));

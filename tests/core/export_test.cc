@@ -32,10 +32,10 @@ constexpr double kTolerance = 1e-9;  // relative
 // indentation, matrices as `- [a, b, c]` rows, `#` comments, a `%YAML` directive.
 
 struct Yaml {
-  std::map<std::string, std::string> scalars;             // "imu0.update_rate" -> "200.0"
-  std::map<std::string, Eigen::MatrixXd> matrices;        // "imu0.Tw" -> 3x3
+  std::map<std::string, std::string> scalars;       // "imu0.update_rate" -> "200.0"
+  std::map<std::string, Eigen::MatrixXd> matrices;  // "imu0.Tw" -> 3x3
   std::vector<std::string> comments;
-  std::vector<std::string> numbers;                       // every numeric token, as written
+  std::vector<std::string> numbers;  // every numeric token, as written
 };
 
 std::string Trim(const std::string& s) {
@@ -286,8 +286,8 @@ TEST(ExportTest, OpenVinsKalibrAccelFactorsAreImucals) {
   const Yaml y = ParseYaml(*text);
   const Eigen::Matrix3d r = ExpSo3<double>(p.accel.frame_angles);
   EXPECT_LT((Mat3(y, "imu0.R_IMUtoACC") - r.transpose()).norm(), 1e-15);
-  const Eigen::Matrix3d ls = LowerMisalignment<double>(p.accel.tri_angles) *
-                             p.accel.scale.asDiagonal();
+  const Eigen::Matrix3d ls =
+      LowerMisalignment<double>(p.accel.tri_angles) * p.accel.scale.asDiagonal();
   EXPECT_LT((Mat3(y, "imu0.Ta") * ls - Eigen::Matrix3d::Identity()).norm(), 1e-14);
   EXPECT_EQ(Mat3(y, "imu0.T_i_b"), Eigen::Matrix3d::Identity());
 }
@@ -312,8 +312,7 @@ void KalibrIntrinsicsRoundTrip(AccelUnit au, GyroUnit gu) {
   const Eigen::Matrix3d c_i_b = Mat3(y, "imu0.T_i_b");
   ExpectRotation(c_gyro_i, "C_gyro_i");
   ExpectRotation(c_i_b, "T_i_b");
-  EXPECT_EQ(UpperPart(m_a) - Eigen::Matrix3d(m_a.diagonal().asDiagonal()),
-            Eigen::Matrix3d::Zero());
+  EXPECT_EQ(UpperPart(m_a) - Eigen::Matrix3d(m_a.diagonal().asDiagonal()), Eigen::Matrix3d::Zero());
   EXPECT_LT((UpperPart(m_g) - Eigen::Matrix3d(m_g.diagonal().asDiagonal())).norm(), 1e-15);
   const double ka = SiPerAccelUnit(p), kg = SiPerGyroUnit(p);
   const Eigen::Vector3d b_a = ka * p.accel.bias, b_g = kg * p.gyro.bias;
@@ -434,8 +433,8 @@ TEST(ExportTest, RefusesRawCounts) {
 TEST(ExportTest, RostopicMustBeATopicName) {
   for (const char* ok : {"/imu0", "imu/data", "~/imu_raw", "/robot_{ns}/imu"})
     EXPECT_TRUE(ValidateRosTopic(ok).ok()) << ok << ": " << ValidateRosTopic(ok);
-  for (const char* bad : {"", "/", "/imu0\nTw: [1]", "/imu 0", "/imu0/", "//imu", "/0imu",
-                          "/a__b", "/imu: x", "'/imu'", "/im~u"})
+  for (const char* bad : {"", "/", "/imu0\nTw: [1]", "/imu 0", "/imu0/", "//imu", "/0imu", "/a__b",
+                          "/imu: x", "'/imu'", "/im~u"})
     EXPECT_EQ(ValidateRosTopic(bad).code(), absl::StatusCode::kInvalidArgument) << bad;
   const absl::Status nl = ValidateRosTopic("/imu0\nTw: [1]");
   EXPECT_NE(nl.message().find("rostopic: \"/imu0\\x0aTw: [1]\""), std::string::npos)
@@ -445,8 +444,8 @@ TEST(ExportTest, RostopicMustBeATopicName) {
   ParamSet p = TestParams(AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond);
   ExportOptions o;
   o.rostopic = "/imu0\nextra_key: 1";
-  for (ExportFormat f : {ExportFormat::kKalibrImu, ExportFormat::kKalibrIntrinsics,
-                         ExportFormat::kOpenVins}) {
+  for (ExportFormat f :
+       {ExportFormat::kKalibrImu, ExportFormat::kKalibrIntrinsics, ExportFormat::kOpenVins}) {
     const absl::StatusOr<std::string> r = ExportParams(p, f, o);
     EXPECT_EQ(r.status().code(), absl::StatusCode::kInvalidArgument) << ExportFormatName(f);
   }
@@ -472,8 +471,7 @@ TEST(ExportTest, SaysWhatIsLeftOut) {
     EXPECT_NE(header.find("second-order terms (quadratic"), std::string::npos) << header;
     EXPECT_NE(header.find("gyro y ~ temperature"), std::string::npos) << header;
   }
-  const std::vector<std::string> notes =
-      ExportNotes(p, ExportFormat::kOpenVins, ExportOptions());
+  const std::vector<std::string> notes = ExportNotes(p, ExportFormat::kOpenVins, ExportOptions());
   std::string all;
   for (const auto& n : notes) all += n + "\n";
   EXPECT_NE(all.find("biases"), std::string::npos);

@@ -111,7 +111,8 @@ TEST(ColumnCsvRealTest, Mpu6050RateFromPreambleAndHeaderFoundByName) {
 }
 
 TEST(ColumnCsvRealTest, Mpu6050WithoutARateIsAnOptionError) {
-  absl::StatusOr<Capture> c = ImportCapture({kMpu}, ColumnsOptions("ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz"));
+  absl::StatusOr<Capture> c =
+      ImportCapture({kMpu}, ColumnsOptions("ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz"));
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(), HasSubstr("--rate"));
 }
@@ -177,7 +178,7 @@ TEST(ColumnCsvRealTest, AnnotatedSessionSortedIsTheContinuousSession) {
   for (size_t i = 0; i < c->size(); ++i) {
     ASSERT_DOUBLE_EQ(c->t_s[i], static_cast<double>(i) / 204.8) << i;
   }
-  EXPECT_EQ(c->accel[0], Eigen::Vector3d(2027, -75, 3));     // line 1063: x_p, sample 0
+  EXPECT_EQ(c->accel[0], Eigen::Vector3d(2027, -75, 3));  // line 1063: x_p, sample 0
   EXPECT_EQ(c->gyro[0], Eigen::Vector3d(5, -6, -4));
   EXPECT_EQ(c->accel[1028], Eigen::Vector3d(-2052, -28, -73));  // line 2: x_a, sample 1028
   EXPECT_EQ(c->accel.back(), Eigen::Vector3d(-45, 23, 2061));   // last line: z_rot, 9413
@@ -190,8 +191,8 @@ TEST(ColumnCsvRealTest, AnnotatedSessionSortedIsTheContinuousSession) {
   // (annotated_session_reference_cal.json, mad-lab-fau/imucal's Ferraris model
   // a = R_a^-1 K_a^-1 (u - b_a)): applied to our static face means (x_p = samples 0-1027,
   // z_a = 4552-5595), it gives about 1 g. A wrong column, unit or order would not.
-  Eigen::Matrix3d k_a = Eigen::Vector3d(208.54567263762615, 208.0011341167055,
-                                        214.78455364603022).asDiagonal();
+  Eigen::Matrix3d k_a =
+      Eigen::Vector3d(208.54567263762615, 208.0011341167055, 214.78455364603022).asDiagonal();
   Eigen::Matrix3d r_a;
   r_a << 0.9999125214309234, 0.007122056140390757, -0.011145662922687352,  //
       -0.007947378455060604, 0.9996887358297629, 0.023648903373787954,     //
@@ -272,7 +273,8 @@ TEST(ColumnCsvTest, MalformedInputNamesFileLineAndColumn) {
        "bad_number.csv:3: column 'acc_y': 'abc' is not a number"},
       {"empty_field.csv", header + "0,0,0,9.8,0,,0\n", map,
        "empty_field.csv:2: column 'gyr_y': empty field"},
-      {"nan.csv", header + "0,0,0,nan,0,0,0\n", map, "nan.csv:2: column 'acc_z': 'nan' is not finite"},
+      {"nan.csv", header + "0,0,0,nan,0,0,0\n", map,
+       "nan.csv:2: column 'acc_z': 'nan' is not finite"},
       {"short_row.csv", header + "0,0,0,9.8,0,0,0\n0.01,0,0,9.8,0,0\n", map,
        "short_row.csv:3: expected 7 fields, found 6"},
       {"time_back.csv", header + "0,0,0,9.8,0,0,0\n0.01,0,0,9.8,0,0,0\n0.01,0,0,9.8,0,0,0\n", map,
@@ -305,7 +307,8 @@ TEST(ColumnCsvTest, MissingNameWithSkipLinesListsTheHeader) {
   ImportOptions options = ColumnsOptions("ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gyro_z");
   options.columns.skip_lines = 1;
   options.columns.rate_hz = 10;
-  absl::StatusOr<Capture> c = ImportText("skip.csv", "Fs,10\nax,ay,az,gx,gy,gz\n0,0,1,0,0,0\n", options);
+  absl::StatusOr<Capture> c =
+      ImportText("skip.csv", "Fs,10\nax,ay,az,gx,gy,gz\n0,0,1,0,0,0\n", options);
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(),
               HasSubstr("skip.csv:2: no column 'gyro_z' (mapped to gz) in the header; it has: "
@@ -322,7 +325,8 @@ TEST(ColumnCsvTest, PreambleRateErrors) {
   absl::StatusOr<Capture> bad =
       ImportText("badfs.csv", "Fs,fast\nax,ay,az,gx,gy,gz\n0,0,1,0,0,0\n", options);
   ASSERT_FALSE(bad.ok());
-  EXPECT_THAT(bad.status().message(), HasSubstr("badfs.csv:1: column 'Fs': 'fast' is not a number"));
+  EXPECT_THAT(bad.status().message(),
+              HasSubstr("badfs.csv:1: column 'Fs': 'fast' is not a number"));
 }
 
 TEST(ColumnCsvTest, SortRejectsRepeatedTimes) {
@@ -330,8 +334,8 @@ TEST(ColumnCsvTest, SortRejectsRepeatedTimes) {
   options.columns.time_unit = ColumnTimeUnit::kSampleIndex;
   options.columns.rate_hz = 10;
   options.columns.sort_by_time = true;
-  absl::StatusOr<Capture> c =
-      ImportText("dup.csv", "n,a,b,c,d,e,f\n1,0,0,1,0,0,0\n0,0,0,1,0,0,0\n1,0,0,1,0,0,0\n", options);
+  absl::StatusOr<Capture> c = ImportText(
+      "dup.csv", "n,a,b,c,d,e,f\n1,0,0,1,0,0,0\n0,0,0,1,0,0,0\n1,0,0,1,0,0,0\n", options);
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(), HasSubstr("dup.csv:4: t=0.1 s repeats the time of line 2"));
 }
@@ -401,10 +405,10 @@ TEST(EurocTest, AutoDetectedRowsOfTheDataset) {
   EXPECT_EQ(c->gyro_unit, GyroUnit::kRadPerSecond);
   EXPECT_EQ(c->t_s[0], 0.0);
   EXPECT_EQ(c->t_s[1], 0.005000192);  // 5,000,192 ns, exact despite the 1.4e18 origin
-  EXPECT_EQ(c->gyro[0], Eigen::Vector3d(-0.099134701513277898, 0.14730578886832138,
-                                        0.02722713633111154));
-  EXPECT_EQ(c->accel[1], Eigen::Vector3d(8.033280791666666, -0.40861041666666664,
-                                         -2.4026292499999999));
+  EXPECT_EQ(c->gyro[0],
+            Eigen::Vector3d(-0.099134701513277898, 0.14730578886832138, 0.02722713633111154));
+  EXPECT_EQ(c->accel[1],
+            Eigen::Vector3d(8.033280791666666, -0.40861041666666664, -2.4026292499999999));
   EXPECT_THAT(c->extra_metadata, Contains(Pair("t0_ns", "1403636579758555392")));
 }
 

@@ -24,9 +24,15 @@ Fed FeedAll(OnlineSegmenter& seg, const Capture& cap) {
   seg.Flush(&events);
   for (const SegmenterEvent& e : events) {
     switch (e.kind) {
-      case SegmenterEvent::Kind::kStillness: ++fed.stillness; break;
-      case SegmenterEvent::Kind::kPose: fed.poses.push_back(e.pose); break;
-      case SegmenterEvent::Kind::kNextPose: fed.next.push_back(e.next_pose); break;
+      case SegmenterEvent::Kind::kStillness:
+        ++fed.stillness;
+        break;
+      case SegmenterEvent::Kind::kPose:
+        fed.poses.push_back(e.pose);
+        break;
+      case SegmenterEvent::Kind::kNextPose:
+        fed.next.push_back(e.next_pose);
+        break;
     }
   }
   return fed;
@@ -98,8 +104,7 @@ TEST(OnlineSegmenterTest, RejectsTooShortAndMovedPoses) {
   auto hold = [&](double seconds, Eigen::Vector3d a, const Eigen::Vector3d& shift,
                   double shift_at_s = -1) {
     const int n = static_cast<int>(seconds * opt.rate_hz);
-    const int shift_at =
-        shift_at_s < 0 ? n / 2 + 1 : static_cast<int>(shift_at_s * opt.rate_hz);
+    const int shift_at = shift_at_s < 0 ? n / 2 + 1 : static_cast<int>(shift_at_s * opt.rate_hz);
     for (int i = 0; i < n; ++i, t += 0.01) {
       const Eigen::Vector3d ai = a + (i >= shift_at ? shift : Eigen::Vector3d::Zero());
       seg.Add(t, ai + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)),
@@ -328,7 +333,8 @@ TEST(FreeProtocolTest, AsksForTheNearestMissingFaceOrCornerUntilComplete) {
 
   // A face again adds a pose, not coverage, and the guide says so.
   HandHeld again;
-  for (const Eigen::Vector3d& up : {Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(0, 0, 1)}) again.Hold(up);
+  for (const Eigen::Vector3d& up : {Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(0, 0, 1)})
+    again.Hold(up);
   OnlineSegmenter seg2(opt);
   const Fed fed2 = FeedAll(seg2, again.capture());
   ASSERT_EQ(Accepted(fed2).size(), 2u);

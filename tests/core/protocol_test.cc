@@ -34,9 +34,8 @@ TEST(ProtocolTest, ClassifyFaceFindsTheAxisClosestToUp) {
     const char* label;
   };
   const Case cases[] = {
-      {{0, 0, 1}, 2, 1, "Z+"},       {{0, 0, -9.8}, 2, -1, "Z-"},
-      {{9.8, 0.3, -0.2}, 0, 1, "X+"}, {{-1, 0.1, 0}, 0, -1, "X-"},
-      {{0.2, 5, 0.1}, 1, 1, "Y+"},   {{0.1, -3, 0.4}, 1, -1, "Y-"},
+      {{0, 0, 1}, 2, 1, "Z+"},     {{0, 0, -9.8}, 2, -1, "Z-"}, {{9.8, 0.3, -0.2}, 0, 1, "X+"},
+      {{-1, 0.1, 0}, 0, -1, "X-"}, {{0.2, 5, 0.1}, 1, 1, "Y+"}, {{0.1, -3, 0.4}, 1, -1, "Y-"},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.label);
@@ -47,8 +46,8 @@ TEST(ProtocolTest, ClassifyFaceFindsTheAxisClosestToUp) {
     const Eigen::Vector3d u = c.up.normalized();
     EXPECT_NEAR(f.off_axis_deg, std::acos(std::abs(u(c.axis))) / kDegToRad, 1e-9);
   }
-  EXPECT_NEAR(ClassifyFace(Eigen::Vector3d(-1, 0.1, 0)).off_axis_deg,
-              std::atan(0.1) / kDegToRad, 1e-9);
+  EXPECT_NEAR(ClassifyFace(Eigen::Vector3d(-1, 0.1, 0)).off_axis_deg, std::atan(0.1) / kDegToRad,
+              1e-9);
   // 45 degrees between two axes is far off every face.
   EXPECT_GT(ClassifyFace(Eigen::Vector3d(1, 1, 0)).off_axis_deg, kFaceToleranceDeg);
   Face a = ClassifyFace(Eigen::Vector3d(0, 0, 1)), b = ClassifyFace(Eigen::Vector3d(0.1, 0, 1));
@@ -78,7 +77,8 @@ TEST(ProtocolTest, ParsesProtocolNames) {
 
 std::vector<Eigen::Vector3d> TrueUps(const SimResult& sim) {
   std::vector<Eigen::Vector3d> ups;
-  for (const SimPose& p : sim.poses) ups.push_back(p.R_world_body.transpose() * Eigen::Vector3d::UnitZ());
+  for (const SimPose& p : sim.poses)
+    ups.push_back(p.R_world_body.transpose() * Eigen::Vector3d::UnitZ());
   return ups;
 }
 
@@ -97,8 +97,8 @@ TEST(ProtocolTest, DetectsSimulatedProtocols) {
   };
   for (const Case& c : cases) {
     for (uint64_t seed = 1; seed <= 10; ++seed) {
-      SCOPED_TRACE(absl::StrFormat("%s + %d extra, seed %d", ProtocolName(c.sim), c.extra_poses,
-                                   seed));
+      SCOPED_TRACE(
+          absl::StrFormat("%s + %d extra, seed %d", ProtocolName(c.sim), c.extra_poses, seed));
       SimOptions options;
       options.protocol = c.sim;
       options.seed = seed;
@@ -326,8 +326,8 @@ TEST(ProtocolTest, ExtraPlacementsAfterAVerifiedPairAreNotPairs) {
   // are not a six-face pair and must not be "rejected" (a technician would redo them).
   Placements pl;
   pl.AllFaces(2.0);
-  pl.Place(0, -1, 5).Place(0, -1, 65);   // X- again, turned 60 degrees
-  pl.Place(2, 1, 0).Place(2, 1, 3);      // Z+ again, not turned
+  pl.Place(0, -1, 5).Place(0, -1, 65);  // X- again, turned 60 degrees
+  pl.Place(2, 1, 0).Place(2, 1, 3);     // Z+ again, not turned
   const SixFaceCheck check = CheckSixFacePairs(pl.poses());
   EXPECT_EQ(check.pairs.size(), 6u) << Describe(check);
   for (const PairCheck& p : check.pairs) EXPECT_TRUE(p.ok) << Describe(check);

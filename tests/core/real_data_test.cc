@@ -112,7 +112,6 @@ TEST(RealDataTest, XsensCalibrationIsDeterministic) {
   EXPECT_EQ(a->params.gyro.bias, b->params.gyro.bias);
 }
 
-
 // ---------------------------------------------------------------------------------------------
 // The captures read through the column-mapped importer (README "Vendor CSV").
 
@@ -164,14 +163,15 @@ TEST(RealDataTest, Mpu6050HandHeldPosesCalibrateAndAgreeWithTheRepository) {
   EXPECT_EQ(r.verdict, "warn");  // hand-held: moves above a degree
   EXPECT_TRUE(r.params.gyro_calibrated);
   bool raised = false;
-  for (const std::string& w : r.warnings) raised |= w.find("threshold was raised") != std::string::npos;
+  for (const std::string& w : r.warnings)
+    raised |= w.find("threshold was raised") != std::string::npos;
   EXPECT_TRUE(raised);
   // The repository's params_acc.csv: 3 misalignments, 3 scales [m/s^2 per LSB], 3 biases [LSB]
   // in its convention a = T K (u + b) (so its bias is minus ours); params_gyro.csv: 6
-  // misalignments, 3 scales [rad/s per LSB], 3 biases. Its fit (IMU-TK's 9 parameters, its own intervals) is not
-  // ours, so agreement is asked within 4 of our standard errors plus the difference its
-  // detector's intervals make: 0.1 % of scale and 30 LSB (2 mg) of bias, the spread of our own
-  // pose means between thresholds on this capture.
+  // misalignments, 3 scales [rad/s per LSB], 3 biases. Its fit (IMU-TK's 9 parameters, its own
+  // intervals) is not ours, so agreement is asked within 4 of our standard errors plus the
+  // difference its detector's intervals make: 0.1 % of scale and 30 LSB (2 mg) of bias, the spread
+  // of our own pose means between thresholds on this capture.
   const std::vector<double> acc = ReadNumbers(dir + "/reference_results/params_acc.csv");
   const std::vector<double> gyr = ReadNumbers(dir + "/reference_results/params_gyro.csv");
   ASSERT_EQ(acc.size(), 9u);
@@ -191,8 +191,8 @@ TEST(RealDataTest, Mpu6050HandHeldPosesCalibrateAndAgreeWithTheRepository) {
 // mad-lab-fau/imucal's Ferraris example: six faces once each and three full turns, in m/s^2 and
 // deg/s (nominally scaled, not calibrated).
 TEST(RealDataTest, FerrarisExampleSessionIsDetectedAndCalibrated) {
-  const absl::StatusOr<Capture> capture = ImportColumns(
-      real_captures::kFerrarisExample, real_captures::FerrarisExampleOptions());
+  const absl::StatusOr<Capture> capture =
+      ImportColumns(real_captures::kFerrarisExample, real_captures::FerrarisExampleOptions());
   if (absl::IsNotFound(capture.status())) GTEST_SKIP() << capture.status();
   ASSERT_TRUE(capture.ok()) << capture.status();
   const absl::StatusOr<CalibrationReport> report = Calibrate(*capture, CalibrateOptions{});
@@ -229,8 +229,8 @@ TEST(RealDataTest, FerrarisExampleSessionIsDetectedAndCalibrated) {
 // The same protocol, pre-cut into labelled parts (the labels are ignored): the six faces are
 // joined without the moves between them, and the turns' parts are cut short.
 TEST(RealDataTest, FerrarisAnnotatedSessionAgreesWithThePublishedCalibration) {
-  const absl::StatusOr<Capture> capture = ImportColumns(
-      real_captures::kFerrarisAnnotated, real_captures::FerrarisAnnotatedOptions());
+  const absl::StatusOr<Capture> capture =
+      ImportColumns(real_captures::kFerrarisAnnotated, real_captures::FerrarisAnnotatedOptions());
   if (absl::IsNotFound(capture.status())) GTEST_SKIP() << capture.status();
   ASSERT_TRUE(capture.ok()) << capture.status();
   const absl::StatusOr<CalibrationReport> report = Calibrate(*capture, CalibrateOptions{});
@@ -240,7 +240,8 @@ TEST(RealDataTest, FerrarisAnnotatedSessionAgreesWithThePublishedCalibration) {
   EXPECT_EQ(ProtocolKindName(r.protocol), "ferraris");
   EXPECT_EQ(r.verdict, "warn");
   int cut = 0;
-  for (const std::string& w : r.warnings) cut += w.find("the data is cut there") != std::string::npos;
+  for (const std::string& w : r.warnings)
+    cut += w.find("the data is cut there") != std::string::npos;
   EXPECT_EQ(cut, 5);  // the five joins between the six face parts
   // annotated_session_reference_cal.json (imucal's convention: a = R_a^-1 K_a^-1 (u - b_a),
   // K_a in LSB per m/s^2): scale = 1 / K_a. Same faces, same affine model: the scales agree
@@ -252,8 +253,7 @@ TEST(RealDataTest, FerrarisAnnotatedSessionAgreesWithThePublishedCalibration) {
   for (int i = 0; i < 3; ++i) {
     EXPECT_NEAR(r.params.accel.scale(i), 1 / k_a(i), 4 * r.params.stderrs.accel.scale(i))
         << "scale " << i;
-    EXPECT_NEAR(r.params.accel.bias(i), b_a(i), 4 * r.params.stderrs.accel.bias(i))
-        << "bias " << i;
+    EXPECT_NEAR(r.params.accel.bias(i), b_a(i), 4 * r.params.stderrs.accel.bias(i)) << "bias " << i;
   }
 }
 

@@ -1,7 +1,7 @@
 // What the effect search finds on the real captures under ../shared/data/real (and, for the
 // captures that cannot be calibrated, what they can give: noise, a check of a calibration),
-// pinned with tolerances derived from the standard errors it reports (docs: README "Effects found in the
-// real captures"). A change of the engine that moves a coefficient by more than two of its
+// pinned with tolerances derived from the standard errors it reports (docs: README "Effects found
+// in the real captures"). A change of the engine that moves a coefficient by more than two of its
 // standard errors, finds another effect or loses one, must be looked at, not waved through.
 #include <gtest/gtest.h>
 
@@ -38,9 +38,12 @@ struct Pinned {
 // Xsens (IMU-TK pair, no temperature channel): the gyroscope reads a rate proportional to the
 // specific force along other axes (g-sensitivity), 0.03-0.16 deg/s per g.
 const Pinned kXsens[] = {
-    {Sensor::kGyro, 0, "az", 0.07834 * kDegS / kG},  {Sensor::kGyro, 2, "ay", -0.09503 * kDegS / kG},
-    {Sensor::kGyro, 2, "ax", -0.07934 * kDegS / kG}, {Sensor::kGyro, 0, "ay", 0.03366 * kDegS / kG},
-    {Sensor::kGyro, 1, "ax", -0.1557 * kDegS / kG},  {Sensor::kGyro, 1, "az", 0.09702 * kDegS / kG},
+    {Sensor::kGyro, 0, "az", 0.07834 * kDegS / kG},
+    {Sensor::kGyro, 2, "ay", -0.09503 * kDegS / kG},
+    {Sensor::kGyro, 2, "ax", -0.07934 * kDegS / kG},
+    {Sensor::kGyro, 0, "ay", 0.03366 * kDegS / kG},
+    {Sensor::kGyro, 1, "ax", -0.1557 * kDegS / kG},
+    {Sensor::kGyro, 1, "az", 0.09702 * kDegS / kG},
     {Sensor::kGyro, 2, "az", 0.02683 * kDegS / kG},
 };
 
@@ -60,10 +63,12 @@ TEST(RealEffectsTest, XsensGyroGSensitivity) {
     const Effect* e = nullptr;
     for (const Effect& f : found)
       if (f.sensor == p.sensor && f.axis == p.axis && f.regressor == p.regressor) e = &f;
-    ASSERT_NE(e, nullptr) << "gyro " << "xyz"[p.axis] << " ~ " << p.regressor << " not found";
+    ASSERT_NE(e, nullptr) << "gyro "
+                          << "xyz"[p.axis] << " ~ " << p.regressor << " not found";
     EXPECT_GT(e->std_error, 0);
     EXPECT_LT(std::abs(e->coefficient - p.coefficient), 2 * e->std_error)
-        << "gyro " << "xyz"[p.axis] << " ~ " << p.regressor << ": " << HumanCoefficient(*e);
+        << "gyro "
+        << "xyz"[p.axis] << " ~ " << p.regressor << ": " << HumanCoefficient(*e);
     EXPECT_TRUE(e->applied);
     EXPECT_LT(e->error_after, e->error_before);
   }
@@ -175,11 +180,13 @@ struct RestNoise {
 // A rest recording cannot be calibrated (one orientation); its noise is what it can give, read
 // with the datasheet scale (nominal, the same for both rests) over the whole rest.
 absl::StatusOr<RestNoise> RestOfMpu6050(const std::string& path) {
-  const absl::StatusOr<Capture> cap = real_captures::ImportColumns(path, real_captures::Mpu6050Options());
+  const absl::StatusOr<Capture> cap =
+      real_captures::ImportColumns(path, real_captures::Mpu6050Options());
   if (!cap.ok()) return cap.status();
   const absl::StatusOr<CalibrationReport> r = Calibrate(*cap, CalibrateOptions{});
   EXPECT_TRUE(absl::IsFailedPrecondition(r.status())) << r.status();
-  EXPECT_TRUE(absl::StrContains(r.status().message(), "too few static poses: found at most 1 usable"))
+  EXPECT_TRUE(
+      absl::StrContains(r.status().message(), "too few static poses: found at most 1 usable"))
       << r.status();
   AccelParams accel;
   GyroParams gyro;
@@ -308,7 +315,7 @@ TEST(RealEffectsTest, Mpu6050TurnX90ChecksTheCalibration) {
 
   EXPECT_NEAR(turn_deg, 94.42, 2 * turn_se_deg);
   EXPECT_NEAR(error_deg, 1.273, 2 * error_se_deg);
-  EXPECT_LT(error_deg, 2 * error_se_deg);  // the calibration passes its check
+  EXPECT_LT(error_deg, 2 * error_se_deg);                      // the calibration passes its check
   EXPECT_GT(nominal_error_deg, error_deg + 2 * error_se_deg);  // the nominal scales do not
   EXPECT_NEAR(nominal_error_deg, 10.10, 2 * error_se_deg);
   std::printf("turn %.2f +- %.2f deg, error %.3f +- %.3f deg (nominal: turn %.2f, error %.2f)\n",

@@ -47,8 +47,7 @@ Detection Detect(const Capture& capture, double multiplier,
 std::string Describe(const std::vector<StaticInterval>& intervals) {
   std::string out;
   for (const StaticInterval& s : intervals) {
-    out += absl::StrFormat("  [%.3f, %.3f] used=%d %s\n", s.t_start_s, s.t_end_s, s.used,
-                           s.reason);
+    out += absl::StrFormat("  [%.3f, %.3f] used=%d %s\n", s.t_start_s, s.t_end_s, s.used, s.reason);
   }
   return out;
 }
@@ -164,8 +163,10 @@ TEST(StaticDetectorTest, NoiseEstimateMatchesSimulatedNoise) {
         // The simulator draws noise_SI / |scale_i| per raw axis; counts add a rounding step's
         // 1/12 variance.
         double expected_accel = options.accel_noise_m_s2 / std::abs(sim.truth.accel.scale(i));
-        if (unit == AccelUnit::kCounts) expected_accel = std::hypot(expected_accel, std::sqrt(1.0 / 12));
-        const double expected_gyro = options.gyro_noise_rad_s / std::abs(sim.truth.gyro.matrix(i, i));
+        if (unit == AccelUnit::kCounts)
+          expected_accel = std::hypot(expected_accel, std::sqrt(1.0 / 12));
+        const double expected_gyro =
+            options.gyro_noise_rad_s / std::abs(sim.truth.gyro.matrix(i, i));
         EXPECT_NEAR(d.noise.accel_std(i), expected_accel, 0.10 * expected_accel);
         EXPECT_NEAR(d.noise.gyro_std(i), expected_gyro, 0.10 * expected_gyro);
       }
@@ -188,8 +189,7 @@ TEST(StaticDetectorTest, FindsExactlyTheSimulatedHolds) {
       {"six-face + 6 extra, SI", SimProtocol::kSixFace, AccelUnit::kMetersPerSecond2,
        GyroUnit::kRadPerSecond},
       {"free, SI", SimProtocol::kFree, AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond},
-      {"six-face + 6 extra, counts", SimProtocol::kSixFace, AccelUnit::kCounts,
-       GyroUnit::kCounts},
+      {"six-face + 6 extra, counts", SimProtocol::kSixFace, AccelUnit::kCounts, GyroUnit::kCounts},
       {"free, g and deg/s", SimProtocol::kFree, AccelUnit::kG, GyroUnit::kDegPerSecond},
   };
   for (const HoldCase& c : cases) {
@@ -293,8 +293,8 @@ TEST(StaticDetectorTest, HoldOnTheRailIsSaturated) {
   b.Still(4, on_rail);
   const double hold_end = b.now();
   b.Move(2, side, 3000, 2000).Still(5, side);
-  const Capture capture = b.Clip(-kRail - 1, kRail).Round().Build(AccelUnit::kCounts,
-                                                                 GyroUnit::kCounts);
+  const Capture capture =
+      b.Clip(-kRail - 1, kRail).Round().Build(AccelUnit::kCounts, GyroUnit::kCounts);
   const Detection d = Detect(capture, 8.0);
   const StaticInterval* s = Overlapping(d.intervals, hold_start, hold_end);
   ASSERT_NE(s, nullptr) << Describe(d.intervals);

@@ -82,7 +82,8 @@ void FuzzCaptureCsv(std::string_view data) {
   // A writable capture formats and parses back to itself, exactly.
   const std::string text = core::FormatImucalCsv(*capture);
   const absl::StatusOr<core::Capture> again = core::ParseImucalCsv(text, "formatted.csv");
-  if (!again.ok()) Fail("capture_csv", "its own output does not parse: " + again.status().ToString());
+  if (!again.ok())
+    Fail("capture_csv", "its own output does not parse: " + again.status().ToString());
   if (const std::string diff = CaptureDifference(*capture, *again); !diff.empty())
     Fail("capture_csv", "format -> parse changed " + diff);
 }
@@ -140,7 +141,8 @@ void FuzzColumns(std::string_view data) {
       c.time_unit = core::ColumnTimeUnit::kNanoseconds;
       break;
   }
-  if (!core::CheckColumnCsvOptions(c).ok()) Fail("columns", "an option set of the fuzzer is invalid");
+  if (!core::CheckColumnCsvOptions(c).ok())
+    Fail("columns", "an option set of the fuzzer is invalid");
   std::vector<std::string> notes;
   CheckImported("columns", core::ParseColumnCsv(data, "vendor.csv", options, &notes));
 }

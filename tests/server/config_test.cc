@@ -78,13 +78,13 @@ TEST(ConfigTest, FileThenEnvironmentThenFlagsEachOverrideTheOneBefore) {
   ASSERT_TRUE(loaded.ok()) << loaded.status();
   const DaemonConfig& c = loaded->config;
   EXPECT_EQ(c.config_path, file);
-  EXPECT_EQ(c.server.db_path, "/var/lib/imucald/file.db");            // file only
-  EXPECT_EQ(c.server.drain_deadline, absl::Seconds(45));              // file only
-  EXPECT_EQ(c.log.format, LogFormat::kText);                          // file only
-  EXPECT_EQ(c.server.durability, storage::Durability::kNormal);       // file only
-  EXPECT_EQ(c.server.listen, "127.0.0.1:7002");                       // env over file
-  EXPECT_EQ(c.server.sessions.solve_threads, 7);                      // flag over env over file
-  EXPECT_EQ(c.log.level, LogLevel::kDebug);                           // flag over env
+  EXPECT_EQ(c.server.db_path, "/var/lib/imucald/file.db");       // file only
+  EXPECT_EQ(c.server.drain_deadline, absl::Seconds(45));         // file only
+  EXPECT_EQ(c.log.format, LogFormat::kText);                     // file only
+  EXPECT_EQ(c.server.durability, storage::Durability::kNormal);  // file only
+  EXPECT_EQ(c.server.listen, "127.0.0.1:7002");                  // env over file
+  EXPECT_EQ(c.server.sessions.solve_threads, 7);                 // flag over env over file
+  EXPECT_EQ(c.log.level, LogLevel::kDebug);                      // flag over env
   EXPECT_EQ(c.server.sessions.solve_queue_limit, ServerOptions().sessions.solve_queue_limit);
 }
 
@@ -128,7 +128,8 @@ TEST(ConfigTest, BadValuesInTheFileNameLineKeyAndWhatWasExpected) {
     std::string says;
   };
   const std::vector<Case> cases = {
-      {"db = \"a.db\"\nsolve_threads = \"four\"\n", ":2:", "solve_threads: expected an integer, got a string"},
+      {"db = \"a.db\"\nsolve_threads = \"four\"\n",
+       ":2:", "solve_threads: expected an integer, got a string"},
       {"solve_threads = 0\n", ":1:", "solve_threads: must be between 1 and 256, got 0"},
       {"listen = 50051\n", ":1:", "listen: expected a string, got an integer"},
       {"\n\ndrain_deadline = \"soon\"\n", ":3:", "drain_deadline: expected a duration"},

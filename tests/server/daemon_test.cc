@@ -170,7 +170,8 @@ class DaemonTest : public testing_util::ImucaldTest {
   void UploadAll(const std::string& session, const core::Capture& capture) {
     sdk::UploadOptions o;
     o.batch_samples = 2000;
-    absl::StatusOr<sdk::UploadResult> r = sdk::Uploader(server_->NewChannel(), o).Upload(session, capture);
+    absl::StatusOr<sdk::UploadResult> r =
+        sdk::Uploader(server_->NewChannel(), o).Upload(session, capture);
     EXPECT_TRUE(r.ok()) << r.status();
   }
 
@@ -234,8 +235,9 @@ class DaemonTest : public testing_util::ImucaldTest {
     auto params = pb::ParameterService::NewStub(channel);
     pb::ListDevicesRequest list_devices;
     list_devices.set_page_size(1000);
-    grpc::Status s = Retrying(
-        [&](grpc::ClientContext* c) { return devices->ListDevices(c, list_devices, &snap.devices); });
+    grpc::Status s = Retrying([&](grpc::ClientContext* c) {
+      return devices->ListDevices(c, list_devices, &snap.devices);
+    });
     EXPECT_TRUE(s.ok()) << s.error_message();
     pb::ListSessionsRequest list_sessions;
     list_sessions.set_page_size(1000);
@@ -302,8 +304,8 @@ class DrainTest : public DaemonTest {
  protected:
   static constexpr int kDrainDeadlineMs = 10;
   DrainTest()
-      : DaemonTest({"--drain-deadline", absl::StrCat(kDrainDeadlineMs, "ms"), "--solve-threads",
-                    "1"}) {}
+      : DaemonTest(
+            {"--drain-deadline", absl::StrCat(kDrainDeadlineMs, "ms"), "--solve-threads", "1"}) {}
 };
 
 TEST_F(DrainTest, SigtermFinishesQueuedSolvesKeepsAckedSamplesExitsZeroAndTheRobotResumes) {
@@ -350,7 +352,8 @@ TEST_F(DrainTest, SigtermFinishesQueuedSolvesKeepsAckedSamplesExitsZeroAndTheRob
     }
     // A hang guard, not a measurement: the exit follows the drain deadline (which the open
     // stream runs into) and the three queued solves, each well under a second.
-    wait_status = server_->SignalAndWait(SIGTERM, std::chrono::milliseconds(kDrainDeadlineMs + 15000));
+    wait_status =
+        server_->SignalAndWait(SIGTERM, std::chrono::milliseconds(kDrainDeadlineMs + 15000));
     // What the stopped server left in the file, before anything else opens it.
     stored_at_exit = StoredSamples(server_->db_path(), stream_session);
     auto store = storage::Store::Open(server_->db_path());
@@ -574,8 +577,8 @@ TEST_F(DaemonTest, OnlineBackupWhileStreamingRestoresEverythingAcknowledgedBefor
 // ---- Health probes -------------------------------------------------------------------------
 
 TEST_F(DaemonTest, HealthCheckIsZeroAgainstAServingImucaldAndNonZeroWhenNothingListens) {
-  const CommandResult serving = RunImucald(
-      dir_, {"--health-check", server_->address(), "--insecure", "--timeout", "5s"});
+  const CommandResult serving =
+      RunImucald(dir_, {"--health-check", server_->address(), "--insecure", "--timeout", "5s"});
   EXPECT_EQ(serving.exit_code, 0) << Describe(serving);
   EXPECT_NE(serving.out.find(absl::StrCat(server_->address(), ": SERVING")), std::string::npos)
       << Describe(serving);

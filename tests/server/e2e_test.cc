@@ -222,7 +222,8 @@ TEST_F(EndToEndTest, StreamWatchSolvePromoteFetchApplyMatchesOfflineCli) {
   // move to the first free pose); the final hold is closed only by the solve.
   ASSERT_TRUE(watch.WaitFor([](const auto& ev, bool) {
     return OkPairs(ev) >= 6 && ProgressComplete(ev) && AcceptedPoses(ev) >= 12;
-  })) << OkPairs(watch.events()) << " ok pairs, " << AcceptedPoses(watch.events()) << " poses";
+  })) << OkPairs(watch.events())
+      << " ok pairs, " << AcceptedPoses(watch.events()) << " poses";
   {
     const std::vector<pb::SessionEvent> events = watch.events();
     ASSERT_TRUE(events[0].has_session()) << "the stream starts with the session's snapshot";
@@ -382,8 +383,7 @@ TEST_F(EndToEndTest, StreamWatchSolvePromoteFetchApplyMatchesOfflineCli) {
   const std::string params_json = (dir_ / "offline_params.json").string();
   const std::string log = (dir_ / "cli.log").string();
   ASSERT_EQ(RunCli({"calibrate", capture_csv, "--protocol", "six-face", "--seed",
-                    std::to_string(kSolveSeed), "--device", kDevice, "--params-out",
-                    params_json},
+                    std::to_string(kSolveSeed), "--device", kDevice, "--params-out", params_json},
                    log),
             0)
       << ReadText(log);

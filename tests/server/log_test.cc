@@ -28,10 +28,12 @@ std::string Message(const absl::Status& s) { return std::string(s.message()); }
 
 TEST(LogTest, JsonLinesAreOneObjectPerLineWithEscapedValues) {
   const absl::Time ts = absl::FromUnixMillis(1714564800123);  // 2024-05-01T12:00:00.123Z
-  const std::string line = FormatLogLine(
-      LogFormat::kJson, ts, LogLevel::kWarning, "rpc",
-      {{"method", "/a.B/C"}, {"message", "bad \"x\"\nline"}, {"n", 3}, {"ms", 0.12345},
-       {"ok", false}});
+  const std::string line = FormatLogLine(LogFormat::kJson, ts, LogLevel::kWarning, "rpc",
+                                         {{"method", "/a.B/C"},
+                                          {"message", "bad \"x\"\nline"},
+                                          {"n", 3},
+                                          {"ms", 0.12345},
+                                          {"ok", false}});
   ASSERT_TRUE(line.ends_with("}\n"));
   EXPECT_EQ(line.find('\n'), line.size() - 1) << "one line, newlines escaped";
   const nlohmann::json j = nlohmann::json::parse(line);

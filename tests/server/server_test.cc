@@ -3,8 +3,8 @@
 #include "server/server.h"
 
 #include <chrono>
-#include <condition_variable>
 #include <cmath>
+#include <condition_variable>
 #include <cstdint>
 #include <functional>
 #include <future>
@@ -118,7 +118,8 @@ class ServerTest : public testing::Test {
   }
 
   // Streams `batches` on one stream; returns the stream's final status and the acks.
-  grpc::Status Stream(const std::vector<v1::SampleBatch>& batches, std::vector<v1::SampleAck>* acks) {
+  grpc::Status Stream(const std::vector<v1::SampleBatch>& batches,
+                      std::vector<v1::SampleAck>* acks) {
     auto ctx = Ctx();
     auto stream = sessions_->StreamSamples(ctx.get());
     for (const v1::SampleBatch& b : batches) {
@@ -195,7 +196,8 @@ core::Capture WithUnturnedPlacement(const core::SimResult& sim) {
     append(t += dt, src + k, up * std::sin(2 * M_PI * static_cast<double>(k + 1) / wobble));
   for (size_t k = 0; k < hold; ++k) append(t += dt, src + k, Eigen::Vector3d::Zero());
   const double shift = t - in.t_s[end0];
-  for (size_t i = end0 + 1; i < in.size(); ++i) append(in.t_s[i] + shift, i, Eigen::Vector3d::Zero());
+  for (size_t i = end0 + 1; i < in.size(); ++i)
+    append(in.t_s[i] + shift, i, Eigen::Vector3d::Zero());
   EXPECT_TRUE(core::ValidateCapture(out).ok());
   EXPECT_TRUE(out.extra_columns.empty());
   return out;
@@ -509,8 +511,7 @@ TEST_F(ServerTest, WatchGuidesSolveActivatesAndMatchesOfflineCalibrate) {
   exp.set_gyro_random_walk(-1);
   bad = params_->Export(Ctx().get(), exp, &exported);
   EXPECT_EQ(bad.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
-  EXPECT_NE(bad.error_message().find("gyro_random_walk"), std::string::npos)
-      << bad.error_message();
+  EXPECT_NE(bad.error_message().find("gyro_random_walk"), std::string::npos) << bad.error_message();
 }
 
 // Pair verdicts while streaming: each six-face pair is judged as soon as its second pose is held;
@@ -798,8 +799,8 @@ TEST_F(ServerTest, HealthIsServingAndUnknownsAreNotFound) {
   grpc::ClientContext ctx;
   ctx.set_deadline(system_clock::now() + seconds(10));
   std::promise<grpc::Status> done;
-  generic.UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request,
-                    &response, [&](grpc::Status st) { done.set_value(st); });
+  generic.UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
+                    [&](grpc::Status st) { done.set_value(st); });
   grpc::Status st = done.get_future().get();
   ASSERT_TRUE(st.ok()) << st.error_message();
   std::vector<grpc::Slice> slices;

@@ -12,9 +12,9 @@
 #include <vector>
 
 #include "client/sdk/uploader.h"
+#include "gmock/gmock.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "grpcpp/grpcpp.h"
-#include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "server/server.h"
@@ -117,8 +117,8 @@ class ValidationTest : public testing::Test {
     server_ = *std::move(server);
     grpc::ChannelArguments args;
     args.SetMaxSendMessageSize(64 << 20);  // the server's receive limit is under test
-    channel_ = grpc::CreateCustomChannel(server_->address(), grpc::InsecureChannelCredentials(),
-                                         args);
+    channel_ =
+        grpc::CreateCustomChannel(server_->address(), grpc::InsecureChannelCredentials(), args);
     devices_ = v1::DeviceService::NewStub(channel_);
     sessions_ = v1::SessionService::NewStub(channel_);
   }
@@ -185,11 +185,11 @@ class ValidationTest : public testing::Test {
   std::unique_ptr<v1::SessionService::Stub> sessions_;
 };
 
-#define EXPECT_STATUS(status, code, text)                         \
-  do {                                                            \
-    const grpc::Status st_ = (status);                            \
+#define EXPECT_STATUS(status, code, text)                                       \
+  do {                                                                          \
+    const grpc::Status st_ = (status);                                          \
     EXPECT_EQ(st_.error_code(), grpc::StatusCode::code) << st_.error_message(); \
-    EXPECT_THAT(st_.error_message(), HasSubstr(text));            \
+    EXPECT_THAT(st_.error_message(), HasSubstr(text));                          \
   } while (0)
 
 TEST_F(ValidationTest, NonFiniteValuesNameBatchSampleAndField) {
@@ -203,7 +203,8 @@ TEST_F(ValidationTest, NonFiniteValuesNameBatchSampleAndField) {
   EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 7: gyro.z (gyro[23]) is -infinity");
   b = RestBatch(s, 1);
   b.set_temp_c(5, std::numeric_limits<double>::infinity());
-  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 5: temp_c (temp_c[5]) is +infinity");
+  EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT,
+                "batch 1, sample 5: temp_c (temp_c[5]) is +infinity");
   b = RestBatch(s, 1);
   b.set_t_s(9, std::nan(""));
   EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 9: t_s (t_s[9]) is NaN");
@@ -231,15 +232,15 @@ TEST_F(ValidationTest, AbsurdMagnitudesByDeclaredUnit) {
     double accel_ok, accel_bad, gyro_ok, gyro_bad;
   };
   const std::vector<Case> cases = {
-      {"m/s^2", "rad/s", 980.0, 981.0, 99.0, 101.0},           // 100 g, 100 rad/s
-      {"g", "deg/s", 99.0, 101.0, 5700.0, 5800.0},             // 100 g, 5730 deg/s
-      {"counts", "counts", 2.0e9, 2.2e9, -2.0e9, -2.2e9},      // a signed 32-bit register
+      {"m/s^2", "rad/s", 980.0, 981.0, 99.0, 101.0},       // 100 g, 100 rad/s
+      {"g", "deg/s", 99.0, 101.0, 5700.0, 5800.0},         // 100 g, 5730 deg/s
+      {"counts", "counts", 2.0e9, 2.2e9, -2.0e9, -2.2e9},  // a signed 32-bit register
   };
   int device = 0;
   for (const Case& c : cases) {
     SCOPED_TRACE(c.accel_unit + " " + c.gyro_unit);
-    const std::string s = NewSession("robot-unit-" + std::to_string(device++), c.accel_unit,
-                                     c.gyro_unit);
+    const std::string s =
+        NewSession("robot-unit-" + std::to_string(device++), c.accel_unit, c.gyro_unit);
     v1::SampleBatch b = RestBatch(s, 1);
     b.set_accel(3 * 4 + 0, c.accel_bad);
     EXPECT_STATUS(Stream({b}), INVALID_ARGUMENT, "batch 1, sample 4: accel.x (accel[12]) = ");
@@ -378,7 +379,8 @@ TEST_F(ValidationTest, SessionSampleLimit) {
   const std::string s = NewSession("robot-full");
   std::vector<v1::SampleAck> acks;
   EXPECT_STATUS(Stream({RestBatch(s, 1), RestBatch(s, 2), RestBatch(s, 3)}, &acks),
-                RESOURCE_EXHAUSTED, "batch 3: session " + s + " holds 400 samples and may hold at most 450");
+                RESOURCE_EXHAUSTED,
+                "batch 3: session " + s + " holds 400 samples and may hold at most 450");
   EXPECT_EQ(acks.size(), 2u);
   EXPECT_EQ(GetSession(s).samples(), 2 * kBatch);
   // A retransmission of a stored batch is still acknowledged.
@@ -560,11 +562,9 @@ TEST_F(ValidationTest, GarbageBytesAreRefusedAndTheServerKeepsServing) {
     ctx.set_deadline(system_clock::now() + seconds(10));
     grpc::ByteBuffer request = Buffer(garbage), response;
     std::promise<grpc::Status> done;
-    generic.UnaryCall(&ctx, "/imucal.v1.ParameterService/GetActiveParameters",
-                      grpc::StubOptions(), &request, &response,
-                      [&](grpc::Status u) { done.set_value(u); });
-    EXPECT_STATUS(done.get_future().get(), INVALID_ARGUMENT,
-                  "not a GetActiveParametersRequest");
+    generic.UnaryCall(&ctx, "/imucal.v1.ParameterService/GetActiveParameters", grpc::StubOptions(),
+                      &request, &response, [&](grpc::Status u) { done.set_value(u); });
+    EXPECT_STATUS(done.get_future().get(), INVALID_ARGUMENT, "not a GetActiveParametersRequest");
   }
   // Still serving, and the session intact.
   const v1::Session after = GetSession(s);

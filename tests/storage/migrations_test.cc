@@ -123,8 +123,10 @@ TEST(MigrationsTest, VersionOneFileUpgradesToPosePairs) {
 
 // A later migration, as a future schema change would add one.
 const int kNext = LatestSchemaVersion() + 1;
-const std::string kTestNext = "ALTER TABLE devices ADD COLUMN site TEXT NOT NULL DEFAULT "
-                              "'unknown'; PRAGMA user_version = " + std::to_string(kNext) + ";";
+const std::string kTestNext =
+    "ALTER TABLE devices ADD COLUMN site TEXT NOT NULL DEFAULT "
+    "'unknown'; PRAGMA user_version = " +
+    std::to_string(kNext) + ";";
 
 TEST(MigrationsTest, UpgradeKeepsExistingRows) {
   const std::string path = TempDbPath("db");
@@ -155,7 +157,8 @@ TEST(MigrationsTest, AFailedMigrationLeavesTheWholePreviousVersion) {
   std::vector<Migration> broken(Migrations().begin(), Migrations().end());
   const std::string broken_sql =
       "CREATE TABLE half_done (x INTEGER); SELECT no_such_column FROM devices; "
-      "PRAGMA user_version = " + std::to_string(kNext) + ";";
+      "PRAGMA user_version = " +
+      std::to_string(kNext) + ";";
   broken.push_back({kNext, broken_sql.c_str()});
   EXPECT_FALSE(Migrate(*conn, broken).ok());
   ASSERT_OK_AND_ASSIGN(int version, SchemaVersion(*conn));

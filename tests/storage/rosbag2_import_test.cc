@@ -72,12 +72,12 @@ std::string SerializeImu(const TestImu& m, bool little_endian = true) {
   w.Put(m.sec);
   w.Put(m.nanosec);
   w.PutString(m.frame_id);
-  for (double q : {0.0, 0.0, 0.0, 1.0}) w.Put(q);     // orientation
-  for (int i = 0; i < 9; ++i) w.Put(-1.0);             // orientation_covariance
-  for (double v : m.w) w.Put(v);                       // angular_velocity
-  for (int i = 0; i < 9; ++i) w.Put(0.01);             // angular_velocity_covariance
-  for (double v : m.a) w.Put(v);                       // linear_acceleration
-  for (int i = 0; i < 9; ++i) w.Put(0.02);             // linear_acceleration_covariance
+  for (double q : {0.0, 0.0, 0.0, 1.0}) w.Put(q);  // orientation
+  for (int i = 0; i < 9; ++i) w.Put(-1.0);         // orientation_covariance
+  for (double v : m.w) w.Put(v);                   // angular_velocity
+  for (int i = 0; i < 9; ++i) w.Put(0.01);         // angular_velocity_covariance
+  for (double v : m.a) w.Put(v);                   // linear_acceleration
+  for (int i = 0; i < 9; ++i) w.Put(0.02);         // linear_acceleration_covariance
   return w.bytes();
 }
 
@@ -119,9 +119,9 @@ void WriteDb3(const std::string& path, const std::vector<TestTopic>& topics,
        "CREATE INDEX timestamp_idx ON messages (timestamp ASC);"
        "BEGIN;");
   sqlite3_stmt* stmt = nullptr;
-  ASSERT_EQ(sqlite3_prepare_v2(db, "INSERT INTO topics VALUES (?, ?, ?, ?, '')", -1, &stmt,
-                               nullptr),
-            SQLITE_OK);
+  ASSERT_EQ(
+      sqlite3_prepare_v2(db, "INSERT INTO topics VALUES (?, ?, ?, ?, '')", -1, &stmt, nullptr),
+      SQLITE_OK);
   for (const TestTopic& t : topics) {
     sqlite3_bind_int(stmt, 1, t.id);
     sqlite3_bind_text(stmt, 2, t.name.c_str(), -1, SQLITE_TRANSIENT);
@@ -131,8 +131,9 @@ void WriteDb3(const std::string& path, const std::vector<TestTopic>& topics,
     sqlite3_reset(stmt);
   }
   sqlite3_finalize(stmt);
-  ASSERT_EQ(sqlite3_prepare_v2(db, "INSERT INTO messages (topic_id, timestamp, data) "
-                                   "VALUES (?, ?, ?)",
+  ASSERT_EQ(sqlite3_prepare_v2(db,
+                               "INSERT INTO messages (topic_id, timestamp, data) "
+                               "VALUES (?, ?, ?)",
                                -1, &stmt, nullptr),
             SQLITE_OK);
   for (const TestMessage& m : messages) {
@@ -173,8 +174,8 @@ std::string WriteSimpleBag(const std::string& name, const std::vector<TestImu>& 
   const std::string dir = BagDir(name);
   std::vector<TestMessage> messages;
   for (size_t i = 0; i < imus.size(); ++i) {
-    messages.push_back({1, first_bag_ns + static_cast<int64_t>(i) * 5'000'000,
-                        SerializeImu(imus[i])});
+    messages.push_back(
+        {1, first_bag_ns + static_cast<int64_t>(i) * 5'000'000, SerializeImu(imus[i])});
   }
   WriteDb3(dir + "/" + name + "_0.db3", {{1, "/imu", kImu}}, messages);
   WriteMetadata(dir, {name + "_0.db3"});
@@ -407,9 +408,8 @@ TEST(Rosbag2ImportTest, NotABagOrUnsupportedStorage) {
   const std::string empty_dir = BagDir("not_a_bag");
   absl::StatusOr<core::Capture> d = core::ImportCapture({empty_dir}, core::ImportOptions{});
   ASSERT_FALSE(d.ok());
-  EXPECT_THAT(d.status().message(),
-              AllOf(HasSubstr("unrecognised capture format"),
-                    HasSubstr("rosbag2: a directory without metadata.yaml")));
+  EXPECT_THAT(d.status().message(), AllOf(HasSubstr("unrecognised capture format"),
+                                          HasSubstr("rosbag2: a directory without metadata.yaml")));
 
   const std::string wrong_db = BagDir("wrong_db") + "/other.db3";
   sqlite3* db = nullptr;

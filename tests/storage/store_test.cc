@@ -6,16 +6,16 @@
 
 #include <algorithm>
 #include <atomic>
-#include <condition_variable>
-#include <future>
-#include <mutex>
 #include <cerrno>
 #include <cmath>
+#include <condition_variable>
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
+#include <future>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <random>
 #include <string>
