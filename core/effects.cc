@@ -79,6 +79,31 @@ struct State {
   std::vector<Term> terms;
 };
 
+// The marginality rule for interactions with temperature or time. `temperature*ax` on gyro y
+// says that the gyroscope's sensitivity to ax changes with temperature; a coefficient can
+// change only where the model has one. Without its main term the product is that main term
+// scaled by an arbitrary origin (degC has no physical zero: over a 25-33 degC capture
+// `temperature*ax` is nearly 29 times `ax`), and the two would trade places on noise alone.
+// So a regressor that multiplies temperature or time with sensor signals is a candidate only
+// when its sensor part is modelled on that output: by the model's own terms (the accelerometer's
+// linear map and quadratic, the gyroscope's matrix over the rates) or by an effect already in.
+// Pure temperature or time regressors are bias terms, whose main term (the bias) every model has.
+bool MainTermModelled(const State& st, Sensor sensor, int axis, const Regressor& r) {
+  Regressor main;  // r without its temperature and time factors (still sorted)
+  for (int i = 0; i < r.num_factors; ++i) {
+    const int f = r.factors[i];
+    if (f != static_cast<int>(Signal::kTemperature) && f != static_cast<int>(Signal::kTime))
+      main.factors[main.num_factors++] = f;
+  }
+  if (main.num_factors == r.num_factors || main.num_factors == 0) return true;
+  if (IsModelTerm(sensor, axis, main)) return true;
+  const bool rate = main.num_factors == 1 && main.factors[0] >= static_cast<int>(Signal::kGx);
+  if (sensor == Sensor::kGyro && rate) return true;
+  for (const Term& t : st.terms)
+    if (t.sensor == sensor && t.axis == axis && t.regressor == main) return true;
+  return false;
+}
+
 // Signals of every pose from the model before any effect (what the SDK computes at run time).
 std::vector<SignalArray> PoseSignals(const std::vector<EffectPose>& poses, const AccelParams& accel,
                                      const GyroParams& gyro) {
@@ -930,6 +955,7 @@ class Search {
             ++*absorbed;
             continue;
           }
+          if (!MainTermModelled(st, static_cast<Sensor>(sensor), axis, r)) continue;
           Eigen::VectorXd col(n);
           for (Eigen::Index i = 0; i < n; ++i) {
             const auto ii = static_cast<size_t>(i);

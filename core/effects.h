@@ -31,6 +31,11 @@
 // Without moves, or when they do not decide, the search reports the tie rather than pretending
 // to know the axis.
 //
+// MARGINALITY: a regressor that multiplies temperature or time with sensor signals
+// (`temperature*ax`) is a candidate on an output only once its sensor part (`ax`) is modelled
+// there, by the model's own terms or an effect already in: it says how a coefficient changes,
+// and degC has an arbitrary zero, so alone it is the main term in disguise.
+//
 // SELECTION, forward stepwise. Each round scores every candidate by linearised least squares
 // against the current model (weights 1 / (sigma_i^2 + tau^2): sigma_i the pose mean's noise from
 // the scatter within the pose, tau the model error common to all poses, 0 when the noise
