@@ -74,6 +74,7 @@
 #include "core/simulator.h"
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
+#include "server/log.h"
 #include "storage/store.h"
 
 namespace {
@@ -197,29 +198,8 @@ struct Stats {
   int robots_running = 0, watchers_running = 0, fetches_in_flight = 0;  // guarded by mu
 
   void Error(const std::string& what, const grpc::Status& s) {
-    errors[absl::StrCat(what, " ", StatusCodeName(s.error_code()))]++;
+    errors[absl::StrCat(what, " ", std::string(imucal::server::CodeName(s.error_code())))]++;
     if (first_error.empty()) first_error = absl::StrCat(what, ": ", s.error_message());
-  }
-  static std::string StatusCodeName(grpc::StatusCode code) {
-    static const char* kNames[] = {"OK",
-                                   "CANCELLED",
-                                   "UNKNOWN",
-                                   "INVALID_ARGUMENT",
-                                   "DEADLINE_EXCEEDED",
-                                   "NOT_FOUND",
-                                   "ALREADY_EXISTS",
-                                   "PERMISSION_DENIED",
-                                   "RESOURCE_EXHAUSTED",
-                                   "FAILED_PRECONDITION",
-                                   "ABORTED",
-                                   "OUT_OF_RANGE",
-                                   "UNIMPLEMENTED",
-                                   "INTERNAL",
-                                   "UNAVAILABLE",
-                                   "DATA_LOSS",
-                                   "UNAUTHENTICATED"};
-    const int c = static_cast<int>(code);
-    return c >= 0 && c < 17 ? kNames[c] : absl::StrCat("CODE_", c);
   }
 };
 

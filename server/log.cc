@@ -199,11 +199,6 @@ void Log(LogLevel level, std::string_view event, std::initializer_list<LogField>
   }
 }
 
-namespace {
-
-// Probed every few seconds by orchestrators: their successes are noise at info level.
-constexpr char kHealthMethods[] = "/grpc.health.v1.Health/";
-
 std::string_view CodeName(grpc::StatusCode code) {
   static constexpr std::array<std::string_view, 17> kNames = {"OK",
                                                               "CANCELLED",
@@ -225,6 +220,11 @@ std::string_view CodeName(grpc::StatusCode code) {
   const int i = static_cast<int>(code);
   return i >= 0 && i < static_cast<int>(kNames.size()) ? kNames[i] : "UNKNOWN";
 }
+
+namespace {
+
+// Probed every few seconds by orchestrators: their successes are noise at info level.
+constexpr char kHealthMethods[] = "/grpc.health.v1.Health/";
 
 LogLevel LevelOf(grpc::StatusCode code, bool quiet) {
   switch (code) {

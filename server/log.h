@@ -81,6 +81,10 @@ std::string FormatLogLine(LogFormat format, absl::Time ts, LogLevel level, std::
 // The fully qualified method whose successful calls log at debug level only (the hot path).
 inline constexpr char kHotPathMethod[] = "/imucal.v1.ParameterService/GetActiveParameters";
 
+// The canonical name of a gRPC status code ("NOT_FOUND"), as the RPC log writes it; "UNKNOWN"
+// for a value outside the 17 codes.
+std::string_view CodeName(grpc::StatusCode code);
+
 // A server interceptor factory logging each RPC's completion as event "rpc": method, code,
 // duration_ms, peer, and the status message when not OK. Non-OK calls log at info (warning
 // for INTERNAL, UNKNOWN and DATA_LOSS), OK calls at info except the hot path and health
