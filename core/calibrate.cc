@@ -598,6 +598,54 @@ Eigen::Vector3d FrameAngles(const AccelParams& accel, const FaceReferences& face
   return aa.angle() * aa.axis();
 }
 
+// The case frame as FrameAngles, with each verified pair's face direction the axis the unit was
+// turned about (core/protocol.h PairTurnAxis, from the turn the calibrated gyroscope measured)
+// instead of the pair's mean, which a turn of 180 + e degrees on a floor tilted by t leaves
+// t * e / 2 off. A pair whose turn was not measured keeps its mean.
+Eigen::Vector3d TurnAxisFrameAngles(const AccelParams& accel,
+                                    const std::vector<StaticInterval>& ivs,
+                                    const std::vector<PairCheck>& pairs, double g) {
+  AccelParams frame_free = accel;
+  frame_free.frame_angles.setZero();
+  std::vector<Eigen::Vector3d> out, refs;
+  for (const PairCheck& p : pairs) {
+    if (!p.ok) continue;
+    const Eigen::Vector3d a = frame_free.Apply(ivs[static_cast<size_t>(p.pose_a)].accel_mean);
+    const Eigen::Vector3d b = frame_free.Apply(ivs[static_cast<size_t>(p.pose_b)].accel_mean);
+    const Eigen::Vector3d axis = p.rotation_rad.isZero()
+                                     ? (a + b).normalized()
+                                     : PairTurnAxis(a.normalized(), b.normalized(), p.rotation_rad);
+    const Face f = ClassifyFace(axis);
+    Eigen::Vector3d ref = Eigen::Vector3d::Zero();
+    ref(f.axis) = f.sign * g;
+    out.push_back(g * axis);
+    refs.push_back(ref);
+  }
+  const Eigen::AngleAxisd aa(BestFitRotation(out, refs));
+  return aa.angle() * aa.axis();
+}
+
+// Turns the gyroscope's output frame by `d` (new body = d * old body) with the accelerometer's:
+// the matrix, its covariance (vec(d M) = (I kron d) vec(M)), the coupling to specific force and
+// the moves' up directions. Every move residual stays as it was. A covariance with undetermined
+// (NaN) entries is left as it is: the frame moves by under a milliradian, far below what those
+// entries' neighbours are known to.
+void TurnGyroFrame(const Eigen::Matrix3d& d, GyroStage* gyro, std::vector<PlannedMove>* planned) {
+  gyro->params.matrix = d * gyro->params.matrix;
+  gyro->params.accel_coupling = d * gyro->params.accel_coupling * d.transpose();
+  if (gyro->result) {
+    gyro->result->matrix = d * gyro->result->matrix;
+    Eigen::Matrix<double, 9, 9> k = Eigen::Matrix<double, 9, 9>::Zero();
+    for (int c = 0; c < 3; ++c) k.block<3, 3>(3 * c, 3 * c) = d;
+    if (gyro->result->covariance.allFinite())
+      gyro->result->covariance = k * gyro->result->covariance * k.transpose();
+  }
+  for (PlannedMove& m : *planned) {
+    m.move.up_before = d * m.move.up_before;
+    m.move.up_after = d * m.move.up_after;
+  }
+}
+
 AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& poses,
                           const AccelMask& free) {
   // One BSAS unit = the stage-1 standard error of the parameter (seeds/002 needs parameters of
@@ -747,28 +795,33 @@ absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>
   if (!res.ok()) return res.status();
   rep->effect_diagnostics = std::move(res->diagnostics);
   // Per-axis residuals of the verified faces with the stored model and its applied effects at
-  // the pair's mean signals (as the SDK's Corrector would apply them).
+  // each pose's signals (as the SDK's Corrector would apply them). A face's direction is the axis
+  // its pair was turned about (core/protocol.h PairTurnAxis), its size the pair's mean size.
   const AccelParams& final_accel = res->effects.empty() ? rep->params.accel : res->accel;
-  for (const PairCheck& p : rep->pairs) {
-    if (!p.ok) continue;
-    const StaticInterval& sa = ivs[static_cast<size_t>(p.pose_a)];
-    const StaticInterval& sb = ivs[static_cast<size_t>(p.pose_b)];
-    const Eigen::Vector3d mean = 0.5 * (sa.accel_mean + sb.accel_mean);
-    Eigen::Vector3d a = final_accel.Apply(mean);
+  const auto corrected = [&](const StaticInterval& s) {
+    Eigen::Vector3d a = final_accel.Apply(s.accel_mean);
     SignalArray sig{};
-    sig[static_cast<size_t>(Signal::kTemperature)] = 0.5 * (sa.temp_mean + sb.temp_mean);
-    sig[static_cast<size_t>(Signal::kTime)] =
-        0.25 * (sa.t_start_s + sa.t_end_s + sb.t_start_s + sb.t_end_s) - t0;
+    sig[static_cast<size_t>(Signal::kTemperature)] = s.temp_mean;
+    sig[static_cast<size_t>(Signal::kTime)] = 0.5 * (s.t_start_s + s.t_end_s) - t0;
     for (int k = 0; k < 3; ++k) sig[static_cast<size_t>(Signal::kAx) + k] = a(k);
     for (const Effect& e : res->effects) {
       const std::optional<Regressor> r = ParseRegressor(e.regressor);
       if (e.sensor == Sensor::kAccel && e.applied && r)
         a(e.axis) -= e.coefficient * r->Evaluate(sig);
     }
-    const Face f = ClassifyFace(a.normalized());
+    return a;
+  };
+  for (const PairCheck& p : rep->pairs) {
+    if (!p.ok) continue;
+    const Eigen::Vector3d a = corrected(ivs[static_cast<size_t>(p.pose_a)]);
+    const Eigen::Vector3d b = corrected(ivs[static_cast<size_t>(p.pose_b)]);
+    Eigen::Vector3d face = 0.5 * (a + b);
+    if (!p.rotation_rad.isZero())
+      face = face.norm() * PairTurnAxis(a.normalized(), b.normalized(), p.rotation_rad);
+    const Face f = ClassifyFace(face.normalized());
     Eigen::Vector3d ref = Eigen::Vector3d::Zero();
     ref(f.axis) = f.sign * cap.gravity_m_s2;
-    rep->effect_diagnostics.faces.push_back({f.Label(), a - ref});
+    rep->effect_diagnostics.faces.push_back({f.Label(), face - ref});
   }
   if (res->effects.empty()) return absl::OkStatus();
   ParamSet& ps = rep->params;
@@ -1129,24 +1182,35 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
       s1_from_faces) {
     lm->params.frame_angles = FrameAngles(lm->params, faces);
   }
-  const AccelParams& accel = lm->params;
+  AccelParams& accel = lm->params;
   timer.Mark("accel");
 
   // 8. Final gyroscope with the final accelerometer.
-  const std::vector<PlannedMove> planned =
+  std::vector<PlannedMove> planned =
       PlanMoves(cap, ivs, used, accel, gaps, &rough_gyro, &rep.warnings);
-  const GyroStage gyro = SolveGyro(cap, ivs, planned, turns, StaticGyroBias(ivs, used), rough_gyro);
+  GyroStage gyro = SolveGyro(cap, ivs, planned, turns, StaticGyroBias(ivs, used), rough_gyro);
   for (const auto& w : gyro.warnings) rep.warnings.push_back(w);
   timer.Mark("gyro");
 
-  // The pairs' turn angles as the calibrated gyroscope measures them (the check itself ran on
-  // the rough one, which its 20-degree tolerance allows).
+  // The pairs' turns as the calibrated gyroscope measures them (the check itself ran on the
+  // rough one, which its 20-degree tolerance allows), with the bias the pair's own two poses
+  // read: both have the same face up, so a bias that follows the pose or the warm-up cancels.
   for (PairCheck& p : rep.pairs) {
     if (std::isnan(p.rotation_deg)) continue;  // across a time gap: not measured
-    p.rotation_deg = IntegrateRotation(cap, ivs[static_cast<size_t>(p.pose_a)].end - 1,
-                                       ivs[static_cast<size_t>(p.pose_b)].begin, gyro.params)
-                         .norm() *
-                     kRadToDeg;
+    const StaticInterval& a = ivs[static_cast<size_t>(p.pose_a)];
+    const StaticInterval& b = ivs[static_cast<size_t>(p.pose_b)];
+    GyroParams at_pair = gyro.params;
+    at_pair.bias = 0.5 * (a.gyro_mean + b.gyro_mean);
+    p.rotation_rad = IntegrateRotation(cap, a.end - 1, b.begin, at_pair);
+    p.rotation_deg = p.rotation_rad.norm() * kRadToDeg;
+  }
+  // 8b. The case frame from the axes the pairs were turned about, now that the gyroscope has
+  // measured the turns; the gyroscope, fitted in the frame of step 7, turns with it.
+  if (rep.protocol == ProtocolKind::kSixFace && s1_from_faces && gyro.calibrated) {
+    const Eigen::Vector3d angles = TurnAxisFrameAngles(accel, ivs, rep.pairs, g);
+    TurnGyroFrame(ExpSo3<double>(angles) * ExpSo3<double>(accel.frame_angles).transpose(), &gyro,
+                  &planned);
+    accel.frame_angles = angles;
   }
 
   // 8. Residuals, in-sample and held out.

@@ -145,8 +145,10 @@ struct EffectPoseRow {
   Eigen::Vector3d gyro_all_rad_s = Eigen::Vector3d::Zero();
 };
 
-// Six-face protocols fix each face's orientation: the per-axis residual of a verified face (its
-// 180-degree pair averaged, which cancels the floor tilt), calibrated minus +-g on the face axis.
+// Six-face protocols fix each face's orientation: the per-axis residual of a verified face,
+// calibrated minus +-g on the face axis. The face's reading is its 180-degree pair's mean size
+// along the axis the pair was turned about (core/protocol.h PairTurnAxis): the floor tilt then
+// cancels whatever the turn's error, where the pair's mean leaves tilt * error / 2.
 struct FaceResidual {
   std::string face;                                         // "X+", ...
   Eigen::Vector3d residual_m_s2 = Eigen::Vector3d::Zero();  // body frame, with the stored model

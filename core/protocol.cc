@@ -243,4 +243,30 @@ SixFaceCheck CheckSixFacePairs(const std::vector<FacePose>& poses, double turn_t
   return out;
 }
 
+Eigen::Vector3d PairTurnAxis(const Eigen::Vector3d& up_a, const Eigen::Vector3d& up_b,
+                             const Eigen::Vector3d& turn_rad) {
+  const Eigen::Vector3d sum = up_a + up_b, diff = up_a - up_b;
+  const Eigen::Vector3d mean = sum.normalized();
+  const double turn = turn_rad.norm();
+  if (diff.norm() < 1e-12 || sum.norm() < 1e-12 || turn < 1e-6) return mean;
+  // Orthonormal frame of the bisector geometry: m (the mean), e (from up_b to up_a), d = m x e.
+  // up_a = a m + b e and up_b = a m - b e; the axis is cos(phi) m +- sin(phi) d.
+  const Eigen::Vector3d e = diff.normalized(), d = mean.cross(e);
+  const double a = up_a.dot(mean), b = up_a.dot(e);
+  const double sin_phi = b / a / std::tan(0.5 * turn);
+  if (!std::isfinite(sin_phi) || std::abs(sin_phi) > std::sin(0.1)) return mean;
+  const double cos_phi = std::sqrt(1.0 - sin_phi * sin_phi);
+  // The turn's sense along the axis, from the gyro; the candidate that turns up_a onto up_b.
+  const double sense = turn_rad.dot(mean) >= 0 ? 1.0 : -1.0;
+  Eigen::Vector3d best = mean;
+  double best_miss = std::numeric_limits<double>::infinity();
+  for (const double side : {1.0, -1.0}) {
+    const Eigen::Vector3d axis = cos_phi * mean + side * sin_phi * d;
+    const Eigen::Vector3d turned = Eigen::AngleAxisd(-sense * turn, axis) * up_a;
+    const double miss = (turned - up_b).norm();
+    if (miss < best_miss) best_miss = miss, best = axis;
+  }
+  return best;
+}
+
 }  // namespace imucal::core

@@ -1,6 +1,7 @@
 // Calibration protocols: which poses a capture holds and what can be checked about them.
 //   six-face  (seeds/000): each face up twice, the second time turned 180 degrees about the
-//             vertical; the pair's mean cancels the floor tilt to first order.
+//             vertical; the pair's mean cancels the floor tilt to first order, the turn's
+//             axis (PairTurnAxis) whatever the turn's error.
 //   positions (seeds/002): 24 or 36 positions, three groups turned about a horizontal axis.
 //   free      (Tedaldi, IMU-TK): hand-held poses anywhere on the sphere.
 //   ferraris  (Ferraris et al. 1995): each face up once (no 180-degree pair, so the floor tilt
@@ -54,6 +55,10 @@ struct PairCheck {
   bool ok = false;
   double tilt_deg = 0;      // half the angle between the two up directions (floor tilt)
   double rotation_deg = 0;  // gyro-integrated rotation between the poses about the vertical
+  // The calibrated gyroscope's body rotation vector from pose a to pose b, rad (Exp = R_a^T R_b):
+  // calibrate.cc measures it once the gyroscope is calibrated. Zero until then, and when the
+  // turn crossed a time gap (not measured).
+  Eigen::Vector3d rotation_rad = Eigen::Vector3d::Zero();
   std::string face;
   std::string reason;  // why rejected, in a technician's words
 };
@@ -81,6 +86,23 @@ struct SixFaceCheck {
 };
 SixFaceCheck CheckSixFacePairs(const std::vector<FacePose>& poses,
                                double turn_tolerance_deg = 20.0);
+
+// The face axis of a verified pair: the floor normal (body frame, unit) that the unit was turned
+// about between its two up directions `up_a` and `up_b` (unit, body frame). `turn_rad` is the
+// gyro-integrated body rotation vector from pose a to pose b (Exp(turn) = R_a^T R_b, so
+// up_b = Exp(-turn) up_a).
+//
+// The pair's mean (up_a + up_b) / 2 is that axis only for an exact 180-degree turn. A turn of
+// 180 + e degrees on a floor tilted by t leaves the mean t * e / 2 off (1 degree and 3 degrees:
+// 0.46 mrad, several times the frame's noise). The axis lies in the bisector plane of up_a and
+// up_b; the turn's angle |turn| fixes where: with half-angle t between the ups (tan t = b / a
+// in the plane's coordinates), the axis is tilted from the mean by phi, sin phi = tan t /
+// tan(|turn| / 2), towards the side the turn's sense selects. Only |turn| and the sign of turn
+// along the mean are read, so the gyro's own misalignment (what the frame is used to fit) does
+// not enter. Returns the mean direction when the ups coincide, or when the turn is too far from
+// 180 degrees for this to be a pair (|phi| would exceed 0.1 rad).
+Eigen::Vector3d PairTurnAxis(const Eigen::Vector3d& up_a, const Eigen::Vector3d& up_b,
+                             const Eigen::Vector3d& turn_rad);
 
 }  // namespace imucal::core
 

@@ -158,7 +158,7 @@ std::string FormatSummary(const core::CalibrationReport& r) {
     }
     for (const auto& n : d.notes) absl::StrAppendFormat(&s, "  %s\n", n);
     if (!d.faces.empty()) {
-      s += "  per-axis residual of each verified face (pair mean), mg:";
+      s += "  per-axis residual of each verified face (along its turn axis), mg:";
       for (const core::FaceResidual& f : d.faces)
         absl::StrAppendFormat(&s, " %s %s", f.face, Vec(f.residual_m_s2 * (1e3 / g), 2));
       s += "\n";

@@ -207,6 +207,40 @@ TEST(ProtocolTest, GoodPairPasses) {
   }
 }
 
+// A turn of 180 + e degrees on a tilted floor: the pair's mean misses the face axis by about
+// tilt * e / 2; the axis recovered with the gyro's turn angle does not, whichever way the unit
+// was turned and whichever side of 180 degrees the turn ended.
+TEST(ProtocolTest, PairTurnAxisUndoesTheTurnError) {
+  const Eigen::Vector3d axis = Eigen::Vector3d(0.01, -0.02, 1.0).normalized();
+  const Eigen::Vector3d across = axis.cross(Eigen::Vector3d::UnitX()).normalized();
+  for (const double tilt_deg : {0.5, 1.0, 3.0}) {
+    for (const double turn_error_deg : {-6.0, -3.0, 2.0, 5.0}) {
+      for (const double sense : {1.0, -1.0}) {
+        SCOPED_TRACE(absl::StrFormat("tilt %.1f deg, turn 180 %+.0f deg, sense %+.0f", tilt_deg,
+                                     turn_error_deg, sense));
+        const Eigen::Vector3d up_a = Rot(tilt_deg, across) * axis;
+        const Eigen::Matrix3d turn = Rot(sense * (180 + turn_error_deg), axis);  // R_a^T R_b
+        const Eigen::Vector3d up_b = turn.transpose() * up_a;
+        const Eigen::AngleAxisd logged(turn);  // as integrated: an angle in [0, 180] degrees
+        const Eigen::Vector3d turn_rad = logged.angle() * logged.axis();
+        const double mean_miss = std::acos(std::min(1.0, (up_a + up_b).normalized().dot(axis)));
+        EXPECT_NEAR(mean_miss, 0.5 * tilt_deg * std::abs(turn_error_deg) * kDegToRad * kDegToRad,
+                    0.1 * mean_miss);
+        EXPECT_LT((PairTurnAxis(up_a, up_b, turn_rad) - axis).norm(), 1e-9);
+        // The gyro's own misalignment (a few mrad) turns its rotation vector, not its angle.
+        const Eigen::Vector3d misaligned = Rot(0.3, Eigen::Vector3d(1, 2, 0)) * turn_rad;
+        EXPECT_LT((PairTurnAxis(up_a, up_b, misaligned) - axis).norm(), 1e-9);
+      }
+    }
+  }
+  // Degenerate input gives the mean: no tilt (the ups coincide), or no turn at all.
+  const Eigen::Vector3d up = Eigen::Vector3d(0.0, 0.1, 1.0).normalized();
+  EXPECT_LT((PairTurnAxis(up, up, Eigen::Vector3d(0, 0, 3.0)) - up).norm(), 1e-12);
+  const Eigen::Vector3d other = Eigen::Vector3d(0.0, -0.1, 1.0).normalized();
+  EXPECT_LT((PairTurnAxis(up, other, Eigen::Vector3d::Zero()) - Eigen::Vector3d::UnitZ()).norm(),
+            1e-12);
+}
+
 TEST(ProtocolTest, AllSixFacesPairedWithNothingMissing) {
   for (const double turn_error : {0.0, 3.0, -7.0}) {
     SCOPED_TRACE(absl::StrFormat("turn error %.0f degrees", turn_error));
