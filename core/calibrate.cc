@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <limits>
 
 #include "Eigen/Dense"
@@ -601,17 +602,14 @@ Eigen::Vector3d FrameAngles(const AccelParams& accel, const FaceReferences& face
 // The case frame as FrameAngles, with each verified pair's face direction the axis the unit was
 // turned about (core/protocol.h PairTurnAxis, from the turn the calibrated gyroscope measured)
 // instead of the pair's mean, which a turn of 180 + e degrees on a floor tilted by t leaves
-// t * e / 2 off. A pair whose turn was not measured keeps its mean.
-Eigen::Vector3d TurnAxisFrameAngles(const AccelParams& accel,
-                                    const std::vector<StaticInterval>& ivs,
-                                    const std::vector<PairCheck>& pairs, double g) {
-  AccelParams frame_free = accel;
-  frame_free.frame_angles.setZero();
+// t * e / 2 off. A pair whose turn was not measured keeps its mean. `frame_free(i)` is the
+// specific force of pose i (an index of ivs) in the model's frame-free output.
+Eigen::Vector3d TurnAxisFrameAngles(const std::vector<PairCheck>& pairs, double g,
+                                    const std::function<Eigen::Vector3d(int)>& frame_free) {
   std::vector<Eigen::Vector3d> out, refs;
   for (const PairCheck& p : pairs) {
     if (!p.ok) continue;
-    const Eigen::Vector3d a = frame_free.Apply(ivs[static_cast<size_t>(p.pose_a)].accel_mean);
-    const Eigen::Vector3d b = frame_free.Apply(ivs[static_cast<size_t>(p.pose_b)].accel_mean);
+    const Eigen::Vector3d a = frame_free(p.pose_a), b = frame_free(p.pose_b);
     const Eigen::Vector3d axis = p.rotation_rad.isZero()
                                      ? (a + b).normalized()
                                      : PairTurnAxis(a.normalized(), b.normalized(), p.rotation_rad);
@@ -623,6 +621,23 @@ Eigen::Vector3d TurnAxisFrameAngles(const AccelParams& accel,
   }
   const Eigen::AngleAxisd aa(BestFitRotation(out, refs));
   return aa.angle() * aa.axis();
+}
+
+// A pose's calibrated specific force (m/s^2) with the applied accelerometer effects taken out at
+// its own signals (its mean temperature, its middle's time since `t0_s`), as the SDK's
+// Corrector would give it.
+Eigen::Vector3d CorrectedSpecificForce(const AccelParams& accel, const std::vector<Effect>& effects,
+                                       const StaticInterval& s, double t0_s) {
+  Eigen::Vector3d a = accel.Apply(s.accel_mean);
+  SignalArray sig{};
+  sig[static_cast<size_t>(Signal::kTemperature)] = s.temp_mean;
+  sig[static_cast<size_t>(Signal::kTime)] = 0.5 * (s.t_start_s + s.t_end_s) - t0_s;
+  for (int k = 0; k < 3; ++k) sig[static_cast<size_t>(Signal::kAx) + k] = a(k);
+  for (const Effect& e : effects) {
+    const std::optional<Regressor> r = ParseRegressor(e.regressor);
+    if (e.sensor == Sensor::kAccel && e.applied && r) a(e.axis) -= e.coefficient * r->Evaluate(sig);
+  }
+  return a;
 }
 
 // Turns the gyroscope's output frame by `d` (new body = d * old body) with the accelerometer's:
@@ -794,35 +809,6 @@ absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>
   absl::StatusOr<EffectSearchResult> res = FindEffects(in, opt);
   if (!res.ok()) return res.status();
   rep->effect_diagnostics = std::move(res->diagnostics);
-  // Per-axis residuals of the verified faces with the stored model and its applied effects at
-  // each pose's signals (as the SDK's Corrector would apply them). A face's direction is the axis
-  // its pair was turned about (core/protocol.h PairTurnAxis), its size the pair's mean size.
-  const AccelParams& final_accel = res->effects.empty() ? rep->params.accel : res->accel;
-  const auto corrected = [&](const StaticInterval& s) {
-    Eigen::Vector3d a = final_accel.Apply(s.accel_mean);
-    SignalArray sig{};
-    sig[static_cast<size_t>(Signal::kTemperature)] = s.temp_mean;
-    sig[static_cast<size_t>(Signal::kTime)] = 0.5 * (s.t_start_s + s.t_end_s) - t0;
-    for (int k = 0; k < 3; ++k) sig[static_cast<size_t>(Signal::kAx) + k] = a(k);
-    for (const Effect& e : res->effects) {
-      const std::optional<Regressor> r = ParseRegressor(e.regressor);
-      if (e.sensor == Sensor::kAccel && e.applied && r)
-        a(e.axis) -= e.coefficient * r->Evaluate(sig);
-    }
-    return a;
-  };
-  for (const PairCheck& p : rep->pairs) {
-    if (!p.ok) continue;
-    const Eigen::Vector3d a = corrected(ivs[static_cast<size_t>(p.pose_a)]);
-    const Eigen::Vector3d b = corrected(ivs[static_cast<size_t>(p.pose_b)]);
-    Eigen::Vector3d face = 0.5 * (a + b);
-    if (!p.rotation_rad.isZero())
-      face = face.norm() * PairTurnAxis(a.normalized(), b.normalized(), p.rotation_rad);
-    const Face f = ClassifyFace(face.normalized());
-    Eigen::Vector3d ref = Eigen::Vector3d::Zero();
-    ref(f.axis) = f.sign * cap.gravity_m_s2;
-    rep->effect_diagnostics.faces.push_back({f.Label(), face - ref});
-  }
   if (res->effects.empty()) return absl::OkStatus();
   ParamSet& ps = rep->params;
   ps.accel = res->accel;
@@ -858,6 +844,69 @@ absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>
   }
   rep->stages.push_back(st);
   return absl::OkStatus();
+}
+
+// The gyroscope fit's figures in the report: each move's error (in-sample and held out) and
+// rotation, their RMS and maximum, each full turn's error and integrated angle, and the matrix's
+// standard errors. Replaces what an earlier fit put there.
+void ReportGyroFit(const Capture& cap, const std::vector<PlannedMove>& planned,
+                   const std::vector<TurnCandidate>& turns, const GyroStage& gyro,
+                   CalibrationReport* rep) {
+  rep->moves.clear();
+  if (gyro.result) {
+    const auto& gr = *gyro.result;
+    rep->residual.move_rms_deg = Rms(gr.move_error_rad) * kRadToDeg;
+    rep->residual.move_max_deg = Max(gr.move_error_rad) * kRadToDeg;
+    if (!gr.heldout_error_rad.empty()) {
+      rep->residual.move_heldout_rms_deg = RmsFinite(gr.heldout_error_rad) * kRadToDeg;
+      rep->residual.move_heldout_max_deg = Max(gr.heldout_error_rad) * kRadToDeg;
+    }
+    const std::vector<double> in = ToDeg(gr.move_error_rad), out = ToDeg(gr.heldout_error_rad);
+    for (size_t k = 0; k < planned.size() && k < in.size(); ++k) {
+      MoveReport m;
+      m.from_pose = planned[k].from_pose;
+      m.to_pose = planned[k].to_pose;
+      m.error_deg = in[k];
+      if (k < out.size()) m.heldout_error_deg = out[k];
+      m.rotation_deg =
+          IntegrateRotation(cap, planned[k].move.begin, planned[k].move.end, gyro.params).norm() *
+          kRadToDeg;
+      rep->moves.push_back(m);
+    }
+    for (size_t k = 0; k < rep->turns.size() && k < gr.turn_error_rad.size(); ++k)
+      rep->turns[k].error_deg = gr.turn_error_rad[k] * kRadToDeg;
+    for (int c = 0; c < 9; ++c)
+      rep->params.stderrs.gyro_matrix(c % 3, c / 3) = std::sqrt(gr.covariance(c, c));
+  } else {
+    rep->params.stderrs.gyro_matrix.setConstant(kNaN);
+  }
+  // Each turn's integrated angle with the final gyroscope (only when its output is in rad/s).
+  if (gyro.calibrated || !std::isnan(NominalGyroToSi(cap.gyro_unit))) {
+    for (size_t k = 0; k < rep->turns.size() && k < turns.size(); ++k)
+      rep->turns[k].angle_deg = (gyro.params.matrix * turns[k].raw_integral).norm() * kRadToDeg;
+  }
+}
+
+// Per-axis residuals of the verified faces with the stored model and its applied effects at
+// each pose's signals (as the SDK's Corrector would apply them). A face's direction is the axis
+// its pair was turned about (core/protocol.h PairTurnAxis), its size the pair's mean size.
+void FaceResiduals(const Capture& cap, const std::vector<StaticInterval>& ivs,
+                   CalibrationReport* rep) {
+  const double t0 = cap.t_s.empty() ? 0.0 : cap.t_s.front();
+  for (const PairCheck& p : rep->pairs) {
+    if (!p.ok) continue;
+    const Eigen::Vector3d a = CorrectedSpecificForce(rep->params.accel, rep->params.effects,
+                                                     ivs[static_cast<size_t>(p.pose_a)], t0);
+    const Eigen::Vector3d b = CorrectedSpecificForce(rep->params.accel, rep->params.effects,
+                                                     ivs[static_cast<size_t>(p.pose_b)], t0);
+    Eigen::Vector3d face = 0.5 * (a + b);
+    if (!p.rotation_rad.isZero())
+      face = face.norm() * PairTurnAxis(a.normalized(), b.normalized(), p.rotation_rad);
+    const Face f = ClassifyFace(face.normalized());
+    Eigen::Vector3d ref = Eigen::Vector3d::Zero();
+    ref(f.axis) = f.sign * cap.gravity_m_s2;
+    rep->effect_diagnostics.faces.push_back({f.Label(), face - ref});
+  }
 }
 
 std::string Verdict(const CalibrationReport& r, bool degraded) {
@@ -1207,7 +1256,11 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   // 8b. The case frame from the axes the pairs were turned about, now that the gyroscope has
   // measured the turns; the gyroscope, fitted in the frame of step 7, turns with it.
   if (rep.protocol == ProtocolKind::kSixFace && s1_from_faces && gyro.calibrated) {
-    const Eigen::Vector3d angles = TurnAxisFrameAngles(accel, ivs, rep.pairs, g);
+    AccelParams frame_free = accel;
+    frame_free.frame_angles.setZero();
+    const Eigen::Vector3d angles = TurnAxisFrameAngles(rep.pairs, g, [&](int i) {
+      return frame_free.Apply(ivs[static_cast<size_t>(i)].accel_mean);
+    });
     TurnGyroFrame(ExpSo3<double>(angles) * ExpSo3<double>(accel.frame_angles).transpose(), &gyro,
                   &planned);
     accel.frame_angles = angles;
@@ -1239,34 +1292,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     gyro_ss += (gyro.params.matrix * (s.gyro_mean - gyro.params.bias)).squaredNorm();
   }
   rep.residual.gyro_static_rms_rad_s = used.empty() ? 0 : std::sqrt(gyro_ss / used.size());
-  if (gyro.result) {
-    const auto& gr = *gyro.result;
-    rep.residual.move_rms_deg = Rms(gr.move_error_rad) * kRadToDeg;
-    rep.residual.move_max_deg = Max(gr.move_error_rad) * kRadToDeg;
-    if (!gr.heldout_error_rad.empty()) {
-      rep.residual.move_heldout_rms_deg = RmsFinite(gr.heldout_error_rad) * kRadToDeg;
-      rep.residual.move_heldout_max_deg = Max(gr.heldout_error_rad) * kRadToDeg;
-    }
-    const std::vector<double> in = ToDeg(gr.move_error_rad), out = ToDeg(gr.heldout_error_rad);
-    for (size_t k = 0; k < planned.size() && k < in.size(); ++k) {
-      MoveReport m;
-      m.from_pose = planned[k].from_pose;
-      m.to_pose = planned[k].to_pose;
-      m.error_deg = in[k];
-      if (k < out.size()) m.heldout_error_deg = out[k];
-      m.rotation_deg =
-          IntegrateRotation(cap, planned[k].move.begin, planned[k].move.end, gyro.params).norm() *
-          kRadToDeg;
-      rep.moves.push_back(m);
-    }
-    for (size_t k = 0; k < rep.turns.size() && k < gr.turn_error_rad.size(); ++k)
-      rep.turns[k].error_deg = gr.turn_error_rad[k] * kRadToDeg;
-  }
-  // Each turn's integrated angle with the final gyroscope (only when its output is in rad/s).
-  if (gyro.calibrated || !std::isnan(NominalGyroToSi(cap.gyro_unit))) {
-    for (size_t k = 0; k < rep.turns.size() && k < turns.size(); ++k)
-      rep.turns[k].angle_deg = (gyro.params.matrix * turns[k].raw_integral).norm() * kRadToDeg;
-  }
+  ReportGyroFit(cap, planned, turns, gyro, &rep);
 
   // 9. Poses for the report.
   for (size_t i = 0, k = 0; i < ivs.size(); ++i) {
@@ -1298,12 +1324,6 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   for (int c = 0; c < kAccelParams; ++c)
     if (!free[static_cast<size_t>(c)]) se_or_nan(c) = kNaN;
   ps.stderrs.accel = UnpackAccel(se_or_nan, Eigen::Vector3d::Constant(s1_from_faces ? kNaN : 0.0));
-  if (gyro.result) {
-    for (int c = 0; c < 9; ++c)
-      ps.stderrs.gyro_matrix(c % 3, c / 3) = std::sqrt(gyro.result->covariance(c, c));
-  } else {
-    ps.stderrs.gyro_matrix.setConstant(kNaN);
-  }
   // Gyro bias standard error from the scatter of the pose means (includes slow drift).
   if (used.size() >= 2) {
     Eigen::Vector3d ss = Eigen::Vector3d::Zero();
@@ -1329,6 +1349,52 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     absl::Status s =
         SearchEffects(cap, ivs, used, poses, free, gyro_si, planned, gyro, opt.effects, &rep);
     if (!s.ok()) return s;
+    // 11b. Applied accelerometer effects move the pose directions that steps 8 and 8b fitted the
+    // case frame and the gyroscope to: both are fitted again to the corrected directions.
+    bool accel_effect = false;
+    for (const Effect& e : rep.params.effects)
+      accel_effect |= e.sensor == Sensor::kAccel && e.applied;
+    if (accel_effect && gyro.calibrated) {
+      const double t0_s = cap.t_s.front();
+      const auto corrected = [&](int i) {
+        return CorrectedSpecificForce(rep.params.accel, rep.params.effects,
+                                      ivs[static_cast<size_t>(i)], t0_s);
+      };
+      Eigen::Matrix3d turn = Eigen::Matrix3d::Identity();
+      if (rep.protocol == ProtocolKind::kSixFace && s1_from_faces) {
+        const Eigen::Matrix3d frame = ExpSo3<double>(rep.params.accel.frame_angles);
+        const Eigen::Vector3d angles = TurnAxisFrameAngles(
+            rep.pairs, g,
+            [&](int i) -> Eigen::Vector3d { return frame.transpose() * corrected(i); });
+        turn = ExpSo3<double>(angles) * frame.transpose();
+        rep.params.accel.frame_angles = angles;
+      }
+      std::vector<PlannedMove> replanned = planned;
+      for (PlannedMove& m : replanned) {
+        m.move.up_before = corrected(m.from_pose).normalized();
+        m.move.up_after = corrected(m.to_pose).normalized();
+      }
+      GyroParams start = rep.params.gyro;
+      start.matrix = turn * start.matrix;
+      GyroStage refit = SolveGyro(cap, ivs, replanned, turns, start.bias, start);
+      if (refit.calibrated) {
+        rep.params.gyro.matrix = refit.params.matrix;
+        ReportGyroFit(cap, replanned, turns, refit, &rep);
+      } else {  // keep step 8's fit, in the new frame
+        GyroStage turned = gyro;
+        std::vector<PlannedMove> unused = planned;
+        TurnGyroFrame(turn, &turned, &unused);
+        rep.params.gyro.matrix = turned.params.matrix;
+        ReportGyroFit(cap, unused, turns, turned, &rep);
+      }
+    }
+    if (accel_effect) {
+      for (PoseReport& pr : rep.poses)
+        pr.up = CorrectedSpecificForce(rep.params.accel, rep.params.effects, pr.interval,
+                                       cap.t_s.front())
+                    .normalized();
+    }
+    FaceResiduals(cap, ivs, &rep);
     timer.Mark("effects");
   } else if (opt.effects.enabled) {
     rep.effect_diagnostics.notes.push_back(absl::StrFormat(

@@ -3,9 +3,12 @@
 //   capture -> noise level -> static intervals (threshold multiplier swept, the one whose
 //   calibration predicts held-out poses best is kept) -> rough accelerometer -> gyroscope from
 //   the rotations between poses -> protocol (detected or declared) and its checks (six-face
-//   pairs, duplicates) -> accelerometer stages ls, bsas, lm -> final gyroscope -> residuals
-//   in-sample and held-out -> observability -> effects the residual shows (core/effects.h),
-//   refitted jointly -> verdict.
+//   pairs, duplicates) -> accelerometer stages ls, bsas, lm -> final gyroscope -> six-face case
+//   frame from the axes the pairs were turned about (core/protocol.h PairTurnAxis, with the
+//   turns that gyroscope measured; the gyroscope turns with the frame) -> residuals in-sample
+//   and held-out -> observability -> effects the residual shows (core/effects.h), refitted
+//   jointly; with an applied accelerometer effect, the case frame and the gyroscope fitted
+//   again to the pose directions it corrects -> verdict.
 //
 // Captures that cannot determine everything still calibrate what they can, with a warning and a
 // "warn" verdict: fewer than 10 poses give bias and scale only (7 or more, every axis up and
