@@ -147,7 +147,7 @@ struct EffectPoseRow {
 
 // Six-face protocols fix each face's orientation: the per-axis residual of a verified face,
 // calibrated minus +-g on the face axis. The face's reading is its 180-degree pair's mean size
-// along the axis the pair was turned about (core/protocol.h PairTurnAxis): the floor tilt then
+// (the mean of the two sizes) along the axis the pair was turned about (core/protocol.h PairTurnAxis): the floor tilt then
 // cancels whatever the turn's error, where the pair's mean leaves tilt * error / 2.
 struct FaceResidual {
   std::string face;                                         // "X+", ...
