@@ -741,6 +741,27 @@ void SetModelSigma(const AccelParams& p, double g, const AccelMask& free,
 
 // Runs the effect search on the used poses and, when it adds effects, puts its refitted model,
 // effects and residuals into the report.
+// The gravity-direction error after each reported move with its signals, for the effects'
+// examination of the rotation residuals (core/effects.h ExamineMoveResiduals).
+std::vector<EffectMoveResidual> MoveResiduals(const Capture& cap,
+                                              const std::vector<StaticInterval>& ivs,
+                                              const std::vector<MoveReport>& moves) {
+  const double t0 = cap.t_s.empty() ? 0.0 : cap.t_s.front();
+  std::vector<EffectMoveResidual> out;
+  for (const MoveReport& m : moves) {
+    if (!std::isfinite(m.error_deg)) continue;
+    const StaticInterval& a = ivs[static_cast<size_t>(m.from_pose)];
+    const StaticInterval& b = ivs[static_cast<size_t>(m.to_pose)];
+    EffectMoveResidual mr;
+    mr.error_rad = m.error_deg / kRadToDeg;
+    mr.rotation_rad = m.rotation_deg / kRadToDeg;
+    mr.time_s = 0.5 * (a.t_end_s + b.t_start_s) - t0;
+    mr.temp_c = 0.5 * (a.temp_mean + b.temp_mean);
+    out.push_back(mr);
+  }
+  return out;
+}
+
 absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>& ivs,
                            const std::vector<int>& used, const std::vector<AccelPose>& poses,
                            const AccelMask& free, bool gyro_si,
@@ -764,17 +785,7 @@ absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>
     p.time_s = 0.5 * (s.t_start_s + s.t_end_s) - t0;
     in.poses.push_back(p);
   }
-  for (const MoveReport& m : rep->moves) {
-    if (!std::isfinite(m.error_deg)) continue;
-    const StaticInterval& a = ivs[static_cast<size_t>(m.from_pose)];
-    const StaticInterval& b = ivs[static_cast<size_t>(m.to_pose)];
-    EffectMoveResidual mr;
-    mr.error_rad = m.error_deg / kRadToDeg;
-    mr.rotation_rad = m.rotation_deg / kRadToDeg;
-    mr.time_s = 0.5 * (a.t_end_s + b.t_start_s) - t0;
-    mr.temp_c = 0.5 * (a.temp_mean + b.temp_mean);
-    in.moves.push_back(mr);
-  }
+  in.moves = MoveResiduals(cap, ivs, rep->moves);
   // The rotations between poses, for the accelerometer candidates the search weighs (|a| - g
   // cannot tell every one apart): the gyroscope refitted (as in step 8) to the pose directions
   // each candidate gives; core/effects.h, THE MOVES.
@@ -1376,9 +1387,9 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
         m.move.up_before = corrected(m.from_pose).normalized();
         m.move.up_after = corrected(m.to_pose).normalized();
       }
-      GyroParams start = rep.params.gyro;
-      start.matrix = turn * start.matrix;
-      GyroStage refit = SolveGyro(cap, ivs, replanned, turns, start.bias, start);
+      GyroParams initial = rep.params.gyro;
+      initial.matrix = turn * initial.matrix;
+      GyroStage refit = SolveGyro(cap, ivs, replanned, turns, initial.bias, initial);
       if (refit.calibrated) {
         rep.params.gyro.matrix = refit.params.matrix;
         ReportGyroFit(cap, replanned, turns, refit, &rep);
@@ -1389,6 +1400,9 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
         rep.params.gyro.matrix = turned.params.matrix;
         ReportGyroFit(cap, unused, turns, turned, &rep);
       }
+      // The rotation residuals' trends as the refitted model leaves them: what the effect
+      // explained no longer shows as a trend.
+      ExamineMoveResiduals(MoveResiduals(cap, ivs, rep.moves), &rep.effect_diagnostics);
     }
     if (accel_effect) {
       for (PoseReport& pr : rep.poses)

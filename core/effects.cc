@@ -6,6 +6,8 @@
 #include <cstdlib>
 #include <limits>
 #include <memory>
+#include <string>
+#include <string_view>
 #include <utility>
 
 #include "Eigen/Dense"
@@ -893,7 +895,7 @@ class Search {
       ++s;
     }
     FinalNotes(st, *final_fit, &diag);
-    ExamineMoves(&diag);
+    ExamineMoveResiduals(in_.moves, &diag);
     return out;
   }
 
@@ -980,84 +982,6 @@ class Search {
           cands->push_back(std::move(c));
         }
       }
-    }
-  }
-
-  // The rotation residuals: regress the gravity-direction error after each move on each of its
-  // signals (with an intercept); a slope significant at 1% over the signals (Bonferroni) is
-  // reported with its size.
-  void ExamineMoves(EffectDiagnostics* diag) const {
-    const std::vector<EffectMoveResidual>& m = in_.moves;
-    if (m.size() < 6) return;
-    struct MoveSignal {
-      const char* name;
-      const char* unit;
-      double scale;  // signal unit per reported unit
-      double (*get)(const EffectMoveResidual&);
-    };
-    const MoveSignal signals[] = {
-        {"the rotation angle", "per 100 deg", 100 / kRadToDeg,
-         [](const EffectMoveResidual& r) { return r.rotation_rad; }},
-        {"time", "per minute", 60, [](const EffectMoveResidual& r) { return r.time_s; }},
-        {"temperature", "per degC", 1, [](const EffectMoveResidual& r) { return r.temp_c; }},
-    };
-    std::vector<MoveTrend>& trends = diag->move_trends;
-    int tested = 0;
-    std::vector<std::string> found;
-    const auto n = static_cast<Eigen::Index>(m.size());
-    for (const MoveSignal& sig : signals) {
-      Eigen::MatrixXd x(n, 2);
-      Eigen::VectorXd y(n);
-      bool finite = true;
-      for (Eigen::Index i = 0; i < n; ++i) {
-        x(i, 0) = 1;
-        x(i, 1) = sig.get(m[static_cast<size_t>(i)]);
-        y(i) = m[static_cast<size_t>(i)].error_rad;
-        finite &= std::isfinite(x(i, 1));
-      }
-      if (!finite || (x.col(1).array() - x.col(1).mean()).matrix().norm() <= 0) continue;
-      ++tested;
-      const Eigen::VectorXd b = x.colPivHouseholderQr().solve(y);
-      const double rss1 = (y - x * b).squaredNorm();
-      const double rss0 = (y.array() - y.mean()).matrix().squaredNorm();
-      const double dof = static_cast<double>(n - 2);
-      const double f = (rss0 - rss1) / std::max(1e-300, rss1 / dof);
-      // The slope's standard error: sqrt(s^2 / Sxx), s^2 the residual variance about the line.
-      const double sxx = (x.col(1).array() - x.col(1).mean()).matrix().squaredNorm();
-      MoveTrend t;
-      t.signal = sig.name;
-      t.unit = Cat("deg ", sig.unit);
-      t.slope_deg = b(1) * sig.scale * kRadToDeg;
-      t.slope_std_error_deg = std::sqrt(rss1 / dof / sxx) * sig.scale * kRadToDeg;
-      t.f = f;
-      trends.push_back(std::move(t));
-    }
-    const auto dof = static_cast<Eigen::Index>(n - 2);
-    for (MoveTrend& r : trends) {
-      r.f_threshold = FThreshold(0.01, tested, dof);
-      r.significant = r.f > r.f_threshold;
-      if (r.significant) {
-        found.push_back(absl::StrFormat("%s (%+.3f +- %.3f %s, F %.1f)", r.signal, r.slope_deg,
-                                        r.slope_std_error_deg, r.unit, r.f));
-      }
-    }
-    double ss = 0;
-    for (const auto& r : m) ss += r.error_rad * r.error_rad;
-    const double rms_deg = std::sqrt(ss / static_cast<double>(m.size())) * kRadToDeg;
-    if (found.empty()) {
-      diag->notes.push_back(absl::StrFormat(
-          "rotation residuals: the gravity-direction error after the %d moves (%.3f deg RMS) "
-          "shows no trend with the rotation angle, time or temperature",
-          static_cast<int>(m.size()), rms_deg));
-    } else {
-      std::string list;
-      for (const auto& f : found) list += (list.empty() ? "" : "; ") + f;
-      diag->notes.push_back(absl::StrFormat(
-          "rotation residuals: the gravity-direction error after the %d moves (%.3f deg RMS) "
-          "grows with %s: a rate-dependent gyroscope effect (scale nonlinearity, or a drift "
-          "during moves) that static poses cannot test; moves of different sizes and speeds "
-          "would locate it",
-          static_cast<int>(m.size()), rms_deg, list));
     }
   }
 
@@ -1399,6 +1323,86 @@ std::string HumanCoefficient(const Effect& e) {
   }
   if (units.empty() && !ppm) unit += " per regressor unit";
   return absl::StrFormat("%.4g +- %.2g %s", e.coefficient * factor, e.std_error * factor, unit);
+}
+
+// The rotation residuals: regress the gravity-direction error after each move on each of its
+// signals (with an intercept); a slope significant at 1% over the signals (Bonferroni) is
+// reported with its size.
+void ExamineMoveResiduals(const std::vector<EffectMoveResidual>& m, EffectDiagnostics* diag) {
+  constexpr std::string_view kNote = "rotation residuals: ";
+  std::vector<MoveTrend>& trends = diag->move_trends;
+  trends.clear();
+  std::erase_if(diag->notes, [&](const std::string& note) { return note.starts_with(kNote); });
+  if (m.size() < 6) return;
+  struct MoveSignal {
+    const char* name;
+    const char* unit;
+    double scale;  // signal unit per reported unit
+    double (*get)(const EffectMoveResidual&);
+  };
+  const MoveSignal signals[] = {
+      {"the rotation angle", "per 100 deg", 100 / kRadToDeg,
+       [](const EffectMoveResidual& r) { return r.rotation_rad; }},
+      {"time", "per minute", 60, [](const EffectMoveResidual& r) { return r.time_s; }},
+      {"temperature", "per degC", 1, [](const EffectMoveResidual& r) { return r.temp_c; }},
+  };
+  int tested = 0;
+  std::vector<std::string> found;
+  const auto n = static_cast<Eigen::Index>(m.size());
+  for (const MoveSignal& sig : signals) {
+    Eigen::MatrixXd x(n, 2);
+    Eigen::VectorXd y(n);
+    bool finite = true;
+    for (Eigen::Index i = 0; i < n; ++i) {
+      x(i, 0) = 1;
+      x(i, 1) = sig.get(m[static_cast<size_t>(i)]);
+      y(i) = m[static_cast<size_t>(i)].error_rad;
+      finite &= std::isfinite(x(i, 1));
+    }
+    if (!finite || (x.col(1).array() - x.col(1).mean()).matrix().norm() <= 0) continue;
+    ++tested;
+    const Eigen::VectorXd b = x.colPivHouseholderQr().solve(y);
+    const double rss1 = (y - x * b).squaredNorm();
+    const double rss0 = (y.array() - y.mean()).matrix().squaredNorm();
+    const double dof = static_cast<double>(n - 2);
+    const double f = (rss0 - rss1) / std::max(1e-300, rss1 / dof);
+    // The slope's standard error: sqrt(s^2 / Sxx), s^2 the residual variance about the line.
+    const double sxx = (x.col(1).array() - x.col(1).mean()).matrix().squaredNorm();
+    MoveTrend t;
+    t.signal = sig.name;
+    t.unit = Cat("deg ", sig.unit);
+    t.slope_deg = b(1) * sig.scale * kRadToDeg;
+    t.slope_std_error_deg = std::sqrt(rss1 / dof / sxx) * sig.scale * kRadToDeg;
+    t.f = f;
+    trends.push_back(std::move(t));
+  }
+  const auto dof = static_cast<Eigen::Index>(n - 2);
+  for (MoveTrend& r : trends) {
+    r.f_threshold = FThreshold(0.01, tested, dof);
+    r.significant = r.f > r.f_threshold;
+    if (r.significant) {
+      found.push_back(absl::StrFormat("%s (%+.3f +- %.3f %s, F %.1f)", r.signal, r.slope_deg,
+                                      r.slope_std_error_deg, r.unit, r.f));
+    }
+  }
+  double ss = 0;
+  for (const auto& r : m) ss += r.error_rad * r.error_rad;
+  const double rms_deg = std::sqrt(ss / static_cast<double>(m.size())) * kRadToDeg;
+  if (found.empty()) {
+    diag->notes.push_back(absl::StrFormat(
+        "rotation residuals: the gravity-direction error after the %d moves (%.3f deg RMS) "
+        "shows no trend with the rotation angle, time or temperature",
+        static_cast<int>(m.size()), rms_deg));
+  } else {
+    std::string list;
+    for (const auto& f : found) list += (list.empty() ? "" : "; ") + f;
+    diag->notes.push_back(absl::StrFormat(
+        "rotation residuals: the gravity-direction error after the %d moves (%.3f deg RMS) "
+        "grows with %s: a rate-dependent gyroscope effect (scale nonlinearity, or a drift "
+        "during moves) that static poses cannot test; moves of different sizes and speeds "
+        "would locate it",
+        static_cast<int>(m.size()), rms_deg, list));
+  }
 }
 
 }  // namespace imucal::core

@@ -147,8 +147,9 @@ struct EffectPoseRow {
 
 // Six-face protocols fix each face's orientation: the per-axis residual of a verified face,
 // calibrated minus +-g on the face axis. The face's reading is its 180-degree pair's mean size
-// (the mean of the two sizes) along the axis the pair was turned about (core/protocol.h PairTurnAxis): the floor tilt then
-// cancels whatever the turn's error, where the pair's mean leaves tilt * error / 2.
+// (the mean of the two sizes) along the axis the pair was turned about (core/protocol.h
+// PairTurnAxis): the floor tilt then cancels whatever the turn's error, where the pair's mean
+// leaves tilt * error / 2.
 struct FaceResidual {
   std::string face;                                         // "X+", ...
   Eigen::Vector3d residual_m_s2 = Eigen::Vector3d::Zero();  // body frame, with the stored model
@@ -217,6 +218,12 @@ struct EffectSearchResult {
 // with too few poses it says how few and returns the model unchanged.
 absl::StatusOr<EffectSearchResult> FindEffects(const EffectSearchInput& input,
                                                const EffectSearchOptions& options);
+
+// The rotation residuals examined for structure (EffectSearchInput::moves): fills
+// diag->move_trends and adds the "rotation residuals: ..." note, replacing what an earlier
+// examination put there (the pipeline examines the moves again after it refits the gyroscope to
+// the directions an applied accelerometer effect corrects). Fewer than 6 moves: nothing.
+void ExamineMoveResiduals(const std::vector<EffectMoveResidual>& moves, EffectDiagnostics* diag);
 
 // The effect's coefficient in the units an engineer uses: mg/degC, deg/s per g, ppm/degC, ...,
 // with its standard error: "0.52 +- 0.03 mg/degC".
