@@ -739,8 +739,6 @@ void SetModelSigma(const AccelParams& p, double g, const AccelMask& free,
   for (auto& pose : *poses) pose.model_sigma_m_s2 = tau;
 }
 
-// Runs the effect search on the used poses and, when it adds effects, puts its refitted model,
-// effects and residuals into the report.
 // The gravity-direction error after each reported move with its signals, for the effects'
 // examination of the rotation residuals (core/effects.h ExamineMoveResiduals).
 std::vector<EffectMoveResidual> MoveResiduals(const Capture& cap,
@@ -762,6 +760,8 @@ std::vector<EffectMoveResidual> MoveResiduals(const Capture& cap,
   return out;
 }
 
+// Runs the effect search on the used poses and, when it adds effects, puts its refitted model,
+// effects and residuals into the report.
 absl::Status SearchEffects(const Capture& cap, const std::vector<StaticInterval>& ivs,
                            const std::vector<int>& used, const std::vector<AccelPose>& poses,
                            const AccelMask& free, bool gyro_si,
@@ -864,6 +864,9 @@ void ReportGyroFit(const Capture& cap, const std::vector<PlannedMove>& planned,
                    const std::vector<TurnCandidate>& turns, const GyroStage& gyro,
                    CalibrationReport* rep) {
   rep->moves.clear();
+  rep->residual.move_rms_deg = rep->residual.move_max_deg = kNaN;
+  rep->residual.move_heldout_rms_deg = rep->residual.move_heldout_max_deg = kNaN;
+  for (TurnReport& t : rep->turns) t.error_deg = kNaN;
   if (gyro.result) {
     const auto& gr = *gyro.result;
     rep->residual.move_rms_deg = Rms(gr.move_error_rad) * kRadToDeg;
@@ -1263,8 +1266,10 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     const StaticInterval& b = ivs[static_cast<size_t>(p.pose_b)];
     GyroParams at_pair = gyro.params;
     at_pair.bias = 0.5 * (a.gyro_mean + b.gyro_mean);
-    p.rotation_rad = IntegrateRotation(cap, a.end - 1, b.begin, at_pair);
-    p.rotation_deg = p.rotation_rad.norm() * kRadToDeg;
+    const Eigen::Vector3d turn = IntegrateRotation(cap, a.end - 1, b.begin, at_pair);
+    p.rotation_deg = turn.norm() * kRadToDeg;
+    // Only a calibrated gyroscope's angle is good to the milliradians the turn axis needs.
+    if (gyro.calibrated) p.rotation_rad = turn;
   }
   // 8b. The case frame from the axes the pairs were turned about, now that the gyroscope has
   // measured the turns; the gyroscope, fitted in the frame of step 7, turns with it.
@@ -1389,15 +1394,18 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
       }
       GyroParams initial = rep.params.gyro;
       initial.matrix = turn * initial.matrix;
+      initial.accel_coupling = turn * initial.accel_coupling * turn.transpose();
       GyroStage refit = SolveGyro(cap, ivs, replanned, turns, initial.bias, initial);
       if (refit.calibrated) {
         rep.params.gyro.matrix = refit.params.matrix;
+        rep.params.gyro.accel_coupling = refit.params.accel_coupling;
         ReportGyroFit(cap, replanned, turns, refit, &rep);
       } else {  // keep step 8's fit, in the new frame
         GyroStage turned = gyro;
         std::vector<PlannedMove> unused = planned;
         TurnGyroFrame(turn, &turned, &unused);
         rep.params.gyro.matrix = turned.params.matrix;
+        rep.params.gyro.accel_coupling = turned.params.accel_coupling;
         ReportGyroFit(cap, unused, turns, turned, &rep);
       }
       // The rotation residuals' trends as the refitted model leaves them: what the effect
@@ -1405,10 +1413,13 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
       ExamineMoveResiduals(MoveResiduals(cap, ivs, rep.moves), &rep.effect_diagnostics);
     }
     if (accel_effect) {
-      for (PoseReport& pr : rep.poses)
+      for (PoseReport& pr : rep.poses) {
         pr.up = CorrectedSpecificForce(rep.params.accel, rep.params.effects, pr.interval,
                                        cap.t_s.front())
                     .normalized();
+        const Face f = ClassifyFace(pr.up);
+        pr.face = f.off_axis_deg <= kFaceToleranceDeg ? f.Label() : "";
+      }
     }
     FaceResiduals(cap, ivs, &rep);
     timer.Mark("effects");

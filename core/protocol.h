@@ -56,8 +56,8 @@ struct PairCheck {
   double tilt_deg = 0;      // half the angle between the two up directions (floor tilt)
   double rotation_deg = 0;  // gyro-integrated rotation between the poses about the vertical
   // The calibrated gyroscope's body rotation vector from pose a to pose b, rad (Exp = R_a^T R_b):
-  // calibrate.cc measures it once the gyroscope is calibrated. Zero until then, and when the
-  // turn crossed a time gap (not measured).
+  // calibrate.cc measures it once the gyroscope is calibrated. Zero until then, when the
+  // gyroscope could not be calibrated, and when the turn crossed a time gap (not measured).
   Eigen::Vector3d rotation_rad = Eigen::Vector3d::Zero();
   std::string face;
   std::string reason;  // why rejected, in a technician's words
@@ -99,8 +99,10 @@ SixFaceCheck CheckSixFacePairs(const std::vector<FacePose>& poses,
 // in the plane's coordinates), the axis is tilted from the mean by phi, sin phi = tan t /
 // tan(|turn| / 2), towards the side the turn's sense selects. Only |turn| and the sign of turn
 // along the mean are read, so the gyro's own misalignment (what the frame is used to fit) does
-// not enter. Returns the mean direction when the ups coincide, or when the turn is too far from
-// 180 degrees for this to be a pair (|phi| would exceed 0.1 rad).
+// not enter. Returns the mean direction when the ups coincide or there is no turn, and when the
+// axis would lie more than 0.1 rad from the mean (a turn far from 180 degrees on a steep floor;
+// at 1 degree of tilt, a turn under about 20 degrees). The caller passes only turns measured by
+// a calibrated gyroscope, of pairs whose turn was verified near 180 degrees.
 Eigen::Vector3d PairTurnAxis(const Eigen::Vector3d& up_a, const Eigen::Vector3d& up_b,
                              const Eigen::Vector3d& turn_rad);
 
