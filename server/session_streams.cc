@@ -190,7 +190,8 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
  public:
   static constexpr size_t kMaxQueued = 256;
 
-  // Holds one of the session's watcher slots (taken by the caller), released in OnDone.
+  // Holds one of the session's watcher slots (taken by the caller), released when the watcher
+  // cancels or, at the latest, in OnDone.
   WatchReactor(SessionHub* hub, StreamSlots* slots, std::shared_ptr<LiveSession> live,
                v1::Session snapshot, bool six_face_next, const core::NextPoseUpdate& next)
       : hub_(hub), slots_(slots), live_(std::move(live)) {
@@ -226,31 +227,51 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
     WriteNextLocked();
   }
 
+  // A write may still succeed after OnCancel (its bytes were already with the transport), so a
+  // cancelled watch ends here whatever `ok` says; else it would wait for an event that never
+  // comes and keep its slot.
   void OnWriteDone(bool ok) override {
     std::lock_guard lock(mu_);
     writing_ = false;
     queue_.pop_front();
-    if (!ok) {
+    if (!ok || cancelled_) {
       FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "the watcher went away"));
       return;
     }
     WriteNextLocked();
   }
 
+  // The slot is free as soon as the watcher is known gone, not when the last write drains: a
+  // watcher that cancels may be followed by another at once.
   void OnCancel() override {
     std::lock_guard lock(mu_);
+    cancelled_ = true;
+    ReleaseSlotLocked();
     if (!writing_) FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"));
   }
 
   void OnDone() override {
     hub_->RemoveWatcher(*live_, this);
-    slots_->Release(live_->id);
+    {
+      std::lock_guard lock(mu_);
+      ReleaseSlotLocked();
+    }
     delete this;
   }
 
  private:
+  void ReleaseSlotLocked() {
+    if (!slot_held_) return;
+    slot_held_ = false;
+    slots_->Release(live_->id);
+  }
+
   void WriteNextLocked() {
     if (finished_ || writing_) return;
+    if (cancelled_) {
+      FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"));
+      return;
+    }
     if (!queue_.empty()) {
       writing_ = true;
       StartWrite(&queue_.front());
@@ -285,6 +306,8 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
   bool writing_ = false;                // guarded by mu_
   bool closing_ = false;                // guarded by mu_
   bool finished_ = false;               // guarded by mu_
+  bool cancelled_ = false;              // guarded by mu_
+  bool slot_held_ = true;               // guarded by mu_; taken by WatchSession before construction
 };
 
 // A stream that fails before it starts.
