@@ -517,12 +517,9 @@ FaceReferences VerifiedFaces(const std::vector<StaticInterval>& ivs,
   FaceReferences out;
   for (const PairCheck& p : pairs) {
     if (!p.ok) continue;
-    const Face f = ClassifyFace(ups[static_cast<size_t>(p.pose_a)]);
-    Eigen::Vector3d ref = Eigen::Vector3d::Zero();
-    ref(f.axis) = f.sign * g;
     out.means.push_back(0.5 * (ivs[static_cast<size_t>(p.pose_a)].accel_mean +
                                ivs[static_cast<size_t>(p.pose_b)].accel_mean));
-    out.refs.push_back(ref);
+    out.refs.push_back(ClassifyFace(ups[static_cast<size_t>(p.pose_a)]).Reference(g));
   }
   return out;
 }
@@ -599,25 +596,27 @@ Eigen::Vector3d FrameAngles(const AccelParams& accel, const FaceReferences& face
   return aa.angle() * aa.axis();
 }
 
-// The case frame as FrameAngles, with each verified pair's face direction the axis the unit was
-// turned about (core/protocol.h PairTurnAxis, from the turn the calibrated gyroscope measured)
-// instead of the pair's mean, which a turn of 180 + e degrees on a floor tilted by t leaves
-// t * e / 2 off. A pair whose turn was not measured keeps its mean. `frame_free(i)` is the
-// specific force of pose i (an index of ivs) in the model's frame-free output.
+// A verified pair's face direction (unit) from its two poses' specific forces `a` and `b`: the
+// axis the unit was turned about (core/protocol.h PairTurnAxis, from the turn the calibrated
+// gyroscope measured) instead of the pair's mean, which a turn of 180 + e degrees on a floor
+// tilted by t leaves t * e / 2 off. A pair whose turn was not measured keeps its mean.
+Eigen::Vector3d PairFaceAxis(const PairCheck& p, const Eigen::Vector3d& a,
+                             const Eigen::Vector3d& b) {
+  return p.rotation_rad.isZero() ? (a + b).normalized()
+                                 : PairTurnAxis(a.normalized(), b.normalized(), p.rotation_rad);
+}
+
+// The case frame as FrameAngles, with each verified pair's face direction its PairFaceAxis.
+// `frame_free(i)` is the specific force of pose i (an index of ivs) in the model's frame-free
+// output.
 Eigen::Vector3d TurnAxisFrameAngles(const std::vector<PairCheck>& pairs, double g,
                                     const std::function<Eigen::Vector3d(int)>& frame_free) {
   std::vector<Eigen::Vector3d> out, refs;
   for (const PairCheck& p : pairs) {
     if (!p.ok) continue;
-    const Eigen::Vector3d a = frame_free(p.pose_a), b = frame_free(p.pose_b);
-    const Eigen::Vector3d axis = p.rotation_rad.isZero()
-                                     ? (a + b).normalized()
-                                     : PairTurnAxis(a.normalized(), b.normalized(), p.rotation_rad);
-    const Face f = ClassifyFace(axis);
-    Eigen::Vector3d ref = Eigen::Vector3d::Zero();
-    ref(f.axis) = f.sign * g;
+    const Eigen::Vector3d axis = PairFaceAxis(p, frame_free(p.pose_a), frame_free(p.pose_b));
     out.push_back(g * axis);
-    refs.push_back(ref);
+    refs.push_back(ClassifyFace(axis).Reference(g));
   }
   const Eigen::AngleAxisd aa(BestFitRotation(out, refs));
   return aa.angle() * aa.axis();
@@ -640,14 +639,20 @@ Eigen::Vector3d CorrectedSpecificForce(const AccelParams& accel, const std::vect
   return a;
 }
 
+// Turns the gyroscope's output frame by `d` (new body = d * old body): its matrix and its
+// coupling to specific force (which is in the body frame on both sides).
+void TurnGyroParams(const Eigen::Matrix3d& d, GyroParams* gyro) {
+  gyro->matrix = d * gyro->matrix;
+  gyro->accel_coupling = d * gyro->accel_coupling * d.transpose();
+}
+
 // Turns the gyroscope's output frame by `d` (new body = d * old body) with the accelerometer's:
-// the matrix, its covariance (vec(d M) = (I kron d) vec(M)), the coupling to specific force and
-// the moves' up directions. Every move residual stays as it was. A covariance with undetermined
-// (NaN) entries is left as it is: the frame moves by under a milliradian, far below what those
-// entries' neighbours are known to.
+// TurnGyroParams, the fit's matrix and covariance (vec(d M) = (I kron d) vec(M)) and, unless
+// null, the moves' up directions. Every move residual stays as it was. A covariance with
+// undetermined (NaN) entries is left as it is: the frame moves by under a milliradian, far below
+// what those entries' neighbours are known to.
 void TurnGyroFrame(const Eigen::Matrix3d& d, GyroStage* gyro, std::vector<PlannedMove>* planned) {
-  gyro->params.matrix = d * gyro->params.matrix;
-  gyro->params.accel_coupling = d * gyro->params.accel_coupling * d.transpose();
+  TurnGyroParams(d, &gyro->params);
   if (gyro->result) {
     gyro->result->matrix = d * gyro->result->matrix;
     Eigen::Matrix<double, 9, 9> k = Eigen::Matrix<double, 9, 9>::Zero();
@@ -655,6 +660,7 @@ void TurnGyroFrame(const Eigen::Matrix3d& d, GyroStage* gyro, std::vector<Planne
     if (gyro->result->covariance.allFinite())
       gyro->result->covariance = k * gyro->result->covariance * k.transpose();
   }
+  if (planned == nullptr) return;
   for (PlannedMove& m : *planned) {
     m.move.up_before = d * m.move.up_before;
     m.move.up_after = d * m.move.up_after;
@@ -914,14 +920,10 @@ void FaceResiduals(const Capture& cap, const std::vector<StaticInterval>& ivs,
     const Eigen::Vector3d b = CorrectedSpecificForce(rep->params.accel, rep->params.effects,
                                                      ivs[static_cast<size_t>(p.pose_b)], t0);
     // The mean of the two sizes: the mean vector is shorter by cos(tilt), 0.15 mg at 1 degree.
-    const Eigen::Vector3d axis = p.rotation_rad.isZero()
-                                     ? (a + b).normalized()
-                                     : PairTurnAxis(a.normalized(), b.normalized(), p.rotation_rad);
+    const Eigen::Vector3d axis = PairFaceAxis(p, a, b);
     const Eigen::Vector3d face = 0.5 * (a.norm() + b.norm()) * axis;
-    const Face f = ClassifyFace(face.normalized());
-    Eigen::Vector3d ref = Eigen::Vector3d::Zero();
-    ref(f.axis) = f.sign * cap.gravity_m_s2;
-    rep->effect_diagnostics.faces.push_back({f.Label(), face - ref});
+    const Face f = ClassifyFace(axis);
+    rep->effect_diagnostics.faces.push_back({f.Label(), face - f.Reference(cap.gravity_m_s2)});
   }
 }
 
@@ -1393,20 +1395,18 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
         m.move.up_after = corrected(m.to_pose).normalized();
       }
       GyroParams initial = rep.params.gyro;
-      initial.matrix = turn * initial.matrix;
-      initial.accel_coupling = turn * initial.accel_coupling * turn.transpose();
+      TurnGyroParams(turn, &initial);
       GyroStage refit = SolveGyro(cap, ivs, replanned, turns, initial.bias, initial);
       if (refit.calibrated) {
         rep.params.gyro.matrix = refit.params.matrix;
         rep.params.gyro.accel_coupling = refit.params.accel_coupling;
         ReportGyroFit(cap, replanned, turns, refit, &rep);
-      } else {  // keep step 8's fit, in the new frame
+      } else {  // keep step 8's fit, in the new frame (the moves' ups are not reported)
         GyroStage turned = gyro;
-        std::vector<PlannedMove> unused = planned;
-        TurnGyroFrame(turn, &turned, &unused);
+        TurnGyroFrame(turn, &turned, nullptr);
         rep.params.gyro.matrix = turned.params.matrix;
         rep.params.gyro.accel_coupling = turned.params.accel_coupling;
-        ReportGyroFit(cap, unused, turns, turned, &rep);
+        ReportGyroFit(cap, planned, turns, turned, &rep);
       }
       // The rotation residuals' trends as the refitted model leaves them: what the effect
       // explained no longer shows as a trend.

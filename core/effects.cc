@@ -1389,19 +1389,19 @@ void ExamineMoveResiduals(const std::vector<EffectMoveResidual>& m, EffectDiagno
   for (const auto& r : m) ss += r.error_rad * r.error_rad;
   const double rms_deg = std::sqrt(ss / static_cast<double>(m.size())) * kRadToDeg;
   if (found.empty()) {
-    diag->notes.push_back(absl::StrFormat(
-        "rotation residuals: the gravity-direction error after the %d moves (%.3f deg RMS) "
-        "shows no trend with the rotation angle, time or temperature",
-        static_cast<int>(m.size()), rms_deg));
+    diag->notes.push_back(
+        Cat(kNote, absl::StrFormat("the gravity-direction error after the %d moves (%.3f deg RMS) "
+                                   "shows no trend with the rotation angle, time or temperature",
+                                   static_cast<int>(m.size()), rms_deg)));
   } else {
     std::string list;
     for (const auto& f : found) list += (list.empty() ? "" : "; ") + f;
-    diag->notes.push_back(absl::StrFormat(
-        "rotation residuals: the gravity-direction error after the %d moves (%.3f deg RMS) "
-        "grows with %s: a rate-dependent gyroscope effect (scale nonlinearity, or a drift "
-        "during moves) that static poses cannot test; moves of different sizes and speeds "
-        "would locate it",
-        static_cast<int>(m.size()), rms_deg, list));
+    diag->notes.push_back(Cat(
+        kNote, absl::StrFormat("the gravity-direction error after the %d moves (%.3f deg RMS) "
+                               "grows with %s: a rate-dependent gyroscope effect (scale "
+                               "nonlinearity, or a drift during moves) that static poses cannot "
+                               "test; moves of different sizes and speeds would locate it",
+                               static_cast<int>(m.size()), rms_deg, list)));
   }
 }
 

@@ -125,6 +125,12 @@ std::string Face::Label() const {
   return absl::StrFormat("%c%c", "XYZ"[axis], sign > 0 ? '+' : '-');
 }
 
+Eigen::Vector3d Face::Reference(double g) const {
+  Eigen::Vector3d ref = Eigen::Vector3d::Zero();
+  ref(axis) = sign * g;
+  return ref;
+}
+
 Face ClassifyFace(const Eigen::Vector3d& up_body) {
   Face f;
   const Eigen::Vector3d u = up_body.normalized();

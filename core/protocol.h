@@ -33,6 +33,9 @@ struct Face {
   int sign = 1;               // +1: that axis points up (reads +g)
   double off_axis_deg = 0;    // angle between up and that axis
   std::string Label() const;  // "Z+", "X-", ...
+  // What the face reads at rest: `g` on its axis with its sign, zero on the others (in the unit
+  // of g: m/s^2 when g is).
+  Eigen::Vector3d Reference(double g) const;
   bool operator==(const Face& o) const { return axis == o.axis && sign == o.sign; }
 };
 Face ClassifyFace(const Eigen::Vector3d& up_body);
