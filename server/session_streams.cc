@@ -227,14 +227,11 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
     WriteNextLocked();
   }
 
-  // A write may still succeed after OnCancel (its bytes were already with the transport), so a
-  // cancelled watch ends here whatever `ok` says; else it would wait for an event that never
-  // comes and keep its slot.
   void OnWriteDone(bool ok) override {
     std::lock_guard lock(mu_);
     writing_ = false;
     queue_.pop_front();
-    if (!ok || cancelled_) {
+    if (!ok) {
       FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "the watcher went away"));
       return;
     }
@@ -247,7 +244,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
     std::lock_guard lock(mu_);
     cancelled_ = true;
     ReleaseSlotLocked();
-    if (!writing_) FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"));
+    WriteNextLocked();
   }
 
   void OnDone() override {
@@ -266,6 +263,10 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>, pu
     slots_->Release(live_->id);
   }
 
+  // Writes the next event, or ends the call. A cancelled watch ends here, at once or when its
+  // write in flight completes: that write may still succeed after OnCancel (its bytes were
+  // already with the transport), and the watch would otherwise wait, slot held, for an event
+  // that never comes.
   void WriteNextLocked() {
     if (finished_ || writing_) return;
     if (cancelled_) {
