@@ -303,10 +303,10 @@ TEST(CalibrateTest, ExactHalfTurnsGiveSixOkPairsNearOneEighty) {
 
 // A pair's mean cancels the floor's tilt only for an exact half turn: 180 + e degrees on a floor
 // tilted by t leaves t * e / 2 (2 degrees and turn errors of 5 degrees standard deviation: about
-// 1.5 mrad) in the face direction, hence in the
-// case frame and in the gyroscope matrix fitted in it, many times their standard errors. The
-// calibrated gyroscope measures each turn and the frame is taken from the turn axes: frame and
-// gyroscope matrix then agree with the truth to their noise, and so do the faces' residuals.
+// 1.5 mrad) in the face direction, hence in the case frame and in the gyroscope matrix fitted in
+// it, many times their standard errors. The calibrated gyroscope measures each turn and the
+// frame is taken from the turn axes: frame and gyroscope matrix then agree with the truth to
+// their noise, and so do the faces' residuals.
 TEST(CalibrateTest, TurnErrorsOnATiltedFloorDoNotTurnTheFrame) {
   for (uint64_t seed = 1; seed <= 4; ++seed) {
     SCOPED_TRACE(absl::StrFormat("simulation seed %d", seed));
