@@ -28,7 +28,8 @@
 #include "absl/strings/str_format.h"
 #include "benchmark/benchmark.h"
 #include "core/accel_solver.h"
-#include "core/calibrate.h"
+#include "core/calibrate/accel_stage.h"
+#include "core/calibrate/calibrate.h"
 #include "core/capture_io.h"
 #include "core/crb.h"
 #include "core/model.h"
@@ -210,23 +211,6 @@ absl::StatusOr<AccelParams> SixFaceStageOne(const SimResult& sim,
   return FitKnownReferences(means, refs);
 }
 
-// BSAS units as Calibrate chooses them: the stage-1 standard error of every free parameter.
-AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& poses,
-                          const AccelMask& free) {
-  const Eigen::MatrixXd j = MagnitudeJacobian(p, poses);
-  const std::vector<double> sigma = MagnitudeSigmas(p, poses);
-  Eigen::MatrixXd jw = j;
-  for (Eigen::Index i = 0; i < jw.rows(); ++i) jw.row(i) /= sigma[static_cast<size_t>(i)];
-  const Eigen::MatrixXd cov =
-      (jw.transpose() * jw).ldlt().solve(Eigen::MatrixXd::Identity(kAccelParams, kAccelParams));
-  AccelVector unit = AccelVector::Ones();
-  for (int c = 0; c < kAccelParams; ++c) {
-    const double s = std::sqrt(std::abs(cov(c, c)));
-    if (free[static_cast<size_t>(c)] && std::isfinite(s) && s > 0) unit(c) = s;
-  }
-  return unit;
-}
-
 // sum_i (r_i / sigma_i)^2 with sigma_i at the start: the cost both BSAS and LM minimise.
 double WeightedCost(const AccelParams& p, const std::vector<AccelPose>& poses,
                     const std::vector<double>& sigma, double g) {
@@ -257,12 +241,12 @@ std::optional<StageProblem> MakeStageProblem(uint64_t seed) {
   const auto s1 = SixFaceStageOne(p.sim, p.poses, p.g);
   if (!s1.ok()) return std::nullopt;
   p.start = *s1;
-  p.tau = EstimateModelSigma(p.start, p.poses, p.g, 9);
-  for (AccelPose& pose : p.poses) pose.model_sigma_m_s2 = p.tau;
+  pipeline::SetModelSigma(p.start, p.g, MaskOf(kAccelFirstOrder), &p.poses);  // as Calibrate does
+  p.tau = p.poses.empty() ? 0.0 : p.poses.front().model_sigma_m_s2;
   AccelMask all{};
   all.fill(true);
   p.free = AnalyseAccelObservability(p.start, p.poses, p.g, all).determined;
-  p.unit = StageOneUnits(p.start, p.poses, p.free);
+  p.unit = pipeline::StageOneUnits(p.start, p.poses, p.free);  // as Calibrate chooses them
   return p;
 }
 
@@ -422,7 +406,8 @@ void PrintXsens() {
         "      |a|-g held-out (LOO)        RMS %.1f ug, max %.1f ug\n"
         "      gravity direction in-sample RMS %.3f deg, max %.3f deg (after each move)\n"
         "      gravity direction held-out  RMS %.3f deg, max %.3f deg\n",
-        use_bsas, cap->size(), import_ms, rep->total_ms, rep->verdict.c_str(),
+        use_bsas, cap->size(), import_ms, rep->total_ms,
+        std::string(VerdictName(rep->verdict)).c_str(),
         std::string(ProtocolKindName(rep->protocol)).c_str(), used, rep->poses.size(),
         rep->threshold_multiplier, ug * r.accel_rms_m_s2, ug * r.accel_max_m_s2,
         ug * r.accel_heldout_rms_m_s2, ug * r.accel_heldout_max_m_s2, r.move_rms_deg,

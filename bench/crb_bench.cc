@@ -28,7 +28,7 @@
 #include "Eigen/Core"
 #include "absl/strings/str_format.h"
 #include "core/accel_solver.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "core/crb.h"
 #include "core/model.h"
 #include "core/simulator.h"
@@ -77,7 +77,7 @@ std::pair<size_t, size_t> HoldSamples(const Capture& cap, const SimPose& hold) {
 // One Calibrate() run against its truth and bounds.
 struct Run {
   uint64_t seed = 0;
-  std::string verdict;
+  Verdict verdict = Verdict::kFail;
   AccelMask free{};  // what Calibrate estimated
   AccelVector err, crb_used, crb_holds, crb_full, se;
   Eigen::Vector3d gyro_err, gyro_crb;
@@ -184,7 +184,7 @@ void Print(const std::vector<Run>& runs, int seeds) {
   for (const Run& r : runs) {
     used_samples += r.used_samples;
     hold_samples += r.hold_samples;
-    if (r.verdict == "fail") failed += absl::StrFormat(" %d", r.seed);
+    if (r.verdict == Verdict::kFail) failed += absl::StrFormat(" %d", r.seed);
   }
   std::printf(
       "CRB efficiency of Calibrate(): six-face + 24 extra poses, noise 0.02 m/s^2 and 0.002 "
@@ -193,7 +193,7 @@ void Print(const std::vector<Run>& runs, int seeds) {
       "Verdict 'fail' in %d runs:%s\n",
       seeds, seeds - n, used_samples / n, hold_samples / n,
       static_cast<int>(std::count_if(runs.begin(), runs.end(),
-                                     [](const Run& r) { return r.verdict == "fail"; })),
+                                     [](const Run& r) { return r.verdict == Verdict::kFail; })),
       failed.empty() ? " none" : failed.c_str());
   std::printf(
       "ratio = RMS(estimate - truth) / RMS(CRB) over the runs and axes where the parameter was "
@@ -233,7 +233,7 @@ void Print(const std::vector<Run>& runs, int seeds) {
   }
   std::printf("(tri_angles couple two axes; its split is by the first axis of the pair.)\n");
   if (!failed.empty()) {
-    auto passed = [](const Run& r, int) { return r.verdict != "fail"; };
+    auto passed = [](const Run& r, int) { return r.verdict != Verdict::kFail; };
     std::printf("\nexcluding the runs with verdict 'fail':\n");
     for (int g = 0; g < 4; ++g) {
       PrintRatioRow(kGroups[g], GroupRatios(runs, Group(g), passed), 3 * n);

@@ -24,7 +24,7 @@
 #include <vector>
 
 #include "absl/strings/str_format.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "tests/core/effect_scenarios.h"
 
 namespace imucal::core {

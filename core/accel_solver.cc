@@ -15,7 +15,8 @@ namespace imucal::core {
 namespace {
 
 // Residual of one static pose:  r = (|a(u)| - g) / sigma,  a(u) = L(tri) * z(u) - offset, where
-// z_i = y_i + q_i y_i^2 and y = diag(scale) (u - bias) (core/model.h). frame_angles drop out.
+// z = AccelModel::PerAxis(u) (core/model.h: z_i = y_i + q_i y_i^2, y = diag(scale) (u - bias)).
+// frame_angles drop out of |a|.
 struct MagnitudeError {
   MagnitudeError(const Eigen::Vector3d& u, const Eigen::Vector3d& offset, double g,
                  double inv_sigma)
@@ -23,10 +24,13 @@ struct MagnitudeError {
 
   template <typename T>
   bool operator()(const T* bias, const T* scale, const T* tri, const T* quad, T* r) const {
-    const Eigen::Map<const Vec3<T>> b(bias), s(scale), t(tri), q(quad);
-    const Vec3<T> y = s.cwiseProduct(u_.cast<T>() - b);
-    const Vec3<T> z = y + q.cwiseProduct(y.cwiseProduct(y));
-    const Vec3<T> a = LowerMisalignment<T>(Vec3<T>(t)) * z - offset_.cast<T>();
+    AccelModel<T> model;
+    model.bias = Eigen::Map<const Vec3<T>>(bias);
+    model.scale = Eigen::Map<const Vec3<T>>(scale);
+    model.tri_angles = Eigen::Map<const Vec3<T>>(tri);
+    model.quadratic = Eigen::Map<const Vec3<T>>(quad);
+    const Vec3<T> a =
+        LowerMisalignment<T>(model.tri_angles) * model.PerAxis(u_.cast<T>()) - offset_.cast<T>();
     r[0] = (a.norm() - T(g_)) * T(inv_sigma_);
     return true;
   }

@@ -17,6 +17,7 @@
 #include <array>
 #include <limits>
 #include <optional>
+#include <ranges>
 #include <string>
 #include <vector>
 
@@ -30,6 +31,26 @@ inline constexpr int kAccelParams = 12;
 using AccelVector = Eigen::Matrix<double, kAccelParams, 1>;
 using AccelMatrix = Eigen::Matrix<double, kAccelParams, kAccelParams>;
 using AccelMask = std::array<bool, kAccelParams>;  // true = estimated, false = held fixed
+
+// The parameter groups of the 12-vector, as index ranges [begin, end).
+struct AccelParamRange {
+  int begin = 0, end = 0;
+  // The indices of the range, for `for (int c : kAccelTri.Indices())`.
+  constexpr auto Indices() const { return std::views::iota(begin, end); }
+};
+inline constexpr AccelParamRange kAccelBias{0, 3};
+inline constexpr AccelParamRange kAccelScale{3, 6};
+inline constexpr AccelParamRange kAccelTri{6, 9};         // t_yx, t_zx, t_zy
+inline constexpr AccelParamRange kAccelQuadratic{9, 12};  // the second-order terms
+inline constexpr AccelParamRange kAccelFirstOrder{0, 9};  // bias, scale and angles
+inline constexpr AccelParamRange kAccelBiasScale{0, 6};
+
+// The mask that frees exactly `range`.
+constexpr AccelMask MaskOf(AccelParamRange range) {
+  AccelMask m{};
+  for (int c : range.Indices()) m[static_cast<size_t>(c)] = true;
+  return m;
+}
 
 // A static pose as the accelerometer solver sees it.
 struct AccelPose {

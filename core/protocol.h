@@ -6,7 +6,7 @@
 //   free      (Tedaldi, IMU-TK): hand-held poses anywhere on the sphere.
 //   ferraris  (Ferraris et al. 1995): each face up once (no 180-degree pair, so the floor tilt
 //             is not cancelled) plus full 360-degree turns, whose known angle gives the
-//             gyroscope's scale and misalignment. calibrate.cc detects the turns.
+//             gyroscope's scale and misalignment. core/calibrate/gyro_stage.cc detects the turns.
 #ifndef IMUCAL_CORE_PROTOCOL_H_
 #define IMUCAL_CORE_PROTOCOL_H_
 
@@ -59,8 +59,9 @@ struct PairCheck {
   double tilt_deg = 0;      // half the angle between the two up directions (floor tilt)
   double rotation_deg = 0;  // gyro-integrated rotation between the poses about the vertical
   // The calibrated gyroscope's body rotation vector from pose a to pose b, rad (Exp = R_a^T R_b):
-  // calibrate.cc measures it once the gyroscope is calibrated. Zero until then, when the
-  // gyroscope could not be calibrated, and when the turn crossed a time gap (not measured).
+  // core/calibrate/gyro_stage.cc measures it once the gyroscope is calibrated. Zero until then,
+  // when the gyroscope could not be calibrated, and when the turn crossed a time gap (not
+  // measured).
   Eigen::Vector3d rotation_rad = Eigen::Vector3d::Zero();
   std::string face;
   std::string reason;  // why rejected, in a technician's words

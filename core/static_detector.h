@@ -4,8 +4,9 @@
 // window of `window_s` is below `multiplier` times the white-noise variance of that sensor. The
 // noise variance is learnt from the data: the low quantile of all window variances (a
 // calibration capture is mostly at rest), refined by the longest static interval (the initial
-// rest). The multiplier is not a constant to tune: calibrate.cc sweeps it and keeps the value
-// whose calibration predicts held-out poses best (IMU-TK sweeps it on the in-sample cost).
+// rest). The multiplier is not a constant to tune: core/calibrate/static_poses.cc sweeps it and
+// keeps the value whose calibration predicts held-out poses best (IMU-TK sweeps it on the in-sample
+// cost).
 #ifndef IMUCAL_CORE_STATIC_DETECTOR_H_
 #define IMUCAL_CORE_STATIC_DETECTOR_H_
 

@@ -134,6 +134,18 @@ v1::Session ToProto(const storage::Session& session, int live_poses_accepted) {
   return out;
 }
 
+storage::Verdict ToStorage(core::Verdict verdict) {
+  switch (verdict) {
+    case core::Verdict::kPass:
+      return storage::Verdict::kPass;
+    case core::Verdict::kWarn:
+      return storage::Verdict::kWarn;
+    case core::Verdict::kFail:
+      return storage::Verdict::kFail;
+  }
+  return storage::Verdict::kFail;
+}
+
 v1::VersionState ToProto(storage::VersionState state) {
   switch (state) {
     case storage::VersionState::kCandidate:

@@ -13,6 +13,7 @@
 
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
+#include "core/calibrate/verdict.h"
 #include "core/capture.h"
 #include "core/protocol.h"
 #include "google/protobuf/timestamp.pb.h"
@@ -63,6 +64,8 @@ class ParamCrcCache {
 v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json,
                          ParamCrcCache* crc_cache = nullptr);
 v1::VersionState ToProto(storage::VersionState state);
+// The calibration's verdict as stored.
+storage::Verdict ToStorage(core::Verdict verdict);
 
 // CRC-32C (Castagnoli) of ParameterSet.json, as the SDK's cache checks it.
 uint32_t Crc32c(std::string_view data);

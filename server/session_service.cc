@@ -12,7 +12,7 @@
 #include "absl/time/clock.h"
 #include "client/cli/report_json.h"
 #include "client/sdk/params_json.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "server/convert.h"
 #include "server/services.h"
 #include "server/unary.h"
@@ -363,11 +363,11 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
       version.session_id = task.session_id;
       version.params_json = sdk::ParamSetToJson(report->params);
       version.report_json = cli::ReportToJson(*report);
-      version.verdict = storage::ParseVerdict(report->verdict).value_or(storage::Verdict::kFail);
+      version.verdict = ToStorage(report->verdict);
       version.accel_rms = report->residual.accel_rms_m_s2;
       // The quality gate: only a passing solve becomes active on its own.
-      version.state = report->verdict == "pass" ? storage::VersionState::kActive
-                                                : storage::VersionState::kCandidate;
+      version.state = report->verdict == core::Verdict::kPass ? storage::VersionState::kActive
+                                                               : storage::VersionState::kCandidate;
       version.provenance = absl::StrFormat("imucald %s; protocol %s; seed %d", IMUCAL_VERSION,
                                            core::ProtocolKindName(options.protocol), options.seed);
       absl::StatusOr<storage::ParamVersion> stored =
@@ -375,7 +375,7 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
       if (stored.ok()) {
         job.set_state(v1::JOB_STATE_DONE);
         job.set_version(stored->version);
-        job.set_verdict(report->verdict);
+        job.set_verdict(std::string(core::VerdictName(report->verdict)));
         job.set_activated(stored->state == storage::VersionState::kActive);
       } else {
         failure = stored.status();

@@ -3,9 +3,11 @@
 #define IMUCAL_CLIENT_CLI_COMMANDS_H_
 
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "absl/status/status.h"
+#include "core/calibrate/verdict.h"
 
 namespace imucal::cli {
 
@@ -18,6 +20,15 @@ inline constexpr int kExitVerdictFail = 4;   // calibrated, but the result fails
 inline constexpr int kExitInternal = 5;
 inline constexpr int kExitUnavailable = 6;  // the server could not be reached (or timed out)
 inline constexpr int kExitDenied = 7;       // the server refused the token or the role
+
+// The exit code of a finished calibration by its verdict: kExitVerdictFail for "fail" (and for a
+// name this client does not know: it cannot vouch for it), else kExitOk.
+inline int ExitForVerdict(core::Verdict verdict) {
+  return verdict == core::Verdict::kFail ? kExitVerdictFail : kExitOk;
+}
+inline int ExitForVerdict(std::string_view name) {
+  return ExitForVerdict(core::ParseVerdict(name).value_or(core::Verdict::kFail));
+}
 
 // Prints "imucal: <message>" to stderr and maps the status to an exit code.
 int ReportError(const absl::Status& status);

@@ -43,7 +43,7 @@ constexpr char kGuideHelp[] =
 
 int ExitFor(const pb::SolveJob& job) {
   if (job.state() == pb::JOB_STATE_FAILED) return kExitUndetermined;
-  return job.verdict() == "fail" ? kExitVerdictFail : kExitOk;
+  return ExitForVerdict(job.verdict());
 }
 
 }  // namespace

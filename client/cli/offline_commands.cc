@@ -26,7 +26,7 @@
 #include "client/cli/summary.h"
 #include "client/sdk/corrector.h"
 #include "client/sdk/params_json.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "core/capture_io.h"
 #include "core/export.h"
 #include "core/simulator.h"
@@ -426,7 +426,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
     std::fputs(FormatSummary(*report).c_str(), stdout);
     for (const auto& p : plot_paths) std::printf("wrote       %s\n", p.c_str());
   }
-  return report->verdict == "fail" ? kExitVerdictFail : kExitOk;
+  return ExitForVerdict(report->verdict);
 }
 
 int RunApply(const std::vector<std::string>& argv) {

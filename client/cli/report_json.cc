@@ -184,7 +184,7 @@ std::string ReportToJson(const core::CalibrationReport& r) {
   if (r.effect_diagnostics.ran || !r.effect_diagnostics.notes.empty())
     j["effect_diagnostics"] = DiagnosticsJson(r.effect_diagnostics);
   j["parameters"] = std::move(params);
-  j["verdict"] = r.verdict;
+  j["verdict"] = std::string(core::VerdictName(r.verdict));
   j["warnings"] = r.warnings;
   j["ms"] = r.total_ms;
   for (const auto& [phase, ms] : r.phase_ms) j["phase_ms"][phase] = ms;

@@ -4,7 +4,7 @@
 
 #include <string>
 
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 
 namespace imucal::cli {
 

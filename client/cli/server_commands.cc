@@ -318,7 +318,7 @@ int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t
   }
   if (!wait) return kExitOk;
   if (job.state() == pb::JOB_STATE_FAILED) return kExitUndetermined;
-  return job.verdict() == "fail" ? kExitVerdictFail : kExitOk;
+  return ExitForVerdict(job.verdict());
 }
 
 }  // namespace
@@ -669,7 +669,7 @@ int RunReport(const std::vector<std::string>& argv) {
     if (!written.ok()) return ReportError(written.status());
     for (const auto& p : *written) std::fprintf(stderr, "imucal: wrote %s\n", p.c_str());
   }
-  return Str(r, "verdict") == "fail" ? kExitVerdictFail : kExitOk;
+  return ExitForVerdict(Str(r, "verdict"));
 }
 
 // ------------------------------------------------------------------------------------------

@@ -115,7 +115,7 @@ int RunServerDemo(const std::vector<std::string>& argv) {
   pb::ParameterSet version;
   if (grpc::Status s = server.params->GetParameters(CallContext().get(), get, &version); !s.ok())
     return RpcError(server, s);
-  if (version.state() == pb::VERSION_STATE_CANDIDATE && version.verdict() == "warn") {
+  if (version.state() == pb::VERSION_STATE_CANDIDATE && core::ParseVerdict(version.verdict()) == core::Verdict::kWarn) {
     std::printf("== 2b. verdict warn: the technician reviews the report and promotes version %d\n",
                 version.version());
     pb::PromoteRequest promote;

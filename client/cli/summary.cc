@@ -164,7 +164,7 @@ std::string FormatSummary(const core::CalibrationReport& r) {
       s += "\n";
     }
   }
-  absl::StrAppendFormat(&s, "verdict     %s   (%.0f ms)\n", r.verdict, r.total_ms);
+  absl::StrAppendFormat(&s, "verdict     %s   (%.0f ms)\n", core::VerdictName(r.verdict), r.total_ms);
   for (const auto& w : r.warnings) absl::StrAppendFormat(&s, "warning     %s\n", w);
   return s;
 }

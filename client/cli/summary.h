@@ -5,7 +5,7 @@
 #include <optional>
 #include <string>
 
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "core/params.h"
 
 namespace imucal::cli {

@@ -12,7 +12,7 @@
 #include <string>
 
 #include "client/cli/report_json.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "core/simulator.h"
 
 namespace imucal::cli {

@@ -396,7 +396,8 @@ TEST(AccelSolverTest, ModelSigmaRecoversInjectedScatter) {
     const AccelParams truth = RandomTruth(seed, false, false);
     const std::vector<AccelPose> poses = NoisyPoses(truth, seed, 400, kSigma, kTau);
     EXPECT_NEAR(EstimateModelSigma(truth, poses, kG, 0), kTau, 0.15 * kTau);
-    // From a fit of the 9 linear parameters (n_free = 9), as calibrate.cc uses it.
+    // From a fit of the 9 linear parameters (n_free = 9), as the accel stage
+    // (core/calibrate/accel_stage.cc) uses it.
     const absl::StatusOr<AccelParams> fit = FitEllipsoid(poses, kG);
     ASSERT_TRUE(fit.ok()) << fit.status();
     const absl::StatusOr<LmResult> lm = RefineAccelLm(*fit, poses, kG, LinearFree(), nullptr);

@@ -18,7 +18,7 @@
 
 #include "Eigen/Core"
 #include "client/sdk/params_json.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "core/capture.h"
 #include "core/simulator.h"
 

@@ -19,7 +19,7 @@
 
 #include "absl/strings/str_format.h"
 #include "client/sdk/corrector.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "core/simulator.h"
 #include "core/str_util.h"
 #include "tests/core/effect_scenarios.h"

@@ -11,7 +11,7 @@
 #include <vector>
 
 #include "absl/strings/str_format.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "core/capture.h"
 #include "core/capture_io.h"
 #include "core/protocol.h"
@@ -62,7 +62,7 @@ TEST(RealDataTest, XsensBeatsImuTkOnEveryFigure) {
       "  accel held-out rms %.1f ug (IMU-TK %.1f)\n"
       "  gravity direction after moves: rms %.3f deg (IMU-TK %.3f), max %.3f deg (IMU-TK %.3f)\n",
       used, r.poses.size(), r.threshold_multiplier,
-      std::string(ProtocolKindName(r.protocol)).c_str(), r.verdict.c_str(),
+      std::string(ProtocolKindName(r.protocol)).c_str(), std::string(VerdictName(r.verdict)).c_str(),
       res.accel_rms_m_s2 / kMicroG, kImuTkAccelRms / kMicroG, res.accel_max_m_s2 / kMicroG,
       kImuTkAccelMax / kMicroG, res.accel_heldout_rms_m_s2 / kMicroG,
       kImuTkAccelHeldOutRms / kMicroG, res.move_rms_deg, kImuTkMoveRmsDeg, res.move_max_deg,
@@ -78,7 +78,7 @@ TEST(RealDataTest, XsensBeatsImuTkOnEveryFigure) {
   EXPECT_LT(res.move_rms_deg, kImuTkMoveRmsDeg);
   EXPECT_LT(res.move_max_deg, kImuTkMoveMaxDeg);
   EXPECT_TRUE(r.params.gyro_calibrated);
-  EXPECT_NE(r.verdict, "fail");
+  EXPECT_NE(r.verdict, Verdict::kFail);
   // Every used pose has its in-sample and held-out residual, and the unused ones say why.
   for (const PoseReport& p : r.poses) {
     if (p.interval.used) {
@@ -130,7 +130,7 @@ std::vector<double> ReadNumbers(const std::string& path) {
 
 void PrintReport(const char* name, const CalibrationReport& r) {
   std::printf("%s: protocol %s, verdict %s, multiplier %g, accel rms %.1f ug, move rms %.3f deg\n",
-              name, std::string(ProtocolKindName(r.protocol)).c_str(), r.verdict.c_str(),
+              name, std::string(ProtocolKindName(r.protocol)).c_str(), std::string(VerdictName(r.verdict)).c_str(),
               r.threshold_multiplier, r.residual.accel_rms_m_s2 / kMicroG, r.residual.move_rms_deg);
   const auto& a = r.params.accel;
   const auto& se = r.params.stderrs.accel;
@@ -160,7 +160,7 @@ TEST(RealDataTest, Mpu6050HandHeldPosesCalibrateAndAgreeWithTheRepository) {
   int used = 0;
   for (const PoseReport& p : r.poses) used += p.interval.used;
   EXPECT_EQ(used, 10);
-  EXPECT_EQ(r.verdict, "warn");  // hand-held: moves above a degree
+  EXPECT_EQ(r.verdict, Verdict::kWarn);  // hand-held: moves above a degree
   EXPECT_TRUE(r.params.gyro_calibrated);
   bool raised = false;
   for (const std::string& w : r.warnings)
@@ -211,7 +211,7 @@ TEST(RealDataTest, FerrarisExampleSessionIsDetectedAndCalibrated) {
   }
   EXPECT_TRUE(axes[0] && axes[1] && axes[2]);
   EXPECT_TRUE(r.params.gyro_calibrated);
-  EXPECT_NE(r.verdict, "fail");
+  EXPECT_NE(r.verdict, Verdict::kFail);
   // The data's own faces (SOURCE.txt): +X 10.31, -X -9.24 m/s^2 etc., so bias_x ~ 0.535 and
   // scale_x ~ 2 g / 19.55; ours within 4 standard errors plus the 1 - cos(tilt) the faces leave.
   const double g = r.gravity_m_s2;
@@ -238,7 +238,7 @@ TEST(RealDataTest, FerrarisAnnotatedSessionAgreesWithThePublishedCalibration) {
   const CalibrationReport& r = *report;
   PrintReport("ferraris annotated", r);
   EXPECT_EQ(ProtocolKindName(r.protocol), "ferraris");
-  EXPECT_EQ(r.verdict, "warn");
+  EXPECT_EQ(r.verdict, Verdict::kWarn);
   int cut = 0;
   for (const std::string& w : r.warnings)
     cut += w.find("the data is cut there") != std::string::npos;

@@ -16,7 +16,7 @@
 #include "Eigen/Geometry"
 #include "absl/strings/match.h"
 #include "core/allan.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "core/capture_io.h"
 #include "core/effects.h"
 #include "core/static_detector.h"

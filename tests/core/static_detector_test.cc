@@ -28,7 +28,7 @@ SimResult MustSimulate(const SimOptions& options) {
   return *std::move(result);
 }
 
-// Everything the detector needs, computed the way calibrate.cc does.
+// Everything the detector needs, computed the way core/calibrate/static_poses.cc does.
 struct Detection {
   MotionSignal motion;
   NoiseLevel noise;

@@ -17,7 +17,7 @@
 
 #include "client/sdk/params_json.h"
 #include "core/accel_solver.h"
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 #include "core/simulator.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "grpcpp/grpcpp.h"

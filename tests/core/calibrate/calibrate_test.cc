@@ -1,7 +1,7 @@
 // Property tests of the whole pipeline on simulated captures with known truth: calibrate, then
 // apply the result to a fresh noise-free capture of the same unit (the acceptance
 // figures: accel within 0.3 mg RMS after the best-fit rotation, static rate under 0.02 deg/s).
-#include "core/calibrate.h"
+#include "core/calibrate/calibrate.h"
 
 #include <gtest/gtest.h>
 
@@ -106,9 +106,9 @@ std::string Summary(const CalibrationReport& r) {
   std::string out = absl::StrFormat(
       "protocol %s (detected %d), multiplier %g, verdict %s, accel rms %.3g max %.3g heldout %.3g "
       "m/s^2, move rms %.3g deg\n",
-      ProtocolKindName(r.protocol), r.protocol_detected, r.threshold_multiplier, r.verdict,
-      r.residual.accel_rms_m_s2, r.residual.accel_max_m_s2, r.residual.accel_heldout_rms_m_s2,
-      r.residual.move_rms_deg);
+      ProtocolKindName(r.protocol), r.protocol_detected, r.threshold_multiplier,
+      VerdictName(r.verdict), r.residual.accel_rms_m_s2, r.residual.accel_max_m_s2,
+      r.residual.accel_heldout_rms_m_s2, r.residual.move_rms_deg);
   for (const StageReport& s : r.stages)
     out += absl::StrFormat("  stage %s rms %.3g\n", s.name, s.accel_rms_m_s2);
   for (const PairCheck& p : r.pairs)
@@ -170,7 +170,8 @@ TEST_P(CalibrateSeedTest, SixFacePlusExtraMeetsTheAccuracyFigures) {
   EXPECT_EQ(report.stages[2].name, "lm");
   EXPECT_LE(report.stages[2].accel_rms_m_s2, report.stages[0].accel_rms_m_s2 * (1 + 1e-9));
   EXPECT_TRUE(report.params.gyro_calibrated);
-  EXPECT_NE(report.verdict, "fail");  // "pass" expected: see ExtraPosesAreNotRejectedAsPairs
+  EXPECT_NE(report.verdict,
+            Verdict::kFail);  // "pass" expected: see ExtraPosesAreNotRejectedAsPairs
   EXPECT_EQ(report.params.accel_unit, AccelUnit::kMetersPerSecond2);
   EXPECT_EQ(report.params.gyro_unit, GyroUnit::kRadPerSecond);
 }
@@ -222,7 +223,7 @@ TEST(CalibrateTest, ExtraPosesAreNotRejectedAsPairs) {
       EXPECT_TRUE(p.ok) << "pair " << p.pose_a << "-" << p.pose_b << " (" << p.face
                         << ", extra poses) rejected: " << p.reason;
     }
-    EXPECT_EQ(r.verdict, "pass") << Summary(r);
+    EXPECT_EQ(r.verdict, Verdict::kPass) << Summary(r);
   }
 }
 
@@ -470,7 +471,7 @@ TEST(CalibrateTest, GyroThatSawNoRotationIsReportedNotCalibrated) {
   for (const std::string& w : r->warnings)
     warned |= w.rfind("gyroscope:", 0) == 0 && w.find("only the bias") != std::string::npos;
   EXPECT_TRUE(warned) << "no warning that the gyroscope kept only its bias";
-  EXPECT_NE(r->verdict, "pass");
+  EXPECT_NE(r->verdict, Verdict::kPass);
   // The bias is still measured.
   EXPECT_LT((r->params.gyro.bias - sim.truth.gyro.bias).norm() *
                 std::abs(sim.truth.gyro.matrix(0, 0)) * kRadToDeg,
@@ -600,7 +601,7 @@ TEST(CalibrateTest, EightPosesGiveBiasAndScaleWithAWarnVerdict) {
   const SimResult sim = MustSimulate(options);
   const CalibrationReport r = MustCalibrate(sim.capture);
   SCOPED_TRACE(Summary(r));
-  EXPECT_EQ(r.verdict, "warn");
+  EXPECT_EQ(r.verdict, Verdict::kWarn);
   bool warned = false;
   for (const std::string& w : r.warnings)
     warned |= w.find("only bias and scale were calibrated") != std::string::npos;

@@ -1,52 +1,23 @@
-// The offline calibration pipeline: a capture in, a verified parameter set and its report out.
-//
-//   capture -> noise level -> static intervals (threshold multiplier swept, the one whose
-//   calibration predicts held-out poses best is kept) -> rough accelerometer -> gyroscope from
-//   the rotations between poses -> protocol (detected or declared) and its checks (six-face
-//   pairs, duplicates) -> accelerometer stages ls, bsas, lm -> final gyroscope -> six-face case
-//   frame from the axes the pairs were turned about (core/protocol.h PairTurnAxis, with the
-//   turns that gyroscope measured; the gyroscope turns with the frame) -> residuals in-sample
-//   and held-out -> observability -> effects the residual shows (core/effects.h), refitted
-//   jointly; with an applied accelerometer effect, the case frame and the gyroscope fitted
-//   again to the pose directions it corrects -> verdict.
-//
-// Captures that cannot determine everything still calibrate what they can, with a warning and a
-// "warn" verdict: fewer than 10 poses give bias and scale only (7 or more, every axis up and
-// down); the six faces held once each (ferraris) give the 12-parameter affine model from the
-// face references. Moves across a time gap (an interval over 3x the median) or whose gravity
-// change the gyroscope cannot explain (a cut in the data) are left out of the gyroscope fit and
-// the pair checks, with a warning naming them.
-#ifndef IMUCAL_CORE_CALIBRATE_H_
-#define IMUCAL_CORE_CALIBRATE_H_
+// The report of a calibration: what each stage found, the residuals, the parameter set, the
+// verdict and the warnings. Written as "imucal-report v1" (../shared/spec/report.md).
+#ifndef IMUCAL_CORE_CALIBRATE_REPORT_H_
+#define IMUCAL_CORE_CALIBRATE_REPORT_H_
 
+#include <limits>
 #include <string>
+#include <utility>
 #include <vector>
 
-#include "absl/status/statusor.h"
+#include "Eigen/Core"
 #include "core/accel_solver.h"
 #include "core/allan.h"
-#include "core/capture.h"
+#include "core/calibrate/verdict.h"
 #include "core/effects.h"
 #include "core/params.h"
 #include "core/protocol.h"
 #include "core/static_detector.h"
 
 namespace imucal::core {
-
-struct CalibrateOptions {
-  ProtocolKind protocol = ProtocolKind::kAuto;
-  uint64_t seed = 1;  // BSAS's random seed: the same capture and seed give the same result
-  bool use_bsas = true;
-  bool heldout = true;  // leave-one-pose-out accelerometer refits (the held-out figures)
-  StaticDetectorOptions detector;
-  // The search for effects the model misses (core/effects.h), after the solve.
-  EffectSearchOptions effects;
-  // Threshold multipliers tried (times the learnt noise variance).
-  std::vector<double> multipliers = {2, 3, 4, 6, 8, 12, 16, 24, 32, 48};
-  // Tried only when `multipliers` find too few poses for the full model: poses held by hand
-  // shake more than a rest on a table (the noise is learnt there), up to 16x its std.
-  std::vector<double> escalation_multipliers = {64, 96, 128, 192, 256};
-};
 
 struct PoseReport {
   int index = 0;
@@ -101,7 +72,7 @@ struct CalibrationReport {
   Residuals residual;
   ParamSet params;
   double accel_chi2_reduced = 0;
-  std::string verdict;  // pass | warn | fail
+  Verdict verdict = Verdict::kFail;
   std::vector<std::string> warnings;
   // What the residual search examined and found; its effects are in params.effects.
   EffectDiagnostics effect_diagnostics;
@@ -113,12 +84,6 @@ struct CalibrationReport {
   std::vector<std::pair<std::string, double>> phase_ms;
 };
 
-// Errors: FailedPrecondition when the capture cannot determine even bias and scale (fewer than
-// 7 usable poses and not the six faces, poses too alike), naming what to add; InvalidArgument for a
-// capture that fails ValidateCapture.
-absl::StatusOr<CalibrationReport> Calibrate(const Capture& capture,
-                                            const CalibrateOptions& options);
-
 }  // namespace imucal::core
 
-#endif  // IMUCAL_CORE_CALIBRATE_H_
+#endif  // IMUCAL_CORE_CALIBRATE_REPORT_H_

@@ -1,0 +1,194 @@
+#include "core/calibrate/residuals.h"
+
+#include <cmath>
+#include <limits>
+
+#include "core/calibrate/protocol_checks.h"
+
+namespace imucal::core::pipeline {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+std::vector<double> ToDeg(const std::vector<double>& rad) {
+  std::vector<double> out;
+  for (double x : rad) out.push_back(x * kRadToDeg);
+  return out;
+}
+
+}  // namespace
+
+double MaxAbsFinite(const std::vector<double>& v) {
+  double m = 0;
+  for (double x : v)
+    if (std::isfinite(x)) m = std::max(m, std::abs(x));
+  return m;
+}
+
+double RmsFinite(const std::vector<double>& v) {
+  std::vector<double> f;
+  for (double x : v)
+    if (std::isfinite(x)) f.push_back(x);
+  return f.empty() ? kNaN : Rms(f);
+}
+
+AccelResiduals ComputeAccelResiduals(const AccelStage& accel, ProtocolKind protocol,
+                                     const std::vector<Eigen::Vector3d>& ups, double g,
+                                     bool heldout, Residuals* out) {
+  AccelResiduals r;
+  r.in_sample = MagnitudeResiduals(accel.params, accel.poses, g);
+  out->accel_rms_m_s2 = Rms(r.in_sample);
+  out->accel_max_m_s2 = MaxAbsFinite(r.in_sample);
+  r.heldout.assign(accel.poses.size(), kNaN);
+  if (!heldout || accel.affine_only) return r;
+  r.heldout = HeldOutMagnitudeResiduals(accel.params, accel.poses, g, accel.free);
+  if (protocol == ProtocolKind::kFerraris) {
+    // A face placed once cannot be predicted without it (its axis' bias and scale go with it).
+    std::vector<Eigen::Vector3d> used_ups;
+    for (int i : accel.used) used_ups.push_back(ups[static_cast<size_t>(i)]);
+    for (const auto& p : FacePlacements(used_ups))
+      if (p.size() == 1) r.heldout[static_cast<size_t>(p.front())] = kNaN;
+  }
+  out->accel_heldout_rms_m_s2 = RmsFinite(r.heldout);
+  // None predictable (too few poses beyond the model): both n/a, not a max of 0.
+  out->accel_heldout_max_m_s2 =
+      std::isfinite(out->accel_heldout_rms_m_s2) ? MaxAbsFinite(r.heldout) : kNaN;
+  return r;
+}
+
+double GyroStaticRms(const std::vector<StaticInterval>& ivs, const std::vector<int>& used,
+                     const GyroParams& gyro) {
+  double ss = 0;
+  for (int i : used) {
+    const StaticInterval& s = ivs[static_cast<size_t>(i)];
+    ss += (gyro.matrix * (s.gyro_mean - gyro.bias)).squaredNorm();
+  }
+  return used.empty() ? 0 : std::sqrt(ss / used.size());
+}
+
+void ReportGyroFit(const Capture& cap, const std::vector<PlannedMove>& planned,
+                   const std::vector<TurnCandidate>& turns, const GyroFit& gyro,
+                   CalibrationReport* rep) {
+  rep->moves.clear();
+  rep->residual.move_rms_deg = rep->residual.move_max_deg = kNaN;
+  rep->residual.move_heldout_rms_deg = rep->residual.move_heldout_max_deg = kNaN;
+  for (TurnReport& t : rep->turns) t.error_deg = kNaN;
+  if (gyro.result) {
+    const auto& gr = *gyro.result;
+    rep->residual.move_rms_deg = Rms(gr.move_error_rad) * kRadToDeg;
+    rep->residual.move_max_deg = MaxAbsFinite(gr.move_error_rad) * kRadToDeg;
+    if (!gr.heldout_error_rad.empty()) {
+      rep->residual.move_heldout_rms_deg = RmsFinite(gr.heldout_error_rad) * kRadToDeg;
+      rep->residual.move_heldout_max_deg = MaxAbsFinite(gr.heldout_error_rad) * kRadToDeg;
+    }
+    const std::vector<double> in = ToDeg(gr.move_error_rad), out = ToDeg(gr.heldout_error_rad);
+    for (size_t k = 0; k < planned.size() && k < in.size(); ++k) {
+      MoveReport m;
+      m.from_pose = planned[k].from_pose;
+      m.to_pose = planned[k].to_pose;
+      m.error_deg = in[k];
+      if (k < out.size()) m.heldout_error_deg = out[k];
+      m.rotation_deg =
+          IntegrateRotation(cap, planned[k].move.begin, planned[k].move.end, gyro.params).norm() *
+          kRadToDeg;
+      rep->moves.push_back(m);
+    }
+    for (size_t k = 0; k < rep->turns.size() && k < gr.turn_error_rad.size(); ++k)
+      rep->turns[k].error_deg = gr.turn_error_rad[k] * kRadToDeg;
+    for (int c = 0; c < 9; ++c)
+      rep->params.stderrs.gyro_matrix(c % 3, c / 3) = std::sqrt(gr.covariance(c, c));
+  } else {
+    rep->params.stderrs.gyro_matrix.setConstant(kNaN);
+  }
+  // Each turn's integrated angle with the final gyroscope (only when its output is in rad/s).
+  if (gyro.calibrated || !std::isnan(NominalGyroToSi(cap.gyro_unit))) {
+    for (size_t k = 0; k < rep->turns.size() && k < turns.size(); ++k)
+      rep->turns[k].angle_deg = (gyro.params.matrix * turns[k].raw_integral).norm() * kRadToDeg;
+  }
+}
+
+std::vector<PoseReport> MakePoseReports(const std::vector<StaticInterval>& ivs,
+                                        const AccelParams& accel, const AccelResiduals& res) {
+  std::vector<PoseReport> out;
+  for (size_t i = 0, k = 0; i < ivs.size(); ++i) {
+    PoseReport pr;
+    pr.index = static_cast<int>(i);
+    pr.interval = ivs[i];
+    pr.up = accel.Apply(ivs[i].accel_mean).normalized();
+    const Face f = ClassifyFace(pr.up);
+    if (f.off_axis_deg <= kFaceToleranceDeg) pr.face = f.Label();
+    if (ivs[i].used) {
+      pr.residual_m_s2 = res.in_sample[k];
+      pr.heldout_m_s2 = res.heldout[k];
+      ++k;
+    }
+    out.push_back(pr);
+  }
+  return out;
+}
+
+ParamSet MakeParamSet(const Capture& cap, const AccelStage& accel, const GyroFit& gyro,
+                      const std::vector<StaticInterval>& ivs, const Residuals& residual) {
+  ParamSet ps;
+  ps.device = cap.device;
+  ps.accel_unit = cap.accel_unit;
+  ps.gyro_unit = cap.gyro_unit;
+  ps.gravity_m_s2 = cap.gravity_m_s2;
+  ps.accel = accel.params;
+  ps.gyro = gyro.params;
+  ps.gyro_calibrated = gyro.calibrated;
+  AccelVector se = accel.covariance.diagonal().cwiseSqrt();
+  for (int c = 0; c < kAccelParams; ++c)
+    if (!accel.free[static_cast<size_t>(c)]) se(c) = kNaN;
+  // The case frame's standard error is not estimated (NaN) when the faces set it, and 0 (a
+  // convention, not an estimate) when no orientation was known.
+  ps.stderrs.accel = UnpackAccel(se, Eigen::Vector3d::Constant(accel.from_faces ? kNaN : 0.0));
+  // Gyro bias standard error from the scatter of the pose means (includes slow drift).
+  const std::vector<int>& used = accel.used;
+  if (used.size() >= 2) {
+    Eigen::Vector3d ss = Eigen::Vector3d::Zero();
+    for (int i : used) ss += (ivs[static_cast<size_t>(i)].gyro_mean - gyro.params.bias).cwiseAbs2();
+    ps.stderrs.gyro_bias =
+        (ss / static_cast<double>(used.size() - 1) / static_cast<double>(used.size())).cwiseSqrt();
+  }
+  ps.quality_accel_rms_m_s2 = residual.accel_rms_m_s2;
+  ps.quality_gyro_static_rms_rad_s = residual.gyro_static_rms_rad_s;
+  return ps;
+}
+
+Eigen::Vector3d CorrectedSpecificForce(const AccelParams& accel, const std::vector<Effect>& effects,
+                                       const StaticInterval& s, double t0_s) {
+  Eigen::Vector3d a = accel.Apply(s.accel_mean);
+  SignalArray sig{};
+  sig[static_cast<size_t>(Signal::kTemperature)] = s.temp_mean;
+  sig[static_cast<size_t>(Signal::kTime)] = 0.5 * (s.t_start_s + s.t_end_s) - t0_s;
+  for (int k = 0; k < 3; ++k) sig[static_cast<size_t>(Signal::kAx) + k] = a(k);
+  for (const Effect& e : effects) {
+    const std::optional<Regressor> r = ParseRegressor(e.regressor);
+    if (e.sensor == Sensor::kAccel && e.applied && r) a(e.axis) -= e.coefficient * r->Evaluate(sig);
+  }
+  return a;
+}
+
+std::vector<FaceResidual> FaceResiduals(const Capture& cap, const std::vector<StaticInterval>& ivs,
+                                        const std::vector<PairCheck>& pairs,
+                                        const ParamSet& params) {
+  std::vector<FaceResidual> out;
+  const double t0 = cap.t_s.empty() ? 0.0 : cap.t_s.front();
+  for (const PairCheck& p : pairs) {
+    if (!p.ok) continue;
+    const Eigen::Vector3d a = CorrectedSpecificForce(params.accel, params.effects,
+                                                     ivs[static_cast<size_t>(p.pose_a)], t0);
+    const Eigen::Vector3d b = CorrectedSpecificForce(params.accel, params.effects,
+                                                     ivs[static_cast<size_t>(p.pose_b)], t0);
+    // The mean of the two sizes: the mean vector is shorter by cos(tilt), 0.15 mg at 1 degree.
+    const Eigen::Vector3d axis = PairFaceAxis(p, a, b);
+    const Eigen::Vector3d face = 0.5 * (a.norm() + b.norm()) * axis;
+    const Face f = ClassifyFace(axis);
+    out.push_back({f.Label(), face - f.Reference(cap.gravity_m_s2)});
+  }
+  return out;
+}
+
+}  // namespace imucal::core::pipeline

@@ -1,0 +1,77 @@
+// Calibration stage "residuals": what the final model leaves, and the parameter set.
+//
+//   accelerometer  |a| - g per used pose, in-sample and held out (each pose left out of a refit;
+//                  for ferraris a face placed once is not predictable without itself)
+//   gyroscope      the static rate (|calibrated rate| over the static poses), and the
+//                  gravity-direction error after each move, in-sample and held out (one move left
+//                  out), each full turn's error and angle
+//   poses          each interval's calibrated up direction, face and residuals
+//   parameters     the model, its standard errors (the accelerometer's from its covariance, NaN
+//                  where held; the gyro bias's from the scatter of the pose means)
+#ifndef IMUCAL_CORE_CALIBRATE_RESIDUALS_H_
+#define IMUCAL_CORE_CALIBRATE_RESIDUALS_H_
+
+#include <vector>
+
+#include "Eigen/Core"
+#include "core/calibrate/accel_stage.h"
+#include "core/calibrate/gyro_stage.h"
+#include "core/calibrate/report.h"
+#include "core/capture.h"
+#include "core/params.h"
+
+namespace imucal::core::pipeline {
+
+// The largest finite |x| (0 when none); the RMS of the finite values (NaN when none).
+double MaxAbsFinite(const std::vector<double>& v);
+double RmsFinite(const std::vector<double>& v);
+
+struct AccelResiduals {
+  // Per used pose, m/s^2: |a| - g in-sample, and held out (NaN where not predictable or not
+  // computed).
+  std::vector<double> in_sample, heldout;
+};
+// In-sample and (unless !heldout or the fit is the face references' alone) held-out residuals of
+// the final accelerometer; fills the accel_* figures of `out`.
+AccelResiduals ComputeAccelResiduals(const AccelStage& accel, ProtocolKind protocol,
+                                     const std::vector<Eigen::Vector3d>& ups, double gravity_m_s2,
+                                     bool heldout, Residuals* out);
+
+// RMS over the used poses of |calibrated static rate|, rad/s.
+double GyroStaticRms(const std::vector<StaticInterval>& intervals, const std::vector<int>& used,
+                     const GyroParams& gyro);
+
+// The gyroscope fit's figures in the report: each move's error (in-sample and held out) and
+// rotation, their RMS and maximum, each full turn's error and integrated angle, and the matrix's
+// standard errors. Replaces what an earlier fit put there.
+void ReportGyroFit(const Capture& capture, const std::vector<PlannedMove>& planned,
+                   const std::vector<TurnCandidate>& turns, const GyroFit& gyro,
+                   CalibrationReport* report);
+
+// One report per interval (used or not): calibrated up direction, face, and for used poses the
+// residuals of `residuals` (in the order of `used`).
+std::vector<PoseReport> MakePoseReports(const std::vector<StaticInterval>& intervals,
+                                        const AccelParams& accel, const AccelResiduals& residuals);
+
+// The parameter set of the final model, with its standard errors (the gyro matrix's are
+// ReportGyroFit's) and the quality figures of `residual`.
+ParamSet MakeParamSet(const Capture& capture, const AccelStage& accel, const GyroFit& gyro,
+                      const std::vector<StaticInterval>& intervals, const Residuals& residual);
+
+// A pose's calibrated specific force (m/s^2) with the applied accelerometer effects taken out at
+// its own signals (its mean temperature, its middle's time since `t0_s`), as the SDK's
+// Corrector would give it.
+Eigen::Vector3d CorrectedSpecificForce(const AccelParams& accel, const std::vector<Effect>& effects,
+                                       const StaticInterval& interval, double t0_s);
+
+// Per-axis residuals of the verified faces with the stored model and its applied effects at
+// each pose's signals (as the SDK's Corrector would apply them). A face's direction is the axis
+// its pair was turned about (core/protocol.h PairTurnAxis), its size the mean of the two poses'.
+std::vector<FaceResidual> FaceResiduals(const Capture& capture,
+                                        const std::vector<StaticInterval>& intervals,
+                                        const std::vector<PairCheck>& pairs,
+                                        const ParamSet& params);
+
+}  // namespace imucal::core::pipeline
+
+#endif  // IMUCAL_CORE_CALIBRATE_RESIDUALS_H_
