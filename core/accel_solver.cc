@@ -90,6 +90,12 @@ Eigen::VectorXd WeightedResiduals(const AccelParams& p, const std::vector<AccelP
 
 const char* kGroupNames[4] = {"bias", "scale", "tri", "quadratic"};
 
+// |a| - g of one pose, with l = LowerMisalignment(p.tri_angles) computed once by the caller.
+double MagnitudeResidual(const Eigen::Matrix3d& l, const AccelParams& p, const AccelPose& pose,
+                         double gravity_m_s2) {
+  return (l * p.PerAxis(pose.mean) - pose.offset_m_s2).norm() - gravity_m_s2;
+}
+
 }  // namespace
 
 AccelVector PackAccel(const AccelParams& p) {
@@ -120,8 +126,7 @@ std::vector<double> MagnitudeResiduals(const AccelParams& p, const std::vector<A
   std::vector<double> r;
   r.reserve(poses.size());
   const Eigen::Matrix3d l = LowerMisalignment<double>(p.tri_angles);
-  for (const AccelPose& pose : poses)
-    r.push_back((l * p.PerAxis(pose.mean) - pose.offset_m_s2).norm() - gravity_m_s2);
+  for (const AccelPose& pose : poses) r.push_back(MagnitudeResidual(l, p, pose, gravity_m_s2));
   return r;
 }
 
@@ -401,10 +406,15 @@ AccelParams RefineAccelBsas(const AccelParams& start, const std::vector<AccelPos
       theta(index[k]) += unit(index[k]) * x(static_cast<Eigen::Index>(k));
     return UnpackAccel(theta, start.frame_angles);
   };
+  // Evaluated thousands of times: no allocation per call.
   auto cost = [&](const Eigen::VectorXd& x) {
-    const std::vector<double> r = MagnitudeResiduals(to_params(x), poses, gravity_m_s2);
+    const AccelParams p = to_params(x);
+    const Eigen::Matrix3d l = LowerMisalignment<double>(p.tri_angles);
     double s = 0;
-    for (size_t i = 0; i < r.size(); ++i) s += (r[i] / sigma[i]) * (r[i] / sigma[i]);
+    for (size_t i = 0; i < poses.size(); ++i) {
+      const double r = MagnitudeResidual(l, p, poses[i], gravity_m_s2);
+      s += (r / sigma[i]) * (r / sigma[i]);
+    }
     return s;
   };
   // seeds/002's schedule: scale, bias, installation angles, second-order terms, repeated.
