@@ -42,20 +42,6 @@ inline std::optional<std::string_view> NullIfEmpty(std::string_view value) {
   return value;
 }
 
-// Errors name the call they come from: "<op>: <message>".
-inline absl::Status WithContext(std::string_view op, const absl::Status& s) {
-  return absl::Status(s.code(), Cat(op, ": ", s.message()));
-}
-template <typename T>
-absl::StatusOr<T> Annotate(std::string_view op, absl::StatusOr<T> result) {
-  if (!result.ok()) return WithContext(op, result.status());
-  return result;
-}
-inline absl::Status Annotate(std::string_view op, absl::Status result) {
-  if (!result.ok()) return WithContext(op, result);
-  return result;
-}
-
 // A stored enum name that does not parse means the file was tampered with.
 template <typename T>
 absl::StatusOr<T> FromColumn(absl::StatusOr<T> parsed) {
@@ -75,7 +61,8 @@ const absl::Status& StatusOf(const absl::StatusOr<T>& s) {
 }
 
 // Runs `body(conn)` in one BEGIN IMMEDIATE transaction, committing only if it succeeds.
-// `body` returns absl::Status or absl::StatusOr<T>; errors are prefixed with `op`.
+// `body` returns absl::Status or absl::StatusOr<T>; errors are prefixed with `op`
+// (WithContext, status_macros.h).
 template <typename F>
 std::invoke_result_t<F, Connection&> InTransaction(std::string_view op, Connection& conn,
                                                    F&& body) {
