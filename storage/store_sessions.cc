@@ -18,46 +18,29 @@
 namespace imucal::storage {
 namespace {
 
-// Sessions: three statements with the same columns (ReadSession). The derived ones are the last
+// The columns ReadSession maps, for the three statements below. The derived ones are the last
 // batch's seq and running sample total (seeks backwards on the batches' primary key), the
 // accepted poses, and the version of the latest successful solve.
-constexpr char kSelectSession[] =
-    "SELECT s.id, s.device_id, s.state, s.protocol, s.gravity_m_s2, s.created_at_us, "
-    "s.updated_at_us, "
-    "COALESCE((SELECT b.seq FROM sample_batches b WHERE b.session_id = s.id "
-    "ORDER BY b.seq DESC LIMIT 1), 0), "
-    "COALESCE((SELECT b.end_sample FROM sample_batches b WHERE b.session_id = s.id "
-    "ORDER BY b.seq DESC LIMIT 1), 0), "
-    "(SELECT COUNT(*) FROM poses p WHERE p.session_id = s.id AND p.used = 1), "
-    "COALESCE((SELECT v.version FROM solves v WHERE v.session_id = s.id "
-    "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0) "
-    "FROM sessions s WHERE s.id = ?1";
+#define IMUCAL_SELECT_SESSION_COLUMNS                                                \
+  "SELECT s.id, s.device_id, s.state, s.protocol, s.gravity_m_s2, s.created_at_us, " \
+  "s.updated_at_us, "                                                                \
+  "COALESCE((SELECT b.seq FROM sample_batches b WHERE b.session_id = s.id "          \
+  "ORDER BY b.seq DESC LIMIT 1), 0), "                                               \
+  "COALESCE((SELECT b.end_sample FROM sample_batches b WHERE b.session_id = s.id "   \
+  "ORDER BY b.seq DESC LIMIT 1), 0), "                                               \
+  "(SELECT COUNT(*) FROM poses p WHERE p.session_id = s.id AND p.used = 1), "        \
+  "COALESCE((SELECT v.version FROM solves v WHERE v.session_id = s.id "              \
+  "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0) "
+constexpr char kSelectSession[] = IMUCAL_SELECT_SESSION_COLUMNS "FROM sessions s WHERE s.id = ?1";
 // Lists page by rowid (creation order): ?3 is the rowid of the previous page's last session.
-constexpr char kSelectSessionsOfDevice[] =
-    "SELECT s.id, s.device_id, s.state, s.protocol, s.gravity_m_s2, s.created_at_us, "
-    "s.updated_at_us, "
-    "COALESCE((SELECT b.seq FROM sample_batches b WHERE b.session_id = s.id "
-    "ORDER BY b.seq DESC LIMIT 1), 0), "
-    "COALESCE((SELECT b.end_sample FROM sample_batches b WHERE b.session_id = s.id "
-    "ORDER BY b.seq DESC LIMIT 1), 0), "
-    "(SELECT COUNT(*) FROM poses p WHERE p.session_id = s.id AND p.used = 1), "
-    "COALESCE((SELECT v.version FROM solves v WHERE v.session_id = s.id "
-    "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0) "
+constexpr char kSelectSessionsOfDevice[] = IMUCAL_SELECT_SESSION_COLUMNS
     "FROM sessions s WHERE s.device_id = ?1 AND (?2 IS NULL OR s.state = ?2) AND s.rowid > ?3 "
     "ORDER BY s.rowid LIMIT ?4";
 // ?1 is unused (bound to the empty device id): the same parameters as kSelectSessionsOfDevice.
-constexpr char kSelectSessionsAll[] =
-    "SELECT s.id, s.device_id, s.state, s.protocol, s.gravity_m_s2, s.created_at_us, "
-    "s.updated_at_us, "
-    "COALESCE((SELECT b.seq FROM sample_batches b WHERE b.session_id = s.id "
-    "ORDER BY b.seq DESC LIMIT 1), 0), "
-    "COALESCE((SELECT b.end_sample FROM sample_batches b WHERE b.session_id = s.id "
-    "ORDER BY b.seq DESC LIMIT 1), 0), "
-    "(SELECT COUNT(*) FROM poses p WHERE p.session_id = s.id AND p.used = 1), "
-    "COALESCE((SELECT v.version FROM solves v WHERE v.session_id = s.id "
-    "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0) "
+constexpr char kSelectSessionsAll[] = IMUCAL_SELECT_SESSION_COLUMNS
     "FROM sessions s WHERE (?2 IS NULL OR s.state = ?2) AND s.rowid > ?3 "
     "ORDER BY s.rowid LIMIT ?4";
+#undef IMUCAL_SELECT_SESSION_COLUMNS
 constexpr char kSelectSessionRowid[] = "SELECT rowid FROM sessions WHERE id = ?1";
 constexpr char kSelectOpenSessionOfDevice[] =
     "SELECT id FROM sessions WHERE device_id = ?1 AND state = 'open'";

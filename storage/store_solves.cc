@@ -14,15 +14,16 @@
 namespace imucal::storage {
 namespace {
 
-constexpr char kSelectSolve[] =
-    "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, "
-    "report_json FROM solves WHERE id = ?1";
+// The columns ReadSolve maps.
+#define IMUCAL_SELECT_SOLVE_COLUMNS                                                      \
+  "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, " \
+  "report_json "
+constexpr char kSelectSolve[] = IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE id = ?1";
 constexpr char kSelectSolvesOfSession[] =
-    "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, "
-    "report_json FROM solves WHERE session_id = ?1 ORDER BY id";
+    IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE session_id = ?1 ORDER BY id";
 constexpr char kSelectRunningSolves[] =
-    "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, "
-    "report_json FROM solves WHERE state = 'running' ORDER BY id";
+    IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE state = 'running' ORDER BY id";
+#undef IMUCAL_SELECT_SOLVE_COLUMNS
 constexpr char kInsertSolve[] =
     "INSERT INTO solves (session_id, state, actor, started_at_us) VALUES (?1, 'running', ?2, ?3)";
 constexpr char kFinishSolve[] =

@@ -15,24 +15,22 @@
 namespace imucal::storage {
 namespace {
 
+// The 8 header columns ReadVersion maps; params_json and report_json may follow.
+#define IMUCAL_SELECT_VERSION_HEADER \
+  "SELECT device_id, version, created_at_us, session_id, verdict, accel_rms, state, provenance"
 // The hot path. `state = 'active'` is a literal so the planner can use the partial index
 // param_versions_active (migrations_test checks the plan). report_json is not read.
-constexpr char kSelectActiveVersion[] =
-    "SELECT device_id, version, created_at_us, session_id, verdict, accel_rms, state, "
-    "provenance, params_json FROM param_versions WHERE device_id = ?1 AND state = 'active'";
-constexpr char kSelectVersion[] =
-    "SELECT device_id, version, created_at_us, session_id, verdict, accel_rms, state, "
-    "provenance, params_json, report_json FROM param_versions "
-    "WHERE device_id = ?1 AND version = ?2";
-constexpr char kSelectVersionsOfDevice[] =
-    "SELECT device_id, version, created_at_us, session_id, verdict, accel_rms, state, "
-    "provenance, params_json, report_json FROM param_versions "
+constexpr char kSelectActiveVersion[] = IMUCAL_SELECT_VERSION_HEADER
+    ", params_json FROM param_versions WHERE device_id = ?1 AND state = 'active'";
+constexpr char kSelectVersion[] = IMUCAL_SELECT_VERSION_HEADER
+    ", params_json, report_json FROM param_versions WHERE device_id = ?1 AND version = ?2";
+constexpr char kSelectVersionsOfDevice[] = IMUCAL_SELECT_VERSION_HEADER
+    ", params_json, report_json FROM param_versions "
     "WHERE device_id = ?1 AND version > ?2 ORDER BY version LIMIT ?3";
 // The same without the documents, which are most of each row's bytes.
-constexpr char kSelectVersionHeadersOfDevice[] =
-    "SELECT device_id, version, created_at_us, session_id, verdict, accel_rms, state, "
-    "provenance FROM param_versions "
-    "WHERE device_id = ?1 AND version > ?2 ORDER BY version LIMIT ?3";
+constexpr char kSelectVersionHeadersOfDevice[] = IMUCAL_SELECT_VERSION_HEADER
+    " FROM param_versions WHERE device_id = ?1 AND version > ?2 ORDER BY version LIMIT ?3";
+#undef IMUCAL_SELECT_VERSION_HEADER
 constexpr char kSelectNextVersion[] =
     "SELECT COALESCE(MAX(version), 0) + 1 FROM param_versions WHERE device_id = ?1";
 constexpr char kInsertVersion[] =
@@ -112,12 +110,24 @@ absl::StatusOr<int> Activate(Connection& conn, std::string_view device_id, int v
   return active ? active->version : 0;
 }
 
+std::string Displaced(int previous) {
+  return previous == 0 ? std::string() : Cat("; version ", previous, " superseded");
+}
+
 std::string Reason(std::string_view reason) {
   return reason.empty() ? std::string() : Cat(": ", reason);
 }
 
-std::string Displaced(int previous) {
-  return previous == 0 ? std::string() : Cat("; version ", previous, " superseded");
+// Promote's and Rollback's change: activates `version`, audits it as `action` ("<what> active",
+// the version it displaced, the reason) and returns it as stored.
+absl::StatusOr<ParamVersion> ActivateAudited(Connection& conn, std::string_view device_id,
+                                             int version, std::string_view action,
+                                             std::string_view what, std::string_view actor,
+                                             std::string_view reason, absl::Time now) {
+  STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, version));
+  STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, action, DeviceTarget(device_id),
+                                      Cat(what, " active", Displaced(displaced), Reason(reason))));
+  return LoadVersion(conn, device_id, version);
 }
 
 }  // namespace
@@ -180,11 +190,8 @@ absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int vers
               "version ", version, " of device '", device_id, "' is ", VersionStateName(v.state),
               "; only a candidate can be promoted (Rollback makes an older version active)"));
         }
-        STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, version));
-        STORAGE_RETURN_IF_ERROR(
-            InsertAudit(conn, Now(), actor, "version.promote", DeviceTarget(device_id),
-                        Cat("version ", version, " active", Displaced(displaced), Reason(reason))));
-        return LoadVersion(conn, device_id, version);
+        return ActivateAudited(conn, device_id, version, "version.promote",
+                               Cat("version ", version), actor, reason, Now());
       }));
 }
 
@@ -206,12 +213,10 @@ absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_
               Cat("version ", to_version, " is not older than the active version ", active->version,
                   " of device '", device_id, "'"));
         }
-        STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, to_version));
-        STORAGE_RETURN_IF_ERROR(
-            InsertAudit(conn, Now(), actor, "version.rollback", DeviceTarget(device_id),
-                        Cat("version ", to_version, " (was ", VersionStateName(target.state),
-                            ") active", Displaced(displaced), Reason(reason))));
-        return LoadVersion(conn, device_id, to_version);
+        return ActivateAudited(
+            conn, device_id, to_version, "version.rollback",
+            Cat("version ", to_version, " (was ", VersionStateName(target.state), ")"), actor,
+            reason, Now());
       }));
 }
 
