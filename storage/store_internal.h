@@ -1,7 +1,8 @@
 // What the files of the SQLite store (store.cc and store_<table>.cc, one per banner of store.h)
 // share: time and error conventions, the transaction wrapper, the lookups and writes that one
-// table's calls make on another's, and the Store's private types. Private to storage/*.cc; the
-// library's API is store.h.
+// table's calls make on another's, and the Store's private types. TokenStore (tokens.cc) writes
+// its audit rows and transactions through it too. Private to storage/*.cc; the library's API is
+// store.h.
 //
 // Each shared lookup or write is defined in the file of the table it touches (named below), so
 // a table's SQL lives in one file.
