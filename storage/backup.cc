@@ -24,11 +24,9 @@ namespace {
 constexpr const char* kRequiredTables[] = {"devices", "sessions", "sample_batches",
                                            "param_versions"};
 
-int64_t FirstInt(const Statement& st) { return st.ColumnInt64(0); }
-
 // The first column of the first row of a constant query.
 absl::StatusOr<int64_t> QueryInt(Connection& conn, std::string_view sql) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> value, ReadRow(conn, sql, FirstInt));
+  STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> value, ReadRow(conn, sql, FirstColumnInt64));
   if (!value) return absl::InternalError(Cat("no row from ", sql));
   return *value;
 }
@@ -36,8 +34,7 @@ absl::StatusOr<int64_t> QueryInt(Connection& conn, std::string_view sql) {
 // PRAGMA integrity_check: "ok", or up to three of its complaints.
 absl::Status CheckIntegrity(Connection& conn) {
   STORAGE_ASSIGN_OR_RETURN(std::vector<std::string> lines,
-                           ReadRows(conn, "PRAGMA integrity_check(3)",
-                                    [](const Statement& st) { return st.ColumnText(0); }));
+                           ReadRows(conn, "PRAGMA integrity_check(3)", FirstColumnText));
   if (lines.size() == 1 && lines[0] == "ok") return absl::OkStatus();
   return absl::DataLossError(Cat("integrity_check failed: ", core::Join(lines, "; ")));
 }
@@ -48,7 +45,7 @@ absl::StatusOr<int64_t> CountTables(Connection& conn) {
     STORAGE_ASSIGN_OR_RETURN(
         std::optional<int64_t> count,
         ReadRow(conn, "SELECT count(*) FROM sqlite_schema WHERE type = 'table' AND name = ?1",
-                FirstInt, table));
+                FirstColumnInt64, table));
     found += count.value_or(0);
   }
   return found;
@@ -147,8 +144,7 @@ absl::Status WriteStandaloneCopy(Connection& src, const std::string& path) {
     // The pages came from a WAL database and say so in their header: make the copy a plain
     // rollback-journal database, so that it is complete without a -wal beside it.
     STORAGE_ASSIGN_OR_RETURN(std::optional<std::string> mode,
-                             ReadRow(*dest, "PRAGMA journal_mode = DELETE",
-                                     [](const Statement& st) { return st.ColumnText(0); }));
+                             ReadRow(*dest, "PRAGMA journal_mode = DELETE", FirstColumnText));
     if (mode.value_or("") != "delete") {
       return absl::InternalError(Cat(tmp, ": cannot leave WAL mode"));
     }

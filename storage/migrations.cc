@@ -180,12 +180,11 @@ std::span<const Migration> Migrations() { return kMigrations; }
 int LatestSchemaVersion() { return Migrations().back().version; }
 
 absl::StatusOr<int> SchemaVersion(Connection& conn) {
-  absl::StatusOr<std::optional<int>> version =
-      ReadRow(conn, "PRAGMA user_version",
-              [](const Statement& st) { return static_cast<int>(st.ColumnInt64(0)); });
+  absl::StatusOr<std::optional<int64_t>> version =
+      ReadRow(conn, "PRAGMA user_version", FirstColumnInt64);
   if (!version.ok()) return version.status();
   if (!*version) return absl::InternalError("PRAGMA user_version returned no row");
-  return **version;
+  return static_cast<int>(**version);
 }
 
 absl::Status Migrate(Connection& conn, std::span<const Migration> migrations) {

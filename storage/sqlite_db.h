@@ -270,6 +270,10 @@ absl::StatusOr<MappedRow<MapRow>> MapCurrent(MapRow& map_row, const Statement& s
 
 }  // namespace sqlite_internal
 
+// Row mappers for one-column queries (an id, a count, a PRAGMA's answer).
+inline int64_t FirstColumnInt64(const Statement& st) { return st.ColumnInt64(0); }
+inline std::string FirstColumnText(const Statement& st) { return st.ColumnText(0); }
+
 // Runs the SELECT `sql` with `params` (see BindAll) and maps every row with `map_row`, in the
 // statement's order. The first failing step or mapping is the result (errors from SQLite are
 // mapped by SqliteStatus, in Statement::Step).

@@ -52,8 +52,7 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
     // WAL is a property of the file: set once, kept by every later open.
     STORAGE_ASSIGN_OR_RETURN(
         std::optional<std::string> mode,
-        Annotate(op, ReadRow(*writer, "PRAGMA journal_mode = WAL",
-                             [](const Statement& st) { return st.ColumnText(0); })));
+        Annotate(op, ReadRow(*writer, "PRAGMA journal_mode = WAL", FirstColumnText)));
     if (mode.value_or("") != "wal") {
       return absl::FailedPreconditionError(
           Cat(op, ": cannot switch to WAL (journal mode is '", mode.value_or(""), "')"));

@@ -35,16 +35,20 @@ struct LastBatch {
   int64_t end_sample = 0;
 };
 
+// Columns as in kSelectLastBatch.
+LastBatch ReadLastBatch(const Statement& st) {
+  return LastBatch{st.ColumnInt64(0), st.ColumnDouble(1), st.ColumnInt64(2)};
+}
+
 absl::StatusOr<LastBatch> FindLastBatch(Connection& conn, std::string_view session_id) {
-  STORAGE_ASSIGN_OR_RETURN(
-      std::optional<LastBatch> last,
-      ReadRow(
-          conn, kSelectLastBatch,
-          [](const Statement& st) {
-            return LastBatch{st.ColumnInt64(0), st.ColumnDouble(1), st.ColumnInt64(2)};
-          },
-          session_id));
+  STORAGE_ASSIGN_OR_RETURN(std::optional<LastBatch> last,
+                           ReadRow(conn, kSelectLastBatch, ReadLastBatch, session_id));
   return last.value_or(LastBatch{});
+}
+
+// Columns as in kSelectSessionStateForAppend.
+absl::StatusOr<SessionState> ReadSessionState(const Statement& st) {
+  return FromColumn(ParseSessionState(st.ColumnText(0)));
 }
 
 // Columns as in kSelectBatches, of `session_id`. The payload is verified on the way out too: a
@@ -74,10 +78,7 @@ absl::StatusOr<BatchAck> AppendOne(Connection& conn, std::string_view session_id
                                    std::string_view payload, const EncodedBatchInfo& info) {
   STORAGE_ASSIGN_OR_RETURN(
       std::optional<SessionState> state,
-      ReadRow(
-          conn, kSelectSessionStateForAppend,
-          [](const Statement& st) { return FromColumn(ParseSessionState(st.ColumnText(0))); },
-          session_id));
+      ReadRow(conn, kSelectSessionStateForAppend, ReadSessionState, session_id));
   if (!state) return absl::NotFoundError(Cat("no session '", session_id, "'"));
   STORAGE_ASSIGN_OR_RETURN(const LastBatch last, FindLastBatch(conn, session_id));
   if (seq <= last.seq) {

@@ -70,9 +70,7 @@ absl::StatusOr<Session> ReadSession(const Statement& st) {
 
 absl::StatusOr<std::optional<std::string>> FindOpenSession(Connection& conn,
                                                            std::string_view device_id) {
-  return ReadRow(
-      conn, kSelectOpenSessionOfDevice, [](const Statement& st) { return st.ColumnText(0); },
-      device_id);
+  return ReadRow(conn, kSelectOpenSessionOfDevice, FirstColumnText, device_id);
 }
 
 std::string GenerateSessionId() {
@@ -196,9 +194,7 @@ absl::StatusOr<std::vector<Session>> Store::ListSessions(const SessionQuery& que
     if (!query.after_id.empty()) {
       STORAGE_ASSIGN_OR_RETURN(
           std::optional<int64_t> rowid,
-          ReadRow(
-              conn, kSelectSessionRowid, [](const Statement& st) { return st.ColumnInt64(0); },
-              query.after_id));
+          ReadRow(conn, kSelectSessionRowid, FirstColumnInt64, query.after_id));
       if (!rowid) {
         return absl::InvalidArgumentError(Cat("page after unknown session '", query.after_id, "'"));
       }

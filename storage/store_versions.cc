@@ -144,13 +144,10 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
     }
   }
   // The write lock is held (BEGIN IMMEDIATE), so MAX + 1 cannot race another writer.
-  STORAGE_ASSIGN_OR_RETURN(
-      std::optional<int> next,
-      ReadRow(
-          conn, kSelectNextVersion,
-          [](const Statement& st) { return static_cast<int>(st.ColumnInt64(0)); }, v.device_id));
+  STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> next,
+                           ReadRow(conn, kSelectNextVersion, FirstColumnInt64, v.device_id));
   if (!next) return absl::InternalError("no next version");
-  const int number = *next;
+  const int number = static_cast<int>(*next);
   STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertVersion, v.device_id, number, Micros(now),
                                        NullIfEmpty(v.session_id), VerdictName(v.verdict),
                                        v.accel_rms, VersionStateName(VersionState::kCandidate),

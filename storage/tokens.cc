@@ -183,8 +183,7 @@ absl::StatusOr<std::optional<NewToken>> TokenStore::CreateFirstAdmin(std::string
   return InTransaction(
       "CreateFirstAdmin", *conn_, [&](Connection& conn) -> absl::StatusOr<std::optional<NewToken>> {
         STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> count,
-                                 ReadRow(conn, kCountValidAdmins,
-                                         [](const Statement& st) { return st.ColumnInt64(0); }));
+                                 ReadRow(conn, kCountValidAdmins, FirstColumnInt64));
         if (count.value_or(0) > 0) return std::nullopt;
         STORAGE_ASSIGN_OR_RETURN(NewToken created, InsertLocked(Role::kAdmin, "", label, actor));
         return created;
