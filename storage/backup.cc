@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <system_error>
 #include <vector>
 
@@ -23,42 +24,29 @@ namespace {
 constexpr const char* kRequiredTables[] = {"devices", "sessions", "sample_batches",
                                            "param_versions"};
 
-absl::Status WithPrefix(std::string_view prefix, const absl::Status& status) {
-  if (status.ok()) return status;
-  return absl::Status(status.code(), Cat(prefix, ": ", status.message()));
-}
-
 // The first column of the first row of a constant query.
 absl::StatusOr<int64_t> QueryInt(Connection& conn, std::string_view sql) {
-  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(sql));
-  STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-  if (!row) return absl::InternalError(Cat("no row from ", sql));
-  return st->ColumnInt64(0);
+  STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> value, ReadRow(conn, sql, FirstColumnInt64));
+  if (!value) return absl::InternalError(Cat("no row from ", sql));
+  return *value;
 }
 
 // PRAGMA integrity_check: "ok", or up to three of its complaints.
 absl::Status CheckIntegrity(Connection& conn) {
-  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare("PRAGMA integrity_check(3)"));
-  std::vector<std::string> lines;
-  while (true) {
-    STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-    if (!row) break;
-    lines.push_back(st->ColumnText(0));
-  }
+  STORAGE_ASSIGN_OR_RETURN(std::vector<std::string> lines,
+                           ReadRows(conn, "PRAGMA integrity_check(3)", FirstColumnText));
   if (lines.size() == 1 && lines[0] == "ok") return absl::OkStatus();
   return absl::DataLossError(Cat("integrity_check failed: ", core::Join(lines, "; ")));
 }
 
 absl::StatusOr<int64_t> CountTables(Connection& conn) {
-  STORAGE_ASSIGN_OR_RETURN(
-      ScopedStatement st,
-      conn.Prepare("SELECT count(*) FROM sqlite_schema WHERE type = 'table' AND name = ?1"));
   int64_t found = 0;
   for (const char* table : kRequiredTables) {
-    st->Reset();
-    st->BindText(1, table);
-    STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-    if (row) found += st->ColumnInt64(0);
+    STORAGE_ASSIGN_OR_RETURN(
+        std::optional<int64_t> count,
+        ReadRow(conn, "SELECT count(*) FROM sqlite_schema WHERE type = 'table' AND name = ?1",
+                FirstColumnInt64, table));
+    found += count.value_or(0);
   }
   return found;
 }
@@ -155,16 +143,16 @@ absl::Status WriteStandaloneCopy(Connection& src, const std::string& path) {
     STORAGE_RETURN_IF_ERROR(CopyPages(src, *dest, Cat("copy to ", tmp)));
     // The pages came from a WAL database and say so in their header: make the copy a plain
     // rollback-journal database, so that it is complete without a -wal beside it.
-    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, dest->Prepare("PRAGMA journal_mode = DELETE"));
-    STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-    if (!row || st->ColumnText(0) != "delete") {
+    STORAGE_ASSIGN_OR_RETURN(std::optional<std::string> mode,
+                             ReadRow(*dest, "PRAGMA journal_mode = DELETE", FirstColumnText));
+    if (mode.value_or("") != "delete") {
       return absl::InternalError(Cat(tmp, ": cannot leave WAL mode"));
     }
   }
   {
     STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> check,
                              Connection::Open(tmp, ConnectionOptions{.read_only = true}));
-    STORAGE_RETURN_IF_ERROR(WithPrefix(tmp, Inspect(*check, /*check_integrity=*/true).status()));
+    STORAGE_RETURN_IF_ERROR(Annotate(tmp, Inspect(*check, /*check_integrity=*/true).status()));
   }
   STORAGE_RETURN_IF_ERROR(FsyncPath(tmp, /*directory=*/false));
   std::filesystem::rename(tmp, path, ec);
@@ -178,9 +166,9 @@ absl::StatusOr<DatabaseInfo> InspectDatabase(const std::string& path, bool check
   STORAGE_RETURN_IF_ERROR(CheckExists(path));
   absl::StatusOr<std::unique_ptr<Connection>> conn =
       Connection::Open(path, ConnectionOptions{.read_only = true});
-  if (!conn.ok()) return WithPrefix(path, conn.status());
+  if (!conn.ok()) return Annotate(path, conn.status());
   absl::StatusOr<DatabaseInfo> info = Inspect(**conn, check_integrity);
-  if (!info.ok()) return WithPrefix(path, info.status());
+  if (!info.ok()) return Annotate(path, info.status());
   return info;
 }
 
@@ -189,9 +177,9 @@ absl::StatusOr<int> SchemaVersionOf(const std::string& path) {
   if (!std::filesystem::exists(path, ec)) return 0;
   absl::StatusOr<std::unique_ptr<Connection>> conn =
       Connection::Open(path, ConnectionOptions{.read_only = true});
-  if (!conn.ok()) return WithPrefix(path, conn.status());
+  if (!conn.ok()) return Annotate(path, conn.status());
   absl::StatusOr<int> version = SchemaVersion(**conn);
-  if (!version.ok()) return WithPrefix(path, version.status());
+  if (!version.ok()) return Annotate(path, version.status());
   return version;
 }
 
@@ -203,8 +191,8 @@ absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path,
   // Read-only: the backup never writes the live database (nor checkpoints its WAL).
   absl::StatusOr<std::unique_ptr<Connection>> src =
       Connection::Open(db_path, ConnectionOptions{.read_only = true});
-  if (!src.ok()) return WithPrefix(db_path, src.status());
-  if (absl::Status s = WithPrefix(db_path, Inspect(**src, false).status()); !s.ok()) return s;
+  if (!src.ok()) return Annotate(db_path, src.status());
+  if (absl::Status s = Annotate(db_path, Inspect(**src, false).status()); !s.ok()) return s;
   STORAGE_RETURN_IF_ERROR(WriteStandaloneCopy(**src, out_path));
   return InspectDatabase(out_path, /*check_integrity=*/false);
 }
@@ -227,14 +215,14 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
     ConnectionOptions options;
     options.busy_timeout = absl::ZeroDuration();
     absl::StatusOr<std::unique_ptr<Connection>> dest = Connection::Open(db_path, options);
-    if (!dest.ok()) return WithPrefix(db_path, dest.status());
+    if (!dest.ok()) return Annotate(db_path, dest.status());
     STORAGE_RETURN_IF_ERROR((*dest)->Exec("PRAGMA locking_mode = EXCLUSIVE"));
     if (absl::Status s = (*dest)->Exec("BEGIN EXCLUSIVE; COMMIT"); !s.ok()) {
       if (absl::IsUnavailable(s)) {
         return absl::FailedPreconditionError(
             Cat(db_path, " is in use (is imucald running?): stop it before restoring"));
       }
-      return WithPrefix(db_path, s);
+      return Annotate(db_path, s);
     }
     if (replacing) {
       // Keep what was there: a restore of the wrong file can itself be undone.
@@ -242,7 +230,7 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
     }
     absl::StatusOr<std::unique_ptr<Connection>> src =
         Connection::Open(backup_path, ConnectionOptions{.read_only = true});
-    if (!src.ok()) return WithPrefix(backup_path, src.status());
+    if (!src.ok()) return Annotate(backup_path, src.status());
     STORAGE_RETURN_IF_ERROR(CopyPages(**src, **dest, Cat("restore into ", db_path)));
   }
   absl::StatusOr<DatabaseInfo> restored = InspectDatabase(db_path, /*check_integrity=*/true);

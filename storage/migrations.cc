@@ -1,5 +1,7 @@
 #include "storage/migrations.h"
 
+#include <optional>
+
 #include "storage/str_util.h"
 
 namespace imucal::storage {
@@ -178,12 +180,11 @@ std::span<const Migration> Migrations() { return kMigrations; }
 int LatestSchemaVersion() { return Migrations().back().version; }
 
 absl::StatusOr<int> SchemaVersion(Connection& conn) {
-  absl::StatusOr<ScopedStatement> stmt = conn.Prepare("PRAGMA user_version");
-  if (!stmt.ok()) return stmt.status();
-  absl::StatusOr<bool> row = (*stmt)->Step();
-  if (!row.ok()) return row.status();
-  if (!*row) return absl::InternalError("PRAGMA user_version returned no row");
-  return static_cast<int>((*stmt)->ColumnInt64(0));
+  absl::StatusOr<std::optional<int64_t>> version =
+      ReadRow(conn, "PRAGMA user_version", FirstColumnInt64);
+  if (!version.ok()) return version.status();
+  if (!*version) return absl::InternalError("PRAGMA user_version returned no row");
+  return static_cast<int>(**version);
 }
 
 absl::Status Migrate(Connection& conn, std::span<const Migration> migrations) {

@@ -6,6 +6,9 @@
 //   reused (`Prepare` returns a `ScopedStatement` that resets it when it goes out of scope).
 //   A Connection is not thread-safe: one thread at a time (Store guards them).
 // - `Transaction`: BEGIN IMMEDIATE; the destructor rolls back unless Commit() ran.
+// - `ReadRows`, `ReadRow`, `RunStatement`: a whole statement in one call (prepare, bind the
+//   parameters in order, step, map each row with one function per row type). Every query of
+//   the store goes through them, so a SELECT is its SQL, its parameters and its row mapper.
 //
 // SQL is always a constant; values are bound, never concatenated into it.
 //
@@ -27,10 +30,13 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
+#include <type_traits>
 #include <unordered_map>
 #include <utility>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -172,6 +178,144 @@ class Transaction {
   explicit Transaction(Connection* conn) : conn_(conn) {}
   Connection* conn_;  // null once committed or rolled back
 };
+
+// ---- Whole statements ------------------------------------------------------------------------
+
+// A parameter bound as a BLOB (text binds as TEXT).
+struct SqlBlob {
+  std::string_view bytes;
+};
+
+namespace sqlite_internal {
+
+template <typename T>
+struct IsOptional : std::false_type {};
+template <typename T>
+struct IsOptional<std::optional<T>> : std::true_type {};
+
+template <typename T>
+struct IsStatusOr : std::false_type {};
+template <typename T>
+struct IsStatusOr<absl::StatusOr<T>> : std::true_type {};
+
+template <typename T>
+struct Unwrapped {
+  using type = T;
+};
+template <typename T>
+struct Unwrapped<absl::StatusOr<T>> {
+  using type = T;
+};
+
+template <typename T>
+void BindOne(Statement& st, int index, const T& value) {
+  if constexpr (std::is_same_v<T, std::nullopt_t>) {
+    st.BindNull(index);
+  } else if constexpr (IsOptional<T>::value) {
+    if (value) {
+      BindOne(st, index, *value);
+    } else {
+      st.BindNull(index);
+    }
+  } else if constexpr (std::is_same_v<T, bool>) {
+    st.BindInt64(index, value ? 1 : 0);
+  } else if constexpr (std::is_integral_v<T>) {
+    st.BindInt64(index, value);
+  } else if constexpr (std::is_floating_point_v<T>) {
+    st.BindDouble(index, value);
+  } else if constexpr (std::is_same_v<T, SqlBlob>) {
+    st.BindBlob(index, value.bytes);
+  } else {
+    static_assert(std::is_convertible_v<const T&, std::string_view>,
+                  "a parameter is an integer, a floating point number, text, SqlBlob or NULL "
+                  "(an enum binds by its stored name)");
+    st.BindText(index, value);
+  }
+}
+
+}  // namespace sqlite_internal
+
+// Binds `params` to ?1, ?2, ... in order: integers (bool as 0/1) as INTEGER, floating point as
+// REAL, anything convertible to std::string_view as TEXT, SqlBlob as BLOB, and std::nullopt or
+// an empty std::optional as NULL.
+template <typename... Params>
+void BindAll(Statement& st, const Params&... params) {
+  int index = 0;
+  (sqlite_internal::BindOne(st, ++index, params), ...);
+}
+
+// What a row mapper returns: `T` from a mapper `T(const Statement&)` or
+// `absl::StatusOr<T>(const Statement&)` (for rows that can be invalid, e.g. an enum name that
+// does not parse).
+template <typename MapRow>
+using MappedRow =
+    typename sqlite_internal::Unwrapped<std::invoke_result_t<MapRow&, const Statement&>>::type;
+
+namespace sqlite_internal {
+
+// The statement for `sql` on `conn`, with `params` bound.
+template <typename... Params>
+absl::StatusOr<ScopedStatement> PrepareBound(Connection& conn, std::string_view sql,
+                                             const Params&... params) {
+  absl::StatusOr<ScopedStatement> st = conn.Prepare(sql);
+  if (st.ok()) BindAll(**st, params...);
+  return st;
+}
+
+// `map_row` applied to the current row, as a StatusOr either way.
+template <typename MapRow>
+absl::StatusOr<MappedRow<MapRow>> MapCurrent(MapRow& map_row, const Statement& st) {
+  return map_row(st);
+}
+
+}  // namespace sqlite_internal
+
+// Row mappers for one-column queries (an id, a count, a PRAGMA's answer).
+inline int64_t FirstColumnInt64(const Statement& st) { return st.ColumnInt64(0); }
+inline std::string FirstColumnText(const Statement& st) { return st.ColumnText(0); }
+
+// Runs the SELECT `sql` with `params` (see BindAll) and maps every row with `map_row`, in the
+// statement's order. The first failing step or mapping is the result (errors from SQLite are
+// mapped by SqliteStatus, in Statement::Step).
+template <typename MapRow, typename... Params>
+absl::StatusOr<std::vector<MappedRow<MapRow>>> ReadRows(Connection& conn, std::string_view sql,
+                                                        MapRow&& map_row, const Params&... params) {
+  absl::StatusOr<ScopedStatement> st = sqlite_internal::PrepareBound(conn, sql, params...);
+  if (!st.ok()) return st.status();
+  std::vector<MappedRow<MapRow>> rows;
+  for (;;) {
+    absl::StatusOr<bool> row = (*st)->Step();
+    if (!row.ok()) return row.status();
+    if (!*row) return rows;
+    absl::StatusOr<MappedRow<MapRow>> mapped = sqlite_internal::MapCurrent(map_row, **st);
+    if (!mapped.ok()) return mapped.status();
+    rows.push_back(*std::move(mapped));
+  }
+}
+
+// As ReadRows, for a query of at most one row of interest: its first row, or nullopt if it
+// returns none. The mapper runs while the row is current, so it may compare a column view.
+template <typename MapRow, typename... Params>
+absl::StatusOr<std::optional<MappedRow<MapRow>>> ReadRow(Connection& conn, std::string_view sql,
+                                                         MapRow&& map_row,
+                                                         const Params&... params) {
+  absl::StatusOr<ScopedStatement> st = sqlite_internal::PrepareBound(conn, sql, params...);
+  if (!st.ok()) return st.status();
+  absl::StatusOr<bool> row = (*st)->Step();
+  if (!row.ok()) return row.status();
+  if (!*row) return std::nullopt;
+  absl::StatusOr<MappedRow<MapRow>> mapped = sqlite_internal::MapCurrent(map_row, **st);
+  if (!mapped.ok()) return mapped.status();
+  return std::optional<MappedRow<MapRow>>(*std::move(mapped));
+}
+
+// Runs a statement that returns no rows (INSERT, UPDATE, DELETE) with `params` (see BindAll).
+template <typename... Params>
+absl::Status RunStatement(Connection& conn, std::string_view sql, const Params&... params) {
+  absl::StatusOr<ScopedStatement> st = sqlite_internal::PrepareBound(conn, sql, params...);
+  if (!st.ok()) return st.status();
+  return (*st)->Run();
+}
 
 }  // namespace imucal::storage
 

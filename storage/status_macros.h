@@ -1,11 +1,13 @@
-// Early-return helpers for absl::Status / absl::StatusOr, private to storage/*.cc.
+// Early-return and context helpers for absl::Status / absl::StatusOr, private to storage/*.cc.
 #ifndef IMUCAL_STORAGE_STATUS_MACROS_H_
 #define IMUCAL_STORAGE_STATUS_MACROS_H_
 
+#include <string_view>
 #include <utility>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "storage/str_util.h"
 
 #define STORAGE_RETURN_IF_ERROR(expr)                                   \
   do {                                                                  \
@@ -24,5 +26,24 @@
   auto tmp = (expr);                                   \
   if (!tmp.ok()) return tmp.status();                  \
   lhs = std::move(*tmp)
+
+namespace imucal::storage {
+
+// Errors name what they come from (a call, a file): "<op>: <message>".
+inline absl::Status WithContext(std::string_view op, const absl::Status& s) {
+  return absl::Status(s.code(), Cat(op, ": ", s.message()));
+}
+// `result` unchanged when it is OK, else with `op` as WithContext adds it.
+template <typename T>
+absl::StatusOr<T> Annotate(std::string_view op, absl::StatusOr<T> result) {
+  if (!result.ok()) return WithContext(op, result.status());
+  return result;
+}
+inline absl::Status Annotate(std::string_view op, absl::Status result) {
+  if (!result.ok()) return WithContext(op, result);
+  return result;
+}
+
+}  // namespace imucal::storage
 
 #endif  // IMUCAL_STORAGE_STATUS_MACROS_H_

@@ -9,6 +9,7 @@
 #include "storage/migrations.h"
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
+#include "storage/store_internal.h"
 #include "storage/str_util.h"
 
 namespace imucal::storage {
@@ -33,11 +34,6 @@ constexpr char kCountValidAdmins[] =
     "SELECT COUNT(*) FROM tokens WHERE role = 'admin' AND revoked_at_us IS NULL";
 constexpr char kRevokeToken[] =
     "UPDATE tokens SET revoked_at_us = ?2 WHERE id = ?1 AND revoked_at_us IS NULL";
-constexpr char kInsertAudit[] =
-    "INSERT INTO audit_log (time_us, actor, action, target, detail) "
-    "VALUES (?1, ?2, ?3, ?4, ?5)";
-
-int64_t Micros(absl::Time t) { return absl::ToUnixMicros(t); }
 
 // Now, to the microsecond as stored, so that a returned token equals the one read back.
 absl::Time Now() { return absl::FromUnixMicros(Micros(absl::Now())); }
@@ -91,28 +87,17 @@ std::string_view HashView(const TokenHash& hash) {
   return std::string_view(reinterpret_cast<const char*>(hash.data()), hash.size());
 }
 
-absl::Status InsertAudit(Connection& conn, std::string_view actor, std::string_view action,
-                         int64_t token_id, std::string_view detail) {
-  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kInsertAudit));
-  st->BindInt64(1, Micros(absl::Now()));
-  st->BindText(2, actor);
-  st->BindText(3, action);
-  st->BindText(4, TokenTarget(token_id));
-  st->BindText(5, detail);
-  return st->Run();
+// The audit entry of a change to token `token_id`, in the change's transaction.
+absl::Status AuditToken(Connection& conn, std::string_view actor, std::string_view action,
+                        int64_t token_id, std::string_view detail) {
+  return InsertAudit(conn, absl::Now(), actor, action, TokenTarget(token_id), detail);
 }
 
 absl::StatusOr<Token> SelectById(Connection& conn, int64_t id) {
-  STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(kSelectTokenById));
-  st->BindInt64(1, id);
-  STORAGE_ASSIGN_OR_RETURN(bool row, st->Step());
-  if (!row) return absl::NotFoundError(Cat("token ", id, " does not exist"));
-  return ReadToken(*st);
-}
-
-absl::Status WithOp(std::string_view op, absl::Status s) {
-  if (s.ok()) return s;
-  return absl::Status(s.code(), Cat(op, ": ", s.message()));
+  STORAGE_ASSIGN_OR_RETURN(std::optional<Token> token,
+                           ReadRow(conn, kSelectTokenById, ReadToken, id));
+  if (!token) return absl::NotFoundError(Cat("token ", id, " does not exist"));
+  return *std::move(token);
 }
 
 }  // namespace
@@ -154,11 +139,11 @@ absl::StatusOr<std::unique_ptr<TokenStore>> TokenStore::Open(const std::string& 
   ConnectionOptions options;
   options.busy_timeout = busy_timeout;
   absl::StatusOr<std::unique_ptr<Connection>> conn = Connection::Open(path, options);
-  if (!conn.ok()) return WithOp(Cat("open tokens of ", path), conn.status());
+  if (!conn.ok()) return Annotate(Cat("open tokens of ", path), conn.status());
   // WAL, as Store::Open sets it (a property of the file), so that readers never block a write.
   if (absl::Status s = (*conn)->Exec("PRAGMA journal_mode = WAL"); !s.ok())
-    return WithOp(Cat("open tokens of ", path), s);
-  if (absl::Status s = Migrate(**conn); !s.ok()) return WithOp(Cat("open tokens of ", path), s);
+    return Annotate(Cat("open tokens of ", path), s);
+  if (absl::Status s = Migrate(**conn); !s.ok()) return Annotate(Cat("open tokens of ", path), s);
   return std::unique_ptr<TokenStore>(new TokenStore(*std::move(conn)));
 }
 
@@ -171,24 +156,16 @@ absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view de
   out.token.device_id = std::string(device_id);
   out.token.label = std::string(label);
   out.token.created_at = Now();
-  {
-    STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn_->Prepare(kInsertToken));
-    st->BindBlob(1, HashView(HashTokenSecret(secret)));
-    st->BindText(2, RoleName(role));
-    if (role == Role::kRobot) {
-      st->BindText(3, device_id);
-    } else {
-      st->BindNull(3);
-    }
-    st->BindText(4, label);
-    st->BindInt64(5, Micros(out.token.created_at));
-    STORAGE_RETURN_IF_ERROR(st->Run());
-  }
+  std::optional<std::string_view> bound_device;  // NULL for the roles bound to no device
+  if (role == Role::kRobot) bound_device = device_id;
+  STORAGE_RETURN_IF_ERROR(RunStatement(*conn_, kInsertToken,
+                                       SqlBlob{HashView(HashTokenSecret(secret))}, RoleName(role),
+                                       bound_device, label, Micros(out.token.created_at)));
   out.token.id = sqlite3_last_insert_rowid(conn_->db());
   std::string detail = Cat("role ", RoleName(role));
   if (role == Role::kRobot) AppendTo(&detail, ", device ", device_id);
   if (!label.empty()) AppendTo(&detail, ", label '", label, "'");
-  STORAGE_RETURN_IF_ERROR(InsertAudit(*conn_, actor, "token.create", out.token.id, detail));
+  STORAGE_RETURN_IF_ERROR(AuditToken(*conn_, actor, "token.create", out.token.id, detail));
   out.secret = std::move(secret);
   return out;
 }
@@ -196,86 +173,49 @@ absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view de
 absl::StatusOr<NewToken> TokenStore::Create(Role role, std::string_view device_id,
                                             std::string_view label, std::string_view actor) {
   std::lock_guard lock(mu_);
-  absl::StatusOr<Transaction> txn = Transaction::Begin(*conn_);
-  if (!txn.ok()) return WithOp("CreateToken", txn.status());
-  absl::StatusOr<NewToken> created = InsertLocked(role, device_id, label, actor);
-  if (!created.ok()) return WithOp("CreateToken", created.status());
-  if (absl::Status s = txn->Commit(); !s.ok()) return WithOp("CreateToken", s);
-  return created;
+  return InTransaction("CreateToken", *conn_,
+                       [&](Connection&) { return InsertLocked(role, device_id, label, actor); });
 }
 
 absl::StatusOr<std::optional<NewToken>> TokenStore::CreateFirstAdmin(std::string_view label,
                                                                      std::string_view actor) {
-  constexpr std::string_view kOp = "CreateFirstAdmin";
   std::lock_guard lock(mu_);
-  absl::StatusOr<Transaction> txn = Transaction::Begin(*conn_);
-  if (!txn.ok()) return WithOp(kOp, txn.status());
-  int64_t count = 0;
-  {
-    absl::StatusOr<ScopedStatement> st = conn_->Prepare(kCountValidAdmins);
-    if (!st.ok()) return WithOp(kOp, st.status());
-    absl::StatusOr<bool> row = (*st)->Step();
-    if (!row.ok()) return WithOp(kOp, row.status());
-    count = *row ? (*st)->ColumnInt64(0) : 0;
-  }
-  if (count > 0) return std::optional<NewToken>();
-  absl::StatusOr<NewToken> created = InsertLocked(Role::kAdmin, "", label, actor);
-  if (!created.ok()) return WithOp(kOp, created.status());
-  if (absl::Status s = txn->Commit(); !s.ok()) return WithOp(kOp, s);
-  return std::optional<NewToken>(*std::move(created));
+  return InTransaction(
+      "CreateFirstAdmin", *conn_, [&](Connection& conn) -> absl::StatusOr<std::optional<NewToken>> {
+        STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> count,
+                                 ReadRow(conn, kCountValidAdmins, FirstColumnInt64));
+        if (count.value_or(0) > 0) return std::nullopt;
+        STORAGE_ASSIGN_OR_RETURN(NewToken created, InsertLocked(Role::kAdmin, "", label, actor));
+        return created;
+      });
 }
 
 absl::StatusOr<std::vector<Token>> TokenStore::List(bool include_revoked) {
   std::lock_guard lock(mu_);
-  absl::StatusOr<ScopedStatement> st = conn_->Prepare(kSelectTokens);
-  if (!st.ok()) return WithOp("ListTokens", st.status());
-  (*st)->BindInt64(1, include_revoked ? 1 : 0);
-  std::vector<Token> out;
-  while (true) {
-    absl::StatusOr<bool> row = (*st)->Step();
-    if (!row.ok()) return WithOp("ListTokens", row.status());
-    if (!*row) break;
-    absl::StatusOr<Token> t = ReadToken(**st);
-    if (!t.ok()) return t.status();
-    out.push_back(*std::move(t));
-  }
-  return out;
+  return Annotate("ListTokens", ReadRows(*conn_, kSelectTokens, ReadToken, include_revoked));
 }
 
 absl::StatusOr<Token> TokenStore::Revoke(int64_t id, std::string_view actor) {
-  constexpr std::string_view kOp = "RevokeToken";
   std::lock_guard lock(mu_);
-  auto body = [&]() -> absl::StatusOr<Token> {
-    STORAGE_ASSIGN_OR_RETURN(Transaction txn, Transaction::Begin(*conn_));
-    STORAGE_ASSIGN_OR_RETURN(Token token, SelectById(*conn_, id));
+  return InTransaction("RevokeToken", *conn_, [&](Connection& conn) -> absl::StatusOr<Token> {
+    STORAGE_ASSIGN_OR_RETURN(Token token, SelectById(conn, id));
     if (token.revoked()) return token;  // already revoked: nothing to do or to audit
     token.revoked_at = Now();
-    {
-      STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn_->Prepare(kRevokeToken));
-      st->BindInt64(1, id);
-      st->BindInt64(2, Micros(*token.revoked_at));
-      STORAGE_RETURN_IF_ERROR(st->Run());
-    }
+    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kRevokeToken, id, Micros(*token.revoked_at)));
     std::string detail = Cat("role ", RoleName(token.role));
     if (token.role == Role::kRobot) AppendTo(&detail, ", device ", token.device_id);
-    STORAGE_RETURN_IF_ERROR(InsertAudit(*conn_, actor, "token.revoke", id, detail));
-    STORAGE_RETURN_IF_ERROR(txn.Commit());
+    STORAGE_RETURN_IF_ERROR(AuditToken(conn, actor, "token.revoke", id, detail));
     return token;
-  };
-  absl::StatusOr<Token> revoked = body();
-  if (!revoked.ok()) return WithOp(kOp, revoked.status());
-  return revoked;
+  });
 }
 
 absl::StatusOr<Token> TokenStore::Lookup(const TokenHash& hash) {
   std::lock_guard lock(mu_);
-  absl::StatusOr<ScopedStatement> st = conn_->Prepare(kSelectTokenByHash);
-  if (!st.ok()) return WithOp("LookupToken", st.status());
-  (*st)->BindBlob(1, HashView(hash));
-  absl::StatusOr<bool> row = (*st)->Step();
-  if (!row.ok()) return WithOp("LookupToken", row.status());
-  if (!*row) return absl::NotFoundError("no such token");
-  return ReadToken(**st);
+  STORAGE_ASSIGN_OR_RETURN(std::optional<Token> token,
+                           Annotate("LookupToken", ReadRow(*conn_, kSelectTokenByHash, ReadToken,
+                                                           SqlBlob{HashView(hash)})));
+  if (!token) return absl::NotFoundError("no such token");
+  return *std::move(token);
 }
 
 }  // namespace imucal::storage

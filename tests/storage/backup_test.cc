@@ -31,16 +31,6 @@ constexpr char kActor[] = "backup-test";
 // absl::string_view (not std::) on this Debian: matchers want a std::string.
 std::string Message(const absl::Status& s) { return std::string(s.message()); }
 
-Device MakeDevice(const std::string& id) {
-  Device d;
-  d.id = id;
-  d.sensor_model = "ICM-20948";
-  d.nominal_rate_hz = 200;
-  d.accel_unit = "m/s^2";
-  d.gyro_unit = "rad/s";
-  return d;
-}
-
 std::string WriterId(int i) {
   char id[32];
   std::snprintf(id, sizeof id, "robot-w-%06d", i);  // zero-padded: id order is creation order

@@ -1,8 +1,12 @@
 #include "storage/sqlite_db.h"
 
 #include <cmath>
+#include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
+#include <string_view>
+#include <vector>
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
@@ -112,6 +116,97 @@ TEST_F(SqliteDbTest, LockedDatabaseIsUnavailable) {
   absl::StatusOr<Transaction> blocked = Transaction::Begin(*other);
   EXPECT_EQ(blocked.status().code(), absl::StatusCode::kUnavailable) << blocked.status();
   EXPECT_THAT(blocked.status().message(), HasSubstr("locked"));
+}
+
+// ---- Whole statements: ReadRows, ReadRow, RunStatement ----------------------------------------
+
+struct Row {
+  int64_t k = 0;
+  std::string v;
+  double d = 0.0;
+  std::string b;
+  std::string type_of_b;
+};
+
+Row ReadRowOfT(const Statement& st) {
+  return Row{st.ColumnInt64(0), st.ColumnText(1), st.ColumnDouble(2), st.ColumnBlob(3),
+             st.ColumnText(4)};
+}
+
+constexpr char kInsertRow[] = "INSERT INTO t (k, v, d, b) VALUES (?1, ?2, ?3, ?4)";
+constexpr char kSelectRows[] = "SELECT k, v, d, b, typeof(b) FROM t WHERE k > ?1 ORDER BY k";
+
+TEST_F(SqliteDbTest, ParametersBindInOrderByType) {
+  ASSERT_OK(RunStatement(*conn_, kInsertRow, 1, "one", 1.5, SqlBlob{"\x01\x02"}));
+  ASSERT_OK(RunStatement(*conn_, kInsertRow, int64_t{2}, std::string("two"), std::nullopt,
+                         std::optional<std::string_view>()));
+  ASSERT_OK(RunStatement(*conn_, kInsertRow, 3, std::string_view("3"), 0.25, "text, not blob"));
+  ASSERT_OK_AND_ASSIGN(std::vector<Row> rows, ReadRows(*conn_, kSelectRows, ReadRowOfT, 0));
+  ASSERT_EQ(rows.size(), 3u);
+  EXPECT_EQ(rows[0].k, 1);
+  EXPECT_EQ(rows[0].v, "one");
+  EXPECT_EQ(rows[0].d, 1.5);
+  EXPECT_EQ(rows[0].b, "\x01\x02");
+  EXPECT_EQ(rows[0].type_of_b, "blob");
+  EXPECT_EQ(rows[1].v, "two");
+  EXPECT_TRUE(std::isnan(rows[1].d));  // NULL
+  EXPECT_EQ(rows[1].type_of_b, "null");
+  EXPECT_EQ(rows[2].type_of_b, "text");
+  // A bool binds as 0/1.
+  ASSERT_OK_AND_ASSIGN(std::optional<int64_t> one,
+                       ReadRow(
+                           *conn_, "SELECT ?1 + ?2",
+                           [](const Statement& st) { return st.ColumnInt64(0); }, true, false));
+  EXPECT_EQ(one, 1);
+}
+
+TEST_F(SqliteDbTest, ReadRowsMapsEveryRowInOrder) {
+  for (int k : {3, 1, 2}) ASSERT_OK(Insert(k, "x"));
+  ASSERT_OK_AND_ASSIGN(std::vector<Row> after_one, ReadRows(*conn_, kSelectRows, ReadRowOfT, 1));
+  ASSERT_EQ(after_one.size(), 2u);
+  EXPECT_EQ(after_one[0].k, 2);
+  EXPECT_EQ(after_one[1].k, 3);
+  ASSERT_OK_AND_ASSIGN(std::vector<Row> none, ReadRows(*conn_, kSelectRows, ReadRowOfT, 3));
+  EXPECT_TRUE(none.empty());
+}
+
+TEST_F(SqliteDbTest, AMapperErrorEndsTheRead) {
+  for (int k : {1, 2, 3}) ASSERT_OK(Insert(k, "x"));
+  int mapped = 0;
+  auto fail_on_two = [&](const Statement& st) -> absl::StatusOr<int64_t> {
+    ++mapped;
+    if (st.ColumnInt64(0) == 2) return absl::DataLossError("row 2 is damaged");
+    return st.ColumnInt64(0);
+  };
+  absl::StatusOr<std::vector<int64_t>> rows = ReadRows(*conn_, kSelectRows, fail_on_two, 0);
+  EXPECT_EQ(rows.status().code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(rows.status().message(), HasSubstr("row 2"));
+  EXPECT_EQ(mapped, 2);
+}
+
+TEST_F(SqliteDbTest, ReadRowIsTheFirstRowOrNothing) {
+  ASSERT_OK_AND_ASSIGN(std::optional<Row> missing, ReadRow(*conn_, kSelectRows, ReadRowOfT, 0));
+  EXPECT_FALSE(missing.has_value());
+  for (int k : {1, 2}) ASSERT_OK(Insert(k, "x"));
+  ASSERT_OK_AND_ASSIGN(std::optional<Row> first, ReadRow(*conn_, kSelectRows, ReadRowOfT, 0));
+  ASSERT_TRUE(first.has_value());
+  EXPECT_EQ(first->k, 1);
+  // Stopped half-way, yet returned and reset: no read transaction stays open behind it.
+  ASSERT_OK_AND_ASSIGN(ScopedStatement st, conn_->Prepare(kSelectRows));
+  EXPECT_FALSE(sqlite3_stmt_busy(st->get()));
+}
+
+TEST_F(SqliteDbTest, WholeStatementsReturnSqliteErrorsAsStatuses) {
+  ASSERT_OK(RunStatement(*conn_, kInsertRow, 1, "x", 0.0, SqlBlob{""}));
+  EXPECT_EQ(RunStatement(*conn_, kInsertRow, 1, "y", 0.0, SqlBlob{""}).code(),
+            absl::StatusCode::kAlreadyExists);
+  EXPECT_EQ(RunStatement(*conn_, kInsertRow, 2, "much too long", 0.0, SqlBlob{""}).code(),
+            absl::StatusCode::kFailedPrecondition);
+  // Invalid SQL fails at prepare; a parameter past the statement's fails at the step.
+  EXPECT_EQ(ReadRows(*conn_, "SELECT nonsense FROM", ReadRowOfT).status().code(),
+            absl::StatusCode::kInternal);
+  EXPECT_EQ(ReadRow(*conn_, kSelectRows, ReadRowOfT, 0, 1).status().code(),
+            absl::StatusCode::kInternal);
 }
 
 TEST(SqliteStatusTest, CodesMapAsDocumented) {

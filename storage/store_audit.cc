@@ -1,0 +1,71 @@
+// Store: the audit log (store.h "Audit log"). Storage's own actions write their entries with
+// InsertAudit inside their transaction; AppendAudit is for actions outside storage.
+#include <cstdint>
+#include <vector>
+
+#include "storage/sqlite_db.h"
+#include "storage/status_macros.h"
+#include "storage/store.h"
+#include "storage/store_internal.h"
+
+namespace imucal::storage {
+namespace {
+
+constexpr char kInsertAudit[] =
+    "INSERT INTO audit_log (time_us, actor, action, target, detail) "
+    "VALUES (?1, ?2, ?3, ?4, ?5)";
+constexpr char kSelectAudit[] =
+    "SELECT id, time_us, actor, action, target, detail FROM audit_log "
+    "WHERE id > ?1 ORDER BY id LIMIT ?2";
+constexpr char kSelectAuditOfTarget[] =
+    "SELECT id, time_us, actor, action, target, detail FROM audit_log "
+    "WHERE target = ?3 AND id > ?1 ORDER BY id LIMIT ?2";
+
+// Columns as in kSelectAudit.
+AuditEntry ReadAudit(const Statement& st) {
+  AuditEntry e;
+  e.id = st.ColumnInt64(0);
+  e.time = FromMicros(st.ColumnInt64(1));
+  e.actor = st.ColumnText(2);
+  e.action = st.ColumnText(3);
+  e.target = st.ColumnText(4);
+  e.detail = st.ColumnText(5);
+  return e;
+}
+
+}  // namespace
+
+absl::Status InsertAudit(Connection& conn, absl::Time time, std::string_view actor,
+                         std::string_view action, std::string_view target,
+                         std::string_view detail) {
+  return RunStatement(conn, kInsertAudit, Micros(time), actor, action, target, detail);
+}
+
+absl::StatusOr<AuditEntry> Store::AppendAudit(const AuditEntry& entry) {
+  constexpr std::string_view kOp = "AppendAudit";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(entry.actor, "actor")));
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(entry.action, "action")));
+  std::lock_guard lock(write_mu_);
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<AuditEntry> {
+    AuditEntry e = entry;
+    e.time = Now();
+    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, e.time, e.actor, e.action, e.target, e.detail));
+    e.id = sqlite3_last_insert_rowid(conn.db());
+    return e;
+  });
+}
+
+absl::StatusOr<std::vector<AuditEntry>> Store::ListAudit(const AuditQuery& query) {
+  if (query.limit < 1) {
+    return absl::InvalidArgumentError("ListAudit: limit must be at least 1");
+  }
+  ReadLease lease = AcquireReader();
+  if (query.target.empty()) {
+    return Annotate("ListAudit",
+                    ReadRows(lease.conn(), kSelectAudit, ReadAudit, query.after_id, query.limit));
+  }
+  return Annotate("ListAudit", ReadRows(lease.conn(), kSelectAuditOfTarget, ReadAudit,
+                                        query.after_id, query.limit, query.target));
+}
+
+}  // namespace imucal::storage

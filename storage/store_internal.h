@@ -1,0 +1,130 @@
+// What the files of the SQLite store (store.cc and store_<table>.cc, one per banner of store.h)
+// share: time and error conventions, the transaction wrapper, the lookups and writes that one
+// table's calls make on another's, and the Store's private types. TokenStore (tokens.cc) writes
+// its audit rows and transactions through it too. Private to storage/*.cc; the library's API is
+// store.h.
+//
+// Each shared lookup or write is defined in the file of the table it touches (named below), so
+// a table's SQL lives in one file.
+#ifndef IMUCAL_STORAGE_STORE_INTERNAL_H_
+#define IMUCAL_STORAGE_STORE_INTERNAL_H_
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <type_traits>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/time/time.h"
+#include "storage/sample_codec.h"
+#include "storage/sqlite_db.h"
+#include "storage/status_macros.h"
+#include "storage/store.h"
+#include "storage/str_util.h"
+#include "storage/types.h"
+
+namespace imucal::storage {
+
+// ---- Conventions -----------------------------------------------------------------------------
+
+// Times are stored as integer microseconds since the Unix epoch.
+inline int64_t Micros(absl::Time t) { return absl::ToUnixMicros(t); }
+inline absl::Time FromMicros(int64_t us) { return absl::FromUnixMicros(us); }
+
+// SQLite's LIMIT -1 is "no limit"; the API's is 0.
+inline int64_t SqlLimit(int limit) { return limit > 0 ? limit : -1; }
+
+// An optional text column: NULL when empty.
+inline std::optional<std::string_view> NullIfEmpty(std::string_view value) {
+  if (value.empty()) return std::nullopt;
+  return value;
+}
+
+// A stored enum name that does not parse means the file was tampered with.
+template <typename T>
+absl::StatusOr<T> FromColumn(absl::StatusOr<T> parsed) {
+  if (!parsed.ok()) return absl::DataLossError(parsed.status().message());
+  return parsed;
+}
+
+inline absl::Status NonEmpty(std::string_view value, std::string_view what) {
+  if (value.empty()) return absl::InvalidArgumentError(Cat(what, " is empty"));
+  return absl::OkStatus();
+}
+
+inline const absl::Status& StatusOf(const absl::Status& s) { return s; }
+template <typename T>
+const absl::Status& StatusOf(const absl::StatusOr<T>& s) {
+  return s.status();
+}
+
+// Runs `body(conn)` in one BEGIN IMMEDIATE transaction, committing only if it succeeds.
+// `body` returns absl::Status or absl::StatusOr<T>; errors are prefixed with `op`
+// (WithContext, status_macros.h).
+template <typename F>
+std::invoke_result_t<F, Connection&> InTransaction(std::string_view op, Connection& conn,
+                                                   F&& body) {
+  absl::StatusOr<Transaction> txn = Transaction::Begin(conn);
+  if (!txn.ok()) return WithContext(op, txn.status());
+  auto result = body(conn);
+  if (!result.ok()) return WithContext(op, StatusOf(result));
+  if (absl::Status s = txn->Commit(); !s.ok()) return WithContext(op, s);
+  return result;
+}
+
+// ---- Shared lookups and writes, inside the caller's transaction or read lease ----------------
+
+// store_devices.cc. NotFound naming the device.
+absl::StatusOr<Device> LoadDevice(Connection& conn, std::string_view id);
+
+// store_sessions.cc. NotFound naming the session.
+absl::StatusOr<Session> LoadSession(Connection& conn, std::string_view id);
+absl::Status CheckSessionExists(Connection& conn, std::string_view id);
+// Moves `session` to `to` (checking the transition of types.h and the one-open-session rule)
+// and audits it.
+absl::Status ChangeSessionState(Connection& conn, const Session& session, SessionState to,
+                                std::string_view actor, absl::Time now);
+
+// store_solves.cc. Fails the session's running solve, if any, with `error`.
+absl::Status AbandonRunningSolve(Connection& conn, std::string_view session_id, absl::Time now,
+                                 std::string_view error);
+
+// store_versions.cc. AddVersion's checks and insert (activating it if v.state is kActive).
+absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion& v,
+                                           std::string_view actor, absl::Time now);
+
+// store_audit.cc. One audit_log row.
+absl::Status InsertAudit(Connection& conn, absl::Time time, std::string_view actor,
+                         std::string_view action, std::string_view target, std::string_view detail);
+
+// ---- The Store's private types ---------------------------------------------------------------
+
+// A read connection from the pool, returned to it on destruction.
+class Store::ReadLease {
+ public:
+  ReadLease(Store* store, Connection* conn) : store_(store), conn_(conn) {}
+  ReadLease(const ReadLease&) = delete;
+  ReadLease& operator=(const ReadLease&) = delete;
+  ~ReadLease() { store_->ReleaseReader(conn_); }
+  Connection& conn() const { return *conn_; }
+
+ private:
+  Store* store_;
+  Connection* conn_;
+};
+
+// A batch waiting for the committer thread (store_samples.cc), already checked (CheckBatch).
+struct Store::PendingAppend {
+  std::string session_id;
+  int64_t seq = 0;
+  std::string payload;
+  EncodedBatchInfo info;
+  std::function<void(absl::StatusOr<BatchAck>)> done;
+};
+
+}  // namespace imucal::storage
+
+#endif  // IMUCAL_STORAGE_STORE_INTERNAL_H_

@@ -1,0 +1,170 @@
+// Store: solves (store.h "Solves"), the unit of work that turns a session's raw data into a
+// parameter version, with the session state changes each step makes.
+#include <cstdint>
+#include <optional>
+#include <utility>
+#include <vector>
+
+#include "storage/sqlite_db.h"
+#include "storage/status_macros.h"
+#include "storage/store.h"
+#include "storage/store_internal.h"
+#include "storage/str_util.h"
+
+namespace imucal::storage {
+namespace {
+
+// The columns ReadSolve maps.
+#define IMUCAL_SELECT_SOLVE_COLUMNS                                                      \
+  "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, " \
+  "report_json "
+constexpr char kSelectSolve[] = IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE id = ?1";
+constexpr char kSelectSolvesOfSession[] =
+    IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE session_id = ?1 ORDER BY id";
+constexpr char kSelectRunningSolves[] =
+    IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE state = 'running' ORDER BY id";
+#undef IMUCAL_SELECT_SOLVE_COLUMNS
+constexpr char kInsertSolve[] =
+    "INSERT INTO solves (session_id, state, actor, started_at_us) VALUES (?1, 'running', ?2, ?3)";
+constexpr char kFinishSolve[] =
+    "UPDATE solves SET state = ?2, finished_at_us = ?3, version = ?4, error = ?5, "
+    "report_json = ?6 WHERE id = ?1";
+constexpr char kAbandonRunningSolves[] =
+    "UPDATE solves SET state = 'failed', finished_at_us = ?2, error = ?3 "
+    "WHERE session_id = ?1 AND state = 'running'";
+
+// Columns as in kSelectSolve.
+absl::StatusOr<Solve> ReadSolve(const Statement& st) {
+  Solve s;
+  s.id = st.ColumnInt64(0);
+  s.session_id = st.ColumnText(1);
+  STORAGE_ASSIGN_OR_RETURN(s.state, FromColumn(ParseSolveState(st.ColumnText(2))));
+  s.actor = st.ColumnText(3);
+  s.started_at = FromMicros(st.ColumnInt64(4));
+  if (!st.ColumnIsNull(5)) s.finished_at = FromMicros(st.ColumnInt64(5));
+  s.version = static_cast<int>(st.ColumnInt64(6));
+  s.error = st.ColumnText(7);
+  s.report_json = st.ColumnText(8);
+  return s;
+}
+
+absl::StatusOr<Solve> LoadSolve(Connection& conn, int64_t id) {
+  STORAGE_ASSIGN_OR_RETURN(std::optional<Solve> s, ReadRow(conn, kSelectSolve, ReadSolve, id));
+  if (!s) return absl::NotFoundError(Cat("no solve ", id));
+  return *std::move(s);
+}
+
+// The running solve `solve_id`: FailedPrecondition once it has finished.
+absl::StatusOr<Solve> LoadRunningSolve(Connection& conn, int64_t solve_id) {
+  STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
+  if (solve.state != SolveState::kRunning) {
+    return absl::FailedPreconditionError(
+        Cat("solve ", solve_id, " is ", SolveStateName(solve.state), ", not running"));
+  }
+  return solve;
+}
+
+// Ends solve `solve_id` as `state` (succeeded with `version`, or failed with `error`).
+absl::Status FinishSolveRow(Connection& conn, int64_t solve_id, SolveState state, absl::Time now,
+                            int version, std::string_view error, std::string_view report_json) {
+  return RunStatement(conn, kFinishSolve, solve_id, SolveStateName(state), Micros(now), version,
+                      error, report_json);
+}
+
+}  // namespace
+
+absl::Status AbandonRunningSolve(Connection& conn, std::string_view session_id, absl::Time now,
+                                 std::string_view error) {
+  return RunStatement(conn, kAbandonRunningSolves, session_id, Micros(now), error);
+}
+
+absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string_view actor) {
+  constexpr std::string_view kOp = "StartSolve";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  std::lock_guard lock(write_mu_);
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Solve> {
+    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, session_id));
+    const absl::Time now = Now();
+    STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, SessionState::kSolving, actor, now));
+    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertSolve, session_id, actor, Micros(now)));
+    const int64_t id = sqlite3_last_insert_rowid(conn.db());
+    STORAGE_RETURN_IF_ERROR(
+        InsertAudit(conn, now, actor, "solve.start", SessionTarget(session_id), Cat("solve ", id)));
+    return LoadSolve(conn, id);
+  });
+}
+
+absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVersion& version,
+                                                std::string_view actor) {
+  constexpr std::string_view kOp = "FinishSolve";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  std::lock_guard lock(write_mu_);
+  return NotifyIfActive(
+      InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+        STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id));
+        STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
+        ParamVersion v = version;
+        if (v.device_id.empty()) v.device_id = session.device_id;
+        if (v.session_id.empty()) v.session_id = session.id;
+        if (v.device_id != session.device_id || v.session_id != session.id) {
+          return absl::InvalidArgumentError(Cat("solve ", solve_id, " is of session '", session.id,
+                                                "' of device '", session.device_id, "', not of '",
+                                                v.session_id, "' of '", v.device_id, "'"));
+        }
+        const absl::Time now = Now();
+        STORAGE_ASSIGN_OR_RETURN(ParamVersion added, InsertVersion(conn, v, actor, now));
+        // The report is the version's.
+        STORAGE_RETURN_IF_ERROR(
+            FinishSolveRow(conn, solve_id, SolveState::kSucceeded, now, added.version, "", ""));
+        STORAGE_RETURN_IF_ERROR(
+            ChangeSessionState(conn, session, SessionState::kSolved, actor, now));
+        STORAGE_RETURN_IF_ERROR(
+            InsertAudit(conn, now, actor, "solve.finish", SessionTarget(session.id),
+                        Cat("solve ", solve_id, " -> version ", added.version)));
+        return added;
+      }));
+}
+
+absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
+                                       std::string_view report_json, std::string_view actor,
+                                       SessionState next) {
+  constexpr std::string_view kOp = "FailSolve";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  if (next != SessionState::kFailed && next != SessionState::kOpen) {
+    return absl::InvalidArgumentError(Cat(
+        kOp, ": after a failed solve a session is failed or open, not ", SessionStateName(next)));
+  }
+  std::lock_guard lock(write_mu_);
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Solve> {
+    STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id));
+    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
+    const absl::Time now = Now();
+    STORAGE_RETURN_IF_ERROR(
+        FinishSolveRow(conn, solve_id, SolveState::kFailed, now, 0, error, report_json));
+    STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, next, actor, now));
+    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.fail", SessionTarget(session.id),
+                                        Cat("solve ", solve_id, ": ", error)));
+    return LoadSolve(conn, solve_id);
+  });
+}
+
+absl::StatusOr<Solve> Store::GetSolve(int64_t solve_id) {
+  ReadLease lease = AcquireReader();
+  return Annotate("GetSolve", LoadSolve(lease.conn(), solve_id));
+}
+
+absl::StatusOr<std::vector<Solve>> Store::ListSolves(std::string_view session_id) {
+  ReadLease lease = AcquireReader();
+  auto list = [&]() -> absl::StatusOr<std::vector<Solve>> {
+    STORAGE_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
+    return ReadRows(lease.conn(), kSelectSolvesOfSession, ReadSolve, session_id);
+  };
+  return Annotate("ListSolves", list());
+}
+
+absl::StatusOr<std::vector<Solve>> Store::ListRunningSolves() {
+  ReadLease lease = AcquireReader();
+  return Annotate("ListRunningSolves", ReadRows(lease.conn(), kSelectRunningSolves, ReadSolve));
+}
+
+}  // namespace imucal::storage

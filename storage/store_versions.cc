@@ -1,0 +1,271 @@
+// Store: parameter versions (store.h "Parameter versions") and the policy that moves them
+// between candidate, active, superseded and rejected; at most one version of a device is active.
+#include <cmath>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "storage/sqlite_db.h"
+#include "storage/status_macros.h"
+#include "storage/store.h"
+#include "storage/store_internal.h"
+#include "storage/str_util.h"
+
+namespace imucal::storage {
+namespace {
+
+// The 8 header columns ReadVersion maps; params_json and report_json may follow.
+#define IMUCAL_SELECT_VERSION_HEADER \
+  "SELECT device_id, version, created_at_us, session_id, verdict, accel_rms, state, provenance"
+// The hot path. `state = 'active'` is a literal so the planner can use the partial index
+// param_versions_active (migrations_test checks the plan). report_json is not read.
+constexpr char kSelectActiveVersion[] = IMUCAL_SELECT_VERSION_HEADER
+    ", params_json FROM param_versions WHERE device_id = ?1 AND state = 'active'";
+constexpr char kSelectVersion[] = IMUCAL_SELECT_VERSION_HEADER
+    ", params_json, report_json FROM param_versions WHERE device_id = ?1 AND version = ?2";
+constexpr char kSelectVersionsOfDevice[] = IMUCAL_SELECT_VERSION_HEADER
+    ", params_json, report_json FROM param_versions "
+    "WHERE device_id = ?1 AND version > ?2 ORDER BY version LIMIT ?3";
+// The same without the documents, which are most of each row's bytes.
+constexpr char kSelectVersionHeadersOfDevice[] = IMUCAL_SELECT_VERSION_HEADER
+    " FROM param_versions WHERE device_id = ?1 AND version > ?2 ORDER BY version LIMIT ?3";
+#undef IMUCAL_SELECT_VERSION_HEADER
+constexpr char kSelectNextVersion[] =
+    "SELECT COALESCE(MAX(version), 0) + 1 FROM param_versions WHERE device_id = ?1";
+constexpr char kInsertVersion[] =
+    "INSERT INTO param_versions (device_id, version, created_at_us, session_id, verdict, "
+    "accel_rms, state, provenance, params_json, report_json) "
+    "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)";
+constexpr char kSupersedeActive[] =
+    "UPDATE param_versions SET state = 'superseded' WHERE device_id = ?1 AND state = 'active'";
+constexpr char kSetVersionState[] =
+    "UPDATE param_versions SET state = ?3 WHERE device_id = ?1 AND version = ?2";
+
+// Which of the JSON documents a version statement selects (after the 8 header columns).
+enum class Documents { kNone, kParams, kBoth };
+
+// Columns as in kSelectVersion, up to what `docs` says the statement selects.
+absl::StatusOr<ParamVersion> ReadVersion(const Statement& st, Documents docs) {
+  ParamVersion v;
+  v.device_id = st.ColumnText(0);
+  v.version = static_cast<int>(st.ColumnInt64(1));
+  v.created_at = FromMicros(st.ColumnInt64(2));
+  v.session_id = st.ColumnText(3);
+  STORAGE_ASSIGN_OR_RETURN(v.verdict, FromColumn(ParseVerdict(st.ColumnText(4))));
+  v.accel_rms = st.ColumnDouble(5);
+  STORAGE_ASSIGN_OR_RETURN(v.state, FromColumn(ParseVersionState(st.ColumnText(6))));
+  v.provenance = st.ColumnText(7);
+  if (docs != Documents::kNone) v.params_json = st.ColumnText(8);
+  if (docs == Documents::kBoth) v.report_json = st.ColumnText(9);
+  return v;
+}
+
+// ReadVersion as a row mapper, for statements that select `docs`.
+auto VersionWith(Documents docs) {
+  return [docs](const Statement& st) { return ReadVersion(st, docs); };
+}
+
+absl::StatusOr<std::optional<ParamVersion>> FindActive(Connection& conn,
+                                                       std::string_view device_id) {
+  return ReadRow(conn, kSelectActiveVersion, VersionWith(Documents::kParams), device_id);
+}
+
+absl::StatusOr<ParamVersion> LoadVersion(Connection& conn, std::string_view device_id,
+                                         int version) {
+  STORAGE_ASSIGN_OR_RETURN(
+      std::optional<ParamVersion> v,
+      ReadRow(conn, kSelectVersion, VersionWith(Documents::kBoth), device_id, version));
+  if (!v) {
+    STORAGE_RETURN_IF_ERROR(LoadDevice(conn, device_id).status());
+    return absl::NotFoundError(Cat("device '", device_id, "' has no version ", version));
+  }
+  return *std::move(v);
+}
+
+absl::Status ValidateNewVersion(const ParamVersion& v) {
+  STORAGE_RETURN_IF_ERROR(NonEmpty(v.device_id, "device_id"));
+  STORAGE_RETURN_IF_ERROR(NonEmpty(v.params_json, "params_json"));
+  if (v.state != VersionState::kCandidate && v.state != VersionState::kActive) {
+    return absl::InvalidArgumentError(
+        Cat("a new version is a candidate or active, not ", VersionStateName(v.state)));
+  }
+  if (std::isinf(v.accel_rms) || v.accel_rms < 0) {
+    return absl::InvalidArgumentError(
+        Cat("accel_rms ", v.accel_rms, " is not a finite non-negative number"));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status SetVersionState(Connection& conn, std::string_view device_id, int version,
+                             VersionState state) {
+  return RunStatement(conn, kSetVersionState, device_id, version, VersionStateName(state));
+}
+
+// Makes `version` the device's active one; returns the version it displaced (0 if none).
+absl::StatusOr<int> Activate(Connection& conn, std::string_view device_id, int version) {
+  STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
+  STORAGE_RETURN_IF_ERROR(RunStatement(conn, kSupersedeActive, device_id));
+  STORAGE_RETURN_IF_ERROR(SetVersionState(conn, device_id, version, VersionState::kActive));
+  return active ? active->version : 0;
+}
+
+std::string Displaced(int previous) {
+  return previous == 0 ? std::string() : Cat("; version ", previous, " superseded");
+}
+
+std::string Reason(std::string_view reason) {
+  return reason.empty() ? std::string() : Cat(": ", reason);
+}
+
+// Promote's and Rollback's change: activates `version`, audits it as `action` ("<what> active",
+// the version it displaced, the reason) and returns it as stored.
+absl::StatusOr<ParamVersion> ActivateAudited(Connection& conn, std::string_view device_id,
+                                             int version, std::string_view action,
+                                             std::string_view what, std::string_view actor,
+                                             std::string_view reason, absl::Time now) {
+  STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, version));
+  STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, action, DeviceTarget(device_id),
+                                      Cat(what, " active", Displaced(displaced), Reason(reason))));
+  return LoadVersion(conn, device_id, version);
+}
+
+}  // namespace
+
+absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion& v,
+                                           std::string_view actor, absl::Time now) {
+  STORAGE_RETURN_IF_ERROR(ValidateNewVersion(v));
+  STORAGE_RETURN_IF_ERROR(LoadDevice(conn, v.device_id).status());
+  if (!v.session_id.empty()) {
+    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, v.session_id));
+    if (session.device_id != v.device_id) {
+      return absl::InvalidArgumentError(Cat("session '", v.session_id, "' belongs to device '",
+                                            session.device_id, "', not '", v.device_id, "'"));
+    }
+  }
+  // The write lock is held (BEGIN IMMEDIATE), so MAX + 1 cannot race another writer.
+  STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> next,
+                           ReadRow(conn, kSelectNextVersion, FirstColumnInt64, v.device_id));
+  if (!next) return absl::InternalError("no next version");
+  const int number = static_cast<int>(*next);
+  STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertVersion, v.device_id, number, Micros(now),
+                                       NullIfEmpty(v.session_id), VerdictName(v.verdict),
+                                       v.accel_rms, VersionStateName(VersionState::kCandidate),
+                                       v.provenance, v.params_json, v.report_json));
+  int displaced = 0;
+  if (v.state == VersionState::kActive) {
+    STORAGE_ASSIGN_OR_RETURN(displaced, Activate(conn, v.device_id, number));
+  }
+  STORAGE_RETURN_IF_ERROR(InsertAudit(
+      conn, now, actor, "version.add", DeviceTarget(v.device_id),
+      Cat("version ", number, " ", VersionStateName(v.state), ", verdict ", VerdictName(v.verdict),
+          ", accel_rms ", v.accel_rms, v.session_id.empty() ? "" : Cat(", session ", v.session_id),
+          Displaced(displaced))));
+  return LoadVersion(conn, v.device_id, number);
+}
+
+absl::StatusOr<ParamVersion> Store::AddVersion(const ParamVersion& version,
+                                               std::string_view actor) {
+  constexpr std::string_view kOp = "AddVersion";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  std::lock_guard lock(write_mu_);
+  return NotifyIfActive(InTransaction(
+      kOp, *writer_, [&](Connection& conn) { return InsertVersion(conn, version, actor, Now()); }));
+}
+
+absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int version,
+                                            std::string_view actor, std::string_view reason) {
+  constexpr std::string_view kOp = "Promote";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  std::lock_guard lock(write_mu_);
+  return NotifyIfActive(
+      InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+        STORAGE_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
+        if (v.state == VersionState::kActive) return v;
+        if (v.state != VersionState::kCandidate) {
+          return absl::FailedPreconditionError(Cat(
+              "version ", version, " of device '", device_id, "' is ", VersionStateName(v.state),
+              "; only a candidate can be promoted (Rollback makes an older version active)"));
+        }
+        return ActivateAudited(conn, device_id, version, "version.promote",
+                               Cat("version ", version), actor, reason, Now());
+      }));
+}
+
+absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_version,
+                                             std::string_view actor, std::string_view reason) {
+  constexpr std::string_view kOp = "Rollback";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  std::lock_guard lock(write_mu_);
+  return NotifyIfActive(
+      InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+        STORAGE_ASSIGN_OR_RETURN(ParamVersion target, LoadVersion(conn, device_id, to_version));
+        STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
+        if (!active) {
+          return absl::FailedPreconditionError(
+              Cat("device '", device_id, "' has no active version to roll back from"));
+        }
+        if (to_version >= active->version) {
+          return absl::FailedPreconditionError(
+              Cat("version ", to_version, " is not older than the active version ", active->version,
+                  " of device '", device_id, "'"));
+        }
+        return ActivateAudited(
+            conn, device_id, to_version, "version.rollback",
+            Cat("version ", to_version, " (was ", VersionStateName(target.state), ")"), actor,
+            reason, Now());
+      }));
+}
+
+absl::StatusOr<ParamVersion> Store::Reject(std::string_view device_id, int version,
+                                           std::string_view actor, std::string_view reason) {
+  constexpr std::string_view kOp = "Reject";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  std::lock_guard lock(write_mu_);
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+    STORAGE_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
+    if (v.state != VersionState::kCandidate) {
+      return absl::FailedPreconditionError(Cat("version ", version, " of device '", device_id,
+                                               "' is ", VersionStateName(v.state),
+                                               "; only a candidate can be rejected"));
+    }
+    STORAGE_RETURN_IF_ERROR(SetVersionState(conn, device_id, version, VersionState::kRejected));
+    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, Now(), actor, "version.reject",
+                                        DeviceTarget(device_id),
+                                        Cat("version ", version, ": ", reason)));
+    return LoadVersion(conn, device_id, version);
+  });
+}
+
+absl::StatusOr<ParamVersion> Store::GetActive(std::string_view device_id) {
+  ReadLease lease = AcquireReader();
+  auto get = [&]() -> absl::StatusOr<ParamVersion> {
+    STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active,
+                             FindActive(lease.conn(), device_id));
+    if (active) return *std::move(active);
+    // The miss path only: say whether the device exists at all.
+    STORAGE_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
+    return absl::NotFoundError(Cat("device '", device_id, "' has no active parameter version"));
+  };
+  return Annotate("GetActive", get());
+}
+
+absl::StatusOr<ParamVersion> Store::GetVersion(std::string_view device_id, int version) {
+  ReadLease lease = AcquireReader();
+  return Annotate("GetVersion", LoadVersion(lease.conn(), device_id, version));
+}
+
+absl::StatusOr<std::vector<ParamVersion>> Store::ListVersions(std::string_view device_id,
+                                                              const VersionQuery& query) {
+  ReadLease lease = AcquireReader();
+  auto list = [&]() -> absl::StatusOr<std::vector<ParamVersion>> {
+    STORAGE_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
+    return ReadRows(lease.conn(),
+                    query.with_documents ? kSelectVersionsOfDevice : kSelectVersionHeadersOfDevice,
+                    VersionWith(query.with_documents ? Documents::kBoth : Documents::kNone),
+                    device_id, query.after_version, SqlLimit(query.limit));
+  };
+  return Annotate("ListVersions", list());
+}
+
+}  // namespace imucal::storage

@@ -1,0 +1,88 @@
+// Store: solves (storage/store_solves.cc).
+#include <vector>
+
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+#include "storage/store.h"
+#include "tests/storage/store_test_util.h"
+
+namespace imucal::storage {
+namespace {
+
+using ::testing::IsEmpty;
+
+TEST_F(BatchTest, ASolveTurnsASessionIntoAVersionAndCanBeRepeated) {
+  ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(1)).status());
+  ASSERT_OK(store_->AppendBatch("S1", 2, BatchPayload(2)).status());
+  std::vector<Pose> poses(3);
+  for (int i = 0; i < 3; ++i) poses[i].index = i;
+  poses[1].used = false;
+  ASSERT_OK(store_->PutPoses("S1", poses, "server"));
+  ASSERT_OK_AND_ASSIGN(Solve solve, store_->StartSolve("S1", "server"));
+  EXPECT_EQ(solve.state, SolveState::kRunning);
+  ASSERT_OK_AND_ASSIGN(std::vector<Solve> running, store_->ListRunningSolves());
+  ASSERT_EQ(running.size(), 1u);
+  EXPECT_EQ(running[0].id, solve.id);
+  EXPECT_EQ(store_->GetSession("S1").value().state, SessionState::kSolving);
+  // A second solve of the same session cannot start while one runs.
+  EXPECT_EQ(store_->StartSolve("S1", "server").status().code(),
+            absl::StatusCode::kFailedPrecondition);
+
+  ParamVersion v = MakeVersion("");  // device and session come from the solve
+  v.state = VersionState::kActive;   // passed the quality gates
+  ASSERT_OK_AND_ASSIGN(ParamVersion v1, store_->FinishSolve(solve.id, v, "server"));
+  EXPECT_EQ(v1.version, 1);
+  EXPECT_EQ(v1.device_id, "robot-1");
+  EXPECT_EQ(v1.session_id, "S1");
+  EXPECT_EQ(v1.state, VersionState::kActive);
+  ASSERT_OK_AND_ASSIGN(Session solved, store_->GetSession("S1"));
+  EXPECT_EQ(solved.state, SessionState::kSolved);
+  EXPECT_EQ(solved.version, 1);
+  EXPECT_EQ(solved.samples, 100);
+  EXPECT_EQ(solved.last_acked_seq, 2);
+  EXPECT_EQ(solved.poses_accepted, 2);
+  EXPECT_EQ(solved.gravity_m_s2, 9.80665);
+  EXPECT_THAT(store_->ListRunningSolves().value(), IsEmpty());
+  ASSERT_OK_AND_ASSIGN(Solve done, store_->GetSolve(solve.id));
+  EXPECT_EQ(done.state, SolveState::kSucceeded);
+  EXPECT_EQ(done.version, 1);
+  EXPECT_TRUE(done.finished_at.has_value());
+  EXPECT_EQ(store_->FinishSolve(solve.id, v, "server").status().code(),
+            absl::StatusCode::kFailedPrecondition);
+
+  // Re-solve later from the same raw data: a new candidate version.
+  ASSERT_OK_AND_ASSIGN(Solve again, store_->StartSolve("S1", "tech:bob"));
+  ASSERT_OK_AND_ASSIGN(ParamVersion v2,
+                       store_->FinishSolve(again.id, MakeVersion("robot-1"), "tech:bob"));
+  EXPECT_EQ(v2.version, 2);
+  EXPECT_EQ(v2.state, VersionState::kCandidate);
+  EXPECT_EQ(store_->GetActive("robot-1").value().version, 1);
+  EXPECT_EQ(store_->GetSession("S1").value().version, 2);
+  ASSERT_OK_AND_ASSIGN(std::vector<Solve> solves, store_->ListSolves("S1"));
+  ASSERT_EQ(solves.size(), 2u);
+  EXPECT_EQ(solves[1].actor, "tech:bob");
+}
+
+TEST_F(BatchTest, AFailedSolveCanReopenTheSessionForMorePoses) {
+  ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(1)).status());
+  ASSERT_OK_AND_ASSIGN(Solve solve, store_->StartSolve("S1", "server"));
+  ASSERT_OK_AND_ASSIGN(Solve failed,
+                       store_->FailSolve(solve.id, "not enough poses: add Z-",
+                                         R"({"verdict": "fail"})", "server", SessionState::kOpen));
+  EXPECT_EQ(failed.state, SolveState::kFailed);
+  EXPECT_EQ(failed.error, "not enough poses: add Z-");
+  EXPECT_EQ(failed.report_json, R"({"verdict": "fail"})");
+  EXPECT_EQ(store_->GetSession("S1").value().state, SessionState::kOpen);
+  ASSERT_OK(store_->AppendBatch("S1", 2, BatchPayload(2)).status());
+
+  // Leaving `solving` by hand abandons the running solve.
+  ASSERT_OK_AND_ASSIGN(Solve second, store_->StartSolve("S1", "server"));
+  ASSERT_OK(store_->SetSessionState("S1", SessionState::kFailed, kActor).status());
+  EXPECT_EQ(store_->GetSolve(second.id).value().state, SolveState::kFailed);
+  EXPECT_EQ(store_->FinishSolve(second.id, MakeVersion(""), "server").status().code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_THAT(store_->ListVersions("robot-1").value(), IsEmpty());
+}
+
+}  // namespace
+}  // namespace imucal::storage

@@ -1,0 +1,65 @@
+// The fixtures of the Store's tests (store_test.cc and store_<table>_test.cc, which mirror the
+// store's files): a fresh database file per test, and one with a device and an open session.
+#ifndef IMUCAL_TESTS_STORAGE_STORE_TEST_UTIL_H_
+#define IMUCAL_TESTS_STORAGE_STORE_TEST_UTIL_H_
+
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "gtest/gtest.h"
+#include "storage/store.h"
+#include "storage/types.h"
+#include "tests/storage/test_util.h"
+
+namespace imucal::storage {
+
+inline constexpr char kActor[] = "tech:alice";
+
+class StoreTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    path_ = TempDbPath("db");
+    Reopen();
+  }
+
+  void Reopen() {
+    store_.reset();
+    auto store = Store::Open(path_);
+    ASSERT_TRUE(store.ok()) << store.status();
+    store_ = *std::move(store);
+  }
+
+  std::vector<std::string> AuditActions(const std::string& target) {
+    AuditQuery q;
+    q.target = target;
+    absl::StatusOr<std::vector<AuditEntry>> entries = store_->ListAudit(q);
+    EXPECT_TRUE(entries.ok()) << entries.status();
+    std::vector<std::string> actions;
+    if (entries.ok()) {
+      for (const AuditEntry& e : *entries) actions.push_back(e.action);
+    }
+    return actions;
+  }
+
+  size_t AuditCount() { return store_->ListAudit().value().size(); }
+
+  std::string path_;
+  std::unique_ptr<Store> store_;
+};
+
+// A store with device "robot-1" and its open session "S1".
+class BatchTest : public StoreTest {
+ protected:
+  void SetUp() override {
+    StoreTest::SetUp();
+    ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
+    ASSERT_OK(store_->CreateSession(MakeSession("robot-1", "S1"), kActor).status());
+  }
+};
+
+}  // namespace imucal::storage
+
+#endif  // IMUCAL_TESTS_STORAGE_STORE_TEST_UTIL_H_
