@@ -37,17 +37,18 @@ Classes of capture (each off by default; the default output is the same as befor
       rate = angle / T * (1 - cos(2 pi t / T)). Tilts between faces keep the smooth profile.
   --noisy-rest POSE  one pose (0-based, in time order) held --noisy-rest-s (default 7 s) with
       more noise than the others while its orientation does not change. --noisy-rest-factor F
-      (default 5): its per-sample noise is F times the others' (an extra independent white
-      noise of sqrt(F^2 - 1) times --accel-noise / --gyro-noise, or F times them with
-      --no-noise). --noisy-rest-kind:
-        hand      that white noise alone (a hand resting on the unit: broadband, zero mean);
-        motor     instead of the white noise, a vibration at --motor-hz (default 37 Hz) on each
-                  axis, amplitude sqrt(2) F times the noise (RMS F times), random phases;
-        settling  the white noise plus an accelerometer offset on every axis that decays
-                  exponentially to zero (the final value): d(t) = d0 exp(-t / tau), d0 =
-                  --settle-mg (default 1 mg, of standard gravity), tau chosen so that the
-                  offset's mean over the hold is 0.1 mg (tau = T * 0.1 / d0 in mg; the exact
-                  mean is in the truth).
+      (default 5): its noise's RMS over the hold is F times the others' (an extra independent
+      zero-mean noise of RMS sqrt(F^2 - 1) times --accel-noise / --gyro-noise, or F times them
+      with --no-noise). --noisy-rest-kind:
+        hand      the extra noise is white with an amplitude that comes and goes as a hand
+                  presses and relaxes: sqrt(2) |sin(pi t / 1.5 s)| (RMS 1) times its RMS;
+        motor     instead, a steady vibration at --motor-hz (default 37 Hz) on each axis,
+                  amplitude sqrt(2) F times the noise (RMS F times), random phases;
+        settling  the extra noise is white and dies away as exp(-t / (T / 3)) over the hold T
+                  (scaled to RMS 1), and an accelerometer offset on every axis decays to zero
+                  (the final value): d(t) = d0 exp(-t / tau), d0 = --settle-mg (default 1 mg,
+                  of standard gravity), tau chosen so that the offset's mean over the hold is
+                  0.1 mg (tau = T * 0.1 / d0 in mg; the exact mean is in the truth).
   --hold-range-s LO,HI  every hold after the first lasts a uniform draw in [LO, HI] s (stops
       too short: e.g. --protocol random --poses 40 --hold-range-s 0.3,0.8).
   --duplicate-face FACE=OTHER  (faces-once) the pose meant for FACE holds OTHER's orientation,
@@ -78,6 +79,8 @@ NOISY_REST_KINDS = ["hand", "motor", "settling"]
 # The settling rest's mean offset from its final value: the issue of a sensor still settling is
 # that its mean is steady only to about this much (mg of standard gravity).
 SETTLE_MEAN_MG = 0.1
+# A hand on the unit presses and relaxes: its noise comes and goes with this half-period (s).
+HAND_PRESS_S = 1.5
 
 
 def _matmul(a, b):
@@ -528,15 +531,26 @@ class _NoisyRest:
                 accel[i] += amp[0] * math.sin(w + self.phases[i])
                 gyro[i] += amp[1] * math.sin(w + self.phases[3 + i])
             return
+        env = self.envelope(t, hold_s)
         for i in range(3):
-            accel[i] += self.rng.gauss(0.0, self.white[0])
+            accel[i] += self.rng.gauss(0.0, env * self.white[0])
         for i in range(3):
-            gyro[i] += self.rng.gauss(0.0, self.white[1])
+            gyro[i] += self.rng.gauss(0.0, env * self.white[1])
         if kind == "settling":
             d = self.d0 * math.exp(-t / self.tau)
             self.offsets.append(d)
             for i in range(3):
                 accel[i] += d
+
+    def envelope(self, t, hold_s):
+        """The extra noise's amplitude over the hold, its RMS over the hold 1: a hand presses
+        and relaxes (|sin| with a period of 2 HAND_PRESS_S), a settling sensor quietens
+        (exp(-t / tau) with tau = hold / 3)."""
+        if self.args.noisy_rest_kind == "hand":
+            return math.sqrt(2.0) * abs(math.sin(math.pi * t / HAND_PRESS_S))
+        tau = hold_s / 3.0
+        rms = math.sqrt(tau / (2.0 * hold_s) * (1.0 - math.exp(-2.0 * hold_s / tau)))
+        return math.exp(-t / tau) / rms
 
     def truth(self):
         a = self.args
