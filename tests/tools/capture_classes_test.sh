@@ -57,9 +57,9 @@ want_rc() {
   return 1
 }
 
-# Quantised, as the sensor: the gyroscope in steps of 0.01 rad/s and the accelerometer
-# in steps of 0.01 m/s^2, both without noise (every axis constant through every rest: the noise
-# learnt from a rest is zero). All 16 poses must be found and calibrated.
+# Quantised coarsely: the gyroscope in steps of 0.01 rad/s and the accelerometer in steps of
+# 0.01 m/s^2, both without noise (every axis constant through every rest: the noise learnt from
+# a rest is zero). All 16 poses must be found and calibrated.
 case_quantised_si() {
   write q1 --seed 11 --accel-step 0.01 --accel-noise 0 --gyro-step 0.01 --gyro-noise 0 ||
     return 1
@@ -79,7 +79,7 @@ case_quantised_counts() {
 }
 
 # Six faces once, one file per face, each held 28-37 s, the gyroscope quantised to 0.01 rad/s
-# without noise (the first capture).
+# without noise (a hobbyist's quantised unit).
 case_quantised_faces() {
   write q3 --seed 13 --protocol faces-once --split pose --first-hold-s 30 --hold-range-s 28,37 \
     --floor-tilt-deg 0 --accel-noise 0.004 --gyro-step 0.01 --gyro-noise 0 || return 1

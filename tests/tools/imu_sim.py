@@ -76,8 +76,8 @@ EXTRA_TILTS = [((1.0, 0.0, 0.0), 90.0), ((1.0, 0.0, 0.0), 45.0), ((0.0, 1.0, 0.0
                ((1.0, 0.0, 0.0), -90.0)]
 PROTOCOLS = ["six-face", "faces-once", "random"]
 NOISY_REST_KINDS = ["hand", "motor", "settling"]
-# The settling rest's mean offset from its final value: the issue of a sensor still settling is
-# that its mean is steady only to about this much (mg of standard gravity).
+# The settling rest's mean offset from its final value: a sensor still settling has a mean
+# steady only to about this much (mg of standard gravity).
 SETTLE_MEAN_MG = 0.1
 # A hand on the unit presses and relaxes: its noise comes and goes with this half-period (s).
 HAND_PRESS_S = 1.5
