@@ -14,6 +14,7 @@
 # Runs every case and lists the failed ones. Skips (exit 0, "SKIP") without python3.
 # usage: capture_classes_test.sh IMUCAL [CASE...]   (CASE: a name from the list below)
 set -uo pipefail
+(($# >= 1)) || { echo "usage: $0 IMUCAL [CASE...]"; exit 1; }
 imucal=$1
 shift
 here=$(cd "$(dirname "$0")" && pwd)
