@@ -241,7 +241,7 @@ std::optional<StageProblem> MakeStageProblem(uint64_t seed) {
   const auto s1 = SixFaceStageOne(p.sim, p.poses, p.g);
   if (!s1.ok()) return std::nullopt;
   p.start = *s1;
-  pipeline::SetModelSigma(p.start, p.g, MaskOf(kAccelFirstOrder), &p.poses);  // as Calibrate does
+  pipeline::SetModelSigma(p.start, p.g, MaskOf(kAccelFirstOrder), {}, &p.poses);  // as Calibrate does
   p.tau = p.poses.empty() ? 0.0 : p.poses.front().model_sigma_m_s2;
   AccelMask all{};
   all.fill(true);

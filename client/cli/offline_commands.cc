@@ -102,6 +102,8 @@ constexpr char kSimulateHelp[] =
     "  --accel-noise A     m/s^2 per sample (default 0.02)   --gyro-noise W  rad/s (0.002)\n"
     "  --accel-unit U --gyro-unit U   units of the written capture (counts: raw register values)\n"
     "  --floor-tilt DEG    (default 1)          --turn-error DEG  (default 3)\n"
+    "  --accel-step S --gyro-step S   quantisation: readings rounded to multiples of S, in the\n"
+    "                      written unit (e.g. 0.01 m/s^2, 0.0174533 rad/s); counts: 1\n"
     "  --no-temperature    no temp column\n"
     "  --effect SENSOR:AXIS:REGRESSOR:COEF   an extra effect, e.g. accel:y:temperature:0.005\n"
     "                      (repeat the flag for several)\n"
@@ -152,9 +154,12 @@ absl::StatusOr<core::SimOptions> SimOptionsFrom(const Args& a) {
   auto an = a.GetDouble("accel-noise", o.accel_noise_m_s2);
   auto gn = a.GetDouble("gyro-noise", o.gyro_noise_rad_s);
   auto tilt = a.GetDouble("floor-tilt", o.floor_tilt_deg);
+  auto accel_step = a.GetDouble("accel-step", o.accel_step);
+  auto gyro_step = a.GetDouble("gyro-step", o.gyro_step);
   auto turn = a.GetDouble("turn-error", o.turn_error_deg);
-  for (const absl::Status& s : {seed.status(), extra.status(), free_poses.status(), rate.status(),
-                                an.status(), gn.status(), tilt.status(), turn.status()})
+  for (const absl::Status& s :
+       {seed.status(), extra.status(), free_poses.status(), rate.status(), an.status(), gn.status(),
+        tilt.status(), turn.status(), accel_step.status(), gyro_step.status()})
     if (!s.ok()) return s;
   o.seed = static_cast<uint64_t>(*seed);
   o.extra_poses = static_cast<int>(*extra);
@@ -164,6 +169,8 @@ absl::StatusOr<core::SimOptions> SimOptionsFrom(const Args& a) {
   o.gyro_noise_rad_s = *gn;
   o.floor_tilt_deg = *tilt;
   o.turn_error_deg = *turn;
+  o.accel_step = *accel_step;
+  o.gyro_step = *gyro_step;
   o.temperature = !a.Has("no-temperature");
   if (auto u = a.Get("accel-unit")) {
     auto p = core::ParseAccelUnit(*u);
@@ -298,59 +305,6 @@ int ReportError(const absl::Status& status) {
   }
 }
 
-// A capture refused for too few static poses is often not a calibration capture at all: one
-// rest (a noise or bias-stability recording), or a rest, a move and a rest (a check of a known
-// rotation). Says which, from the still intervals at the loosest usual threshold, and what such
-// a capture can and cannot give; empty when it looks like a calibration attempt.
-std::string DescribeFewOrientations(const core::Capture& cap, const core::CalibrateOptions& co) {
-  const core::MotionSignal motion = core::ComputeMotionSignal(cap, co.detector);
-  const core::NoiseLevel noise = core::EstimateNoise(cap, motion);
-  const double multiplier = co.multipliers.empty() ? 48.0 : co.multipliers.back();
-  const std::vector<core::StaticInterval> ivs =
-      core::DetectStatic(cap, motion, noise, multiplier, co.detector);
-  // Orientations: still intervals whose raw gravity directions lie within 5 deg of each other
-  // are one orientation (raw, so only as good as the sensor's uncalibrated axes).
-  constexpr double kSameOrientationDeg = 5.0;
-  std::vector<Eigen::Vector3d> dirs;
-  std::vector<double> still_s;
-  double longest_s = 0, total_s = 0;
-  int intervals = 0;
-  for (const core::StaticInterval& iv : ivs) {
-    if (!iv.used || iv.accel_mean.norm() <= 0) continue;
-    ++intervals;
-    const double d_s = iv.t_end_s - iv.t_start_s;
-    longest_s = std::max(longest_s, d_s);
-    total_s += d_s;
-    const Eigen::Vector3d u = iv.accel_mean.normalized();
-    size_t k = 0;
-    while (k < dirs.size() &&
-           std::acos(std::clamp(dirs[k].dot(u), -1.0, 1.0)) * kRadToDeg > kSameOrientationDeg)
-      ++k;
-    if (k == dirs.size()) dirs.push_back(u), still_s.push_back(0);
-    still_s[k] += d_s;
-  }
-  const double span_s = cap.size() > 1 ? cap.t_s.back() - cap.t_s.front() : 0;
-  if (dirs.empty() || dirs.size() > 3) return "";
-  if (dirs.size() == 1) {
-    return absl::StrFormat(
-        "this capture holds one orientation (still %.0f s of %.0f s, longest rest %.0f s): a "
-        "rest recording. It cannot calibrate: the scales and cross-axis terms need the sensor "
-        "turned, at least 7 orientations with every axis up and down. A rest gives the noise "
-        "(Allan deviation: white noise from seconds of rest, bias instability from minutes) and "
-        "the bias drift; imucal reads them from the longest rest of a calibration capture, so "
-        "record this rest at the start of a multi-pose capture of the same unit",
-        total_s, span_s, longest_s);
-  }
-  const double angle_deg = std::acos(std::clamp(dirs[0].dot(dirs[1]), -1.0, 1.0)) * kRadToDeg;
-  return absl::StrFormat(
-      "this capture holds %d orientations (%d still intervals, %.0f s still of %.0f s; the "
-      "first two %.0f deg apart, raw): too few to calibrate, which needs at least 7 with every "
-      "axis up and down. A rest, a known move and a rest checks a calibration (the gyroscope's "
-      "turn against the change of the gravity direction), it cannot make one: calibrate a "
-      "multi-pose capture of the same unit, then apply its parameters to this one",
-      static_cast<int>(dirs.size()), intervals, total_s, span_s, angle_deg);
-}
-
 int RunCalibrate(const std::vector<std::string>& argv) {
   auto a =
       Args::Parse(argv,
@@ -381,18 +335,15 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   auto capture = core::ImportCapture(a->positional(), *io, &import);
   if (!capture.ok()) return ReportError(capture.status());
   auto report = core::Calibrate(*capture, co);
-  if (!report.ok()) {
+  if (!report.ok()) return ReportError(report.status());
+  const bool refused = report->verdict == core::Verdict::kRefused;
+  if (refused) {
     // What the import decided (units, time base, gaps) often explains why poses are missing.
     for (const auto& n : import.notes) std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
-    const int code = ReportError(report.status());
-    if (absl::IsFailedPrecondition(report.status()) &&
-        absl::StartsWith(report.status().message(), "too few static poses")) {
-      if (const std::string what = DescribeFewOrientations(*capture, co); !what.empty())
-        std::fprintf(stderr, "imucal: %s\n", what.c_str());
-    }
-    return code;
+    std::fprintf(stderr, "imucal: %s\n", report->refusal->message.c_str());
+  } else {
+    StampParams(&report->params);
   }
-  StampParams(&report->params);
   const std::string json = ReportToJson(*report);
   // --out DIR (an existing directory, or a path ending in '/') and --plots DIR: the report,
   // its summary and the plots. --out FILE: the JSON report alone.
@@ -411,7 +362,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
     if (!written.ok()) return ReportError(written.status());
     plot_paths = std::move(*written);
   }
-  if (auto out = a->Get("params-out")) {
+  if (auto out = a->Get("params-out"); out && !refused) {
     if (absl::Status s = WriteFileAtomically(*out, sdk::ParamSetToJson(report->params)); !s.ok())
       return ReportError(s);
   }
@@ -426,7 +377,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
     std::fputs(FormatSummary(*report).c_str(), stdout);
     for (const auto& p : plot_paths) std::printf("wrote       %s\n", p.c_str());
   }
-  return ExitForVerdict(report->verdict);
+  return refused ? kExitUndetermined : ExitForVerdict(report->verdict);
 }
 
 int RunApply(const std::vector<std::string>& argv) {
@@ -458,11 +409,11 @@ int RunApply(const std::vector<std::string>& argv) {
 }
 
 int RunSimulate(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(
-      argv,
-      {"out", "protocol", "seed", "rate", "extra-poses", "free-poses", "accel-noise", "gyro-noise",
-       "accel-unit", "gyro-unit", "floor-tilt", "turn-error", "effect", "truth"},
-      {"no-temperature", "botch-turn", "help"});
+  auto a = Args::Parse(argv,
+                       {"out", "protocol", "seed", "rate", "extra-poses", "free-poses",
+                        "accel-noise", "gyro-noise", "accel-step", "gyro-step", "accel-unit",
+                        "gyro-unit", "floor-tilt", "turn-error", "effect", "truth"},
+                       {"no-temperature", "botch-turn", "help"});
   if (!a.ok()) return Usage(std::string(a.status().message()), kSimulateHelp);
   if (a->Has("help")) return std::printf("%s", kSimulateHelp), kExitOk;
   if (!a->Get("out")) return Usage("simulate needs --out FILE.csv", kSimulateHelp);

@@ -25,6 +25,7 @@ json PoseJson(const core::PoseReport& p) {
           {"temp_mean", Num(s.temp_mean)},
           {"used", s.used},
           {"reason", s.reason},
+          {"issue", std::string(core::IntervalIssueName(s.issue))},
           {"face", p.face},
           {"up", Vec(p.up)},
           {"residual", Num(p.residual_m_s2)},
@@ -168,6 +169,7 @@ std::string ReportToJson(const core::CalibrationReport& r) {
   const core::Residuals& res = r.residual;
   j["residual"] = {{"accel_rms", res.accel_rms_m_s2},
                    {"accel_max", res.accel_max_m_s2},
+                   {"accel_noise_floor", Num(res.accel_noise_floor_m_s2)},
                    {"accel_heldout_rms", Num(res.accel_heldout_rms_m_s2)},
                    {"accel_heldout_max", Num(res.accel_heldout_max_m_s2)},
                    {"accel_chi2_reduced", r.accel_chi2_reduced},
@@ -183,8 +185,14 @@ std::string ReportToJson(const core::CalibrationReport& r) {
     j["effects"][k]["human"] = core::HumanCoefficient(r.params.effects[k]);
   if (r.effect_diagnostics.ran || !r.effect_diagnostics.notes.empty())
     j["effect_diagnostics"] = DiagnosticsJson(r.effect_diagnostics);
-  j["parameters"] = std::move(params);
+  // A refused capture has no parameters to apply: the report says why, not a confident number.
+  if (r.verdict != core::Verdict::kRefused) j["parameters"] = std::move(params);
   j["verdict"] = std::string(core::VerdictName(r.verdict));
+  j["verdict_reasons"] = r.verdict_reasons;
+  if (r.refusal) {
+    j["refusal"] = {{"reason", std::string(core::RefusalReasonName(r.refusal->reason))},
+                    {"message", r.refusal->message}};
+  }
   j["warnings"] = r.warnings;
   j["ms"] = r.total_ms;
   for (const auto& [phase, ms] : r.phase_ms) j["phase_ms"][phase] = ms;

@@ -280,14 +280,31 @@ TEST_F(CliTest, MissingArgumentsAndBadValuesAreUsageErrors) {
   EXPECT_NE(out_.find("exit codes"), std::string::npos) << out_;
 }
 
-TEST_F(CliTest, TooFewPosesIsExitThree) {
+// A refusal is exit 3 with the reason on stderr, and with --out it still writes the report:
+// verdict refused, every pose found with why it is or is not usable, no parameters to apply.
+TEST_F(CliTest, TooFewPosesIsExitThreeAndStillWritesTheReport) {
   const std::string capture = Path("few.csv"), report = Path("report.json");
-  ASSERT_EQ(Run(RunSimulate, {"--out", capture, "--protocol", "free", "--free-poses", "6"}),
+  ASSERT_EQ(Run(RunSimulate, {"--out", capture, "--protocol", "free", "--free-poses", "5"}),
             kExitOk)
       << err_;
-  EXPECT_EQ(Run(RunCalibrate, {capture, "--out", report}), kExitUndetermined);
-  EXPECT_NE(err_.find("at least 10"), std::string::npos) << err_;
-  EXPECT_FALSE(fs::exists(report));
+  EXPECT_EQ(Run(RunCalibrate, {capture, "--out", report, "--params-out", Path("p.json")}),
+            kExitUndetermined);
+  EXPECT_NE(err_.find("10 distinct orientations"), std::string::npos) << err_;
+  ASSERT_TRUE(fs::exists(report));
+  const json j = json::parse(ReadText(report));
+  EXPECT_EQ(j.at("verdict"), "refused");
+  EXPECT_EQ(j.at("refusal").at("reason"), "too_few_orientations");
+  EXPECT_FALSE(j.contains("parameters"));
+  EXPECT_FALSE(fs::exists(Path("p.json")));  // nothing to apply
+  int used = 0;
+  for (const auto& p : j.at("poses")) {
+    used += p.at("used").get<bool>();
+    EXPECT_TRUE(p.at("used").get<bool>() || !p.at("reason").get<std::string>().empty()) << p;
+  }
+  EXPECT_EQ(used, 5);
+  // --json prints the same report on stdout.
+  EXPECT_EQ(Run(RunCalibrate, {capture, "--json"}), kExitUndetermined);
+  EXPECT_EQ(json::parse(out_).at("verdict"), "refused");
 }
 
 // ---------------------------------------------------------------------------------------------
