@@ -32,7 +32,7 @@
 #include "core/capture_io_internal.h"
 #include "core/import_columns.h"
 #include "core/import_euroc.h"
-#include "core/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::core {
 namespace {

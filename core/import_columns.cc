@@ -14,7 +14,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/capture_io_internal.h"
-#include "core/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::core {
 namespace {

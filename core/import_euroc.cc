@@ -13,7 +13,7 @@
 #include "absl/status/statusor.h"
 #include "core/capture_io_internal.h"
 #include "core/import_columns.h"
-#include "core/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::core {
 namespace {

@@ -22,12 +22,10 @@
 #include "core/capture_io_internal.h"
 #include "core/import_columns.h"
 #include "storage/sqlite_db.h"
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {
-
-using core::Join;
 
 constexpr std::string_view kImuType = "sensor_msgs/msg/Imu";
 constexpr std::string_view kMetadataFile = "metadata.yaml";

@@ -2,8 +2,11 @@
 // absl::string_view (ABSL_OPTION_USE_STD_STRING_VIEW=0), so absl::StrCat and friends reject the
 // std::string_view that imucal's APIs use; these small equivalents accept both. Integers print
 // exactly, doubles in their shortest round-trip form (std::to_chars).
-#ifndef IMUCAL_CORE_STR_UTIL_H_
-#define IMUCAL_CORE_STR_UTIL_H_
+//
+// In namespace imucal itself (as absl::StrCat is in absl), so that code in every imucal library
+// (core, storage, server, ...) calls Cat and Join unqualified.
+#ifndef IMUCAL_UTIL_STR_UTIL_H_
+#define IMUCAL_UTIL_STR_UTIL_H_
 
 #include <array>
 #include <charconv>
@@ -13,7 +16,7 @@
 
 #include "absl/strings/string_view.h"
 
-namespace imucal::core {
+namespace imucal {
 
 inline void AppendPiece(std::string* out, std::string_view s) { out->append(s); }
 inline void AppendPiece(std::string* out, absl::string_view s) { out->append(s.data(), s.size()); }
@@ -58,6 +61,6 @@ std::string Join(const Range& pieces, std::string_view separator) {
   return out;
 }
 
-}  // namespace imucal::core
+}  // namespace imucal
 
-#endif  // IMUCAL_CORE_STR_UTIL_H_
+#endif  // IMUCAL_UTIL_STR_UTIL_H_
