@@ -21,17 +21,17 @@
 #include "client/cli/demo_common.h"
 #include "client/cli/export_flags.h"
 #include "client/cli/import_flags.h"
-#include "client/cli/plots.h"
-#include "client/cli/report_json.h"
 #include "client/cli/summary.h"
 #include "client/sdk/corrector.h"
-#include "client/sdk/params_json.h"
 #include "core/calibrate/calibrate.h"
 #include "core/capture_io.h"
 #include "core/export.h"
 #include "core/simulator.h"
 #include "core/static_detector.h"
 #include "core/validation.h"
+#include "formats/params_json.h"
+#include "formats/plots.h"
+#include "formats/report_json.h"
 
 namespace imucal::cli {
 namespace {
@@ -393,26 +393,28 @@ int RunCalibrate(const std::vector<std::string>& argv) {
     return code;
   }
   StampParams(&report->params);
-  const std::string json = ReportToJson(*report);
+  const std::string json = formats::ReportToJson(*report);
   // --out DIR (an existing directory, or a path ending in '/') and --plots DIR: the report,
   // its summary and the plots. --out FILE: the JSON report alone.
   std::optional<std::string> bundle_dir = a->Get("plots");
   if (auto out = a->Get("out")) {
     if (std::filesystem::is_directory(*out) || out->ends_with('/')) {
       bundle_dir = *out;
-    } else if (absl::Status s = WriteFileAtomically(*out, json); !s.ok()) {
+    } else if (absl::Status s = formats::WriteFileAtomically(*out, json); !s.ok()) {
       return ReportError(s);
     }
   }
   std::vector<std::string> plot_paths;
   if (bundle_dir) {
-    auto written =
-        WriteReportBundle(nlohmann::json::parse(json), json, FormatSummary(*report), *bundle_dir);
+    auto written = formats::WriteReportBundle(nlohmann::json::parse(json), json,
+                                              FormatSummary(*report), *bundle_dir);
     if (!written.ok()) return ReportError(written.status());
     plot_paths = std::move(*written);
   }
   if (auto out = a->Get("params-out")) {
-    if (absl::Status s = WriteFileAtomically(*out, sdk::ParamSetToJson(report->params)); !s.ok())
+    if (absl::Status s =
+            formats::WriteFileAtomically(*out, formats::ParamSetToJson(report->params));
+        !s.ok())
       return ReportError(s);
   }
   if (a->Has("json")) {
@@ -438,7 +440,7 @@ int RunApply(const std::vector<std::string>& argv) {
   if (a->positional().size() < 2) return Usage("apply needs IN and OUT.csv", kApplyHelp);
   auto text = ReadFile(*a->Get("params"));
   if (!text.ok()) return ReportError(text.status());
-  auto params = sdk::ParamSetFromJson(*text);
+  auto params = formats::ParamSetFromJson(*text);
   if (!params.ok()) {
     return ReportError(absl::InvalidArgumentError(
         absl::StrFormat("%s: %s", *a->Get("params"), params.status().message())));
@@ -482,7 +484,8 @@ int RunSimulate(const std::vector<std::string>& argv) {
   if (absl::Status s = core::WriteImucalCsvFile(sim->capture, *a->Get("out")); !s.ok())
     return ReportError(s);
   if (auto truth = a->Get("truth")) {
-    if (absl::Status s = WriteFileAtomically(*truth, sdk::ParamSetToJson(TruthParams(*sim)));
+    if (absl::Status s =
+            formats::WriteFileAtomically(*truth, formats::ParamSetToJson(TruthParams(*sim)));
         !s.ok())
       return ReportError(s);
   }
@@ -526,8 +529,9 @@ int RunDemo(const std::vector<std::string>& argv) {
   auto report = core::Calibrate(sim->capture, co);
   if (!report.ok()) return ReportError(report.status());
   StampParams(&report->params);
-  WriteFileAtomically(dir + "/report.json", ReportToJson(*report)).IgnoreError();
-  WriteFileAtomically(dir + "/params.json", sdk::ParamSetToJson(report->params)).IgnoreError();
+  formats::WriteFileAtomically(dir + "/report.json", formats::ReportToJson(*report)).IgnoreError();
+  formats::WriteFileAtomically(dir + "/params.json", formats::ParamSetToJson(report->params))
+      .IgnoreError();
   std::printf("== 2. calibrated it (report.json, params.json in %s)\n%s", dir.c_str(),
               FormatSummary(*report).c_str());
   std::printf("== 3. ");
@@ -586,7 +590,7 @@ int RunExportFile(const std::vector<std::string>& argv) {
 
   auto text = ReadFile(*params_path);
   if (!text.ok()) return ReportError(text.status());
-  auto params = sdk::ParamSetFromJson(*text);
+  auto params = formats::ParamSetFromJson(*text);
   if (!params.ok()) {
     return ReportError(absl::InvalidArgumentError(
         absl::StrFormat("%s: %s", *params_path, params.status().message())));
@@ -603,10 +607,10 @@ int RunExportFile(const std::vector<std::string>& argv) {
     for (const std::string& n : core::ExportNotes(*params, *format, *options))
       std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
   } else {
-    out = sdk::ParamSetToJson(*params);
+    out = formats::ParamSetToJson(*params);
   }
   if (auto path = a->Get("out")) {
-    if (absl::Status s = WriteFileAtomically(*path, out); !s.ok()) return ReportError(s);
+    if (absl::Status s = formats::WriteFileAtomically(*path, out); !s.ok()) return ReportError(s);
     std::fprintf(stderr, "imucal: wrote %s (%s)\n", path->c_str(), format_name->c_str());
   } else {
     std::fputs(out.c_str(), stdout);

@@ -15,10 +15,10 @@
 #include <thread>
 #include <vector>
 
-#include "client/sdk/params_json.h"
 #include "core/accel_solver.h"
 #include "core/calibrate/calibrate.h"
 #include "core/simulator.h"
+#include "formats/params_json.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
@@ -460,7 +460,7 @@ TEST_F(ServerTest, WatchGuidesSolveActivatesAndMatchesOfflineCalibrate) {
   ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), active, &ps).ok());
   EXPECT_EQ(ps.version(), 1);
   EXPECT_EQ(ps.state(), v1::VERSION_STATE_ACTIVE);
-  auto served = sdk::ParamSetFromJson(ps.json());
+  auto served = formats::ParamSetFromJson(ps.json());
   ASSERT_TRUE(served.ok()) << served.status();
 
   // Offline: the same capture, protocol and seed.

@@ -1,11 +1,11 @@
 // CRC-32C against the standard check value and RFC 3720 (iSCSI) test vectors.
-#include "client/sdk/crc32c.h"
+#include "formats/crc32c.h"
 
 #include <gtest/gtest.h>
 
 #include <string>
 
-namespace imucal::sdk {
+namespace imucal::formats {
 namespace {
 
 TEST(Crc32cTest, CheckValue) { EXPECT_EQ(Crc32c("123456789"), 0xE3069283u); }
@@ -28,4 +28,4 @@ TEST(Crc32cTest, DetectsAFlippedBit) {
 }
 
 }  // namespace
-}  // namespace imucal::sdk
+}  // namespace imucal::formats

@@ -1,4 +1,4 @@
-#include "client/sdk/params_json.h"
+#include "formats/params_json.h"
 
 #include <cmath>
 #include <cstdint>
@@ -16,7 +16,7 @@
 #include "core/regressor.h"
 #include "nlohmann/json.hpp"
 
-namespace imucal::sdk {
+namespace imucal::formats {
 namespace {
 
 // Ordered both ways: the output keeps the spec's key order, and an evidence object read back is
@@ -580,4 +580,4 @@ absl::StatusOr<core::ParamSet> ParamSetFromJson(std::string_view json) {
   return params;
 }
 
-}  // namespace imucal::sdk
+}  // namespace imucal::formats

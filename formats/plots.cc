@@ -1,4 +1,4 @@
-#include "client/cli/plots.h"
+#include "formats/plots.h"
 
 #include <algorithm>
 #include <cmath>
@@ -10,7 +10,7 @@
 #include "absl/strings/str_format.h"
 #include "core/regressor.h"
 
-namespace imucal::cli {
+namespace imucal::formats {
 namespace {
 
 using nlohmann::json;
@@ -448,4 +448,4 @@ absl::StatusOr<std::vector<std::string>> WriteReportBundle(const json& report,
   return written;
 }
 
-}  // namespace imucal::cli
+}  // namespace imucal::formats

@@ -1,4 +1,4 @@
-#include "client/sdk/params_json.h"
+#include "formats/params_json.h"
 
 #include <cmath>
 #include <cstdint>
@@ -13,7 +13,7 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 
-namespace imucal::sdk {
+namespace imucal::formats {
 namespace {
 
 // Ordered, so that evidence objects keep their key order through the test's edits.
@@ -350,4 +350,4 @@ TEST(ParamsJsonTest, UnitNamesMatchTheCaptureHeader) {
 }
 
 }  // namespace
-}  // namespace imucal::sdk
+}  // namespace imucal::formats

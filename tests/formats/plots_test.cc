@@ -1,7 +1,7 @@
-// The report plots (client/cli/plots.h): written from the report JSON of a real calibration of a
+// The report plots (formats/plots.h): written from the report JSON of a real calibration of a
 // simulated capture with an effect, one SVG per effect plus the per-pose residuals; malformed
 // input names the field.
-#include "client/cli/plots.h"
+#include "formats/plots.h"
 
 #include <gtest/gtest.h>
 
@@ -11,11 +11,11 @@
 #include <sstream>
 #include <string>
 
-#include "client/cli/report_json.h"
 #include "core/calibrate/calibrate.h"
 #include "core/simulator.h"
+#include "formats/report_json.h"
 
-namespace imucal::cli {
+namespace imucal::formats {
 namespace {
 
 std::string Slurp(const std::string& path) {
@@ -116,4 +116,4 @@ TEST(PlotsTest, NoDiagnosticsNoPlotsAndMalformedEffectIsNamed) {
 }
 
 }  // namespace
-}  // namespace imucal::cli
+}  // namespace imucal::formats

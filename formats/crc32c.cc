@@ -1,8 +1,8 @@
-#include "client/sdk/crc32c.h"
+#include "formats/crc32c.h"
 
 #include <array>
 
-namespace imucal::sdk {
+namespace imucal::formats {
 namespace {
 
 constexpr uint32_t kPolyReflected = 0x82F63B78u;
@@ -27,4 +27,4 @@ uint32_t Crc32c(std::string_view data) {
   return crc ^ 0xFFFFFFFFu;
 }
 
-}  // namespace imucal::sdk
+}  // namespace imucal::formats

@@ -51,8 +51,8 @@
 // ignored ("more fields are welcome"). Effect evidence is a string in core::Effect: it is written
 // as the JSON object it holds if it holds one, else as {"what": evidence}; a string or an object
 // is accepted on read ({"what": s} alone reads as s, any other object as its compact JSON).
-#ifndef IMUCAL_CLIENT_SDK_PARAMS_JSON_H_
-#define IMUCAL_CLIENT_SDK_PARAMS_JSON_H_
+#ifndef IMUCAL_FORMATS_PARAMS_JSON_H_
+#define IMUCAL_FORMATS_PARAMS_JSON_H_
 
 #include <string>
 #include <string_view>
@@ -61,7 +61,7 @@
 #include "core/capture.h"
 #include "core/params.h"
 
-namespace imucal::sdk {
+namespace imucal::formats {
 
 inline constexpr std::string_view kParamsFormat = "imucal-params v1";
 inline constexpr std::string_view kReportFormat = "imucal-report v1";
@@ -84,6 +84,6 @@ absl::StatusOr<core::ParamSet> ParamSetFromJson(std::string_view json);
 std::string_view UnitName(core::AccelUnit unit);
 std::string_view UnitName(core::GyroUnit unit);
 
-}  // namespace imucal::sdk
+}  // namespace imucal::formats
 
-#endif  // IMUCAL_CLIENT_SDK_PARAMS_JSON_H_
+#endif  // IMUCAL_FORMATS_PARAMS_JSON_H_

@@ -1,11 +1,11 @@
-#include "client/cli/report_json.h"
+#include "formats/report_json.h"
 
 #include <cmath>
 
-#include "client/sdk/params_json.h"
+#include "formats/params_json.h"
 #include "nlohmann/json.hpp"
 
-namespace imucal::cli {
+namespace imucal::formats {
 namespace {
 
 using nlohmann::json;
@@ -176,7 +176,7 @@ std::string ReportToJson(const core::CalibrationReport& r) {
                    {"gravity_direction_max_deg", Num(res.move_max_deg)},
                    {"gravity_direction_heldout_rms_deg", Num(res.move_heldout_rms_deg)},
                    {"gravity_direction_heldout_max_deg", Num(res.move_heldout_max_deg)}};
-  json params = json::parse(sdk::ParamSetToJson(r.params));
+  json params = json::parse(ParamSetToJson(r.params));
   j["effects"] = params.contains("effects") ? params["effects"] : json::array();
   // Beside the spec's fields: the coefficient in an engineer's units (mg/degC, deg/s/g, ...).
   for (size_t k = 0; k < r.params.effects.size() && k < j["effects"].size(); ++k)
@@ -191,4 +191,4 @@ std::string ReportToJson(const core::CalibrationReport& r) {
   return j.dump(2) + "\n";
 }
 
-}  // namespace imucal::cli
+}  // namespace imucal::formats

@@ -14,8 +14,8 @@
 //       its regressor (partial residual: every other effect removed), before and after, with
 //       the fitted line. For the accelerometer the abscissa is the regressor times the pose's
 //       gravity-direction component on the effect's axis, the way the term reaches |a| - g.
-#ifndef IMUCAL_CLIENT_CLI_PLOTS_H_
-#define IMUCAL_CLIENT_CLI_PLOTS_H_
+#ifndef IMUCAL_FORMATS_PLOTS_H_
+#define IMUCAL_FORMATS_PLOTS_H_
 
 #include <string>
 #include <vector>
@@ -23,7 +23,7 @@
 #include "absl/status/statusor.h"
 #include "nlohmann/json.hpp"
 
-namespace imucal::cli {
+namespace imucal::formats {
 
 // Writes the plots into `dir` (created if missing) and returns the paths written. Each plot is
 // drawn when the report holds its data (a report without any gives an empty list).
@@ -58,6 +58,6 @@ struct Plot {
 };
 std::string RenderSvg(const Plot& plot);
 
-}  // namespace imucal::cli
+}  // namespace imucal::formats
 
-#endif  // IMUCAL_CLIENT_CLI_PLOTS_H_
+#endif  // IMUCAL_FORMATS_PLOTS_H_
