@@ -9,7 +9,7 @@
 
 #include "absl/status/status.h"
 #include "client/cli/args.h"
-#include "core/capture_io.h"
+#include "importers/capture_io.h"
 
 namespace imucal::cli {
 
@@ -23,7 +23,7 @@ std::set<std::string> WithImportSwitches(std::set<std::string> switches);
 // Registers the importers outside core (idempotent), then reads the importer flags into
 // `options`. A bad value, or a column option without --columns, is InvalidArgument naming the
 // flag (a usage error).
-absl::Status ApplyImportFlags(const Args& args, core::ImportOptions* options);
+absl::Status ApplyImportFlags(const Args& args, importers::ImportOptions* options);
 
 }  // namespace imucal::cli
 

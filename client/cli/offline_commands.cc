@@ -24,7 +24,6 @@
 #include "client/cli/summary.h"
 #include "client/sdk/corrector.h"
 #include "core/calibrate/calibrate.h"
-#include "core/capture_io.h"
 #include "core/export.h"
 #include "core/simulator.h"
 #include "core/static_detector.h"
@@ -32,6 +31,7 @@
 #include "formats/params_json.h"
 #include "formats/plots.h"
 #include "formats/report_json.h"
+#include "importers/capture_io.h"
 
 namespace imucal::cli {
 namespace {
@@ -111,8 +111,8 @@ constexpr char kSimulateHelp[] =
     "                      streamed with `imucal upload`, the guide shows a failed pair and its\n"
     "                      re-do\n";
 
-absl::StatusOr<core::ImportOptions> ImportOptionsFrom(const Args& a) {
-  core::ImportOptions o;
+absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
+  importers::ImportOptions o;
   if (auto f = a.Get("format")) o.format = *f;
   if (auto u = a.Get("accel-unit")) {
     auto p = core::ParseAccelUnit(*u);
@@ -377,8 +377,8 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   co.effects.enabled = !a->Has("no-effects");
   co.effects.apply_time_effects = a->Has("apply-time-effects");
 
-  core::ImportReport import;
-  auto capture = core::ImportCapture(a->positional(), *io, &import);
+  importers::ImportReport import;
+  auto capture = importers::ImportCapture(a->positional(), *io, &import);
   if (!capture.ok()) return ReportError(capture.status());
   auto report = core::Calibrate(*capture, co);
   if (!report.ok()) {
@@ -448,11 +448,11 @@ int RunApply(const std::vector<std::string>& argv) {
   std::vector<std::string> inputs(a->positional().begin(), a->positional().end() - 1);
   auto io = ImportOptionsFrom(*a);
   if (!io.ok()) return Usage(std::string(io.status().message()), kApplyHelp);
-  auto capture = core::ImportCapture(inputs, *io);
+  auto capture = importers::ImportCapture(inputs, *io);
   if (!capture.ok()) return ReportError(capture.status());
   auto out = ApplyParams(*params, *capture);
   if (!out.ok()) return ReportError(out.status());
-  if (absl::Status s = core::WriteImucalCsvFile(*out, a->positional().back()); !s.ok())
+  if (absl::Status s = importers::WriteImucalCsvFile(*out, a->positional().back()); !s.ok())
     return ReportError(s);
   std::printf("wrote %zu calibrated samples (m/s^2, rad/s) to %s\n", out->size(),
               a->positional().back().c_str());
@@ -481,7 +481,7 @@ int RunSimulate(const std::vector<std::string>& argv) {
     if (!botched.ok()) return ReportError(botched.status());
     sim->capture = *std::move(botched);
   }
-  if (absl::Status s = core::WriteImucalCsvFile(sim->capture, *a->Get("out")); !s.ok())
+  if (absl::Status s = importers::WriteImucalCsvFile(sim->capture, *a->Get("out")); !s.ok())
     return ReportError(s);
   if (auto truth = a->Get("truth")) {
     if (absl::Status s =
@@ -519,7 +519,7 @@ int RunDemo(const std::vector<std::string>& argv) {
   if (!sim.ok()) return ReportError(sim.status());
   sim->capture.device = "demo-robot";
   const std::string capture_path = dir + "/capture.csv";
-  if (absl::Status s = core::WriteImucalCsvFile(sim->capture, capture_path); !s.ok())
+  if (absl::Status s = importers::WriteImucalCsvFile(sim->capture, capture_path); !s.ok())
     return ReportError(s);
   std::printf("== 1. simulated a six-face session + %d extra poses at 200 Hz, 2 mg noise: %s\n",
               so.extra_poses, capture_path.c_str());

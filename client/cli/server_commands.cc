@@ -20,9 +20,9 @@
 #include "client/cli/server_common.h"
 #include "client/cli/summary.h"
 #include "client/sdk/uploader.h"
-#include "core/capture_io.h"
 #include "formats/params_json.h"
 #include "formats/plots.h"
+#include "importers/capture_io.h"
 #include "nlohmann/json.hpp"
 
 namespace imucal::cli {
@@ -382,8 +382,8 @@ class ProgressBar {
   int last_percent_ = -1;
 };
 
-absl::StatusOr<core::ImportOptions> UploadImportOptions(const Args& a) {
-  core::ImportOptions o;
+absl::StatusOr<importers::ImportOptions> UploadImportOptions(const Args& a) {
+  importers::ImportOptions o;
   if (auto f = a.Get("format")) o.format = *f;
   if (auto u = a.Get("accel-unit")) {
     auto p = core::ParseAccelUnit(*u);
@@ -422,7 +422,7 @@ int RunUpload(const std::vector<std::string>& argv) {
                       kUploadHelp);
   auto io = UploadImportOptions(*a);
   if (!io.ok()) return UsageError(std::string(io.status().message()), kUploadHelp);
-  auto capture = core::ImportCapture(a->positional(), *io);
+  auto capture = importers::ImportCapture(a->positional(), *io);
   if (!capture.ok()) return ReportError(capture.status());
 
   Server server = Connect(*a);

@@ -16,10 +16,10 @@
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
 #include "core/capture.h"
-#include "core/capture_io.h"
 #include "core/simulator.h"
 #include "core/validation.h"
 #include "formats/params_json.h"
+#include "importers/capture_io.h"
 #include "nlohmann/json.hpp"
 
 namespace imucal::cli {
@@ -135,8 +135,8 @@ TEST_F(CliTest, SimulateCalibrateApplyRoundTrip) {
   ASSERT_EQ(Run(RunApply, {"--params", report, clean, calibrated}), kExitOk) << err_;
   EXPECT_NE(out_.find(calibrated), std::string::npos) << out_;
 
-  const absl::StatusOr<core::Capture> in = core::ReadImucalCsvFile(clean);
-  const absl::StatusOr<core::Capture> out = core::ReadImucalCsvFile(calibrated);
+  const absl::StatusOr<core::Capture> in = importers::ReadImucalCsvFile(clean);
+  const absl::StatusOr<core::Capture> out = importers::ReadImucalCsvFile(calibrated);
   ASSERT_TRUE(in.ok()) << in.status();
   ASSERT_TRUE(out.ok()) << out.status();
   EXPECT_EQ(out->accel_unit, core::AccelUnit::kMetersPerSecond2);

@@ -1,4 +1,4 @@
-#include "storage/rosbag2_import.h"
+#include "importers/rosbag2.h"
 
 #include <sys/stat.h>
 
@@ -19,13 +19,18 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "core/capture_io_internal.h"
-#include "core/import_columns.h"
+#include "importers/capture_io_internal.h"
+#include "importers/columns.h"
 #include "storage/sqlite_db.h"
 #include "util/str_util.h"
 
-namespace imucal::storage {
+namespace imucal::importers {
 namespace {
+
+// storage/sqlite_db.h: the RAII layer over the SQLite C API.
+using storage::Connection;
+using storage::ConnectionOptions;
+using storage::ScopedStatement;
 
 constexpr std::string_view kImuType = "sensor_msgs/msg/Imu";
 constexpr std::string_view kMetadataFile = "metadata.yaml";
@@ -146,7 +151,7 @@ long SplitIndex(std::string_view name) {
 }
 
 std::string_view Unquoted(std::string_view s) {
-  s = core::io_internal::TrimText(s);
+  s = io_internal::TrimText(s);
   if (s.size() >= 2 && (s.front() == '"' || s.front() == '\'') && s.back() == s.front()) {
     s = s.substr(1, s.size() - 2);
   }
@@ -157,11 +162,11 @@ std::string_view Unquoted(std::string_view s) {
 
 BagMetadata ParseBagMetadata(std::string_view yaml) {
   BagMetadata metadata;
-  core::io_internal::LineCursor lines(yaml);
+  io_internal::LineCursor lines(yaml);
   std::string_view line;
   bool in_paths = false;
   while (lines.Next(&line)) {
-    const std::string_view trimmed = core::io_internal::TrimText(line);
+    const std::string_view trimmed = io_internal::TrimText(line);
     if (trimmed.starts_with("storage_identifier:")) {
       metadata.storage_identifier =
           std::string(Unquoted(trimmed.substr(std::string_view("storage_identifier:").size())));
@@ -187,8 +192,7 @@ namespace {
 absl::StatusOr<std::vector<std::string>> BagFiles(const std::string& path) {
   if (!IsDirectory(path)) return std::vector<std::string>{path};
   const std::filesystem::path dir(path);
-  absl::StatusOr<std::string> yaml =
-      core::io_internal::ReadFileText((dir / kMetadataFile).string());
+  absl::StatusOr<std::string> yaml = io_internal::ReadFileText((dir / kMetadataFile).string());
   if (!yaml.ok()) {
     return absl::InvalidArgumentError(
         Cat(path, ": not a rosbag2 directory (", yaml.status().message(), ")"));
@@ -287,7 +291,7 @@ absl::StatusOr<Topic> ChooseTopic(const std::vector<Topic>& topics, std::string_
 // A metadata value that survives the capture CSV (one line, no surrounding spaces).
 bool SafeMetadataValue(std::string_view value) {
   return !value.empty() && value.find_first_of("\r\n") == std::string_view::npos &&
-         core::io_internal::TrimText(value) == value;
+         io_internal::TrimText(value) == value;
 }
 
 struct Sample {
@@ -332,7 +336,7 @@ absl::Status ReadMessages(Connection& db, const std::string& file, const Topic& 
   return absl::OkStatus();
 }
 
-class Rosbag2ImporterImpl final : public core::CaptureImporter {
+class Rosbag2ImporterImpl final : public CaptureImporter {
  public:
   std::string_view name() const override { return "rosbag2"; }
   std::string_view description() const override {
@@ -352,7 +356,7 @@ class Rosbag2ImporterImpl final : public core::CaptureImporter {
     return absl::InvalidArgumentError("neither a bag directory nor an SQLite (.db3) file");
   }
   absl::StatusOr<core::Capture> Import(const std::vector<std::string>& paths,
-                                       const core::ImportOptions& options,
+                                       const ImportOptions& options,
                                        std::vector<std::string>* used_paths,
                                        std::vector<std::string>* notes) const override {
     if (paths.size() != 1) {
@@ -408,8 +412,7 @@ absl::StatusOr<ImuMessage> DecodeImuCdr(std::string_view data) {
   return message;
 }
 
-absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path,
-                                             const core::ImportOptions& options,
+absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path, const ImportOptions& options,
                                              std::vector<std::string>* notes) {
   absl::StatusOr<std::vector<std::string>> files = BagFiles(path);
   if (!files.ok()) return files.status();
@@ -476,16 +479,16 @@ absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path,
     notes->push_back(
         Cat("the messages name ", frame_ids.size(), " frames: ", Join(frame_ids, ", ")));
   }
-  core::io_internal::ApplyImportOverrides(options, &capture, notes);
-  core::NoteTimeGaps(capture, notes);
+  io_internal::ApplyImportOverrides(options, &capture, notes);
+  NoteTimeGaps(capture, notes);
   return capture;
 }
 
-const core::CaptureImporter* Rosbag2Importer() {
+const CaptureImporter* Rosbag2Importer() {
   static const auto* const kImporter = new Rosbag2ImporterImpl();
   return kImporter;
 }
 
-void RegisterRosbag2Importer() { core::RegisterCaptureImporter(Rosbag2Importer()); }
+void RegisterRosbag2Importer() { RegisterCaptureImporter(Rosbag2Importer()); }
 
-}  // namespace imucal::storage
+}  // namespace imucal::importers

@@ -1,6 +1,6 @@
 // Tests of the ROS 2 bag importer (storage/rosbag2_import.cc) on bags written here with the raw
 // SQLite C API and a CDR serialiser of their own, independent of the decoder under test.
-#include "storage/rosbag2_import.h"
+#include "importers/rosbag2.h"
 
 #include <sqlite3.h>
 
@@ -12,11 +12,11 @@
 #include <string_view>
 #include <vector>
 
-#include "core/capture_io.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
+#include "importers/capture_io.h"
 
-namespace imucal::storage {
+namespace imucal::importers {
 namespace {
 
 using ::testing::AllOf;
@@ -282,8 +282,8 @@ TEST(Rosbag2ImportTest, AutoDetectedDirectoryWithHeaderStamps) {
                        static_cast<uint32_t>(ns % 1'000'000'000), i, "imu_link"));
   }
   const std::string dir = WriteSimpleBag("simple_bag", imus);
-  core::ImportReport report;
-  absl::StatusOr<core::Capture> c = core::ImportCapture({dir}, core::ImportOptions{}, &report);
+  ImportReport report;
+  absl::StatusOr<core::Capture> c = ImportCapture({dir}, ImportOptions{}, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(report.format, "rosbag2");
   ASSERT_EQ(c->size(), 50u);
@@ -300,8 +300,7 @@ TEST(Rosbag2ImportTest, AutoDetectedDirectoryWithHeaderStamps) {
   EXPECT_THAT(report.notes, Contains(HasSubstr("topic /imu: 50 messages from 1 file")));
 
   // The .db3 on its own is a bag too.
-  absl::StatusOr<core::Capture> db3 =
-      core::ImportCapture({dir + "/simple_bag_0.db3"}, core::ImportOptions{});
+  absl::StatusOr<core::Capture> db3 = ImportCapture({dir + "/simple_bag_0.db3"}, ImportOptions{});
   ASSERT_TRUE(db3.ok()) << db3.status();
   EXPECT_EQ(db3->accel, c->accel);
 }
@@ -309,10 +308,10 @@ TEST(Rosbag2ImportTest, AutoDetectedDirectoryWithHeaderStamps) {
 TEST(Rosbag2ImportTest, ZeroStampsFallBackToBagTime) {
   RegisterRosbag2Importer();
   const std::string dir = WriteSimpleBag("unstamped", {Imu(0, 0, 1), Imu(0, 0, 2), Imu(0, 0, 3)});
-  core::ImportOptions options;
+  ImportOptions options;
   options.format = "rosbag2";
-  core::ImportReport report;
-  absl::StatusOr<core::Capture> c = core::ImportCapture({dir}, options, &report);
+  ImportReport report;
+  absl::StatusOr<core::Capture> c = ImportCapture({dir}, options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->t_s, (std::vector<double>{0.0, 0.005, 0.01}));
   EXPECT_THAT(report.notes, Contains(HasSubstr("every header.stamp is zero")));
@@ -328,22 +327,22 @@ TEST(Rosbag2ImportTest, TopicChoice) {
             {1, 20, SerializeImu(Imu(1, 5'000'000, 2))},
             {2, 21, "not cdr"}});
   WriteMetadata(dir, {"two_imus_0.db3"});
-  core::ImportOptions options;
-  absl::StatusOr<core::Capture> ambiguous = core::ImportCapture({dir}, options);
+  ImportOptions options;
+  absl::StatusOr<core::Capture> ambiguous = ImportCapture({dir}, options);
   ASSERT_FALSE(ambiguous.ok());
   EXPECT_THAT(ambiguous.status().message(),
               HasSubstr("2 sensor_msgs/msg/Imu topics, choose one with --topic: /imu/data "
                         "(sensor_msgs/msg/Imu), /imu2 (sensor_msgs/msg/Imu)"));
   options.topic = "/imu/data";
-  absl::StatusOr<core::Capture> chosen = core::ImportCapture({dir}, options);
+  absl::StatusOr<core::Capture> chosen = ImportCapture({dir}, options);
   ASSERT_TRUE(chosen.ok()) << chosen.status();
   ASSERT_EQ(chosen->size(), 2u);
   EXPECT_EQ(chosen->gyro[1].z(), 2.25);
   options.topic = "/tf";
-  EXPECT_THAT(core::ImportCapture({dir}, options).status().message(),
+  EXPECT_THAT(ImportCapture({dir}, options).status().message(),
               HasSubstr("topic '/tf' has type tf2_msgs/msg/TFMessage, not sensor_msgs/msg/Imu"));
   options.topic = "/camera";
-  EXPECT_THAT(core::ImportCapture({dir}, options).status().message(),
+  EXPECT_THAT(ImportCapture({dir}, options).status().message(),
               HasSubstr("no topic '/camera' (topics: /imu/data (sensor_msgs/msg/Imu), /tf "));
 }
 
@@ -352,7 +351,7 @@ TEST(Rosbag2ImportTest, NoImuTopic) {
   const std::string dir = BagDir("no_imu");
   WriteDb3(dir + "/no_imu_0.db3", {{1, "/tf", "tf2_msgs/msg/TFMessage"}}, {});
   WriteMetadata(dir, {"no_imu_0.db3"});
-  absl::StatusOr<core::Capture> c = core::ImportCapture({dir}, core::ImportOptions{});
+  absl::StatusOr<core::Capture> c = ImportCapture({dir}, ImportOptions{});
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(),
               HasSubstr("no sensor_msgs/msg/Imu topic (topics: /tf (tf2_msgs/msg/TFMessage))"));
@@ -366,8 +365,8 @@ TEST(Rosbag2ImportTest, SplitBagReadsTheFilesInOrder) {
   WriteDb3(dir + "/split_0.db3", {{1, "/imu", kImu}},
            {{1, 10, SerializeImu(Imu(0, 0, 1))}, {1, 20, SerializeImu(Imu(1, 0, 2))}});
   WriteMetadata(dir, {"split_0.db3", "split_1.db3"});
-  core::ImportReport report;
-  absl::StatusOr<core::Capture> c = core::ImportCapture({dir}, core::ImportOptions{}, &report);
+  ImportReport report;
+  absl::StatusOr<core::Capture> c = ImportCapture({dir}, ImportOptions{}, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->t_s, (std::vector<double>{0, 1, 2, 3}));
   EXPECT_EQ(c->gyro[3].z(), 4.25);
@@ -382,7 +381,7 @@ TEST(Rosbag2ImportTest, BadMessagesNameTheirIndexAndTime) {
   messages[3].data.resize(100);
   WriteDb3(dir + "/truncated_0.db3", {{1, "/imu", kImu}}, messages);
   WriteMetadata(dir, {"truncated_0.db3"});
-  absl::StatusOr<core::Capture> c = core::ImportCapture({dir}, core::ImportOptions{});
+  absl::StatusOr<core::Capture> c = ImportCapture({dir}, ImportOptions{});
   ASSERT_FALSE(c.ok());
   EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_THAT(c.status().message(),
@@ -390,7 +389,7 @@ TEST(Rosbag2ImportTest, BadMessagesNameTheirIndexAndTime) {
                               "orientation_covariance")));
 
   const std::string back = WriteSimpleBag("backwards", {Imu(5, 0, 1), Imu(6, 0, 2), Imu(5, 0, 3)});
-  absl::StatusOr<core::Capture> b = core::ImportCapture({back}, core::ImportOptions{});
+  absl::StatusOr<core::Capture> b = ImportCapture({back}, ImportOptions{});
   ASSERT_FALSE(b.ok());
   EXPECT_THAT(b.status().message(),
               HasSubstr("message 2 (t=1700000000010000000 ns) on /imu: header.stamp "
@@ -401,12 +400,12 @@ TEST(Rosbag2ImportTest, NotABagOrUnsupportedStorage) {
   RegisterRosbag2Importer();
   const std::string mcap = BagDir("mcap_bag");
   WriteMetadata(mcap, {"mcap_bag_0.mcap"}, "mcap");
-  absl::StatusOr<core::Capture> c = core::ImportCapture({mcap}, core::ImportOptions{});
+  absl::StatusOr<core::Capture> c = ImportCapture({mcap}, ImportOptions{});
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(), HasSubstr("storage 'mcap' is not supported (only sqlite3"));
 
   const std::string empty_dir = BagDir("not_a_bag");
-  absl::StatusOr<core::Capture> d = core::ImportCapture({empty_dir}, core::ImportOptions{});
+  absl::StatusOr<core::Capture> d = ImportCapture({empty_dir}, ImportOptions{});
   ASSERT_FALSE(d.ok());
   EXPECT_THAT(d.status().message(), AllOf(HasSubstr("unrecognised capture format"),
                                           HasSubstr("rosbag2: a directory without metadata.yaml")));
@@ -416,10 +415,10 @@ TEST(Rosbag2ImportTest, NotABagOrUnsupportedStorage) {
   ASSERT_EQ(sqlite3_open(wrong_db.c_str(), &db), SQLITE_OK);
   Exec(db, "CREATE TABLE t(x INTEGER);");
   sqlite3_close(db);
-  absl::StatusOr<core::Capture> w = core::ImportCapture({wrong_db}, core::ImportOptions{});
+  absl::StatusOr<core::Capture> w = ImportCapture({wrong_db}, ImportOptions{});
   ASSERT_FALSE(w.ok());
   EXPECT_THAT(w.status().message(), HasSubstr("other.db3: not a rosbag2 sqlite3 file"));
 }
 
 }  // namespace
-}  // namespace imucal::storage
+}  // namespace imucal::importers

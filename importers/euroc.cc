@@ -1,4 +1,4 @@
-#include "core/import_euroc.h"
+#include "importers/euroc.h"
 
 #include <algorithm>
 #include <array>
@@ -11,11 +11,11 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "core/capture_io_internal.h"
-#include "core/import_columns.h"
+#include "importers/capture_io_internal.h"
+#include "importers/columns.h"
 #include "util/str_util.h"
 
-namespace imucal::core {
+namespace imucal::importers {
 namespace {
 
 using io_internal::IsBlankText;
@@ -141,9 +141,10 @@ class EurocImporter final : public CaptureImporter {
     return absl::InvalidArgumentError(
         "first line is not '#timestamp [ns],w_RS_S_x [rad s^-1],...,a_RS_S_z [m s^-2]'");
   }
-  absl::StatusOr<Capture> Import(const std::vector<std::string>& paths,
-                                 const ImportOptions& options, std::vector<std::string>* used_paths,
-                                 std::vector<std::string>* notes) const override {
+  absl::StatusOr<core::Capture> Import(const std::vector<std::string>& paths,
+                                       const ImportOptions& options,
+                                       std::vector<std::string>* used_paths,
+                                       std::vector<std::string>* notes) const override {
     if (paths.size() != 1) {
       return absl::InvalidArgumentError(
           Cat("the euroc format reads one file, got ", paths.size(), ": ", Join(paths, ", ")));
@@ -157,9 +158,9 @@ class EurocImporter final : public CaptureImporter {
 
 }  // namespace
 
-absl::StatusOr<Capture> ParseEurocCsv(std::string_view text, std::string_view source_name,
-                                      const ImportOptions& options,
-                                      std::vector<std::string>* notes) {
+absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_view source_name,
+                                            const ImportOptions& options,
+                                            std::vector<std::string>* notes) {
   LineCursor lines(text);
   std::string_view line;
   if (!lines.Next(&line)) return LineErrorAt(source_name, 1, "empty file (no EuRoC header)");
@@ -167,10 +168,10 @@ absl::StatusOr<Capture> ParseEurocCsv(std::string_view text, std::string_view so
   absl::StatusOr<EurocHeader> header = ParseHeader(line, source_name);
   if (!header.ok()) return header.status();
 
-  Capture capture;
-  capture.gravity_m_s2 = kStandardGravity;
-  capture.accel_unit = AccelUnit::kMetersPerSecond2;
-  capture.gyro_unit = GyroUnit::kRadPerSecond;
+  core::Capture capture;
+  capture.gravity_m_s2 = core::kStandardGravity;
+  capture.accel_unit = core::AccelUnit::kMetersPerSecond2;
+  capture.gyro_unit = core::GyroUnit::kRadPerSecond;
   const size_t rows = io_internal::CountTextLines(lines.rest());
   capture.t_s.reserve(rows);
   capture.accel.reserve(rows);
@@ -238,4 +239,4 @@ const CaptureImporter* EurocCsvImporter() {
   return kImporter;
 }
 
-}  // namespace imucal::core
+}  // namespace imucal::importers

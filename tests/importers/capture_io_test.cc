@@ -1,4 +1,4 @@
-#include "core/capture_io.h"
+#include "importers/capture_io.h"
 
 #include <charconv>
 #include <cmath>
@@ -19,7 +19,7 @@
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 
-namespace imucal::core {
+namespace imucal::importers {
 namespace {
 
 using ::testing::ElementsAre;
@@ -61,7 +61,7 @@ std::string ReadText(const std::string& path) {
 
 // The error message of a parse that must fail.
 std::string ParseError(std::string_view text) {
-  absl::StatusOr<Capture> capture = ParseImucalCsv(text, "cap.csv");
+  absl::StatusOr<core::Capture> capture = ParseImucalCsv(text, "cap.csv");
   EXPECT_FALSE(capture.ok()) << "parsed " << text;
   if (capture.ok()) return "";
   EXPECT_EQ(capture.status().code(), absl::StatusCode::kInvalidArgument);
@@ -72,12 +72,12 @@ bool SameBits(double a, double b) { return std::memcmp(&a, &b, sizeof(double)) =
 
 // Values whose text form is awkward: non-terminating binary fractions, extremes of the exponent
 // range, subnormals, negative zero, integers above 2^53 precision.
-Capture AwkwardCapture() {
-  Capture c;
+core::Capture AwkwardCapture() {
+  core::Capture c;
   c.device = "robot 0042 (bench)";
-  c.accel_unit = AccelUnit::kG;
-  c.gyro_unit = GyroUnit::kDegPerSecond;
-  c.temp_unit = TempUnit::kCounts;
+  c.accel_unit = core::AccelUnit::kG;
+  c.gyro_unit = core::GyroUnit::kDegPerSecond;
+  c.temp_unit = core::TempUnit::kCounts;
   c.gravity_m_s2 = 9.80743;
   c.rate_hz = 204.8;
   c.extra_metadata = {{"operator", "ada"}, {"zeta", "last=first"}, {"alpha", ""}};
@@ -108,7 +108,7 @@ Capture AwkwardCapture() {
   return c;
 }
 
-void ExpectSameCapture(const Capture& a, const Capture& b) {
+void ExpectSameCapture(const core::Capture& a, const core::Capture& b) {
   EXPECT_EQ(a.device, b.device);
   EXPECT_EQ(a.accel_unit, b.accel_unit);
   EXPECT_EQ(a.gyro_unit, b.gyro_unit);
@@ -139,35 +139,37 @@ void ExpectSameCapture(const Capture& a, const Capture& b) {
 // capture.h
 
 TEST(CaptureTest, UnitNamesRoundTrip) {
-  for (AccelUnit u : {AccelUnit::kMetersPerSecond2, AccelUnit::kG, AccelUnit::kCounts}) {
-    EXPECT_EQ(*ParseAccelUnit(AccelUnitName(u)), u);
+  for (core::AccelUnit u :
+       {core::AccelUnit::kMetersPerSecond2, core::AccelUnit::kG, core::AccelUnit::kCounts}) {
+    EXPECT_EQ(*core::ParseAccelUnit(core::AccelUnitName(u)), u);
   }
-  for (GyroUnit u : {GyroUnit::kRadPerSecond, GyroUnit::kDegPerSecond, GyroUnit::kCounts}) {
-    EXPECT_EQ(*ParseGyroUnit(GyroUnitName(u)), u);
+  for (core::GyroUnit u :
+       {core::GyroUnit::kRadPerSecond, core::GyroUnit::kDegPerSecond, core::GyroUnit::kCounts}) {
+    EXPECT_EQ(*core::ParseGyroUnit(core::GyroUnitName(u)), u);
   }
-  for (TempUnit u : {TempUnit::kCelsius, TempUnit::kCounts}) {
-    EXPECT_EQ(*ParseTempUnit(TempUnitName(u)), u);
+  for (core::TempUnit u : {core::TempUnit::kCelsius, core::TempUnit::kCounts}) {
+    EXPECT_EQ(*core::ParseTempUnit(core::TempUnitName(u)), u);
   }
-  EXPECT_EQ(AccelUnitName(AccelUnit::kMetersPerSecond2), "m/s^2");
-  EXPECT_EQ(GyroUnitName(GyroUnit::kDegPerSecond), "deg/s");
-  EXPECT_EQ(TempUnitName(TempUnit::kCelsius), "C");
-  EXPECT_FALSE(ParseAccelUnit("m/s2").ok());
-  EXPECT_FALSE(ParseGyroUnit("dps").ok());
-  EXPECT_FALSE(ParseTempUnit("F").ok());
-  EXPECT_THAT(std::string(ParseAccelUnit("G").status().message()), HasSubstr("'G'"));
+  EXPECT_EQ(core::AccelUnitName(core::AccelUnit::kMetersPerSecond2), "m/s^2");
+  EXPECT_EQ(core::GyroUnitName(core::GyroUnit::kDegPerSecond), "deg/s");
+  EXPECT_EQ(core::TempUnitName(core::TempUnit::kCelsius), "C");
+  EXPECT_FALSE(core::ParseAccelUnit("m/s2").ok());
+  EXPECT_FALSE(core::ParseGyroUnit("dps").ok());
+  EXPECT_FALSE(core::ParseTempUnit("F").ok());
+  EXPECT_THAT(std::string(core::ParseAccelUnit("G").status().message()), HasSubstr("'G'"));
 }
 
 TEST(CaptureTest, NominalFactors) {
-  EXPECT_EQ(NominalAccelToSi(AccelUnit::kMetersPerSecond2, 9.81), 1.0);
-  EXPECT_EQ(NominalAccelToSi(AccelUnit::kG, 9.81), 9.81);
-  EXPECT_TRUE(std::isnan(NominalAccelToSi(AccelUnit::kCounts, 9.81)));
-  EXPECT_EQ(NominalGyroToSi(GyroUnit::kRadPerSecond), 1.0);
-  EXPECT_DOUBLE_EQ(NominalGyroToSi(GyroUnit::kDegPerSecond) * 180.0, std::numbers::pi);
-  EXPECT_TRUE(std::isnan(NominalGyroToSi(GyroUnit::kCounts)));
+  EXPECT_EQ(core::NominalAccelToSi(core::AccelUnit::kMetersPerSecond2, 9.81), 1.0);
+  EXPECT_EQ(core::NominalAccelToSi(core::AccelUnit::kG, 9.81), 9.81);
+  EXPECT_TRUE(std::isnan(core::NominalAccelToSi(core::AccelUnit::kCounts, 9.81)));
+  EXPECT_EQ(core::NominalGyroToSi(core::GyroUnit::kRadPerSecond), 1.0);
+  EXPECT_DOUBLE_EQ(core::NominalGyroToSi(core::GyroUnit::kDegPerSecond) * 180.0, std::numbers::pi);
+  EXPECT_TRUE(std::isnan(core::NominalGyroToSi(core::GyroUnit::kCounts)));
 }
 
 TEST(CaptureTest, MedianDtIgnoresADroppedSample) {
-  Capture c;
+  core::Capture c;
   EXPECT_EQ(c.MedianDt(), 0.0);
   c.t_s = {0.0};
   EXPECT_EQ(c.MedianDt(), 0.0);
@@ -176,41 +178,41 @@ TEST(CaptureTest, MedianDtIgnoresADroppedSample) {
 }
 
 TEST(CaptureTest, ValidateNamesTheSampleAtFault) {
-  Capture c = AwkwardCapture();
-  EXPECT_TRUE(ValidateCapture(c).ok());
+  core::Capture c = AwkwardCapture();
+  EXPECT_TRUE(core::ValidateCapture(c).ok());
 
-  Capture shorter = c;
+  core::Capture shorter = c;
   shorter.gyro.pop_back();
-  EXPECT_THAT(std::string(ValidateCapture(shorter).message()), HasSubstr("gyro"));
+  EXPECT_THAT(std::string(core::ValidateCapture(shorter).message()), HasSubstr("gyro"));
 
-  Capture not_finite = c;
+  core::Capture not_finite = c;
   not_finite.accel[3].y() = std::numeric_limits<double>::infinity();
-  EXPECT_THAT(std::string(ValidateCapture(not_finite).message()), HasSubstr("sample 3"));
+  EXPECT_THAT(std::string(core::ValidateCapture(not_finite).message()), HasSubstr("sample 3"));
 
-  Capture backwards = c;
+  core::Capture backwards = c;
   backwards.t_s[5] = backwards.t_s[4];
-  EXPECT_EQ(ValidateCapture(backwards).code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_THAT(std::string(ValidateCapture(backwards).message()), HasSubstr("sample 5"));
+  EXPECT_EQ(core::ValidateCapture(backwards).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(core::ValidateCapture(backwards).message()), HasSubstr("sample 5"));
 
-  Capture bad_extra = c;
+  core::Capture bad_extra = c;
   bad_extra.extra_columns[1].pop_back();
-  EXPECT_THAT(std::string(ValidateCapture(bad_extra).message()), HasSubstr("pressure_pa"));
+  EXPECT_THAT(std::string(core::ValidateCapture(bad_extra).message()), HasSubstr("pressure_pa"));
 
-  Capture bad_gravity = c;
+  core::Capture bad_gravity = c;
   bad_gravity.gravity_m_s2 = 0.0;
-  EXPECT_FALSE(ValidateCapture(bad_gravity).ok());
+  EXPECT_FALSE(core::ValidateCapture(bad_gravity).ok());
 }
 
 // ---------------------------------------------------------------------------------------------
 // imucal CSV: reading
 
 TEST(ParseImucalCsvTest, ReadsTheSpecExample) {
-  absl::StatusOr<Capture> c = ParseImucalCsv(kSpecExample, "cap.csv");
+  absl::StatusOr<core::Capture> c = ParseImucalCsv(kSpecExample, "cap.csv");
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->device, "robot-0042");
-  EXPECT_EQ(c->accel_unit, AccelUnit::kMetersPerSecond2);
-  EXPECT_EQ(c->gyro_unit, GyroUnit::kRadPerSecond);
-  EXPECT_EQ(c->temp_unit, TempUnit::kCelsius);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kMetersPerSecond2);
+  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kRadPerSecond);
+  EXPECT_EQ(c->temp_unit, core::TempUnit::kCelsius);
   EXPECT_EQ(c->gravity_m_s2, 9.80665);
   EXPECT_EQ(c->rate_hz, 200.0);
   ASSERT_EQ(c->size(), 2u);
@@ -220,17 +222,17 @@ TEST(ParseImucalCsvTest, ReadsTheSpecExample) {
   EXPECT_THAT(c->temp, ElementsAre(24.81, 24.81));
   EXPECT_TRUE(c->extra_metadata.empty());
   EXPECT_TRUE(c->extra_column_names.empty());
-  EXPECT_TRUE(ValidateCapture(*c).ok());
+  EXPECT_TRUE(core::ValidateCapture(*c).ok());
 }
 
 TEST(ParseImucalCsvTest, DefaultsWhenOptionalHeadersAreAbsent) {
-  absl::StatusOr<Capture> c =
+  absl::StatusOr<core::Capture> c =
       ParseImucalCsv(std::string(kHeader) + "t,ax,ay,az,gx,gy,gz\n0,1,2,3,4,5,6\n", "cap.csv");
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->device, "");
-  EXPECT_EQ(c->gravity_m_s2, kStandardGravity);
+  EXPECT_EQ(c->gravity_m_s2, core::kStandardGravity);
   EXPECT_EQ(c->rate_hz, 0.0);
-  EXPECT_EQ(c->temp_unit, TempUnit::kCelsius);
+  EXPECT_EQ(c->temp_unit, core::TempUnit::kCelsius);
   EXPECT_FALSE(c->has_temp());
 }
 
@@ -239,7 +241,7 @@ TEST(ParseImucalCsvTest, ColumnsInAnyOrderWithExtraColumns) {
                            "gz, seq ,t,temp,ax,gy,ay,flag,gx,az\n"
                            "6,100,0.5,30,1,5,2,-1,4,3\n"
                            "16,101,0.6,31,11,15,12,-2,14,13\n";
-  absl::StatusOr<Capture> c = ParseImucalCsv(text, "cap.csv");
+  absl::StatusOr<core::Capture> c = ParseImucalCsv(text, "cap.csv");
   ASSERT_TRUE(c.ok()) << c.status();
   ASSERT_EQ(c->size(), 2u);
   EXPECT_THAT(c->t_s, ElementsAre(0.5, 0.6));
@@ -268,10 +270,10 @@ TEST(ParseImucalCsvTest, CrlfBlankLinesAndNoTrailingNewline) {
       "\t \r\n"
       "\r\n"
       "1,+1.5,2,3,4,5,6e-3";
-  absl::StatusOr<Capture> c = ParseImucalCsv(text, "cap.csv");
+  absl::StatusOr<core::Capture> c = ParseImucalCsv(text, "cap.csv");
   ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(c->accel_unit, AccelUnit::kG);
-  EXPECT_EQ(c->gyro_unit, GyroUnit::kDegPerSecond);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kG);
+  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kDegPerSecond);
   ASSERT_EQ(c->size(), 2u);
   EXPECT_EQ(c->accel[0], Eigen::Vector3d(1, 2, 3));
   EXPECT_EQ(c->accel[1], Eigen::Vector3d(1.5, 2, 3));
@@ -346,7 +348,7 @@ TEST(ParseImucalCsvTest, NumbersMatchFromCharsOnEdgeCases) {
   for (const std::string& field : fields) {
     if (field.find(',') != std::string::npos) continue;
     const std::optional<double> expected = ReferenceParse(field);
-    absl::StatusOr<Capture> c = ParseImucalCsv(OneValueCapture(field), "cap.csv");
+    absl::StatusOr<core::Capture> c = ParseImucalCsv(OneValueCapture(field), "cap.csv");
     ASSERT_EQ(c.ok(), expected.has_value()) << "'" << field << "': " << c.status();
     if (expected.has_value()) {
       EXPECT_TRUE(SameBits(c->accel[0].x(), *expected)) << "'" << field << "'";
@@ -391,7 +393,7 @@ TEST(ParseImucalCsvTest, NumbersMatchFromCharsOnRandomText) {
     fields.emplace_back(buffer);
     text += std::to_string(i) + "," + fields.back() + ",0,0,0,0,0\n";
   }
-  absl::StatusOr<Capture> c = ParseImucalCsv(text, "random.csv");
+  absl::StatusOr<core::Capture> c = ParseImucalCsv(text, "random.csv");
   ASSERT_TRUE(c.ok()) << c.status();
   ASSERT_EQ(c->size(), static_cast<size_t>(kRows));
   for (int i = 0; i < kRows; ++i) {
@@ -404,13 +406,15 @@ TEST(ParseImucalCsvTest, NumbersMatchFromCharsOnRandomText) {
 }
 
 TEST(ParseImucalCsvTest, AcceptsAByteOrderMark) {
-  absl::StatusOr<Capture> c = ParseImucalCsv(std::string("\xEF\xBB\xBF") + kSpecExample, "cap");
+  absl::StatusOr<core::Capture> c =
+      ParseImucalCsv(std::string("\xEF\xBB\xBF") + kSpecExample, "cap");
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->size(), 2u);
 }
 
 TEST(ParseImucalCsvTest, HeaderAndColumnsWithoutRowsIsAnEmptyCapture) {
-  absl::StatusOr<Capture> c = ParseImucalCsv(std::string(kHeader) + "t,ax,ay,az,gx,gy,gz\n", "c");
+  absl::StatusOr<core::Capture> c =
+      ParseImucalCsv(std::string(kHeader) + "t,ax,ay,az,gx,gy,gz\n", "c");
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->size(), 0u);
 }
@@ -425,7 +429,7 @@ TEST(ParseImucalCsvTest, UnknownMetadataKeptInOrder) {
       "# alpha=x=y\n"
       "# zeta=2\n"
       "t,ax,ay,az,gx,gy,gz\n";
-  absl::StatusOr<Capture> c = ParseImucalCsv(text, "cap.csv");
+  absl::StatusOr<core::Capture> c = ParseImucalCsv(text, "cap.csv");
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_THAT(c->extra_metadata, ElementsAre(Pair("zeta", "1"), Pair("operator", "ada lovelace"),
                                              Pair("alpha", "x=y"), Pair("zeta", "2")));
@@ -562,10 +566,10 @@ TEST(ParseImucalCsvErrorTest, CrlfLineNumbersAreTheSame) {
 // imucal CSV: writing
 
 TEST(FormatImucalCsvTest, RoundTripIsExact) {
-  const Capture original = AwkwardCapture();
+  const core::Capture original = AwkwardCapture();
   ASSERT_TRUE(CheckCaptureWritable(original).ok()) << CheckCaptureWritable(original);
   const std::string text = FormatImucalCsv(original);
-  absl::StatusOr<Capture> parsed = ParseImucalCsv(text, "roundtrip");
+  absl::StatusOr<core::Capture> parsed = ParseImucalCsv(text, "roundtrip");
   ASSERT_TRUE(parsed.ok()) << parsed.status() << "\n" << text;
   ExpectSameCapture(original, *parsed);
   // And the text is a fixed point.
@@ -573,7 +577,7 @@ TEST(FormatImucalCsvTest, RoundTripIsExact) {
 }
 
 TEST(FormatImucalCsvTest, WritesTheSpecLayout) {
-  absl::StatusOr<Capture> c = ParseImucalCsv(kSpecExample, "spec");
+  absl::StatusOr<core::Capture> c = ParseImucalCsv(kSpecExample, "spec");
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(FormatImucalCsv(*c),
             "# imucal-capture v1\n"
@@ -589,7 +593,7 @@ TEST(FormatImucalCsvTest, WritesTheSpecLayout) {
 }
 
 TEST(FormatImucalCsvTest, RejectsWhatWouldNotRoundTrip) {
-  Capture c = AwkwardCapture();
+  core::Capture c = AwkwardCapture();
   c.device = "two\nlines";
   EXPECT_FALSE(CheckCaptureWritable(c).ok());
   c = AwkwardCapture();
@@ -614,10 +618,10 @@ TEST(FormatImucalCsvTest, RejectsWhatWouldNotRoundTrip) {
 
 TEST(WriteImucalCsvFileTest, WritesAtomicallyAndReadsBack) {
   const std::string path = TempPath("write_roundtrip.csv");
-  const Capture original = AwkwardCapture();
+  const core::Capture original = AwkwardCapture();
   ASSERT_TRUE(WriteImucalCsvFile(original, path).ok());
   EXPECT_FALSE(std::filesystem::exists(path + ".tmp"));
-  absl::StatusOr<Capture> read = ReadImucalCsvFile(path);
+  absl::StatusOr<core::Capture> read = ReadImucalCsvFile(path);
   ASSERT_TRUE(read.ok()) << read.status();
   ExpectSameCapture(original, *read);
 }
@@ -625,7 +629,7 @@ TEST(WriteImucalCsvFileTest, WritesAtomicallyAndReadsBack) {
 TEST(WriteImucalCsvFileTest, InvalidCaptureLeavesTheOldFile) {
   const std::string path = TempPath("write_invalid.csv");
   WriteText(path, "old content");
-  Capture bad = AwkwardCapture();
+  core::Capture bad = AwkwardCapture();
   bad.t_s[3] = bad.t_s[2];
   const absl::Status status = WriteImucalCsvFile(bad, path);
   EXPECT_EQ(status.code(), absl::StatusCode::kInvalidArgument);
@@ -642,7 +646,7 @@ TEST(WriteImucalCsvFileTest, UnwritableDirectoryIsAnError) {
 }
 
 TEST(ReadImucalCsvFileTest, MissingFileIsNotFound) {
-  absl::StatusOr<Capture> c = ReadImucalCsvFile(TempPath("does_not_exist.csv"));
+  absl::StatusOr<core::Capture> c = ReadImucalCsvFile(TempPath("does_not_exist.csv"));
   EXPECT_EQ(c.status().code(), absl::StatusCode::kNotFound);
   EXPECT_THAT(std::string(c.status().message()), HasSubstr("does_not_exist.csv"));
 }
@@ -650,7 +654,7 @@ TEST(ReadImucalCsvFileTest, MissingFileIsNotFound) {
 TEST(ReadImucalCsvFileTest, ErrorsArePrefixedWithThePath) {
   const std::string path = TempPath("bad_row.csv");
   WriteText(path, std::string(kHeader) + "t,ax,ay,az,gx,gy,gz\n0,1,2,3,4,5\n");
-  absl::StatusOr<Capture> c = ReadImucalCsvFile(path);
+  absl::StatusOr<core::Capture> c = ReadImucalCsvFile(path);
   EXPECT_EQ(c.status().message(), path + ":5: expected 7 fields, found 6");
 }
 
@@ -671,16 +675,20 @@ std::vector<Eigen::Vector3d> Poses(double magnitude) {
 
 TEST(InferUnitTest, Accelerometer) {
   std::string reason;
-  EXPECT_EQ(InferAccelUnit(Poses(9.81), kStandardGravity, &reason), AccelUnit::kMetersPerSecond2);
+  EXPECT_EQ(InferAccelUnit(Poses(9.81), core::kStandardGravity, &reason),
+            core::AccelUnit::kMetersPerSecond2);
   EXPECT_THAT(reason, StartsWith("accel unit inferred as m/s^2: median |a| 9.7"));
-  EXPECT_EQ(InferAccelUnit(Poses(1.02), kStandardGravity, &reason), AccelUnit::kG);
+  EXPECT_EQ(InferAccelUnit(Poses(1.02), core::kStandardGravity, &reason), core::AccelUnit::kG);
   EXPECT_THAT(reason, StartsWith("accel unit inferred as g"));
-  EXPECT_EQ(InferAccelUnit(Poses(16384), kStandardGravity, &reason), AccelUnit::kCounts);
+  EXPECT_EQ(InferAccelUnit(Poses(16384), core::kStandardGravity, &reason),
+            core::AccelUnit::kCounts);
   EXPECT_THAT(reason, StartsWith("accel unit inferred as counts: median |a| 16"));
   std::vector<Eigen::Vector3d> unsigned_counts(10, Eigen::Vector3d(33108, 33329, 36429));
-  EXPECT_EQ(InferAccelUnit(unsigned_counts, kStandardGravity, nullptr), AccelUnit::kCounts);
+  EXPECT_EQ(InferAccelUnit(unsigned_counts, core::kStandardGravity, nullptr),
+            core::AccelUnit::kCounts);
   // An uncalibrated sensor 8% off still reads as m/s^2.
-  EXPECT_EQ(InferAccelUnit(Poses(10.6), kStandardGravity, nullptr), AccelUnit::kMetersPerSecond2);
+  EXPECT_EQ(InferAccelUnit(Poses(10.6), core::kStandardGravity, nullptr),
+            core::AccelUnit::kMetersPerSecond2);
 }
 
 TEST(InferUnitTest, Gyroscope) {
@@ -693,17 +701,18 @@ TEST(InferUnitTest, Gyroscope) {
   std::vector<Eigen::Vector3d> big(100, Eigen::Vector3d(32786.5, 32429, 32499));
 
   std::string reason;
-  EXPECT_EQ(InferGyroUnit(turning_deg, AccelUnit::kMetersPerSecond2, &reason),
-            GyroUnit::kDegPerSecond);
+  EXPECT_EQ(InferGyroUnit(turning_deg, core::AccelUnit::kMetersPerSecond2, &reason),
+            core::GyroUnit::kDegPerSecond);
   EXPECT_THAT(reason, StartsWith("gyro unit inferred as deg/s: 99th-percentile |rate| 90"));
-  EXPECT_EQ(InferGyroUnit(turning_rad, AccelUnit::kG, &reason), GyroUnit::kRadPerSecond);
+  EXPECT_EQ(InferGyroUnit(turning_rad, core::AccelUnit::kG, &reason),
+            core::GyroUnit::kRadPerSecond);
   EXPECT_THAT(reason, HasSubstr("cannot tell deg/s from rad/s"));
-  EXPECT_EQ(InferGyroUnit(integers, AccelUnit::kCounts, &reason), GyroUnit::kCounts);
+  EXPECT_EQ(InferGyroUnit(integers, core::AccelUnit::kCounts, &reason), core::GyroUnit::kCounts);
   EXPECT_THAT(reason, HasSubstr("every gyro value is an integer"));
-  EXPECT_EQ(InferGyroUnit(big, AccelUnit::kCounts, &reason), GyroUnit::kCounts);
+  EXPECT_EQ(InferGyroUnit(big, core::AccelUnit::kCounts, &reason), core::GyroUnit::kCounts);
   // Integer values alone do not make counts when the accelerometer is in physical units.
-  EXPECT_EQ(InferGyroUnit(integers, AccelUnit::kMetersPerSecond2, nullptr),
-            GyroUnit::kRadPerSecond);
+  EXPECT_EQ(InferGyroUnit(integers, core::AccelUnit::kMetersPerSecond2, nullptr),
+            core::GyroUnit::kRadPerSecond);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -724,32 +733,32 @@ std::pair<std::string, std::string> ImuTkTexts() {
 TEST(ImuTkTest, ParsesAndInfersPhysicalUnits) {
   const auto [accel, gyro] = ImuTkTexts();
   std::vector<std::string> notes;
-  absl::StatusOr<Capture> c = ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", {}, &notes);
+  absl::StatusOr<core::Capture> c = ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", {}, &notes);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->size(), 120u);
-  EXPECT_EQ(c->accel_unit, AccelUnit::kMetersPerSecond2);
-  EXPECT_EQ(c->gyro_unit, GyroUnit::kDegPerSecond);
-  EXPECT_EQ(c->gravity_m_s2, kStandardGravity);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kMetersPerSecond2);
+  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kDegPerSecond);
+  EXPECT_EQ(c->gravity_m_s2, core::kStandardGravity);
   EXPECT_EQ(c->accel[70], Eigen::Vector3d(0.01, -0.02, -9.79));
   EXPECT_EQ(c->gyro[55], Eigen::Vector3d(0.1, 90.0, 0.05));
   ASSERT_EQ(notes.size(), 2u);
   EXPECT_THAT(notes[0], StartsWith("accel unit inferred as m/s^2"));
   EXPECT_THAT(notes[1], StartsWith("gyro unit inferred as deg/s"));
-  EXPECT_TRUE(ValidateCapture(*c).ok());
+  EXPECT_TRUE(core::ValidateCapture(*c).ok());
 }
 
 TEST(ImuTkTest, OptionsOverrideInference) {
   const auto [accel, gyro] = ImuTkTexts();
   ImportOptions options;
-  options.accel_unit = AccelUnit::kCounts;
-  options.gyro_unit = GyroUnit::kRadPerSecond;
+  options.accel_unit = core::AccelUnit::kCounts;
+  options.gyro_unit = core::GyroUnit::kRadPerSecond;
   options.gravity_m_s2 = 9.81744;
   options.device = "xsens";
   std::vector<std::string> notes;
-  absl::StatusOr<Capture> c = ParseImuTkPair(accel, "a", gyro, "g", options, &notes);
+  absl::StatusOr<core::Capture> c = ParseImuTkPair(accel, "a", gyro, "g", options, &notes);
   ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(c->accel_unit, AccelUnit::kCounts);
-  EXPECT_EQ(c->gyro_unit, GyroUnit::kRadPerSecond);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kCounts);
+  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kRadPerSecond);
   EXPECT_EQ(c->gravity_m_s2, 9.81744);
   EXPECT_EQ(c->device, "xsens");
   EXPECT_TRUE(notes.empty());
@@ -758,7 +767,7 @@ TEST(ImuTkTest, OptionsOverrideInference) {
 TEST(ImuTkTest, MismatchedRowCount) {
   auto [accel, gyro] = ImuTkTexts();
   gyro.resize(gyro.rfind('\n', gyro.size() - 2) + 1);  // drop the last gyro line
-  absl::StatusOr<Capture> c = ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", {});
+  absl::StatusOr<core::Capture> c = ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", {});
   EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_EQ(c.status().message(),
             "gyr.txt:119: ends after 119 samples, but acc.txt has 120 (sample 120 at "
@@ -770,7 +779,7 @@ TEST(ImuTkTest, MismatchedTimestamp) {
   const size_t at = gyro.find("0.300000");  // sample 31, line 31
   ASSERT_NE(at, std::string::npos);
   gyro.replace(at, 8, "0.300500");
-  absl::StatusOr<Capture> c = ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", {});
+  absl::StatusOr<core::Capture> c = ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", {});
   EXPECT_EQ(c.status().message(), "gyr.txt:31: t=0.3005 does not match acc.txt:31 (t=0.3)");
 }
 
@@ -787,7 +796,7 @@ TEST(ImuTkTest, LineErrors) {
 }
 
 TEST(ImuTkTest, CrlfAndBlankLines) {
-  absl::StatusOr<Capture> c =
+  absl::StatusOr<core::Capture> c =
       ParseImuTkPair("0 0 0 9.8\r\n\r\n0.01 0 0 9.8\r\n", "a", "0 0 0 0\n0.01 0 0 0", "g", {});
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->size(), 2u);
@@ -811,7 +820,7 @@ TEST(ImportCaptureTest, AutoDetectsImucal) {
   ImportOptions options;
   options.device = "robot-7";
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportCapture({path}, options, &report);
+  absl::StatusOr<core::Capture> c = ImportCapture({path}, options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(report.format, "imucal");
   EXPECT_THAT(report.paths, ElementsAre(path));
@@ -827,12 +836,12 @@ TEST(ImportCaptureTest, ImucalOverridesUnitsAndGravity) {
   WriteText(path, kSpecExample);
   ImportOptions options;
   options.format = "imucal";
-  options.accel_unit = AccelUnit::kG;
+  options.accel_unit = core::AccelUnit::kG;
   options.gravity_m_s2 = 9.81;
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportCapture({path}, options, &report);
+  absl::StatusOr<core::Capture> c = ImportCapture({path}, options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(c->accel_unit, AccelUnit::kG);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kG);
   EXPECT_EQ(c->gravity_m_s2, 9.81);
   EXPECT_THAT(report.notes, ElementsAre("accel unit g used instead of the file's m/s^2",
                                         "gravity 9.81 m/s^2 used instead of the file's 9.80665"));
@@ -845,14 +854,14 @@ TEST(ImportCaptureTest, AutoDetectsImuTkAndSwapsByName) {
   WriteText(accel_path, accel);
   WriteText(gyro_path, gyro);
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportCapture({gyro_path, accel_path}, {}, &report);
+  absl::StatusOr<core::Capture> c = ImportCapture({gyro_path, accel_path}, {}, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(report.format, "imutk");
   EXPECT_THAT(report.paths, ElementsAre(accel_path, gyro_path));
   ASSERT_EQ(report.notes.size(), 3u);
   EXPECT_THAT(report.notes[0], StartsWith("swapped the inputs by their names"));
-  EXPECT_EQ(c->accel_unit, AccelUnit::kMetersPerSecond2);
-  EXPECT_EQ(c->gyro_unit, GyroUnit::kDegPerSecond);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kMetersPerSecond2);
+  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kDegPerSecond);
   EXPECT_EQ(c->accel[0].z(), 9.81);
 
   // In the right order nothing is swapped.
@@ -868,7 +877,7 @@ TEST(ImportCaptureTest, ExplicitImuTkPairMismatch) {
   WriteText(gyro_path, gyro.substr(0, gyro.find("0.500000")));  // 50 rows of 120
   ImportOptions options;
   options.format = "imutk";
-  absl::StatusOr<Capture> c = ImportCapture({accel_path, gyro_path}, options);
+  absl::StatusOr<core::Capture> c = ImportCapture({accel_path, gyro_path}, options);
   EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_THAT(std::string(c.status().message()),
               StartsWith(gyro_path + ":50: ends after 50 samples, but " + accel_path +
@@ -878,7 +887,7 @@ TEST(ImportCaptureTest, ExplicitImuTkPairMismatch) {
 TEST(ImportCaptureTest, UnrecognisedFormatSaysWhatWasTried) {
   const std::string path = TempPath("vendor.csv");
   WriteText(path, "time,acc_x,acc_y,acc_z\n0,1,2,3\n");
-  absl::StatusOr<Capture> c = ImportCapture({path}, {});
+  absl::StatusOr<core::Capture> c = ImportCapture({path}, {});
   EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
   const std::string message(c.status().message());
   EXPECT_THAT(message, StartsWith(path + ": unrecognised capture format (tried imucal: "));
@@ -910,9 +919,9 @@ TEST(ImportCaptureTest, WrongCallsAreClearErrors) {
 
 TEST(ImportCaptureTest, ExportThenImportRoundTrip) {
   const std::string path = TempPath("export_import.csv");
-  const Capture original = AwkwardCapture();
+  const core::Capture original = AwkwardCapture();
   ASSERT_TRUE(WriteImucalCsvFile(original, path).ok());
-  absl::StatusOr<Capture> c = ImportCapture({path}, {});
+  absl::StatusOr<core::Capture> c = ImportCapture({path}, {});
   ASSERT_TRUE(c.ok()) << c.status();
   ExpectSameCapture(original, *c);
 }
@@ -925,12 +934,12 @@ TEST(RealDataTest, XsensImuTkPairAutoDetectedAsCounts) {
   const std::string accel_path = dir + "xsens_acc.mat";
   const std::string gyro_path = dir + "xsens_gyro.mat";
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportCapture({accel_path, gyro_path}, {}, &report);
+  absl::StatusOr<core::Capture> c = ImportCapture({accel_path, gyro_path}, {}, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(report.format, "imutk");
   EXPECT_EQ(c->size(), 51175u);
-  EXPECT_EQ(c->accel_unit, AccelUnit::kCounts);
-  EXPECT_EQ(c->gyro_unit, GyroUnit::kCounts);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kCounts);
+  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kCounts);
   ASSERT_EQ(report.notes.size(), 2u);
   EXPECT_THAT(report.notes[0], StartsWith("accel unit inferred as counts"));
   EXPECT_THAT(report.notes[1], StartsWith("gyro unit inferred as counts"));
@@ -941,7 +950,7 @@ TEST(RealDataTest, XsensImuTkPairAutoDetectedAsCounts) {
   EXPECT_EQ(c->accel.back(), Eigen::Vector3d(35290, 35137, 27631));
   EXPECT_NEAR(c->MedianDt(), 0.01, 1e-4);  // 100 Hz
   EXPECT_FALSE(c->has_temp());
-  EXPECT_TRUE(ValidateCapture(*c).ok());
+  EXPECT_TRUE(core::ValidateCapture(*c).ok());
 
   // Given in the other order, the names put them right.
   ASSERT_TRUE(ImportCapture({gyro_path, accel_path}, {}, &report).ok());
@@ -949,4 +958,4 @@ TEST(RealDataTest, XsensImuTkPairAutoDetectedAsCounts) {
 }
 
 }  // namespace
-}  // namespace imucal::core
+}  // namespace imucal::importers

@@ -1,4 +1,4 @@
-#include "core/import_columns.h"
+#include "importers/columns.h"
 
 #include <algorithm>
 #include <array>
@@ -13,10 +13,10 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "core/capture_io_internal.h"
+#include "importers/capture_io_internal.h"
 #include "util/str_util.h"
 
-namespace imucal::core {
+namespace imucal::importers {
 namespace {
 
 using io_internal::DoubleText;
@@ -451,9 +451,10 @@ class ColumnCsvImporterImpl final : public CaptureImporter {
                      std::span<const std::string> /*heads*/) const override {
     return absl::InvalidArgumentError("used only when --columns names the columns");
   }
-  absl::StatusOr<Capture> Import(const std::vector<std::string>& paths,
-                                 const ImportOptions& options, std::vector<std::string>* used_paths,
-                                 std::vector<std::string>* notes) const override {
+  absl::StatusOr<core::Capture> Import(const std::vector<std::string>& paths,
+                                       const ImportOptions& options,
+                                       std::vector<std::string>* used_paths,
+                                       std::vector<std::string>* notes) const override {
     if (paths.size() != 1) {
       return absl::InvalidArgumentError(
           Cat("the columns format reads one file, got ", paths.size(), ": ", Join(paths, ", ")));
@@ -530,9 +531,9 @@ absl::Status CheckColumnCsvOptions(const ColumnCsvOptions& options) {
   return absl::OkStatus();
 }
 
-absl::StatusOr<Capture> ParseColumnCsv(std::string_view text, std::string_view source_name,
-                                       const ImportOptions& options,
-                                       std::vector<std::string>* notes) {
+absl::StatusOr<core::Capture> ParseColumnCsv(std::string_view text, std::string_view source_name,
+                                             const ImportOptions& options,
+                                             std::vector<std::string>* notes) {
   const ColumnCsvOptions& columns = options.columns;
   if (absl::Status s = CheckColumnCsvOptions(columns); !s.ok()) return s;
   absl::StatusOr<ColumnMap> map = ParseColumnMap(columns.map);
@@ -563,11 +564,11 @@ absl::StatusOr<Capture> ParseColumnCsv(std::string_view text, std::string_view s
   }
   if (absl::Status s = OrderRows(source_name, columns, &rows, notes); !s.ok()) return s;
 
-  Capture capture;
+  core::Capture capture;
   capture.device = options.device.value_or("");
-  capture.gravity_m_s2 = options.gravity_m_s2.value_or(kStandardGravity);
+  capture.gravity_m_s2 = options.gravity_m_s2.value_or(core::kStandardGravity);
   capture.rate_hz = rate_hz.value_or(0.0);
-  capture.temp_unit = columns.temp_unit.value_or(TempUnit::kCelsius);
+  capture.temp_unit = columns.temp_unit.value_or(core::TempUnit::kCelsius);
   const bool has_temp = layout.index[kTemp] >= 0;
   capture.t_s.reserve(rows.size());
   capture.accel.reserve(rows.size());
@@ -613,7 +614,7 @@ absl::StatusOr<Capture> ParseColumnCsv(std::string_view text, std::string_view s
   return capture;
 }
 
-void NoteTimeGaps(const Capture& capture, std::vector<std::string>* notes) {
+void NoteTimeGaps(const core::Capture& capture, std::vector<std::string>* notes) {
   const double median = capture.MedianDt();
   if (!(median > 0.0)) return;
   size_t gaps = 0;
@@ -639,4 +640,4 @@ const CaptureImporter* ColumnCsvImporter() {
   return kImporter;
 }
 
-}  // namespace imucal::core
+}  // namespace imucal::importers

@@ -28,8 +28,8 @@
 //
 // Errors are InvalidArgument "SOURCE:LINE: column 'acc_x' (ax): 'abc' is not a number", or name
 // the option at fault ("--columns: ...").
-#ifndef IMUCAL_CORE_IMPORT_COLUMNS_H_
-#define IMUCAL_CORE_IMPORT_COLUMNS_H_
+#ifndef IMUCAL_IMPORTERS_COLUMNS_H_
+#define IMUCAL_IMPORTERS_COLUMNS_H_
 
 #include <string>
 #include <string_view>
@@ -38,9 +38,9 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/capture.h"
-#include "core/capture_io.h"
+#include "importers/capture_io.h"
 
-namespace imucal::core {
+namespace imucal::importers {
 
 // "s", "ms", "us", "ns", "index".
 absl::StatusOr<ColumnTimeUnit> ParseColumnTimeUnit(std::string_view name);
@@ -51,17 +51,17 @@ std::string_view ColumnTimeUnitName(ColumnTimeUnit unit);
 absl::Status CheckColumnCsvOptions(const ColumnCsvOptions& options);
 
 // Parses `text` (the whole file); `source_name` prefixes error messages.
-absl::StatusOr<Capture> ParseColumnCsv(std::string_view text, std::string_view source_name,
-                                       const ImportOptions& options,
-                                       std::vector<std::string>* notes);
+absl::StatusOr<core::Capture> ParseColumnCsv(std::string_view text, std::string_view source_name,
+                                             const ImportOptions& options,
+                                             std::vector<std::string>* notes);
 
 // The "columns" importer for the registry (one file; never auto-detected from the content).
 const CaptureImporter* ColumnCsvImporter();
 
 // Appends a note when `capture` has time gaps (an interval over 3x the median interval): how
 // many, and the largest with its time. Shared by the importers whose time comes from the file.
-void NoteTimeGaps(const Capture& capture, std::vector<std::string>* notes);
+void NoteTimeGaps(const core::Capture& capture, std::vector<std::string>* notes);
 
-}  // namespace imucal::core
+}  // namespace imucal::importers
 
-#endif  // IMUCAL_CORE_IMPORT_COLUMNS_H_
+#endif  // IMUCAL_IMPORTERS_COLUMNS_H_

@@ -1,4 +1,4 @@
-#include "core/capture_io.h"
+#include "importers/capture_io.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -29,12 +29,12 @@
 #include "absl/status/statusor.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/string_view.h"
-#include "core/capture_io_internal.h"
-#include "core/import_columns.h"
-#include "core/import_euroc.h"
+#include "importers/capture_io_internal.h"
+#include "importers/columns.h"
+#include "importers/euroc.h"
 #include "util/str_util.h"
 
-namespace imucal::core {
+namespace imucal::importers {
 namespace {
 
 // ---------------------------------------------------------------------------------------------
@@ -343,7 +343,7 @@ absl::Status ParsePositiveHeaderNumber(std::string_view key, std::string_view va
 
 // Applies one known `key=value` to the capture.
 absl::Status ApplyKnownHeader(size_t key_index, std::string_view value, std::string_view source,
-                              int line_number, Capture* capture) {
+                              int line_number, core::Capture* capture) {
   const std::string_view key = kKnownKeys[key_index];
   auto unit_error = [&](const absl::Status& status) {
     return LineError(source, line_number, Cat(key, ": ", status.message()));
@@ -351,15 +351,15 @@ absl::Status ApplyKnownHeader(size_t key_index, std::string_view value, std::str
   if (key == kKeyDevice) {
     capture->device = std::string(value);
   } else if (key == kKeyAccelUnit) {
-    absl::StatusOr<AccelUnit> unit = ParseAccelUnit(value);
+    absl::StatusOr<core::AccelUnit> unit = core::ParseAccelUnit(value);
     if (!unit.ok()) return unit_error(unit.status());
     capture->accel_unit = *unit;
   } else if (key == kKeyGyroUnit) {
-    absl::StatusOr<GyroUnit> unit = ParseGyroUnit(value);
+    absl::StatusOr<core::GyroUnit> unit = core::ParseGyroUnit(value);
     if (!unit.ok()) return unit_error(unit.status());
     capture->gyro_unit = *unit;
   } else if (key == kKeyTempUnit) {
-    absl::StatusOr<TempUnit> unit = ParseTempUnit(value);
+    absl::StatusOr<core::TempUnit> unit = core::ParseTempUnit(value);
     if (!unit.ok()) return unit_error(unit.status());
     capture->temp_unit = *unit;
   } else if (key == kKeyGravity) {
@@ -375,7 +375,7 @@ absl::Status ApplyKnownHeader(size_t key_index, std::string_view value, std::str
 // One "# key=value" line. Keys and values are trimmed of surrounding spaces; a bare "#" is
 // treated as a blank line.
 absl::Status ParseHeaderLine(std::string_view line, std::string_view source, int line_number,
-                             HeaderSeen* seen, Capture* capture) {
+                             HeaderSeen* seen, core::Capture* capture) {
   const std::string_view body = TrimSpaces(line.substr(1));
   if (body.empty()) return absl::OkStatus();
   const size_t equals = body.find('=');
@@ -520,7 +520,7 @@ bool TryParseCsvRow(std::string_view line, size_t field_count, double* row) {
   return true;
 }
 
-void ReserveSamples(size_t rows, const ColumnLayout& layout, Capture* capture) {
+void ReserveSamples(size_t rows, const ColumnLayout& layout, core::Capture* capture) {
   capture->t_s.reserve(rows);
   capture->accel.reserve(rows);
   capture->gyro.reserve(rows);
@@ -534,7 +534,7 @@ void ReserveSamples(size_t rows, const ColumnLayout& layout, Capture* capture) {
 }
 
 absl::Status ParseCsvRows(LineCursor* lines, const ColumnLayout& layout, std::string_view source,
-                          Capture* capture) {
+                          core::Capture* capture) {
   ReserveSamples(CountLines(lines->rest()), layout, capture);
   std::vector<double> row(layout.names.size());
   const auto& col = layout.required;
@@ -577,7 +577,7 @@ absl::Status CheckTextSafe(std::string_view text, std::string_view what) {
   return absl::OkStatus();
 }
 
-absl::Status CheckMetadataWritable(const Capture& capture) {
+absl::Status CheckMetadataWritable(const core::Capture& capture) {
   if (absl::Status s = CheckTextSafe(capture.device, "device"); !s.ok()) return s;
   for (const auto& [key, value] : capture.extra_metadata) {
     if (key.empty() || key.find('=') != std::string::npos) {
@@ -594,7 +594,7 @@ absl::Status CheckMetadataWritable(const Capture& capture) {
   return absl::OkStatus();
 }
 
-absl::Status CheckColumnNamesWritable(const Capture& capture) {
+absl::Status CheckColumnNamesWritable(const core::Capture& capture) {
   const auto& names = capture.extra_column_names;
   for (size_t i = 0; i < names.size(); ++i) {
     const std::string& name = names[i];
@@ -788,7 +788,7 @@ absl::Status CheckImportOptions(const ImportOptions& options) {
 
 // Applies the ImportOptions overrides to a capture read from a file that states its own
 // header values, noting every value that changes.
-void ApplyOverrides(const ImportOptions& options, Capture* capture,
+void ApplyOverrides(const ImportOptions& options, core::Capture* capture,
                     std::vector<std::string>* notes) {
   if (options.device.has_value() && *options.device != capture->device) {
     notes->push_back(capture->device.empty()
@@ -798,13 +798,13 @@ void ApplyOverrides(const ImportOptions& options, Capture* capture,
     capture->device = *options.device;
   }
   if (options.accel_unit.has_value() && *options.accel_unit != capture->accel_unit) {
-    notes->push_back(Cat("accel unit ", AccelUnitName(*options.accel_unit),
-                         " used instead of the file's ", AccelUnitName(capture->accel_unit)));
+    notes->push_back(Cat("accel unit ", core::AccelUnitName(*options.accel_unit),
+                         " used instead of the file's ", core::AccelUnitName(capture->accel_unit)));
     capture->accel_unit = *options.accel_unit;
   }
   if (options.gyro_unit.has_value() && *options.gyro_unit != capture->gyro_unit) {
-    notes->push_back(Cat("gyro unit ", GyroUnitName(*options.gyro_unit),
-                         " used instead of the file's ", GyroUnitName(capture->gyro_unit)));
+    notes->push_back(Cat("gyro unit ", core::GyroUnitName(*options.gyro_unit),
+                         " used instead of the file's ", core::GyroUnitName(capture->gyro_unit)));
     capture->gyro_unit = *options.gyro_unit;
   }
   if (options.gravity_m_s2.has_value() && *options.gravity_m_s2 != capture->gravity_m_s2) {
@@ -844,14 +844,15 @@ class ImucalImporter final : public CaptureImporter {
     return absl::InvalidArgumentError(Cat("first line does not start with '", kMarkerPrefix, "'"));
   }
 
-  absl::StatusOr<Capture> Import(const std::vector<std::string>& paths,
-                                 const ImportOptions& options, std::vector<std::string>* used_paths,
-                                 std::vector<std::string>* notes) const override {
+  absl::StatusOr<core::Capture> Import(const std::vector<std::string>& paths,
+                                       const ImportOptions& options,
+                                       std::vector<std::string>* used_paths,
+                                       std::vector<std::string>* notes) const override {
     if (paths.size() != 1) {
       return absl::InvalidArgumentError(
           Cat("the imucal format reads one file, got ", paths.size(), ": ", Join(paths, ", ")));
     }
-    absl::StatusOr<Capture> capture = ReadImucalCsvFile(paths[0]);
+    absl::StatusOr<core::Capture> capture = ReadImucalCsvFile(paths[0]);
     if (!capture.ok()) return capture.status();
     ApplyOverrides(options, &*capture, notes);
     *used_paths = paths;
@@ -875,9 +876,10 @@ class ImuTkImporter final : public CaptureImporter {
     return absl::OkStatus();
   }
 
-  absl::StatusOr<Capture> Import(const std::vector<std::string>& paths,
-                                 const ImportOptions& options, std::vector<std::string>* used_paths,
-                                 std::vector<std::string>* notes) const override {
+  absl::StatusOr<core::Capture> Import(const std::vector<std::string>& paths,
+                                       const ImportOptions& options,
+                                       std::vector<std::string>* used_paths,
+                                       std::vector<std::string>* notes) const override {
     if (paths.size() != 2) {
       return absl::InvalidArgumentError(
           Cat("the imutk format reads two files (accelerometer, then gyroscope), got ",
@@ -962,7 +964,7 @@ absl::StatusOr<const CaptureImporter*> DetectImporter(const std::vector<std::str
 // ---------------------------------------------------------------------------------------------
 // imucal CSV.
 
-absl::StatusOr<Capture> ParseImucalCsv(std::string_view text, std::string_view source_name) {
+absl::StatusOr<core::Capture> ParseImucalCsv(std::string_view text, std::string_view source_name) {
   LineCursor lines(text);
   std::string_view line;
   if (!lines.Next(&line)) {
@@ -971,7 +973,7 @@ absl::StatusOr<Capture> ParseImucalCsv(std::string_view text, std::string_view s
   }
   if (absl::Status s = CheckMarkerLine(line, source_name); !s.ok()) return s;
 
-  Capture capture;
+  core::Capture capture;
   HeaderSeen seen;
   while (lines.Next(&line)) {
     if (IsBlank(line)) continue;
@@ -995,19 +997,19 @@ absl::StatusOr<Capture> ParseImucalCsv(std::string_view text, std::string_view s
   return LineError(source_name, last_line, "missing column line (t,ax,ay,az,gx,gy,gz)");
 }
 
-absl::StatusOr<Capture> ReadImucalCsvFile(const std::string& path) {
+absl::StatusOr<core::Capture> ReadImucalCsvFile(const std::string& path) {
   absl::StatusOr<std::string> text = ReadFileBytes(path, std::nullopt);
   if (!text.ok()) return text.status();
   return ParseImucalCsv(*text, path);
 }
 
-absl::Status CheckCaptureWritable(const Capture& capture) {
-  if (absl::Status s = ValidateCapture(capture); !s.ok()) return s;
+absl::Status CheckCaptureWritable(const core::Capture& capture) {
+  if (absl::Status s = core::ValidateCapture(capture); !s.ok()) return s;
   if (absl::Status s = CheckMetadataWritable(capture); !s.ok()) return s;
   return CheckColumnNamesWritable(capture);
 }
 
-std::string FormatImucalCsv(const Capture& capture) {
+std::string FormatImucalCsv(const core::Capture& capture) {
   // Rows are written up to the shortest sample vector, so a capture that breaks the
   // precondition cannot make this read out of bounds.
   size_t rows = std::min({capture.t_s.size(), capture.accel.size(), capture.gyro.size()});
@@ -1022,14 +1024,14 @@ std::string FormatImucalCsv(const Capture& capture) {
   out.reserve(512 + rows * columns * 12);
   AppendTo(&out, kImucalCaptureMarker, "\n");
   if (!capture.device.empty()) AppendTo(&out, "# ", kKeyDevice, "=", capture.device, "\n");
-  AppendTo(&out, "# ", kKeyAccelUnit, "=", AccelUnitName(capture.accel_unit), "\n");
-  AppendTo(&out, "# ", kKeyGyroUnit, "=", GyroUnitName(capture.gyro_unit), "\n");
+  AppendTo(&out, "# ", kKeyAccelUnit, "=", core::AccelUnitName(capture.accel_unit), "\n");
+  AppendTo(&out, "# ", kKeyGyroUnit, "=", core::GyroUnitName(capture.gyro_unit), "\n");
   AppendTo(&out, "# ", kKeyGravity, "=", FormatDouble(capture.gravity_m_s2), "\n");
   if (capture.rate_hz > 0.0) {
     AppendTo(&out, "# ", kKeyRateHz, "=", FormatDouble(capture.rate_hz), "\n");
   }
-  if (has_temp || capture.temp_unit != TempUnit::kCelsius) {
-    AppendTo(&out, "# ", kKeyTempUnit, "=", TempUnitName(capture.temp_unit), "\n");
+  if (has_temp || capture.temp_unit != core::TempUnit::kCelsius) {
+    AppendTo(&out, "# ", kKeyTempUnit, "=", core::TempUnitName(capture.temp_unit), "\n");
   }
   for (const auto& [key, value] : capture.extra_metadata) {
     AppendTo(&out, "# ", key, "=", value, "\n");
@@ -1056,7 +1058,7 @@ std::string FormatImucalCsv(const Capture& capture) {
   return out;
 }
 
-absl::Status WriteImucalCsvFile(const Capture& capture, const std::string& path) {
+absl::Status WriteImucalCsvFile(const core::Capture& capture, const std::string& path) {
   if (absl::Status s = CheckCaptureWritable(capture); !s.ok()) {
     return absl::InvalidArgumentError(Cat(path, ": not written: ", s.message()));
   }
@@ -1073,34 +1075,34 @@ absl::Status WriteImucalCsvFile(const Capture& capture, const std::string& path)
 // ---------------------------------------------------------------------------------------------
 // Unit inference.
 
-AccelUnit InferAccelUnit(std::span<const Eigen::Vector3d> accel, double gravity_m_s2,
-                         std::string* reason) {
+core::AccelUnit InferAccelUnit(std::span<const Eigen::Vector3d> accel, double gravity_m_s2,
+                               std::string* reason) {
   std::vector<double> magnitudes(accel.size());
   for (size_t i = 0; i < accel.size(); ++i) magnitudes[i] = accel[i].norm();
   const double median = QuantileInPlace(magnitudes, 0.5);
-  AccelUnit unit = AccelUnit::kCounts;
+  core::AccelUnit unit = core::AccelUnit::kCounts;
   std::string why;
   if (accel.empty()) {
-    unit = AccelUnit::kMetersPerSecond2;
+    unit = core::AccelUnit::kMetersPerSecond2;
     why = "no samples to go by";
   } else if (std::abs(median - gravity_m_s2) <= kAccelBandFraction * gravity_m_s2) {
-    unit = AccelUnit::kMetersPerSecond2;
+    unit = core::AccelUnit::kMetersPerSecond2;
     why = absl::StrFormat("median |a| %.6g is near gravity %.6g", median, gravity_m_s2);
   } else if (std::abs(median - 1.0) <= kAccelBandFraction) {
-    unit = AccelUnit::kG;
+    unit = core::AccelUnit::kG;
     why = absl::StrFormat("median |a| %.6g is near 1", median);
   } else {
     why = absl::StrFormat("median |a| %.6g is near neither %.6g (m/s^2) nor 1 (g)", median,
                           gravity_m_s2);
   }
   if (reason != nullptr) {
-    *reason = Cat("accel unit inferred as ", AccelUnitName(unit), ": ", why);
+    *reason = Cat("accel unit inferred as ", core::AccelUnitName(unit), ": ", why);
   }
   return unit;
 }
 
-GyroUnit InferGyroUnit(std::span<const Eigen::Vector3d> gyro, AccelUnit accel_unit,
-                       std::string* reason) {
+core::GyroUnit InferGyroUnit(std::span<const Eigen::Vector3d> gyro, core::AccelUnit accel_unit,
+                             std::string* reason) {
   bool all_integers = true;
   std::vector<double> values;
   values.reserve(3 * gyro.size());
@@ -1115,19 +1117,19 @@ GyroUnit InferGyroUnit(std::span<const Eigen::Vector3d> gyro, AccelUnit accel_un
   for (size_t i = 0; i < gyro.size(); ++i) values[i] = gyro[i].norm();
   const double p99_rate = QuantileInPlace(values, kGyroRateQuantile);
 
-  GyroUnit unit = GyroUnit::kRadPerSecond;
+  core::GyroUnit unit = core::GyroUnit::kRadPerSecond;
   std::string why;
   if (gyro.empty()) {
     why = "no samples to go by";
-  } else if (accel_unit == AccelUnit::kCounts &&
+  } else if (accel_unit == core::AccelUnit::kCounts &&
              (all_integers || median_abs > kGyroCountsMedianAbs)) {
-    unit = GyroUnit::kCounts;
+    unit = core::GyroUnit::kCounts;
     why = all_integers
               ? "the accelerometer is counts and every gyro value is an integer"
               : absl::StrFormat("the accelerometer is counts and the median |gyro value| %.6g > %g",
                                 median_abs, kGyroCountsMedianAbs);
   } else if (p99_rate > kGyroDegPerSecondP99) {
-    unit = GyroUnit::kDegPerSecond;
+    unit = core::GyroUnit::kDegPerSecond;
     why = absl::StrFormat("99th-percentile |rate| %.6g > %g", p99_rate, kGyroDegPerSecondP99);
   } else {
     why = absl::StrFormat(
@@ -1136,7 +1138,7 @@ GyroUnit InferGyroUnit(std::span<const Eigen::Vector3d> gyro, AccelUnit accel_un
         p99_rate, kGyroDegPerSecondP99);
   }
   if (reason != nullptr) {
-    *reason = Cat("gyro unit inferred as ", GyroUnitName(unit), ": ", why);
+    *reason = Cat("gyro unit inferred as ", core::GyroUnitName(unit), ": ", why);
   }
   return unit;
 }
@@ -1144,10 +1146,11 @@ GyroUnit InferGyroUnit(std::span<const Eigen::Vector3d> gyro, AccelUnit accel_un
 // ---------------------------------------------------------------------------------------------
 // imu_tk pair.
 
-absl::StatusOr<Capture> ParseImuTkPair(std::string_view accel_text, std::string_view accel_name,
-                                       std::string_view gyro_text, std::string_view gyro_name,
-                                       const ImportOptions& options,
-                                       std::vector<std::string>* notes) {
+absl::StatusOr<core::Capture> ParseImuTkPair(std::string_view accel_text,
+                                             std::string_view accel_name,
+                                             std::string_view gyro_text, std::string_view gyro_name,
+                                             const ImportOptions& options,
+                                             std::vector<std::string>* notes) {
   if (absl::Status s = CheckImportOptions(options); !s.ok()) return s;
   absl::StatusOr<ImuTkSeries> accel = ParseImuTkText(accel_text, accel_name);
   if (!accel.ok()) return accel.status();
@@ -1157,9 +1160,9 @@ absl::StatusOr<Capture> ParseImuTkPair(std::string_view accel_text, std::string_
     return s;
   }
 
-  Capture capture;
+  core::Capture capture;
   capture.device = options.device.value_or("");
-  capture.gravity_m_s2 = options.gravity_m_s2.value_or(kStandardGravity);
+  capture.gravity_m_s2 = options.gravity_m_s2.value_or(core::kStandardGravity);
   capture.t_s = std::move(accel->t_s);
   capture.accel = std::move(accel->xyz);
   capture.gyro = std::move(gyro->xyz);
@@ -1179,9 +1182,10 @@ absl::StatusOr<Capture> ParseImuTkPair(std::string_view accel_text, std::string_
   return capture;
 }
 
-absl::StatusOr<Capture> ReadImuTkPair(const std::string& accel_path, const std::string& gyro_path,
-                                      const ImportOptions& options,
-                                      std::vector<std::string>* notes) {
+absl::StatusOr<core::Capture> ReadImuTkPair(const std::string& accel_path,
+                                            const std::string& gyro_path,
+                                            const ImportOptions& options,
+                                            std::vector<std::string>* notes) {
   absl::StatusOr<std::string> accel_text = ReadFileBytes(accel_path, std::nullopt);
   if (!accel_text.ok()) return accel_text.status();
   absl::StatusOr<std::string> gyro_text = ReadFileBytes(gyro_path, std::nullopt);
@@ -1227,8 +1231,8 @@ void RegisterCaptureImporter(const CaptureImporter* importer) {
   importers.push_back(importer);
 }
 
-absl::StatusOr<Capture> ImportCapture(const std::vector<std::string>& paths,
-                                      const ImportOptions& options, ImportReport* report) {
+absl::StatusOr<core::Capture> ImportCapture(const std::vector<std::string>& paths,
+                                            const ImportOptions& options, ImportReport* report) {
   if (paths.empty()) return absl::InvalidArgumentError("no input files given");
   if (absl::Status s = CheckImportOptions(options); !s.ok()) return s;
 
@@ -1251,11 +1255,11 @@ absl::StatusOr<Capture> ImportCapture(const std::vector<std::string>& paths,
 
   std::vector<std::string> used_paths;
   std::vector<std::string> notes;
-  absl::StatusOr<Capture> capture = importer->Import(paths, options, &used_paths, &notes);
+  absl::StatusOr<core::Capture> capture = importer->Import(paths, options, &used_paths, &notes);
   if (!capture.ok()) return capture.status();
   // Every importer promises this; checking here keeps a new importer's slip from reaching the
   // solvers as a confusing numerical failure.
-  if (absl::Status s = ValidateCapture(*capture); !s.ok()) {
+  if (absl::Status s = core::ValidateCapture(*capture); !s.ok()) {
     return absl::InvalidArgumentError(Cat(Join(used_paths, ", "), ": ", s.message()));
   }
   if (report != nullptr) {
@@ -1292,11 +1296,11 @@ absl::Status ParseNumberField(std::string_view field, std::string_view source, i
   return NumberFieldError(source, line_number, column, field, error);
 }
 
-void ApplyImportOverrides(const ImportOptions& options, Capture* capture,
+void ApplyImportOverrides(const ImportOptions& options, core::Capture* capture,
                           std::vector<std::string>* notes) {
   ApplyOverrides(options, capture, notes);
 }
 
 }  // namespace io_internal
 
-}  // namespace imucal::core
+}  // namespace imucal::importers

@@ -11,14 +11,14 @@
 #include <vector>
 
 #include "Eigen/Dense"
-#include "core/capture_io.h"
-#include "core/import_columns.h"
-#include "core/import_euroc.h"
 #include "core/simulator.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
+#include "importers/capture_io.h"
+#include "importers/columns.h"
+#include "importers/euroc.h"
 
-namespace imucal::core {
+namespace imucal::importers {
 namespace {
 
 using ::testing::AllOf;
@@ -49,15 +49,16 @@ ImportOptions ColumnsOptions(std::string map) {
   return options;
 }
 
-absl::StatusOr<Capture> ImportText(std::string_view name, std::string_view text,
-                                   const ImportOptions& options, ImportReport* report = nullptr) {
+absl::StatusOr<core::Capture> ImportText(std::string_view name, std::string_view text,
+                                         const ImportOptions& options,
+                                         ImportReport* report = nullptr) {
   const std::string path = TempPath(name);
   WriteText(path, text);
   return ImportCapture({path}, options, report);
 }
 
 // Mean of accel over the samples with t in [t0, t1).
-Eigen::Vector3d MeanAccel(const Capture& c, double t0, double t1) {
+Eigen::Vector3d MeanAccel(const core::Capture& c, double t0, double t1) {
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   int n = 0;
   for (size_t i = 0; i < c.size(); ++i) {
@@ -74,16 +75,16 @@ Eigen::Vector3d MeanAccel(const Capture& c, double t0, double t1) {
 TEST(ColumnCsvRealTest, Mpu6050RateFromPreambleAndHeaderFoundByName) {
   ImportOptions options = ColumnsOptions("ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz");
   options.columns.rate_from_preamble = "Fs";
-  options.accel_unit = AccelUnit::kCounts;
-  options.gyro_unit = GyroUnit::kCounts;
+  options.accel_unit = core::AccelUnit::kCounts;
+  options.gyro_unit = core::GyroUnit::kCounts;
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportCapture({kMpu}, options, &report);
+  absl::StatusOr<core::Capture> c = ImportCapture({kMpu}, options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(report.format, "columns");
   ASSERT_EQ(c->size(), 10245u);  // 10,250 lines - 5 preamble/header lines
   EXPECT_EQ(c->rate_hz, 100.0);
-  EXPECT_EQ(c->accel_unit, AccelUnit::kCounts);
-  EXPECT_EQ(c->gyro_unit, GyroUnit::kCounts);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kCounts);
+  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kCounts);
   EXPECT_FALSE(c->has_temp());
   EXPECT_EQ(c->t_s[0], 0.0);
   EXPECT_DOUBLE_EQ(c->t_s[1], 0.01);
@@ -94,24 +95,24 @@ TEST(ColumnCsvRealTest, Mpu6050RateFromPreambleAndHeaderFoundByName) {
   EXPECT_EQ(c->accel.back(), Eigen::Vector3d(8636, -268, 12792));
   EXPECT_EQ(c->gyro.back(), Eigen::Vector3d(-413, 144, -81));
   EXPECT_THAT(report.notes, Contains(HasSubstr("time = row / 100 Hz")));
-  EXPECT_TRUE(ValidateCapture(*c).ok());
+  EXPECT_TRUE(core::ValidateCapture(*c).ok());
 
   // The same with the preamble counted and the rate given.
   ImportOptions explicit_options = ColumnsOptions("ax=1,ay=2,az=3,gx=4,gy=5,gz=6");
   explicit_options.columns.skip_lines = 4;
   explicit_options.columns.rate_hz = 100.0;
-  absl::StatusOr<Capture> same = ImportCapture({kMpu}, explicit_options);
+  absl::StatusOr<core::Capture> same = ImportCapture({kMpu}, explicit_options);
   ASSERT_TRUE(same.ok()) << same.status();
   EXPECT_EQ(same->t_s, c->t_s);
   EXPECT_EQ(same->accel, c->accel);
   EXPECT_EQ(same->gyro, c->gyro);
   // Units were not given: inferred as counts, and said so.
-  EXPECT_EQ(same->accel_unit, AccelUnit::kCounts);
-  EXPECT_EQ(same->gyro_unit, GyroUnit::kCounts);
+  EXPECT_EQ(same->accel_unit, core::AccelUnit::kCounts);
+  EXPECT_EQ(same->gyro_unit, core::GyroUnit::kCounts);
 }
 
 TEST(ColumnCsvRealTest, Mpu6050WithoutARateIsAnOptionError) {
-  absl::StatusOr<Capture> c =
+  absl::StatusOr<core::Capture> c =
       ImportCapture({kMpu}, ColumnsOptions("ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz"));
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(), HasSubstr("--rate"));
@@ -123,10 +124,10 @@ TEST(ColumnCsvRealTest, FerrarisSampleIndexTimeBase) {
       ColumnsOptions("t=n_samples,gx=gyr_x,gy=gyr_y,gz=gyr_z,ax=acc_x,ay=acc_y,az=acc_z");
   options.columns.time_unit = ColumnTimeUnit::kSampleIndex;
   options.columns.rate_hz = 102.4;
-  options.accel_unit = AccelUnit::kMetersPerSecond2;
-  options.gyro_unit = GyroUnit::kDegPerSecond;
+  options.accel_unit = core::AccelUnit::kMetersPerSecond2;
+  options.gyro_unit = core::GyroUnit::kDegPerSecond;
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportCapture({kFerraris}, options, &report);
+  absl::StatusOr<core::Capture> c = ImportCapture({kFerraris}, options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   ASSERT_EQ(c->size(), 10376u);
   EXPECT_EQ(c->rate_hz, 102.4);
@@ -152,13 +153,13 @@ ImportOptions AnnotatedOptions() {
       ColumnsOptions("t=samples,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z");
   options.columns.time_unit = ColumnTimeUnit::kSampleIndex;
   options.columns.rate_hz = 204.8;
-  options.accel_unit = AccelUnit::kCounts;
-  options.gyro_unit = GyroUnit::kCounts;
+  options.accel_unit = core::AccelUnit::kCounts;
+  options.gyro_unit = core::GyroUnit::kCounts;
   return options;
 }
 
 TEST(ColumnCsvRealTest, AnnotatedSessionOutOfOrderIsAnErrorNamingTheLine) {
-  absl::StatusOr<Capture> c = ImportCapture({kAnnotated}, AnnotatedOptions());
+  absl::StatusOr<core::Capture> c = ImportCapture({kAnnotated}, AnnotatedOptions());
   ASSERT_FALSE(c.ok());
   EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
   // Line 1063 starts part x_p at sample 0, after x_a ended at sample 2088 (line 1062).
@@ -171,7 +172,7 @@ TEST(ColumnCsvRealTest, AnnotatedSessionSortedIsTheContinuousSession) {
   ImportOptions options = AnnotatedOptions();
   options.columns.sort_by_time = true;
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportCapture({kAnnotated}, options, &report);
+  absl::StatusOr<core::Capture> c = ImportCapture({kAnnotated}, options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   ASSERT_EQ(c->size(), 9414u);
   // The parts tile samples 0..9413 exactly: sorted, the session has no gap.
@@ -216,31 +217,31 @@ TEST(ColumnCsvRealTest, AnnotatedSessionSortedIsTheContinuousSession) {
 TEST(ColumnCsvTest, SemicolonsQuotesMillisecondsTemperatureAndColumnNumbers) {
   ImportOptions options = ColumnsOptions("t=1,ax=3,ay=4,az=5,gx=6,gy=7,gz=8,temp=2");
   options.columns.time_unit = ColumnTimeUnit::kMilliseconds;
-  options.accel_unit = AccelUnit::kG;
-  options.gyro_unit = GyroUnit::kRadPerSecond;
+  options.accel_unit = core::AccelUnit::kG;
+  options.gyro_unit = core::GyroUnit::kRadPerSecond;
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportText("semi.csv",
-                                         "\"time_ms\";\"T\";a;b;c;d;e;f\r\n"
-                                         "10;25.5;0;0;1;0.1;0.2;0.3\r\n"
-                                         "\r\n"
-                                         "20;25.6;0;0;1;0.1;0.2;-0.3\r\n",
-                                         options, &report);
+  absl::StatusOr<core::Capture> c = ImportText("semi.csv",
+                                               "\"time_ms\";\"T\";a;b;c;d;e;f\r\n"
+                                               "10;25.5;0;0;1;0.1;0.2;0.3\r\n"
+                                               "\r\n"
+                                               "20;25.6;0;0;1;0.1;0.2;-0.3\r\n",
+                                               options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   ASSERT_EQ(c->size(), 2u);
   EXPECT_DOUBLE_EQ(c->t_s[0], 0.010);
   EXPECT_DOUBLE_EQ(c->t_s[1], 0.020);
   EXPECT_THAT(c->temp, ElementsAre(25.5, 25.6));
   EXPECT_EQ(c->gyro[1], Eigen::Vector3d(0.1, 0.2, -0.3));
-  EXPECT_EQ(c->accel_unit, AccelUnit::kG);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kG);
 }
 
 TEST(ColumnCsvTest, WhitespaceDelimitedWithoutHeader) {
   ImportOptions options = ColumnsOptions("t=1,ax=2,ay=3,az=4,gx=5,gy=6,gz=7");
   options.columns.no_header = true;
   options.columns.delimiter = "space";
-  options.accel_unit = AccelUnit::kMetersPerSecond2;
-  options.gyro_unit = GyroUnit::kRadPerSecond;
-  absl::StatusOr<Capture> c =
+  options.accel_unit = core::AccelUnit::kMetersPerSecond2;
+  options.gyro_unit = core::GyroUnit::kRadPerSecond;
+  absl::StatusOr<core::Capture> c =
       ImportText("ws.txt", "0.0  1 2 3\t4 5 6\n0.5 7 8 9 10 11 12\n", options);
   ASSERT_TRUE(c.ok()) << c.status();
   ASSERT_EQ(c->size(), 2u);
@@ -251,7 +252,7 @@ TEST(ColumnCsvTest, WhitespaceDelimitedWithoutHeader) {
 TEST(ColumnCsvTest, AutoUsesColumnsOnlyWhenMapped) {
   const std::string path = TempPath("plain.csv");
   WriteText(path, "ax,ay,az,gx,gy,gz\n0,0,9.8,0,0,0\n");
-  absl::StatusOr<Capture> unmapped = ImportCapture({path}, ImportOptions{});
+  absl::StatusOr<core::Capture> unmapped = ImportCapture({path}, ImportOptions{});
   ASSERT_FALSE(unmapped.ok());
   EXPECT_THAT(unmapped.status().message(),
               AllOf(HasSubstr("unrecognised capture format"),
@@ -294,9 +295,9 @@ TEST(ColumnCsvTest, MalformedInputNamesFileLineAndColumn) {
   for (const BadCase& bad : cases) {
     SCOPED_TRACE(bad.name);
     ImportOptions options = ColumnsOptions(bad.map);
-    options.accel_unit = AccelUnit::kMetersPerSecond2;
-    options.gyro_unit = GyroUnit::kRadPerSecond;
-    absl::StatusOr<Capture> c = ImportText(bad.name, bad.text, options);
+    options.accel_unit = core::AccelUnit::kMetersPerSecond2;
+    options.gyro_unit = core::GyroUnit::kRadPerSecond;
+    absl::StatusOr<core::Capture> c = ImportText(bad.name, bad.text, options);
     ASSERT_FALSE(c.ok());
     EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
     EXPECT_THAT(c.status().message(), HasSubstr(bad.expected));
@@ -307,7 +308,7 @@ TEST(ColumnCsvTest, MissingNameWithSkipLinesListsTheHeader) {
   ImportOptions options = ColumnsOptions("ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gyro_z");
   options.columns.skip_lines = 1;
   options.columns.rate_hz = 10;
-  absl::StatusOr<Capture> c =
+  absl::StatusOr<core::Capture> c =
       ImportText("skip.csv", "Fs,10\nax,ay,az,gx,gy,gz\n0,0,1,0,0,0\n", options);
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(),
@@ -318,11 +319,11 @@ TEST(ColumnCsvTest, MissingNameWithSkipLinesListsTheHeader) {
 TEST(ColumnCsvTest, PreambleRateErrors) {
   ImportOptions options = ColumnsOptions("ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz");
   options.columns.rate_from_preamble = "Fs";
-  absl::StatusOr<Capture> missing =
+  absl::StatusOr<core::Capture> missing =
       ImportText("nofs.csv", "Rate,100\nax,ay,az,gx,gy,gz\n0,0,1,0,0,0\n", options);
   ASSERT_FALSE(missing.ok());
   EXPECT_THAT(missing.status().message(), HasSubstr("no preamble line starts with 'Fs'"));
-  absl::StatusOr<Capture> bad =
+  absl::StatusOr<core::Capture> bad =
       ImportText("badfs.csv", "Fs,fast\nax,ay,az,gx,gy,gz\n0,0,1,0,0,0\n", options);
   ASSERT_FALSE(bad.ok());
   EXPECT_THAT(bad.status().message(),
@@ -334,7 +335,7 @@ TEST(ColumnCsvTest, SortRejectsRepeatedTimes) {
   options.columns.time_unit = ColumnTimeUnit::kSampleIndex;
   options.columns.rate_hz = 10;
   options.columns.sort_by_time = true;
-  absl::StatusOr<Capture> c = ImportText(
+  absl::StatusOr<core::Capture> c = ImportText(
       "dup.csv", "n,a,b,c,d,e,f\n1,0,0,1,0,0,0\n0,0,0,1,0,0,0\n1,0,0,1,0,0,0\n", options);
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(), HasSubstr("dup.csv:4: t=0.1 s repeats the time of line 2"));
@@ -347,7 +348,7 @@ TEST(ColumnCsvTest, IndexJumpStaysAGapAndIsNoted) {
   std::string text = "n,a,b,c,d,e,f\n";
   for (int n : {0, 1, 2, 3, 50, 51, 52}) text += std::to_string(n) + ",0,0,9.8,0,0,0\n";
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportText("gap.csv", text, options, &report);
+  absl::StatusOr<core::Capture> c = ImportText("gap.csv", text, options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_DOUBLE_EQ(c->t_s[4], 5.0);
   EXPECT_THAT(report.notes, Contains(AllOf(HasSubstr("time has 1 gap"),
@@ -397,12 +398,12 @@ TEST(EurocTest, AutoDetectedRowsOfTheDataset) {
                            "0.029321531433504737,8.033280791666666,-0.40861041666666664,"
                            "-2.4026292499999999\n";
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportText("data.csv", text, ImportOptions{}, &report);
+  absl::StatusOr<core::Capture> c = ImportText("data.csv", text, ImportOptions{}, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(report.format, "euroc");
   ASSERT_EQ(c->size(), 2u);
-  EXPECT_EQ(c->accel_unit, AccelUnit::kMetersPerSecond2);
-  EXPECT_EQ(c->gyro_unit, GyroUnit::kRadPerSecond);
+  EXPECT_EQ(c->accel_unit, core::AccelUnit::kMetersPerSecond2);
+  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kRadPerSecond);
   EXPECT_EQ(c->t_s[0], 0.0);
   EXPECT_EQ(c->t_s[1], 0.005000192);  // 5,000,192 ns, exact despite the 1.4e18 origin
   EXPECT_EQ(c->gyro[0],
@@ -413,13 +414,13 @@ TEST(EurocTest, AutoDetectedRowsOfTheDataset) {
 }
 
 TEST(EurocTest, SimulatedCaptureRoundTrip) {
-  SimOptions sim;
+  core::SimOptions sim;
   sim.seed = 7;
   sim.rate_hz = 200;
   sim.temperature = false;
-  absl::StatusOr<SimResult> result = Simulate(sim);
+  absl::StatusOr<core::SimResult> result = core::Simulate(sim);
   ASSERT_TRUE(result.ok()) << result.status();
-  const Capture& truth = result->capture;
+  const core::Capture& truth = result->capture;
   const int64_t origin_ns = 1'700'000'000'123'456'789;
   std::string text = kEurocHeader;
   std::vector<int64_t> stamps;
@@ -428,7 +429,7 @@ TEST(EurocTest, SimulatedCaptureRoundTrip) {
     text += EurocRow(stamps.back(), truth.gyro[i], truth.accel[i]);
   }
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportText("roundtrip.csv", text, ImportOptions{}, &report);
+  absl::StatusOr<core::Capture> c = ImportText("roundtrip.csv", text, ImportOptions{}, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(report.format, "euroc");
   ASSERT_EQ(c->size(), truth.size());
@@ -440,7 +441,7 @@ TEST(EurocTest, SimulatedCaptureRoundTrip) {
   }
   EXPECT_THAT(c->extra_metadata, Contains(Pair("t0_ns", std::to_string(stamps[0]))));
   // The imported capture writes and reads back as an imucal capture unchanged.
-  absl::StatusOr<Capture> again = ParseImucalCsv(FormatImucalCsv(*c), "again");
+  absl::StatusOr<core::Capture> again = ParseImucalCsv(FormatImucalCsv(*c), "again");
   ASSERT_TRUE(again.ok()) << again.status();
   EXPECT_EQ(again->accel, c->accel);
   EXPECT_EQ(again->t_s, c->t_s);
@@ -473,7 +474,7 @@ TEST(EurocTest, MalformedInputNamesFileLineAndColumn) {
     SCOPED_TRACE(expected);
     ImportOptions options;
     options.format = "euroc";
-    absl::StatusOr<Capture> c = ImportText("euroc_bad.csv", text, options);
+    absl::StatusOr<core::Capture> c = ImportText("euroc_bad.csv", text, options);
     ASSERT_FALSE(c.ok());
     EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
     EXPECT_THAT(c.status().message(), HasSubstr(expected));
@@ -489,7 +490,7 @@ TEST(EurocTest, OverridesAndExtraColumns) {
   options.device = "drone-3";
   options.gravity_m_s2 = 9.81;
   ImportReport report;
-  absl::StatusOr<Capture> c = ImportText("extra.csv", text, options, &report);
+  absl::StatusOr<core::Capture> c = ImportText("extra.csv", text, options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->device, "drone-3");
   EXPECT_EQ(c->gravity_m_s2, 9.81);
@@ -499,4 +500,4 @@ TEST(EurocTest, OverridesAndExtraColumns) {
 }
 
 }  // namespace
-}  // namespace imucal::core
+}  // namespace imucal::importers

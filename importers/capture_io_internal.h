@@ -3,8 +3,8 @@
 // words its errors the same way ("SOURCE:LINE: column 'ax': 'abc' is not a number").
 // Not a public API: for importers only (core, and storage/rosbag2_import.cc); everything else
 // uses capture_io.h.
-#ifndef IMUCAL_CORE_CAPTURE_IO_INTERNAL_H_
-#define IMUCAL_CORE_CAPTURE_IO_INTERNAL_H_
+#ifndef IMUCAL_IMPORTERS_CAPTURE_IO_INTERNAL_H_
+#define IMUCAL_IMPORTERS_CAPTURE_IO_INTERNAL_H_
 
 #include <cstddef>
 #include <cstring>
@@ -16,9 +16,9 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/capture.h"
-#include "core/capture_io.h"
+#include "importers/capture_io.h"
 
-namespace imucal::core::io_internal {
+namespace imucal::importers::io_internal {
 
 inline constexpr std::string_view kUtf8Bom = "\xEF\xBB\xBF";
 
@@ -77,9 +77,9 @@ absl::Status ParseNumberField(std::string_view field, std::string_view source, i
 
 // Applies the device/unit/gravity overrides of `options` to a capture whose file stated its own
 // values, noting every value that changes.
-void ApplyImportOverrides(const ImportOptions& options, Capture* capture,
+void ApplyImportOverrides(const ImportOptions& options, core::Capture* capture,
                           std::vector<std::string>* notes);
 
-}  // namespace imucal::core::io_internal
+}  // namespace imucal::importers::io_internal
 
-#endif  // IMUCAL_CORE_CAPTURE_IO_INTERNAL_H_
+#endif  // IMUCAL_IMPORTERS_CAPTURE_IO_INTERNAL_H_

@@ -9,8 +9,8 @@
 // one, computed in integers so that no precision is lost to a 1.4e18 origin, and the origin is
 // kept in the metadata as `t0_ns`. Units are rad/s and m/s^2 (ImportOptions may override).
 // Auto-detected by a first line that starts "#timestamp" and names w_RS_S_x and a_RS_S_x.
-#ifndef IMUCAL_CORE_IMPORT_EUROC_H_
-#define IMUCAL_CORE_IMPORT_EUROC_H_
+#ifndef IMUCAL_IMPORTERS_EUROC_H_
+#define IMUCAL_IMPORTERS_EUROC_H_
 
 #include <string>
 #include <string_view>
@@ -18,20 +18,20 @@
 
 #include "absl/status/statusor.h"
 #include "core/capture.h"
-#include "core/capture_io.h"
+#include "importers/capture_io.h"
 
-namespace imucal::core {
+namespace imucal::importers {
 
 // The metadata key that keeps the first timestamp (the origin of t_s), in nanoseconds.
 inline constexpr std::string_view kEurocOriginKey = "t0_ns";
 
-absl::StatusOr<Capture> ParseEurocCsv(std::string_view text, std::string_view source_name,
-                                      const ImportOptions& options,
-                                      std::vector<std::string>* notes);
+absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_view source_name,
+                                            const ImportOptions& options,
+                                            std::vector<std::string>* notes);
 
 // The "euroc" importer for the registry.
 const CaptureImporter* EurocCsvImporter();
 
-}  // namespace imucal::core
+}  // namespace imucal::importers
 
-#endif  // IMUCAL_CORE_IMPORT_EUROC_H_
+#endif  // IMUCAL_IMPORTERS_EUROC_H_

@@ -25,8 +25,8 @@
 // Errors name the file, the message (0-based index in time order, its bag timestamp) and the
 // field: "bag_0.db3: message 17 (t=1700000000123456789 ns) on /imu: truncated in
 // angular_velocity.y (needs 8 bytes at offset 316, message has 300)".
-#ifndef IMUCAL_STORAGE_ROSBAG2_IMPORT_H_
-#define IMUCAL_STORAGE_ROSBAG2_IMPORT_H_
+#ifndef IMUCAL_IMPORTERS_ROSBAG2_H_
+#define IMUCAL_IMPORTERS_ROSBAG2_H_
 
 #include <cstdint>
 #include <string>
@@ -35,9 +35,9 @@
 
 #include "Eigen/Core"
 #include "absl/status/statusor.h"
-#include "core/capture_io.h"
+#include "importers/capture_io.h"
 
-namespace imucal::storage {
+namespace imucal::importers {
 
 // The fields of one sensor_msgs/msg/Imu that a capture needs.
 struct ImuMessage {
@@ -63,18 +63,17 @@ struct BagMetadata {
 BagMetadata ParseBagMetadata(std::string_view yaml);
 
 // Reads the bag at `path` (directory or .db3) into a capture.
-absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path,
-                                             const core::ImportOptions& options,
+absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path, const ImportOptions& options,
                                              std::vector<std::string>* notes);
 
 // The "rosbag2" importer (a directory with metadata.yaml, or a file that starts with the SQLite
 // header). Not part of core's built-in list because it needs SQLite.
-const core::CaptureImporter* Rosbag2Importer();
+const CaptureImporter* Rosbag2Importer();
 
 // Adds Rosbag2Importer() to core's registry (core::RegisterCaptureImporter); idempotent. The CLI
 // calls it before importing.
 void RegisterRosbag2Importer();
 
-}  // namespace imucal::storage
+}  // namespace imucal::importers
 
-#endif  // IMUCAL_STORAGE_ROSBAG2_IMPORT_H_
+#endif  // IMUCAL_IMPORTERS_ROSBAG2_H_

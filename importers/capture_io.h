@@ -6,8 +6,8 @@
 // "SOURCE:LINE: " and names the column and the offending text, e.g.
 //   cap.csv:17: column 'az': 'abc' is not a number
 // File-system errors keep their errno-derived code (NotFound, PermissionDenied, ...).
-#ifndef IMUCAL_CORE_CAPTURE_IO_H_
-#define IMUCAL_CORE_CAPTURE_IO_H_
+#ifndef IMUCAL_IMPORTERS_CAPTURE_IO_H_
+#define IMUCAL_IMPORTERS_CAPTURE_IO_H_
 
 #include <optional>
 #include <span>
@@ -20,7 +20,7 @@
 #include "absl/status/statusor.h"
 #include "core/capture.h"
 
-namespace imucal::core {
+namespace imucal::importers {
 
 // ---------------------------------------------------------------------------------------------
 // imucal capture CSV, version 1.
@@ -34,10 +34,10 @@ inline constexpr std::string_view kImucalCaptureMarker = "# imucal-capture v1";
 // '#' counts as blank). Unknown header keys go to `extra_metadata` in file order; columns other
 // than t,ax,ay,az,gx,gy,gz,temp go to `extra_columns` in file order. A capture with a column line
 // and no rows is valid (and empty).
-absl::StatusOr<Capture> ParseImucalCsv(std::string_view text, std::string_view source_name);
+absl::StatusOr<core::Capture> ParseImucalCsv(std::string_view text, std::string_view source_name);
 
 // Reads `path` with one read and parses it; errors are prefixed with `path`.
-absl::StatusOr<Capture> ReadImucalCsvFile(const std::string& path);
+absl::StatusOr<core::Capture> ReadImucalCsvFile(const std::string& path);
 
 // Formats a capture as imucal CSV. Values use the shortest text that parses back to the same
 // double (std::to_chars), so Parse(Format(c)) == c exactly. Header order: marker, device (if
@@ -46,16 +46,16 @@ absl::StatusOr<Capture> ReadImucalCsvFile(const std::string& path);
 // [temp], then the extra columns.
 // Precondition: CheckCaptureWritable(capture) is OK (WriteImucalCsvFile checks it); otherwise
 // the output is unspecified but memory-safe.
-std::string FormatImucalCsv(const Capture& capture);
+std::string FormatImucalCsv(const core::Capture& capture);
 
 // ValidateCapture plus what the text format needs: metadata keys and values and column names
 // that survive a round trip (no line breaks, no ',' in column names, no '=' in keys, no
 // duplicate or reserved names).
-absl::Status CheckCaptureWritable(const Capture& capture);
+absl::Status CheckCaptureWritable(const core::Capture& capture);
 
 // Writes FormatImucalCsv(capture) to `path` + ".tmp", then renames it over `path`, so `path`
 // either keeps its old content or gets the complete new one. The temp file is removed on failure.
-absl::Status WriteImucalCsvFile(const Capture& capture, const std::string& path);
+absl::Status WriteImucalCsvFile(const core::Capture& capture, const std::string& path);
 
 // ---------------------------------------------------------------------------------------------
 // Import options and unit inference.
@@ -75,7 +75,7 @@ struct ColumnCsvOptions {
   std::string delimiter;           // ",", ";", "tab", "space"; empty: detected from the header
   bool no_header = false;          // the file has no header line (NAME must be a number)
   bool sort_by_time = false;       // rows out of time order are sorted instead of an error
-  std::optional<TempUnit> temp_unit;
+  std::optional<core::TempUnit> temp_unit;
 };
 
 struct ImportOptions {
@@ -83,8 +83,8 @@ struct ImportOptions {
   // "euroc", "columns", "rosbag2" (when registered).
   std::string format = "auto";
   // Units to use instead of the file's own (imucal) or the inferred ones (imutk).
-  std::optional<AccelUnit> accel_unit;
-  std::optional<GyroUnit> gyro_unit;
+  std::optional<core::AccelUnit> accel_unit;
+  std::optional<core::GyroUnit> gyro_unit;
   // Local gravity magnitude, m/s^2, instead of the file's or the 9.80665 default.
   std::optional<double> gravity_m_s2;
   // Device id instead of the file's (the CLI's --device).
@@ -121,23 +121,25 @@ struct ImportReport {
 //      tens to hundreds of deg/s, while 20 rad/s = 1150 deg/s is beyond a hand-held capture);
 //   3. otherwise -> rad/s. A capture without rotation cannot tell deg/s from rad/s; the note
 //      says so, and ImportOptions::gyro_unit settles it.
-AccelUnit InferAccelUnit(std::span<const Eigen::Vector3d> accel, double gravity_m_s2,
-                         std::string* reason);
-GyroUnit InferGyroUnit(std::span<const Eigen::Vector3d> gyro, AccelUnit accel_unit,
-                       std::string* reason);
+core::AccelUnit InferAccelUnit(std::span<const Eigen::Vector3d> accel, double gravity_m_s2,
+                               std::string* reason);
+core::GyroUnit InferGyroUnit(std::span<const Eigen::Vector3d> gyro, core::AccelUnit accel_unit,
+                             std::string* reason);
 
 // ---------------------------------------------------------------------------------------------
 // imu_tk ASCII pair: two files of lines "t x y z" (whitespace separated, no header), the
 // accelerometer and the gyroscope, with the same timestamps on the same rows (equal to within
 // 1 microsecond, the precision of the text). Blank lines are skipped. Units come from `options`
 // or InferAccelUnit/InferGyroUnit; what was inferred is appended to `notes` if non-null.
-absl::StatusOr<Capture> ParseImuTkPair(std::string_view accel_text, std::string_view accel_name,
-                                       std::string_view gyro_text, std::string_view gyro_name,
-                                       const ImportOptions& options,
-                                       std::vector<std::string>* notes = nullptr);
-absl::StatusOr<Capture> ReadImuTkPair(const std::string& accel_path, const std::string& gyro_path,
-                                      const ImportOptions& options,
-                                      std::vector<std::string>* notes = nullptr);
+absl::StatusOr<core::Capture> ParseImuTkPair(std::string_view accel_text,
+                                             std::string_view accel_name,
+                                             std::string_view gyro_text, std::string_view gyro_name,
+                                             const ImportOptions& options,
+                                             std::vector<std::string>* notes = nullptr);
+absl::StatusOr<core::Capture> ReadImuTkPair(const std::string& accel_path,
+                                            const std::string& gyro_path,
+                                            const ImportOptions& options,
+                                            std::vector<std::string>* notes = nullptr);
 
 // ---------------------------------------------------------------------------------------------
 // Importer registry.
@@ -163,10 +165,10 @@ class CaptureImporter {
   // Reads the inputs into a capture that satisfies ValidateCapture, applying `options`, and
   // appends to `notes` (never null) what it decided on its own. `paths` may be reordered by the
   // importer; it reports the order used in `used_paths` (never null).
-  virtual absl::StatusOr<Capture> Import(const std::vector<std::string>& paths,
-                                         const ImportOptions& options,
-                                         std::vector<std::string>* used_paths,
-                                         std::vector<std::string>* notes) const = 0;
+  virtual absl::StatusOr<core::Capture> Import(const std::vector<std::string>& paths,
+                                               const ImportOptions& options,
+                                               std::vector<std::string>* used_paths,
+                                               std::vector<std::string>* notes) const = 0;
 };
 
 // How much of each file auto-detection looks at.
@@ -193,9 +195,10 @@ void RegisterCaptureImporter(const CaptureImporter* importer);
 //                                     a note says so).
 // If nothing matches, InvalidArgument names the file and what each format expected. If `report`
 // is non-null it receives the format used and the notes (only on success).
-absl::StatusOr<Capture> ImportCapture(const std::vector<std::string>& paths,
-                                      const ImportOptions& options, ImportReport* report = nullptr);
+absl::StatusOr<core::Capture> ImportCapture(const std::vector<std::string>& paths,
+                                            const ImportOptions& options,
+                                            ImportReport* report = nullptr);
 
-}  // namespace imucal::core
+}  // namespace imucal::importers
 
-#endif  // IMUCAL_CORE_CAPTURE_IO_H_
+#endif  // IMUCAL_IMPORTERS_CAPTURE_IO_H_
