@@ -33,7 +33,7 @@
 #include "core/crb.h"
 #include "core/model.h"
 #include "core/simulator.h"
-#include "importers/capture_io.h"
+#include "importers/registry.h"
 
 namespace imucal::core {
 namespace {

@@ -10,7 +10,9 @@
 
 #include "benchmark/benchmark.h"
 #include "core/capture.h"
-#include "importers/capture_io.h"
+#include "importers/imucal_csv.h"
+#include "importers/imutk.h"
+#include "importers/registry.h"
 
 namespace imucal::core {
 namespace {

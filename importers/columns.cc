@@ -13,18 +13,13 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "importers/capture_io_internal.h"
+#include "importers/registry.h"
+#include "importers/text_scan.h"
+#include "importers/unit_inference.h"
 #include "util/str_util.h"
 
 namespace imucal::importers {
 namespace {
-
-using io_internal::DoubleText;
-using io_internal::IsBlankText;
-using io_internal::LineCursor;
-using io_internal::LineErrorAt;
-using io_internal::QuoteText;
-using io_internal::TrimText;
 
 // The capture fields a map can name, in the order of kFieldNames.
 enum Field : size_t { kT, kAx, kAy, kAz, kGx, kGy, kGz, kTemp, kFieldCount };
@@ -33,9 +28,6 @@ constexpr std::array<std::string_view, kFieldCount> kFieldNames = {"t",  "ax", "
 
 // How far the header search looks (a preamble is a few lines; a data file is not all preamble).
 constexpr int kMaxHeaderSearchLines = 1000;
-
-// A time interval above this multiple of the median is reported as a gap.
-constexpr double kGapFactor = 3.0;
 
 // One side of "ax=acc_x": a header name, or a 1-based column number.
 struct ColumnRef {
@@ -57,24 +49,24 @@ absl::Status MapError(std::string_view message) {
 
 absl::StatusOr<ColumnMap> ParseColumnMap(std::string_view spec) {
   ColumnMap map;
-  if (TrimText(spec).empty()) {
+  if (TrimSpaces(spec).empty()) {
     return MapError("empty (expected ax=NAME,ay=NAME,az=NAME,gx=NAME,gy=NAME,gz=NAME[,t=NAME])");
   }
   size_t start = 0;
   while (start <= spec.size()) {
     const size_t comma = std::min(spec.find(',', start), spec.size());
-    const std::string_view entry = TrimText(spec.substr(start, comma - start));
+    const std::string_view entry = TrimSpaces(spec.substr(start, comma - start));
     start = comma + 1;
     const size_t equals = entry.find('=');
     if (equals == std::string_view::npos) {
-      return MapError(Cat(QuoteText(entry), " is not FIELD=COLUMN"));
+      return MapError(Cat(Quoted(entry), " is not FIELD=COLUMN"));
     }
-    const std::string_view key = TrimText(entry.substr(0, equals));
-    const std::string_view value = TrimText(entry.substr(equals + 1));
+    const std::string_view key = TrimSpaces(entry.substr(0, equals));
+    const std::string_view value = TrimSpaces(entry.substr(equals + 1));
     const auto known = std::find(kFieldNames.begin(), kFieldNames.end(), key);
     if (known == kFieldNames.end()) {
       return MapError(
-          Cat("unknown field ", QuoteText(key), " (known: ", Join(kFieldNames, ", "), ")"));
+          Cat("unknown field ", Quoted(key), " (known: ", Join(kFieldNames, ", "), ")"));
     }
     const size_t field = static_cast<size_t>(known - kFieldNames.begin());
     if (map.refs[field].has_value()) return MapError(Cat("field '", key, "' given twice"));
@@ -82,7 +74,7 @@ absl::StatusOr<ColumnMap> ParseColumnMap(std::string_view spec) {
     ColumnRef ref;
     if (AllDigits(value)) {
       if (value.size() > 6 || std::stoi(std::string(value)) < 1) {
-        return MapError(Cat("field '", key, "': column number ", QuoteText(value),
+        return MapError(Cat("field '", key, "': column number ", Quoted(value),
                             " is out of range (columns count from 1)"));
       }
       ref.number = std::stoi(std::string(value));
@@ -114,7 +106,7 @@ absl::StatusOr<std::optional<char>> ParseDelimiter(std::string_view name) {
   if (name == "tab" || name == "\t") return std::optional<char>('\t');
   if (name == "space" || name == " ") return std::optional<char>(kWhitespace);
   return absl::InvalidArgumentError(
-      Cat("--delimiter: ", QuoteText(name), " is not one of , ; tab space"));
+      Cat("--delimiter: ", Quoted(name), " is not one of , ; tab space"));
 }
 
 // The delimiter a line uses: the most frequent of ',', ';', tab; else runs of spaces if the
@@ -127,11 +119,11 @@ char DetectDelimiter(std::string_view line) {
     if (count > best_count) best = c, best_count = count;
   }
   if (best != 0) return best;
-  return TrimText(line).find(' ') != std::string_view::npos ? kWhitespace : ',';
+  return TrimSpaces(line).find(' ') != std::string_view::npos ? kWhitespace : ',';
 }
 
 std::string_view Unquote(std::string_view field) {
-  field = TrimText(field);
+  field = TrimSpaces(field);
   if (field.size() >= 2 && field.front() == '"' && field.back() == '"') {
     field = field.substr(1, field.size() - 2);
   }
@@ -192,8 +184,8 @@ absl::Status FindHeader(std::string_view source, const ColumnCsvOptions& options
   const int skip = options.skip_lines.value_or(0);
   for (int i = 0; i < skip; ++i) {
     if (!lines->Next(&line)) {
-      return LineErrorAt(source, lines->line_number(),
-                         Cat("the file ends within the ", skip, " lines to skip"));
+      return LineError(source, lines->line_number(),
+                       Cat("the file ends within the ", skip, " lines to skip"));
     }
     layout->preamble.push_back(line);
   }
@@ -216,13 +208,11 @@ absl::Status FindHeader(std::string_view source, const ColumnCsvOptions& options
     LineCursor before = *lines;
     if (!lines->Next(&line)) {
       if (first_after.has_value()) return use_first();
-      return LineErrorAt(source, std::max(lines->line_number(), 1),
-                         options.no_header ? "no rows" : "no header line");
+      return LineError(source, std::max(lines->line_number(), 1),
+                       options.no_header ? "no rows" : "no header line");
     }
-    if (lines->line_number() == 1 && line.starts_with(io_internal::kUtf8Bom)) {
-      line.remove_prefix(io_internal::kUtf8Bom.size());
-    }
-    if (IsBlankText(line)) {
+    if (lines->line_number() == 1) line = WithoutBom(line);
+    if (IsBlank(line)) {
       layout->preamble.push_back(line);
       continue;
     }
@@ -261,21 +251,21 @@ absl::Status ResolveColumns(std::string_view source, const ColumnMap& map, Layou
     if (ref.number == 0) {
       const auto first = std::find(header.begin(), header.end(), ref.name);
       if (first == header.end()) {
-        return LineErrorAt(source, layout->header_line,
-                           Cat("no column '", ref.name, "' (mapped to ", kFieldNames[f],
-                               ") in the header; it has: ", Join(header, ", "),
-                               " (a preamble before the header: --skip-lines N)"));
+        return LineError(source, layout->header_line,
+                         Cat("no column '", ref.name, "' (mapped to ", kFieldNames[f],
+                             ") in the header; it has: ", Join(header, ", "),
+                             " (a preamble before the header: --skip-lines N)"));
       }
       if (std::find(first + 1, header.end(), ref.name) != header.end()) {
-        return LineErrorAt(source, layout->header_line,
-                           Cat("column '", ref.name, "' (mapped to ", kFieldNames[f],
-                               ") appears more than once in the header: map it by number"));
+        return LineError(source, layout->header_line,
+                         Cat("column '", ref.name, "' (mapped to ", kFieldNames[f],
+                             ") appears more than once in the header: map it by number"));
       }
       index = static_cast<int>(first - header.begin());
     } else if (layout->header_line > 0 && static_cast<size_t>(index) >= header.size()) {
-      return LineErrorAt(source, layout->header_line,
-                         Cat(kFieldNames[f], "=", ref.number, ": the header has only ",
-                             header.size(), " columns"));
+      return LineError(source, layout->header_line,
+                       Cat(kFieldNames[f], "=", ref.number, ": the header has only ", header.size(),
+                           " columns"));
     }
     for (size_t g = 0; g < f; ++g) {
       if (layout->index[g] == index) {
@@ -297,19 +287,18 @@ absl::Status ResolveColumns(std::string_view source, const ColumnMap& map, Layou
 absl::StatusOr<double> RateFromPreamble(std::string_view source, const Layout& layout,
                                         std::string_view key) {
   for (size_t i = 0; i < layout.preamble.size(); ++i) {
-    const std::string_view line = TrimText(layout.preamble[i]);
+    const std::string_view line = TrimSpaces(layout.preamble[i]);
     const size_t split = line.find_first_of(",;=:\t");
-    if (split == std::string_view::npos || TrimText(line.substr(0, split)) != key) continue;
+    if (split == std::string_view::npos || TrimSpaces(line.substr(0, split)) != key) continue;
     const int line_number = static_cast<int>(i) + 1;  // the preamble starts the file
-    std::string_view value = TrimText(line.substr(split + 1));
+    std::string_view value = TrimSpaces(line.substr(split + 1));
     value = value.substr(0, std::min(value.find_first_of(",;\t"), value.size()));
     double rate = 0.0;
-    if (absl::Status s = io_internal::ParseNumberField(value, source, line_number, key, &rate);
-        !s.ok()) {
+    if (absl::Status s = ParseNumberField(value, source, line_number, key, &rate); !s.ok()) {
       return s;
     }
     if (!(rate > 0.0)) {
-      return LineErrorAt(source, line_number, Cat("rate '", key, "' must be positive"));
+      return LineError(source, line_number, Cat("rate '", key, "' must be positive"));
     }
     return rate;
   }
@@ -346,7 +335,7 @@ struct Row {
 absl::Status ParseRows(LineCursor* lines, std::string_view source, const Layout& layout,
                        const ColumnCsvOptions& options, std::optional<double> rate_hz,
                        std::vector<Row>* rows) {
-  rows->reserve(io_internal::CountTextLines(lines->rest()));
+  rows->reserve(CountLines(lines->rest()));
   size_t expected_fields = layout.header_line > 0 ? layout.header.size() : 0;
   std::vector<std::string_view> fields;
   std::string_view line;
@@ -354,23 +343,22 @@ absl::Status ParseRows(LineCursor* lines, std::string_view source, const Layout&
   const bool index_time = options.time_unit == ColumnTimeUnit::kSampleIndex;
   const double scale = TimeScale(options.time_unit);
   while (lines->Next(&line)) {
-    if (IsBlankText(line)) continue;
+    if (IsBlank(line)) continue;
     const int line_number = lines->line_number();
     SplitFields(line, layout.delimiter, &fields);
     if (expected_fields == 0) expected_fields = fields.size();  // no header: the first row
     if (fields.size() != expected_fields) {
-      return LineErrorAt(source, line_number,
-                         Cat("expected ", expected_fields, " fields, found ", fields.size()));
+      return LineError(source, line_number,
+                       Cat("expected ", expected_fields, " fields, found ", fields.size()));
     }
     if (layout.max_index >= fields.size()) {
-      return LineErrorAt(
+      return LineError(
           source, line_number,
           Cat("has ", fields.size(), " fields, but the map uses column ", layout.max_index + 1));
     }
     for (size_t f = 0; f < kFieldCount; ++f) {
       if (layout.index[f] < 0) continue;
-      if (absl::Status s =
-              io_internal::ParseNumberField(fields[static_cast<size_t>(layout.index[f])], source,
+      if (absl::Status s = ParseNumberField(fields[static_cast<size_t>(layout.index[f])], source,
                                             line_number, layout.labels[f], &values[f]);
           !s.ok()) {
         return s;
@@ -392,9 +380,9 @@ absl::Status ParseRows(LineCursor* lines, std::string_view source, const Layout&
 }
 
 absl::Status TimeError(std::string_view source, const Row& row, const Row& previous) {
-  return LineErrorAt(source, row.line_number,
-                     Cat("t=", DoubleText(row.t_s), " s does not increase (previous ",
-                         DoubleText(previous.t_s), " s at line ", previous.line_number, ")"));
+  return LineError(source, row.line_number,
+                   Cat("t=", FormatDouble(row.t_s), " s does not increase (previous ",
+                       FormatDouble(previous.t_s), " s at line ", previous.line_number, ")"));
 }
 
 // Checks that time increases (or sorts the rows, with a note), as the options say.
@@ -416,9 +404,9 @@ absl::Status OrderRows(std::string_view source, const ColumnCsvOptions& options,
                    [](const Row& a, const Row& b) { return a.t_s < b.t_s; });
   for (size_t i = 1; i < rows->size(); ++i) {
     if ((*rows)[i].t_s == (*rows)[i - 1].t_s) {
-      return LineErrorAt(source, (*rows)[i].line_number,
-                         Cat("t=", DoubleText((*rows)[i].t_s), " s repeats the time of line ",
-                             (*rows)[i - 1].line_number));
+      return LineError(source, (*rows)[i].line_number,
+                       Cat("t=", FormatDouble((*rows)[i].t_s), " s repeats the time of line ",
+                           (*rows)[i - 1].line_number));
     }
   }
   if (out_of_order > 0) {
@@ -431,11 +419,11 @@ absl::Status OrderRows(std::string_view source, const ColumnCsvOptions& options,
 std::string DescribeTimeBase(const Layout& layout, const ColumnCsvOptions& options,
                              std::optional<double> rate_hz) {
   if (layout.index[kT] < 0) {
-    return Cat("time = row / ", DoubleText(*rate_hz), " Hz (no time column)");
+    return Cat("time = row / ", FormatDouble(*rate_hz), " Hz (no time column)");
   }
   const std::string column = Cat("'", layout.labels[kT], "'");
   if (options.time_unit == ColumnTimeUnit::kSampleIndex) {
-    return Cat("time = ", column, " (sample index) / ", DoubleText(*rate_hz),
+    return Cat("time = ", column, " (sample index) / ", FormatDouble(*rate_hz),
                " Hz; a jump in the index stays a gap");
   }
   return Cat("time = ", column, " in ", ColumnTimeUnitName(options.time_unit));
@@ -455,11 +443,8 @@ class ColumnCsvImporterImpl final : public CaptureImporter {
                                        const ImportOptions& options,
                                        std::vector<std::string>* used_paths,
                                        std::vector<std::string>* notes) const override {
-    if (paths.size() != 1) {
-      return absl::InvalidArgumentError(
-          Cat("the columns format reads one file, got ", paths.size(), ": ", Join(paths, ", ")));
-    }
-    absl::StatusOr<std::string> text = io_internal::ReadFileText(paths[0]);
+    if (absl::Status s = CheckOnePath("columns", "file", paths); !s.ok()) return s;
+    absl::StatusOr<std::string> text = ReadFileBytes(paths[0]);
     if (!text.ok()) return text.status();
     *used_paths = paths;
     return ParseColumnCsv(*text, paths[0], options, notes);
@@ -475,7 +460,7 @@ absl::StatusOr<ColumnTimeUnit> ParseColumnTimeUnit(std::string_view name) {
   if (name == "ns") return ColumnTimeUnit::kNanoseconds;
   if (name == "index") return ColumnTimeUnit::kSampleIndex;
   return absl::InvalidArgumentError(
-      Cat("unknown time unit ", QuoteText(name), " (expected s, ms, us, ns or index)"));
+      Cat("unknown time unit ", Quoted(name), " (expected s, ms, us, ns or index)"));
 }
 
 std::string_view ColumnTimeUnitName(ColumnTimeUnit unit) {
@@ -560,7 +545,7 @@ absl::StatusOr<core::Capture> ParseColumnCsv(std::string_view text, std::string_
     return s;
   }
   if (rows.empty()) {
-    return LineErrorAt(source_name, std::max(lines.line_number(), 1), "no rows after the header");
+    return LineError(source_name, std::max(lines.line_number(), 1), "no rows after the header");
   }
   if (absl::Status s = OrderRows(source_name, columns, &rows, notes); !s.ok()) return s;
 
@@ -597,42 +582,9 @@ absl::StatusOr<core::Capture> ParseColumnCsv(std::string_view text, std::string_
     }
     if (!ignored.empty()) notes->push_back(Cat("ignored columns: ", Join(ignored, ", ")));
   }
-  std::string reason;
-  if (options.accel_unit.has_value()) {
-    capture.accel_unit = *options.accel_unit;
-  } else {
-    capture.accel_unit = InferAccelUnit(capture.accel, capture.gravity_m_s2, &reason);
-    notes->push_back(reason);
-  }
-  if (options.gyro_unit.has_value()) {
-    capture.gyro_unit = *options.gyro_unit;
-  } else {
-    capture.gyro_unit = InferGyroUnit(capture.gyro, capture.accel_unit, &reason);
-    notes->push_back(reason);
-  }
+  ApplyOrInferUnits(options, &capture, notes);
   NoteTimeGaps(capture, notes);
   return capture;
-}
-
-void NoteTimeGaps(const core::Capture& capture, std::vector<std::string>* notes) {
-  const double median = capture.MedianDt();
-  if (!(median > 0.0)) return;
-  size_t gaps = 0;
-  size_t largest = 0;
-  for (size_t i = 1; i < capture.size(); ++i) {
-    const double dt = capture.t_s[i] - capture.t_s[i - 1];
-    if (dt > kGapFactor * median) {
-      ++gaps;
-      if (largest == 0 || dt > capture.t_s[largest] - capture.t_s[largest - 1]) largest = i;
-    }
-  }
-  if (gaps == 0) return;
-  notes->push_back(
-      Cat("time has ", gaps, " gap", gaps == 1 ? "" : "s", " (an interval over ", kGapFactor,
-          "x the median ", DoubleText(median), " s; the largest ",
-          DoubleText(capture.t_s[largest] - capture.t_s[largest - 1]),
-          " s after t=", DoubleText(capture.t_s[largest - 1]),
-          " s): nothing was recorded there, so a rotation inside a gap is not measured"));
 }
 
 const CaptureImporter* ColumnCsvImporter() {

@@ -24,7 +24,7 @@
 // 3x the median): the gyroscope was not recorded across a gap.
 //
 // Units: ImportOptions::accel_unit/gyro_unit (counts, g, m/s^2; counts, deg/s, rad/s), else
-// inferred as for imu_tk (InferAccelUnit/InferGyroUnit) with a note. Values are stored as read.
+// inferred as for imu_tk (importers/unit_inference.h) with a note. Values are stored as read.
 //
 // Errors are InvalidArgument "SOURCE:LINE: column 'acc_x' (ax): 'abc' is not a number", or name
 // the option at fault ("--columns: ...").
@@ -38,7 +38,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/capture.h"
-#include "importers/capture_io.h"
+#include "importers/registry.h"
 
 namespace imucal::importers {
 
@@ -57,10 +57,6 @@ absl::StatusOr<core::Capture> ParseColumnCsv(std::string_view text, std::string_
 
 // The "columns" importer for the registry (one file; never auto-detected from the content).
 const CaptureImporter* ColumnCsvImporter();
-
-// Appends a note when `capture` has time gaps (an interval over 3x the median interval): how
-// many, and the largest with its time. Shared by the importers whose time comes from the file.
-void NoteTimeGaps(const core::Capture& capture, std::vector<std::string>* notes);
 
 }  // namespace imucal::importers
 

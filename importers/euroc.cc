@@ -11,18 +11,12 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "importers/capture_io_internal.h"
-#include "importers/columns.h"
+#include "importers/registry.h"
+#include "importers/text_scan.h"
 #include "util/str_util.h"
 
 namespace imucal::importers {
 namespace {
-
-using io_internal::IsBlankText;
-using io_internal::LineCursor;
-using io_internal::LineErrorAt;
-using io_internal::QuoteText;
-using io_internal::TrimText;
 
 // The columns, in the dataset's order, with the unit each must state (if it states one).
 struct EurocColumn {
@@ -43,7 +37,7 @@ constexpr std::string_view kTimestampPrefix = "#timestamp";
 
 // "w_RS_S_x [rad s^-1]" -> name "w_RS_S_x", unit "rad s^-1" (empty when not bracketed).
 void SplitNameUnit(std::string_view header_field, std::string_view* name, std::string_view* unit) {
-  header_field = TrimText(header_field);
+  header_field = TrimSpaces(header_field);
   const size_t open = header_field.find('[');
   const size_t close = header_field.rfind(']');
   if (open == std::string_view::npos || close == std::string_view::npos || close < open) {
@@ -51,8 +45,8 @@ void SplitNameUnit(std::string_view header_field, std::string_view* name, std::s
     *unit = std::string_view();
     return;
   }
-  *name = TrimText(header_field.substr(0, open));
-  *unit = TrimText(header_field.substr(open + 1, close - open - 1));
+  *name = TrimSpaces(header_field.substr(0, open));
+  *unit = TrimSpaces(header_field.substr(open + 1, close - open - 1));
 }
 
 std::vector<std::string_view> SplitCommas(std::string_view line) {
@@ -80,7 +74,7 @@ absl::StatusOr<EurocHeader> ParseHeader(std::string_view line, std::string_view 
   for (size_t i = 0; i < fields.size(); ++i) {
     std::string_view name, unit;
     SplitNameUnit(fields[i], &name, &unit);
-    header.names.emplace_back(TrimText(fields[i]));
+    header.names.emplace_back(TrimSpaces(fields[i]));
     // "#timestamp" may also be written "timestamp" by tools that strip the comment sign.
     const std::string_view lookup = (name == "timestamp") ? kTimestampPrefix : name;
     const auto known = std::find_if(kEurocColumns.begin(), kEurocColumns.end(),
@@ -90,18 +84,18 @@ absl::StatusOr<EurocHeader> ParseHeader(std::string_view line, std::string_view 
       continue;
     }
     const size_t k = static_cast<size_t>(known - kEurocColumns.begin());
-    if (seen[k]) return LineErrorAt(source, 1, Cat("duplicate column '", known->name, "'"));
+    if (seen[k]) return LineError(source, 1, Cat("duplicate column '", known->name, "'"));
     if (!unit.empty() && unit != known->unit) {
-      return LineErrorAt(source, 1,
-                         Cat("column '", header.names.back(), "': unit ", QuoteText(unit),
-                             " is not the EuRoC unit '", known->unit, "'"));
+      return LineError(source, 1,
+                       Cat("column '", header.names.back(), "': unit ", Quoted(unit),
+                           " is not the EuRoC unit '", known->unit, "'"));
     }
     seen[k] = true;
     header.index[k] = i;
   }
   for (size_t k = 0; k < kEurocColumns.size(); ++k) {
     if (!seen[k]) {
-      return LineErrorAt(
+      return LineError(
           source, 1,
           Cat("missing column '", kEurocColumns[k].name, " [", kEurocColumns[k].unit, "]'"));
     }
@@ -111,13 +105,12 @@ absl::StatusOr<EurocHeader> ParseHeader(std::string_view line, std::string_view 
 
 absl::Status ParseTimestamp(std::string_view field, std::string_view source, int line_number,
                             std::string_view column, int64_t* ns) {
-  const std::string_view text = TrimText(field);
+  const std::string_view text = TrimSpaces(field);
   const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), *ns);
   if (text.empty() || ec != std::errc() || ptr != text.data() + text.size()) {
-    return LineErrorAt(
-        source, line_number,
-        Cat("column '", column, "': ", text.empty() ? "empty field" : QuoteText(text),
-            text.empty() ? "" : " is not an integer number of nanoseconds"));
+    return LineError(source, line_number,
+                     Cat("column '", column, "': ", text.empty() ? "empty field" : Quoted(text),
+                         text.empty() ? "" : " is not an integer number of nanoseconds"));
   }
   return absl::OkStatus();
 }
@@ -131,7 +124,7 @@ class EurocImporter final : public CaptureImporter {
   absl::Status Sniff(std::span<const std::string> /*paths*/,
                      std::span<const std::string> heads) const override {
     std::string_view head = heads[0];
-    if (head.starts_with(io_internal::kUtf8Bom)) head.remove_prefix(io_internal::kUtf8Bom.size());
+    head = WithoutBom(head);
     const std::string_view first_line = head.substr(0, head.find('\n'));
     if (first_line.starts_with(kTimestampPrefix) &&
         first_line.find("w_RS_S_x") != std::string_view::npos &&
@@ -145,11 +138,8 @@ class EurocImporter final : public CaptureImporter {
                                        const ImportOptions& options,
                                        std::vector<std::string>* used_paths,
                                        std::vector<std::string>* notes) const override {
-    if (paths.size() != 1) {
-      return absl::InvalidArgumentError(
-          Cat("the euroc format reads one file, got ", paths.size(), ": ", Join(paths, ", ")));
-    }
-    absl::StatusOr<std::string> text = io_internal::ReadFileText(paths[0]);
+    if (absl::Status s = CheckOnePath("euroc", "file", paths); !s.ok()) return s;
+    absl::StatusOr<std::string> text = ReadFileBytes(paths[0]);
     if (!text.ok()) return text.status();
     *used_paths = paths;
     return ParseEurocCsv(*text, paths[0], options, notes);
@@ -163,8 +153,8 @@ absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_v
                                             std::vector<std::string>* notes) {
   LineCursor lines(text);
   std::string_view line;
-  if (!lines.Next(&line)) return LineErrorAt(source_name, 1, "empty file (no EuRoC header)");
-  if (line.starts_with(io_internal::kUtf8Bom)) line.remove_prefix(io_internal::kUtf8Bom.size());
+  if (!lines.Next(&line)) return LineError(source_name, 1, "empty file (no EuRoC header)");
+  line = WithoutBom(line);
   absl::StatusOr<EurocHeader> header = ParseHeader(line, source_name);
   if (!header.ok()) return header.status();
 
@@ -172,7 +162,7 @@ absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_v
   capture.gravity_m_s2 = core::kStandardGravity;
   capture.accel_unit = core::AccelUnit::kMetersPerSecond2;
   capture.gyro_unit = core::GyroUnit::kRadPerSecond;
-  const size_t rows = io_internal::CountTextLines(lines.rest());
+  const size_t rows = CountLines(lines.rest());
   capture.t_s.reserve(rows);
   capture.accel.reserve(rows);
   capture.gyro.reserve(rows);
@@ -183,12 +173,12 @@ absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_v
   int previous_line = 0;
   std::array<double, kEurocColumns.size()> values{};
   while (lines.Next(&line)) {
-    if (IsBlankText(line)) continue;
+    if (IsBlank(line)) continue;
     const int line_number = lines.line_number();
     const std::vector<std::string_view> fields = SplitCommas(line);
     if (fields.size() != field_count) {
-      return LineErrorAt(source_name, line_number,
-                         Cat("expected ", field_count, " fields, found ", fields.size()));
+      return LineError(source_name, line_number,
+                       Cat("expected ", field_count, " fields, found ", fields.size()));
     }
     int64_t ns = 0;
     if (absl::Status s = ParseTimestamp(fields[header->index[0]], source_name, line_number,
@@ -198,8 +188,8 @@ absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_v
     }
     for (size_t k = 1; k < kEurocColumns.size(); ++k) {
       const size_t i = header->index[k];
-      if (absl::Status s = io_internal::ParseNumberField(fields[i], source_name, line_number,
-                                                         header->names[i], &values[k]);
+      if (absl::Status s =
+              ParseNumberField(fields[i], source_name, line_number, header->names[i], &values[k]);
           !s.ok()) {
         return s;
       }
@@ -207,9 +197,9 @@ absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_v
     if (previous_line == 0) {
       t0_ns = ns;
     } else if (ns <= previous_ns) {
-      return LineErrorAt(source_name, line_number,
-                         Cat("timestamp ", ns, " ns does not increase (previous ", previous_ns,
-                             " ns at line ", previous_line, ")"));
+      return LineError(source_name, line_number,
+                       Cat("timestamp ", ns, " ns does not increase (previous ", previous_ns,
+                           " ns at line ", previous_line, ")"));
     }
     previous_ns = ns;
     previous_line = line_number;
@@ -220,8 +210,7 @@ absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_v
     capture.accel.emplace_back(values[4], values[5], values[6]);
   }
   if (capture.t_s.empty()) {
-    return LineErrorAt(source_name, std::max(lines.line_number(), 1),
-                       "no samples after the header");
+    return LineError(source_name, std::max(lines.line_number(), 1), "no samples after the header");
   }
   capture.extra_metadata.emplace_back(std::string(kEurocOriginKey), Cat(t0_ns));
   notes->push_back(
@@ -229,7 +218,7 @@ absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_v
   if (!header->ignored.empty()) {
     notes->push_back(Cat("ignored columns: ", Join(header->ignored, ", ")));
   }
-  io_internal::ApplyImportOverrides(options, &capture, notes);
+  ApplyImportOverrides(options, &capture, notes);
   NoteTimeGaps(capture, notes);
   return capture;
 }

@@ -18,7 +18,7 @@
 
 #include "absl/status/statusor.h"
 #include "core/capture.h"
-#include "importers/capture_io.h"
+#include "importers/registry.h"
 
 namespace imucal::importers {
 

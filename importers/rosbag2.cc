@@ -19,8 +19,8 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "importers/capture_io_internal.h"
-#include "importers/columns.h"
+#include "importers/registry.h"
+#include "importers/text_scan.h"
 #include "storage/sqlite_db.h"
 #include "util/str_util.h"
 
@@ -151,7 +151,7 @@ long SplitIndex(std::string_view name) {
 }
 
 std::string_view Unquoted(std::string_view s) {
-  s = io_internal::TrimText(s);
+  s = TrimSpaces(s);
   if (s.size() >= 2 && (s.front() == '"' || s.front() == '\'') && s.back() == s.front()) {
     s = s.substr(1, s.size() - 2);
   }
@@ -162,11 +162,11 @@ std::string_view Unquoted(std::string_view s) {
 
 BagMetadata ParseBagMetadata(std::string_view yaml) {
   BagMetadata metadata;
-  io_internal::LineCursor lines(yaml);
+  LineCursor lines(yaml);
   std::string_view line;
   bool in_paths = false;
   while (lines.Next(&line)) {
-    const std::string_view trimmed = io_internal::TrimText(line);
+    const std::string_view trimmed = TrimSpaces(line);
     if (trimmed.starts_with("storage_identifier:")) {
       metadata.storage_identifier =
           std::string(Unquoted(trimmed.substr(std::string_view("storage_identifier:").size())));
@@ -192,7 +192,7 @@ namespace {
 absl::StatusOr<std::vector<std::string>> BagFiles(const std::string& path) {
   if (!IsDirectory(path)) return std::vector<std::string>{path};
   const std::filesystem::path dir(path);
-  absl::StatusOr<std::string> yaml = io_internal::ReadFileText((dir / kMetadataFile).string());
+  absl::StatusOr<std::string> yaml = ReadFileBytes((dir / kMetadataFile).string());
   if (!yaml.ok()) {
     return absl::InvalidArgumentError(
         Cat(path, ": not a rosbag2 directory (", yaml.status().message(), ")"));
@@ -291,7 +291,7 @@ absl::StatusOr<Topic> ChooseTopic(const std::vector<Topic>& topics, std::string_
 // A metadata value that survives the capture CSV (one line, no surrounding spaces).
 bool SafeMetadataValue(std::string_view value) {
   return !value.empty() && value.find_first_of("\r\n") == std::string_view::npos &&
-         io_internal::TrimText(value) == value;
+         TrimSpaces(value) == value;
 }
 
 struct Sample {
@@ -359,10 +359,7 @@ class Rosbag2ImporterImpl final : public CaptureImporter {
                                        const ImportOptions& options,
                                        std::vector<std::string>* used_paths,
                                        std::vector<std::string>* notes) const override {
-    if (paths.size() != 1) {
-      return absl::InvalidArgumentError(
-          Cat("the rosbag2 format reads one bag, got ", paths.size(), ": ", Join(paths, ", ")));
-    }
+    if (absl::Status s = CheckOnePath("rosbag2", "bag", paths); !s.ok()) return s;
     *used_paths = paths;
     return ReadRosbag2Imu(paths[0], options, notes);
   }
@@ -479,7 +476,7 @@ absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path, const Impo
     notes->push_back(
         Cat("the messages name ", frame_ids.size(), " frames: ", Join(frame_ids, ", ")));
   }
-  io_internal::ApplyImportOverrides(options, &capture, notes);
+  ApplyImportOverrides(options, &capture, notes);
   NoteTimeGaps(capture, notes);
   return capture;
 }
@@ -488,7 +485,5 @@ const CaptureImporter* Rosbag2Importer() {
   static const auto* const kImporter = new Rosbag2ImporterImpl();
   return kImporter;
 }
-
-void RegisterRosbag2Importer() { RegisterCaptureImporter(Rosbag2Importer()); }
 
 }  // namespace imucal::importers

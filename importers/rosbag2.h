@@ -35,7 +35,7 @@
 
 #include "Eigen/Core"
 #include "absl/status/statusor.h"
-#include "importers/capture_io.h"
+#include "importers/registry.h"
 
 namespace imucal::importers {
 
@@ -66,13 +66,9 @@ BagMetadata ParseBagMetadata(std::string_view yaml);
 absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path, const ImportOptions& options,
                                              std::vector<std::string>* notes);
 
-// The "rosbag2" importer (a directory with metadata.yaml, or a file that starts with the SQLite
-// header). Not part of core's built-in list because it needs SQLite.
+// The "rosbag2" importer for the registry (a directory with metadata.yaml, or a file that starts
+// with the SQLite header).
 const CaptureImporter* Rosbag2Importer();
-
-// Adds Rosbag2Importer() to core's registry (core::RegisterCaptureImporter); idempotent. The CLI
-// calls it before importing.
-void RegisterRosbag2Importer();
 
 }  // namespace imucal::importers
 

@@ -8,7 +8,6 @@
 #include "absl/strings/str_cat.h"
 #include "core/capture.h"
 #include "importers/columns.h"
-#include "importers/rosbag2.h"
 
 namespace imucal::cli {
 
@@ -50,7 +49,6 @@ std::set<std::string> WithImportSwitches(std::set<std::string> switches) {
 }
 
 absl::Status ApplyImportFlags(const Args& a, importers::ImportOptions* o) {
-  importers::RegisterRosbag2Importer();
   if (auto topic = a.Get("topic")) o->topic = *topic;
   const auto columns = a.Get("columns");
   if (!columns) {

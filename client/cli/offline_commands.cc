@@ -31,7 +31,8 @@
 #include "formats/params_json.h"
 #include "formats/plots.h"
 #include "formats/report_json.h"
-#include "importers/capture_io.h"
+#include "importers/imucal_csv.h"
+#include "importers/registry.h"
 
 namespace imucal::cli {
 namespace {

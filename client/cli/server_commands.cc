@@ -22,7 +22,7 @@
 #include "client/sdk/uploader.h"
 #include "formats/params_json.h"
 #include "formats/plots.h"
-#include "importers/capture_io.h"
+#include "importers/registry.h"
 #include "nlohmann/json.hpp"
 
 namespace imucal::cli {

@@ -15,7 +15,7 @@
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
 #include "core/simulator.h"
-#include "importers/capture_io.h"
+#include "importers/imucal_csv.h"
 #include "nlohmann/json.hpp"
 #include "tests/client/imucald_process.h"
 

@@ -19,7 +19,7 @@
 #include "core/simulator.h"
 #include "core/validation.h"
 #include "formats/params_json.h"
-#include "importers/capture_io.h"
+#include "importers/imucal_csv.h"
 #include "nlohmann/json.hpp"
 
 namespace imucal::cli {

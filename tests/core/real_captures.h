@@ -8,7 +8,7 @@
 #include <string>
 
 #include "absl/status/statusor.h"
-#include "importers/capture_io.h"
+#include "importers/registry.h"
 
 namespace imucal::core::real_captures {
 

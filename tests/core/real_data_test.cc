@@ -14,7 +14,7 @@
 #include "core/calibrate/calibrate.h"
 #include "core/capture.h"
 #include "core/protocol.h"
-#include "importers/capture_io.h"
+#include "importers/registry.h"
 #include "tests/core/real_captures.h"
 
 namespace imucal::core {

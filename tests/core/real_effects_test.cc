@@ -19,7 +19,7 @@
 #include "core/calibrate/calibrate.h"
 #include "core/effects.h"
 #include "core/static_detector.h"
-#include "importers/capture_io.h"
+#include "importers/registry.h"
 #include "tests/core/real_captures.h"
 
 namespace imucal::core {

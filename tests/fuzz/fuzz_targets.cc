@@ -9,9 +9,11 @@
 
 #include "core/capture.h"
 #include "google/protobuf/stubs/logging.h"
-#include "importers/capture_io.h"
 #include "importers/columns.h"
 #include "importers/euroc.h"
+#include "importers/imucal_csv.h"
+#include "importers/imutk.h"
+#include "importers/registry.h"
 #include "importers/rosbag2.h"
 #include "imucal/v1/imucal.pb.h"
 #include "server/validate.h"

@@ -1,4 +1,4 @@
-// Tests of the ROS 2 bag importer (storage/rosbag2_import.cc) on bags written here with the raw
+// Tests of the ROS 2 bag importer (importers/rosbag2.cc) on bags written here with the raw
 // SQLite C API and a CDR serialiser of their own, independent of the decoder under test.
 #include "importers/rosbag2.h"
 
@@ -14,7 +14,7 @@
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "importers/capture_io.h"
+#include "importers/registry.h"
 
 namespace imucal::importers {
 namespace {
@@ -273,7 +273,6 @@ TEST(ImuCdrTest, MalformedFields) {
 // Bags.
 
 TEST(Rosbag2ImportTest, AutoDetectedDirectoryWithHeaderStamps) {
-  RegisterRosbag2Importer();
   std::vector<TestImu> imus;
   for (int i = 0; i < 50; ++i) {
     // 200 Hz sensor time across a second boundary; the frame_id length varies the alignment.
@@ -306,7 +305,6 @@ TEST(Rosbag2ImportTest, AutoDetectedDirectoryWithHeaderStamps) {
 }
 
 TEST(Rosbag2ImportTest, ZeroStampsFallBackToBagTime) {
-  RegisterRosbag2Importer();
   const std::string dir = WriteSimpleBag("unstamped", {Imu(0, 0, 1), Imu(0, 0, 2), Imu(0, 0, 3)});
   ImportOptions options;
   options.format = "rosbag2";
@@ -318,7 +316,6 @@ TEST(Rosbag2ImportTest, ZeroStampsFallBackToBagTime) {
 }
 
 TEST(Rosbag2ImportTest, TopicChoice) {
-  RegisterRosbag2Importer();
   const std::string dir = BagDir("two_imus");
   WriteDb3(dir + "/two_imus_0.db3",
            {{1, "/imu/data", kImu}, {2, "/tf", "tf2_msgs/msg/TFMessage"}, {3, "/imu2", kImu}},
@@ -347,7 +344,6 @@ TEST(Rosbag2ImportTest, TopicChoice) {
 }
 
 TEST(Rosbag2ImportTest, NoImuTopic) {
-  RegisterRosbag2Importer();
   const std::string dir = BagDir("no_imu");
   WriteDb3(dir + "/no_imu_0.db3", {{1, "/tf", "tf2_msgs/msg/TFMessage"}}, {});
   WriteMetadata(dir, {"no_imu_0.db3"});
@@ -358,7 +354,6 @@ TEST(Rosbag2ImportTest, NoImuTopic) {
 }
 
 TEST(Rosbag2ImportTest, SplitBagReadsTheFilesInOrder) {
-  RegisterRosbag2Importer();
   const std::string dir = BagDir("split");
   WriteDb3(dir + "/split_1.db3", {{4, "/imu", kImu}},
            {{4, 30, SerializeImu(Imu(2, 0, 3))}, {4, 40, SerializeImu(Imu(3, 0, 4))}});
@@ -374,7 +369,6 @@ TEST(Rosbag2ImportTest, SplitBagReadsTheFilesInOrder) {
 }
 
 TEST(Rosbag2ImportTest, BadMessagesNameTheirIndexAndTime) {
-  RegisterRosbag2Importer();
   const std::string dir = BagDir("truncated");
   std::vector<TestMessage> messages;
   for (int i = 0; i < 5; ++i) messages.push_back({1, 1000 + i, SerializeImu(Imu(1, i, i))});
@@ -397,7 +391,6 @@ TEST(Rosbag2ImportTest, BadMessagesNameTheirIndexAndTime) {
 }
 
 TEST(Rosbag2ImportTest, NotABagOrUnsupportedStorage) {
-  RegisterRosbag2Importer();
   const std::string mcap = BagDir("mcap_bag");
   WriteMetadata(mcap, {"mcap_bag_0.mcap"}, "mcap");
   absl::StatusOr<core::Capture> c = ImportCapture({mcap}, ImportOptions{});

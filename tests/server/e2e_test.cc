@@ -37,7 +37,7 @@
 #include "core/validation.h"
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
-#include "importers/capture_io.h"
+#include "importers/imucal_csv.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "tests/client/imucald_process.h"
 #include "tests/server/watch.h"

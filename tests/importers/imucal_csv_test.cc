@@ -1,63 +1,41 @@
-#include "importers/capture_io.h"
+// Tests of the imucal capture CSV (importers/imucal_csv.h): reading, errors, writing, files.
+#include "importers/imucal_csv.h"
 
 #include <charconv>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <limits>
-#include <numbers>
 #include <optional>
 #include <random>
 #include <string>
 #include <string_view>
+#include <system_error>
 #include <utility>
 #include <vector>
 
+#include "core/capture.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
+#include "tests/core/test_captures.h"
+#include "tests/importers/test_files.h"
 
 namespace imucal::importers {
 namespace {
 
+using core::test_captures::AwkwardCapture;
+using core::test_captures::ExpectSameCapture;
+using core::test_captures::SameBits;
+using test_files::kHeader;
+using test_files::kSpecExample;
+using test_files::ReadText;
+using test_files::TempPath;
+using test_files::WriteText;
 using ::testing::ElementsAre;
 using ::testing::HasSubstr;
 using ::testing::Pair;
 using ::testing::StartsWith;
-
-constexpr char kSpecExample[] =
-    "# imucal-capture v1\n"
-    "# device=robot-0042\n"
-    "# accel_unit=m/s^2\n"
-    "# gyro_unit=rad/s\n"
-    "# gravity=9.80665\n"
-    "# rate_hz=200\n"
-    "t,ax,ay,az,gx,gy,gz,temp\n"
-    "0.000000,0.0131,-0.0203,9.8152,0.00102,-0.00031,0.00207,24.81\n"
-    "0.005000,0.0127,-0.0199,9.8149,0.00098,-0.00027,0.00211,24.81\n";
-
-// A minimal valid header; tests append their own column line and rows.
-constexpr char kHeader[] =
-    "# imucal-capture v1\n"
-    "# accel_unit=m/s^2\n"
-    "# gyro_unit=rad/s\n";
-
-std::string TempPath(std::string_view name) {
-  return (std::filesystem::path(testing::TempDir()) / name).string();
-}
-
-void WriteText(const std::string& path, std::string_view text) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out.write(text.data(), static_cast<std::streamsize>(text.size()));
-  ASSERT_TRUE(out.good()) << path;
-}
-
-std::string ReadText(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-}
 
 // The error message of a parse that must fail.
 std::string ParseError(std::string_view text) {
@@ -67,144 +45,6 @@ std::string ParseError(std::string_view text) {
   EXPECT_EQ(capture.status().code(), absl::StatusCode::kInvalidArgument);
   return std::string(capture.status().message());
 }
-
-bool SameBits(double a, double b) { return std::memcmp(&a, &b, sizeof(double)) == 0; }
-
-// Values whose text form is awkward: non-terminating binary fractions, extremes of the exponent
-// range, subnormals, negative zero, integers above 2^53 precision.
-core::Capture AwkwardCapture() {
-  core::Capture c;
-  c.device = "robot 0042 (bench)";
-  c.accel_unit = core::AccelUnit::kG;
-  c.gyro_unit = core::GyroUnit::kDegPerSecond;
-  c.temp_unit = core::TempUnit::kCounts;
-  c.gravity_m_s2 = 9.80743;
-  c.rate_hz = 204.8;
-  c.extra_metadata = {{"operator", "ada"}, {"zeta", "last=first"}, {"alpha", ""}};
-  const std::vector<double> awkward = {0.1,
-                                       1.0 / 3.0,
-                                       -0.0,
-                                       5e-324,
-                                       1.7976931348623157e308,
-                                       2e-308,
-                                       -1e-300,
-                                       1e22,
-                                       123456789.123456789,
-                                       9007199254740993.0,
-                                       32768.0,
-                                       -2.5e-7};
-  for (size_t i = 0; i < awkward.size(); ++i) {
-    c.t_s.push_back(1e9 + 0.001 * static_cast<double>(i) + 1.0 / 7.0);
-    c.accel.emplace_back(awkward[i], -awkward[(i + 1) % awkward.size()], std::sqrt(2.0) * i);
-    c.gyro.emplace_back(std::numbers::pi * i, -awkward[(i + 5) % awkward.size()], 1e-9 * i);
-    c.temp.push_back(24.81 + 0.01 * static_cast<double>(i));
-  }
-  c.extra_column_names = {"seq", "pressure_pa"};
-  c.extra_columns = {{}, {}};
-  for (size_t i = 0; i < awkward.size(); ++i) {
-    c.extra_columns[0].push_back(static_cast<double>(i));
-    c.extra_columns[1].push_back(101325.0 + awkward[(i + 3) % awkward.size()]);
-  }
-  return c;
-}
-
-void ExpectSameCapture(const core::Capture& a, const core::Capture& b) {
-  EXPECT_EQ(a.device, b.device);
-  EXPECT_EQ(a.accel_unit, b.accel_unit);
-  EXPECT_EQ(a.gyro_unit, b.gyro_unit);
-  EXPECT_EQ(a.temp_unit, b.temp_unit);
-  EXPECT_TRUE(SameBits(a.gravity_m_s2, b.gravity_m_s2));
-  EXPECT_TRUE(SameBits(a.rate_hz, b.rate_hz));
-  EXPECT_EQ(a.extra_metadata, b.extra_metadata);
-  EXPECT_EQ(a.extra_column_names, b.extra_column_names);
-  ASSERT_EQ(a.size(), b.size());
-  ASSERT_EQ(a.temp.size(), b.temp.size());
-  ASSERT_EQ(a.extra_columns.size(), b.extra_columns.size());
-  for (size_t i = 0; i < a.size(); ++i) {
-    EXPECT_TRUE(SameBits(a.t_s[i], b.t_s[i])) << "t at " << i;
-    for (int k = 0; k < 3; ++k) {
-      EXPECT_TRUE(SameBits(a.accel[i][k], b.accel[i][k])) << "accel at " << i << "," << k;
-      EXPECT_TRUE(SameBits(a.gyro[i][k], b.gyro[i][k])) << "gyro at " << i << "," << k;
-    }
-    if (a.has_temp()) {
-      EXPECT_TRUE(SameBits(a.temp[i], b.temp[i])) << "temp at " << i;
-    }
-    for (size_t c = 0; c < a.extra_columns.size(); ++c) {
-      EXPECT_TRUE(SameBits(a.extra_columns[c][i], b.extra_columns[c][i])) << "extra " << c;
-    }
-  }
-}
-
-// ---------------------------------------------------------------------------------------------
-// capture.h
-
-TEST(CaptureTest, UnitNamesRoundTrip) {
-  for (core::AccelUnit u :
-       {core::AccelUnit::kMetersPerSecond2, core::AccelUnit::kG, core::AccelUnit::kCounts}) {
-    EXPECT_EQ(*core::ParseAccelUnit(core::AccelUnitName(u)), u);
-  }
-  for (core::GyroUnit u :
-       {core::GyroUnit::kRadPerSecond, core::GyroUnit::kDegPerSecond, core::GyroUnit::kCounts}) {
-    EXPECT_EQ(*core::ParseGyroUnit(core::GyroUnitName(u)), u);
-  }
-  for (core::TempUnit u : {core::TempUnit::kCelsius, core::TempUnit::kCounts}) {
-    EXPECT_EQ(*core::ParseTempUnit(core::TempUnitName(u)), u);
-  }
-  EXPECT_EQ(core::AccelUnitName(core::AccelUnit::kMetersPerSecond2), "m/s^2");
-  EXPECT_EQ(core::GyroUnitName(core::GyroUnit::kDegPerSecond), "deg/s");
-  EXPECT_EQ(core::TempUnitName(core::TempUnit::kCelsius), "C");
-  EXPECT_FALSE(core::ParseAccelUnit("m/s2").ok());
-  EXPECT_FALSE(core::ParseGyroUnit("dps").ok());
-  EXPECT_FALSE(core::ParseTempUnit("F").ok());
-  EXPECT_THAT(std::string(core::ParseAccelUnit("G").status().message()), HasSubstr("'G'"));
-}
-
-TEST(CaptureTest, NominalFactors) {
-  EXPECT_EQ(core::NominalAccelToSi(core::AccelUnit::kMetersPerSecond2, 9.81), 1.0);
-  EXPECT_EQ(core::NominalAccelToSi(core::AccelUnit::kG, 9.81), 9.81);
-  EXPECT_TRUE(std::isnan(core::NominalAccelToSi(core::AccelUnit::kCounts, 9.81)));
-  EXPECT_EQ(core::NominalGyroToSi(core::GyroUnit::kRadPerSecond), 1.0);
-  EXPECT_DOUBLE_EQ(core::NominalGyroToSi(core::GyroUnit::kDegPerSecond) * 180.0, std::numbers::pi);
-  EXPECT_TRUE(std::isnan(core::NominalGyroToSi(core::GyroUnit::kCounts)));
-}
-
-TEST(CaptureTest, MedianDtIgnoresADroppedSample) {
-  core::Capture c;
-  EXPECT_EQ(c.MedianDt(), 0.0);
-  c.t_s = {0.0};
-  EXPECT_EQ(c.MedianDt(), 0.0);
-  c.t_s = {0.0, 0.01, 0.02, 0.04, 0.05};
-  EXPECT_DOUBLE_EQ(c.MedianDt(), 0.01);
-}
-
-TEST(CaptureTest, ValidateNamesTheSampleAtFault) {
-  core::Capture c = AwkwardCapture();
-  EXPECT_TRUE(core::ValidateCapture(c).ok());
-
-  core::Capture shorter = c;
-  shorter.gyro.pop_back();
-  EXPECT_THAT(std::string(core::ValidateCapture(shorter).message()), HasSubstr("gyro"));
-
-  core::Capture not_finite = c;
-  not_finite.accel[3].y() = std::numeric_limits<double>::infinity();
-  EXPECT_THAT(std::string(core::ValidateCapture(not_finite).message()), HasSubstr("sample 3"));
-
-  core::Capture backwards = c;
-  backwards.t_s[5] = backwards.t_s[4];
-  EXPECT_EQ(core::ValidateCapture(backwards).code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_THAT(std::string(core::ValidateCapture(backwards).message()), HasSubstr("sample 5"));
-
-  core::Capture bad_extra = c;
-  bad_extra.extra_columns[1].pop_back();
-  EXPECT_THAT(std::string(core::ValidateCapture(bad_extra).message()), HasSubstr("pressure_pa"));
-
-  core::Capture bad_gravity = c;
-  bad_gravity.gravity_m_s2 = 0.0;
-  EXPECT_FALSE(core::ValidateCapture(bad_gravity).ok());
-}
-
-// ---------------------------------------------------------------------------------------------
-// imucal CSV: reading
 
 TEST(ParseImucalCsvTest, ReadsTheSpecExample) {
   absl::StatusOr<core::Capture> c = ParseImucalCsv(kSpecExample, "cap.csv");
@@ -656,305 +496,6 @@ TEST(ReadImucalCsvFileTest, ErrorsArePrefixedWithThePath) {
   WriteText(path, std::string(kHeader) + "t,ax,ay,az,gx,gy,gz\n0,1,2,3,4,5\n");
   absl::StatusOr<core::Capture> c = ReadImucalCsvFile(path);
   EXPECT_EQ(c.status().message(), path + ":5: expected 7 fields, found 6");
-}
-
-// ---------------------------------------------------------------------------------------------
-// Unit inference
-
-std::vector<Eigen::Vector3d> Poses(double magnitude) {
-  // Several faces up, as in a calibration: the per-axis median would be near zero, the median
-  // magnitude is not.
-  std::vector<Eigen::Vector3d> out;
-  for (int i = 0; i < 60; ++i) {
-    Eigen::Vector3d axis = Eigen::Vector3d::Zero();
-    axis[i % 3] = (i % 2 == 0 ? 1.0 : -1.0) * magnitude;
-    out.push_back(axis + Eigen::Vector3d(0.01, -0.02, 0.015) * magnitude);
-  }
-  return out;
-}
-
-TEST(InferUnitTest, Accelerometer) {
-  std::string reason;
-  EXPECT_EQ(InferAccelUnit(Poses(9.81), core::kStandardGravity, &reason),
-            core::AccelUnit::kMetersPerSecond2);
-  EXPECT_THAT(reason, StartsWith("accel unit inferred as m/s^2: median |a| 9.7"));
-  EXPECT_EQ(InferAccelUnit(Poses(1.02), core::kStandardGravity, &reason), core::AccelUnit::kG);
-  EXPECT_THAT(reason, StartsWith("accel unit inferred as g"));
-  EXPECT_EQ(InferAccelUnit(Poses(16384), core::kStandardGravity, &reason),
-            core::AccelUnit::kCounts);
-  EXPECT_THAT(reason, StartsWith("accel unit inferred as counts: median |a| 16"));
-  std::vector<Eigen::Vector3d> unsigned_counts(10, Eigen::Vector3d(33108, 33329, 36429));
-  EXPECT_EQ(InferAccelUnit(unsigned_counts, core::kStandardGravity, nullptr),
-            core::AccelUnit::kCounts);
-  // An uncalibrated sensor 8% off still reads as m/s^2.
-  EXPECT_EQ(InferAccelUnit(Poses(10.6), core::kStandardGravity, nullptr),
-            core::AccelUnit::kMetersPerSecond2);
-}
-
-TEST(InferUnitTest, Gyroscope) {
-  std::vector<Eigen::Vector3d> still(100, Eigen::Vector3d(0.01, -0.02, 0.003));
-  std::vector<Eigen::Vector3d> turning_deg = still;
-  for (int i = 0; i < 10; ++i) turning_deg[static_cast<size_t>(i) * 10] = {0, 0, 90};
-  std::vector<Eigen::Vector3d> turning_rad = still;
-  for (int i = 0; i < 10; ++i) turning_rad[static_cast<size_t>(i) * 10] = {0, 0, 1.6};
-  std::vector<Eigen::Vector3d> integers(100, Eigen::Vector3d(3, -2, 0));
-  std::vector<Eigen::Vector3d> big(100, Eigen::Vector3d(32786.5, 32429, 32499));
-
-  std::string reason;
-  EXPECT_EQ(InferGyroUnit(turning_deg, core::AccelUnit::kMetersPerSecond2, &reason),
-            core::GyroUnit::kDegPerSecond);
-  EXPECT_THAT(reason, StartsWith("gyro unit inferred as deg/s: 99th-percentile |rate| 90"));
-  EXPECT_EQ(InferGyroUnit(turning_rad, core::AccelUnit::kG, &reason),
-            core::GyroUnit::kRadPerSecond);
-  EXPECT_THAT(reason, HasSubstr("cannot tell deg/s from rad/s"));
-  EXPECT_EQ(InferGyroUnit(integers, core::AccelUnit::kCounts, &reason), core::GyroUnit::kCounts);
-  EXPECT_THAT(reason, HasSubstr("every gyro value is an integer"));
-  EXPECT_EQ(InferGyroUnit(big, core::AccelUnit::kCounts, &reason), core::GyroUnit::kCounts);
-  // Integer values alone do not make counts when the accelerometer is in physical units.
-  EXPECT_EQ(InferGyroUnit(integers, core::AccelUnit::kMetersPerSecond2, nullptr),
-            core::GyroUnit::kRadPerSecond);
-}
-
-// ---------------------------------------------------------------------------------------------
-// imu_tk pair
-
-// A small pair in deg/s and m/s^2: 50 static samples, a rotation, 50 static samples.
-std::pair<std::string, std::string> ImuTkTexts() {
-  std::string accel, gyro;
-  for (int i = 0; i < 120; ++i) {
-    const std::string t = std::to_string(0.01 * i);
-    const bool turning = i >= 50 && i < 70;
-    accel += "  " + t + "  0.01  -0.02  " + (i < 60 ? "9.81" : "-9.79") + "\n";
-    gyro += t + "\t0.1\t" + (turning ? "90.0" : "-0.2") + "\t0.05\n";
-  }
-  return {accel, gyro};
-}
-
-TEST(ImuTkTest, ParsesAndInfersPhysicalUnits) {
-  const auto [accel, gyro] = ImuTkTexts();
-  std::vector<std::string> notes;
-  absl::StatusOr<core::Capture> c = ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", {}, &notes);
-  ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(c->size(), 120u);
-  EXPECT_EQ(c->accel_unit, core::AccelUnit::kMetersPerSecond2);
-  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kDegPerSecond);
-  EXPECT_EQ(c->gravity_m_s2, core::kStandardGravity);
-  EXPECT_EQ(c->accel[70], Eigen::Vector3d(0.01, -0.02, -9.79));
-  EXPECT_EQ(c->gyro[55], Eigen::Vector3d(0.1, 90.0, 0.05));
-  ASSERT_EQ(notes.size(), 2u);
-  EXPECT_THAT(notes[0], StartsWith("accel unit inferred as m/s^2"));
-  EXPECT_THAT(notes[1], StartsWith("gyro unit inferred as deg/s"));
-  EXPECT_TRUE(core::ValidateCapture(*c).ok());
-}
-
-TEST(ImuTkTest, OptionsOverrideInference) {
-  const auto [accel, gyro] = ImuTkTexts();
-  ImportOptions options;
-  options.accel_unit = core::AccelUnit::kCounts;
-  options.gyro_unit = core::GyroUnit::kRadPerSecond;
-  options.gravity_m_s2 = 9.81744;
-  options.device = "xsens";
-  std::vector<std::string> notes;
-  absl::StatusOr<core::Capture> c = ParseImuTkPair(accel, "a", gyro, "g", options, &notes);
-  ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(c->accel_unit, core::AccelUnit::kCounts);
-  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kRadPerSecond);
-  EXPECT_EQ(c->gravity_m_s2, 9.81744);
-  EXPECT_EQ(c->device, "xsens");
-  EXPECT_TRUE(notes.empty());
-}
-
-TEST(ImuTkTest, MismatchedRowCount) {
-  auto [accel, gyro] = ImuTkTexts();
-  gyro.resize(gyro.rfind('\n', gyro.size() - 2) + 1);  // drop the last gyro line
-  absl::StatusOr<core::Capture> c = ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", {});
-  EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_EQ(c.status().message(),
-            "gyr.txt:119: ends after 119 samples, but acc.txt has 120 (sample 120 at "
-            "acc.txt:120, t=1.19)");
-}
-
-TEST(ImuTkTest, MismatchedTimestamp) {
-  auto [accel, gyro] = ImuTkTexts();
-  const size_t at = gyro.find("0.300000");  // sample 31, line 31
-  ASSERT_NE(at, std::string::npos);
-  gyro.replace(at, 8, "0.300500");
-  absl::StatusOr<core::Capture> c = ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", {});
-  EXPECT_EQ(c.status().message(), "gyr.txt:31: t=0.3005 does not match acc.txt:31 (t=0.3)");
-}
-
-TEST(ImuTkTest, LineErrors) {
-  const std::string good = "0 1 2 3\n0.01 1 2 3\n";
-  auto error = [&](const std::string& accel) {
-    return std::string(ParseImuTkPair(accel, "acc.txt", good, "gyr.txt", {}).status().message());
-  };
-  EXPECT_EQ(error("0 1 2 3\n\n0.01 1 2 3 4\n"), "acc.txt:3: expected 4 fields (t x y z), found 5");
-  EXPECT_EQ(error("0 1 2 3\n0.01 1 y 3\n"), "acc.txt:2: column 'y': 'y' is not a number");
-  EXPECT_EQ(error("0 1 2 3\n0.01 1 2 nan\n"), "acc.txt:2: column 'z': 'nan' is not finite");
-  EXPECT_EQ(error("0 1 2 3\n0 1 2 3\n"), "acc.txt:2: t=0 does not increase (previous 0 at line 1)");
-  EXPECT_EQ(error("\n\n"), "acc.txt:2: no samples (expected lines of 't x y z')");
-}
-
-TEST(ImuTkTest, CrlfAndBlankLines) {
-  absl::StatusOr<core::Capture> c =
-      ParseImuTkPair("0 0 0 9.8\r\n\r\n0.01 0 0 9.8\r\n", "a", "0 0 0 0\n0.01 0 0 0", "g", {});
-  ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(c->size(), 2u);
-}
-
-// ---------------------------------------------------------------------------------------------
-// Importer registry
-
-TEST(ImportCaptureTest, RegistryListsTheFormats) {
-  std::vector<std::string_view> names;
-  for (const CaptureImporter* importer : CaptureImporters()) {
-    names.push_back(importer->name());
-    EXPECT_FALSE(importer->description().empty());
-  }
-  EXPECT_THAT(names, ElementsAre("imucal", "euroc", "imutk", "columns"));
-}
-
-TEST(ImportCaptureTest, AutoDetectsImucal) {
-  const std::string path = TempPath("auto_imucal.csv");
-  WriteText(path, kSpecExample);
-  ImportOptions options;
-  options.device = "robot-7";
-  ImportReport report;
-  absl::StatusOr<core::Capture> c = ImportCapture({path}, options, &report);
-  ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(report.format, "imucal");
-  EXPECT_THAT(report.paths, ElementsAre(path));
-  EXPECT_EQ(c->device, "robot-7");
-  EXPECT_THAT(report.notes,
-              ElementsAre("device 'robot-7' used instead of the file's 'robot-0042'"));
-  // The caller that does not want the report.
-  EXPECT_TRUE(ImportCapture({path}, ImportOptions{}).ok());
-}
-
-TEST(ImportCaptureTest, ImucalOverridesUnitsAndGravity) {
-  const std::string path = TempPath("override_imucal.csv");
-  WriteText(path, kSpecExample);
-  ImportOptions options;
-  options.format = "imucal";
-  options.accel_unit = core::AccelUnit::kG;
-  options.gravity_m_s2 = 9.81;
-  ImportReport report;
-  absl::StatusOr<core::Capture> c = ImportCapture({path}, options, &report);
-  ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(c->accel_unit, core::AccelUnit::kG);
-  EXPECT_EQ(c->gravity_m_s2, 9.81);
-  EXPECT_THAT(report.notes, ElementsAre("accel unit g used instead of the file's m/s^2",
-                                        "gravity 9.81 m/s^2 used instead of the file's 9.80665"));
-}
-
-TEST(ImportCaptureTest, AutoDetectsImuTkAndSwapsByName) {
-  const auto [accel, gyro] = ImuTkTexts();
-  const std::string accel_path = TempPath("pair_Acc.txt");
-  const std::string gyro_path = TempPath("pair_GYRO.txt");
-  WriteText(accel_path, accel);
-  WriteText(gyro_path, gyro);
-  ImportReport report;
-  absl::StatusOr<core::Capture> c = ImportCapture({gyro_path, accel_path}, {}, &report);
-  ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(report.format, "imutk");
-  EXPECT_THAT(report.paths, ElementsAre(accel_path, gyro_path));
-  ASSERT_EQ(report.notes.size(), 3u);
-  EXPECT_THAT(report.notes[0], StartsWith("swapped the inputs by their names"));
-  EXPECT_EQ(c->accel_unit, core::AccelUnit::kMetersPerSecond2);
-  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kDegPerSecond);
-  EXPECT_EQ(c->accel[0].z(), 9.81);
-
-  // In the right order nothing is swapped.
-  ASSERT_TRUE(ImportCapture({accel_path, gyro_path}, {}, &report).ok());
-  EXPECT_THAT(report.notes[0], StartsWith("accel unit inferred"));
-}
-
-TEST(ImportCaptureTest, ExplicitImuTkPairMismatch) {
-  const auto [accel, gyro] = ImuTkTexts();
-  const std::string accel_path = TempPath("mismatch_acc.txt");
-  const std::string gyro_path = TempPath("mismatch_gyro.txt");
-  WriteText(accel_path, accel);
-  WriteText(gyro_path, gyro.substr(0, gyro.find("0.500000")));  // 50 rows of 120
-  ImportOptions options;
-  options.format = "imutk";
-  absl::StatusOr<core::Capture> c = ImportCapture({accel_path, gyro_path}, options);
-  EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_THAT(std::string(c.status().message()),
-              StartsWith(gyro_path + ":50: ends after 50 samples, but " + accel_path +
-                         " has 120 (sample 51 at " + accel_path + ":51"));
-}
-
-TEST(ImportCaptureTest, UnrecognisedFormatSaysWhatWasTried) {
-  const std::string path = TempPath("vendor.csv");
-  WriteText(path, "time,acc_x,acc_y,acc_z\n0,1,2,3\n");
-  absl::StatusOr<core::Capture> c = ImportCapture({path}, {});
-  EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument);
-  const std::string message(c.status().message());
-  EXPECT_THAT(message, StartsWith(path + ": unrecognised capture format (tried imucal: "));
-  EXPECT_THAT(message, HasSubstr("; imutk: "));
-  EXPECT_THAT(message, HasSubstr("'time,acc_x,acc_y,acc_z'"));
-}
-
-TEST(ImportCaptureTest, WrongCallsAreClearErrors) {
-  const std::string imucal_path = TempPath("count_imucal.csv");
-  WriteText(imucal_path, kSpecExample);
-  const std::string tk_path = TempPath("count_tk.txt");
-  WriteText(tk_path, "0 1 2 3\n");
-
-  EXPECT_THAT(std::string(ImportCapture({}, {}).status().message()), HasSubstr("no input"));
-  EXPECT_THAT(std::string(ImportCapture({imucal_path, imucal_path}, {}).status().message()),
-              HasSubstr("the imucal format reads one file, got 2"));
-  EXPECT_THAT(std::string(ImportCapture({tk_path}, {}).status().message()),
-              HasSubstr("the imutk format reads two files"));
-  ImportOptions mcap;
-  mcap.format = "mcap";
-  EXPECT_EQ(ImportCapture({imucal_path}, mcap).status().message(),
-            "unknown capture format 'mcap' (known: auto, imucal, euroc, imutk, columns)");
-  ImportOptions bad_gravity;
-  bad_gravity.gravity_m_s2 = -1.0;
-  EXPECT_FALSE(ImportCapture({imucal_path}, bad_gravity).ok());
-  EXPECT_EQ(ImportCapture({TempPath("missing.txt")}, {}).status().code(),
-            absl::StatusCode::kNotFound);
-}
-
-TEST(ImportCaptureTest, ExportThenImportRoundTrip) {
-  const std::string path = TempPath("export_import.csv");
-  const core::Capture original = AwkwardCapture();
-  ASSERT_TRUE(WriteImucalCsvFile(original, path).ok());
-  absl::StatusOr<core::Capture> c = ImportCapture({path}, {});
-  ASSERT_TRUE(c.ok()) << c.status();
-  ExpectSameCapture(original, *c);
-}
-
-// ---------------------------------------------------------------------------------------------
-// Real data: the Xsens capture shipped with imu_tk (../shared/data/real/xsens-imutk/SOURCE.txt).
-
-TEST(RealDataTest, XsensImuTkPairAutoDetectedAsCounts) {
-  const std::string dir = IMUCAL_SHARED_DIR "/data/real/xsens-imutk/";
-  const std::string accel_path = dir + "xsens_acc.mat";
-  const std::string gyro_path = dir + "xsens_gyro.mat";
-  ImportReport report;
-  absl::StatusOr<core::Capture> c = ImportCapture({accel_path, gyro_path}, {}, &report);
-  ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_EQ(report.format, "imutk");
-  EXPECT_EQ(c->size(), 51175u);
-  EXPECT_EQ(c->accel_unit, core::AccelUnit::kCounts);
-  EXPECT_EQ(c->gyro_unit, core::GyroUnit::kCounts);
-  ASSERT_EQ(report.notes.size(), 2u);
-  EXPECT_THAT(report.notes[0], StartsWith("accel unit inferred as counts"));
-  EXPECT_THAT(report.notes[1], StartsWith("gyro unit inferred as counts"));
-  EXPECT_EQ(c->t_s.front(), 2.984e-02);
-  EXPECT_EQ(c->accel.front(), Eigen::Vector3d(33108, 33329, 36429));
-  EXPECT_EQ(c->gyro.front(), Eigen::Vector3d(32786, 32429, 32499));
-  EXPECT_EQ(c->t_s.back(), 511.718);
-  EXPECT_EQ(c->accel.back(), Eigen::Vector3d(35290, 35137, 27631));
-  EXPECT_NEAR(c->MedianDt(), 0.01, 1e-4);  // 100 Hz
-  EXPECT_FALSE(c->has_temp());
-  EXPECT_TRUE(core::ValidateCapture(*c).ok());
-
-  // Given in the other order, the names put them right.
-  ASSERT_TRUE(ImportCapture({gyro_path, accel_path}, {}, &report).ok());
-  EXPECT_THAT(report.paths, ElementsAre(accel_path, gyro_path));
 }
 
 }  // namespace
