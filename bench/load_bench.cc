@@ -1,4 +1,4 @@
-// The load test: a bounded, self-stopping run on loopback against the real imucald
+// The load test: a bounded, self-stopping run on loopback against the real imucald
 // binary (its own process, so its CPU and memory are its own) of
 //   - R robots streaming at 200 Hz, paced: each sends a batch every --batch-ms (default 500 ms,
 //     100 samples; at 100 ms, 10,000 batches/s, this 2-core machine falls behind: README

@@ -69,7 +69,7 @@ TEST(AllanTest, LogSpacedClusterSizes) {
   EXPECT_TRUE(std::adjacent_find(m.begin(), m.end()) == m.end());
 }
 
-// The issue's acceptance: white noise of known density recovered within 10% from the initial
+// Acceptance: white noise of known density recovered within 10% from the initial
 // rest of a simulated capture, for several seeds and rates, calibrated with the true model.
 TEST(AllanTest, WhiteNoiseDensityFromSimulatedRest) {
   double worst_accel = 0, worst_gyro = 0;
@@ -187,7 +187,7 @@ TEST(AllanTest, RandomWalkRecovered) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Bias instability and random walk within 10% (issue 6). The noise is built here, one axis at a
+// Bias instability and random walk within 10%. The noise is built here, one axis at a
 // time, from the three IEEE Std 952 Annex C terms with their rate PSDs (two-sided, the
 // standard's convention: avar(tau) = 4 int_0^inf S(f) sin^4(pi f tau) / (pi f tau)^2 df):
 //   white            S(f) = N^2                   avar = N^2 / tau

@@ -1,6 +1,6 @@
-// The real captures under ../shared/data/real: the issue's acceptance figures on the Xsens pair
-// that ships with IMU-TK (Tedaldi, Pretto, Menegatti, ICRA 2014). The bounds are IMU-TK's own
-// figures on this data; the issue requires beating each.
+// The real captures under ../shared/data/real: the acceptance figures on the Xsens pair that
+// ships with IMU-TK (Tedaldi, Pretto, Menegatti, ICRA 2014). The bounds are IMU-TK's own figures
+// on this data; imucal must beat each.
 #include <gtest/gtest.h>
 
 #include <array>

@@ -1,4 +1,4 @@
-// The crash test: the real imucald (a separate process on a loopback port, its SQLite
+// Crash safety: the real imucald (a separate process on a loopback port, its SQLite
 // file in a temp dir) is SIGKILLed at random points of ingest and of solve/promote/rollback and
 // restarted on the same file, again and again. After every restart:
 //   - every acknowledged sample is stored, byte for byte (read back with the store's API) and

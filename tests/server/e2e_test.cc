@@ -1,4 +1,4 @@
-// The end-to-end test: the real imucald on a loopback port with a real SQLite file, the
+// End to end: the real imucald on a loopback port with a real SQLite file, the
 // robot SDK and the real `imucal` CLI binary, as the fleet uses them.
 //
 //   1. A device is registered; a simulated six-face capture (plus free poses, so the model is well
