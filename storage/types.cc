@@ -4,7 +4,7 @@
 #include <utility>
 
 #include "absl/status/status.h"
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {

@@ -21,17 +21,18 @@
 #include "client/cli/demo_common.h"
 #include "client/cli/export_flags.h"
 #include "client/cli/import_flags.h"
-#include "client/cli/plots.h"
-#include "client/cli/report_json.h"
 #include "client/cli/summary.h"
 #include "client/sdk/corrector.h"
-#include "client/sdk/params_json.h"
 #include "core/calibrate/calibrate.h"
-#include "core/capture_io.h"
 #include "core/export.h"
 #include "core/simulator.h"
 #include "core/static_detector.h"
 #include "core/validation.h"
+#include "formats/params_json.h"
+#include "formats/plots.h"
+#include "formats/report_json.h"
+#include "importers/imucal_csv.h"
+#include "importers/registry.h"
 
 namespace imucal::cli {
 namespace {
@@ -113,8 +114,8 @@ constexpr char kSimulateHelp[] =
     "                      streamed with `imucal upload`, the guide shows a failed pair and its\n"
     "                      re-do\n";
 
-absl::StatusOr<core::ImportOptions> ImportOptionsFrom(const Args& a) {
-  core::ImportOptions o;
+absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
+  importers::ImportOptions o;
   if (auto f = a.Get("format")) o.format = *f;
   if (auto u = a.Get("accel-unit")) {
     auto p = core::ParseAccelUnit(*u);
@@ -331,8 +332,8 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   co.effects.enabled = !a->Has("no-effects");
   co.effects.apply_time_effects = a->Has("apply-time-effects");
 
-  core::ImportReport import;
-  auto capture = core::ImportCapture(a->positional(), *io, &import);
+  importers::ImportReport import;
+  auto capture = importers::ImportCapture(a->positional(), *io, &import);
   if (!capture.ok()) return ReportError(capture.status());
   auto report = core::Calibrate(*capture, co);
   if (!report.ok()) return ReportError(report.status());
@@ -344,26 +345,28 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   } else {
     StampParams(&report->params);
   }
-  const std::string json = ReportToJson(*report);
+  const std::string json = formats::ReportToJson(*report);
   // --out DIR (an existing directory, or a path ending in '/') and --plots DIR: the report,
   // its summary and the plots. --out FILE: the JSON report alone.
   std::optional<std::string> bundle_dir = a->Get("plots");
   if (auto out = a->Get("out")) {
     if (std::filesystem::is_directory(*out) || out->ends_with('/')) {
       bundle_dir = *out;
-    } else if (absl::Status s = WriteFileAtomically(*out, json); !s.ok()) {
+    } else if (absl::Status s = formats::WriteFileAtomically(*out, json); !s.ok()) {
       return ReportError(s);
     }
   }
   std::vector<std::string> plot_paths;
   if (bundle_dir) {
-    auto written =
-        WriteReportBundle(nlohmann::json::parse(json), json, FormatSummary(*report), *bundle_dir);
+    auto written = formats::WriteReportBundle(nlohmann::json::parse(json), json,
+                                              FormatSummary(*report), *bundle_dir);
     if (!written.ok()) return ReportError(written.status());
     plot_paths = std::move(*written);
   }
   if (auto out = a->Get("params-out"); out && !refused) {
-    if (absl::Status s = WriteFileAtomically(*out, sdk::ParamSetToJson(report->params)); !s.ok())
+    if (absl::Status s =
+            formats::WriteFileAtomically(*out, formats::ParamSetToJson(report->params));
+        !s.ok())
       return ReportError(s);
   }
   if (a->Has("json")) {
@@ -389,7 +392,7 @@ int RunApply(const std::vector<std::string>& argv) {
   if (a->positional().size() < 2) return Usage("apply needs IN and OUT.csv", kApplyHelp);
   auto text = ReadFile(*a->Get("params"));
   if (!text.ok()) return ReportError(text.status());
-  auto params = sdk::ParamSetFromJson(*text);
+  auto params = formats::ParamSetFromJson(*text);
   if (!params.ok()) {
     return ReportError(absl::InvalidArgumentError(
         absl::StrFormat("%s: %s", *a->Get("params"), params.status().message())));
@@ -397,11 +400,11 @@ int RunApply(const std::vector<std::string>& argv) {
   std::vector<std::string> inputs(a->positional().begin(), a->positional().end() - 1);
   auto io = ImportOptionsFrom(*a);
   if (!io.ok()) return Usage(std::string(io.status().message()), kApplyHelp);
-  auto capture = core::ImportCapture(inputs, *io);
+  auto capture = importers::ImportCapture(inputs, *io);
   if (!capture.ok()) return ReportError(capture.status());
   auto out = ApplyParams(*params, *capture);
   if (!out.ok()) return ReportError(out.status());
-  if (absl::Status s = core::WriteImucalCsvFile(*out, a->positional().back()); !s.ok())
+  if (absl::Status s = importers::WriteImucalCsvFile(*out, a->positional().back()); !s.ok())
     return ReportError(s);
   std::printf("wrote %zu calibrated samples (m/s^2, rad/s) to %s\n", out->size(),
               a->positional().back().c_str());
@@ -430,10 +433,11 @@ int RunSimulate(const std::vector<std::string>& argv) {
     if (!botched.ok()) return ReportError(botched.status());
     sim->capture = *std::move(botched);
   }
-  if (absl::Status s = core::WriteImucalCsvFile(sim->capture, *a->Get("out")); !s.ok())
+  if (absl::Status s = importers::WriteImucalCsvFile(sim->capture, *a->Get("out")); !s.ok())
     return ReportError(s);
   if (auto truth = a->Get("truth")) {
-    if (absl::Status s = WriteFileAtomically(*truth, sdk::ParamSetToJson(TruthParams(*sim)));
+    if (absl::Status s =
+            formats::WriteFileAtomically(*truth, formats::ParamSetToJson(TruthParams(*sim)));
         !s.ok())
       return ReportError(s);
   }
@@ -467,7 +471,7 @@ int RunDemo(const std::vector<std::string>& argv) {
   if (!sim.ok()) return ReportError(sim.status());
   sim->capture.device = "demo-robot";
   const std::string capture_path = dir + "/capture.csv";
-  if (absl::Status s = core::WriteImucalCsvFile(sim->capture, capture_path); !s.ok())
+  if (absl::Status s = importers::WriteImucalCsvFile(sim->capture, capture_path); !s.ok())
     return ReportError(s);
   std::printf("== 1. simulated a six-face session + %d extra poses at 200 Hz, 2 mg noise: %s\n",
               so.extra_poses, capture_path.c_str());
@@ -477,8 +481,9 @@ int RunDemo(const std::vector<std::string>& argv) {
   auto report = core::Calibrate(sim->capture, co);
   if (!report.ok()) return ReportError(report.status());
   StampParams(&report->params);
-  WriteFileAtomically(dir + "/report.json", ReportToJson(*report)).IgnoreError();
-  WriteFileAtomically(dir + "/params.json", sdk::ParamSetToJson(report->params)).IgnoreError();
+  formats::WriteFileAtomically(dir + "/report.json", formats::ReportToJson(*report)).IgnoreError();
+  formats::WriteFileAtomically(dir + "/params.json", formats::ParamSetToJson(report->params))
+      .IgnoreError();
   std::printf("== 2. calibrated it (report.json, params.json in %s)\n%s", dir.c_str(),
               FormatSummary(*report).c_str());
   std::printf("== 3. ");
@@ -537,7 +542,7 @@ int RunExportFile(const std::vector<std::string>& argv) {
 
   auto text = ReadFile(*params_path);
   if (!text.ok()) return ReportError(text.status());
-  auto params = sdk::ParamSetFromJson(*text);
+  auto params = formats::ParamSetFromJson(*text);
   if (!params.ok()) {
     return ReportError(absl::InvalidArgumentError(
         absl::StrFormat("%s: %s", *params_path, params.status().message())));
@@ -554,10 +559,10 @@ int RunExportFile(const std::vector<std::string>& argv) {
     for (const std::string& n : core::ExportNotes(*params, *format, *options))
       std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
   } else {
-    out = sdk::ParamSetToJson(*params);
+    out = formats::ParamSetToJson(*params);
   }
   if (auto path = a->Get("out")) {
-    if (absl::Status s = WriteFileAtomically(*path, out); !s.ok()) return ReportError(s);
+    if (absl::Status s = formats::WriteFileAtomically(*path, out); !s.ok()) return ReportError(s);
     std::fprintf(stderr, "imucal: wrote %s (%s)\n", path->c_str(), format_name->c_str());
   } else {
     std::fputs(out.c_str(), stdout);

@@ -14,8 +14,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
-#include "core/capture_io.h"
 #include "core/simulator.h"
+#include "importers/imucal_csv.h"
 #include "nlohmann/json.hpp"
 #include "tests/client/imucald_process.h"
 
@@ -45,7 +45,7 @@ class CliServerTest : public testing_util::ImucaldTest {
     auto r = core::Simulate(sim);
     EXPECT_TRUE(r.ok()) << r.status();
     const std::string path = (dir_ / absl::StrCat("capture", seed, ".csv")).string();
-    EXPECT_TRUE(core::WriteImucalCsvFile(r->capture, path).ok());
+    EXPECT_TRUE(importers::WriteImucalCsvFile(r->capture, path).ok());
     return path;
   }
 

@@ -15,11 +15,11 @@
 #include "Eigen/Core"
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
-#include "client/sdk/params_json.h"
 #include "core/capture.h"
-#include "core/capture_io.h"
 #include "core/simulator.h"
 #include "core/validation.h"
+#include "formats/params_json.h"
+#include "importers/imucal_csv.h"
 #include "nlohmann/json.hpp"
 
 namespace imucal::cli {
@@ -118,8 +118,8 @@ TEST_F(CliTest, SimulateCalibrateApplyRoundTrip) {
   EXPECT_EQ(j["verdict"], "pass");
 
   // --params-out holds the report's parameter set; both load in the SDK.
-  const absl::StatusOr<core::ParamSet> from_report = sdk::ParamSetFromJson(ReadText(report));
-  const absl::StatusOr<core::ParamSet> from_params = sdk::ParamSetFromJson(ReadText(params));
+  const absl::StatusOr<core::ParamSet> from_report = formats::ParamSetFromJson(ReadText(report));
+  const absl::StatusOr<core::ParamSet> from_params = formats::ParamSetFromJson(ReadText(params));
   ASSERT_TRUE(from_report.ok()) << from_report.status();
   ASSERT_TRUE(from_params.ok()) << from_params.status();
   EXPECT_EQ(from_report->accel.bias, from_params->accel.bias);
@@ -135,8 +135,8 @@ TEST_F(CliTest, SimulateCalibrateApplyRoundTrip) {
   ASSERT_EQ(Run(RunApply, {"--params", report, clean, calibrated}), kExitOk) << err_;
   EXPECT_NE(out_.find(calibrated), std::string::npos) << out_;
 
-  const absl::StatusOr<core::Capture> in = core::ReadImucalCsvFile(clean);
-  const absl::StatusOr<core::Capture> out = core::ReadImucalCsvFile(calibrated);
+  const absl::StatusOr<core::Capture> in = importers::ReadImucalCsvFile(clean);
+  const absl::StatusOr<core::Capture> out = importers::ReadImucalCsvFile(calibrated);
   ASSERT_TRUE(in.ok()) << in.status();
   ASSERT_TRUE(out.ok()) << out.status();
   EXPECT_EQ(out->accel_unit, core::AccelUnit::kMetersPerSecond2);
@@ -171,7 +171,7 @@ TEST_F(CliTest, ApplyRejectsParametersForOtherUnits) {
   // accelerometer's x density as written to params.json, and the random walk, which a short
   // simulated rest does not reach, as a labelled upper bound.
   {
-    absl::StatusOr<core::ParamSet> written = sdk::ParamSetFromJson(ReadText(params));
+    absl::StatusOr<core::ParamSet> written = formats::ParamSetFromJson(ReadText(params));
     ASSERT_TRUE(written.ok()) << written.status();
     ASSERT_TRUE(written->noise.has_value());
     char density[32];

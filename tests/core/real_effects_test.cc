@@ -17,9 +17,9 @@
 #include "absl/strings/match.h"
 #include "core/allan.h"
 #include "core/calibrate/calibrate.h"
-#include "core/capture_io.h"
 #include "core/effects.h"
 #include "core/static_detector.h"
+#include "importers/registry.h"
 #include "tests/core/real_captures.h"
 
 namespace imucal::core {
@@ -51,9 +51,9 @@ TEST(RealEffectsTest, XsensGyroGSensitivity) {
   const std::string dir = IMUCAL_SHARED_DIR "/data/real/xsens-imutk";
   const std::string acc = dir + "/xsens_acc.mat", gyr = dir + "/xsens_gyro.mat";
   if (!std::filesystem::exists(acc)) GTEST_SKIP() << "shared data not found under " << dir;
-  ImportOptions io;
+  importers::ImportOptions io;
   io.gravity_m_s2 = 9.81744;
-  const absl::StatusOr<Capture> cap = ImportCapture({acc, gyr}, io);
+  const absl::StatusOr<Capture> cap = importers::ImportCapture({acc, gyr}, io);
   ASSERT_TRUE(cap.ok()) << cap.status();
   const absl::StatusOr<CalibrationReport> r = Calibrate(*cap, CalibrateOptions{});
   ASSERT_TRUE(r.ok()) << r.status();
