@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "absl/strings/str_format.h"
 
@@ -23,6 +24,10 @@ struct PrefixMoments {
       s1[i + 1] = s1[i] + d;
       s2[i + 1] = s2[i] + d.cwiseProduct(d);
     }
+  }
+  // Per-axis mean over [b, e) (b < e).
+  Eigen::Vector3d Mean(size_t b, size_t e) const {
+    return offset + (s1[e] - s1[b]) / static_cast<double>(e - b);
   }
   // Unbiased per-axis variance over [b, e).
   Eigen::Vector3d Variance(size_t b, size_t e) const {
@@ -121,12 +126,10 @@ struct Run {
   size_t begin = 0, end = 0;
 };
 
-std::vector<Run> StillRuns(const MotionSignal& motion, double acc_threshold, double gyr_threshold) {
+// The maximal runs of samples where `still(i)` holds.
+template <typename Still>
+std::vector<Run> RunsWhere(size_t n, Still still) {
   std::vector<Run> out;
-  const size_t n = motion.accel_var.size();
-  auto still = [&](size_t i) {
-    return motion.accel_var[i] <= acc_threshold && motion.gyro_var[i] <= gyr_threshold;
-  };
   for (size_t i = 0; i < n;) {
     if (!still(i)) {
       ++i;
@@ -137,6 +140,32 @@ std::vector<Run> StillRuns(const MotionSignal& motion, double acc_threshold, dou
     out.push_back({i, j});
     i = j;
   }
+  return out;
+}
+
+// Runs under both variance thresholds, and the steady runs (MotionSignal::mean_shift) that no
+// variance run touches: a rest too noisy for the variance test at any multiplier (a motor
+// running). A steady run beside a variance run is the same rest's edge, where a hand's slow
+// start of the next move shifts the mean less than its noise: the variance test sees that start
+// earlier, so there it decides. A steady run loses half a window at each end for the same reason.
+std::vector<Run> StillRuns(const MotionSignal& motion, double acc_threshold, double gyr_threshold) {
+  const size_t n = motion.accel_var.size();
+  std::vector<Run> out = RunsWhere(n, [&](size_t i) {
+    return motion.accel_var[i] <= acc_threshold && motion.gyro_var[i] <= gyr_threshold;
+  });
+  if (motion.mean_shift.empty()) return out;
+  const size_t half = motion.window / 2;
+  std::vector<bool> in_variance_run(n, false);
+  for (const Run& r : out)
+    for (size_t i = r.begin; i < r.end; ++i) in_variance_run[i] = true;
+  for (const Run& r :
+       RunsWhere(n, [&](size_t i) { return motion.mean_shift[i] <= kSteadyMeanShift; })) {
+    bool touches = false;
+    for (size_t i = r.begin; i < r.end && !touches; ++i) touches = in_variance_run[i];
+    if (touches || r.end - r.begin <= 2 * half) continue;
+    out.push_back({r.begin + half, r.end - half});
+  }
+  std::sort(out.begin(), out.end(), [](const Run& a, const Run& b) { return a.begin < b.begin; });
   return out;
 }
 
@@ -339,6 +368,27 @@ MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOpt
     const size_t e = std::min(n, i + h + 1);
     out.accel_var[i] = acc.Variance(b, e).sum();
     out.gyro_var[i] = gyr.Variance(b, e).sum();
+  }
+  // Half-windows [i - h, i) and [i, i + h): the mean's shift across sample i.
+  out.mean_shift.assign(n, std::numeric_limits<double>::infinity());
+  for (size_t i = h; i + h <= n; ++i) {
+    double worst = 0;
+    for (const PrefixMoments* m : {&acc, &gyr}) {
+      const Eigen::Vector3d shift = (m->Mean(i, i + h) - m->Mean(i - h, i)).cwiseAbs();
+      const Eigen::Vector3d sigma =
+          ((m->Variance(i - h, i) + m->Variance(i, i + h)) / static_cast<double>(h)).cwiseSqrt();
+      for (int k = 0; k < 3; ++k)
+        worst = std::max(
+            worst, sigma(k) > 0 ? shift(k) / sigma(k) : std::numeric_limits<double>::infinity());
+    }
+    out.mean_shift[i] = worst;
+  }
+  // A file's start is an unmeasured gap (core/capture.h): no window reaches across it.
+  for (size_t start : capture.FileStarts()) {
+    for (size_t i = start >= h ? start - h : 0; i < std::min(n, start + h + 1); ++i) {
+      out.accel_var[i] = out.gyro_var[i] = out.mean_shift[i] =
+          std::numeric_limits<double>::infinity();
+    }
   }
   return out;
 }

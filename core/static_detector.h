@@ -81,10 +81,20 @@ struct StaticInterval {
 struct MotionSignal {
   std::vector<double> accel_var;
   std::vector<double> gyro_var;
+  // Whether the mean stays put around each sample: the largest over the six axes of the
+  // difference between the means of the half-windows before and after it, in units of that
+  // difference's own noise (the half-windows' scatter). A rest reads about 1 whatever its noise
+  // (a motor's vibration, a hand on the unit); a move reads far more, since its trend, not noise,
+  // makes its scatter. The variance test misses the noisy rest, this one the noiseless.
+  std::vector<double> mean_shift;
   size_t window = 0;  // samples
   // The extreme reading of each axis over the capture: a sensor's range limit shows up here.
   Eigen::Vector3d accel_lo, accel_hi, gyro_lo, gyro_hi;
 };
+
+// MotionSignal::mean_shift at or under this is still (4: a rest's |N(0,1)| on any of six axes
+// exceeds it on about 1 sample in 3000).
+inline constexpr double kSteadyMeanShift = 4.0;
 
 MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOptions& options);
 NoiseLevel EstimateNoise(const Capture& capture, const MotionSignal& motion);
@@ -92,6 +102,9 @@ NoiseLevel EstimateNoise(const Capture& capture, const MotionSignal& motion);
 // Static intervals at one threshold multiplier, with summary statistics and the checks that need
 // no calibration: too short, moved during capture, saturated, turning.
 //
+// A sample is still when both sensors' window variances are under their thresholds, or when the
+// means around it stay put (MotionSignal::mean_shift under kSteadyMeanShift): a rest much noisier
+// than the quietest (a motor running) never passes the variance test at any multiplier.
 // A rest is one interval while its orientation does not change. A rest noisier than the
 // quietest (a hand still on the unit, a motor running, a sensor settling) crosses the threshold
 // here and there; its still runs are joined, with the samples between them, when nothing moved

@@ -16,20 +16,23 @@ json Vec(const Eigen::Vector3d& v) { return json::array({Num(v.x()), Num(v.y()),
 
 json PoseJson(const core::PoseReport& p) {
   const core::StaticInterval& s = p.interval;
-  return {{"index", p.index},
-          {"t_start", s.t_start_s},
-          {"t_end", s.t_end_s},
-          {"samples", s.samples()},
-          {"accel_mean", Vec(s.accel_mean)},
-          {"gyro_mean", Vec(s.gyro_mean)},
-          {"temp_mean", Num(s.temp_mean)},
-          {"used", s.used},
-          {"reason", s.reason},
-          {"issue", std::string(core::IntervalIssueName(s.issue))},
-          {"face", p.face},
-          {"up", Vec(p.up)},
-          {"residual", Num(p.residual_m_s2)},
-          {"residual_heldout", Num(p.heldout_m_s2)}};
+  json j = {{"index", p.index},
+            {"t_start", s.t_start_s},
+            {"t_end", s.t_end_s},
+            {"samples", s.samples()},
+            {"accel_mean", Vec(s.accel_mean)},
+            {"gyro_mean", Vec(s.gyro_mean)},
+            {"temp_mean", Num(s.temp_mean)},
+            {"used", s.used},
+            {"reason", s.reason},
+            {"issue", std::string(core::IntervalIssueName(s.issue))},
+            {"face", p.face},
+            {"up", Vec(p.up)},
+            {"residual", Num(p.residual_m_s2)},
+            {"residual_heldout", Num(p.heldout_m_s2)}};
+  if (!p.file.empty()) j["file"] = p.file;
+  if (p.first_line > 0) j["lines"] = {p.first_line, p.last_line};
+  return j;
 }
 
 }  // namespace

@@ -216,18 +216,28 @@ absl::Status FindHeader(std::string_view source, const ColumnCsvOptions& options
       layout->preamble.push_back(line);
       continue;
     }
-    // Detected per line: a preamble may be prose, or use another delimiter than the table.
-    layout->delimiter = delimiter.value_or(DetectDelimiter(line));
     if (options.no_header) {
+      layout->delimiter = delimiter.value_or(DetectDelimiter(line));
       *lines = before;  // this line is the first row
       return absl::OkStatus();
     }
-    SplitFields(line, layout->delimiter, &fields);
+    // A commented header ("# time ax ay az ..."): the names after the comment marker.
+    std::string_view named = TrimSpaces(line);
+    if (named.starts_with('#')) {
+      const size_t text = named.find_first_not_of('#');
+      named = text == std::string_view::npos ? std::string_view() : TrimSpaces(named.substr(text));
+    } else {
+      named = line;
+    }
+    // Detected per line: a preamble may be prose, or use another delimiter than the table.
+    layout->delimiter = delimiter.value_or(DetectDelimiter(named));
+    SplitFields(named, layout->delimiter, &fields);
     if (options.skip_lines.has_value() || HeaderHasNames(fields, map)) {
       layout->header_line = lines->line_number();
       layout->header.assign(fields.begin(), fields.end());
       return absl::OkStatus();
     }
+
     if (!first_after.has_value()) {
       first_after = *lines;
       first_fields.assign(fields.begin(), fields.end());
@@ -559,7 +569,9 @@ absl::StatusOr<core::Capture> ParseColumnCsv(std::string_view text, std::string_
   capture.accel.reserve(rows.size());
   capture.gyro.reserve(rows.size());
   if (has_temp) capture.temp.reserve(rows.size());
+  capture.line.reserve(rows.size());
   for (const Row& row : rows) {
+    capture.line.push_back(static_cast<uint32_t>(row.line_number));
     capture.t_s.push_back(row.t_s);
     capture.accel.push_back(row.accel);
     capture.gyro.push_back(row.gyro);

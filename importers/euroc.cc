@@ -205,6 +205,7 @@ absl::StatusOr<core::Capture> ParseEurocCsv(std::string_view text, std::string_v
     previous_line = line_number;
     // Integer difference first: a 1.4e18 ns origin would cost double precision (256 ns steps);
     // the division rounds once, correctly.
+    capture.line.push_back(static_cast<uint32_t>(line_number));
     capture.t_s.push_back(static_cast<double>(ns - t0_ns) / 1e9);
     capture.gyro.emplace_back(values[1], values[2], values[3]);
     capture.accel.emplace_back(values[4], values[5], values[6]);

@@ -240,6 +240,7 @@ bool TryParseCsvRow(std::string_view line, size_t field_count, double* row) {
 
 void ReserveSamples(size_t rows, const ColumnLayout& layout, core::Capture* capture) {
   capture->t_s.reserve(rows);
+  capture->line.reserve(rows);
   capture->accel.reserve(rows);
   capture->gyro.reserve(rows);
   if (layout.temp >= 0) capture->temp.reserve(rows);
@@ -269,6 +270,7 @@ absl::Status ParseCsvRows(LineCursor* lines, const ColumnLayout& layout, std::st
       return TimeNotIncreasingError(source, line_number, t_s, capture->t_s.back(), previous_line);
     }
     previous_line = line_number;
+    capture->line.push_back(static_cast<uint32_t>(line_number));
     capture->t_s.push_back(t_s);
     auto at = [&](size_t k) { return row[static_cast<size_t>(col[k])]; };
     capture->accel.emplace_back(at(1), at(2), at(3));

@@ -161,6 +161,8 @@ class ImuTkImporterImpl final : public CaptureImporter {
     return "imu_tk ASCII pair of 't x y z' files: accelerometer, then gyroscope";
   }
 
+  size_t paths_per_capture() const override { return 2; }
+
   absl::Status Sniff(std::span<const std::string> paths,
                      std::span<const std::string> heads) const override {
     for (size_t i = 0; i < heads.size(); ++i) {
@@ -240,6 +242,8 @@ absl::StatusOr<core::Capture> ParseImuTkPair(std::string_view accel_text,
   core::Capture capture;
   capture.device = options.device.value_or("");
   capture.gravity_m_s2 = options.gravity_m_s2.value_or(core::kStandardGravity);
+  // Lines are the accelerometer file's (the gyroscope's, row by row, are checked to match).
+  capture.line.assign(accel->line_numbers.begin(), accel->line_numbers.end());
   capture.t_s = std::move(accel->t_s);
   capture.accel = std::move(accel->xyz);
   capture.gyro = std::move(gyro->xyz);

@@ -2,6 +2,7 @@
 
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstddef>
@@ -58,6 +59,49 @@ absl::StatusOr<const CaptureImporter*> DetectImporter(const std::vector<std::str
       Cat(paths[0], ": unrecognised capture format (tried ", Join(reasons, "; "), ")"));
 }
 
+// One capture read by `importer`, its files recorded (core::Capture::files).
+absl::StatusOr<core::Capture> ImportOne(const CaptureImporter& importer,
+                                        const std::vector<std::string>& paths,
+                                        const ImportOptions& options,
+                                        std::vector<std::string>* used_paths,
+                                        std::vector<std::string>* notes) {
+  absl::StatusOr<core::Capture> capture = importer.Import(paths, options, used_paths, notes);
+  if (capture.ok() && capture->files.empty() && !used_paths->empty())
+    capture->files.push_back({(*used_paths)[0], 0});
+  return capture;
+}
+
+// `paths` as one capture, or as several of the importer's size joined in order.
+absl::StatusOr<core::Capture> ImportParts(const CaptureImporter& importer,
+                                          const std::vector<std::string>& paths,
+                                          const ImportOptions& options,
+                                          std::vector<std::string>* used_paths,
+                                          std::vector<std::string>* notes) {
+  const size_t per = importer.paths_per_capture();
+  if (paths.size() <= per) return ImportOne(importer, paths, options, used_paths, notes);
+  if (paths.size() % per != 0) {
+    return absl::InvalidArgumentError(Cat("the ", importer.name(), " format reads its files in ",
+                                          per, "s, got ", paths.size(), ": ", Join(paths, ", ")));
+  }
+  std::vector<core::Capture> parts;
+  for (size_t k = 0; k < paths.size(); k += per) {
+    const std::vector<std::string> part(paths.begin() + static_cast<long>(k),
+                                        paths.begin() + static_cast<long>(k + per));
+    std::vector<std::string> part_used, part_notes;
+    absl::StatusOr<core::Capture> capture =
+        ImportOne(importer, part, options, &part_used, &part_notes);
+    if (!capture.ok()) return capture.status();
+    // A note that every file repeats (the same columns, units) is said once.
+    for (std::string& n : part_notes) {
+      const bool said = std::find(notes->begin(), notes->end(), n) != notes->end();
+      if (!said) notes->push_back(k == 0 ? n : Cat(Join(part_used, ", "), ": ", n));
+    }
+    used_paths->insert(used_paths->end(), part_used.begin(), part_used.end());
+    parts.push_back(*std::move(capture));
+  }
+  return JoinCaptures(std::move(parts), notes);
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
@@ -83,6 +127,11 @@ absl::StatusOr<core::Capture> ImportCapture(const std::vector<std::string>& path
     importer = FindImporter("columns");
   } else if (options.format == "auto") {
     absl::StatusOr<const CaptureImporter*> detected = DetectImporter(paths);
+    // Several captures of a one-file format: detected from the first.
+    if (!detected.ok() && paths.size() > 1) {
+      absl::StatusOr<const CaptureImporter*> first = DetectImporter({paths[0]});
+      if (first.ok() && (*first)->paths_per_capture() == 1) detected = first;
+    }
     if (!detected.ok()) return detected.status();
     importer = *detected;
   } else {
@@ -97,7 +146,8 @@ absl::StatusOr<core::Capture> ImportCapture(const std::vector<std::string>& path
 
   std::vector<std::string> used_paths;
   std::vector<std::string> notes;
-  absl::StatusOr<core::Capture> capture = importer->Import(paths, options, &used_paths, &notes);
+  absl::StatusOr<core::Capture> capture =
+      ImportParts(*importer, paths, options, &used_paths, &notes);
   if (!capture.ok()) return capture.status();
   // Every importer promises this; checking here keeps a new importer's slip from reaching the
   // solvers as a confusing numerical failure.
@@ -110,6 +160,74 @@ absl::StatusOr<core::Capture> ImportCapture(const std::vector<std::string>& path
     report->notes = std::move(notes);
   }
   return capture;
+}
+
+absl::StatusOr<core::Capture> JoinCaptures(std::vector<core::Capture> parts,
+                                           std::vector<std::string>* notes) {
+  if (parts.empty()) return absl::InvalidArgumentError("no captures to join");
+  auto file_name = [](const core::Capture& c) {
+    return c.files.empty() ? std::string("(in memory)") : c.files[0].path;
+  };
+  core::Capture out = std::move(parts[0]);
+  bool temp = out.has_temp();
+  bool extras = true;
+  for (size_t k = 1; k < parts.size(); ++k) {
+    const core::Capture& p = parts[k];
+    if (p.accel_unit != out.accel_unit || p.gyro_unit != out.gyro_unit) {
+      return absl::InvalidArgumentError(
+          Cat("the files do not agree on units: ", file_name(out), " has accel ",
+              core::AccelUnitName(out.accel_unit), ", gyro ", core::GyroUnitName(out.gyro_unit),
+              "; ", file_name(p), " has accel ", core::AccelUnitName(p.accel_unit), ", gyro ",
+              core::GyroUnitName(p.gyro_unit), " (give --accel-unit and --gyro-unit)"));
+    }
+    temp &= p.has_temp() && p.temp_unit == out.temp_unit;
+    extras &= p.extra_column_names == out.extra_column_names;
+  }
+  if (!temp && out.has_temp()) notes->push_back("temperature left out: not every file has it");
+  if (!extras && !out.extra_column_names.empty())
+    notes->push_back("extra columns left out: the files name different ones");
+  if (!temp) out.temp.clear();
+  if (!extras) {
+    out.extra_column_names.clear();
+    out.extra_columns.clear();
+  }
+  int shifted = 0;
+  for (size_t k = 1; k < parts.size(); ++k) {
+    core::Capture& p = parts[k];
+    const double dt = std::max(out.MedianDt(), p.MedianDt());
+    const double gap = std::max(1.0, 10 * dt);
+    const double start = out.t_s.back() + gap;
+    if (p.t_s.front() < start) {
+      const double shift = start - p.t_s.front();
+      for (double& t : p.t_s) t += shift;
+      ++shifted;
+    }
+    const size_t first = out.size();
+    for (core::CaptureFile f : p.files) {
+      f.first_sample += first;
+      out.files.push_back(std::move(f));
+    }
+    if (p.files.empty()) out.files.push_back({"(in memory)", first});
+    out.t_s.insert(out.t_s.end(), p.t_s.begin(), p.t_s.end());
+    out.accel.insert(out.accel.end(), p.accel.begin(), p.accel.end());
+    out.gyro.insert(out.gyro.end(), p.gyro.begin(), p.gyro.end());
+    if (temp) out.temp.insert(out.temp.end(), p.temp.begin(), p.temp.end());
+    if (extras)
+      for (size_t c = 0; c < out.extra_columns.size(); ++c)
+        out.extra_columns[c].insert(out.extra_columns[c].end(), p.extra_columns[c].begin(),
+                                    p.extra_columns[c].end());
+    if (out.line.size() + p.size() == out.size() && p.line.size() == p.size()) {
+      out.line.insert(out.line.end(), p.line.begin(), p.line.end());
+    } else {
+      out.line.clear();
+    }
+  }
+  notes->push_back(Cat("joined ", parts.size(),
+                       " captures in the order given, with an unmeasured gap between each two",
+                       shifted > 0
+                           ? Cat(" (", shifted, " shifted in time to follow the one before)")
+                           : std::string()));
+  return out;
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -84,6 +84,9 @@ class CaptureImporter {
 
   // The --format name, e.g. "imutk".
   virtual std::string_view name() const = 0;
+  // How many paths make one capture: 1, or 2 for imutk's pair. ImportCapture reads more paths
+  // as several captures joined (JoinCaptures).
+  virtual size_t paths_per_capture() const { return 1; }
   // One line for --help, e.g. "imu_tk ASCII pair: accelerometer file, then gyroscope file".
   virtual std::string_view description() const = 0;
 
@@ -120,6 +123,9 @@ std::span<const CaptureImporter* const> CaptureImporters();
 //   a directory with metadata.yaml, or a file that starts with the SQLite header -> rosbag2.
 // If nothing matches, InvalidArgument names the file and what each format expected. If `report`
 // is non-null it receives the format used and the notes (only on success).
+// More paths than the format reads for one capture (several files, bags, or imutk pairs) are
+// read one capture each, with the same options, and joined in the given order (JoinCaptures).
+// Auto-detection then looks at the first capture's paths.
 absl::StatusOr<core::Capture> ImportCapture(const std::vector<std::string>& paths,
                                             const ImportOptions& options,
                                             ImportReport* report = nullptr);
@@ -139,6 +145,16 @@ absl::Status CheckImportOptions(const ImportOptions& options);
 // states its own values, noting every value that changes.
 void ApplyImportOverrides(const ImportOptions& options, core::Capture* capture,
                           std::vector<std::string>* notes);
+
+// One capture from several, in order: each file keeps its own header and time base. File k's
+// times follow file k - 1's last sample after an unmeasured gap of at least 1 s (or 10 median
+// intervals): kept as they are when they already do (absolute time), shifted otherwise (a time
+// base restarting at 0). The gap is a file start (core::Capture::files): nothing is integrated
+// across it and no pose spans it. The captures must agree on units (InvalidArgument naming the
+// files that differ); temperature and extra columns are kept only when every file has them (a
+// note says what was dropped). Device, gravity and metadata are the first file's.
+absl::StatusOr<core::Capture> JoinCaptures(std::vector<core::Capture> parts,
+                                           std::vector<std::string>* notes);
 
 // Appends a note when `capture` has time gaps (an interval over 3x the median interval): how
 // many, and the largest with its time. For the importers whose time comes from the file.

@@ -459,6 +459,7 @@ absl::StatusOr<core::Capture> ReadRosbag2Imu(const std::string& path, const Impo
                                             time_of(samples[i - 1]), " ns)"));
     }
     // Integer difference first: a 1.7e18 ns origin would cost double precision.
+    capture.line.push_back(static_cast<uint32_t>(i + 1));  // the message's ordinal on the topic
     capture.t_s.push_back(static_cast<double>(ns - t0_ns) / 1e9);
     capture.gyro.push_back(samples[i].gyro);
     capture.accel.push_back(samples[i].accel);

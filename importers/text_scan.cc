@@ -17,6 +17,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "absl/strings/str_format.h"
 #include "util/str_util.h"
 
 namespace imucal::importers {
@@ -83,9 +84,49 @@ absl::Status LineError(std::string_view source, int line_number, std::string_vie
   return absl::InvalidArgumentError(Cat(source, ":", line_number, ": ", message));
 }
 
+std::string Escaped(std::string_view text) {
+  std::string out;
+  for (const char ch : text) {
+    const auto c = static_cast<unsigned char>(ch);
+    switch (c) {
+      case '\0':
+        out += "\\0";
+        break;
+      case '\t':
+        out += "\\t";
+        break;
+      case '\r':
+        out += "\\r";
+        break;
+      case '\n':
+        out += "\\n";
+        break;
+      default:
+        if (c < 0x20 || c == 0x7f) {
+          absl::StrAppendFormat(&out, "\\x%02x", c);
+        } else {
+          out += ch;
+        }
+    }
+  }
+  return out;
+}
+
 std::string Quoted(std::string_view text) {
-  if (text.size() <= kMaxQuotedChars) return Cat("'", text, "'");
-  return Cat("'", text.substr(0, kMaxQuotedChars), "...'");
+  if (text.size() <= kMaxQuotedChars) return Cat("'", Escaped(text), "'");
+  return Cat("'", Escaped(text.substr(0, kMaxQuotedChars)), "...'");
+}
+
+// " (a control byte \0 at byte 3 of the field)" for the first control byte of `field`, else "".
+std::string ControlByteNote(std::string_view field) {
+  for (size_t i = 0; i < field.size(); ++i) {
+    const auto c = static_cast<unsigned char>(field[i]);
+    if (c < 0x20 || c == 0x7f) {
+      return Cat(" (a control byte ", Escaped(field.substr(i, 1)), " at byte ", i + 1,
+                 " of the field)");
+    }
+  }
+  return "";
 }
 
 absl::Status NumberFieldError(std::string_view source, int line_number, std::string_view column,
@@ -104,7 +145,7 @@ absl::Status NumberFieldError(std::string_view source, int line_number, std::str
       break;
     case NumberError::kNotNumber:
     case NumberError::kNone:
-      problem = Cat(text, " is not a number");
+      problem = Cat(text, " is not a number", ControlByteNote(field));
       break;
   }
   return LineError(source, line_number, Cat("column '", column, "': ", problem));

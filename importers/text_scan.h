@@ -175,8 +175,11 @@ std::string FormatDouble(double value);
 
 absl::Status LineError(std::string_view source, int line_number, std::string_view message);
 
-// 'text', cut to 40 characters (a binary file fed to a reader must not produce a megabyte-long
-// status).
+// `text` with control bytes escaped (\0, \t, \r, \n, \xHH): a NUL in a message would cut it off.
+std::string Escaped(std::string_view text);
+
+// 'text', escaped, cut to 40 characters (a binary file fed to a reader must not produce a
+// megabyte-long status).
 std::string Quoted(std::string_view text);
 
 // "SOURCE:LINE: column 'COLUMN': 'x' is not a number" (or empty field / is out of range / is not

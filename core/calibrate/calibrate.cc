@@ -46,7 +46,7 @@ void Append(std::vector<T>* to, const std::vector<T>& from) {
 
 // The report of a refused capture: every interval found, with why it is not usable, and the
 // refusal; no parameters.
-CalibrationReport Refuse(CalibrationReport rep, Refusal refusal,
+CalibrationReport Refuse(const Capture& cap, CalibrationReport rep, Refusal refusal,
                          const std::vector<StaticInterval>& intervals) {
   rep.poses.clear();
   for (size_t i = 0; i < intervals.size(); ++i) {
@@ -55,6 +55,7 @@ CalibrationReport Refuse(CalibrationReport rep, Refusal refusal,
     pr.interval = intervals[i];
     rep.poses.push_back(pr);
   }
+  AttachSources(cap, &rep.poses);
   rep.verdict = Verdict::kRefused;
   rep.verdict_reasons = {refusal.message};
   rep.refusal = std::move(refusal);
@@ -119,7 +120,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.threshold_multiplier = still.multiplier;
   Append(&rep.warnings, still.warnings);
   timer.Mark("static");
-  if (still.refusal) return Refuse(std::move(rep), *still.refusal, still.intervals);
+  if (still.refusal) return Refuse(cap, std::move(rep), *still.refusal, still.intervals);
 
   // -> rough gyroscope and full turns
   const RoughGyro rough = EstimateRoughGyro(cap, opt, still);
@@ -138,7 +139,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   // -> accelerometer: ls, bsas, lm
   absl::StatusOr<AccelStage> accel = SolveAccel(cap, opt, rep.noise, checks);
   if (absl::IsFailedPrecondition(accel.status())) {
-    return Refuse(std::move(rep),
+    return Refuse(cap, std::move(rep),
                   {RefusalReason::kPosesTooAlike,
                    absl::StrCat(accel.status().message(), ". ", RequirementsText())},
                   intervals);
@@ -171,6 +172,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   timer.Mark("heldout");
   rep.residual.gyro_static_rms_rad_s = GyroStaticRms(intervals, accel->used, gyro.fit.params);
   rep.poses = MakePoseReports(intervals, accel->params, accel_residuals);
+  AttachSources(cap, &rep.poses);
   rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual);
   ReportGyroFit(cap, gyro.planned, rough.turns, gyro.fit, &rep);
   timer.Mark("report");

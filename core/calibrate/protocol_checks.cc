@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "absl/strings/str_format.h"
+#include "core/calibrate/orientations.h"
 #include "core/validation.h"
 
 namespace imucal::core::pipeline {
@@ -138,6 +139,8 @@ ProtocolChecks CheckProtocol(const Capture& cap, const CalibrateOptions& opt, co
   if (out.protocol == ProtocolKind::kSixFace)
     CheckPairs(cap, ivs, used, sp.gaps, rough.params, &out);
   if (out.protocol == ProtocolKind::kFerraris) CheckFerrarisTurns(rough.turns, &out);
+  for (std::string& w : RepeatedOrientations(cap, ivs, out.ups))
+    out.warnings.push_back(std::move(w));
   MarkDuplicates(cap, rough.params, sp.gaps, out.ups, &out.intervals);
   return out;
 }

@@ -28,6 +28,10 @@ struct PoseReport {
   Eigen::Vector3d up = Eigen::Vector3d::Zero();  // calibrated up direction, body frame
   double residual_m_s2 = std::numeric_limits<double>::quiet_NaN();  // |a| - g, in-sample
   double heldout_m_s2 = std::numeric_limits<double>::quiet_NaN();   // |a| - g, pose left out
+  // Where it came from: the file and its first and last line (empty and 0 when the capture does
+  // not say; for a bag, message ordinals).
+  std::string file;
+  uint32_t first_line = 0, last_line = 0;
 };
 
 struct MoveReport {

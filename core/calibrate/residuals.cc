@@ -133,6 +133,19 @@ std::vector<PoseReport> MakePoseReports(const std::vector<StaticInterval>& ivs,
   return out;
 }
 
+void AttachSources(const Capture& cap, std::vector<PoseReport>* poses) {
+  for (PoseReport& p : *poses) {
+    const StaticInterval& s = p.interval;
+    if (s.end <= s.begin || s.end > cap.size()) continue;
+    const int file = cap.FileOf(s.begin);
+    if (file >= 0) p.file = cap.files[static_cast<size_t>(file)].path;
+    if (cap.line.size() == cap.size()) {
+      p.first_line = cap.line[s.begin];
+      p.last_line = cap.line[s.end - 1];
+    }
+  }
+}
+
 ParamSet MakeParamSet(const Capture& cap, const AccelStage& accel, const GyroFit& gyro,
                       const std::vector<StaticInterval>& ivs, const Residuals& residual) {
   ParamSet ps;

@@ -54,6 +54,9 @@ void ReportGyroFit(const Capture& capture, const std::vector<PlannedMove>& plann
 std::vector<PoseReport> MakePoseReports(const std::vector<StaticInterval>& intervals,
                                         const AccelParams& accel, const AccelResiduals& residuals);
 
+// Sets each pose's file and line range from the capture's record of where its samples came from.
+void AttachSources(const Capture& capture, std::vector<PoseReport>* poses);
+
 // The parameter set of the final model, with its standard errors (the gyro matrix's are
 // ReportGyroFit's) and the quality figures of `residual`.
 ParamSet MakeParamSet(const Capture& capture, const AccelStage& accel, const GyroFit& gyro,

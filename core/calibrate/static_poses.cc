@@ -5,7 +5,10 @@
 #include <limits>
 #include <utility>
 
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "core/calibrate/orientations.h"
 #include "core/protocol.h"
 
 namespace imucal::core::pipeline {
@@ -118,47 +121,26 @@ struct StopCount {
   std::vector<StaticInterval> intervals;
   int stops = 0, too_short = 0, orientations = 0;
   double longest_s = 0, still_s = 0, span_s = 0;
+  std::vector<std::string> repeated;  // orientations held twice, faces missing
 };
-
-// Raw directions within this are one orientation (raw: only as good as the sensor's uncalibrated
-// axes, and for counts the centre is the middle of the stops' extremes).
-constexpr double kSameOrientationDeg = 5.0;
 
 StopCount CountStops(const Capture& cap, const StaticPoses& s, const CalibrateOptions& opt) {
   StopCount out;
   const double m = opt.multipliers.empty() ? s.multiplier : opt.multipliers.back();
   out.intervals = DetectStatic(cap, s.motion, s.noise, m, opt.detector);
-  std::vector<const StaticInterval*> stops;
+  std::vector<StaticInterval> stops;
   for (const StaticInterval& iv : out.intervals)
-    if (iv.issue != IntervalIssue::kTurning) stops.push_back(&iv);
+    if (iv.issue != IntervalIssue::kTurning) stops.push_back(iv);
   out.stops = static_cast<int>(stops.size());
   out.span_s = cap.size() > 1 ? cap.t_s.back() - cap.t_s.front() : 0;
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-  Eigen::Vector3d hi = -lo;
-  for (const StaticInterval* iv : stops) {
-    out.too_short += iv->issue == IntervalIssue::kTooShort;
-    const double d = iv->t_end_s - iv->t_start_s;
+  for (const StaticInterval& iv : stops) {
+    out.too_short += iv.issue == IntervalIssue::kTooShort;
+    const double d = iv.t_end_s - iv.t_start_s;
     out.longest_s = std::max(out.longest_s, d);
     out.still_s += d;
-    lo = lo.cwiseMin(iv->accel_mean);
-    hi = hi.cwiseMax(iv->accel_mean);
   }
-  const Eigen::Vector3d centre = cap.accel_unit == AccelUnit::kCounts && !stops.empty()
-                                     ? Eigen::Vector3d(0.5 * (lo + hi))
-                                     : Eigen::Vector3d::Zero();
-  std::vector<Eigen::Vector3d> dirs;
-  for (const StaticInterval* iv : stops) {
-    const Eigen::Vector3d v = iv->accel_mean - centre;
-    // The centre of one stop's counts is that stop: one orientation, whatever its direction.
-    const Eigen::Vector3d u =
-        v.norm() > 0 ? Eigen::Vector3d(v.normalized()) : Eigen::Vector3d::Zero();
-    bool seen = false;
-    for (const Eigen::Vector3d& d : dirs)
-      seen |=
-          d == u || std::atan2(d.cross(u).norm(), d.dot(u)) * 180.0 / M_PI <= kSameOrientationDeg;
-    if (!seen) dirs.push_back(u);
-  }
-  out.orientations = static_cast<int>(dirs.size());
+  out.orientations = DistinctOrientations(RawUps(cap, stops));
+  out.repeated = RepeatedOrientations(cap, out.intervals, RawUps(cap, out.intervals));
   return out;
 }
 
@@ -166,17 +148,18 @@ StopCount CountStops(const Capture& cap, const StaticPoses& s, const CalibrateOp
 Refusal DescribeRefusal(const StopCount& c, size_t most_used, const CalibrateOptions& opt) {
   Refusal out;
   const double hold_s = opt.detector.min_static_s;
-  const std::string found = absl::StrFormat(
+  std::string found = absl::StrFormat(
       "too few static poses: found at most %d usable; the capture holds %d still stops (%.0f s "
       "still of %.0f s, the longest %.1f s) in %d distinct orientations, counted from stops of "
       "any length",
       static_cast<int>(most_used), c.stops, c.still_s, c.span_s, c.longest_s, c.orientations);
+  if (!c.repeated.empty()) absl::StrAppend(&found, "; ", absl::StrJoin(c.repeated, "; "));
   if (c.stops > 0 && 2 * c.too_short >= c.stops &&
       c.orientations >= static_cast<int>(kBiasScaleNeeds.count)) {
     out.reason = RefusalReason::kStopsTooShort;
     out.message = absl::StrFormat(
-        "%s. %d of %d stops were shorter than the %.1f s hold: hold each pose %.0f s. %s", found,
-        c.too_short, c.stops, hold_s, 2 * std::ceil(hold_s), RequirementsText());
+        "%s. %d of %d stops were too short, under the %.1f s hold: hold each pose %.0f s. %s",
+        found, c.too_short, c.stops, hold_s, 2 * std::ceil(hold_s), RequirementsText());
   } else if (c.orientations == 1) {
     out.reason = RefusalReason::kRestOnly;
     out.message = absl::StrFormat(
@@ -219,16 +202,28 @@ long TimeGaps::In(size_t begin, size_t end) const {
 }
 
 std::string TimeGaps::Describe(const Capture& cap, size_t i) {
+  for (size_t k = 1; k < cap.files.size(); ++k) {
+    if (cap.files[k].first_sample == i) {
+      return absl::StrFormat(
+          "the start of file %s (after %s; the time between files is not "
+          "recorded)",
+          cap.files[k].path, cap.files[k - 1].path);
+    }
+  }
   return absl::StrFormat("a time gap of %.3f s at %.3f s", cap.t_s[i] - cap.t_s[i - 1],
                          cap.t_s[i - 1]);
 }
 
 TimeGaps FindTimeGaps(const Capture& cap) {
   TimeGaps out;
+  out.after = cap.FileStarts();
   const double limit = kGapFactor * cap.MedianDt();
-  if (!(limit > 0)) return out;
-  for (size_t i = 1; i < cap.size(); ++i)
-    if (cap.t_s[i] - cap.t_s[i - 1] > limit) out.after.push_back(i);
+  if (limit > 0) {
+    for (size_t i = 1; i < cap.size(); ++i)
+      if (cap.t_s[i] - cap.t_s[i - 1] > limit) out.after.push_back(i);
+  }
+  std::sort(out.after.begin(), out.after.end());
+  out.after.erase(std::unique(out.after.begin(), out.after.end()), out.after.end());
   return out;
 }
 
@@ -262,6 +257,7 @@ StaticPoses FindStaticPoses(const Capture& cap, const CalibrateOptions& opt) {
   size_t most_poses = 0;
   SweepResult sweep = SweepThreshold(cap, out.motion, out.noise, opt, &most_poses);
   if (sweep.tier == SweepTier::kNone) {
+    out.multiplier = opt.multipliers.empty() ? 0.0 : opt.multipliers.back();
     StopCount stops = CountStops(cap, out, opt);
     out.refusal = DescribeRefusal(stops, most_poses, opt);
     out.intervals = std::move(stops.intervals);

@@ -23,6 +23,7 @@ using test_files::ImuTkTexts;
 using test_files::kSpecExample;
 using test_files::TempPath;
 using test_files::WriteText;
+using ::testing::AllOf;
 using ::testing::ElementsAre;
 using ::testing::HasSubstr;
 using ::testing::StartsWith;
@@ -124,8 +125,8 @@ TEST(ImportCaptureTest, WrongCallsAreClearErrors) {
   WriteText(tk_path, "0 1 2 3\n");
 
   EXPECT_THAT(std::string(ImportCapture({}, {}).status().message()), HasSubstr("no input"));
-  EXPECT_THAT(std::string(ImportCapture({imucal_path, imucal_path}, {}).status().message()),
-              HasSubstr("the imucal format reads one file, got 2"));
+  EXPECT_THAT(std::string(ImportCapture({tk_path, tk_path, tk_path}, {}).status().message()),
+              HasSubstr("the imutk format reads its files in 2s, got 3"));
   EXPECT_THAT(std::string(ImportCapture({tk_path}, {}).status().message()),
               HasSubstr("the imutk format reads two files"));
   ImportOptions mcap;
@@ -137,6 +138,45 @@ TEST(ImportCaptureTest, WrongCallsAreClearErrors) {
   EXPECT_FALSE(ImportCapture({imucal_path}, bad_gravity).ok());
   EXPECT_EQ(ImportCapture({TempPath("missing.txt")}, {}).status().code(),
             absl::StatusCode::kNotFound);
+}
+
+// Several files of a one-file format are one capture, joined in the order given: each file's
+// samples and lines are kept, a later file that starts before the earlier one ends is moved
+// after it (its clock restarted), and each file's start is a gap nothing integrates across.
+TEST(ImportCaptureTest, JoinsFilesInOrderAndKeepsTheirLines) {
+  const std::string a = TempPath("join_a.csv");
+  const std::string b = TempPath("join_b.csv");
+  WriteText(a, kSpecExample);
+  WriteText(b, kSpecExample);
+  ImportReport report;
+  absl::StatusOr<core::Capture> one = ImportCapture({a}, {});
+  absl::StatusOr<core::Capture> both = ImportCapture({a, b}, {}, &report);
+  ASSERT_TRUE(one.ok()) << one.status();
+  ASSERT_TRUE(both.ok()) << both.status();
+  const size_t n = one->size();
+  ASSERT_EQ(both->size(), 2 * n);
+  EXPECT_THAT(report.paths, ElementsAre(a, b));
+  ASSERT_EQ(both->files.size(), 2u);
+  EXPECT_EQ(both->files[1].path, b);
+  EXPECT_EQ(both->files[1].first_sample, n);
+  EXPECT_THAT(both->FileStarts(), ElementsAre(n));
+  EXPECT_EQ(both->FileOf(0), 0);
+  EXPECT_EQ(both->FileOf(n), 1);
+  EXPECT_EQ(both->line[n], one->line[0]);
+  for (size_t i = 1; i < both->size(); ++i) ASSERT_GT(both->t_s[i], both->t_s[i - 1]) << i;
+  EXPECT_GE(both->t_s[n] - both->t_s[n - 1], 1.0 - 1e-9);
+  EXPECT_EQ(both->accel[n], one->accel[0]);
+
+  // Files that disagree on units are refused, naming both.
+  const std::string c = TempPath("join_c.csv");
+  core::Capture other = *one;
+  other.gyro_unit = one->gyro_unit == core::GyroUnit::kDegPerSecond ? core::GyroUnit::kRadPerSecond
+                                                                    : core::GyroUnit::kDegPerSecond;
+  other.files = {{c, 0}};
+  absl::StatusOr<core::Capture> refused = JoinCaptures({*one, other}, &report.notes);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_THAT(std::string(refused.status().message()),
+              AllOf(HasSubstr("do not agree on units"), HasSubstr(a), HasSubstr(c)));
 }
 
 TEST(ImportCaptureTest, ExportThenImportRoundTrip) {

@@ -327,8 +327,9 @@ def main():
                f"{res.get('gyro_static_rms')} rad/s (limit {lim:.3g})")
     elif args.check == "noisy":
         # The noisy rest stays one pose: one pose found across its hold, used, no fragments
-        # beside it, covering at least half of it (a settling sensor's noisiest start or the
-        # edges may be left out, a fragment may not be kept instead).
+        # beside it, covering at least 40% of it. A settling sensor's start may be left out:
+        # its extra noise, 5x dying as exp(-3t/T), is still 1.6x the quiet rest's at 0.46 T,
+        # and the variance test decides at a rest's edges. A fragment may not be kept instead.
         k = truth["noisy_rest"]["pose"]
         want = truth["poses"][k]
         hits = [p for p in report["poses"]
@@ -337,9 +338,9 @@ def main():
         desc = [(p["index"], round(p["t_start"], 2), round(p["t_end"], 2), p["used"],
                  p.get("reason", "")) for p in hits]
         c.check(f"the {truth['noisy_rest']['kind']} rest at {want['t_start_s']:.2f}-"
-                f"{want['t_end_s']:.2f} s: poses {desc}, want one used pose over >= half of it",
+                f"{want['t_end_s']:.2f} s: poses {desc}, want one used pose over >= 40% of it",
                 len(hits) == 1 and hits[0]["used"] and
-                hits[0]["t_end"] - hits[0]["t_start"] >= 0.5 * hold)
+                hits[0]["t_end"] - hits[0]["t_start"] >= 0.4 * hold)
         c.done(f"the {hold:.1f} s {truth['noisy_rest']['kind']} rest is one pose")
     elif args.check == "refused":
         c.check("no poses list", isinstance(report.get("poses"), list))
