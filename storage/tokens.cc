@@ -11,6 +11,7 @@
 #include "storage/status_macros.h"
 #include "storage/store_internal.h"
 #include "storage/str_util.h"
+#include "storage/types.h"
 
 namespace imucal::storage {
 namespace {
