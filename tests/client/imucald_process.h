@@ -80,6 +80,8 @@ class ImucaldProcess {
     Stop(SIGKILL);
     return Launch();
   }
+  // Starts it again after a Stop(), on the same port and database (an outage of any length).
+  absl::Status Relaunch() { return Launch(); }
   void Stop(int signal) {
     if (pid_ <= 0) return;
     ::kill(pid_, signal);

@@ -329,7 +329,6 @@ TEST_F(DrainTest, SigtermFinishesQueuedSolvesKeepsAckedSamplesExitsZeroAndTheRob
   sdk::UploadOptions o;
   o.batch_samples = 200;
   // Reconnects while imucald drains, is down and restarts: 200 tries, backoff at most 200 ms.
-  o.max_retries = 200;
   o.initial_backoff = absl::Milliseconds(20);
   o.max_backoff = absl::Milliseconds(200);
   bool signalled = false;

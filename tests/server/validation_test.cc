@@ -577,7 +577,7 @@ TEST_F(ValidationTest, GarbageBytesAreRefusedAndTheServerKeepsServing) {
 }
 
 // The SDK sets a deadline on its stream too: a stream that outlives it ends DEADLINE_EXCEEDED
-// and the upload gives up after its retries rather than waiting for ever.
+// and the upload gives up after its retry time rather than waiting for ever.
 TEST_F(ValidationTest, UploaderStreamsHaveADeadline) {
   StartServer();
   const std::string s = NewSession("robot-deadline");
@@ -588,7 +588,7 @@ TEST_F(ValidationTest, UploaderStreamsHaveADeadline) {
   cols.gyro.assign(b.gyro().begin(), b.gyro().end());
   sdk::UploadOptions o;
   o.batch_samples = 10;
-  o.max_retries = 1;
+  o.retry_for = absl::Milliseconds(200);
   o.initial_backoff = absl::Milliseconds(1);
   o.stream_deadline = absl::Microseconds(1);
   sdk::Uploader uploader(channel_, o);
