@@ -395,7 +395,13 @@ absl::StatusOr<LoadedConfig> LoadConfig(std::span<const std::string> args, const
     }
     if (!value.has_value()) {
       if (option != nullptr && option->type == OptionType::kBoolean) {
-        value = "true";  // a bare boolean flag turns it on
+        // "--insecure true" as --help shows it ("--insecure BOOL"), or bare: true. The word
+        // after it is its value unless it is the next flag.
+        if (i + 1 < args.size() && !args[i + 1].starts_with("-")) {
+          value = args[++i];
+        } else {
+          value = "true";
+        }
       } else if (i + 1 < args.size()) {
         value = args[++i];
       } else {
