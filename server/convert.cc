@@ -131,6 +131,7 @@ v1::Session ToProto(const storage::Session& session, int live_poses_accepted) {
   out.set_samples(session.samples);
   out.set_poses_accepted(live_poses_accepted >= 0 ? live_poses_accepted : session.poses_accepted);
   out.set_version(session.version);
+  out.set_source(session.source);
   return out;
 }
 

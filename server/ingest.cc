@@ -52,6 +52,10 @@ absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session, const v1:
   absl::StatusOr<std::string> payload = storage::EncodeSamples(out.samples);
   if (!payload.ok()) return payload.status();
   out.payload = *std::move(payload);
+  if (!out.retransmission) {
+    out.digest_after = session.digest;
+    out.digest_after.AddRecords(std::string_view(out.payload).substr(storage::kSampleHeaderBytes));
+  }
   return out;
 }
 
@@ -63,6 +67,7 @@ IngestResult CompleteBatch(storage::Store& store, LiveSession& session, const Pr
     session.last_acked_seq = ack.last_acked_seq;
     session.samples = ack.samples;
     session.last_t_s = batch.samples.back().t_s;
+    session.digest = batch.digest_after;
     std::vector<LiveEvent> events;
     Segment(session, batch.samples, &events);
     // Poses and pair verdicts are stored as they are judged (a few per minute). The batch is
