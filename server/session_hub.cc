@@ -97,6 +97,17 @@ void FlushSegment(LiveSession& session, std::vector<LiveEvent>* events) {
   AddSegmenterEvents(session, fresh, events);
 }
 
+void RecordProof(LiveSession& session, int64_t seq, int64_t samples) {
+  session.proofs.push_back({seq, samples, session.digest.Sha256()});
+  while (session.proofs.size() > LiveSession::kProofHistory) session.proofs.pop_front();
+}
+
+const LiveSession::Proof* ProofAfter(const LiveSession& session, int64_t seq) {
+  for (const LiveSession::Proof& p : session.proofs)
+    if (p.seq == seq) return &p;
+  return nullptr;
+}
+
 void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* poses,
             std::vector<storage::PosePair>* pairs) {
   for (const LiveEvent& e : events) {
@@ -199,7 +210,11 @@ absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Load(std::string_view s
   std::vector<storage::Pose> poses;
   std::vector<storage::PosePair> pairs;
   std::vector<storage::ImuSample> samples;
-  for (const storage::SampleBatch& b : *batches) {
+  const size_t first_proof = batches->size() > LiveSession::kProofHistory
+                                 ? batches->size() - LiveSession::kProofHistory
+                                 : 0;
+  for (size_t k = 0; k < batches->size(); ++k) {
+    const storage::SampleBatch& b = (*batches)[k];
     samples.clear();
     if (absl::Status s = storage::DecodeSamplesInto(b.payload, &samples); !s.ok()) return s;
     live->digest.AddRecords(std::string_view(b.payload).substr(storage::kSampleHeaderBytes));
@@ -209,6 +224,7 @@ absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Load(std::string_view s
     if (!samples.empty()) live->last_t_s = samples.back().t_s;
     live->samples += static_cast<int64_t>(samples.size());
     live->last_acked_seq = b.seq;
+    if (k >= first_proof) RecordProof(*live, b.seq, live->samples);
   }
   // A server killed between a batch's commit and its poses' leaves them missing: the replay
   // found them again (the segmentation is deterministic); store what is not there yet.

@@ -16,6 +16,7 @@
 #define IMUCAL_SERVER_SESSION_HUB_H_
 
 #include <cstdint>
+#include <deque>
 #include <future>
 #include <limits>
 #include <map>
@@ -57,10 +58,20 @@ struct LiveSession {
   double last_t_s = std::numeric_limits<double>::quiet_NaN();  // NaN: no sample yet
   std::unique_ptr<core::OnlineSegmenter> segmenter;
   std::unique_ptr<PairTracker> pairs;  // six-face pair verdicts while streaming
-  // The SHA-256 of the stored samples so far (client/sdk/sample_digest.h), which a stream that
-  // continues the session must match, and the name of the capture they came from.
+  // The SHA-256 of the stored samples so far (client/sdk/sample_digest.h), and the name of the
+  // capture they came from.
   sdk::SampleDigest digest;
   std::string source;
+  // The digest after each of the last kProofHistory batches, oldest first: a stream that starts
+  // at batch n proves the samples of batches 1..n-1, and n - 1 may be behind the last stored
+  // batch (batches in flight on a stream the robot dropped land after it read GetSession).
+  struct Proof {
+    int64_t seq = 0;      // the batch after which...
+    int64_t samples = 0;  // ...the session held this many samples...
+    std::string sha256;   // ...whose digest was this
+  };
+  static constexpr size_t kProofHistory = 64;  // far more than a client keeps in flight (8)
+  std::deque<Proof> proofs;
 
   std::mutex watchers_mu;
   std::vector<Watcher*> watchers;  // guarded by watchers_mu
@@ -86,6 +97,12 @@ void Segment(LiveSession& session, const std::vector<storage::ImuSample>& sample
              std::vector<LiveEvent>* events);
 // Ends the current still run (the session is closing for a solve): its pose, if any.
 void FlushSegment(LiveSession& session, std::vector<LiveEvent>* events);
+// Notes the session's digest, just updated with batch `seq`, after which it holds `samples`
+// samples, in `proofs` (the caller holds `mu`).
+void RecordProof(LiveSession& session, int64_t seq, int64_t samples);
+// The digest after batch `seq`, if it is among the last kProofHistory; null otherwise.
+const LiveSession::Proof* ProofAfter(const LiveSession& session, int64_t seq);
+
 // The poses and pair verdicts among `events`, as storage rows.
 void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* poses,
             std::vector<storage::PosePair>* pairs);

@@ -177,15 +177,16 @@ absl::StatusOr<v1::Session> SessionServiceImpl::SessionProto(const std::string& 
   // batch, so reading old sessions would cost seconds and grow memory.
   std::shared_ptr<LiveSession> live = hub_.Find(session_id);
   if (live == nullptr) return ToProto(*session, -1);
-  int poses = 0;
-  std::string digest;
-  {
-    std::lock_guard lock(live->mu);
-    poses = live->segmenter->poses_accepted();
-    if (session->state == storage::SessionState::kOpen) digest = live->digest.Sha256();
+  std::lock_guard lock(live->mu);
+  v1::Session out = ToProto(*session, live->segmenter->poses_accepted());
+  if (session->state == storage::SessionState::kOpen) {
+    // The samples, last batch and digest the session has taken in, all three as of one moment:
+    // a batch whose commit has not been acknowledged yet shows in none of them (storage may be
+    // a batch ahead), so a client resuming from them resumes consistently.
+    out.set_samples(live->samples);
+    out.set_last_acked_seq(live->last_acked_seq);
+    out.set_samples_sha256(live->digest.Sha256());
   }
-  v1::Session out = ToProto(*session, poses);
-  out.set_samples_sha256(std::move(digest));
   return out;
 }
 

@@ -257,9 +257,10 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     return Store();
   }
 
-  // A session that holds samples takes a new stream only from the same capture: the stream's
-  // resume_sha256 must be the digest of the samples stored (what the client believes it sent
-  // before). An empty session records the stream's source, for the messages of later streams.
+  // A session that holds samples takes a new stream only from the same capture: a stream that
+  // starts at batch n > 1 proves, with resume_sha256, that batches 1..n-1 are what it sent
+  // before (a stream from batch 1 needs no proof: each stored batch it repeats is compared
+  // byte for byte). An empty session records the stream's source, for later streams' messages.
   absl::Status CheckContinuationLocked() {
     LiveSession& live = *live_;
     if (live.samples == 0) {
@@ -270,19 +271,29 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
       }
       return absl::OkStatus();
     }
-    const std::string stored = live.digest.Sha256();
-    if (batch_.resume_sha256() == stored) return absl::OkStatus();
+    const int64_t before = batch_.seq() - 1;
+    // From batch 1, or past the last stored batch (a gap, which PrepareBatch names).
+    if (before <= 0 || before > live.last_acked_seq) return absl::OkStatus();
+    const LiveSession::Proof* proof = ProofAfter(live, before);
+    if (proof == nullptr) {
+      return absl::FailedPreconditionError(absl::StrCat(
+          "seq: the stream starts at batch ", batch_.seq(), ", more than ",
+          LiveSession::kProofHistory, " batches behind session ", live.id, "'s last stored batch ",
+          live.last_acked_seq, "; resume from ", live.last_acked_seq + 1));
+    }
+    if (batch_.resume_sha256() == proof->sha256) return absl::OkStatus();
     if (batch_.resume_sha256().empty()) {
-      return EchoesRequest(absl::FailedPreconditionError(absl::StrCat(
-          "resume_sha256: required to continue session ", live.id, ", which holds ", live.samples,
-          " samples of ", Named(live.source), ": send the SHA-256 of the first ", live.samples,
-          " samples of your capture (imucal.proto, SampleBatch.resume_sha256) to show that you "
-          "continue it")));
+      return EchoesRequest(absl::FailedPreconditionError(
+          absl::StrCat("resume_sha256: required to continue session ", live.id, " at batch ",
+                       batch_.seq(), ": send the SHA-256 of the ", proof->samples,
+                       " samples of batches 1..", before, " (", Named(live.source),
+                       "; imucal.proto, SampleBatch.resume_sha256) to show that the "
+                       "stream continues that capture")));
     }
     return EchoesRequest(absl::FailedPreconditionError(absl::StrCat(
         Named(batch_.source()), " does not continue ", Named(live.source), ", whose first ",
-        live.samples, " samples session ", live.id, " holds: their SHA-256 is ",
-        sdk::HexPrefix(stored, 16), "..., this stream's for its first ", live.samples,
+        proof->samples, " samples session ", live.id, " holds: their SHA-256 is ",
+        sdk::HexPrefix(proof->sha256, 16), "..., this stream's for its first ", proof->samples,
         " samples is ", sdk::HexPrefix(batch_.resume_sha256(), 16),
         "...; continue with the same capture, or cancel the session and start a new one")));
   }

@@ -140,7 +140,7 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
   absl::Duration backoff = options_.initial_backoff;
   absl::Time last_progress = absl::Now();
   // The digest of this capture's first `digested` samples: what the session must hold to be
-  // continued. It only moves forward (the stored count never goes back).
+  // continued.
   SampleDigest digest;
   int64_t digested = 0;
   for (;;) {
@@ -160,22 +160,16 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
             absl::StrFormat("session %s already holds %d samples, more than the %d of this capture",
                             session_id, stored, samples.size()));
       }
+      if (stored < digested) {  // never in practice: what the server holds only grows
+        digest = SampleDigest();
+        digested = 0;
+      }
       if (stored > digested) {
         AddToDigest(samples, digested, stored, &digest);
         digested = stored;
       }
+      // The proof that this capture is the one the session holds (the server checks it).
       const std::string resume = stored > 0 ? digest.Sha256() : std::string();
-      // An open session says what it holds: another capture's start is not this one's.
-      if (stored > 0 && !session->samples_sha256().empty() && session->samples_sha256() != resume) {
-        return absl::FailedPreconditionError(absl::StrFormat(
-            "%s does not continue the capture session %s holds (%s): the SHA-256 of its %d "
-            "stored samples is %s..., of this capture's first %d %s...; upload that capture, or "
-            "cancel the session and start a new one",
-            options_.source.empty() ? "this capture" : absl::StrCat("'", options_.source, "'"),
-            session_id,
-            session->source().empty() ? "unnamed" : absl::StrCat("'", session->source(), "'"),
-            stored, HexPrefix(session->samples_sha256(), 16), stored, HexPrefix(resume, 16)));
-      }
       if (first) result.skipped_samples = stored;
       first = false;
       result.last_acked_seq = session->last_acked_seq();

@@ -5,9 +5,9 @@
 // the highest seq it has durably stored. A session holds one capture, so the session's stored
 // sample count says where this capture resumes: on (re)connecting the Uploader reads GetSession
 // (samples, last_acked_seq) and sends samples [samples, total) as batches last_acked_seq + 1,
-// + 2, ... The first batch of a stream into a session that holds samples carries the SHA-256
-// of this capture's first `samples` samples (SampleBatch.resume_sha256, sample_digest.h): the
-// server refuses the stream when the session holds another capture's start, naming both
+// + 2, ... The first batch of a stream that continues a session carries the SHA-256 of this
+// capture's first `samples` samples (SampleBatch.resume_sha256, sample_digest.h): the server
+// refuses the stream when the session holds another capture's start, naming both
 // (UploadOptions::source names this one). Uploading the same capture again to a session that
 // already holds part of it resumes after the last acknowledged batch; every sample reaches the
 // server exactly once.

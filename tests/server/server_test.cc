@@ -28,6 +28,7 @@
 #include "server/convert.h"
 #include "server/status_util.h"
 #include "storage/store.h"
+#include "tests/server/resume_proofs.h"
 #include "tests/server/watch.h"
 #include "tests/test_dir.h"
 
@@ -119,28 +120,25 @@ class ServerTest : public testing::Test {
   }
 
   // Streams `batches` on one stream; returns the stream's final status and the acks. A stream
-  // into a session that holds samples proves it continues the stored capture
-  // (SampleBatch.resume_sha256): these tests resume with the digest the server reports
-  // (validation_test checks the proof itself).
+  // that continues a session proves it continues the stored capture (SampleBatch.
+  // resume_sha256): the batches this test had acknowledged give the proof
+  // (tests/server/resume_proofs.h; validation_test checks the proof itself).
   grpc::Status Stream(std::vector<v1::SampleBatch> batches, std::vector<v1::SampleAck>* acks) {
-    if (!batches.empty() && !batches[0].session_id().empty()) {
-      v1::GetSessionRequest req;
-      req.set_session_id(batches[0].session_id());
-      v1::Session session;
-      if (sessions_->GetSession(Ctx().get(), req, &session).ok() && session.samples() > 0)
-        batches[0].set_resume_sha256(session.samples_sha256());
-    }
+    proofs_.Prove(&batches, sessions_.get());
+    std::vector<v1::SampleAck> got;
     auto ctx = Ctx();
     auto stream = sessions_->StreamSamples(ctx.get());
     for (const v1::SampleBatch& b : batches) {
       if (!stream->Write(b)) break;
       v1::SampleAck ack;
       if (!stream->Read(&ack)) break;
-      acks->push_back(ack);
+      got.push_back(ack);
     }
     stream->WritesDone();
     v1::SampleAck extra;
-    while (stream->Read(&extra)) acks->push_back(extra);
+    while (stream->Read(&extra)) got.push_back(extra);
+    proofs_.Acked(batches, got);
+    acks->insert(acks->end(), got.begin(), got.end());
     return stream->Finish();
   }
 
@@ -162,6 +160,7 @@ class ServerTest : public testing::Test {
   }
 
   testing_util::TestDir dir_{"server_test"};  // first: outlives the server that uses it
+  testing_util::ResumeProofs proofs_;
   ServerOptions options_;
   std::unique_ptr<Server> server_;
   std::shared_ptr<grpc::Channel> channel_;

@@ -11,7 +11,6 @@
 #include <string>
 #include <vector>
 
-#include "client/sdk/sample_digest.h"
 #include "client/sdk/uploader.h"
 #include "gmock/gmock.h"
 #include "grpcpp/generic/generic_stub.h"
@@ -22,6 +21,7 @@
 #include "server/validate.h"
 #include "storage/sample_codec.h"
 #include "storage/store.h"
+#include "tests/server/resume_proofs.h"
 #include "tests/test_dir.h"
 
 namespace imucal::server {
@@ -151,33 +151,22 @@ class ValidationTest : public testing::Test {
     return session.id();
   }
 
-  // Streams `batches` on one stream, one ack awaited per batch. A stream into a session that
-  // holds samples must prove it continues the stored capture (SampleBatch.resume_sha256):
-  // tests that are not about that proof resume with the digest the server reports.
+  // Streams `batches` on one stream, one ack awaited per batch. A stream that continues a
+  // session proves it continues the stored capture (SampleBatch.resume_sha256): the batches
+  // this test had acknowledged give the proof (tests/server/resume_proofs.h).
   grpc::Status Stream(std::vector<v1::SampleBatch> batches,
                       std::vector<v1::SampleAck>* acks = nullptr) {
-    if (!batches.empty() && batches[0].resume_sha256().empty() &&
-        !batches[0].session_id().empty()) {
-      v1::GetSessionRequest req;
-      req.set_session_id(batches[0].session_id());
-      v1::Session session;
-      if (sessions_->GetSession(Ctx().get(), req, &session).ok() && session.samples() > 0)
-        batches[0].set_resume_sha256(session.samples_sha256());
-    }
-    return StreamAsIs(batches, acks);
+    proofs_.Prove(&batches, sessions_.get());
+    std::vector<v1::SampleAck> got;
+    const grpc::Status s = StreamAsIs(batches, &got);
+    proofs_.Acked(batches, got);
+    if (acks != nullptr) acks->insert(acks->end(), got.begin(), got.end());
+    return s;
   }
 
-  // The SHA-256 a stream continuing after `stored` sends (client/sdk/sample_digest.h).
+  // The SHA-256 a stream continuing after `stored` sends.
   static std::string Digest(const std::vector<v1::SampleBatch>& stored) {
-    sdk::SampleDigest digest;
-    for (const v1::SampleBatch& b : stored) {
-      for (int i = 0; i < b.t_s_size(); ++i) {
-        const double temp = b.temp_c_size() > 0 ? b.temp_c(i) : 0.0;
-        digest.AddSample(b.t_s(i), b.accel().data() + 3 * i, b.gyro().data() + 3 * i,
-                         b.temp_c_size() > 0 ? &temp : nullptr);
-      }
-    }
-    return digest.Sha256();
+    return testing_util::DigestOf(stored);
   }
 
   // Streams `batches` exactly as given.
@@ -208,6 +197,7 @@ class ValidationTest : public testing::Test {
   }
 
   testing_util::TestDir dir_{"validation_test"};  // first: outlives the server that uses it
+  testing_util::ResumeProofs proofs_;
   ServerOptions options_;
   std::unique_ptr<Server> server_;
   std::shared_ptr<grpc::Channel> channel_;
