@@ -182,27 +182,8 @@ class UploaderImucaldTest : public testing_util::ImucaldTest {
   UploaderImucaldTest() : ImucaldTest("imucal_uploader_test") {}
 
   std::string CreateSession(const std::string& device) {
-    auto channel = server_->NewChannel();
-    auto devices = pb::DeviceService::NewStub(channel);
-    auto sessions = pb::SessionService::NewStub(channel);
-    grpc::ClientContext c1;
-    pb::RegisterDeviceRequest reg;
-    reg.mutable_device()->set_id(device);
-    reg.mutable_device()->set_sensor_model("sim");
-    reg.mutable_device()->set_nominal_rate_hz(200);
-    reg.mutable_device()->set_accel_unit("m/s^2");
-    reg.mutable_device()->set_gyro_unit("rad/s");
-    pb::Device d;
-    grpc::Status s = devices->RegisterDevice(&c1, reg, &d);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    grpc::ClientContext c2;
-    pb::CreateSessionRequest create;
-    create.set_device_id(device);
-    create.set_protocol(pb::PROTOCOL_SIX_FACE);
-    pb::Session session;
-    s = sessions->CreateSession(&c2, create, &session);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return session.id();
+    return testing_util::RegisterAndOpenSession(server_->NewChannel(), device,
+                                                pb::PROTOCOL_SIX_FACE);
   }
 
   pb::Session GetSession(const std::string& id) {

@@ -34,28 +34,6 @@ namespace pb = ::imucal::v1;
 class OutageTest : public testing_util::ImucaldTest, public testing::WithParamInterface<int> {
  protected:
   OutageTest() : ImucaldTest("imucal_outage_test") {}
-
-  std::string OpenSession(const std::string& device) {
-    auto channel = server_->NewChannel();
-    pb::RegisterDeviceRequest reg;
-    reg.mutable_device()->set_id(device);
-    reg.mutable_device()->set_sensor_model("sim");
-    reg.mutable_device()->set_nominal_rate_hz(200);
-    reg.mutable_device()->set_accel_unit("m/s^2");
-    reg.mutable_device()->set_gyro_unit("rad/s");
-    pb::Device d;
-    grpc::ClientContext c1;
-    grpc::Status s = pb::DeviceService::NewStub(channel)->RegisterDevice(&c1, reg, &d);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    pb::CreateSessionRequest create;
-    create.set_device_id(device);
-    create.set_protocol(pb::PROTOCOL_SIX_FACE);
-    pb::Session session;
-    grpc::ClientContext c2;
-    s = pb::SessionService::NewStub(channel)->CreateSession(&c2, create, &session);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return session.id();
-  }
 };
 
 TEST_P(OutageTest, TheUploadCompletesWithEverySampleOnce) {
@@ -66,7 +44,8 @@ TEST_P(OutageTest, TheUploadCompletesWithEverySampleOnce) {
   ASSERT_TRUE(simulated.ok()) << simulated.status();
   const core::Capture& capture = simulated->capture;
   ASSERT_TRUE(capture.has_temp());
-  const std::string session = OpenSession("robot-outage");
+  const std::string session = testing_util::RegisterAndOpenSession(
+      server_->NewChannel(), "robot-outage", pb::PROTOCOL_SIX_FACE);
   ASSERT_FALSE(session.empty());
 
   // The first acknowledgement holds the robot's reading thread until the server is dead, so

@@ -661,29 +661,24 @@ TEST_F(ServerTest, ClosedSessionsAreRefusedWithoutLoadingThem) {
   ASSERT_TRUE(sessions_->CancelSession(Ctx().get(), cancel, &cancelled).ok());
   EXPECT_EQ(cancelled.state(), v1::SESSION_STATE_CANCELLED);
 
+  // Refused, naming the state, and nothing loaded.
+  auto refused = [&](const grpc::Status& st, const char* call) {
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::FAILED_PRECONDITION)
+        << call << ": " << st.error_message();
+    EXPECT_NE(st.error_message().find("is cancelled"), std::string::npos) << st.error_message();
+    EXPECT_EQ(server_->live_sessions(), 0u) << call;
+  };
   for (int round = 0; round < 2; ++round) {  // then again after a restart
     SCOPED_TRACE(round == 0 ? "running since the cancel" : "after a restart");
     EXPECT_EQ(server_->live_sessions(), 0u);
-    s = sessions_->CancelSession(Ctx().get(), cancel, &cancelled);
-    EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << s.error_message();
-    EXPECT_NE(s.error_message().find("is cancelled"), std::string::npos) << s.error_message();
-    EXPECT_EQ(server_->live_sessions(), 0u);
-
-    v1::SampleBatch next = Batches(Sim().capture, session.id())[10];
+    refused(sessions_->CancelSession(Ctx().get(), cancel, &cancelled), "CancelSession");
     acks.clear();
-    s = Stream({next}, &acks);
-    EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << s.error_message();
-    EXPECT_NE(s.error_message().find("is cancelled"), std::string::npos) << s.error_message();
+    refused(Stream({Batches(Sim().capture, session.id())[10]}, &acks), "StreamSamples");
     EXPECT_TRUE(acks.empty());
-    EXPECT_EQ(server_->live_sessions(), 0u);
-
     v1::SolveSessionRequest solve;
     solve.set_session_id(session.id());
     v1::SolveJob job;
-    s = sessions_->SolveSession(Ctx().get(), solve, &job);
-    EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << s.error_message();
-    EXPECT_NE(s.error_message().find("is cancelled"), std::string::npos) << s.error_message();
-    EXPECT_EQ(server_->live_sessions(), 0u);
+    refused(sessions_->SolveSession(Ctx().get(), solve, &job), "SolveSession");
     EXPECT_EQ(GetSession(session.id()).samples(), 10 * kBatch);
     StartServer();
   }
