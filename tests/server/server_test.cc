@@ -27,6 +27,7 @@
 #include "server/active_cache.h"
 #include "server/convert.h"
 #include "server/status_util.h"
+#include "server/stream_registry.h"
 #include "storage/store.h"
 #include "tests/server/resume_proofs.h"
 #include "tests/server/watch.h"
@@ -957,6 +958,78 @@ TEST_F(ServerTest, HealthIsServingAndUnknownsAreNotFound) {
   v1::SolveJob j;
   EXPECT_EQ(sessions_->GetSolveJob(Ctx().get(), job, &j).error_code(),
             grpc::StatusCode::INVALID_ARGUMENT);
+}
+
+// The registry's rules alone (server/stream_registry.h): the caps count from Add, a revoked
+// token's streams are told and its later streams refused, and the sweeper tells a stream past
+// its deadline.
+class RegisteredStream final : public StreamRegistry::Stream {
+ public:
+  void Revoke(const grpc::Status& status) override {
+    std::lock_guard lock(mu_);
+    revoked_ = status.error_message();
+  }
+  void Expire(absl::Time now) override {
+    std::lock_guard lock(mu_);
+    if (PastDeadline(now)) ++expired_;
+    cv_.notify_all();
+  }
+  std::string revoked() {
+    std::lock_guard lock(mu_);
+    return revoked_;
+  }
+  bool WaitExpired(std::chrono::seconds timeout) {
+    std::unique_lock lock(mu_);
+    return cv_.wait_for(lock, timeout, [this] { return expired_ > 0; });
+  }
+  int expired() {
+    std::lock_guard lock(mu_);
+    return expired_;
+  }
+
+ private:
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::string revoked_;  // guarded by mu_
+  int expired_ = 0;      // guarded by mu_
+};
+
+TEST(StreamRegistryTest, CapsRevocationAndDeadlines) {
+  StreamRegistry::Options options;
+  options.max_streams = 3;
+  options.max_per_caller = 2;
+  options.tick = absl::Milliseconds(10);
+  StreamRegistry registry(options);
+  std::vector<std::shared_ptr<RegisteredStream>> s;
+  for (int i = 0; i < 5; ++i) s.push_back(std::make_shared<RegisteredStream>());
+  ASSERT_TRUE(registry.Add(s[0], "token:1", 1).ok());
+  ASSERT_TRUE(registry.Add(s[1], "token:1", 1).ok());
+  absl::Status refused = registry.Add(s[2], "token:1", 1);
+  EXPECT_TRUE(absl::IsResourceExhausted(refused)) << refused;
+  EXPECT_NE(refused.message().find("token 1 already has 2 streams open"), std::string::npos)
+      << refused;
+  ASSERT_TRUE(registry.Add(s[2], "token:2", 2).ok());  // another token has its own share
+  refused = registry.Add(s[3], "", 0);                 // but the server is full
+  EXPECT_TRUE(absl::IsResourceExhausted(refused)) << refused;
+  EXPECT_NE(refused.message().find("the server has 3 streams open"), std::string::npos) << refused;
+  registry.Remove(s[1].get());  // a place of token 1's and of the server's again
+  ASSERT_TRUE(registry.Add(s[3], "token:1", 1).ok());
+  EXPECT_EQ(registry.size(), 3u);
+
+  registry.RevokeToken(1, grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "token 1 was revoked"));
+  EXPECT_EQ(s[0]->revoked(), "token 1 was revoked");
+  EXPECT_EQ(s[3]->revoked(), "token 1 was revoked");
+  EXPECT_EQ(s[2]->revoked(), "");
+  registry.Remove(s[0].get());
+  refused = registry.Add(s[4], "token:1", 1);  // authorised before the revocation, added after
+  EXPECT_TRUE(absl::IsUnauthenticated(refused)) << refused;
+
+  s[2]->SetDeadline(absl::Now() - absl::Seconds(1));
+  s[3]->SetDeadline(absl::InfiniteFuture());
+  EXPECT_TRUE(s[2]->WaitExpired(std::chrono::seconds(10)));
+  EXPECT_EQ(s[3]->expired(), 0);
+  for (const auto& stream : s) registry.Remove(stream.get());
+  EXPECT_EQ(registry.size(), 0u);
 }
 
 TEST(StatusUtilTest, MapsCodesOneToOneAndScrubsPaths) {
