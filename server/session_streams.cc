@@ -96,6 +96,10 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
       return;
     }
     registered_ = true;
+    if (pending_end_) {  // revoked between Add and here
+      FinishLocked(*pending_end_);
+      return;
+    }
     ReadLocked(/*first=*/true);
   }
 
