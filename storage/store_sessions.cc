@@ -158,8 +158,8 @@ absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(session.device_id, "device_id")));
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   if (!std::isfinite(session.gravity_m_s2) || session.gravity_m_s2 <= 0) {
-    return absl::InvalidArgumentError(
-        Cat(kOp, ": gravity_m_s2 ", session.gravity_m_s2, " is not a positive number"));
+    return WithContext(kOp, absl::InvalidArgumentError(Cat("gravity_m_s2 ", session.gravity_m_s2,
+                                                           " is not a positive number")));
   }
   const std::string id = session.id.empty() ? GenerateSessionId() : session.id;
   std::lock_guard lock(write_mu_);
