@@ -78,11 +78,12 @@ std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target,
   // gRPC's own reconnect backoff (1 s, x1.6 per attempt, up to 120 s) would leave a robot
   // unconnected for up to two minutes after a server restart; capped at
   // max_reconnect_backoff, the channel tries every few seconds at most, so a call waiting for
-  // it (wait-for-ready, as the Uploader's are) goes out soon after the server is back.
+  // it (wait-for-ready, as the Uploader's are) goes out soon after the server is back. (Not
+  // GRPC_ARG_MIN_RECONNECT_BACKOFF_MS: gRPC takes that as each attempt's minimum time to
+  // connect, 20 s by default, which a slow link's TLS handshake needs.)
   grpc::ChannelArguments args;
   const int max_ms = static_cast<int>(absl::ToInt64Milliseconds(options.max_reconnect_backoff));
   args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, std::min(max_ms, 250));
-  args.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, std::min(max_ms, 250));
   args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, max_ms);
   auto channel = [&](const std::shared_ptr<grpc::ChannelCredentials>& credentials) {
     return grpc::CreateCustomChannel(target, credentials, args);
