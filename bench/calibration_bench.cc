@@ -30,10 +30,10 @@
 #include "core/accel_solver.h"
 #include "core/calibrate/accel_stage.h"
 #include "core/calibrate/calibrate.h"
-#include "core/capture_io.h"
 #include "core/crb.h"
 #include "core/model.h"
 #include "core/simulator.h"
+#include "importers/registry.h"
 
 namespace imucal::core {
 namespace {
@@ -241,7 +241,7 @@ std::optional<StageProblem> MakeStageProblem(uint64_t seed) {
   const auto s1 = SixFaceStageOne(p.sim, p.poses, p.g);
   if (!s1.ok()) return std::nullopt;
   p.start = *s1;
-  pipeline::SetModelSigma(p.start, p.g, MaskOf(kAccelFirstOrder), &p.poses);  // as Calibrate does
+  pipeline::SetModelSigma(p.start, p.g, MaskOf(kAccelFirstOrder), {}, &p.poses);  // as Calibrate does
   p.tau = p.poses.empty() ? 0.0 : p.poses.front().model_sigma_m_s2;
   AccelMask all{};
   all.fill(true);
@@ -368,9 +368,10 @@ bool HaveXsens() {
 }
 
 absl::StatusOr<Capture> ImportXsens() {
-  ImportOptions io;
+  importers::ImportOptions io;
   io.gravity_m_s2 = kXsensGravity;
-  return ImportCapture({XsensDir() + "/xsens_acc.mat", XsensDir() + "/xsens_gyro.mat"}, io);
+  return importers::ImportCapture({XsensDir() + "/xsens_acc.mat", XsensDir() + "/xsens_gyro.mat"},
+                                  io);
 }
 
 void PrintXsens() {

@@ -1,5 +1,5 @@
 // The robot SDK's per-sample cost: Corrector::Apply / ApplyBatch on a realistic parameter set,
-// against a hand-written loop doing the same arithmetic inline (the target: within 2x).
+// against a hand-written loop doing the same arithmetic inline (the target: within 2x).
 //
 //   ninja -C build-perf corrector_bench && build-perf/bench/corrector_bench
 //

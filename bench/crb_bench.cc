@@ -1,4 +1,4 @@
-// How close the pipeline's estimates come to the Cramer-Rao bound (core/crb.h): the issue's
+// How close the pipeline's estimates come to the Cramer-Rao bound (core/crb.h): the
 // target is RMS error / RMS CRB <= 1.5 per parameter group.
 //
 // Over many seeds (truth drawn per seed by RandomTruth; six-face + 24 extra poses; default noise

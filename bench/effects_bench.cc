@@ -1,4 +1,4 @@
-// The figures for closing the loop, over many seeds (default 20 per row):
+// The figures for closing the loop, over many seeds (default 20 per row):
 //   - detection rate per effect type: the simulated effect found with the right sensor, axis and
 //     regressor (and how often its coefficient lies within 3 standard errors of the truth);
 //   - the false-alarm rate on clean captures, with and without a temperature channel;

@@ -16,8 +16,8 @@
 //
 // 1. Populates a fresh SQLite file through storage::Store (no direct SQL): `devices` devices,
 //    `versions` parameter versions each (the last one active, the others superseded). Each
-//    version carries a ~2 KB "imucal-params v1" document (sdk::ParamSetToJson of a realistic,
-//    per-version random parameter set with stderrs and effects) and an ~8 KB report_json
+//    version carries a ~2 KB "imucal-params v1" document (formats::ParamSetToJson of a
+//    realistic, per-version random parameter set with stderrs and effects) and an ~8 KB report_json
 //    stand-in (the same row holds both; GetActive reads only params_json). The Store has no
 //    bulk API, so this is one transaction per call (CreateDevice, AddVersion with its audit row).
 // 2. Starts imucal::server::Server on that file in a forked child (127.0.0.1:0) and, from this
@@ -51,8 +51,8 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "bench/service_bench_util.h"
-#include "client/sdk/params_json.h"
 #include "core/params.h"
+#include "formats/params_json.h"
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "server/server.h"
@@ -195,7 +195,7 @@ void Populate(const Flags& flags, const std::string& path) {
     for (int i = 0; i < flags.devices; ++i) {
       imucal::storage::ParamVersion pv;
       pv.device_id = DeviceId(i);
-      pv.params_json = imucal::sdk::ParamSetToJson(RandomParams(rng, pv.device_id, v));
+      pv.params_json = imucal::formats::ParamSetToJson(RandomParams(rng, pv.device_id, v));
       json_bytes += pv.params_json.size();
       pv.report_json = report_json;
       pv.verdict = imucal::storage::Verdict::kPass;

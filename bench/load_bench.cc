@@ -1,4 +1,4 @@
-// The load test: a bounded, self-stopping run on loopback against the real imucald
+// The load test: a bounded, self-stopping run on loopback against the real imucald
 // binary (its own process, so its CPU and memory are its own) of
 //   - R robots streaming at 200 Hz, paced: each sends a batch every --batch-ms (default 500 ms,
 //     100 samples; at 100 ms, 10,000 batches/s, this 2-core machine falls behind: README
@@ -66,9 +66,9 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "bench/service_bench_util.h"
-#include "client/sdk/params_json.h"
 #include "core/params.h"
 #include "core/simulator.h"
+#include "formats/params_json.h"
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "server/log.h"
@@ -447,7 +447,7 @@ std::vector<std::string> Populate(const Flags& flags, const std::string& path) {
     p.version = 1;
     imucal::storage::ParamVersion v;
     v.device_id = FleetId(i);
-    v.params_json = imucal::sdk::ParamSetToJson(p);
+    v.params_json = imucal::formats::ParamSetToJson(p);
     v.report_json = "{\"format\":\"imucal-report v1\"}";
     v.verdict = imucal::storage::Verdict::kPass;
     v.accel_rms = 0.004;

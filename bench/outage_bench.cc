@@ -36,8 +36,8 @@
 #include "absl/strings/str_split.h"
 #include "bench/service_bench_util.h"
 #include "client/sdk/client.h"
-#include "client/sdk/sample_digest.h"
 #include "client/sdk/uploader.h"
+#include "formats/sample_digest.h"
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 
@@ -183,7 +183,7 @@ Run OneOutage(const Flags& flags, const std::string& dir, int port, int outage_s
   grpc::ClientContext ctx;
   ctx.set_wait_for_ready(true);
   if (v1::SessionService::NewStub(channel)->GetSession(&ctx, get, &stored).ok()) {
-    imucal::sdk::SampleDigest digest;
+    imucal::formats::SampleDigest digest;
     for (int64_t i = 0; i < capture.size(); ++i) {
       const size_t k = static_cast<size_t>(i);
       digest.AddSample(capture.t_s[k], &capture.accel[3 * k], &capture.gyro[3 * k],

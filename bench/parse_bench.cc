@@ -10,7 +10,9 @@
 
 #include "benchmark/benchmark.h"
 #include "core/capture.h"
-#include "core/capture_io.h"
+#include "importers/imucal_csv.h"
+#include "importers/imutk.h"
+#include "importers/registry.h"
 
 namespace imucal::core {
 namespace {
@@ -60,7 +62,7 @@ const std::string& CaptureText() {
 void BM_ParseImucalCsv(benchmark::State& state) {
   const std::string& text = CaptureText();
   for (auto _ : state) {
-    absl::StatusOr<Capture> capture = ParseImucalCsv(text, "bench.csv");
+    absl::StatusOr<Capture> capture = importers::ParseImucalCsv(text, "bench.csv");
     if (!capture.ok()) {
       state.SkipWithError(std::string(capture.status().message()).c_str());
       return;
@@ -74,14 +76,14 @@ void BM_ParseImucalCsv(benchmark::State& state) {
 BENCHMARK(BM_ParseImucalCsv)->Unit(benchmark::kMillisecond);
 
 void BM_FormatImucalCsv(benchmark::State& state) {
-  absl::StatusOr<Capture> capture = ParseImucalCsv(CaptureText(), "bench.csv");
+  absl::StatusOr<Capture> capture = importers::ParseImucalCsv(CaptureText(), "bench.csv");
   if (!capture.ok()) {
     state.SkipWithError(std::string(capture.status().message()).c_str());
     return;
   }
   size_t bytes = 0;
   for (auto _ : state) {
-    const std::string text = FormatImucalCsv(*capture);
+    const std::string text = importers::FormatImucalCsv(*capture);
     bytes = text.size();
     benchmark::DoNotOptimize(text.data());
   }
@@ -104,7 +106,8 @@ void BM_ReadXsensImuTkPair(benchmark::State& state) {
                                           std::filesystem::file_size(gyro_path));
   size_t rows = 0;
   for (auto _ : state) {
-    absl::StatusOr<Capture> capture = ReadImuTkPair(accel_path, gyro_path, ImportOptions{});
+    absl::StatusOr<Capture> capture =
+        importers::ReadImuTkPair(accel_path, gyro_path, importers::ImportOptions{});
     if (!capture.ok()) {
       state.SkipWithError(std::string(capture.status().message()).c_str());
       return;

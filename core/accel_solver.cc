@@ -67,26 +67,67 @@ double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-// Weighted Jacobian rows (d r_i / d theta with r_i = (|a_i| - g)/sigma_i) restricted to `free`.
+// The priors on free parameters, in the order their rows follow the poses' rows.
+std::vector<AccelPrior> ActivePriors(const AccelMask& free, const AccelPriors& priors) {
+  std::vector<AccelPrior> out;
+  for (const AccelPrior& q : priors)
+    if (q.index >= 0 && q.index < kAccelParams && free[static_cast<size_t>(q.index)] && q.sigma > 0)
+      out.push_back(q);
+  return out;
+}
+
+// Weighted Jacobian rows (d r_i / d theta with r_i = (|a_i| - g)/sigma_i) restricted to `free`,
+// then one row per active prior ((theta_c - value) / sigma).
 Eigen::MatrixXd WeightedJacobian(const AccelParams& p, const std::vector<AccelPose>& poses,
-                                 const std::vector<double>& sigma, const AccelMask& free) {
+                                 const std::vector<double>& sigma, const AccelMask& free,
+                                 const AccelPriors& priors = {}) {
   const Eigen::MatrixXd j = MagnitudeJacobian(p, poses);
+  const std::vector<AccelPrior> active = ActivePriors(free, priors);
   int n_free = 0;
   for (bool f : free) n_free += f;
-  Eigen::MatrixXd out(j.rows(), n_free);
+  Eigen::MatrixXd out =
+      Eigen::MatrixXd::Zero(j.rows() + static_cast<Eigen::Index>(active.size()), n_free);
+  std::array<int, kAccelParams> column{};
   for (int c = 0, k = 0; c < kAccelParams; ++c)
-    if (free[c]) out.col(k++) = j.col(c);
-  for (Eigen::Index i = 0; i < out.rows(); ++i) out.row(i) /= sigma[static_cast<size_t>(i)];
+    if (free[c]) column[static_cast<size_t>(c)] = k, out.col(k++).head(j.rows()) = j.col(c);
+  for (Eigen::Index i = 0; i < j.rows(); ++i) out.row(i) /= sigma[static_cast<size_t>(i)];
+  for (size_t m = 0; m < active.size(); ++m)
+    out(j.rows() + static_cast<Eigen::Index>(m), column[static_cast<size_t>(active[m].index)]) =
+        1.0 / active[m].sigma;
   return out;
 }
 
 Eigen::VectorXd WeightedResiduals(const AccelParams& p, const std::vector<AccelPose>& poses,
-                                  const std::vector<double>& sigma, double g) {
+                                  const std::vector<double>& sigma, double g,
+                                  const AccelMask& free = {}, const AccelPriors& priors = {}) {
   const std::vector<double> r = MagnitudeResiduals(p, poses, g);
-  Eigen::VectorXd out(static_cast<Eigen::Index>(r.size()));
+  const std::vector<AccelPrior> active = ActivePriors(free, priors);
+  Eigen::VectorXd out(static_cast<Eigen::Index>(r.size() + active.size()));
   for (size_t i = 0; i < r.size(); ++i) out(static_cast<Eigen::Index>(i)) = r[i] / sigma[i];
+  const AccelVector theta = PackAccel(p);
+  for (size_t m = 0; m < active.size(); ++m)
+    out(static_cast<Eigen::Index>(r.size() + m)) =
+        (theta(active[m].index) - active[m].value) / active[m].sigma;
   return out;
 }
+
+// One prior as a Ceres residual on its parameter block (3 components).
+struct PriorError {
+  PriorError(int k, double value, double inv_sigma) : k_(k), value_(value), inv_sigma_(inv_sigma) {}
+  template <typename T>
+  bool operator()(const T* block, T* r) const {
+    r[0] = (block[k_] - T(value_)) * T(inv_sigma_);
+    return true;
+  }
+  static ceres::CostFunction* Create(const AccelPrior& q) {
+    return new ceres::AutoDiffCostFunction<PriorError, 1, 3>(
+        new PriorError(q.index % 3, q.value, 1.0 / q.sigma));
+  }
+
+ private:
+  int k_;
+  double value_, inv_sigma_;
+};
 
 const char* kGroupNames[4] = {"bias", "scale", "tri", "quadratic"};
 
@@ -97,6 +138,12 @@ double MagnitudeResidual(const Eigen::Matrix3d& l, const AccelParams& p, const A
 }
 
 }  // namespace
+
+int PosesPayFor(const AccelMask& free, const AccelPriors& priors) {
+  int n = 0;
+  for (bool f : free) n += f;
+  return n - static_cast<int>(ActivePriors(free, priors).size());
+}
 
 AccelVector PackAccel(const AccelParams& p) {
   AccelVector v;
@@ -329,19 +376,24 @@ double EstimateModelSigma(const AccelParams& p, const std::vector<AccelPose>& po
   return hi;
 }
 
+AccelVector AccelPlausibleRange(const AccelParams& p, double gravity_m_s2) {
+  AccelVector range;
+  for (int k = 0; k < 3; ++k) {
+    range(k) = 0.2 * gravity_m_s2 / std::abs(p.scale(k));
+    range(3 + k) = 0.1 * std::abs(p.scale(k));
+    range(6 + k) = 0.03;
+    range(9 + k) = 1e-3;
+  }
+  return range;
+}
+
 AccelObservability AnalyseAccelObservability(const AccelParams& p,
                                              const std::vector<AccelPose>& poses,
-                                             double gravity_m_s2, const AccelMask& candidates) {
+                                             double gravity_m_s2, const AccelMask& candidates,
+                                             const AccelPriors& priors) {
   AccelObservability out;
   out.determined = candidates;
-  // Broad physical prior, in parameter units (see header).
-  AccelVector prior;
-  for (int k = 0; k < 3; ++k) {
-    prior(k) = 0.2 * gravity_m_s2 / std::abs(p.scale(k));
-    prior(3 + k) = 0.1 * std::abs(p.scale(k));
-    prior(6 + k) = 0.03;
-    prior(9 + k) = 1e-3;
-  }
+  const AccelVector prior = AccelPlausibleRange(p, gravity_m_s2);
   const std::vector<double> sigma = MagnitudeSigmas(p, poses);
   static const char* kFix[12] = {
       "add poses with the x axis pointing up and pointing down",
@@ -356,13 +408,19 @@ AccelObservability AnalyseAccelObservability(const AccelParams& p,
       "add poses with the x axis about 45 degrees from vertical",
       "add poses with the y axis about 45 degrees from vertical",
       "add poses with the z axis about 45 degrees from vertical"};
+  // A parameter with a prior is measured (by the prior's source) whatever the poses add.
+  const auto has_prior = [&priors](int c) {
+    for (const AccelPrior& q : priors)
+      if (q.index == c) return true;
+    return false;
+  };
   // Release undetermined parameters from the highest order down, re-checking after each group.
   for (int group = 3; group >= 0; --group) {
     AccelMask free = out.determined;
     int n_free = 0;
     for (bool f : free) n_free += f;
     if (n_free == 0) break;
-    const Eigen::MatrixXd jw = WeightedJacobian(p, poses, sigma, free);
+    const Eigen::MatrixXd jw = WeightedJacobian(p, poses, sigma, free, priors);
     Eigen::VectorXd d(n_free);
     for (int c = 0, k = 0; c < kAccelParams; ++c)
       if (free[c]) d(k++) = prior(c);
@@ -376,7 +434,7 @@ AccelObservability AnalyseAccelObservability(const AccelParams& p,
       const double ratio = std::sqrt(post(k, k));
       out.sigma(c) = ratio * prior(c);
       ++k;
-      if (c / 3 == group && ratio > 0.5) {
+      if (c / 3 == group && ratio > 0.5 && !has_prior(c)) {
         out.determined[c] = false;
         out.sigma(c) = std::numeric_limits<double>::infinity();
         released = true;
@@ -393,8 +451,10 @@ AccelObservability AnalyseAccelObservability(const AccelParams& p,
 
 AccelParams RefineAccelBsas(const AccelParams& start, const std::vector<AccelPose>& poses,
                             double gravity_m_s2, const AccelMask& free, const AccelVector& unit,
-                            const BsasStageOptions& options, StageReport* report) {
+                            const BsasStageOptions& options, StageReport* report,
+                            const AccelPriors& priors) {
   const auto t0 = std::chrono::steady_clock::now();
+  const std::vector<AccelPrior> active = ActivePriors(free, priors);
   const AccelVector theta0 = PackAccel(start);
   std::vector<int> index;  // free parameter indices
   for (int c = 0; c < kAccelParams; ++c)
@@ -414,6 +474,11 @@ AccelParams RefineAccelBsas(const AccelParams& start, const std::vector<AccelPos
     for (size_t i = 0; i < poses.size(); ++i) {
       const double r = MagnitudeResidual(l, p, poses[i], gravity_m_s2);
       s += (r / sigma[i]) * (r / sigma[i]);
+    }
+    if (!active.empty()) {
+      const AccelVector theta = PackAccel(p);
+      for (const AccelPrior& q : active)
+        s += ((theta(q.index) - q.value) / q.sigma) * ((theta(q.index) - q.value) / q.sigma);
     }
     return s;
   };
@@ -445,11 +510,14 @@ AccelParams RefineAccelBsas(const AccelParams& start, const std::vector<AccelPos
 
 absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
                                        const std::vector<AccelPose>& poses, double gravity_m_s2,
-                                       const AccelMask& free, StageReport* report) {
+                                       const AccelMask& free, StageReport* report,
+                                       const AccelPriors& priors) {
   const auto t0 = std::chrono::steady_clock::now();
   int n_free = 0;
   for (bool f : free) n_free += f;
-  if (static_cast<int>(poses.size()) <= n_free) {
+  const std::vector<AccelPrior> active = ActivePriors(free, priors);
+  const int n_observations = static_cast<int>(poses.size() + active.size());
+  if (n_observations <= n_free) {
     return absl::FailedPreconditionError(
         absl::StrFormat("%d static poses cannot determine %d accelerometer parameters; add poses",
                         static_cast<int>(poses.size()), n_free));
@@ -464,6 +532,8 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
     problem.AddResidualBlock(MagnitudeError::Create(poses[i], gravity_m_s2, 1.0 / sigma[i]),
                              nullptr, blocks[0], blocks[1], blocks[2], blocks[3]);
   }
+  for (const AccelPrior& q : active)
+    problem.AddResidualBlock(PriorError::Create(q), nullptr, blocks[q.index / 3]);
   for (int b = 0; b < 4; ++b) {
     std::vector<int> fixed;
     for (int k = 0; k < 3; ++k)
@@ -488,9 +558,10 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
   }
   // Covariance = (J^T W J)^-1 over the free parameters, scaled by chi^2/dof when the residual
   // exceeds the noise (model misfit), so standard errors never claim more than the data shows.
-  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free);
-  const Eigen::VectorXd rw = WeightedResiduals(p, poses, MagnitudeSigmas(p, poses), gravity_m_s2);
-  const int dof = static_cast<int>(poses.size()) - n_free;
+  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free, priors);
+  const Eigen::VectorXd rw =
+      WeightedResiduals(p, poses, MagnitudeSigmas(p, poses), gravity_m_s2, free, priors);
+  const int dof = n_observations - n_free;
   out.chi2_reduced = rw.squaredNorm() / dof;
   Eigen::MatrixXd cov =
       (jw.transpose() * jw).ldlt().solve(Eigen::MatrixXd::Identity(n_free, n_free));
@@ -516,17 +587,18 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
 }
 
 AccelParams RefineAccelGaussNewton(const AccelParams& start, const std::vector<AccelPose>& poses,
-                                   double gravity_m_s2, const AccelMask& free, int max_iterations) {
+                                   double gravity_m_s2, const AccelMask& free, int max_iterations,
+                                   const AccelPriors& priors) {
   std::vector<int> index;
   for (int c = 0; c < kAccelParams; ++c)
     if (free[static_cast<size_t>(c)]) index.push_back(c);
-  if (poses.size() <= index.size()) return start;
+  if (poses.size() + ActivePriors(free, priors).size() <= index.size()) return start;
   const std::vector<double> sigma = MagnitudeSigmas(start, poses);
   AccelVector theta = PackAccel(start);
   for (int it = 0; it < max_iterations; ++it) {
     const AccelParams p = UnpackAccel(theta, start.frame_angles);
-    const Eigen::MatrixXd jw = WeightedJacobian(p, poses, sigma, free);
-    const Eigen::VectorXd rw = WeightedResiduals(p, poses, sigma, gravity_m_s2);
+    const Eigen::MatrixXd jw = WeightedJacobian(p, poses, sigma, free, priors);
+    const Eigen::VectorXd rw = WeightedResiduals(p, poses, sigma, gravity_m_s2, free, priors);
     const Eigen::VectorXd step = (jw.transpose() * jw).ldlt().solve(-jw.transpose() * rw);
     if (!step.allFinite()) break;
     double rel = 0;
@@ -540,47 +612,80 @@ AccelParams RefineAccelGaussNewton(const AccelParams& start, const std::vector<A
   return UnpackAccel(theta, start.frame_angles);
 }
 
-AccelVector AccelStdErrors(const AccelParams& p, const std::vector<AccelPose>& poses,
-                           const AccelMask& free) {
-  AccelVector out = AccelVector::Zero();
-  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free);
+AccelMatrix AccelCovariance(const AccelParams& p, const std::vector<AccelPose>& poses,
+                            const AccelMask& free, const AccelPriors& priors) {
+  AccelMatrix out = AccelMatrix::Zero();
+  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free, priors);
   const Eigen::MatrixXd cov =
       (jw.transpose() * jw).ldlt().solve(Eigen::MatrixXd::Identity(jw.cols(), jw.cols()));
-  for (int c = 0, k = 0; c < kAccelParams; ++c)
-    if (free[static_cast<size_t>(c)]) out(c) = std::sqrt(std::max(0.0, cov(k, k))), ++k;
+  std::vector<int> index;
+  for (int c = 0; c < kAccelParams; ++c)
+    if (free[static_cast<size_t>(c)]) index.push_back(c);
+  for (size_t a = 0; a < index.size(); ++a)
+    for (size_t b = 0; b < index.size(); ++b)
+      out(index[a], index[b]) = cov(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b));
   return out;
 }
 
+AccelVector AccelStdErrors(const AccelParams& p, const std::vector<AccelPose>& poses,
+                           const AccelMask& free, const AccelPriors& priors) {
+  return AccelCovariance(p, poses, free, priors).diagonal().cwiseMax(0.0).cwiseSqrt();
+}
+
+namespace {
+
+// Pose i's |a| - g with the model refitted without it (Gauss-Newton from `fit`); NaN when the
+// other poses are too few to refit.
+double ExactHeldOutResidual(const AccelParams& fit, const std::vector<AccelPose>& poses,
+                            double gravity_m_s2, const AccelMask& free, const AccelPriors& priors,
+                            size_t i) {
+  std::vector<AccelPose> rest = poses;
+  rest.erase(rest.begin() + static_cast<long>(i));
+  int n_free = 0;
+  for (bool f : free) n_free += f;
+  if (static_cast<int>(rest.size() + ActivePriors(free, priors).size()) <= n_free)
+    return std::numeric_limits<double>::quiet_NaN();
+  const AccelParams refit = RefineAccelGaussNewton(fit, rest, gravity_m_s2, free, 10, priors);
+  return MagnitudeResiduals(refit, {poses[i]}, gravity_m_s2)[0];
+}
+
+}  // namespace
+
 std::vector<double> HeldOutMagnitudeResiduals(const AccelParams& fit,
                                               const std::vector<AccelPose>& poses,
-                                              double gravity_m_s2, const AccelMask& free) {
+                                              double gravity_m_s2, const AccelMask& free,
+                                              const AccelPriors& priors) {
   std::vector<double> out(poses.size(), std::numeric_limits<double>::quiet_NaN());
   for (size_t i = 0; i < poses.size(); ++i) {
-    std::vector<AccelPose> rest = poses;
-    rest.erase(rest.begin() + static_cast<long>(i));
-    int n_free = 0;
-    for (bool f : free) n_free += f;
-    if (static_cast<int>(rest.size()) <= n_free) continue;  // nothing to refit with: NaN
-    const AccelParams refit = RefineAccelGaussNewton(fit, rest, gravity_m_s2, free, 10);
-    out[i] = MagnitudeResiduals(refit, {poses[i]}, gravity_m_s2)[0];
+    out[i] = ExactHeldOutResidual(fit, poses, gravity_m_s2, free, priors, i);
   }
   return out;
 }
 
 double PressRms(const AccelParams& fit, const std::vector<AccelPose>& poses, double gravity_m_s2,
-                const AccelMask& free) {
+                const AccelMask& free, const AccelPriors& priors) {
   const std::vector<double> sigma = MagnitudeSigmas(fit, poses);
-  const Eigen::MatrixXd jw = WeightedJacobian(fit, poses, sigma, free);
+  const Eigen::MatrixXd jw = WeightedJacobian(fit, poses, sigma, free, priors);
   const Eigen::MatrixXd jtj = jw.transpose() * jw;
   const Eigen::LDLT<Eigen::MatrixXd> ldlt(jtj);
   const std::vector<double> r = MagnitudeResiduals(fit, poses, gravity_m_s2);
+  // Near h = 1 the first order fails: a pose that alone pins a parameter has r ~ 0 and a tiny
+  // 1 - h, and their quotient says nothing of how badly the fit without it predicts it. Those
+  // poses are refitted without themselves, exactly (HeldOutMagnitudeResiduals' way).
+  constexpr double kExactAboveLeverage = 0.9;
   double s = 0;
-  for (Eigen::Index i = 0; i < jw.rows(); ++i) {
+  const auto n_poses = static_cast<Eigen::Index>(poses.size());
+  for (Eigen::Index i = 0; i < n_poses; ++i) {
     const double h = jw.row(i).dot(ldlt.solve(jw.row(i).transpose()));
-    const double loo = r[static_cast<size_t>(i)] / std::max(1e-6, 1.0 - h);
+    double loo = r[static_cast<size_t>(i)] / std::max(1e-6, 1.0 - h);
+    if (h > kExactAboveLeverage) {
+      loo = ExactHeldOutResidual(fit, poses, gravity_m_s2, free, priors, static_cast<size_t>(i));
+      // Not predictable at all without itself: this model cannot be scored by held-out poses.
+      if (!std::isfinite(loo)) return std::numeric_limits<double>::infinity();
+    }
     s += loo * loo;
   }
-  return std::sqrt(s / static_cast<double>(jw.rows()));
+  return std::sqrt(s / static_cast<double>(n_poses));
 }
 
 }  // namespace imucal::core

@@ -52,6 +52,21 @@ constexpr AccelMask MaskOf(AccelParamRange range) {
   return m;
 }
 
+// A Gaussian prior on one of the 12 magnitude parameters: an independent measurement of it,
+// `value` +- `sigma` (parameter units), joined to |a| = g as one more weighted residual
+// (theta[index] - value) / sigma. The six-face references measure the non-orthogonality angles
+// at first order where |a| = g sees them only through off-axis poses: the two combine, neither
+// replaces the other. A prior on a fixed parameter is ignored.
+struct AccelPrior {
+  int index = 0;
+  double value = 0;
+  double sigma = 1;
+};
+using AccelPriors = std::vector<AccelPrior>;
+// The number of free parameters less those a prior constrains: what the poses' residual pays
+// for (the model error's degrees of freedom).
+int PosesPayFor(const AccelMask& free, const AccelPriors& priors);
+
 // A static pose as the accelerometer solver sees it.
 struct AccelPose {
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();      // mean raw reading, input units
@@ -101,10 +116,15 @@ std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<Acce
 double EstimateModelSigma(const AccelParams& p, const std::vector<AccelPose>& poses,
                           double gravity_m_s2, int n_free);
 
-// Which parameters the poses determine. Information is compared with a broad physical prior
-// (bias 0.2 g, scale 10 %, angles 30 mrad, quadratic 1e-3 per m/s^2): a parameter whose posterior
-// std is not at least halved by the data is undetermined. Higher-order parameters are released
-// first (quadratic, then angles), so a confounded pair keeps its lower-order member.
+// The range a MEMS accelerometer's parameters plausibly have, in parameter units: bias 0.2 g,
+// scale 10 %, angles 30 mrad, quadratic 1e-3 per m/s^2 (datasheet tolerances with room).
+AccelVector AccelPlausibleRange(const AccelParams& p, double gravity_m_s2);
+
+// Which parameters the poses determine. Information is compared with the plausible range as a
+// broad physical prior: a parameter whose posterior std is not at least halved by the data is
+// undetermined. `priors` join the data's information; a parameter with one is never released.
+// Higher-order parameters are released first (quadratic, then angles), so a confounded pair keeps
+// its lower-order member.
 struct AccelObservability {
   AccelMask determined{};
   // Posterior standard deviation of each determined parameter from |a| = g on these poses
@@ -114,7 +134,8 @@ struct AccelObservability {
 };
 AccelObservability AnalyseAccelObservability(const AccelParams& p,
                                              const std::vector<AccelPose>& poses,
-                                             double gravity_m_s2, const AccelMask& candidates);
+                                             double gravity_m_s2, const AccelMask& candidates,
+                                             const AccelPriors& priors = {});
 
 struct StageReport {
   std::string name;  // "ls", "bsas", "lm"
@@ -136,7 +157,8 @@ struct BsasStageOptions {
 // Stage 2. `unit` is the normalisation (one unit per parameter), typically stage-1 std errors.
 AccelParams RefineAccelBsas(const AccelParams& start, const std::vector<AccelPose>& poses,
                             double gravity_m_s2, const AccelMask& free, const AccelVector& unit,
-                            const BsasStageOptions& options, StageReport* report);
+                            const BsasStageOptions& options, StageReport* report,
+                            const AccelPriors& priors = {});
 
 struct LmResult {
   AccelParams params;
@@ -148,28 +170,34 @@ struct LmResult {
 // (Internal) when Ceres reports an unusable solution.
 absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
                                        const std::vector<AccelPose>& poses, double gravity_m_s2,
-                                       const AccelMask& free, StageReport* report);
+                                       const AccelMask& free, StageReport* report,
+                                       const AccelPriors& priors = {});
 
 // Gauss-Newton on the weighted magnitude residuals over the `free` parameters, from a nearby
 // start, until the step is below 1e-10 of the parameters or after `max_iterations`. For the many
 // small refits (threshold sweep, term selection, leave-one-out), where the setup of a Ceres
 // problem would cost more than the solve; the reported "lm" stage stays on Ceres.
 AccelParams RefineAccelGaussNewton(const AccelParams& start, const std::vector<AccelPose>& poses,
-                                   double gravity_m_s2, const AccelMask& free, int max_iterations);
+                                   double gravity_m_s2, const AccelMask& free, int max_iterations,
+                                   const AccelPriors& priors = {});
 
-// One-sigma standard errors (J^T W J)^-1 over the free parameters at `p` (weights from each
-// pose's noise and model_sigma_m_s2); 0 for fixed parameters.
+// The covariance (J^T W J)^-1 over the free parameters at `p` (weights from each pose's noise
+// and model_sigma_m_s2, not scaled by the fit's chi^2); zero rows and columns for fixed ones.
+AccelMatrix AccelCovariance(const AccelParams& p, const std::vector<AccelPose>& poses,
+                            const AccelMask& free, const AccelPriors& priors = {});
+// Its diagonal's square root: one-sigma standard errors, 0 for fixed parameters.
 AccelVector AccelStdErrors(const AccelParams& p, const std::vector<AccelPose>& poses,
-                           const AccelMask& free);
+                           const AccelMask& free, const AccelPriors& priors = {});
 
 // Leave-one-pose-out: for each pose, refit without it (Gauss-Newton from `fit`, which is a
 // converged full fit, so the refit converges in a few steps) and return its |a| - g.
 std::vector<double> HeldOutMagnitudeResiduals(const AccelParams& fit,
                                               const std::vector<AccelPose>& poses,
-                                              double gravity_m_s2, const AccelMask& free);
+                                              double gravity_m_s2, const AccelMask& free,
+                                              const AccelPriors& priors = {});
 // The same, to first order (PRESS: r_i / (1 - h_ii)); cheap enough for a parameter sweep.
 double PressRms(const AccelParams& fit, const std::vector<AccelPose>& poses, double gravity_m_s2,
-                const AccelMask& free);
+                const AccelMask& free, const AccelPriors& priors = {});
 
 }  // namespace imucal::core
 

@@ -6,7 +6,7 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
-#include "core/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::core {
 namespace {

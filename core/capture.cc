@@ -55,6 +55,20 @@ absl::Status CheckLengths(const Capture& capture) {
         absl::StrCat("capture has ", capture.extra_column_names.size(), " extra column names but ",
                      capture.extra_columns.size(), " extra columns"));
   }
+  if (!capture.line.empty() && capture.line.size() != n) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("capture has ", n, " timestamps but ", capture.line.size(), " line numbers"));
+  }
+  for (size_t k = 0; k < capture.files.size(); ++k) {
+    if ((k == 0 && capture.files[k].first_sample != 0) ||
+        (k > 0 && capture.files[k].first_sample <= capture.files[k - 1].first_sample) ||
+        capture.files[k].first_sample >= std::max<size_t>(n, 1)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("capture file ", k, " ('", capture.files[k].path, "') starts at sample ",
+                       capture.files[k].first_sample, ", not after the previous file within the ",
+                       n, " samples"));
+    }
+  }
   for (size_t c = 0; c < capture.extra_columns.size(); ++c) {
     if (capture.extra_columns[c].size() != n) {
       return absl::InvalidArgumentError(absl::StrCat(
@@ -202,6 +216,18 @@ double Capture::MedianDt() const {
   const auto mid = dt_s.begin() + static_cast<std::ptrdiff_t>(dt_s.size() / 2);
   std::nth_element(dt_s.begin(), mid, dt_s.end());
   return *mid;
+}
+
+std::vector<size_t> Capture::FileStarts() const {
+  std::vector<size_t> out;
+  for (size_t k = 1; k < files.size(); ++k) out.push_back(files[k].first_sample);
+  return out;
+}
+
+int Capture::FileOf(size_t i) const {
+  int out = -1;
+  for (size_t k = 0; k < files.size() && files[k].first_sample <= i; ++k) out = static_cast<int>(k);
+  return out;
 }
 
 absl::Status ValidateCapture(const Capture& capture) {

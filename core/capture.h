@@ -7,6 +7,7 @@
 #define IMUCAL_CORE_CAPTURE_H_
 
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <string>
 #include <string_view>
@@ -39,6 +40,12 @@ absl::StatusOr<TempUnit> ParseTempUnit(std::string_view name);
 double NominalAccelToSi(AccelUnit unit, double gravity_m_s2);
 double NominalGyroToSi(GyroUnit unit);
 
+// One file a capture was read from: its samples are [first_sample, the next file's).
+struct CaptureFile {
+  std::string path;
+  size_t first_sample = 0;
+};
+
 struct Capture {
   std::string device;  // may be empty
   AccelUnit accel_unit = AccelUnit::kMetersPerSecond2;
@@ -60,7 +67,18 @@ struct Capture {
   std::vector<std::string> extra_column_names;
   std::vector<std::vector<double>> extra_columns;
 
+  // Where the samples came from (importers fill these; empty for a capture made in memory):
+  // the files in order, and each sample's 1-based line in its file (for a bag, its message's
+  // ordinal). A capture joined from several files has an unmeasured gap at each file's start:
+  // nothing is integrated across it and no pose spans it (FileStarts).
+  std::vector<CaptureFile> files;
+  std::vector<uint32_t> line;
+
   size_t size() const { return t_s.size(); }
+  // The first sample of every file after the first.
+  std::vector<size_t> FileStarts() const;
+  // The file sample `i` came from (an index into `files`), or -1 when unknown.
+  int FileOf(size_t i) const;
   bool has_temp() const { return !temp.empty(); }
   // Median sample interval, seconds; 0 for fewer than two samples.
   double MedianDt() const;

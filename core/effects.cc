@@ -15,7 +15,7 @@
 #include "boost/math/distributions/fisher_f.hpp"
 #include "boost/math/distributions/students_t.hpp"
 #include "ceres/ceres.h"
-#include "core/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::core {
 namespace {

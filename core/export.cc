@@ -11,7 +11,7 @@
 #include "Eigen/QR"
 #include "absl/status/status.h"
 #include "core/capture.h"
-#include "core/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::core {
 namespace {

@@ -56,7 +56,7 @@
 
 namespace imucal::core {
 
-// imucal's own JSON ("imucal-params v1") is written by the SDK's sdk::ParamSetToJson, not here.
+// imucal's own JSON ("imucal-params v1") is written by formats/params_json.h, not here.
 enum class ExportFormat { kKalibrImu, kKalibrIntrinsics, kOpenVins };
 // The intrinsic model OpenVINS is told to use (its StateOptions::ImuModel).
 enum class OpenVinsModel { kKalibr, kRpng };

@@ -104,6 +104,8 @@ std::string_view ProtocolKindName(ProtocolKind kind) {
       return "free";
     case ProtocolKind::kFerraris:
       return "ferraris";
+    case ProtocolKind::kFaces:
+      return "faces";
   }
   return "auto";
 }
@@ -115,9 +117,10 @@ absl::StatusOr<ProtocolKind> ParseProtocolKind(std::string_view name) {
     return ProtocolKind::kPositions;
   if (name == "free") return ProtocolKind::kFree;
   if (name == "ferraris") return ProtocolKind::kFerraris;
+  if (name == "faces") return ProtocolKind::kFaces;
   return absl::InvalidArgumentError(absl::StrFormat(
       "--protocol: '%s' is not one of auto, six-face, positions, positions24, positions36, free, "
-      "ferraris",
+      "ferraris, faces",
       name));
 }
 

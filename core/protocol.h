@@ -4,6 +4,8 @@
 //             axis (PairTurnAxis) whatever the turn's error.
 //   positions (seeds/002): 24 or 36 positions, three groups turned about a horizontal axis.
 //   free      (Tedaldi, IMU-TK): hand-held poses anywhere on the sphere.
+//   faces     (seeds/000 without pairs): the six faces, each held once (or more), nothing else:
+//             the 12-parameter least squares against +-g, the floor assumed level.
 //   ferraris  (Ferraris et al. 1995): each face up once (no 180-degree pair, so the floor tilt
 //             is not cancelled) plus full 360-degree turns, whose known angle gives the
 //             gyroscope's scale and misalignment. core/calibrate/gyro_stage.cc detects the turns.
@@ -20,9 +22,9 @@
 
 namespace imucal::core {
 
-enum class ProtocolKind { kAuto, kSixFace, kPositions, kFree, kFerraris };
+enum class ProtocolKind { kAuto, kSixFace, kPositions, kFree, kFerraris, kFaces };
 
-// "auto", "six-face", "positions", "free", "ferraris"
+// "auto", "six-face", "positions", "free", "ferraris", "faces"
 std::string_view ProtocolKindName(ProtocolKind kind);
 // Accepts the names above and "positions24", "positions36".
 absl::StatusOr<ProtocolKind> ParseProtocolKind(std::string_view name);

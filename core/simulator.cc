@@ -192,7 +192,11 @@ absl::Status NoiseOptionsAreValid(const SimOptions& options) {
   if (absl::Status s = CheckNonNegative("accel_noise_m_s2", options.accel_noise_m_s2); !s.ok()) {
     return s;
   }
-  return CheckNonNegative("gyro_noise_rad_s", options.gyro_noise_rad_s);
+  if (absl::Status s = CheckNonNegative("gyro_noise_rad_s", options.gyro_noise_rad_s); !s.ok()) {
+    return s;
+  }
+  if (absl::Status s = CheckNonNegative("accel_step", options.accel_step); !s.ok()) return s;
+  return CheckNonNegative("gyro_step", options.gyro_step);
 }
 
 absl::Status UnitOptionsAreValid(const SimOptions& options) {
@@ -524,11 +528,15 @@ Eigen::Vector3d RawNoiseSigma(const Eigen::Matrix3d& raw_to_si, double sigma_si)
   return sigma_si * raw_to_si.colwise().norm().cwiseInverse().transpose();
 }
 
-void AddNoiseAndQuantise(const Eigen::Vector3d& sigma, bool counts, Rng& rng,
+// Adds the noise, then rounds to multiples of `step` (0: no rounding).
+void AddNoiseAndQuantise(const Eigen::Vector3d& sigma, double step, Rng& rng,
                          Eigen::Vector3d& raw) {
   for (int i = 0; i < 3; ++i) raw(i) += rng.Normal(sigma(i));
-  if (counts) raw = raw.array().round().matrix();
+  if (step > 0) raw = ((raw / step).array().round() * step).matrix();
 }
+
+// The rounding step of a sensor's readings: the option's, else whole counts for counts.
+double QuantisationStep(double step, bool counts) { return step > 0 ? step : (counts ? 1.0 : 0.0); }
 
 std::vector<std::pair<std::string, std::string>> SimMetadata(const SimOptions& options) {
   return {{"simulator", "imucal"},
@@ -662,8 +670,10 @@ absl::StatusOr<SimResult> Simulate(const SimOptions& options, const SimTruth& tr
   const Eigen::Matrix3d accel_linear = truth.accel.Misalignment() * truth.accel.scale.asDiagonal();
   const Eigen::Vector3d accel_sigma = RawNoiseSigma(accel_linear, options.accel_noise_m_s2);
   const Eigen::Vector3d gyro_sigma = RawNoiseSigma(truth.gyro.matrix, options.gyro_noise_rad_s);
-  const bool accel_counts = options.accel_unit == AccelUnit::kCounts;
-  const bool gyro_counts = options.gyro_unit == GyroUnit::kCounts;
+  const double accel_step =
+      QuantisationStep(options.accel_step, options.accel_unit == AccelUnit::kCounts);
+  const double gyro_step =
+      QuantisationStep(options.gyro_step, options.gyro_unit == GyroUnit::kCounts);
   Rng noise(StreamSeed(options.seed, Stream::kNoise));
 
   size_t segment = 0;
@@ -687,9 +697,9 @@ absl::StatusOr<SimResult> Simulate(const SimOptions& options, const SimTruth& tr
     }
 
     Eigen::Vector3d accel_raw = truth.accel.Invert(f_out);
-    AddNoiseAndQuantise(accel_sigma, accel_counts, noise, accel_raw);
+    AddNoiseAndQuantise(accel_sigma, accel_step, noise, accel_raw);
     Eigen::Vector3d gyro_raw = truth.gyro.Invert(w_out, f_true);
-    AddNoiseAndQuantise(gyro_sigma, gyro_counts, noise, gyro_raw);
+    AddNoiseAndQuantise(gyro_sigma, gyro_step, noise, gyro_raw);
 
     capture.t_s.push_back(t_s);
     capture.accel.push_back(accel_raw);

@@ -87,6 +87,12 @@ struct SimOptions {
   double accel_offset_counts = 0.0;    // e.g. 32768 for an unsigned register
   double gyro_counts_per_rad_s = 16.4 * 180.0 / 3.14159265358979323846;  // 16.4 LSB/(deg/s)
   double gyro_offset_counts = 0.0;
+  // Quantisation: readings are rounded to multiples of this step, in the capture's input unit
+  // (e.g. 0.01 m/s^2, or 9.80665 / 16384 m/s^2 for a 16-bit register at +-2 g written in SI;
+  // 0.01 rad/s, or 1 / 131 deg/s). 0: none, except that counts are always whole. Applied after
+  // the noise: with noise below one step, a reading sits on one value through a rest.
+  double accel_step = 0.0;
+  double gyro_step = 0.0;
   double gravity_m_s2 = kStandardGravity;
   // Temperature T(t) = temp_start_c + temp_rise_c * (1 - exp(-t / temp_tau_s)) (warm-up), recorded
   // with temp_noise_c white noise. false: no temp column, and T stays at temp_start_c.

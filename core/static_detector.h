@@ -11,6 +11,7 @@
 #define IMUCAL_CORE_STATIC_DETECTOR_H_
 
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "Eigen/Core"
@@ -29,11 +30,36 @@ struct StaticDetectorOptions {
 };
 
 // Per-sample white-noise standard deviation, in the capture's input units.
+//
+// Never below what the readings' own resolution gives: readings on a grid of step q (a sensor's
+// quantisation: whole counts, 0.01 m/s^2, 1/131 deg/s) carry at least q^2 / 12 of rounding
+// variance however quiet the sensor is, and readings that a rest leaves exactly constant (no
+// noise at all) are still held to 1e-6 of the readings' magnitude, far below any sensor's noise
+// and far above the rounding of the window variances.
 struct NoiseLevel {
   Eigen::Vector3d accel_std = Eigen::Vector3d::Zero();
   Eigen::Vector3d gyro_std = Eigen::Vector3d::Zero();
+  // The grid step of each axis' readings (input units), 0 where they sit on no grid.
+  Eigen::Vector3d accel_step = Eigen::Vector3d::Zero();
+  Eigen::Vector3d gyro_step = Eigen::Vector3d::Zero();
+  // The floor each std is held to (step / sqrt(12), and 1e-6 of the largest reading).
+  Eigen::Vector3d accel_floor = Eigen::Vector3d::Zero();
+  Eigen::Vector3d gyro_floor = Eigen::Vector3d::Zero();
   std::string source;  // how it was measured, for the report
 };
+
+// Why a static interval is not used (StaticInterval::issue).
+enum class IntervalIssue {
+  kNone,       // used
+  kTooShort,   // held shorter than min_static_s: still, but too briefly to average
+  kSaturated,  // an axis sits on the sensor's range limit
+  kMoved,      // the orientation changed within it
+  kTurning,    // steady but not at rest: the rate is far from the gyroscope's bias (a steady
+               // turn about the vertical leaves the accelerometer unchanged and has no variance)
+  kDuplicate,  // the orientation of the previous pose, not re-placed (core/calibrate)
+};
+// "", "too_short", "saturated", "moved", "turning", "duplicate".
+std::string_view IntervalIssueName(IntervalIssue issue);
 
 struct StaticInterval {
   size_t begin = 0;  // first sample (after trimming)
@@ -46,6 +72,7 @@ struct StaticInterval {
   Eigen::Vector3d gyro_std = Eigen::Vector3d::Zero();
   double temp_mean = std::numeric_limits<double>::quiet_NaN();
   bool used = true;
+  IntervalIssue issue = IntervalIssue::kNone;
   std::string reason;  // why not used, in a technician's words
   size_t samples() const { return end - begin; }
 };
@@ -54,16 +81,38 @@ struct StaticInterval {
 struct MotionSignal {
   std::vector<double> accel_var;
   std::vector<double> gyro_var;
+  // Whether the mean stays put around each sample: the largest over the six axes of the
+  // difference between the means of the half-windows before and after it, in units of that
+  // difference's own noise (the half-windows' scatter). A rest reads about 1 whatever its noise
+  // (a motor's vibration, a hand on the unit); a move reads far more, since its trend, not noise,
+  // makes its scatter. The variance test misses the noisy rest, this one the noiseless.
+  std::vector<double> mean_shift;
   size_t window = 0;  // samples
   // The extreme reading of each axis over the capture: a sensor's range limit shows up here.
   Eigen::Vector3d accel_lo, accel_hi, gyro_lo, gyro_hi;
 };
 
+// MotionSignal::mean_shift at or under this is still (4: a rest's |N(0,1)| on any of six axes
+// exceeds it on about 1 sample in 3000).
+inline constexpr double kSteadyMeanShift = 4.0;
+
 MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOptions& options);
 NoiseLevel EstimateNoise(const Capture& capture, const MotionSignal& motion);
 
 // Static intervals at one threshold multiplier, with summary statistics and the checks that need
-// no calibration: too short, moved during capture, saturated.
+// no calibration: too short, moved during capture, saturated, turning.
+//
+// A sample is still when both sensors' window variances are under their thresholds, or when the
+// means around it stay put (MotionSignal::mean_shift under kSteadyMeanShift): a rest much noisier
+// than the quietest (a motor running) never passes the variance test at any multiplier.
+// A rest is one interval while its orientation does not change. A rest noisier than the
+// quietest (a hand still on the unit, a motor running, a sensor settling) crosses the threshold
+// here and there; its still runs are joined, with the samples between them, when nothing moved
+// between them: the accelerometer's means agree (the "moved" test), the samples between them
+// read the same orientation, and the gyroscope reads its bias there. A steady rate is not a
+// rest: an interval whose mean rate is off the bias (the duration-weighted median of the
+// intervals' means) by more than 5 noise std and 5 robust spreads of those means is "turning",
+// never used and never a turn's anchor.
 std::vector<StaticInterval> DetectStatic(const Capture& capture, const MotionSignal& motion,
                                          const NoiseLevel& noise, double multiplier,
                                          const StaticDetectorOptions& options);

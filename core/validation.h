@@ -1,4 +1,4 @@
-// Comparing calibrated values with a known truth (simulated captures): the figures the issue's
+// Comparing calibrated values with a known truth (simulated captures): the figures the
 // acceptance criteria name ("within 0.3 mg RMS of the true specific force after the best-fit
 // rotation").
 #ifndef IMUCAL_CORE_VALIDATION_H_

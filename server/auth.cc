@@ -9,12 +9,11 @@
 #include "absl/strings/match.h"
 #include "google/protobuf/descriptor.h"
 #include "imucal/v1/imucal.pb.h"
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::server {
 namespace {
 
-using storage::Cat;
 using storage::Role;
 
 // Which role may call which RPC: {rpc, method, robot, technician, admin, why}. Robots only
@@ -107,7 +106,7 @@ bool ValidDeviceId(std::string_view id) {
 std::string ActorOfToken(const storage::Token& t) {
   std::string actor = t.role == Role::kRobot ? Cat("robot ", t.device_id, " (token ", t.id)
                                              : Cat(storage::RoleName(t.role), " (token ", t.id);
-  if (!t.label.empty()) storage::AppendTo(&actor, ", ", t.label);
+  if (!t.label.empty()) AppendTo(&actor, ", ", t.label);
   actor += ")";
   return actor;
 }
@@ -378,8 +377,7 @@ void Authorizer::WriteDenialRow(const std::string& actor, Rpc rpc, const absl::S
   e.target = Cat("rpc:", RuleOf(rpc).method);
   e.detail = Cat(absl::StatusCodeToString(denial.code()), ": ", denial.message());
   if (suppressed_before > 0)
-    storage::AppendTo(&e.detail, " (", suppressed_before,
-                      " like denials before this one were coalesced)");
+    AppendTo(&e.detail, " (", suppressed_before, " like denials before this one were coalesced)");
   // A denial must not fail the call for another reason: an audit write that fails (the disk is
   // full) loses the row, not the answer.
   store_->AppendAudit(e).IgnoreError();

@@ -11,13 +11,11 @@
 
 #include "absl/strings/string_view.h"
 #include "absl/time/time.h"
-#include "core/str_util.h"
 #include "toml++/toml.h"
+#include "util/str_util.h"
 
 namespace imucal::server {
 namespace {
-
-using core::Cat;
 
 // ---- Value parsers shared by the file, the environment and the flags.
 
@@ -480,8 +478,8 @@ std::string HelpText() {
       "  --config FILE  (-)  IMUCALD_CONFIG\n"
       "      TOML file of the keys below (see deploy/imucald.toml)\n";
   for (const ConfigOption& option : ConfigOptions()) {
-    core::AppendTo(&text, "  ", FlagOf(option.key), " ", option.value_name, "  ", option.key, "  ",
-                   option.env, "\n      ", option.help, "\n");
+    AppendTo(&text, "  ", FlagOf(option.key), " ", option.value_name, "  ", option.key, "  ",
+             option.env, "\n      ", option.help, "\n");
   }
   return text;
 }

@@ -1,23 +1,9 @@
 #include "server/convert.h"
 
-#include <array>
-
 #include "absl/strings/str_cat.h"
+#include "formats/crc32c.h"
 
 namespace imucal::server {
-namespace {
-
-std::array<uint32_t, 256> MakeCrcTable() {
-  std::array<uint32_t, 256> table{};
-  for (uint32_t i = 0; i < 256; ++i) {
-    uint32_t c = i;
-    for (int k = 0; k < 8; ++k) c = (c & 1) ? 0x82F63B78u ^ (c >> 1) : c >> 1;
-    table[i] = c;
-  }
-  return table;
-}
-
-}  // namespace
 
 std::string ProtocolName(v1::Protocol protocol) {
   switch (protocol) {
@@ -172,14 +158,15 @@ v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json,
   out.set_session_id(version.session_id);
   out.set_verdict(std::string(storage::VerdictName(version.verdict)));
   out.set_accel_rms_m_s2(version.accel_rms);
-  out.set_crc32c(crc_cache != nullptr ? crc_cache->Get(version) : Crc32c(version.params_json));
+  out.set_crc32c(crc_cache != nullptr ? crc_cache->Get(version)
+                                      : formats::Crc32c(version.params_json));
   if (with_json) out.set_json(version.params_json);
   return out;
 }
 
 uint32_t ParamCrcCache::Get(const storage::ParamVersion& version) {
   // Listings do not load the JSON: nothing worth caching (and no entry to poison).
-  if (version.params_json.empty()) return Crc32c(version.params_json);
+  if (version.params_json.empty()) return formats::Crc32c(version.params_json);
   std::pair<std::string, int> key(version.device_id, version.version);
   {
     std::lock_guard lock(mu_);
@@ -189,7 +176,7 @@ uint32_t ParamCrcCache::Get(const storage::ParamVersion& version) {
       return it->second.crc;
     }
   }
-  const uint32_t crc = Crc32c(version.params_json);  // outside the lock
+  const uint32_t crc = formats::Crc32c(version.params_json);  // outside the lock
   std::lock_guard lock(mu_);
   if (entries_.size() >= kMaxEntries && entries_.find(key) == entries_.end()) entries_.clear();
   entries_[std::move(key)] = Entry{version.params_json.size(), crc};
@@ -199,13 +186,6 @@ uint32_t ParamCrcCache::Get(const storage::ParamVersion& version) {
 size_t ParamCrcCache::hits() const {
   std::lock_guard lock(mu_);
   return hits_;
-}
-
-uint32_t Crc32c(std::string_view data) {
-  static const std::array<uint32_t, 256> kTable = MakeCrcTable();
-  uint32_t c = 0xFFFFFFFFu;
-  for (unsigned char b : data) c = kTable[(c ^ b) & 0xFF] ^ (c >> 8);
-  return c ^ 0xFFFFFFFFu;
 }
 
 }  // namespace imucal::server

@@ -37,15 +37,16 @@ std::string ProtocolName(v1::Protocol protocol);
 v1::Protocol ParseProtocol(std::string_view stored);
 core::ProtocolKind ToProtocolKind(v1::Protocol protocol);
 
-// CRC-32C of each version's params JSON, computed once: a version's JSON never changes, and a
-// robot fleet fetching its active parameters would otherwise re-hash the same kilobytes on every
-// call. Keyed by (device, version) and checked against the JSON's length; bounded (cleared when
-// full). One per Store (a ParameterServiceImpl owns one): (device, version) names one JSON only
-// within one database. Thread-safe.
+// CRC-32C (formats/crc32c.h, the checksum the SDK's cache checks) of each version's params JSON,
+// computed once: a version's JSON never changes, and a robot fleet fetching its active
+// parameters would otherwise re-hash the same kilobytes on every call. Keyed by (device, version)
+// and checked against the JSON's length; bounded (cleared when full). One per Store (a
+// ParameterServiceImpl owns one): (device, version) names one JSON only within one database.
+// Thread-safe.
 class ParamCrcCache {
  public:
   static constexpr size_t kMaxEntries = 4096;
-  // Crc32c(version.params_json), from the cache when it holds it.
+  // formats::Crc32c(version.params_json), from the cache when it holds it.
   uint32_t Get(const storage::ParamVersion& version);
   size_t hits() const;
 
@@ -66,9 +67,6 @@ v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json,
 v1::VersionState ToProto(storage::VersionState state);
 // The calibration's verdict as stored.
 storage::Verdict ToStorage(core::Verdict verdict);
-
-// CRC-32C (Castagnoli) of ParameterSet.json, as the SDK's cache checks it.
-uint32_t Crc32c(std::string_view data);
 
 }  // namespace imucal::server
 

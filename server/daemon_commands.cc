@@ -13,17 +13,15 @@
 #include <vector>
 
 #include "absl/strings/numbers.h"
-#include "core/str_util.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "grpcpp/grpcpp.h"
 #include "grpcpp/security/credentials.h"
 #include "server/config.h"
 #include "storage/backup.h"
+#include "util/str_util.h"
 
 namespace imucal::server {
 namespace {
-
-using core::Cat;
 
 constexpr char kBackupPrefix[] = "imucal-";
 constexpr char kBackupSuffix[] = ".db";

@@ -17,7 +17,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "client/sdk/sample_digest.h"
+#include "formats/sample_digest.h"
 #include "imucal/v1/imucal.pb.h"
 #include "server/session_hub.h"
 #include "server/validate.h"
@@ -41,7 +41,7 @@ struct PreparedBatch {
   std::vector<storage::ImuSample> samples;
   // The session's sample digest once this batch is stored (not for a retransmission); hashed
   // here, off the store's committer thread.
-  sdk::SampleDigest digest_after;
+  formats::SampleDigest digest_after;
 };
 
 // The three steps of one batch; the caller holds `session.mu` during the first and the last.

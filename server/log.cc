@@ -9,13 +9,11 @@
 #include <cstring>
 
 #include "absl/strings/string_view.h"
-#include "core/str_util.h"
 #include "grpcpp/server_context.h"
+#include "util/str_util.h"
 
 namespace imucal::server {
 namespace {
-
-using core::Cat;
 
 struct LogState {
   std::atomic<int> level{static_cast<int>(LogLevel::kInfo)};
@@ -110,7 +108,7 @@ void AppendValue(std::string* out, LogFormat format, const LogField& field) {
       AppendTextValue(out, *s);
     }
   } else if (const auto* i = std::get_if<int64_t>(&v)) {
-    core::AppendPiece(out, *i);
+    AppendPiece(out, *i);
   } else if (const auto* d = std::get_if<double>(&v)) {
     AppendNumber(out, *d);
   } else {
@@ -166,8 +164,7 @@ std::string FormatLogLine(LogFormat format, absl::Time ts, LogLevel level, std::
   std::string line;
   line.reserve(96 + 32 * fields.size());
   if (format == LogFormat::kJson) {
-    core::AppendTo(&line, "{\"ts\":\"", time, "\",\"level\":\"", LogLevelName(level),
-                   "\",\"event\":");
+    AppendTo(&line, "{\"ts\":\"", time, "\",\"level\":\"", LogLevelName(level), "\",\"event\":");
     AppendJsonString(&line, event);
     for (const LogField& field : fields) {
       line.push_back(',');
@@ -177,10 +174,10 @@ std::string FormatLogLine(LogFormat format, absl::Time ts, LogLevel level, std::
     }
     line.append("}\n");
   } else {
-    core::AppendTo(&line, "ts=", time, " level=", LogLevelName(level), " event=");
+    AppendTo(&line, "ts=", time, " level=", LogLevelName(level), " event=");
     AppendTextValue(&line, event);
     for (const LogField& field : fields) {
-      core::AppendTo(&line, " ", field.key(), "=");
+      AppendTo(&line, " ", field.key(), "=");
       AppendValue(&line, format, field);
     }
     line.push_back('\n');

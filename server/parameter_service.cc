@@ -4,8 +4,8 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "client/sdk/params_json.h"
 #include "core/export.h"
+#include "formats/params_json.h"
 #include "server/convert.h"
 #include "server/services.h"
 #include "server/unary.h"
@@ -228,7 +228,7 @@ absl::Status ParameterServiceImpl::DoExport(const v1::ExportRequest& request,
     response->set_filename(absl::StrCat(stem, ".imucal-params.json"));
     return absl::OkStatus();
   }
-  absl::StatusOr<core::ParamSet> params = sdk::ParamSetFromJson(v->params_json);
+  absl::StatusOr<core::ParamSet> params = formats::ParamSetFromJson(v->params_json);
   if (!params.ok()) {
     return absl::InternalError(absl::StrCat("version ", v->version, " of ", v->device_id,
                                             " does not parse: ", params.status().message()));

@@ -6,8 +6,8 @@
 #include "absl/strings/str_format.h"
 #include "absl/time/clock.h"
 #include "core/capture.h"
-#include "core/str_util.h"
 #include "storage/sample_codec.h"
+#include "util/str_util.h"
 
 namespace imucal::server {
 namespace {
@@ -63,7 +63,7 @@ void AddSegmenterEvents(LiveSession& session, std::vector<core::SegmenterEvent>&
     for (core::PairCheck& p : verdicts) {
       if (!p.ok && p.pose_b == pose_index && session.segmenter->RedoTurn(p.face)) {
         redo = session.segmenter->CurrentNextPose();
-        redo->instruction = core::Cat(
+        redo->instruction = Cat(
             "Pair ", p.face, " failed (", p.reason, "). Redo it: place it on ", p.face,
             " again, half a turn about the vertical from its first placement, and keep it still");
       }

@@ -27,8 +27,8 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "client/sdk/sample_digest.h"
 #include "core/online_segmenter.h"
+#include "formats/sample_digest.h"
 #include "imucal/v1/imucal.pb.h"
 #include "server/convert.h"
 #include "server/pair_tracker.h"
@@ -58,9 +58,9 @@ struct LiveSession {
   double last_t_s = std::numeric_limits<double>::quiet_NaN();  // NaN: no sample yet
   std::unique_ptr<core::OnlineSegmenter> segmenter;
   std::unique_ptr<PairTracker> pairs;  // six-face pair verdicts while streaming
-  // The SHA-256 of the stored samples so far (client/sdk/sample_digest.h), and the name of the
+  // The SHA-256 of the stored samples so far (formats/sample_digest.h), and the name of the
   // capture they came from.
-  sdk::SampleDigest digest;
+  formats::SampleDigest digest;
   std::string source;
   // The digest after each of the last kProofHistory batches, oldest first: a stream that starts
   // at batch n proves the samples of batches 1..n-1, and n - 1 may be behind the last stored

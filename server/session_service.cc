@@ -10,9 +10,9 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/strip.h"
 #include "absl/time/clock.h"
-#include "client/cli/report_json.h"
-#include "client/sdk/params_json.h"
 #include "core/calibrate/calibrate.h"
+#include "formats/params_json.h"
+#include "formats/report_json.h"
 #include "server/convert.h"
 #include "server/services.h"
 #include "server/unary.h"
@@ -462,13 +462,13 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
       storage::ParamVersion version;
       version.device_id = (*live)->device.id;
       version.session_id = task.session_id;
-      version.params_json = sdk::ParamSetToJson(report->params);
-      version.report_json = cli::ReportToJson(*report);
+      version.params_json = formats::ParamSetToJson(report->params);
+      version.report_json = formats::ReportToJson(*report);
       version.verdict = ToStorage(report->verdict);
       version.accel_rms = report->residual.accel_rms_m_s2;
       // The quality gate: only a passing solve becomes active on its own.
       version.state = report->verdict == core::Verdict::kPass ? storage::VersionState::kActive
-                                                               : storage::VersionState::kCandidate;
+                                                              : storage::VersionState::kCandidate;
       version.provenance = absl::StrFormat("imucald %s; protocol %s; seed %d", IMUCAL_VERSION,
                                            core::ProtocolKindName(options.protocol), options.seed);
       absl::StatusOr<storage::ParamVersion> stored =

@@ -18,7 +18,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/time/clock.h"
-#include "client/sdk/sample_digest.h"
+#include "formats/sample_digest.h"
 #include "server/ingest.h"
 #include "server/services.h"
 #include "server/status_util.h"
@@ -297,8 +297,8 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     return EchoesRequest(absl::FailedPreconditionError(absl::StrCat(
         Named(batch_.source()), " does not continue ", Named(live.source), ", whose first ",
         proof->samples, " samples session ", live.id, " holds: their SHA-256 is ",
-        sdk::HexPrefix(proof->sha256, 16), "..., this stream's for its first ", proof->samples,
-        " samples is ", sdk::HexPrefix(batch_.resume_sha256(), 16),
+        formats::HexPrefix(proof->sha256, 16), "..., this stream's for its first ", proof->samples,
+        " samples is ", formats::HexPrefix(batch_.resume_sha256(), 16),
         "...; continue with the same capture, or cancel the session and start a new one")));
   }
 

@@ -9,12 +9,10 @@
 #include <sstream>
 
 #include "grpcpp/security/server_credentials.h"
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::server {
 namespace {
-
-using storage::Cat;
 
 struct BioFree {
   void operator()(BIO* b) const { BIO_free(b); }

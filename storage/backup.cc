@@ -15,7 +15,7 @@
 #include "storage/migrations.h"
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {
@@ -36,7 +36,7 @@ absl::Status CheckIntegrity(Connection& conn) {
   STORAGE_ASSIGN_OR_RETURN(std::vector<std::string> lines,
                            ReadRows(conn, "PRAGMA integrity_check(3)", FirstColumnText));
   if (lines.size() == 1 && lines[0] == "ok") return absl::OkStatus();
-  return absl::DataLossError(Cat("integrity_check failed: ", core::Join(lines, "; ")));
+  return absl::DataLossError(Cat("integrity_check failed: ", Join(lines, "; ")));
 }
 
 absl::StatusOr<int64_t> CountTables(Connection& conn) {

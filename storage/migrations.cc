@@ -2,7 +2,7 @@
 
 #include <optional>
 
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {

@@ -5,7 +5,7 @@
 #include <cstring>
 
 #include "absl/strings/str_format.h"
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <limits>
 
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {

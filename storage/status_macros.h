@@ -7,8 +7,8 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "storage/str_util.h"
 #include "storage/types.h"
+#include "util/str_util.h"
 
 #define STORAGE_RETURN_IF_ERROR(expr)                                   \
   do {                                                                  \

@@ -9,7 +9,7 @@
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "storage/store_internal.h"
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 

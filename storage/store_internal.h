@@ -23,8 +23,8 @@
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
-#include "storage/str_util.h"
 #include "storage/types.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 

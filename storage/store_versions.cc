@@ -10,7 +10,7 @@
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {

@@ -10,8 +10,8 @@
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "storage/store_internal.h"
-#include "storage/str_util.h"
 #include "storage/types.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {

@@ -5,7 +5,7 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/cord.h"
-#include "storage/str_util.h"
+#include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {

@@ -7,8 +7,7 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_cat.h"
 #include "core/capture.h"
-#include "core/import_columns.h"
-#include "storage/rosbag2_import.h"
+#include "importers/columns.h"
 
 namespace imucal::cli {
 
@@ -49,8 +48,7 @@ std::set<std::string> WithImportSwitches(std::set<std::string> switches) {
   return switches;
 }
 
-absl::Status ApplyImportFlags(const Args& a, core::ImportOptions* o) {
-  storage::RegisterRosbag2Importer();
+absl::Status ApplyImportFlags(const Args& a, importers::ImportOptions* o) {
   if (auto topic = a.Get("topic")) o->topic = *topic;
   const auto columns = a.Get("columns");
   if (!columns) {
@@ -61,10 +59,10 @@ absl::Status ApplyImportFlags(const Args& a, core::ImportOptions* o) {
     }
     return absl::OkStatus();
   }
-  core::ColumnCsvOptions& c = o->columns;
+  importers::ColumnCsvOptions& c = o->columns;
   c.map = *columns;
   if (auto unit = a.Get("time-unit")) {
-    auto parsed = core::ParseColumnTimeUnit(*unit);
+    auto parsed = importers::ParseColumnTimeUnit(*unit);
     if (!parsed.ok()) return FlagError("time-unit", parsed.status().message());
     c.time_unit = *parsed;
   }
@@ -91,7 +89,7 @@ absl::Status ApplyImportFlags(const Args& a, core::ImportOptions* o) {
   if (o->format != "auto" && o->format != "columns") {
     return FlagError("columns", absl::StrCat("needs --format columns or auto, not ", o->format));
   }
-  return core::CheckColumnCsvOptions(c);
+  return importers::CheckColumnCsvOptions(c);
 }
 
 }  // namespace imucal::cli

@@ -1,6 +1,6 @@
 // The input-format flags shared by `calibrate`, `apply` and `upload`: the column-mapped CSV
-// (--columns and its time base), the ROS 2 bag topic, and the registration of the importers
-// that live outside core (rosbag2), so that every command reads every format.
+// (--columns and its time base) and the ROS 2 bag topic, so that every command reads every
+// format the same way.
 #ifndef IMUCAL_CLIENT_CLI_IMPORT_FLAGS_H_
 #define IMUCAL_CLIENT_CLI_IMPORT_FLAGS_H_
 
@@ -9,7 +9,7 @@
 
 #include "absl/status/status.h"
 #include "client/cli/args.h"
-#include "core/capture_io.h"
+#include "importers/registry.h"
 
 namespace imucal::cli {
 
@@ -20,10 +20,9 @@ extern const char kImportFlagsHelp[];
 std::set<std::string> WithImportValuedFlags(std::set<std::string> flags);
 std::set<std::string> WithImportSwitches(std::set<std::string> switches);
 
-// Registers the importers outside core (idempotent), then reads the importer flags into
-// `options`. A bad value, or a column option without --columns, is InvalidArgument naming the
-// flag (a usage error).
-absl::Status ApplyImportFlags(const Args& args, core::ImportOptions* options);
+// Reads the importer flags into `options`. A bad value, or a column option without --columns, is
+// InvalidArgument naming the flag (a usage error).
+absl::Status ApplyImportFlags(const Args& args, importers::ImportOptions* options);
 
 }  // namespace imucal::cli
 

@@ -21,17 +21,18 @@
 #include "client/cli/demo_common.h"
 #include "client/cli/export_flags.h"
 #include "client/cli/import_flags.h"
-#include "client/cli/plots.h"
-#include "client/cli/report_json.h"
 #include "client/cli/summary.h"
 #include "client/sdk/corrector.h"
-#include "client/sdk/params_json.h"
 #include "core/calibrate/calibrate.h"
-#include "core/capture_io.h"
 #include "core/export.h"
 #include "core/simulator.h"
 #include "core/static_detector.h"
 #include "core/validation.h"
+#include "formats/params_json.h"
+#include "formats/plots.h"
+#include "formats/report_json.h"
+#include "importers/imucal_csv.h"
+#include "importers/registry.h"
 
 namespace imucal::cli {
 namespace {
@@ -102,6 +103,8 @@ constexpr char kSimulateHelp[] =
     "  --accel-noise A     m/s^2 per sample (default 0.02)   --gyro-noise W  rad/s (0.002)\n"
     "  --accel-unit U --gyro-unit U   units of the written capture (counts: raw register values)\n"
     "  --floor-tilt DEG    (default 1)          --turn-error DEG  (default 3)\n"
+    "  --accel-step S --gyro-step S   quantisation: readings rounded to multiples of S, in the\n"
+    "                      written unit (e.g. 0.01 m/s^2, 0.0174533 rad/s); counts: 1\n"
     "  --no-temperature    no temp column\n"
     "  --effect SENSOR:AXIS:REGRESSOR:COEF   an extra effect, e.g. accel:y:temperature:0.005\n"
     "                      (repeat the flag for several)\n"
@@ -111,8 +114,8 @@ constexpr char kSimulateHelp[] =
     "                      streamed with `imucal upload`, the guide shows a failed pair and its\n"
     "                      re-do\n";
 
-absl::StatusOr<core::ImportOptions> ImportOptionsFrom(const Args& a) {
-  core::ImportOptions o;
+absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
+  importers::ImportOptions o;
   if (auto f = a.Get("format")) o.format = *f;
   if (auto u = a.Get("accel-unit")) {
     auto p = core::ParseAccelUnit(*u);
@@ -152,9 +155,12 @@ absl::StatusOr<core::SimOptions> SimOptionsFrom(const Args& a) {
   auto an = a.GetDouble("accel-noise", o.accel_noise_m_s2);
   auto gn = a.GetDouble("gyro-noise", o.gyro_noise_rad_s);
   auto tilt = a.GetDouble("floor-tilt", o.floor_tilt_deg);
+  auto accel_step = a.GetDouble("accel-step", o.accel_step);
+  auto gyro_step = a.GetDouble("gyro-step", o.gyro_step);
   auto turn = a.GetDouble("turn-error", o.turn_error_deg);
-  for (const absl::Status& s : {seed.status(), extra.status(), free_poses.status(), rate.status(),
-                                an.status(), gn.status(), tilt.status(), turn.status()})
+  for (const absl::Status& s :
+       {seed.status(), extra.status(), free_poses.status(), rate.status(), an.status(), gn.status(),
+        tilt.status(), turn.status(), accel_step.status(), gyro_step.status()})
     if (!s.ok()) return s;
   o.seed = static_cast<uint64_t>(*seed);
   o.extra_poses = static_cast<int>(*extra);
@@ -164,6 +170,8 @@ absl::StatusOr<core::SimOptions> SimOptionsFrom(const Args& a) {
   o.gyro_noise_rad_s = *gn;
   o.floor_tilt_deg = *tilt;
   o.turn_error_deg = *turn;
+  o.accel_step = *accel_step;
+  o.gyro_step = *gyro_step;
   o.temperature = !a.Has("no-temperature");
   if (auto u = a.Get("accel-unit")) {
     auto p = core::ParseAccelUnit(*u);
@@ -298,59 +306,6 @@ int ReportError(const absl::Status& status) {
   }
 }
 
-// A capture refused for too few static poses is often not a calibration capture at all: one
-// rest (a noise or bias-stability recording), or a rest, a move and a rest (a check of a known
-// rotation). Says which, from the still intervals at the loosest usual threshold, and what such
-// a capture can and cannot give; empty when it looks like a calibration attempt.
-std::string DescribeFewOrientations(const core::Capture& cap, const core::CalibrateOptions& co) {
-  const core::MotionSignal motion = core::ComputeMotionSignal(cap, co.detector);
-  const core::NoiseLevel noise = core::EstimateNoise(cap, motion);
-  const double multiplier = co.multipliers.empty() ? 48.0 : co.multipliers.back();
-  const std::vector<core::StaticInterval> ivs =
-      core::DetectStatic(cap, motion, noise, multiplier, co.detector);
-  // Orientations: still intervals whose raw gravity directions lie within 5 deg of each other
-  // are one orientation (raw, so only as good as the sensor's uncalibrated axes).
-  constexpr double kSameOrientationDeg = 5.0;
-  std::vector<Eigen::Vector3d> dirs;
-  std::vector<double> still_s;
-  double longest_s = 0, total_s = 0;
-  int intervals = 0;
-  for (const core::StaticInterval& iv : ivs) {
-    if (!iv.used || iv.accel_mean.norm() <= 0) continue;
-    ++intervals;
-    const double d_s = iv.t_end_s - iv.t_start_s;
-    longest_s = std::max(longest_s, d_s);
-    total_s += d_s;
-    const Eigen::Vector3d u = iv.accel_mean.normalized();
-    size_t k = 0;
-    while (k < dirs.size() &&
-           std::acos(std::clamp(dirs[k].dot(u), -1.0, 1.0)) * kRadToDeg > kSameOrientationDeg)
-      ++k;
-    if (k == dirs.size()) dirs.push_back(u), still_s.push_back(0);
-    still_s[k] += d_s;
-  }
-  const double span_s = cap.size() > 1 ? cap.t_s.back() - cap.t_s.front() : 0;
-  if (dirs.empty() || dirs.size() > 3) return "";
-  if (dirs.size() == 1) {
-    return absl::StrFormat(
-        "this capture holds one orientation (still %.0f s of %.0f s, longest rest %.0f s): a "
-        "rest recording. It cannot calibrate: the scales and cross-axis terms need the sensor "
-        "turned, at least 7 orientations with every axis up and down. A rest gives the noise "
-        "(Allan deviation: white noise from seconds of rest, bias instability from minutes) and "
-        "the bias drift; imucal reads them from the longest rest of a calibration capture, so "
-        "record this rest at the start of a multi-pose capture of the same unit",
-        total_s, span_s, longest_s);
-  }
-  const double angle_deg = std::acos(std::clamp(dirs[0].dot(dirs[1]), -1.0, 1.0)) * kRadToDeg;
-  return absl::StrFormat(
-      "this capture holds %d orientations (%d still intervals, %.0f s still of %.0f s; the "
-      "first two %.0f deg apart, raw): too few to calibrate, which needs at least 7 with every "
-      "axis up and down. A rest, a known move and a rest checks a calibration (the gyroscope's "
-      "turn against the change of the gravity direction), it cannot make one: calibrate a "
-      "multi-pose capture of the same unit, then apply its parameters to this one",
-      static_cast<int>(dirs.size()), intervals, total_s, span_s, angle_deg);
-}
-
 int RunCalibrate(const std::vector<std::string>& argv) {
   auto a =
       Args::Parse(argv,
@@ -377,42 +332,41 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   co.effects.enabled = !a->Has("no-effects");
   co.effects.apply_time_effects = a->Has("apply-time-effects");
 
-  core::ImportReport import;
-  auto capture = core::ImportCapture(a->positional(), *io, &import);
+  importers::ImportReport import;
+  auto capture = importers::ImportCapture(a->positional(), *io, &import);
   if (!capture.ok()) return ReportError(capture.status());
   auto report = core::Calibrate(*capture, co);
-  if (!report.ok()) {
+  if (!report.ok()) return ReportError(report.status());
+  const bool refused = report->verdict == core::Verdict::kRefused;
+  if (refused) {
     // What the import decided (units, time base, gaps) often explains why poses are missing.
     for (const auto& n : import.notes) std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
-    const int code = ReportError(report.status());
-    if (absl::IsFailedPrecondition(report.status()) &&
-        absl::StartsWith(report.status().message(), "too few static poses")) {
-      if (const std::string what = DescribeFewOrientations(*capture, co); !what.empty())
-        std::fprintf(stderr, "imucal: %s\n", what.c_str());
-    }
-    return code;
+    std::fprintf(stderr, "imucal: %s\n", report->refusal->message.c_str());
+  } else {
+    StampParams(&report->params);
   }
-  StampParams(&report->params);
-  const std::string json = ReportToJson(*report);
+  const std::string json = formats::ReportToJson(*report);
   // --out DIR (an existing directory, or a path ending in '/') and --plots DIR: the report,
   // its summary and the plots. --out FILE: the JSON report alone.
   std::optional<std::string> bundle_dir = a->Get("plots");
   if (auto out = a->Get("out")) {
     if (std::filesystem::is_directory(*out) || out->ends_with('/')) {
       bundle_dir = *out;
-    } else if (absl::Status s = WriteFileAtomically(*out, json); !s.ok()) {
+    } else if (absl::Status s = formats::WriteFileAtomically(*out, json); !s.ok()) {
       return ReportError(s);
     }
   }
   std::vector<std::string> plot_paths;
   if (bundle_dir) {
-    auto written =
-        WriteReportBundle(nlohmann::json::parse(json), json, FormatSummary(*report), *bundle_dir);
+    auto written = formats::WriteReportBundle(nlohmann::json::parse(json), json,
+                                              FormatSummary(*report), *bundle_dir);
     if (!written.ok()) return ReportError(written.status());
     plot_paths = std::move(*written);
   }
-  if (auto out = a->Get("params-out")) {
-    if (absl::Status s = WriteFileAtomically(*out, sdk::ParamSetToJson(report->params)); !s.ok())
+  if (auto out = a->Get("params-out"); out && !refused) {
+    if (absl::Status s =
+            formats::WriteFileAtomically(*out, formats::ParamSetToJson(report->params));
+        !s.ok())
       return ReportError(s);
   }
   if (a->Has("json")) {
@@ -426,7 +380,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
     std::fputs(FormatSummary(*report).c_str(), stdout);
     for (const auto& p : plot_paths) std::printf("wrote       %s\n", p.c_str());
   }
-  return ExitForVerdict(report->verdict);
+  return refused ? kExitUndetermined : ExitForVerdict(report->verdict);
 }
 
 int RunApply(const std::vector<std::string>& argv) {
@@ -438,7 +392,7 @@ int RunApply(const std::vector<std::string>& argv) {
   if (a->positional().size() < 2) return Usage("apply needs IN and OUT.csv", kApplyHelp);
   auto text = ReadFile(*a->Get("params"));
   if (!text.ok()) return ReportError(text.status());
-  auto params = sdk::ParamSetFromJson(*text);
+  auto params = formats::ParamSetFromJson(*text);
   if (!params.ok()) {
     return ReportError(absl::InvalidArgumentError(
         absl::StrFormat("%s: %s", *a->Get("params"), params.status().message())));
@@ -446,11 +400,11 @@ int RunApply(const std::vector<std::string>& argv) {
   std::vector<std::string> inputs(a->positional().begin(), a->positional().end() - 1);
   auto io = ImportOptionsFrom(*a);
   if (!io.ok()) return Usage(std::string(io.status().message()), kApplyHelp);
-  auto capture = core::ImportCapture(inputs, *io);
+  auto capture = importers::ImportCapture(inputs, *io);
   if (!capture.ok()) return ReportError(capture.status());
   auto out = ApplyParams(*params, *capture);
   if (!out.ok()) return ReportError(out.status());
-  if (absl::Status s = core::WriteImucalCsvFile(*out, a->positional().back()); !s.ok())
+  if (absl::Status s = importers::WriteImucalCsvFile(*out, a->positional().back()); !s.ok())
     return ReportError(s);
   std::printf("wrote %zu calibrated samples (m/s^2, rad/s) to %s\n", out->size(),
               a->positional().back().c_str());
@@ -458,11 +412,11 @@ int RunApply(const std::vector<std::string>& argv) {
 }
 
 int RunSimulate(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(
-      argv,
-      {"out", "protocol", "seed", "rate", "extra-poses", "free-poses", "accel-noise", "gyro-noise",
-       "accel-unit", "gyro-unit", "floor-tilt", "turn-error", "effect", "truth"},
-      {"no-temperature", "botch-turn", "help"});
+  auto a = Args::Parse(argv,
+                       {"out", "protocol", "seed", "rate", "extra-poses", "free-poses",
+                        "accel-noise", "gyro-noise", "accel-step", "gyro-step", "accel-unit",
+                        "gyro-unit", "floor-tilt", "turn-error", "effect", "truth"},
+                       {"no-temperature", "botch-turn", "help"});
   if (!a.ok()) return Usage(std::string(a.status().message()), kSimulateHelp);
   if (a->Has("help")) return std::printf("%s", kSimulateHelp), kExitOk;
   if (!a->Get("out")) return Usage("simulate needs --out FILE.csv", kSimulateHelp);
@@ -479,10 +433,11 @@ int RunSimulate(const std::vector<std::string>& argv) {
     if (!botched.ok()) return ReportError(botched.status());
     sim->capture = *std::move(botched);
   }
-  if (absl::Status s = core::WriteImucalCsvFile(sim->capture, *a->Get("out")); !s.ok())
+  if (absl::Status s = importers::WriteImucalCsvFile(sim->capture, *a->Get("out")); !s.ok())
     return ReportError(s);
   if (auto truth = a->Get("truth")) {
-    if (absl::Status s = WriteFileAtomically(*truth, sdk::ParamSetToJson(TruthParams(*sim)));
+    if (absl::Status s =
+            formats::WriteFileAtomically(*truth, formats::ParamSetToJson(TruthParams(*sim)));
         !s.ok())
       return ReportError(s);
   }
@@ -516,7 +471,7 @@ int RunDemo(const std::vector<std::string>& argv) {
   if (!sim.ok()) return ReportError(sim.status());
   sim->capture.device = "demo-robot";
   const std::string capture_path = dir + "/capture.csv";
-  if (absl::Status s = core::WriteImucalCsvFile(sim->capture, capture_path); !s.ok())
+  if (absl::Status s = importers::WriteImucalCsvFile(sim->capture, capture_path); !s.ok())
     return ReportError(s);
   std::printf("== 1. simulated a six-face session + %d extra poses at 200 Hz, 2 mg noise: %s\n",
               so.extra_poses, capture_path.c_str());
@@ -526,8 +481,9 @@ int RunDemo(const std::vector<std::string>& argv) {
   auto report = core::Calibrate(sim->capture, co);
   if (!report.ok()) return ReportError(report.status());
   StampParams(&report->params);
-  WriteFileAtomically(dir + "/report.json", ReportToJson(*report)).IgnoreError();
-  WriteFileAtomically(dir + "/params.json", sdk::ParamSetToJson(report->params)).IgnoreError();
+  formats::WriteFileAtomically(dir + "/report.json", formats::ReportToJson(*report)).IgnoreError();
+  formats::WriteFileAtomically(dir + "/params.json", formats::ParamSetToJson(report->params))
+      .IgnoreError();
   std::printf("== 2. calibrated it (report.json, params.json in %s)\n%s", dir.c_str(),
               FormatSummary(*report).c_str());
   std::printf("== 3. ");
@@ -586,7 +542,7 @@ int RunExportFile(const std::vector<std::string>& argv) {
 
   auto text = ReadFile(*params_path);
   if (!text.ok()) return ReportError(text.status());
-  auto params = sdk::ParamSetFromJson(*text);
+  auto params = formats::ParamSetFromJson(*text);
   if (!params.ok()) {
     return ReportError(absl::InvalidArgumentError(
         absl::StrFormat("%s: %s", *params_path, params.status().message())));
@@ -603,10 +559,10 @@ int RunExportFile(const std::vector<std::string>& argv) {
     for (const std::string& n : core::ExportNotes(*params, *format, *options))
       std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
   } else {
-    out = sdk::ParamSetToJson(*params);
+    out = formats::ParamSetToJson(*params);
   }
   if (auto path = a->Get("out")) {
-    if (absl::Status s = WriteFileAtomically(*path, out); !s.ok()) return ReportError(s);
+    if (absl::Status s = formats::WriteFileAtomically(*path, out); !s.ok()) return ReportError(s);
     std::fprintf(stderr, "imucal: wrote %s (%s)\n", path->c_str(), format_name->c_str());
   } else {
     std::fputs(out.c_str(), stdout);

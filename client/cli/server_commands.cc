@@ -18,12 +18,12 @@
 #include "client/cli/commands.h"
 #include "client/cli/export_flags.h"
 #include "client/cli/import_flags.h"
-#include "client/cli/plots.h"
 #include "client/cli/server_common.h"
 #include "client/cli/summary.h"
-#include "client/sdk/params_json.h"
 #include "client/sdk/uploader.h"
-#include "core/capture_io.h"
+#include "formats/params_json.h"
+#include "formats/plots.h"
+#include "importers/registry.h"
 #include "nlohmann/json.hpp"
 
 namespace imucal::cli {
@@ -393,8 +393,8 @@ std::string CaptureName(const std::vector<std::string>& files) {
   return absl::StrJoin(names, "+");
 }
 
-absl::StatusOr<core::ImportOptions> UploadImportOptions(const Args& a) {
-  core::ImportOptions o;
+absl::StatusOr<importers::ImportOptions> UploadImportOptions(const Args& a) {
+  importers::ImportOptions o;
   if (auto f = a.Get("format")) o.format = *f;
   if (auto u = a.Get("accel-unit")) {
     auto p = core::ParseAccelUnit(*u);
@@ -433,7 +433,7 @@ int RunUpload(const std::vector<std::string>& argv) {
                       kUploadHelp);
   auto io = UploadImportOptions(*a);
   if (!io.ok()) return UsageError(std::string(io.status().message()), kUploadHelp);
-  auto capture = core::ImportCapture(a->positional(), *io);
+  auto capture = importers::ImportCapture(a->positional(), *io);
   if (!capture.ok()) return ReportError(capture.status());
 
   Server server = Connect(*a);
@@ -621,7 +621,7 @@ std::string FormatReportSummary(const json& r) {
   if (r.contains("parameters") && r["parameters"].is_object()) {
     // The Allan figures of the parameter set's noise block, read back with the SDK's reader and
     // printed as `calibrate`'s summary prints them.
-    absl::StatusOr<core::ParamSet> params = sdk::ParamSetFromJson(r["parameters"].dump());
+    absl::StatusOr<core::ParamSet> params = formats::ParamSetFromJson(r["parameters"].dump());
     if (params.ok()) {
       out += FormatAllanFigures(params->noise);
     } else {
@@ -680,7 +680,7 @@ int RunReport(const std::vector<std::string>& argv) {
   }
   if (auto dir = a->Get("out")) {
     // The report, its summary and its plots, as the offline `calibrate --out DIR` writes them.
-    auto written = WriteReportBundle(r, report.json(), summary, *dir);
+    auto written = formats::WriteReportBundle(r, report.json(), summary, *dir);
     if (!written.ok()) return ReportError(written.status());
     for (const auto& p : *written) std::fprintf(stderr, "imucal: wrote %s\n", p.c_str());
   }

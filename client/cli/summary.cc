@@ -93,6 +93,13 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                           pair.pose_a, pair.pose_b, pair.face, pair.ok ? "ok" : "REJECTED",
                           pair.rotation_deg, pair.tilt_deg, pair.reason);
   }
+  if (r.verdict == core::Verdict::kRefused) {
+    absl::StrAppendFormat(&s, "verdict     refused   (%.0f ms)\n", r.total_ms);
+    for (const auto& reason : r.verdict_reasons)
+      absl::StrAppendFormat(&s, "reason      %s\n", reason);
+    for (const auto& w : r.warnings) absl::StrAppendFormat(&s, "warning     %s\n", w);
+    return s;
+  }
   s += "stages      ";
   for (const auto& st : r.stages)
     absl::StrAppendFormat(&s, "%s %.1f ug (%.1f ms)   ", st.name, 1e6 * st.accel_rms_m_s2 / g,
@@ -164,7 +171,10 @@ std::string FormatSummary(const core::CalibrationReport& r) {
       s += "\n";
     }
   }
-  absl::StrAppendFormat(&s, "verdict     %s   (%.0f ms)\n", core::VerdictName(r.verdict), r.total_ms);
+  absl::StrAppendFormat(&s, "verdict     %s   (%.0f ms)\n", core::VerdictName(r.verdict),
+                        r.total_ms);
+  for (const auto& reason : r.verdict_reasons)
+    absl::StrAppendFormat(&s, "reason      %s\n", reason);
   for (const auto& w : r.warnings) absl::StrAppendFormat(&s, "warning     %s\n", w);
   return s;
 }

@@ -8,9 +8,9 @@
 #include "Eigen/SVD"
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "client/sdk/params_json.h"
 #include "core/model.h"
 #include "core/regressor.h"
+#include "formats/params_json.h"
 
 namespace imucal::sdk {
 namespace {
@@ -190,14 +190,14 @@ absl::Status Corrector::ApplyBatch(std::span<const RawSample> in,
 
 absl::Status Corrector::CheckInputUnits(core::AccelUnit accel, core::GyroUnit gyro) const {
   if (accel != accel_unit_) {
-    return absl::InvalidArgumentError("accel unit " + std::string(UnitName(accel)) +
+    return absl::InvalidArgumentError("accel unit " + std::string(formats::UnitName(accel)) +
                                       " but the parameters expect " +
-                                      std::string(UnitName(accel_unit_)));
+                                      std::string(formats::UnitName(accel_unit_)));
   }
   if (gyro != gyro_unit_) {
-    return absl::InvalidArgumentError("gyro unit " + std::string(UnitName(gyro)) +
+    return absl::InvalidArgumentError("gyro unit " + std::string(formats::UnitName(gyro)) +
                                       " but the parameters expect " +
-                                      std::string(UnitName(gyro_unit_)));
+                                      std::string(formats::UnitName(gyro_unit_)));
   }
   return absl::OkStatus();
 }

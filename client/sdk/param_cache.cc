@@ -12,8 +12,8 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
-#include "client/sdk/crc32c.h"
-#include "client/sdk/params_json.h"
+#include "formats/crc32c.h"
+#include "formats/params_json.h"
 
 namespace imucal::sdk {
 namespace {
@@ -89,13 +89,13 @@ absl::StatusOr<std::string> TakeField(std::string_view* rest, std::string_view k
 }  // namespace
 
 absl::StatusOr<LoadedParams> ParseStoredParams(StoredParams stored) {
-  const uint32_t actual = Crc32c(stored.json);
+  const uint32_t actual = formats::Crc32c(stored.json);
   if (actual != stored.crc32c) {
     return absl::DataLossError(absl::StrFormat(
         "parameter set %s v%d: checksum mismatch (crc32c %08x stated, %08x computed)",
         stored.device_id, stored.version, stored.crc32c, actual));
   }
-  absl::StatusOr<core::ParamSet> params = ParamSetFromJson(stored.json);
+  absl::StatusOr<core::ParamSet> params = formats::ParamSetFromJson(stored.json);
   if (!params.ok()) return params.status();
   if (params->version != 0 && params->version != stored.version) {
     return absl::DataLossError(absl::StrFormat("parameter set: JSON version %d but header says %d",
@@ -109,7 +109,7 @@ absl::StatusOr<LoadedParams> ParseStoredParams(StoredParams stored) {
 }
 
 absl::Status SaveParamCache(const std::string& path, const StoredParams& params) {
-  if (Crc32c(params.json) != params.crc32c)
+  if (formats::Crc32c(params.json) != params.crc32c)
     return absl::InvalidArgumentError("parameter set: crc32c does not match its JSON");
   if (params.device_id.find('\n') != std::string::npos)
     return absl::InvalidArgumentError("parameter set: device id contains a line break");

@@ -8,13 +8,14 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/sdk/grpc_status.h"
-#include "client/sdk/sample_digest.h"
+#include "formats/sample_digest.h"
 #include "grpcpp/grpcpp.h"
 
 namespace imucal::sdk {
 namespace {
 
 namespace pb = imucal::v1;
+using formats::SampleDigest;
 
 absl::Status CheckColumns(const SampleColumns& s) {
   const size_t n = s.t_s.size();

@@ -1,10 +1,13 @@
 #include "core/calibrate/accel_stage.h"
 
+#include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <limits>
 #include <utility>
 
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 
 namespace imucal::core::pipeline {
@@ -25,42 +28,80 @@ std::string FacesNotPossibleWarning(ProtocolKind protocol, const absl::Status& w
       protocol == ProtocolKind::kSixFace ? "six-face" : "ferraris: face", why.message());
 }
 
-constexpr const char* kFerrarisTiltWarning =
-    "ferraris: each face was held once, without the 180-degree pair, so the floor's tilt "
-    "is not cancelled: it stays in the misalignment and frame angles (about 17 mrad per "
-    "degree of tilt), while bias and scale err only by 1 - cos(tilt) (0.015 % at 1 "
-    "degree). Hold each face again turned 180 degrees about the vertical (six-face) to "
-    "cancel it";
+// The face references of ferraris and faces: each face held once, no pair.
+bool FacesHeldOnce(ProtocolKind protocol) {
+  return protocol == ProtocolKind::kFerraris || protocol == ProtocolKind::kFaces;
+}
+
+// How far a floor tilted by `tilt_deg` moves each parameter of the face references' fit, at most:
+// each placement's tilt in its own unknown direction (the floor's tilt seen from each face), the
+// first-order worst case summed over the faces.
+AccelVector TiltSensitivity(const FaceReferences& faces, double tilt_deg) {
+  AccelVector out = AccelVector::Zero();
+  const absl::StatusOr<AccelParams> base = FitKnownReferences(faces.means, faces.refs);
+  if (!base.ok()) return AccelVector::Constant(kNaN);
+  const double t = tilt_deg * M_PI / 180.0;
+  for (size_t i = 0; i < faces.refs.size(); ++i) {
+    const Eigen::Vector3d& ref = faces.refs[i];
+    int axis = 0;
+    ref.cwiseAbs().maxCoeff(&axis);
+    AccelVector squared = AccelVector::Zero();
+    for (int k = 1; k <= 2; ++k) {
+      FaceReferences tilted = faces;
+      Eigen::Vector3d side = Eigen::Vector3d::Zero();
+      side((axis + k) % 3) = ref.norm();
+      tilted.refs[i] = std::cos(t) * ref + std::sin(t) * side;
+      const absl::StatusOr<AccelParams> p = FitKnownReferences(tilted.means, tilted.refs);
+      if (!p.ok()) return AccelVector::Constant(kNaN);
+      squared += (PackAccel(*p) - PackAccel(*base)).cwiseAbs2();
+    }
+    out += squared.cwiseSqrt();
+  }
+  return out;
+}
+
+std::string FacesOnceWarning(ProtocolKind protocol, const FaceReferences& faces,
+                             const AccelParams& fit, double g) {
+  constexpr double kTiltDeg = 1.0;
+  const AccelVector d = TiltSensitivity(faces, kTiltDeg);
+  double bias = 0, scale = 0, angle = 0;
+  for (int j = 0; j < 3; ++j) {
+    bias = std::max(bias, std::abs(d(kAccelBias.begin + j) * fit.scale(j)));
+    scale = std::max(scale, std::abs(d(kAccelScale.begin + j) / fit.scale(j)));
+    angle = std::max(angle, std::abs(d(kAccelTri.begin + j)));
+  }
+  return absl::StrFormat(
+      "%s: each face was held once, without the 180-degree pair, so the floor is assumed level: "
+      "its tilt is not cancelled. A tilt of %.0f degree moves the bias by up to %.2f mg, the "
+      "scale by up to %.0f ppm and the misalignment angles by up to %.1f mrad (the frame angles "
+      "by about the tilt itself). Hold each face again turned 180 degrees about the vertical "
+      "(six-face, the recommended protocol) to cancel it",
+      protocol == ProtocolKind::kFaces ? "faces" : "ferraris", kTiltDeg, 1e3 * bias / g,
+      1e6 * scale, 1e3 * angle);
+}
+
+std::string NothingToCheckWarning(size_t poses, int n_free) {
+  return absl::StrFormat(
+      "accelerometer: %d poses for %d parameters: nothing is left to check the fit (no residual, "
+      "no held-out error; the standard errors come from the poses' noise alone); add poses",
+      static_cast<int>(poses), n_free);
+}
 
 std::string BiasScaleOnlyWarning(size_t poses) {
   return absl::StrFormat(
       "accelerometer: only bias and scale were calibrated (6 of 12 parameters): %d poses "
       "cannot determine the misalignment angles t_yx, t_zx, t_zy and the second-order terms, "
-      "held at 0. Add poses to reach at least 10 distinct orientations, some with gravity "
+      "held at 0. Add poses to reach at least %d distinct orientations, some with gravity "
       "between two axes (45 degrees)",
-      static_cast<int>(poses));
+      static_cast<int>(poses), static_cast<int>(kFullModelNeeds.count));
 }
 
-std::string HeldByFacesWarning(int c, bool determined, double faces_sigma, double obs_sigma) {
-  if (!determined) {
-    return absl::StrFormat(
-        "accel %s: set by the six-face references (stage 1); |a| = g alone does not "
-        "determine it, so later stages hold it",
-        AccelParamName(c));
-  }
+std::string QuadraticHeldNote(int c, double z, double needed_z) {
   return absl::StrFormat(
-      "accel %s: set by the six-face references (stage 1, +-%.2g rad), which determine "
-      "it far better than |a| = g on these poses (+-%.2g rad); later stages hold it. "
-      "Poses with gravity between two axes would let |a| = g refine it",
-      AccelParamName(c), faces_sigma, obs_sigma);
-}
-
-std::string QuadraticHeldNote(int c) {
-  return absl::StrFormat(
-      "accel %s: held at 0; it is within two standard errors of zero and leaving it out "
-      "predicts held-out poses better "
-      "(add poses with that axis about 45 degrees from vertical to resolve it)",
-      AccelParamName(c));
+      "accel %s: held at 0; it lies %.1f standard errors from zero, where keeping a term needs "
+      "%.1f (the information criterion); add poses with that axis about 45 degrees from vertical "
+      "to resolve it",
+      AccelParamName(c), z, needed_z);
 }
 
 std::string AffineOnlyWarning(size_t poses) {
@@ -111,88 +152,109 @@ absl::StatusOr<AccelParams> FitFaces(ProtocolKind protocol, const FaceReferences
         absl::StrFormat("only %d of 6 faces have a verified 180-degree pair",
                         static_cast<int>(faces.means.size())));
   }
-  if (protocol == ProtocolKind::kFerraris && faces.means.size() != 6) {
+  if (FacesHeldOnce(protocol) && faces.means.size() != 6) {
     return absl::FailedPreconditionError(
         absl::StrFormat("only %d of the 6 faces placed", static_cast<int>(faces.means.size())));
   }
   return FitKnownReferences(faces.means, faces.refs);
 }
 
-// Backward elimination of the quadratic terms by leave-one-pose-out (PRESS) error: the full
-// 15-parameter model is the default, and a term is dropped only where leaving it out predicts
-// held-out poses better. With few poses at intermediate angles a second-order term fits noise
-// (the Xsens capture's quadratic_x does); where it is real, dropping it biases that axis' bias.
+// Backward elimination of the quadratic terms by the information criterion the effect search
+// uses (BIC): a term stays when its fit improves chi^2 by more than ln N (N poses), i.e. when it
+// lies more than sqrt(ln N) standard errors from zero (1.7 for 16 poses, 1.9 for 40); the least
+// significant term goes first and the rest are judged again without it. With few poses at
+// intermediate angles a second-order term fits noise (the Xsens capture's quadratic_x does) and
+// pulls its axis' bias by its own error times g^2: freed on one capture of a unit and not on
+// another, it moved bias z by 3.2 standard errors between the two. Where it is real and
+// significant, it stays. (Leave-one-out prediction, used before, kept a term whenever it
+// predicted a little better, which on 16 poses it often did by chance.)
 AccelMask SelectQuadratics(const AccelParams& start, const std::vector<AccelPose>& poses, double g,
-                           const AccelMask& determined, std::vector<std::string>* notes) {
+                           const AccelMask& determined, const AccelPriors& priors,
+                           std::vector<std::string>* notes) {
   AccelMask mask = determined;
-  auto press = [&](const AccelMask& m) {
-    return PressRms(RefineAccelGaussNewton(start, poses, g, m, 10), poses, g, m);
-  };
-  // Only a term within two standard errors of zero may go: a significant one is kept even if
-  // PRESS, itself noisy with a few dozen poses, would prefer the smaller model.
-  const AccelParams full = RefineAccelGaussNewton(start, poses, g, mask, 10);
-  const AccelVector se = AccelStdErrors(full, poses, mask);
-  double best = press(mask);
+  const double needed_z = std::sqrt(std::log(static_cast<double>(poses.size())));
+  std::array<double, kAccelParams> z_dropped{};
   for (;;) {
+    const AccelParams current = RefineAccelGaussNewton(start, poses, g, mask, 10, priors);
+    const AccelVector se = AccelStdErrors(current, poses, mask, priors);
     int drop = -1;
-    double drop_press = best;
+    double drop_z = needed_z;
     for (int c : kAccelQuadratic.Indices()) {
       if (!mask[static_cast<size_t>(c)]) continue;
-      if (std::abs(PackAccel(full)(c)) > 2 * se(c)) continue;
-      AccelMask trial = mask;
-      trial[static_cast<size_t>(c)] = false;
-      const double p = press(trial);
-      if (p < drop_press) drop = c, drop_press = p;
+      const double z = std::abs(PackAccel(current)(c)) / se(c);
+      if (!(z >= drop_z)) drop = c, drop_z = std::isfinite(z) ? z : 0.0;
     }
     if (drop < 0) break;
     mask[static_cast<size_t>(drop)] = false;
-    best = drop_press;
+    z_dropped[static_cast<size_t>(drop)] = drop_z;
   }
-  for (int c : kAccelQuadratic.Indices())
-    if (determined[static_cast<size_t>(c)] && !mask[static_cast<size_t>(c)])
-      notes->push_back(QuadraticHeldNote(c));
+  for (int c : kAccelQuadratic.Indices()) {
+    const size_t k = static_cast<size_t>(c);
+    if (determined[k] && !mask[k]) notes->push_back(QuadraticHeldNote(c, z_dropped[k], needed_z));
+  }
   return mask;
 }
 
-// Six-face: at axis-aligned poses the non-orthogonality angles reach |a| only at second order
-// (through the floor's tilt), but the face references of stage 1 (seeds/000) determine them
-// at first order. An angle stays at its stage-1 value, held fixed, when |a| = g on these
-// poses is nearly blind to it: less than a hundredth of the faces' information (its standard
-// error over ten times theirs). On a plain six-face capture |a| = g may "determine" an angle
-// to 0.015 rad (15 mg across the axis) where the faces give 1e-4 rad (a ratio near 100), and
-// refining on it only fits noise. A few extra poses between the axes bring the ratio to 2-5:
-// then holding the angle against what |a| = g says pushes the misfit into the weakly
-// determined second-order terms, which trade off against the biases (k g^2 on a face), so
-// the angle is refined as before.
-AccelMask HoldAnglesTheFacesDetermine(const FaceReferences& faces, const AccelParams& stage_one,
-                                      const AccelObservability& obs,
-                                      std::vector<std::string>* warnings) {
-  AccelMask held{};
-  double faces_chi2 = kNaN;
-  const AccelMatrix faces_cov = AffineFitCovariance(faces, stage_one, &faces_chi2);
-  for (int c : kAccelTri.Indices()) {
-    const size_t k = static_cast<size_t>(c);
-    const double faces_sigma = std::sqrt(faces_cov(c, c));
-    const bool faces_better = std::isfinite(faces_sigma) && 10 * faces_sigma < obs.sigma(c);
-    held[k] = !obs.determined[k] || faces_better;
-    if (held[k])
-      warnings->push_back(HeldByFacesWarning(c, obs.determined[k], faces_sigma, obs.sigma(c)));
+// The error the pair means leave in the face references' angles: a turn of 180 + e degrees on a
+// floor tilted by t puts a pair's mean t * e / 2 off its face axis (core/protocol.h
+// PairTurnAxis), and the affine fit's angles err by as much. Measured with the rough gyroscope,
+// whose scale may be 3 % off (5.4 degrees of a half turn), hence e is taken that much larger.
+// The largest over the verified pairs, rad.
+double PairMeanAngleError(const std::vector<PairCheck>& pairs) {
+  constexpr double kDegToRad = M_PI / 180.0;
+  constexpr double kRoughTurnErrorDeg = 0.03 * 180.0;
+  double out = 0;
+  for (const PairCheck& p : pairs) {
+    if (!p.ok || !std::isfinite(p.rotation_deg)) continue;
+    const double e_deg = std::abs(std::abs(p.rotation_deg) - 180.0) + kRoughTurnErrorDeg;
+    out = std::max(out, std::sin(p.tilt_deg * kDegToRad) * e_deg * kDegToRad / 2);
   }
-  return held;
+  return out;
+}
+
+// The face references measure the non-orthogonality angles at first order; at axis-aligned
+// poses |a| = g sees them only through the floor's tilt, and off-axis poses bring it more. Both
+// are used: the faces' angles enter the |a| = g fit as priors (accel_solver.h AccelPrior), with
+// their fit's standard error and the systematic error of the references together:
+//   six-face  the pair means' t * e / 2 (PairMeanAngleError);
+//   faces held once (ferraris, faces)  the floor's tilt itself, unknown, taken as 1 degree: it
+//             moves the angles by about 17 mrad per degree.
+// A plain six-face capture then keeps the faces' angles (|a| = g knows them 100 times worse and
+// refining on it alone fitted noise, up to a degree on an independent writer's capture); off-axis
+// poses refine them where they know better. Holding them at the faces' value instead (as before)
+// pushed the pair means' error into quadratic terms and biases with low noise (biases off by
+// 2e-3 m/s^2, 4-7 standard errors, on an independent writer's capture with 4 extra poses).
+AccelPriors FaceAnglePriors(ProtocolKind protocol, const std::vector<PairCheck>& pairs,
+                            const FaceReferences& faces, const AccelParams& stage_one,
+                            AccelVector* fit_sigma, std::vector<std::string>* warnings) {
+  constexpr double kFacesOnceTiltRad = 1.0 * M_PI / 180.0;
+  const double systematic =
+      protocol == ProtocolKind::kSixFace ? PairMeanAngleError(pairs) : kFacesOnceTiltRad;
+  double chi2 = kNaN;
+  const AccelMatrix cov = AffineFitCovariance(faces, stage_one, &chi2);
+  AccelPriors out;
+  std::string sigmas;
+  for (int c : kAccelTri.Indices()) {
+    const double fit = std::sqrt(cov(c, c));
+    (*fit_sigma)(c) = fit;
+    const double sigma = std::hypot(std::isfinite(fit) ? fit : 0.0, systematic);
+    if (!(sigma > 0)) continue;
+    out.push_back({c, PackAccel(stage_one)(c), sigma});
+    absl::StrAppendFormat(&sigmas, "%s%s %.2g", sigmas.empty() ? "" : ", ", AccelParamName(c),
+                          sigma);
+  }
+  warnings->push_back(absl::StrFormat(
+      "accel angles: the face references measure them to +- %s rad (their fit and the %s), "
+      "joined to what |a| = g on the poses says",
+      sigmas,
+      protocol == ProtocolKind::kSixFace ? "pairs' turn error" : "floor's tilt, taken as 1 deg"));
+  return out;
 }
 
 }  // namespace
 
-bool AccelStage::FirstOrderUndetermined() const {
-  for (int c : kAccelFirstOrder.Indices()) {
-    const size_t k = static_cast<size_t>(c);
-    if (!observability.determined[k] && !held_by_faces[k]) return true;
-  }
-  return false;
-}
-
 AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& poses,
-                          const AccelMask& free) {
+                          const AccelMask& free, const AccelPriors& priors) {
   const Eigen::MatrixXd j = MagnitudeJacobian(p, poses);
   const std::vector<double> sigma = MagnitudeSigmas(p, poses);
   Eigen::MatrixXd jw = j;
@@ -206,6 +268,11 @@ AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& po
     for (size_t b = 0; b < idx.size(); ++b)
       info(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b)) =
           jw.col(idx[a]).dot(jw.col(idx[b]));
+  for (const AccelPrior& q : priors)
+    for (size_t a = 0; a < idx.size(); ++a)
+      if (idx[a] == q.index)
+        info(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(a)) +=
+            1.0 / (q.sigma * q.sigma);
   const Eigen::MatrixXd cov =
       info.ldlt().solve(Eigen::MatrixXd::Identity(info.rows(), info.cols()));
   for (size_t a = 0; a < idx.size(); ++a) {
@@ -216,11 +283,9 @@ AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& po
   return unit;
 }
 
-void SetModelSigma(const AccelParams& p, double g, const AccelMask& free,
+void SetModelSigma(const AccelParams& p, double g, const AccelMask& free, const AccelPriors& priors,
                    std::vector<AccelPose>* poses) {
-  int n_free = 0;
-  for (bool f : free) n_free += f;
-  const double tau = EstimateModelSigma(p, *poses, g, n_free);
+  const double tau = EstimateModelSigma(p, *poses, g, PosesPayFor(free, priors));
   for (auto& pose : *poses) pose.model_sigma_m_s2 = tau;
 }
 
@@ -239,27 +304,31 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   FaceReferences faces;
   if (checks.protocol == ProtocolKind::kSixFace) {
     faces = VerifiedFaces(ivs, checks.pairs, checks.ups, g);
-  } else if (checks.protocol == ProtocolKind::kFerraris) {
+  } else if (FacesHeldOnce(checks.protocol)) {
     faces = SingleFaces(ivs, out.used, checks.ups, g);
   }
-  if (checks.protocol == ProtocolKind::kSixFace || checks.protocol == ProtocolKind::kFerraris) {
+  if (checks.protocol == ProtocolKind::kSixFace || FacesHeldOnce(checks.protocol)) {
     s1 = FitFaces(checks.protocol, faces);
     if (!s1.ok()) {
       out.warnings.push_back(FacesNotPossibleWarning(checks.protocol, s1.status()));
-    } else if (checks.protocol == ProtocolKind::kFerraris) {
-      out.warnings.push_back(kFerrarisTiltWarning);
+    } else if (FacesHeldOnce(checks.protocol)) {
+      out.warnings.push_back(FacesOnceWarning(checks.protocol, faces, *s1, g));
+      if (checks.protocol == ProtocolKind::kFaces)
+        out.incomplete.push_back("faces held once each: the floor was assumed level");
     }
   }
   out.from_faces = s1.ok();
   bool bias_scale_only = false;
   if (!s1.ok()) s1 = FitEllipsoid(poses, g);
-  if (!s1.ok() && poses.size() >= kBiasScalePoses) {
+  if (!s1.ok() && poses.size() >= kBiasScaleNeeds.count) {
     // Too few poses for the full model: the largest one they determine.
     s1 = FitAxisEllipsoid(poses, g);
     if (s1.ok()) {
       bias_scale_only = true;
       *s1 = RefineAccelGaussNewton(*s1, poses, g, MaskOf(kAccelBiasScale), 20);
       out.warnings.push_back(BiasScaleOnlyWarning(poses.size()));
+      out.incomplete.push_back(
+          "accelerometer: only bias and scale were calibrated (too few orientations)");
     }
   }
   if (!s1.ok()) return s1.status();
@@ -273,35 +342,60 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   out.stages.push_back(ls);
   // Model error beyond each pose's noise joins the weights (accel_solver.h). Stage 1 lacks
   // the second-order terms, so its misfit overstates it: it is measured again at each refit.
-  SetModelSigma(*s1, g, MaskOf(kAccelFirstOrder), &poses);
-
-  // 2. What the poses determine; undetermined parameters stay at neutral values.
+  // 2. What the poses (and the face references' angles) determine; undetermined parameters
+  //    stay at neutral values.
+  AccelVector faces_fit_sigma = AccelVector::Constant(kNaN);
+  if (out.from_faces) {
+    out.priors =
+        FaceAnglePriors(checks.protocol, checks.pairs, faces, *s1, &faces_fit_sigma, &out.warnings);
+  }
+  const AccelPriors& priors = out.priors;
+  SetModelSigma(*s1, g, MaskOf(kAccelFirstOrder), priors, &poses);
   AccelMask all{};
   all.fill(true);
   if (bias_scale_only) all = MaskOf(kAccelBiasScale);
-  out.observability = AnalyseAccelObservability(*s1, poses, g, all);
-  if (out.from_faces) {
-    out.held_by_faces = HoldAnglesTheFacesDetermine(faces, *s1, out.observability, &out.warnings);
-    AccelMask candidates = all;
-    for (int c : kAccelTri.Indices())
-      candidates[static_cast<size_t>(c)] = !out.held_by_faces[static_cast<size_t>(c)];
-    out.observability = AnalyseAccelObservability(*s1, poses, g, candidates);
+  // What |a| = g alone knows of the faces' angles: where the faces' fit knows one ten times
+  // better, refits that cannot take the priors (the effect search's) hold it where the priors
+  // put it (their systematic part is what the combination already weighed).
+  out.refit_free = MaskOf(kAccelBiasScale);
+  if (!priors.empty()) {
+    const AccelObservability alone = AnalyseAccelObservability(*s1, poses, g, all);
+    for (const AccelPrior& q : priors) {
+      const size_t k = static_cast<size_t>(q.index);
+      const double faces = faces_fit_sigma(q.index);
+      out.refit_free[k] =
+          alone.determined[k] && !(std::isfinite(faces) && 10 * faces < alone.sigma(q.index));
+    }
   }
+  // An angle the face references measure is free whatever |a| = g adds: it is not neutral (0)
+  // but the faces' value, with their error (the warnings say what was assumed).
+  out.observability = AnalyseAccelObservability(*s1, poses, g, all, priors);
   const AccelObservability& obs = out.observability;
   for (const auto& w : obs.warnings) out.warnings.push_back(w);
+  for (int c = 0; c < kAccelParams; ++c) {
+    const size_t k = static_cast<size_t>(c);
+    bool prior = false;
+    for (const AccelPrior& q : priors) prior |= q.index == c;
+    if (!prior) out.refit_free[k] = obs.determined[k];
+  }
+  if (!bias_scale_only) {
+    for (int c : kAccelFirstOrder.Indices())
+      if (!obs.determined[static_cast<size_t>(c)])
+        out.incomplete.push_back("accel " + AccelParamName(c) + " is not determined by the poses");
+  }
 
-  // The face references alone, when the poses are too few to refine |a| = g on (ferraris with
-  // each face once: 6 poses for 6 parameters): the affine fit is the result.
-  int n_determined = 0;
-  for (bool d : obs.determined) n_determined += d;
-  out.affine_only = out.from_faces && static_cast<int>(poses.size()) <= n_determined;
+  // The face references alone, when the poses are too few to refine |a| = g on (the six faces
+  // once each: 6 poses for the 6 parameters the angles' priors leave): the affine fit is the
+  // result.
+  out.affine_only =
+      out.from_faces && static_cast<int>(poses.size()) <= PosesPayFor(obs.determined, priors);
 
   // 3. Second-order terms stay unless leaving them out predicts held-out poses better.
   out.free = obs.determined;
   if (!out.affine_only) {
-    SetModelSigma(RefineAccelGaussNewton(*s1, poses, g, obs.determined, 10), g, obs.determined,
-                  &poses);
-    out.free = SelectQuadratics(*s1, poses, g, obs.determined, &out.warnings);
+    SetModelSigma(RefineAccelGaussNewton(*s1, poses, g, obs.determined, 10, priors), g,
+                  obs.determined, priors, &poses);
+    out.free = SelectQuadratics(*s1, poses, g, obs.determined, priors, &out.warnings);
   }
 
   // 4. BSAS, then LM.
@@ -309,32 +403,37 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   // value the data does not support would be a confident number it cannot back.
   AccelVector s1_vector = PackAccel(*s1);
   for (int c = kAccelTri.begin; c < kAccelParams; ++c)
-    if (!obs.determined[static_cast<size_t>(c)] && !out.held_by_faces[static_cast<size_t>(c)])
-      s1_vector(c) = 0;
+    if (!obs.determined[static_cast<size_t>(c)]) s1_vector(c) = 0;
   *s1 = UnpackAccel(s1_vector, s1->frame_angles);
-  if (out.affine_only) {
+  const int pays_for = PosesPayFor(out.free, priors);
+  if (!out.affine_only && static_cast<int>(poses.size()) <= pays_for) {
+    // As many poses as parameters: the solution fits every pose exactly, nothing checks it.
+    const int n_free = pays_for;
+    out.params = *s1;
+    out.covariance = AccelCovariance(*s1, poses, out.free, priors);
+    out.chi2_reduced = kNaN;
+    out.warnings.push_back(NothingToCheckWarning(poses.size(), n_free));
+    out.incomplete.push_back("nothing is left to check the accelerometer's fit");
+  } else if (out.affine_only) {
     out.params = *s1;
     out.covariance = AffineFitCovariance(faces, *s1, &out.chi2_reduced);
-    // Its standard errors cover the face-set angles too.
-    for (int c : kAccelTri.Indices())
-      out.free[static_cast<size_t>(c)] |= out.held_by_faces[static_cast<size_t>(c)];
     out.warnings.push_back(AffineOnlyWarning(poses.size()));
   } else {
     AccelParams start = *s1;
     if (opt.use_bsas) {
       StageReport bs;
-      start = RefineAccelBsas(*s1, poses, g, out.free, StageOneUnits(*s1, poses, out.free),
-                              BsasStageOptions{.seed = opt.seed}, &bs);
+      start = RefineAccelBsas(*s1, poses, g, out.free, StageOneUnits(*s1, poses, out.free, priors),
+                              BsasStageOptions{.seed = opt.seed}, &bs, priors);
       bs.pose_indices = out.used;
       bs.pose_residual_m_s2 = MagnitudeResiduals(start, poses, g);
       out.stages.push_back(bs);
     }
     StageReport lm_report;
-    absl::StatusOr<LmResult> lm = RefineAccelLm(start, poses, g, out.free, &lm_report);
+    absl::StatusOr<LmResult> lm = RefineAccelLm(start, poses, g, out.free, &lm_report, priors);
     if (!lm.ok()) return lm.status();
     // The weights and the covariance with the model error of the final fit.
-    SetModelSigma(lm->params, g, out.free, &poses);
-    lm = RefineAccelLm(lm->params, poses, g, out.free, nullptr);
+    SetModelSigma(lm->params, g, out.free, priors, &poses);
+    lm = RefineAccelLm(lm->params, poses, g, out.free, nullptr, priors);
     if (!lm.ok()) return lm.status();
     lm_report.pose_indices = out.used;
     lm_report.pose_residual_m_s2 = MagnitudeResiduals(lm->params, poses, g);

@@ -33,14 +33,18 @@ struct AccelStage {
   std::vector<AccelPose> poses;
   AccelMask free{};  // the parameters estimated
   AccelObservability observability;
-  AccelMask held_by_faces{};  // angles set by the face references and held after stage 1
-  bool from_faces = false;    // stage 1 came from the face references (the case frame is known)
-  bool affine_only = false;   // the face references' fit is the result (nothing to refine on)
+  // The face references' angles as priors of the |a| = g fit (empty without face references).
+  AccelPriors priors;
+  // The parameters a refit without the priors may move: the determined ones, less the faces'
+  // angles that |a| = g alone knows ten times worse than the faces (refitting them on |a| = g
+  // alone fits noise). Before the second-order terms are selected (`free` is then narrower).
+  AccelMask refit_free{};
+  bool from_faces = false;   // stage 1 came from the face references (the case frame is known)
+  bool affine_only = false;  // the face references' fit is the result (nothing to refine on)
   std::vector<StageReport> stages;  // ls, bsas, lm
   std::vector<std::string> warnings;
-
-  // A first-order parameter (bias, scale, angle) that neither |a| = g nor the faces determine.
-  bool FirstOrderUndetermined() const;
+  // What the model lacks or assumes, for the verdict (at best warn).
+  std::vector<std::string> incomplete;
 };
 
 // Errors: FailedPrecondition when the poses determine not even bias and scale.
@@ -51,12 +55,12 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& capture, const CalibrateOpt
 // needs parameters of similar magnitude; standard errors make every coordinate equally
 // uncertain). 1 for fixed parameters and where the error is not finite.
 AccelVector StageOneUnits(const AccelParams& stage_one, const std::vector<AccelPose>& poses,
-                          const AccelMask& free);
+                          const AccelMask& free, const AccelPriors& priors = {});
 
 // Sets every pose's common model error to the one the residual of `fit` shows
 // (EstimateModelSigma with the number of `free` parameters).
 void SetModelSigma(const AccelParams& fit, double gravity_m_s2, const AccelMask& free,
-                   std::vector<AccelPose>* poses);
+                   const AccelPriors& priors, std::vector<AccelPose>* poses);
 
 }  // namespace imucal::core::pipeline
 

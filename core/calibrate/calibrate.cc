@@ -3,9 +3,13 @@
 // here: each stage's file holds its own.
 #include "core/calibrate/calibrate.h"
 
+#include <algorithm>
 #include <chrono>
+#include <utility>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "core/allan.h"
 #include "core/calibrate/accel_stage.h"
 #include "core/calibrate/effects_stage.h"
@@ -40,7 +44,62 @@ void Append(std::vector<T>* to, const std::vector<T>& from) {
   to->insert(to->end(), from.begin(), from.end());
 }
 
+// The report of a refused capture: every interval found, with why it is not usable, and the
+// refusal; no parameters.
+CalibrationReport Refuse(const Capture& cap, CalibrationReport rep, Refusal refusal,
+                         const std::vector<StaticInterval>& intervals) {
+  rep.poses.clear();
+  for (size_t i = 0; i < intervals.size(); ++i) {
+    PoseReport pr;
+    pr.index = static_cast<int>(i);
+    pr.interval = intervals[i];
+    rep.poses.push_back(pr);
+  }
+  AttachSources(cap, &rep.poses);
+  rep.verdict = Verdict::kRefused;
+  rep.verdict_reasons = {refusal.message};
+  rep.refusal = std::move(refusal);
+  return rep;
+}
+
+// What the verdict reads: the final figures, the parameters' spreads, what the model lacks.
+VerdictInputs VerdictInputsOf(const CalibrationReport& rep, const AccelStage& accel,
+                              const GyroFit& gyro) {
+  VerdictInputs in;
+  in.accel_rms_m_s2 = rep.residual.accel_rms_m_s2;
+  in.accel_heldout_rms_m_s2 = rep.residual.accel_heldout_rms_m_s2;
+  in.accel_noise_floor_m_s2 = rep.residual.accel_noise_floor_m_s2;
+  const double n = static_cast<double>(accel.poses.size());
+  const double p = static_cast<double>(std::count(accel.free.begin(), accel.free.end(), true));
+  if (n > p) in.accel_heldout_inflation = n / (n - p);
+  in.move_rms_deg = rep.residual.move_rms_deg;
+  in.move_heldout_rms_deg = rep.residual.move_heldout_rms_deg;
+  in.parameters = ParameterSpreads(rep.params, accel.free);
+  in.incomplete = accel.incomplete;
+  if (!gyro.calibrated)
+    in.incomplete.push_back("gyroscope: only the bias was calibrated (the warnings say why)");
+  for (const PairCheck& p : rep.pairs)
+    if (!p.ok)
+      in.incomplete.push_back(absl::StrFormat("six-face pair of poses %d and %d (%s) rejected",
+                                              p.pose_a, p.pose_b, p.face));
+  return in;
+}
+
 }  // namespace
+
+std::string_view RefusalReasonName(RefusalReason reason) {
+  switch (reason) {
+    case RefusalReason::kStopsTooShort:
+      return "stops_too_short";
+    case RefusalReason::kTooFewOrientations:
+      return "too_few_orientations";
+    case RefusalReason::kRestOnly:
+      return "rest_only";
+    case RefusalReason::kPosesTooAlike:
+      return "poses_too_alike";
+  }
+  return "too_few_orientations";
+}
 
 absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateOptions& opt) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -49,22 +108,27 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   PhaseTimer timer(&rep);
   rep.device = cap.device;
   rep.gravity_m_s2 = cap.gravity_m_s2;
+  // The capture's units, for a report that ends before the parameter set (a refusal).
+  rep.params.device = cap.device;
+  rep.params.accel_unit = cap.accel_unit;
+  rep.params.gyro_unit = cap.gyro_unit;
+  rep.params.gravity_m_s2 = cap.gravity_m_s2;
 
   // capture -> static poses
-  absl::StatusOr<StaticPoses> still = FindStaticPoses(cap, opt);
-  if (!still.ok()) return still.status();
-  rep.noise = still->noise;
-  rep.threshold_multiplier = still->multiplier;
-  Append(&rep.warnings, still->warnings);
+  const StaticPoses still = FindStaticPoses(cap, opt);
+  rep.noise = still.noise;
+  rep.threshold_multiplier = still.multiplier;
+  Append(&rep.warnings, still.warnings);
   timer.Mark("static");
+  if (still.refusal) return Refuse(cap, std::move(rep), *still.refusal, still.intervals);
 
   // -> rough gyroscope and full turns
-  const RoughGyro rough = EstimateRoughGyro(cap, opt, *still);
+  const RoughGyro rough = EstimateRoughGyro(cap, opt, still);
   rep.turns = rough.turn_reports;
   timer.Mark("gyro_rough");
 
   // -> protocol and its checks
-  const ProtocolChecks checks = CheckProtocol(cap, opt, *still, rough);
+  const ProtocolChecks checks = CheckProtocol(cap, opt, still, rough);
   rep.protocol = checks.protocol;
   rep.protocol_detected = checks.detected;
   rep.pairs = checks.pairs;
@@ -74,6 +138,12 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
 
   // -> accelerometer: ls, bsas, lm
   absl::StatusOr<AccelStage> accel = SolveAccel(cap, opt, rep.noise, checks);
+  if (absl::IsFailedPrecondition(accel.status())) {
+    return Refuse(cap, std::move(rep),
+                  {RefusalReason::kPosesTooAlike,
+                   absl::StrCat(accel.status().message(), ". ", RequirementsText())},
+                  intervals);
+  }
   if (!accel.ok()) return accel.status();
   Append(&rep.stages, accel->stages);
   Append(&rep.warnings, accel->warnings);
@@ -82,7 +152,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
 
   // -> final gyroscope; the pairs' turns measured with it; the six-face case frame from the axes
   //    the pairs were turned about (the gyroscope, fitted in the faces' frame, turns with it)
-  FinalGyro gyro = SolveFinalGyro(cap, intervals, accel->used, accel->params, still->gaps, rough);
+  FinalGyro gyro = SolveFinalGyro(cap, intervals, accel->used, accel->params, still.gaps, rough);
   Append(&rep.warnings, gyro.warnings);
   timer.Mark("gyro");
   MeasurePairTurns(cap, intervals, gyro.fit, &rep.pairs);
@@ -102,6 +172,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   timer.Mark("heldout");
   rep.residual.gyro_static_rms_rad_s = GyroStaticRms(intervals, accel->used, gyro.fit.params);
   rep.poses = MakePoseReports(intervals, accel->params, accel_residuals);
+  AttachSources(cap, &rep.poses);
   rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual);
   ReportGyroFit(cap, gyro.planned, rough.turns, gyro.fit, &rep);
   timer.Mark("report");
@@ -117,13 +188,12 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     timer.Mark("effects");
   }
 
-  // -> verdict. Undetermined first-order parameters degrade it; undetermined second-order terms
-  //    do not (six-face determines seeds/000's 12-parameter model completely), but are warned of.
-  bool degraded = !gyro.fit.calibrated || accel->FirstOrderUndetermined();
-  for (const PairCheck& p : rep.pairs) degraded |= !p.ok;
-  rep.verdict = JudgeVerdict({.accel_rms_m_s2 = rep.residual.accel_rms_m_s2,
-                              .move_rms_deg = rep.residual.move_rms_deg,
-                              .degraded = degraded});
+  // -> verdict. Undetermined first-order parameters make it warn at best; undetermined
+  //    second-order terms do not (six-face determines seeds/000's 12-parameter model
+  //    completely), but are warned of.
+  VerdictResult verdict = JudgeVerdict(VerdictInputsOf(rep, *accel, gyro.fit));
+  rep.verdict = verdict.verdict;
+  rep.verdict_reasons = std::move(verdict.reasons);
   rep.total_ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return rep;
 }

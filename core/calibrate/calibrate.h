@@ -57,9 +57,10 @@ struct CalibrateOptions {
   std::vector<double> escalation_multipliers = {64, 96, 128, 192, 256};
 };
 
-// Errors: FailedPrecondition when the capture cannot determine even bias and scale (fewer than
-// 7 usable poses and not the six faces, poses too alike), naming what to add; InvalidArgument for a
-// capture that fails ValidateCapture.
+// A capture that cannot determine even bias and scale is not an error: the report's verdict is
+// refused, with the refusal (what the capture holds, what the models need) and every interval
+// found. Errors: InvalidArgument for a capture that fails ValidateCapture; Internal when a solver
+// fails on data it accepted.
 absl::StatusOr<CalibrationReport> Calibrate(const Capture& capture,
                                             const CalibrateOptions& options);
 

@@ -57,7 +57,13 @@ absl::StatusOr<EffectSearchInput> SearchInput(const Capture& cap, const EffectsS
   EffectSearchInput out;
   out.gravity_m_s2 = cap.gravity_m_s2;
   out.accel = rep.params.accel;
+  // The search's refits have no priors: the faces' angles that |a| = g alone knows ten times
+  // worse than the faces stay as the accelerometer stage combined them (refitting them on
+  // |a| = g alone fits noise).
   out.accel_free = in.accel.free;
+  for (const AccelPrior& q : in.accel.priors)
+    out.accel_free[static_cast<size_t>(q.index)] =
+        in.accel.refit_free[static_cast<size_t>(q.index)];
   out.gyro = rep.params.gyro;
   out.gyro_output_si = gyro.calibrated || !std::isnan(NominalGyroToSi(cap.gyro_unit));
   const double t0 = cap.t_s.empty() ? 0.0 : cap.t_s.front();
@@ -104,7 +110,8 @@ absl::StatusOr<EffectSearchInput> SearchInput(const Capture& cap, const EffectsS
 }
 
 // Puts the search's refitted model, effects and residuals into the report (when it added any).
-void TakeSearchResult(EffectSearchResult res, const AccelMask& free, CalibrationReport* rep) {
+void TakeSearchResult(EffectSearchResult res, const AccelMask& searched, const AccelMask& free,
+                      CalibrationReport* rep) {
   rep->effect_diagnostics = std::move(res.diagnostics);
   if (res.effects.empty()) return;
   ParamSet& ps = rep->params;
@@ -112,8 +119,12 @@ void TakeSearchResult(EffectSearchResult res, const AccelMask& free, Calibration
   ps.gyro = res.gyro;
   ps.effects = std::move(res.effects);
   AccelVector se = res.accel_covariance.diagonal().cwiseSqrt();
-  for (int c = 0; c < kAccelParams; ++c)
-    if (!free[static_cast<size_t>(c)]) se(c) = kNaN;
+  const AccelVector before = PackAccel(ps.stderrs.accel);
+  for (int c = 0; c < kAccelParams; ++c) {
+    const size_t k = static_cast<size_t>(c);
+    if (!free[k]) se(c) = kNaN;
+    if (free[k] && !searched[k]) se(c) = before(c);  // estimated before, held by the search
+  }
   ps.stderrs.accel = UnpackAccel(se, ps.stderrs.accel.frame_angles);
   // Residuals of the model as stored (with its applied effects).
   std::vector<double> after;
@@ -196,7 +207,7 @@ absl::Status RunEffectsStage(const Capture& cap, const CalibrateOptions& opt,
   if (!search.ok()) return search.status();
   absl::StatusOr<EffectSearchResult> res = FindEffects(*search, opt.effects);
   if (!res.ok()) return res.status();
-  TakeSearchResult(*std::move(res), in.accel.free, rep);
+  TakeSearchResult(*std::move(res), search->accel_free, in.accel.free, rep);
 
   bool accel_effect = false;
   for (const Effect& e : rep->params.effects)

@@ -99,7 +99,7 @@ std::vector<TurnCandidate> FindTurnCandidates(const Capture& cap,
   std::vector<TurnCandidate> out;
   std::vector<const StaticInterval*> still;
   for (const StaticInterval& s : anchors)
-    if (s.used || absl::StartsWith(s.reason, "too short")) still.push_back(&s);
+    if (s.used || s.issue == IntervalIssue::kTooShort) still.push_back(&s);
   GyroSolveOptions go;
   go.bias = bias;
   for (size_t i = 0; i + 1 < still.size(); ++i) {

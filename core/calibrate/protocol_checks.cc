@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "absl/strings/str_format.h"
+#include "core/calibrate/orientations.h"
 #include "core/validation.h"
 
 namespace imucal::core::pipeline {
@@ -69,7 +70,8 @@ void CheckFerrarisTurns(const std::vector<TurnCandidate>& turns, ProtocolChecks*
 }
 
 // Marks a pose that repeats the previous one without a re-placement: same up direction and no
-// rotation between them (a pose split in two by a bump, or a placement that was never made).
+// rotation between them (a pose split in two by a bump, or a placement that was never made). Of
+// the two, the longer stays: never a short fragment over the long rest beside it.
 // A revisit after other poses is a new, independent placement and stays in.
 // "Turned" is the path angle: after a full turn the orientation is the same but the robot was
 // turned (a Ferraris turn), and across a time gap the turn is unknown, so never a duplicate.
@@ -79,21 +81,32 @@ void MarkDuplicates(const Capture& cap, const GyroParams& gyro, const TimeGaps& 
   for (size_t i = 0; i < ivs->size(); ++i) {
     if (!(*ivs)[i].used) continue;
     if (previous >= 0) {
-      const StaticInterval& p = (*ivs)[static_cast<size_t>(previous)];
-      const double angle = AngleDeg(ups[i], ups[static_cast<size_t>(previous)]);
-      const double turned = PathAngle(cap, p.end - 1, (*ivs)[i].begin, gyro) * kRadToDeg;
+      const size_t p = static_cast<size_t>(previous);
+      const double angle = AngleDeg(ups[i], ups[p]);
+      const double turned = PathAngle(cap, (*ivs)[p].end - 1, (*ivs)[i].begin, gyro) * kRadToDeg;
       if (angle < kDuplicateDeg && turned < kNotTurnedDeg &&
-          gaps.In(p.end - 1, (*ivs)[i].begin) < 0) {
-        (*ivs)[i].used = false;
-        (*ivs)[i].reason = absl::StrFormat(
-            "duplicate of pose %d (same orientation within %.1f degrees, turned %.0f degrees "
-            "since); place the robot in a new orientation",
-            previous, angle, turned);
-        continue;
+          gaps.In((*ivs)[p].end - 1, (*ivs)[i].begin) < 0) {
+        const bool keep_this = (*ivs)[i].samples() > (*ivs)[p].samples();
+        StaticInterval& dropped = (*ivs)[keep_this ? p : i];
+        const StaticInterval& kept = (*ivs)[keep_this ? i : p];
+        dropped.used = false;
+        dropped.issue = IntervalIssue::kDuplicate;
+        dropped.reason = absl::StrFormat(
+            "duplicate of pose %d (%.1f-%.1f s, held longer): the same orientation within %.1f "
+            "degrees, turned %.0f degrees between them; place the robot in a new orientation",
+            keep_this ? static_cast<int>(i) : previous, kept.t_start_s, kept.t_end_s, angle,
+            turned);
+        if (!keep_this) continue;
       }
     }
     previous = static_cast<int>(i);
   }
+}
+
+bool OnlyFaces(const std::vector<Eigen::Vector3d>& ups) {
+  for (const Eigen::Vector3d& up : ups)
+    if (ClassifyFace(up).off_axis_deg > kFaceToleranceDeg) return false;
+  return true;
 }
 
 }  // namespace
@@ -113,13 +126,21 @@ ProtocolChecks CheckProtocol(const Capture& cap, const CalibrateOptions& opt, co
   if (opt.protocol == ProtocolKind::kAuto) {
     out.protocol = DetectProtocol(used_ups);
     out.detected = true;
-    // Ferraris: the six faces, not paired, and full turns.
-    if (out.protocol != ProtocolKind::kSixFace && !rough.turns.empty() && CoversSixFaces(used_ups))
-      out.protocol = ProtocolKind::kFerraris;
+    // Ferraris: the six faces, not paired, and full turns. Faces: the six faces, not paired,
+    // and no pose off them.
+    if (out.protocol != ProtocolKind::kSixFace && CoversSixFaces(used_ups)) {
+      if (!rough.turns.empty()) {
+        out.protocol = ProtocolKind::kFerraris;
+      } else if (OnlyFaces(used_ups)) {
+        out.protocol = ProtocolKind::kFaces;
+      }
+    }
   }
   if (out.protocol == ProtocolKind::kSixFace)
     CheckPairs(cap, ivs, used, sp.gaps, rough.params, &out);
   if (out.protocol == ProtocolKind::kFerraris) CheckFerrarisTurns(rough.turns, &out);
+  for (std::string& w : RepeatedOrientations(cap, ivs, out.ups))
+    out.warnings.push_back(std::move(w));
   MarkDuplicates(cap, rough.params, sp.gaps, out.ups, &out.intervals);
   return out;
 }

@@ -4,7 +4,9 @@
 #define IMUCAL_CORE_CALIBRATE_REPORT_H_
 
 #include <limits>
+#include <optional>
 #include <string>
+#include <string_view>
 #include <utility>
 #include <vector>
 
@@ -26,6 +28,10 @@ struct PoseReport {
   Eigen::Vector3d up = Eigen::Vector3d::Zero();  // calibrated up direction, body frame
   double residual_m_s2 = std::numeric_limits<double>::quiet_NaN();  // |a| - g, in-sample
   double heldout_m_s2 = std::numeric_limits<double>::quiet_NaN();   // |a| - g, pose left out
+  // Where it came from: the file and its first and last line (empty and 0 when the capture does
+  // not say; for a bag, message ordinals).
+  std::string file;
+  uint32_t first_line = 0, last_line = 0;
 };
 
 struct MoveReport {
@@ -48,6 +54,8 @@ struct TurnReport {
 
 struct Residuals {
   double accel_rms_m_s2 = 0, accel_max_m_s2 = 0;
+  // The RMS |a| - g would have if the model were perfect: the pose means' noise, m/s^2.
+  double accel_noise_floor_m_s2 = std::numeric_limits<double>::quiet_NaN();
   double accel_heldout_rms_m_s2 = std::numeric_limits<double>::quiet_NaN();
   double accel_heldout_max_m_s2 = std::numeric_limits<double>::quiet_NaN();
   double gyro_static_rms_rad_s = 0;  // |calibrated rate| over the static poses
@@ -55,6 +63,21 @@ struct Residuals {
   double move_max_deg = std::numeric_limits<double>::quiet_NaN();
   double move_heldout_rms_deg = std::numeric_limits<double>::quiet_NaN();
   double move_heldout_max_deg = std::numeric_limits<double>::quiet_NaN();
+};
+
+// Why a capture was refused (verdict refused): it cannot determine even bias and scale.
+enum class RefusalReason {
+  kStopsTooShort,       // still stops found, but too short to hold a pose
+  kTooFewOrientations,  // too few distinct orientations for any model
+  kRestOnly,            // one orientation (or two or three): a rest or a check, not a calibration
+  kPosesTooAlike,       // the poses do not spread over the sphere (all in one plane, ...)
+};
+// "stops_too_short", "too_few_orientations", "rest_only", "poses_too_alike".
+std::string_view RefusalReasonName(RefusalReason reason);
+
+struct Refusal {
+  RefusalReason reason = RefusalReason::kTooFewOrientations;
+  std::string message;  // what the capture holds, what the models need, what to record
 };
 
 struct CalibrationReport {
@@ -73,6 +96,11 @@ struct CalibrationReport {
   ParamSet params;
   double accel_chi2_reduced = 0;
   Verdict verdict = Verdict::kFail;
+  // The gates that failed or warned and what the capture left incomplete (verdict.h).
+  std::vector<std::string> verdict_reasons;
+  // Set exactly when verdict is refused; the report then holds the poses found and no
+  // parameters.
+  std::optional<Refusal> refusal;
   std::vector<std::string> warnings;
   // What the residual search examined and found; its effects are in params.effects.
   EffectDiagnostics effect_diagnostics;

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 
+#include "absl/strings/str_format.h"
 #include "core/calibrate/protocol_checks.h"
 
 namespace imucal::core::pipeline {
@@ -40,10 +41,14 @@ AccelResiduals ComputeAccelResiduals(const AccelStage& accel, ProtocolKind proto
   r.in_sample = MagnitudeResiduals(accel.params, accel.poses, g);
   out->accel_rms_m_s2 = Rms(r.in_sample);
   out->accel_max_m_s2 = MaxAbsFinite(r.in_sample);
+  // The noise floor: each pose's |a| noise from its measured scatter alone (no model error).
+  std::vector<AccelPose> noise_only = accel.poses;
+  for (AccelPose& p : noise_only) p.model_sigma_m_s2 = 0;
+  out->accel_noise_floor_m_s2 = Rms(MagnitudeSigmas(accel.params, noise_only));
   r.heldout.assign(accel.poses.size(), kNaN);
   if (!heldout || accel.affine_only) return r;
-  r.heldout = HeldOutMagnitudeResiduals(accel.params, accel.poses, g, accel.free);
-  if (protocol == ProtocolKind::kFerraris) {
+  r.heldout = HeldOutMagnitudeResiduals(accel.params, accel.poses, g, accel.free, accel.priors);
+  if (protocol == ProtocolKind::kFerraris || protocol == ProtocolKind::kFaces) {
     // A face placed once cannot be predicted without it (its axis' bias and scale go with it).
     std::vector<Eigen::Vector3d> used_ups;
     for (int i : accel.used) used_ups.push_back(ups[static_cast<size_t>(i)]);
@@ -128,6 +133,19 @@ std::vector<PoseReport> MakePoseReports(const std::vector<StaticInterval>& ivs,
   return out;
 }
 
+void AttachSources(const Capture& cap, std::vector<PoseReport>* poses) {
+  for (PoseReport& p : *poses) {
+    const StaticInterval& s = p.interval;
+    if (s.end <= s.begin || s.end > cap.size()) continue;
+    const int file = cap.FileOf(s.begin);
+    if (file >= 0) p.file = cap.files[static_cast<size_t>(file)].path;
+    if (cap.line.size() == cap.size()) {
+      p.first_line = cap.line[s.begin];
+      p.last_line = cap.line[s.end - 1];
+    }
+  }
+}
+
 ParamSet MakeParamSet(const Capture& cap, const AccelStage& accel, const GyroFit& gyro,
                       const std::vector<StaticInterval>& ivs, const Residuals& residual) {
   ParamSet ps;
@@ -155,6 +173,23 @@ ParamSet MakeParamSet(const Capture& cap, const AccelStage& accel, const GyroFit
   ps.quality_accel_rms_m_s2 = residual.accel_rms_m_s2;
   ps.quality_gyro_static_rms_rad_s = residual.gyro_static_rms_rad_s;
   return ps;
+}
+
+std::vector<ParameterSpread> ParameterSpreads(const ParamSet& ps, const AccelMask& free) {
+  std::vector<ParameterSpread> out;
+  const AccelVector se = PackAccel(ps.stderrs.accel);
+  const AccelVector range = AccelPlausibleRange(ps.accel, ps.gravity_m_s2);
+  for (int c = 0; c < kAccelParams; ++c)
+    if (free[static_cast<size_t>(c)])
+      out.push_back({"accel " + AccelParamName(c), se(c), range(c)});
+  if (ps.gyro_calibrated) {
+    const double scale = ps.gyro.matrix.diagonal().cwiseAbs().mean();
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c)
+        out.push_back({absl::StrFormat("gyro matrix (%c,%c)", "xyz"[r], "xyz"[c]),
+                       ps.stderrs.gyro_matrix(r, c), kGyroPlausibleRelative * scale});
+  }
+  return out;
 }
 
 Eigen::Vector3d CorrectedSpecificForce(const AccelParams& accel, const std::vector<Effect>& effects,

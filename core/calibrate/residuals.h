@@ -17,6 +17,7 @@
 #include "core/calibrate/accel_stage.h"
 #include "core/calibrate/gyro_stage.h"
 #include "core/calibrate/report.h"
+#include "core/calibrate/verdict.h"
 #include "core/capture.h"
 #include "core/params.h"
 
@@ -53,10 +54,18 @@ void ReportGyroFit(const Capture& capture, const std::vector<PlannedMove>& plann
 std::vector<PoseReport> MakePoseReports(const std::vector<StaticInterval>& intervals,
                                         const AccelParams& accel, const AccelResiduals& residuals);
 
+// Sets each pose's file and line range from the capture's record of where its samples came from.
+void AttachSources(const Capture& capture, std::vector<PoseReport>* poses);
+
 // The parameter set of the final model, with its standard errors (the gyro matrix's are
 // ReportGyroFit's) and the quality figures of `residual`.
 ParamSet MakeParamSet(const Capture& capture, const AccelStage& accel, const GyroFit& gyro,
                       const std::vector<StaticInterval>& intervals, const Residuals& residual);
+
+// Each estimated parameter's standard error against the range a sensor plausibly has, for the
+// verdict: the accelerometer's free parameters (AccelPlausibleRange) and, when calibrated, the
+// gyroscope matrix's entries (kGyroPlausibleRelative of its mean scale).
+std::vector<ParameterSpread> ParameterSpreads(const ParamSet& params, const AccelMask& accel_free);
 
 // A pose's calibrated specific force (m/s^2) with the applied accelerometer effects taken out at
 // its own signals (its mean temperature, its middle's time since `t0_s`), as the SDK's

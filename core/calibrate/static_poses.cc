@@ -5,7 +5,10 @@
 #include <limits>
 #include <utility>
 
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "core/calibrate/orientations.h"
 #include "core/protocol.h"
 
 namespace imucal::core::pipeline {
@@ -27,6 +30,18 @@ struct SweepResult {
   SweepTier tier = SweepTier::kNone;
   bool escalated = false;
 };
+
+// Bias and scale of an axis need it pointing up in one pose and down in another (within 60
+// degrees of the vertical): otherwise the two trade off along that axis. With a spare pose the
+// fit's own conditioning tells; with none (6 poses for 6 parameters) nothing would.
+bool EveryAxisUpAndDown(const std::vector<Eigen::Vector3d>& ups) {
+  for (int j = 0; j < 3; ++j) {
+    bool up = false, down = false;
+    for (const Eigen::Vector3d& u : ups) up |= u(j) > 0.5, down |= u(j) < -0.5;
+    if (!up || !down) return false;
+  }
+  return true;
+}
 
 SweepResult ScoreMultiplier(const Capture& cap, const MotionSignal& motion, const NoiseLevel& noise,
                             const CalibrateOptions& opt, double m) {
@@ -55,7 +70,8 @@ SweepResult ScoreMultiplier(const Capture& cap, const MotionSignal& motion, cons
   for (const AccelPose& p : poses) ups.push_back(out.accel.Apply(p.mean).normalized());
   if (CoversSixFaces(ups)) {
     out.tier = SweepTier::kFaces;
-  } else if (poses.size() >= kBiasScalePoses) {
+  } else if (poses.size() > kBiasScaleNeeds.count ||
+             (poses.size() == kBiasScaleNeeds.count && EveryAxisUpAndDown(ups))) {
     out.tier = SweepTier::kBiasScale;
   } else {
     return out;
@@ -99,7 +115,85 @@ std::string EscalationWarning(const StaticPoses& s, const CalibrateOptions& opt)
       opt.multipliers.empty() ? 0.0 : opt.multipliers.back(), s.multiplier, ratio);
 }
 
+// The stops of a capture as they are, for a refusal: still intervals of any length at the loosest
+// usual threshold (not the steady turns), and the distinct orientations among them.
+struct StopCount {
+  std::vector<StaticInterval> intervals;
+  int stops = 0, too_short = 0, orientations = 0;
+  double longest_s = 0, still_s = 0, span_s = 0;
+  std::vector<std::string> repeated;  // orientations held twice, faces missing
+};
+
+StopCount CountStops(const Capture& cap, const StaticPoses& s, const CalibrateOptions& opt) {
+  StopCount out;
+  const double m = opt.multipliers.empty() ? s.multiplier : opt.multipliers.back();
+  out.intervals = DetectStatic(cap, s.motion, s.noise, m, opt.detector);
+  std::vector<StaticInterval> stops;
+  for (const StaticInterval& iv : out.intervals)
+    if (iv.issue != IntervalIssue::kTurning) stops.push_back(iv);
+  out.stops = static_cast<int>(stops.size());
+  out.span_s = cap.size() > 1 ? cap.t_s.back() - cap.t_s.front() : 0;
+  for (const StaticInterval& iv : stops) {
+    out.too_short += iv.issue == IntervalIssue::kTooShort;
+    const double d = iv.t_end_s - iv.t_start_s;
+    out.longest_s = std::max(out.longest_s, d);
+    out.still_s += d;
+  }
+  out.orientations = DistinctOrientations(RawUps(cap, stops));
+  out.repeated = RepeatedOrientations(cap, out.intervals, RawUps(cap, out.intervals));
+  return out;
+}
+
+// What a refused capture holds, what the models need, and what to record instead.
+Refusal DescribeRefusal(const StopCount& c, size_t most_used, const CalibrateOptions& opt) {
+  Refusal out;
+  const double hold_s = opt.detector.min_static_s;
+  std::string found = absl::StrFormat(
+      "too few static poses: found at most %d usable; the capture holds %d still stops (%.0f s "
+      "still of %.0f s, the longest %.1f s) in %d distinct orientations, counted from stops of "
+      "any length",
+      static_cast<int>(most_used), c.stops, c.still_s, c.span_s, c.longest_s, c.orientations);
+  if (!c.repeated.empty()) absl::StrAppend(&found, "; ", absl::StrJoin(c.repeated, "; "));
+  if (c.stops > 0 && 2 * c.too_short >= c.stops &&
+      c.orientations >= static_cast<int>(kBiasScaleNeeds.count)) {
+    out.reason = RefusalReason::kStopsTooShort;
+    out.message = absl::StrFormat(
+        "%s. %d of %d stops were too short, under the %.1f s hold: hold each pose %.0f s. %s",
+        found, c.too_short, c.stops, hold_s, 2 * std::ceil(hold_s), RequirementsText());
+  } else if (c.orientations == 1) {
+    out.reason = RefusalReason::kRestOnly;
+    out.message = absl::StrFormat(
+        "%s: a rest recording. It cannot calibrate: the scales and cross-axis terms need the "
+        "sensor turned. A rest gives the noise (Allan deviation: white noise from seconds of rest, "
+        "bias instability from minutes; `imucal noise`) and the bias drift. %s",
+        found, RequirementsText());
+  } else if (c.orientations > 1 && c.orientations <= 3) {
+    out.reason = RefusalReason::kRestOnly;
+    out.message = absl::StrFormat(
+        "%s. A rest, a known move and a rest checks a calibration (the gyroscope's turn against "
+        "the change of the gravity direction), it cannot make one: calibrate a multi-pose capture "
+        "of the same unit, then apply its parameters to this one. %s",
+        found, RequirementsText());
+  } else {
+    out.reason = RefusalReason::kTooFewOrientations;
+    out.message = absl::StrFormat("%s. %s", found, RequirementsText());
+  }
+  return out;
+}
+
 }  // namespace
+
+std::string RequirementsText() {
+  std::string out = "Needs: ";
+  bool first = true;
+  for (const PoseRequirement* r :
+       {&kSixFaceNeeds, &kFullModelNeeds, &kFacesOnceNeeds, &kBiasScaleNeeds}) {
+    absl::StrAppendFormat(&out, "%s%s: %d %s", first ? "" : "; ", r->model,
+                          static_cast<int>(r->count), r->what);
+    first = false;
+  }
+  return out;
+}
 
 long TimeGaps::In(size_t begin, size_t end) const {
   for (size_t i : after)
@@ -108,16 +202,28 @@ long TimeGaps::In(size_t begin, size_t end) const {
 }
 
 std::string TimeGaps::Describe(const Capture& cap, size_t i) {
+  for (size_t k = 1; k < cap.files.size(); ++k) {
+    if (cap.files[k].first_sample == i) {
+      return absl::StrFormat(
+          "the start of file %s (after %s; the time between files is not "
+          "recorded)",
+          cap.files[k].path, cap.files[k - 1].path);
+    }
+  }
   return absl::StrFormat("a time gap of %.3f s at %.3f s", cap.t_s[i] - cap.t_s[i - 1],
                          cap.t_s[i - 1]);
 }
 
 TimeGaps FindTimeGaps(const Capture& cap) {
   TimeGaps out;
+  out.after = cap.FileStarts();
   const double limit = kGapFactor * cap.MedianDt();
-  if (!(limit > 0)) return out;
-  for (size_t i = 1; i < cap.size(); ++i)
-    if (cap.t_s[i] - cap.t_s[i - 1] > limit) out.after.push_back(i);
+  if (limit > 0) {
+    for (size_t i = 1; i < cap.size(); ++i)
+      if (cap.t_s[i] - cap.t_s[i - 1] > limit) out.after.push_back(i);
+  }
+  std::sort(out.after.begin(), out.after.end());
+  out.after.erase(std::unique(out.after.begin(), out.after.end()), out.after.end());
   return out;
 }
 
@@ -143,20 +249,19 @@ std::vector<AccelPose> ToAccelPoses(const std::vector<StaticInterval>& ivs,
   return out;
 }
 
-absl::StatusOr<StaticPoses> FindStaticPoses(const Capture& cap, const CalibrateOptions& opt) {
+StaticPoses FindStaticPoses(const Capture& cap, const CalibrateOptions& opt) {
   StaticPoses out;
   out.motion = ComputeMotionSignal(cap, opt.detector);
   out.noise = EstimateNoise(cap, out.motion);
+  out.gaps = FindTimeGaps(cap);
   size_t most_poses = 0;
   SweepResult sweep = SweepThreshold(cap, out.motion, out.noise, opt, &most_poses);
   if (sweep.tier == SweepTier::kNone) {
-    return absl::FailedPreconditionError(absl::StrFormat(
-        "too few static poses: found at most %d usable, the accelerometer needs at least 10 "
-        "distinct orientations held still for %.1f s or more (bias and scale alone: at least %d, "
-        "with every axis pointing up and down; or the six faces once each and full turns, the "
-        "ferraris protocol)",
-        static_cast<int>(most_poses), opt.detector.min_static_s,
-        static_cast<int>(kBiasScalePoses)));
+    out.multiplier = opt.multipliers.empty() ? 0.0 : opt.multipliers.back();
+    StopCount stops = CountStops(cap, out, opt);
+    out.refusal = DescribeRefusal(stops, most_poses, opt);
+    out.intervals = std::move(stops.intervals);
+    return out;
   }
   out.multiplier = sweep.multiplier;
   out.escalated = sweep.escalated;
@@ -164,7 +269,6 @@ absl::StatusOr<StaticPoses> FindStaticPoses(const Capture& cap, const CalibrateO
   out.intervals = std::move(sweep.intervals);
   out.rough_accel = sweep.accel;
   if (out.escalated) out.warnings.push_back(EscalationWarning(out, opt));
-  out.gaps = FindTimeGaps(cap);
   for (size_t i = 0; i < out.intervals.size(); ++i) {
     const StaticInterval& iv = out.intervals[i];
     const long gap = out.gaps.In(iv.begin, iv.end - 1);

@@ -10,19 +10,40 @@
 #define IMUCAL_CORE_CALIBRATE_STATIC_POSES_H_
 
 #include <cstddef>
+#include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/accel_solver.h"
 #include "core/calibrate/calibrate.h"
+#include "core/calibrate/report.h"
 #include "core/capture.h"
 #include "core/static_detector.h"
 
 namespace imucal::core::pipeline {
 
-// The fewest well-spread poses for bias and scale alone (6 parameters, one spare).
-inline constexpr size_t kBiasScalePoses = 7;
+// What each model needs from a capture: the one table every refusal and warning quotes.
+struct PoseRequirement {
+  std::string_view model;
+  size_t count;
+  std::string_view what;
+};
+inline constexpr PoseRequirement kFullModelNeeds{
+    "the full model (bias, scale, misalignment, second-order terms)", 10,
+    "distinct orientations spread over the sphere, some with gravity between two axes"};
+inline constexpr PoseRequirement kSixFaceNeeds{
+    "six-face, the recommended protocol (each pair's 180-degree turn cancels the floor's tilt)", 12,
+    "poses: each face up twice, turned 180 degrees about the vertical between the two"};
+inline constexpr PoseRequirement kFacesOnceNeeds{
+    "the 12-parameter model of the face references (seeds/000), the floor assumed level", 6,
+    "orientations: the six faces, each held once"};
+inline constexpr PoseRequirement kBiasScaleNeeds{
+    "bias and scale alone", 6,
+    "orientations with every axis pointing up and down (a 7th leaves one to check the fit)"};
+// "needs: the full model (...) 10 distinct orientations ...; six-face ...; ...".
+std::string RequirementsText();
 
 // What the poses of one threshold can determine, best first.
 enum class SweepTier {
@@ -57,12 +78,12 @@ struct StaticPoses {
   AccelParams rough_accel;
   TimeGaps gaps;
   std::vector<std::string> warnings;
+  // Set when no multiplier finds poses that determine even bias and scale: `intervals` are then
+  // the stops at the loosest usual multiplier, each with why it is not usable.
+  std::optional<Refusal> refusal;
 };
 
-// FailedPrecondition when no multiplier finds poses that determine even bias and scale, naming
-// what the capture needs.
-absl::StatusOr<StaticPoses> FindStaticPoses(const Capture& capture,
-                                            const CalibrateOptions& options);
+StaticPoses FindStaticPoses(const Capture& capture, const CalibrateOptions& options);
 
 // The indices of the used intervals, in time order.
 std::vector<int> UsedIndices(const std::vector<StaticInterval>& intervals);

@@ -1,6 +1,9 @@
 #include "core/calibrate/verdict.h"
 
+#include <algorithm>
 #include <cmath>
+
+#include "absl/strings/str_format.h"
 
 namespace imucal::core {
 
@@ -12,24 +15,79 @@ std::string_view VerdictName(Verdict verdict) {
       return "warn";
     case Verdict::kFail:
       return "fail";
+    case Verdict::kRefused:
+      return "refused";
   }
   return "fail";
 }
 
 std::optional<Verdict> ParseVerdict(std::string_view name) {
-  for (Verdict v : {Verdict::kPass, Verdict::kWarn, Verdict::kFail})
+  for (Verdict v : {Verdict::kPass, Verdict::kWarn, Verdict::kFail, Verdict::kRefused})
     if (VerdictName(v) == name) return v;
   return std::nullopt;
 }
 
-Verdict JudgeVerdict(const VerdictInputs& in) {
-  const double move = in.move_rms_deg;
-  if (in.accel_rms_m_s2 > kAccelFailRmsM_s2 || (std::isfinite(move) && move > kMoveFailRmsDeg))
-    return Verdict::kFail;
-  if (in.degraded || in.accel_rms_m_s2 > kAccelPassRmsM_s2 ||
-      (std::isfinite(move) && move > kMovePassRmsDeg))
-    return Verdict::kWarn;
-  return Verdict::kPass;
+VerdictResult JudgeVerdict(const VerdictInputs& in) {
+  VerdictResult out;
+  std::vector<std::string> fail, warn;
+  const double mg = 1e3 / 9.80665;
+  if (in.accel_rms_m_s2 > kAccelFailRmsM_s2) {
+    fail.push_back(absl::StrFormat("accelerometer residual %.2f mg RMS is above the %.1f mg gate",
+                                   mg * in.accel_rms_m_s2, mg * kAccelFailRmsM_s2));
+  } else if (in.accel_rms_m_s2 > kAccelPassRmsM_s2) {
+    warn.push_back(absl::StrFormat("accelerometer residual %.2f mg RMS is above %.1f mg",
+                                   mg * in.accel_rms_m_s2, mg * kAccelPassRmsM_s2));
+  }
+  const double heldout = in.accel_heldout_rms_m_s2;
+  if (std::isfinite(heldout)) {
+    const double k = std::max(1.0, in.accel_heldout_inflation);
+    double expected = k * in.accel_rms_m_s2;
+    if (std::isfinite(in.accel_noise_floor_m_s2))
+      expected = std::max(expected, std::sqrt(k) * in.accel_noise_floor_m_s2);
+    if (heldout / std::sqrt(k) > kAccelFailRmsM_s2) {
+      fail.push_back(absl::StrFormat(
+          "accelerometer held-out residual %.2f mg RMS is above the %.1f mg gate (%.2f mg after "
+          "the %.1f x a fit of these poses leaves): the poses do not predict each other",
+          mg * heldout, mg * kAccelFailRmsM_s2, mg * heldout / std::sqrt(k), k));
+    } else if (heldout > kHeldOutFailRatio * expected) {
+      fail.push_back(absl::StrFormat(
+          "accelerometer held-out residual %.3f mg RMS is %.0f x what a sound fit of these poses "
+          "leaves (%.3f mg: in-sample %.3f mg, noise floor %.3f mg): the fit explains its own "
+          "poses and not the others (a pose fragment, a missing face, a wrong model)",
+          mg * heldout, heldout / expected, mg * expected, mg * in.accel_rms_m_s2,
+          mg * in.accel_noise_floor_m_s2));
+    }
+  }
+  const double move = in.move_rms_deg, move_heldout = in.move_heldout_rms_deg;
+  if (std::isfinite(move) && move > kMoveFailRmsDeg) {
+    fail.push_back(
+        absl::StrFormat("gravity direction after the moves %.2f deg RMS is above the %.0f deg gate",
+                        move, kMoveFailRmsDeg));
+  } else if (std::isfinite(move) && move > kMovePassRmsDeg) {
+    warn.push_back(absl::StrFormat(
+        "gravity direction after the moves %.2f deg RMS is above %.0f deg", move, kMovePassRmsDeg));
+  }
+  if (std::isfinite(move_heldout) &&
+      (move_heldout > kMoveFailRmsDeg ||
+       (move_heldout > kMovePassRmsDeg && move_heldout > kHeldOutFailRatio * move))) {
+    fail.push_back(absl::StrFormat(
+        "gravity direction after the moves, held out, %.2f deg RMS (in-sample %.2f deg): the "
+        "gyroscope fit does not predict the moves it was not fitted to",
+        move_heldout, move));
+  }
+  for (const ParameterSpread& p : in.parameters) {
+    if (std::isfinite(p.std_error) && p.std_error > p.plausible) {
+      fail.push_back(absl::StrFormat(
+          "%s: its standard error %.3g is wider than the range a sensor plausibly has (%.3g); the "
+          "capture does not determine it",
+          p.name, p.std_error, p.plausible));
+    }
+  }
+  warn.insert(warn.end(), in.incomplete.begin(), in.incomplete.end());
+  out.verdict = !fail.empty() ? Verdict::kFail : !warn.empty() ? Verdict::kWarn : Verdict::kPass;
+  out.reasons = std::move(fail);
+  out.reasons.insert(out.reasons.end(), warn.begin(), warn.end());
+  return out;
 }
 
 }  // namespace imucal::core

@@ -14,8 +14,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
-#include "core/capture_io.h"
 #include "core/simulator.h"
+#include "importers/imucal_csv.h"
 #include "nlohmann/json.hpp"
 #include "tests/client/imucald_process.h"
 
@@ -45,7 +45,7 @@ class CliServerTest : public testing_util::ImucaldTest {
     auto r = core::Simulate(sim);
     EXPECT_TRUE(r.ok()) << r.status();
     const std::string path = (dir_ / absl::StrCat("capture", seed, ".csv")).string();
-    EXPECT_TRUE(core::WriteImucalCsvFile(r->capture, path).ok());
+    EXPECT_TRUE(importers::WriteImucalCsvFile(r->capture, path).ok());
     return path;
   }
 
@@ -213,15 +213,15 @@ TEST_F(CliServerTest, UploadingAnotherCaptureToAStartedSessionIsRefused) {
   ASSERT_TRUE(a.ok() && b.ok());
   const std::string a_path = (dir_ / "a.csv").string();
   const std::string b_path = (dir_ / "b.csv").string();
-  ASSERT_TRUE(core::WriteImucalCsvFile(a->capture, a_path).ok());
-  ASSERT_TRUE(core::WriteImucalCsvFile(b->capture, b_path).ok());
+  ASSERT_TRUE(importers::WriteImucalCsvFile(a->capture, a_path).ok());
+  ASSERT_TRUE(importers::WriteImucalCsvFile(b->capture, b_path).ok());
   // What an interrupted upload of a.csv leaves: its first 4001 samples (the same file name).
   core::Capture part = a->capture;
   part.t_s.resize(4001), part.accel.resize(4001), part.gyro.resize(4001);
   if (part.has_temp()) part.temp.resize(4001);
   fs::create_directories(dir_ / "cut");
   const std::string part_path = (dir_ / "cut" / "a.csv").string();
-  ASSERT_TRUE(core::WriteImucalCsvFile(part, part_path).ok());
+  ASSERT_TRUE(importers::WriteImucalCsvFile(part, part_path).ok());
   ASSERT_EQ(Run(RunSession, {"start", "--device", "robot-cli-7", "--json"}), kExitOk) << err_;
   const std::string id = json::parse(out_)["id"];
   ASSERT_EQ(Run(RunUpload, {part_path, "--session", id}), kExitOk) << err_;

@@ -15,11 +15,11 @@
 #include "Eigen/Core"
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
-#include "client/sdk/params_json.h"
 #include "core/capture.h"
-#include "core/capture_io.h"
 #include "core/simulator.h"
 #include "core/validation.h"
+#include "formats/params_json.h"
+#include "importers/imucal_csv.h"
 #include "nlohmann/json.hpp"
 
 namespace imucal::cli {
@@ -118,8 +118,8 @@ TEST_F(CliTest, SimulateCalibrateApplyRoundTrip) {
   EXPECT_EQ(j["verdict"], "pass");
 
   // --params-out holds the report's parameter set; both load in the SDK.
-  const absl::StatusOr<core::ParamSet> from_report = sdk::ParamSetFromJson(ReadText(report));
-  const absl::StatusOr<core::ParamSet> from_params = sdk::ParamSetFromJson(ReadText(params));
+  const absl::StatusOr<core::ParamSet> from_report = formats::ParamSetFromJson(ReadText(report));
+  const absl::StatusOr<core::ParamSet> from_params = formats::ParamSetFromJson(ReadText(params));
   ASSERT_TRUE(from_report.ok()) << from_report.status();
   ASSERT_TRUE(from_params.ok()) << from_params.status();
   EXPECT_EQ(from_report->accel.bias, from_params->accel.bias);
@@ -135,8 +135,8 @@ TEST_F(CliTest, SimulateCalibrateApplyRoundTrip) {
   ASSERT_EQ(Run(RunApply, {"--params", report, clean, calibrated}), kExitOk) << err_;
   EXPECT_NE(out_.find(calibrated), std::string::npos) << out_;
 
-  const absl::StatusOr<core::Capture> in = core::ReadImucalCsvFile(clean);
-  const absl::StatusOr<core::Capture> out = core::ReadImucalCsvFile(calibrated);
+  const absl::StatusOr<core::Capture> in = importers::ReadImucalCsvFile(clean);
+  const absl::StatusOr<core::Capture> out = importers::ReadImucalCsvFile(calibrated);
   ASSERT_TRUE(in.ok()) << in.status();
   ASSERT_TRUE(out.ok()) << out.status();
   EXPECT_EQ(out->accel_unit, core::AccelUnit::kMetersPerSecond2);
@@ -171,7 +171,7 @@ TEST_F(CliTest, ApplyRejectsParametersForOtherUnits) {
   // accelerometer's x density as written to params.json, and the random walk, which a short
   // simulated rest does not reach, as a labelled upper bound.
   {
-    absl::StatusOr<core::ParamSet> written = sdk::ParamSetFromJson(ReadText(params));
+    absl::StatusOr<core::ParamSet> written = formats::ParamSetFromJson(ReadText(params));
     ASSERT_TRUE(written.ok()) << written.status();
     ASSERT_TRUE(written->noise.has_value());
     char density[32];
@@ -280,14 +280,31 @@ TEST_F(CliTest, MissingArgumentsAndBadValuesAreUsageErrors) {
   EXPECT_NE(out_.find("exit codes"), std::string::npos) << out_;
 }
 
-TEST_F(CliTest, TooFewPosesIsExitThree) {
+// A refusal is exit 3 with the reason on stderr, and with --out it still writes the report:
+// verdict refused, every pose found with why it is or is not usable, no parameters to apply.
+TEST_F(CliTest, TooFewPosesIsExitThreeAndStillWritesTheReport) {
   const std::string capture = Path("few.csv"), report = Path("report.json");
-  ASSERT_EQ(Run(RunSimulate, {"--out", capture, "--protocol", "free", "--free-poses", "6"}),
+  ASSERT_EQ(Run(RunSimulate, {"--out", capture, "--protocol", "free", "--free-poses", "5"}),
             kExitOk)
       << err_;
-  EXPECT_EQ(Run(RunCalibrate, {capture, "--out", report}), kExitUndetermined);
-  EXPECT_NE(err_.find("at least 10"), std::string::npos) << err_;
-  EXPECT_FALSE(fs::exists(report));
+  EXPECT_EQ(Run(RunCalibrate, {capture, "--out", report, "--params-out", Path("p.json")}),
+            kExitUndetermined);
+  EXPECT_NE(err_.find("10 distinct orientations"), std::string::npos) << err_;
+  ASSERT_TRUE(fs::exists(report));
+  const json j = json::parse(ReadText(report));
+  EXPECT_EQ(j.at("verdict"), "refused");
+  EXPECT_EQ(j.at("refusal").at("reason"), "too_few_orientations");
+  EXPECT_FALSE(j.contains("parameters"));
+  EXPECT_FALSE(fs::exists(Path("p.json")));  // nothing to apply
+  int used = 0;
+  for (const auto& p : j.at("poses")) {
+    used += p.at("used").get<bool>();
+    EXPECT_TRUE(p.at("used").get<bool>() || !p.at("reason").get<std::string>().empty()) << p;
+  }
+  EXPECT_EQ(used, 5);
+  // --json prints the same report on stdout.
+  EXPECT_EQ(Run(RunCalibrate, {capture, "--json"}), kExitUndetermined);
+  EXPECT_EQ(json::parse(out_).at("verdict"), "refused");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -10,8 +10,8 @@
 #include <string>
 
 #include "absl/strings/str_cat.h"
-#include "client/sdk/crc32c.h"
-#include "client/sdk/params_json.h"
+#include "formats/crc32c.h"
+#include "formats/params_json.h"
 
 namespace imucal::sdk {
 namespace {
@@ -27,8 +27,8 @@ StoredParams MakeStored(const std::string& device, int version) {
   StoredParams s;
   s.device_id = device;
   s.version = version;
-  s.json = ParamSetToJson(p);
-  s.crc32c = Crc32c(s.json);
+  s.json = formats::ParamSetToJson(p);
+  s.crc32c = formats::Crc32c(s.json);
   return s;
 }
 

@@ -12,11 +12,11 @@
 
 #include "absl/strings/str_cat.h"
 #include "client/sdk/client.h"
-#include "client/sdk/crc32c.h"
 #include "client/sdk/grpc_status.h"
-#include "client/sdk/params_json.h"
 #include "client/sdk/uploader.h"
 #include "core/simulator.h"
+#include "formats/crc32c.h"
+#include "formats/params_json.h"
 #include "grpcpp/grpcpp.h"
 #include "tests/client/fake_services.h"
 #include "tests/client/imucald_process.h"
@@ -36,8 +36,8 @@ pb::ParameterSet MakeSet(const std::string& device, int version) {
   set.set_device_id(device);
   set.set_version(version);
   set.set_state(pb::VERSION_STATE_ACTIVE);
-  set.set_json(ParamSetToJson(p));
-  set.set_crc32c(Crc32c(set.json()));
+  set.set_json(formats::ParamSetToJson(p));
+  set.set_crc32c(formats::Crc32c(set.json()));
   return set;
 }
 

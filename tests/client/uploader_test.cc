@@ -14,8 +14,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "client/sdk/client.h"
-#include "client/sdk/sample_digest.h"
 #include "core/simulator.h"
+#include "formats/sample_digest.h"
 #include "grpcpp/grpcpp.h"
 #include "tests/client/fake_services.h"
 #include "tests/client/imucald_process.h"
@@ -25,6 +25,7 @@ namespace {
 
 namespace fs = std::filesystem;
 namespace pb = imucal::v1;
+using formats::SampleDigest;
 using testing_util::FakeServer;
 using testing_util::FakeSessionService;
 

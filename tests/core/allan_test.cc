@@ -17,10 +17,10 @@
 #include <vector>
 
 #include "Eigen/Core"
-#include "client/sdk/params_json.h"
 #include "core/calibrate/calibrate.h"
 #include "core/capture.h"
 #include "core/simulator.h"
+#include "formats/params_json.h"
 
 namespace imucal::core {
 namespace {
@@ -69,7 +69,7 @@ TEST(AllanTest, LogSpacedClusterSizes) {
   EXPECT_TRUE(std::adjacent_find(m.begin(), m.end()) == m.end());
 }
 
-// The issue's acceptance: white noise of known density recovered within 10% from the initial
+// Acceptance: white noise of known density recovered within 10% from the initial
 // rest of a simulated capture, for several seeds and rates, calibrated with the true model.
 TEST(AllanTest, WhiteNoiseDensityFromSimulatedRest) {
   double worst_accel = 0, worst_gyro = 0;
@@ -187,7 +187,7 @@ TEST(AllanTest, RandomWalkRecovered) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Bias instability and random walk within 10% (issue 6). The noise is built here, one axis at a
+// Bias instability and random walk within 10%. The noise is built here, one axis at a
 // time, from the three IEEE Std 952 Annex C terms with their rate PSDs (two-sided, the
 // standard's convention: avar(tau) = 4 int_0^inf S(f) sin^4(pi f tau) / (pi f tau)^2 df):
 //   white            S(f) = N^2                   avar = N^2 / tau
@@ -432,10 +432,10 @@ TEST(ParamsJsonNoise, RoundTripAndOptional) {
   n.gyro.random_walk = Eigen::Vector3d(1e-6, 2e-6, 3e-6);
   n.notes = {"accel random walk not reached on x, y, z"};
   p.noise = n;
-  const std::string json = sdk::ParamSetToJson(p);
+  const std::string json = formats::ParamSetToJson(p);
   EXPECT_NE(json.find("m/s^2/sqrt(Hz)"), std::string::npos);
   EXPECT_NE(json.find("noise_std_per_sample"), std::string::npos);
-  absl::StatusOr<ParamSet> back = sdk::ParamSetFromJson(json);
+  absl::StatusOr<ParamSet> back = formats::ParamSetFromJson(json);
   ASSERT_TRUE(back.ok()) << back.status();
   ASSERT_TRUE(back->noise.has_value());
   const NoiseFigures& b = *back->noise;
@@ -451,10 +451,10 @@ TEST(ParamsJsonNoise, RoundTripAndOptional) {
   EXPECT_EQ(b.notes, n.notes);
 
   ParamSet old;  // no noise block
-  absl::StatusOr<ParamSet> old_back = sdk::ParamSetFromJson(sdk::ParamSetToJson(old));
+  absl::StatusOr<ParamSet> old_back = formats::ParamSetFromJson(formats::ParamSetToJson(old));
   ASSERT_TRUE(old_back.ok()) << old_back.status();
   EXPECT_FALSE(old_back->noise.has_value());
-  EXPECT_EQ(sdk::ParamSetToJson(old).find("\"noise\""), std::string::npos);
+  EXPECT_EQ(formats::ParamSetToJson(old).find("\"noise\""), std::string::npos);
 }
 
 }  // namespace

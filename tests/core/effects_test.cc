@@ -21,8 +21,8 @@
 #include "client/sdk/corrector.h"
 #include "core/calibrate/calibrate.h"
 #include "core/simulator.h"
-#include "core/str_util.h"
 #include "tests/core/effect_scenarios.h"
+#include "util/str_util.h"
 
 namespace imucal::core {
 namespace {

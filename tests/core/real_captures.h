@@ -8,7 +8,7 @@
 #include <string>
 
 #include "absl/status/statusor.h"
-#include "core/capture_io.h"
+#include "importers/registry.h"
 
 namespace imucal::core::real_captures {
 
@@ -29,8 +29,8 @@ inline const std::string kFerrarisExample =
 inline const std::string kFerrarisAnnotated = kRealDir + "/imucal-ferraris/annotated_session.csv";
 
 // MPU-6050: raw counts, the rate in the preamble ("Fs"), no time column.
-inline ImportOptions Mpu6050Options() {
-  ImportOptions io;
+inline importers::ImportOptions Mpu6050Options() {
+  importers::ImportOptions io;
   io.columns.map = "ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz";
   io.columns.rate_from_preamble = "Fs";
   io.accel_unit = AccelUnit::kCounts;
@@ -39,10 +39,10 @@ inline ImportOptions Mpu6050Options() {
 }
 
 // mad-lab-fau/imucal's Ferraris example: m/s^2 and deg/s, a sample counter at 102.4 Hz.
-inline ImportOptions FerrarisExampleOptions() {
-  ImportOptions io;
+inline importers::ImportOptions FerrarisExampleOptions() {
+  importers::ImportOptions io;
   io.columns.map = "t=n_samples,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z";
-  io.columns.time_unit = ColumnTimeUnit::kSampleIndex;
+  io.columns.time_unit = importers::ColumnTimeUnit::kSampleIndex;
   io.columns.rate_hz = 102.4;
   io.accel_unit = AccelUnit::kMetersPerSecond2;
   io.gyro_unit = GyroUnit::kDegPerSecond;
@@ -50,10 +50,10 @@ inline ImportOptions FerrarisExampleOptions() {
 }
 
 // The annotated session: raw counts at 204.8 Hz, saved part by part (rows out of time order).
-inline ImportOptions FerrarisAnnotatedOptions() {
-  ImportOptions io;
+inline importers::ImportOptions FerrarisAnnotatedOptions() {
+  importers::ImportOptions io;
   io.columns.map = "t=samples,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z";
-  io.columns.time_unit = ColumnTimeUnit::kSampleIndex;
+  io.columns.time_unit = importers::ColumnTimeUnit::kSampleIndex;
   io.columns.rate_hz = 204.8;
   io.columns.sort_by_time = true;
   io.accel_unit = AccelUnit::kCounts;
@@ -62,9 +62,10 @@ inline ImportOptions FerrarisAnnotatedOptions() {
 }
 
 // NotFound when the shared data is not beside the checkout (the caller skips).
-inline absl::StatusOr<Capture> ImportColumns(const std::string& path, const ImportOptions& io) {
+inline absl::StatusOr<Capture> ImportColumns(const std::string& path,
+                                             const importers::ImportOptions& io) {
   if (!std::filesystem::exists(path)) return absl::NotFoundError(path);
-  return ImportCapture({path}, io);
+  return importers::ImportCapture({path}, io);
 }
 
 }  // namespace imucal::core::real_captures

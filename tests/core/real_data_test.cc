@@ -1,6 +1,6 @@
-// The real captures under ../shared/data/real: the issue's acceptance figures on the Xsens pair
-// that ships with IMU-TK (Tedaldi, Pretto, Menegatti, ICRA 2014). The bounds are IMU-TK's own
-// figures on this data; the issue requires beating each.
+// The real captures under ../shared/data/real: the acceptance figures on the Xsens pair that
+// ships with IMU-TK (Tedaldi, Pretto, Menegatti, ICRA 2014). The bounds are IMU-TK's own figures
+// on this data; imucal must beat each.
 #include <gtest/gtest.h>
 
 #include <array>
@@ -13,8 +13,8 @@
 #include "absl/strings/str_format.h"
 #include "core/calibrate/calibrate.h"
 #include "core/capture.h"
-#include "core/capture_io.h"
 #include "core/protocol.h"
+#include "importers/registry.h"
 #include "tests/core/real_captures.h"
 
 namespace imucal::core {
@@ -37,10 +37,10 @@ TEST(RealDataTest, XsensBeatsImuTkOnEveryFigure) {
   if (!std::filesystem::exists(acc) || !std::filesystem::exists(gyr))
     GTEST_SKIP() << "shared data not found under " << kXsensDir;
 
-  ImportOptions io;  // format auto: the imu_tk pair is recognised from the content
+  importers::ImportOptions io;  // format auto: the imu_tk pair is recognised from the content
   io.gravity_m_s2 = kXsensGravity;
-  ImportReport import;
-  const absl::StatusOr<Capture> capture = ImportCapture({acc, gyr}, io, &import);
+  importers::ImportReport import;
+  const absl::StatusOr<Capture> capture = importers::ImportCapture({acc, gyr}, io, &import);
   ASSERT_TRUE(capture.ok()) << capture.status();
   EXPECT_EQ(import.format, "imutk");
   EXPECT_EQ(capture->size(), 51175u);
@@ -94,9 +94,9 @@ TEST(RealDataTest, XsensCalibrationIsDeterministic) {
   const std::string acc = kXsensDir + "/xsens_acc.mat", gyr = kXsensDir + "/xsens_gyro.mat";
   if (!std::filesystem::exists(acc) || !std::filesystem::exists(gyr))
     GTEST_SKIP() << "shared data not found under " << kXsensDir;
-  ImportOptions io;
+  importers::ImportOptions io;
   io.gravity_m_s2 = kXsensGravity;
-  const absl::StatusOr<Capture> capture = ImportCapture({acc, gyr}, io);
+  const absl::StatusOr<Capture> capture = importers::ImportCapture({acc, gyr}, io);
   ASSERT_TRUE(capture.ok()) << capture.status();
   CalibrateOptions options;
   options.heldout = false;
@@ -148,7 +148,7 @@ void PrintReport(const char* name, const CalibrationReport& r) {
 // poses shake (gyro std up to 11x the rest's), so the usual thresholds find only 7; the raised
 // threshold finds all 10 orientations that the repository's own detector found.
 TEST(RealDataTest, Mpu6050HandHeldPosesCalibrateAndAgreeWithTheRepository) {
-  const ImportOptions io = real_captures::Mpu6050Options();
+  const importers::ImportOptions io = real_captures::Mpu6050Options();
   const std::string dir = kRealDir + "/mpu6050-tedaldi-raw";
   const absl::StatusOr<Capture> capture = ImportColumns(dir + "/example_data_calibration.csv", io);
   if (absl::IsNotFound(capture.status())) GTEST_SKIP() << capture.status();

@@ -17,9 +17,9 @@
 #include "absl/strings/match.h"
 #include "core/allan.h"
 #include "core/calibrate/calibrate.h"
-#include "core/capture_io.h"
 #include "core/effects.h"
 #include "core/static_detector.h"
+#include "importers/registry.h"
 #include "tests/core/real_captures.h"
 
 namespace imucal::core {
@@ -51,9 +51,9 @@ TEST(RealEffectsTest, XsensGyroGSensitivity) {
   const std::string dir = IMUCAL_SHARED_DIR "/data/real/xsens-imutk";
   const std::string acc = dir + "/xsens_acc.mat", gyr = dir + "/xsens_gyro.mat";
   if (!std::filesystem::exists(acc)) GTEST_SKIP() << "shared data not found under " << dir;
-  ImportOptions io;
+  importers::ImportOptions io;
   io.gravity_m_s2 = 9.81744;
-  const absl::StatusOr<Capture> cap = ImportCapture({acc, gyr}, io);
+  const absl::StatusOr<Capture> cap = importers::ImportCapture({acc, gyr}, io);
   ASSERT_TRUE(cap.ok()) << cap.status();
   const absl::StatusOr<CalibrationReport> r = Calibrate(*cap, CalibrateOptions{});
   ASSERT_TRUE(r.ok()) << r.status();
@@ -105,7 +105,6 @@ TEST(RealEffectsTest, FerrarisExampleNothingStaticAndARateTrendInTheMoves) {
   for (const std::string& n : d.notes) std::printf("ferraris example: %s\n", n.c_str());
   ASSERT_TRUE(d.ran);
   EXPECT_TRUE(r->params.effects.empty());
-  EXPECT_TRUE(HasNote(d, "grows with the rotation angle")) << d.notes.size();
   EXPECT_TRUE(HasNote(d, "the others cannot predict them"));
   EXPECT_TRUE(HasNote(d, "no temperature channel"));
   // What is left: the held-out figures are over the predictable poses only, and finite; the
@@ -134,8 +133,11 @@ TEST(RealEffectsTest, TooFewPosesToSearchIsSaid) {
 }
 
 // The Ferraris example's move trend as a value: the gravity-direction error after each move
-// grows +0.53 deg per 100 deg of rotation (F 14.1, above the 1% threshold of 12.8); time shows
-// no trend.
+// grows +0.5 deg per 100 deg of rotation; time shows no trend. With the non-orthogonality
+// angles held at the single faces' values (their unknown floor tilt taken as none) it was F 14.1
+// against the 1% threshold of 12.8; with the faces' angles weighted by the tilt they cannot
+// cancel (about 17 mrad per degree, taken as 1 degree) and |a| = g joined to them, F 12.4: the
+// same slope, no longer significant by itself.
 TEST(RealEffectsTest, FerrarisExampleMoveTrendSlope) {
   const absl::StatusOr<Capture> cap = real_captures::ImportColumns(
       real_captures::kFerrarisExample, real_captures::FerrarisExampleOptions());
@@ -155,8 +157,7 @@ TEST(RealEffectsTest, FerrarisExampleMoveTrendSlope) {
   EXPECT_GT(angle->slope_std_error_deg, 0);
   EXPECT_LT(std::abs(angle->slope_deg - 0.534), 2 * angle->slope_std_error_deg)
       << angle->slope_deg << " +- " << angle->slope_std_error_deg;
-  EXPECT_TRUE(angle->significant);
-  EXPECT_GT(angle->f, angle->f_threshold);
+  EXPECT_GT(angle->f, 0.9 * angle->f_threshold);
   EXPECT_FALSE(time->significant);
   EXPECT_LT(std::abs(time->slope_deg), 2 * time->slope_std_error_deg);  // no trend with time
 }
@@ -184,10 +185,13 @@ absl::StatusOr<RestNoise> RestOfMpu6050(const std::string& path) {
       real_captures::ImportColumns(path, real_captures::Mpu6050Options());
   if (!cap.ok()) return cap.status();
   const absl::StatusOr<CalibrationReport> r = Calibrate(*cap, CalibrateOptions{});
-  EXPECT_TRUE(absl::IsFailedPrecondition(r.status())) << r.status();
-  EXPECT_TRUE(
-      absl::StrContains(r.status().message(), "too few static poses: found at most 1 usable"))
-      << r.status();
+  EXPECT_TRUE(r.ok()) << r.status();
+  if (r.ok()) {
+    EXPECT_EQ(r->verdict, Verdict::kRefused);
+    EXPECT_EQ(r->refusal->reason, RefusalReason::kRestOnly) << r->refusal->message;
+    EXPECT_TRUE(absl::StrContains(r->refusal->message, "found at most 1 usable"))
+        << r->refusal->message;
+  }
   AccelParams accel;
   GyroParams gyro;
   NominalMpu6050(&accel, &gyro);
@@ -270,8 +274,9 @@ TEST(RealEffectsTest, Mpu6050TurnX90ChecksTheCalibration) {
   if (absl::IsNotFound(cap.status())) GTEST_SKIP() << cap.status();
   ASSERT_TRUE(cap.ok()) << cap.status();
   const absl::StatusOr<CalibrationReport> refused = Calibrate(*cap, CalibrateOptions{});
-  EXPECT_TRUE(absl::IsFailedPrecondition(refused.status())) << refused.status();
-  EXPECT_TRUE(absl::StrContains(refused.status().message(), "too few static poses"));
+  ASSERT_TRUE(refused.ok()) << refused.status();
+  EXPECT_EQ(refused->verdict, Verdict::kRefused);
+  EXPECT_EQ(refused->refusal->reason, RefusalReason::kRestOnly) << refused->refusal->message;
 
   const absl::StatusOr<Capture> cal = ImportColumns(kMpu6050, Mpu6050Options());
   ASSERT_TRUE(cal.ok()) << cal.status();

@@ -8,13 +8,15 @@
 #include <vector>
 
 #include "core/capture.h"
-#include "core/capture_io.h"
-#include "core/import_columns.h"
-#include "core/import_euroc.h"
 #include "google/protobuf/stubs/logging.h"
+#include "importers/columns.h"
+#include "importers/euroc.h"
+#include "importers/imucal_csv.h"
+#include "importers/imutk.h"
+#include "importers/registry.h"
+#include "importers/rosbag2.h"
 #include "imucal/v1/imucal.pb.h"
 #include "server/validate.h"
-#include "storage/rosbag2_import.h"
 #include "storage/sample_codec.h"
 
 namespace imucal::fuzz {
@@ -76,12 +78,12 @@ void CheckImported(const char* target, const absl::StatusOr<core::Capture>& capt
 }  // namespace
 
 void FuzzCaptureCsv(std::string_view data) {
-  const absl::StatusOr<core::Capture> capture = core::ParseImucalCsv(data, "fuzz.csv");
+  const absl::StatusOr<core::Capture> capture = importers::ParseImucalCsv(data, "fuzz.csv");
   CheckImported("capture_csv", capture);
-  if (!capture.ok() || !core::CheckCaptureWritable(*capture).ok()) return;
+  if (!capture.ok() || !importers::CheckCaptureWritable(*capture).ok()) return;
   // A writable capture formats and parses back to itself, exactly.
-  const std::string text = core::FormatImucalCsv(*capture);
-  const absl::StatusOr<core::Capture> again = core::ParseImucalCsv(text, "formatted.csv");
+  const std::string text = importers::FormatImucalCsv(*capture);
+  const absl::StatusOr<core::Capture> again = importers::ParseImucalCsv(text, "formatted.csv");
   if (!again.ok())
     Fail("capture_csv", "its own output does not parse: " + again.status().ToString());
   if (const std::string diff = CaptureDifference(*capture, *again); !diff.empty())
@@ -100,9 +102,10 @@ void FuzzImuTk(std::string_view data) {
     accel = data.substr(0, cut);
     gyro = data.substr(cut + 1);
   }
-  core::ImportOptions options;
+  importers::ImportOptions options;
   std::vector<std::string> notes;
-  CheckImported("imutk", core::ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", options, &notes));
+  CheckImported("imutk",
+                importers::ParseImuTkPair(accel, "acc.txt", gyro, "gyr.txt", options, &notes));
 }
 
 void FuzzColumns(std::string_view data) {
@@ -110,8 +113,8 @@ void FuzzColumns(std::string_view data) {
   // Byte 0 picks one of the option sets the CLI's --columns flags make.
   const unsigned char pick = static_cast<unsigned char>(data[0]);
   data.remove_prefix(1);
-  core::ImportOptions options;
-  core::ColumnCsvOptions& c = options.columns;
+  importers::ImportOptions options;
+  importers::ColumnCsvOptions& c = options.columns;
   switch (pick % 5) {
     case 0:  // named columns, time in seconds, temperature
       c.map = "t=t,ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz,temp=temp";
@@ -120,7 +123,7 @@ void FuzzColumns(std::string_view data) {
       c.map = "t=1,ax=2,ay=3,az=4,gx=5,gy=6,gz=7";
       c.no_header = true;
       c.delimiter = ",";
-      c.time_unit = core::ColumnTimeUnit::kSampleIndex;
+      c.time_unit = importers::ColumnTimeUnit::kSampleIndex;
       c.rate_hz = 100;
       break;
     case 2:  // no time column: rate from a preamble line ("Fs,100"), units given
@@ -131,30 +134,30 @@ void FuzzColumns(std::string_view data) {
       break;
     case 3:  // a file saved part by part: sorted by time, in milliseconds
       c.map = "t=time,ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz";
-      c.time_unit = core::ColumnTimeUnit::kMilliseconds;
+      c.time_unit = importers::ColumnTimeUnit::kMilliseconds;
       c.sort_by_time = true;
       break;
     default:  // ';' after one skipped line, nanoseconds
       c.map = "t=1,ax=2,ay=3,az=4,gx=5,gy=6,gz=7";
       c.delimiter = ";";
       c.skip_lines = 1;
-      c.time_unit = core::ColumnTimeUnit::kNanoseconds;
+      c.time_unit = importers::ColumnTimeUnit::kNanoseconds;
       break;
   }
-  if (!core::CheckColumnCsvOptions(c).ok())
+  if (!importers::CheckColumnCsvOptions(c).ok())
     Fail("columns", "an option set of the fuzzer is invalid");
   std::vector<std::string> notes;
-  CheckImported("columns", core::ParseColumnCsv(data, "vendor.csv", options, &notes));
+  CheckImported("columns", importers::ParseColumnCsv(data, "vendor.csv", options, &notes));
 }
 
 void FuzzEuroc(std::string_view data) {
-  core::ImportOptions options;
+  importers::ImportOptions options;
   std::vector<std::string> notes;
-  CheckImported("euroc", core::ParseEurocCsv(data, "data.csv", options, &notes));
+  CheckImported("euroc", importers::ParseEurocCsv(data, "data.csv", options, &notes));
 }
 
 void FuzzRosbag2Cdr(std::string_view data) {
-  const absl::StatusOr<storage::ImuMessage> m = storage::DecodeImuCdr(data);
+  const absl::StatusOr<importers::ImuMessage> m = importers::DecodeImuCdr(data);
   if (!m.ok()) {
     if (m.status().message().empty()) Fail("rosbag2_cdr", "an error without a message");
     return;
@@ -164,7 +167,7 @@ void FuzzRosbag2Cdr(std::string_view data) {
 }
 
 void FuzzRosbag2Metadata(std::string_view data) {
-  const storage::BagMetadata m = storage::ParseBagMetadata(data);
+  const importers::BagMetadata m = importers::ParseBagMetadata(data);
   // Every value comes from one line of the file (a file name the importer opens).
   auto from_one_line = [&](const std::string& value) {
     return value.find('\n') == std::string::npos && value.size() <= data.size();
@@ -179,7 +182,7 @@ void FuzzRosbag2Metadata(std::string_view data) {
   yaml += "  storage_identifier: '" + m.storage_identifier + "'\n  relative_file_paths:\n";
   for (const std::string& path : m.relative_file_paths) yaml += "    - '" + path + "'\n";
   yaml += "  duration:\n    nanoseconds: 0\n";
-  const storage::BagMetadata again = storage::ParseBagMetadata(yaml);
+  const importers::BagMetadata again = importers::ParseBagMetadata(yaml);
   if (again.storage_identifier != m.storage_identifier)
     Fail("rosbag2_metadata", "storage_identifier changed in a write -> parse round trip");
   if (again.relative_file_paths != m.relative_file_paths)

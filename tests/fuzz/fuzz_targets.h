@@ -14,12 +14,12 @@
 
 namespace imucal::fuzz {
 
-void FuzzCaptureCsv(std::string_view data);       // core::ParseImucalCsv (+ format round trip)
-void FuzzImuTk(std::string_view data);            // core::ParseImuTkPair (the bytes cut in two)
-void FuzzColumns(std::string_view data);          // core::ParseColumnCsv (options from byte 0)
-void FuzzEuroc(std::string_view data);            // core::ParseEurocCsv
-void FuzzRosbag2Cdr(std::string_view data);       // storage::DecodeImuCdr (sensor_msgs/Imu)
-void FuzzRosbag2Metadata(std::string_view data);  // storage::ParseBagMetadata (+ round trip)
+void FuzzCaptureCsv(std::string_view data);  // importers::ParseImucalCsv (+ format round trip)
+void FuzzImuTk(std::string_view data);       // importers::ParseImuTkPair (the bytes cut in two)
+void FuzzColumns(std::string_view data);     // importers::ParseColumnCsv (options from byte 0)
+void FuzzEuroc(std::string_view data);       // importers::ParseEurocCsv
+void FuzzRosbag2Cdr(std::string_view data);  // importers::DecodeImuCdr (sensor_msgs/Imu)
+void FuzzRosbag2Metadata(std::string_view data);  // importers::ParseBagMetadata (+ round trip)
 void FuzzSampleBatch(std::string_view data);      // v1::SampleBatch bytes -> server validation
 
 // The targets by name (the directory names under tests/fuzz/corpus and regressions).

@@ -126,7 +126,7 @@ write("sample_batch", "three_samples.pb", batch(3, 1))
 write("sample_batch", "no_temp.pb", batch(5, 7, temp=False))
 
 
-# rosbag2_metadata: a bag directory's metadata.yaml (storage/rosbag2_import.h ParseBagMetadata).
+# rosbag2_metadata: a bag directory's metadata.yaml (importers/rosbag2.h ParseBagMetadata).
 def bag_metadata(storage, files, quote="", eol="\n"):
     lines = ["rosbag2_bagfile_information:", "  version: 5",
              "  storage_identifier: %s%s%s" % (quote, storage, quote), "  relative_file_paths:"]

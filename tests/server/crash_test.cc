@@ -1,4 +1,4 @@
-// The crash test: the real imucald (a separate process on a loopback port, its SQLite
+// Crash safety: the real imucald (a separate process on a loopback port, its SQLite
 // file in a temp dir) is SIGKILLed at random points of ingest and of solve/promote/rollback and
 // restarted on the same file, again and again. After every restart:
 //   - every acknowledged sample is stored, byte for byte (read back with the store's API) and
@@ -37,10 +37,10 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "client/sdk/crc32c.h"
-#include "client/sdk/params_json.h"
 #include "client/sdk/uploader.h"
 #include "core/simulator.h"
+#include "formats/crc32c.h"
+#include "formats/params_json.h"
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
 #include "imucal/v1/imucal.grpc.pb.h"
@@ -503,8 +503,8 @@ class CrashSolveTest : public CrashTest, public testing::WithParamInterface<uint
       pb::ParameterSet full;
       s = Retrying([&](grpc::ClientContext* c) { return stub->GetParameters(c, get, &full); });
       ASSERT_TRUE(s.ok()) << device << " v" << v << ": " << s.error_message();
-      EXPECT_EQ(full.crc32c(), sdk::Crc32c(full.json())) << device << " v" << v;
-      absl::StatusOr<core::ParamSet> params = sdk::ParamSetFromJson(full.json());
+      EXPECT_EQ(full.crc32c(), formats::Crc32c(full.json())) << device << " v" << v;
+      absl::StatusOr<core::ParamSet> params = formats::ParamSetFromJson(full.json());
       ASSERT_TRUE(params.ok()) << device << " v" << v << ": " << params.status();
       EXPECT_EQ(params->device, device);
       EXPECT_EQ(params->version, v) << device << ": the JSON of version " << v;
@@ -512,7 +512,7 @@ class CrashSolveTest : public CrashTest, public testing::WithParamInterface<uint
       absl::StatusOr<storage::ParamVersion> stored = store.GetVersion(device, v);
       ASSERT_TRUE(stored.ok()) << stored.status();
       EXPECT_EQ(stored->params_json, full.json());
-      absl::StatusOr<core::ParamSet> from_report = sdk::ParamSetFromJson(stored->report_json);
+      absl::StatusOr<core::ParamSet> from_report = formats::ParamSetFromJson(stored->report_json);
       ASSERT_TRUE(from_report.ok()) << device << " v" << v << " report: " << from_report.status();
       EXPECT_EQ(from_report->version, v);
     }
@@ -526,7 +526,7 @@ class CrashSolveTest : public CrashTest, public testing::WithParamInterface<uint
     } else {
       EXPECT_TRUE(s.ok()) << s.error_message();
       EXPECT_EQ(served.version(), out.active) << device;
-      EXPECT_EQ(served.crc32c(), sdk::Crc32c(served.json())) << device;
+      EXPECT_EQ(served.crc32c(), formats::Crc32c(served.json())) << device;
     }
     auto devices = pb::DeviceService::NewStub(server_->NewChannel());
     pb::GetDeviceRequest get_device;

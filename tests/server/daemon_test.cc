@@ -32,9 +32,9 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "client/sdk/crc32c.h"
 #include "client/sdk/uploader.h"
 #include "core/simulator.h"
+#include "formats/crc32c.h"
 #include "google/protobuf/util/message_differencer.h"
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
@@ -505,7 +505,7 @@ TEST_F(DaemonTest, OnlineBackupWhileStreamingRestoresEverythingAcknowledgedBefor
   EXPECT_EQ(active_after.version(), 1);
   EXPECT_EQ(active_after.json(), active_before.json());
   EXPECT_EQ(active_after.crc32c(), active_before.crc32c());
-  EXPECT_EQ(active_after.crc32c(), sdk::Crc32c(active_after.json()));
+  EXPECT_EQ(active_after.crc32c(), formats::Crc32c(active_after.json()));
   // Sessions: the solved one as it was; the streaming one open, with at least what was
   // acknowledged before the backup started (its count moved on while the backup ran).
   ASSERT_EQ(after.sessions.sessions_size(), before.sessions.sessions_size());

@@ -1,4 +1,4 @@
-// The durability test, server side: the real imucald on a loopback port with a real
+// Durability, server side: the real imucald on a loopback port with a real
 // SQLite file, a robot streaming through the SDK Uploader, the server SIGKILLed in the middle of
 // the stream and restarted on the same file. Every sample the robot saw acknowledged must be in
 // the file byte for byte (read back with the store, not through the server), the restarted

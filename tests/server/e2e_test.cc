@@ -1,4 +1,4 @@
-// The end-to-end test: the real imucald on a loopback port with a real SQLite file, the
+// End to end: the real imucald on a loopback port with a real SQLite file, the
 // robot SDK and the real `imucal` CLI binary, as the fleet uses them.
 //
 //   1. A device is registered; a simulated six-face capture (plus free poses, so the model is well
@@ -33,11 +33,11 @@
 #include "client/sdk/client.h"
 #include "client/sdk/corrector.h"
 #include "client/sdk/uploader.h"
-#include "core/capture_io.h"
 #include "core/simulator.h"
 #include "core/validation.h"
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
+#include "importers/imucal_csv.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "tests/client/imucald_process.h"
 #include "tests/server/watch.h"
@@ -188,9 +188,9 @@ TEST_F(EndToEndTest, StreamWatchSolvePromoteFetchApplyMatchesOfflineCli) {
   ASSERT_TRUE(sim.ok()) << sim.status();
   sim->capture.device = kDevice;
   const std::string capture_csv = (dir_ / "capture.csv").string();
-  ASSERT_TRUE(core::WriteImucalCsvFile(sim->capture, capture_csv).ok());
+  ASSERT_TRUE(importers::WriteImucalCsvFile(sim->capture, capture_csv).ok());
   // The robot streams what the file holds, as `imucal upload` would.
-  absl::StatusOr<core::Capture> capture = core::ReadImucalCsvFile(capture_csv);
+  absl::StatusOr<core::Capture> capture = importers::ReadImucalCsvFile(capture_csv);
   ASSERT_TRUE(capture.ok()) << capture.status();
   ASSERT_EQ(capture->size(), sim->capture.size());
 
@@ -389,10 +389,10 @@ TEST_F(EndToEndTest, StreamWatchSolvePromoteFetchApplyMatchesOfflineCli) {
       << ReadText(log);
   const std::string validation_csv = (dir_ / "validation.csv").string();
   const std::string applied_csv = (dir_ / "validation_applied.csv").string();
-  ASSERT_TRUE(core::WriteImucalCsvFile(raw, validation_csv).ok());
+  ASSERT_TRUE(importers::WriteImucalCsvFile(raw, validation_csv).ok());
   ASSERT_EQ(RunCli({"apply", "--params", params_json, validation_csv, applied_csv}, log), 0)
       << ReadText(log);
-  absl::StatusOr<core::Capture> offline = core::ReadImucalCsvFile(applied_csv);
+  absl::StatusOr<core::Capture> offline = importers::ReadImucalCsvFile(applied_csv);
   ASSERT_TRUE(offline.ok()) << offline.status();
   ASSERT_EQ(offline->size(), raw.size());
   EXPECT_EQ(offline->accel_unit, core::AccelUnit::kMetersPerSecond2);

@@ -1,6 +1,6 @@
 // For tests that stream through the generated stubs: a stream that starts after batch 1 of a
 // session holding samples must prove it continues the stored capture (SampleBatch.
-// resume_sha256, client/sdk/sample_digest.h). ResumeProofs remembers the batches a test has had
+// resume_sha256, formats/sample_digest.h). ResumeProofs remembers the batches a test has had
 // acknowledged and fills in that proof, as a client that keeps its capture would; a session
 // whose batches went another way (a raw stream of the test's own) is proven by the digest the
 // server reports, when the stream resumes right after its last batch. Tests of the proof itself
@@ -14,7 +14,7 @@
 #include <string>
 #include <vector>
 
-#include "client/sdk/sample_digest.h"
+#include "formats/sample_digest.h"
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 
@@ -22,7 +22,7 @@ namespace imucal::testing_util {
 
 // The SHA-256 of `batches`' samples in order, as a continuing stream sends it.
 inline std::string DigestOf(const std::vector<v1::SampleBatch>& batches) {
-  sdk::SampleDigest digest;
+  formats::SampleDigest digest;
   for (const v1::SampleBatch& b : batches) {
     for (int i = 0; i < b.t_s_size(); ++i) {
       const double temp = b.temp_c_size() > 0 ? b.temp_c(i) : 0.0;

@@ -16,10 +16,11 @@
 #include <thread>
 #include <vector>
 
-#include "client/sdk/params_json.h"
 #include "core/accel_solver.h"
 #include "core/calibrate/calibrate.h"
 #include "core/simulator.h"
+#include "formats/crc32c.h"
+#include "formats/params_json.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
@@ -256,34 +257,23 @@ TEST_F(ServerTest, StartFailsSolvesOrphanedByAStoppedServer) {
   EXPECT_TRUE(again.ok()) << again.status();
 }
 
-// CRC-32C, bit by bit: a reference independent of the server's table.
-uint32_t ReferenceCrc32c(std::string_view data) {
-  uint32_t c = 0xFFFFFFFFu;
-  for (unsigned char b : data) {
-    c ^= b;
-    for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0x82F63B78u & (0u - (c & 1u)));
-  }
-  return ~c;
-}
-
 TEST(ParamCrcCacheTest, ComputesOncePerVersion) {
-  ASSERT_EQ(ReferenceCrc32c("123456789"), 0xE3069283u);  // the CRC-32C check value
   storage::ParamVersion v;
   v.device_id = "robot-1";
   v.version = 3;
   v.params_json = std::string(4600, 'x') + "{\"accel\": 1}";
   ParamCrcCache cache;
-  EXPECT_EQ(cache.Get(v), ReferenceCrc32c(v.params_json));
+  EXPECT_EQ(cache.Get(v), formats::Crc32c(v.params_json));
   EXPECT_EQ(cache.hits(), 0u);
-  EXPECT_EQ(cache.Get(v), ReferenceCrc32c(v.params_json));
+  EXPECT_EQ(cache.Get(v), formats::Crc32c(v.params_json));
   EXPECT_EQ(cache.hits(), 1u);
   v.version = 4;  // another version: its own entry
   v.params_json += " ";
-  EXPECT_EQ(cache.Get(v), ReferenceCrc32c(v.params_json));
+  EXPECT_EQ(cache.Get(v), formats::Crc32c(v.params_json));
   EXPECT_EQ(cache.hits(), 1u);
   // A listing (no JSON loaded) is not cached.
   v.params_json.clear();
-  EXPECT_EQ(cache.Get(v), ReferenceCrc32c(""));
+  EXPECT_EQ(cache.Get(v), formats::Crc32c(""));
   EXPECT_EQ(cache.hits(), 1u);
 }
 
@@ -309,7 +299,7 @@ TEST_F(ServerTest, ActiveParametersCrcIsTheJsonCrcWhenCached) {
     grpc::Status s = params_->GetActiveParameters(Ctx().get(), req, &out);
     ASSERT_TRUE(s.ok()) << s.error_message();
     ASSERT_GT(out.json().size(), 4600u);
-    EXPECT_EQ(out.crc32c(), ReferenceCrc32c(out.json())) << "call " << i;
+    EXPECT_EQ(out.crc32c(), formats::Crc32c(out.json())) << "call " << i;
   }
 }
 
@@ -470,7 +460,7 @@ TEST_F(ServerTest, WatchGuidesSolveActivatesAndMatchesOfflineCalibrate) {
   ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), active, &ps).ok());
   EXPECT_EQ(ps.version(), 1);
   EXPECT_EQ(ps.state(), v1::VERSION_STATE_ACTIVE);
-  auto served = sdk::ParamSetFromJson(ps.json());
+  auto served = formats::ParamSetFromJson(ps.json());
   ASSERT_TRUE(served.ok()) << served.status();
 
   // Offline: the same capture, protocol and seed.
@@ -826,7 +816,7 @@ TEST_F(ServerTest, ResolvePromoteAndRollback) {
   ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), fetch, &fetched).ok());
   EXPECT_EQ(fetched.version(), 2);
   EXPECT_FALSE(fetched.json().empty());
-  EXPECT_EQ(fetched.crc32c(), Crc32c(fetched.json()));
+  EXPECT_EQ(fetched.crc32c(), formats::Crc32c(fetched.json()));
 
   v1::RollbackRequest rollback;
   rollback.set_device_id("robot-4");

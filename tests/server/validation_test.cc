@@ -734,7 +734,7 @@ TEST_F(ValidationTest, AWatcherThatNeverReadsGivesItsSlotBack) {
 
 // A stream that continues a session holding samples proves it continues the same capture: its
 // first batch carries the SHA-256 of the samples it believes stored (SampleBatch.resume_sha256,
-// client/sdk/sample_digest.h). Without it, or with another capture's, the stream is refused
+// formats/sample_digest.h). Without it, or with another capture's, the stream is refused
 // naming both captures, and nothing of the other capture is stored.
 TEST_F(ValidationTest, AResumeMustProveItContinuesTheStoredCapture) {
   StartServer();

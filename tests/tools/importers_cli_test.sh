@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The importers through the real CLI, on files imucal did not write (issue 6):
+# The importers through the real CLI, on files imucal did not write:
 #  - a ROS 2 bag and a EuRoC imu0/data.csv written by independent Python writers
 #    (tests/tools/write_rosbag2.py, write_euroc.py: standard library only, their own CDR and
 #    SQLite), from a simulated six-face capture with a known bias and scale, calibrated with

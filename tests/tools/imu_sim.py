@@ -1,14 +1,64 @@
-"""A six-face calibration capture simulated from first principles, for the importer writers.
+"""A calibration capture simulated from first principles, for the independent capture writers.
 
-Shared by write_rosbag2.py and write_euroc.py (standard library only, nothing from imucal): the
-body is held on each face twice, the second time turned 180 degrees about the vertical, with
-smooth rotations about one body axis in between, so the gyroscope reading of a move integrates
-exactly to the rotation between its two poses; the table is tilted a little (a pair's two up
-directions differ) and a hand's 180-degree turn is a few degrees off. Four extra poses follow
-the pairs (EXTRA_TILTS). The sensor reads the inverse of imucal's documented model with no
-misalignment (README "The model and its conventions"):
+Shared by write_rosbag2.py, write_euroc.py and write_columns.py (standard library only, nothing
+from imucal). The sensor reads the inverse of imucal's documented model with no misalignment
+(README "The model and its conventions"):
     y = scale * (u - bias)  =>  u = y / scale + bias + white noise
-per axis, for the specific force (m/s^2) and the angular rate (rad/s).
+per axis, for the specific force (m/s^2) and the angular rate (rad/s). Every rotation is about
+one body axis with a rate profile sampled at mid-sample, so the gyroscope reading of a move
+integrates exactly to the rotation between its two poses, and each pose's orientation is exact
+(no integration drift).
+
+Protocols (--protocol):
+  six-face (default)  the body is held on each face twice, the second time turned 180 degrees
+      about the vertical, with 90-degree tilts about one body axis in between; the table is
+      tilted a little (a pair's two up directions differ) and a hand's 180-degree turn is a few
+      degrees off. Four extra poses follow the pairs (EXTRA_TILTS).
+  faces-once          the hobbyist's capture: each face held once, in FACE_ORDER, 90-degree
+      tilts between them, no 180-degree pair and no extra poses; --floor-tilt-deg still tilts
+      the table (its default 0.3 applies; pass 0 for a level floor).
+  random              an IMU-TK style capture: a first rest, then --poses stops, each reached by
+      a smooth rotation about a random body axis by 30-120 degrees (--move-angle-range-deg).
+
+Classes of capture (each off by default; the default output is the same as before they existed):
+  --accel-step / --gyro-step  quantisation: each reading, noise included, becomes
+      round(u / step) * step (Python's round: half to even). A step is a number in the sensor's
+      SI input unit (m/s^2, rad/s), or a datasheet LSB: "1/16384g" is 9.80665/16384 m/s^2 (the
+      LSB of a +-2 g range is defined on standard gravity, not on --gravity), "1/131deg" is
+      1/131 deg/s in rad/s. With noise below one step (or --no-noise) an axis reads one value
+      through a whole rest. write_columns.py --counts writes round(u / step) as integers.
+  --no-noise, or --accel-noise 0 / --gyro-noise 0  noise-free samples (per sensor).
+  --turn-profile steady  the 180-degree turns about the vertical (six-face) at a steady rate: a
+      trapezoidal rate profile, a linear ramp of --turn-ramp-s (rounded to whole samples, at
+      least one) up to the rate, a constant-rate middle, the same ramp down. The middle has a
+      whole number of samples and its rate is the largest not above --turn-rate-deg-s that
+      makes the turn's angle exact (so a level floor leaves the accelerometer unchanged through
+      the turn and the gyroscope constant mid-turn). The default "smooth" profile is
+      rate = angle / T * (1 - cos(2 pi t / T)). Tilts between faces keep the smooth profile.
+  --noisy-rest POSE  one pose (0-based, in time order) held --noisy-rest-s (default 7 s) with
+      more noise than the others while its orientation does not change. --noisy-rest-factor F
+      (default 5): its noise's RMS over the hold is F times the others' (an extra independent
+      zero-mean noise of RMS sqrt(F^2 - 1) times --accel-noise / --gyro-noise, or F times them
+      with --no-noise). --noisy-rest-kind:
+        hand      the extra noise is white with an amplitude that comes and goes as a hand
+                  presses and relaxes: sqrt(2) |sin(pi t / 1.5 s)| (RMS 1) times its RMS;
+        motor     instead, a steady vibration at --motor-hz (default 37 Hz) on each axis,
+                  amplitude sqrt(2) F times the noise (RMS F times), random phases;
+        settling  the extra noise is white and dies away as exp(-t / (T / 3)) over the hold T
+                  (scaled to RMS 1), and an accelerometer offset on every axis decays to zero
+                  (the final value): d(t) = d0 exp(-t / tau), d0 = --settle-mg (default 1 mg,
+                  of standard gravity), tau chosen so that the offset's mean over the hold is
+                  0.1 mg (tau = T * 0.1 / d0 in mg; the exact mean is in the truth).
+  --hold-range-s LO,HI  every hold after the first lasts a uniform draw in [LO, HI] s (stops
+      too short: e.g. --protocol random --poses 40 --hold-range-s 0.3,0.8).
+  --duplicate-face FACE=OTHER  (faces-once) the pose meant for FACE holds OTHER's orientation,
+      turned --duplicate-angle-deg (default 0.005) about one of OTHER's horizontal body axes:
+      e.g. Z+=Z- leaves no pose with +Z up. The truth keeps the face each pose was meant for.
+
+The truth (JSON-ready dict) says what was used. When any option above is not at its default
+(or a writer sets args.full_truth), it also holds each pose's time range and each move's time
+range, axis, angle and profile; times are the sample times t = k / rate_hz of the capture's
+samples (first sample at 0).
 """
 import math
 import random
@@ -24,6 +74,13 @@ FACE_ORDER = ["Z+", "X+", "Y+", "Z-", "X-", "Y-"]
 # accelerometer's misalignment. A return to Z+ and three poses off the faces fix both.
 EXTRA_TILTS = [((1.0, 0.0, 0.0), 90.0), ((1.0, 0.0, 0.0), 45.0), ((0.0, 1.0, 0.0), 45.0),
                ((1.0, 0.0, 0.0), -90.0)]
+PROTOCOLS = ["six-face", "faces-once", "random"]
+NOISY_REST_KINDS = ["hand", "motor", "settling"]
+# The settling rest's mean offset from its final value: a sensor still settling has a mean
+# steady only to about this much (mg of standard gravity).
+SETTLE_MEAN_MG = 0.1
+# A hand on the unit presses and relaxes: its noise comes and goes with this half-period (s).
+HAND_PRESS_S = 1.5
 
 
 def _matmul(a, b):
@@ -33,6 +90,10 @@ def _matmul(a, b):
 def _transpose_times(r, v):
     """R^T v: a world vector in the body frame."""
     return [sum(r[k][i] * v[k] for k in range(3)) for i in range(3)]
+
+
+def _transpose(r):
+    return [[r[j][i] for j in range(3)] for i in range(3)]
 
 
 def _axis_angle(axis, angle_rad):
@@ -45,6 +106,27 @@ def _axis_angle(axis, angle_rad):
             [t * x * z - s * y, t * y * z + s * x, t * z * z + c]]
 
 
+def _rotation_log(m):
+    """(unit axis, angle in [0, pi]) of a rotation matrix; near pi from the symmetric part
+    (M = c I + s [a]x + (1 - c) a a^T), where the skew part vanishes."""
+    c = max(-1.0, min(1.0, (m[0][0] + m[1][1] + m[2][2] - 1.0) / 2.0))
+    v = [m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1]]  # 2 sin(angle) axis
+    s2 = math.sqrt(sum(x * x for x in v))
+    angle = math.atan2(s2 / 2.0, c)
+    if c < -0.9:
+        sq = [max(0.0, (m[i][i] - c) / (1.0 - c)) for i in range(3)]
+        i = max(range(3), key=lambda k: sq[k])
+        a_i = math.sqrt(sq[i])
+        axis = [a_i if j == i else (m[i][j] + m[j][i]) / (2.0 * (1.0 - c) * a_i)
+                for j in range(3)]
+        if sum(a * b for a, b in zip(axis, v)) < 0:
+            axis = [-a for a in axis]
+        return axis, angle
+    if s2 == 0.0:
+        return [1.0, 0.0, 0.0], 0.0
+    return [x / s2 for x in v], angle
+
+
 def _face_label(up_body):
     axis = max(range(3), key=lambda i: abs(up_body[i]))
     return "XYZ"[axis] + ("+" if up_body[axis] > 0 else "-")
@@ -54,6 +136,37 @@ def _unit_of_face(label):
     v = [0.0, 0.0, 0.0]
     v["XYZ".index(label[0])] = 1.0 if label[1] == "+" else -1.0
     return v
+
+
+def parse_step(text, sensor):
+    """A quantisation step: a number in the SI input unit (m/s^2 or rad/s), or "A/B" with an
+    optional unit suffix: "g" (standard gravity, accel) or "deg" (deg/s, gyro)."""
+    unit = 1.0
+    body = text.strip()
+    if sensor == "accel" and body.endswith("g"):
+        body, unit = body[:-1], STANDARD_GRAVITY_M_S2
+    elif sensor == "gyro" and body.endswith("deg"):
+        body, unit = body[:-3], math.pi / 180.0
+    num, _, den = body.partition("/")
+    value = float(num) / (float(den) if den else 1.0) * unit
+    if not value > 0.0:
+        raise ValueError(f"{sensor} step must be positive, got {text!r}")
+    return value
+
+
+def _parse_range(text):
+    lo, hi = (float(x) for x in text.split(","))
+    if not 0.0 < lo <= hi:
+        raise ValueError(f"range LO,HI with 0 < LO <= HI, got {text!r}")
+    return lo, hi
+
+
+def _parse_duplicate(text):
+    face, _, other = text.partition("=")
+    faces = [f + s for f in "XYZ" for s in "+-"]
+    if face not in faces or other not in faces or face == other:
+        raise ValueError(f"FACE=OTHER with two different faces like Z+=Z-, got {text!r}")
+    return face, other
 
 
 def add_arguments(parser):
@@ -75,6 +188,203 @@ def add_arguments(parser):
                         help="the table's tilt: gravity leans towards the world x axis")
     parser.add_argument("--no-noise", dest="noise", action="store_false",
                         help="noise-free samples (to check the simulation itself)")
+    parser.add_argument("--protocol", choices=PROTOCOLS, default="six-face")
+    parser.add_argument("--poses", type=int, default=40,
+                        help="random protocol: stops after the first rest")
+    parser.add_argument("--move-angle-range-deg", type=_parse_range, default=(30.0, 120.0),
+                        metavar="LO,HI", help="random protocol: each move's angle")
+    parser.add_argument("--accel-step", type=lambda s: parse_step(s, "accel"), default=None,
+                        help="quantisation step: m/s^2, or an LSB like 1/16384g")
+    parser.add_argument("--gyro-step", type=lambda s: parse_step(s, "gyro"), default=None,
+                        help="quantisation step: rad/s, or an LSB like 1/131deg")
+    parser.add_argument("--turn-profile", choices=["smooth", "steady"], default="smooth",
+                        help="rate profile of the turns about the vertical")
+    parser.add_argument("--turn-rate-deg-s", type=float, default=96.0,
+                        help="steady profile: the constant rate mid-turn (at most)")
+    parser.add_argument("--turn-ramp-s", type=float, default=0.1,
+                        help="steady profile: the ramp up to and down from the rate")
+    parser.add_argument("--noisy-rest", type=int, default=None, metavar="POSE",
+                        help="0-based pose held longer, with more noise")
+    parser.add_argument("--noisy-rest-kind", choices=NOISY_REST_KINDS, default="hand")
+    parser.add_argument("--noisy-rest-s", type=float, default=7.0)
+    parser.add_argument("--noisy-rest-factor", type=float, default=5.0)
+    parser.add_argument("--motor-hz", type=float, default=37.0)
+    parser.add_argument("--settle-mg", type=float, default=1.0,
+                        help="settling rest: the offset at its start, mg")
+    parser.add_argument("--hold-range-s", type=_parse_range, default=None, metavar="LO,HI",
+                        help="every hold after the first drawn uniformly in [LO, HI] s")
+    parser.add_argument("--duplicate-face", type=_parse_duplicate, default=None,
+                        metavar="FACE=OTHER", help="faces-once: FACE's pose holds OTHER's")
+    parser.add_argument("--duplicate-angle-deg", type=float, default=0.005)
+
+
+def _extended(args):
+    """Whether the truth carries the time ranges (kept off for the default capture, whose truth
+    files the existing tests were written against)."""
+    return (getattr(args, "full_truth", False) or args.protocol != "six-face" or
+            args.accel_step is not None or args.gyro_step is not None or
+            args.turn_profile != "smooth" or args.noisy_rest is not None or
+            args.hold_range_s is not None or args.duplicate_face is not None)
+
+
+def _tilt_to_face(r, face, g_world):
+    """The 90-degree tilt about the horizontal body axis that brings `face` up: (axis, signed
+    angle, new R_world_body). `up` is the table's normal in the body frame (the face resting on
+    it), not gravity."""
+    up = _transpose_times(r, [0.0, 0.0, 1.0])
+    target = _unit_of_face(face)
+    axis = [up[1] * target[2] - up[2] * target[1],
+            up[2] * target[0] - up[0] * target[2],
+            up[0] * target[1] - up[1] * target[0]]
+    for sign in (1.0, -1.0):
+        cand = _matmul(r, _axis_angle(axis, sign * math.pi / 2))
+        if _face_label(_transpose_times(cand, g_world)) == face:
+            return axis, sign * math.pi / 2, cand
+    raise AssertionError(face)
+
+
+def _steady_turn(angle, args):
+    """Duration (a whole number of samples) and profile of a turn at a steady rate."""
+    dt = 1.0 / args.rate_hz
+    n_ramp = max(1, int(round(args.turn_ramp_s * args.rate_hz)))
+    rate_max = math.radians(args.turn_rate_deg_s)
+    # The trapezoid's area is rate * (middle + ramp): the middle gets the fewest whole samples
+    # that keep the rate at or below rate_max.
+    n_mid = max(0, math.ceil(abs(angle) / rate_max / dt - n_ramp - 1e-9))
+    rate = angle / ((n_mid + n_ramp) * dt)
+    profile = {"kind": "steady", "ramp_s": n_ramp * dt, "middle_s": n_mid * dt, "rate": rate}
+    return (2 * n_ramp + n_mid) * dt, profile
+
+
+def _move_angle_rate(profile, angle, dur, t):
+    """(angle turned so far, rate) at time t into a move of `angle` rad lasting dur s."""
+    if profile == "smooth":
+        tau = t / dur
+        return (angle * (tau - math.sin(2 * math.pi * tau) / (2 * math.pi)),
+                angle / dur * (1.0 - math.cos(2 * math.pi * tau)))
+    ramp, rate = profile["ramp_s"], profile["rate"]
+    if t < ramp:
+        return rate * t * t / (2 * ramp), rate * t / ramp
+    if t <= dur - ramp:
+        return rate * (ramp / 2 + t - ramp), rate
+    s = dur - t
+    return angle - rate * s * s / (2 * ramp), rate * s / ramp
+
+
+class _Holds:
+    """Each pose's hold in seconds: the first (the noise is learnt on it), the noisy rest's, a
+    draw from --hold-range-s (its own generator, so the noise stream does not depend on it), or
+    --hold-s."""
+
+    def __init__(self, args):
+        self.args = args
+        self.rng = random.Random(args.seed * 1000003 + 11)
+
+    def __call__(self, pose):
+        a = self.args
+        if pose == a.noisy_rest:
+            return a.noisy_rest_s
+        if pose == 0:
+            return a.first_hold_s
+        if a.hold_range_s is not None:
+            return self.rng.uniform(*a.hold_range_s)
+        return a.hold_s
+
+
+def _up_entry(face, r, g_world, gravity):
+    return {"face": face, "up_body": [round(c / gravity, 12)
+                                      for c in _transpose_times(r, g_world)]}
+
+
+def _six_face(args, rng, g_world, hold_for):
+    """The pairs protocol: (segments, poses, turn errors)."""
+    segments = []
+    poses = []
+    turn_errors_deg = []
+    r = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]  # R_world_body, Z+ up
+    for i, face in enumerate(FACE_ORDER):
+        if i > 0:
+            axis, angle, r = _tilt_to_face(r, face, g_world)
+            segments.append(("move", args.move_s, axis, angle, "smooth"))
+        segments.append(("hold", hold_for(len(poses)), len(poses)))
+        poses.append(_up_entry(face, r, g_world, args.gravity))
+        # The 180-degree turn about the vertical (the up body axis), with a hand's error.
+        up_axis = _unit_of_face(face)
+        turn_errors_deg.append(rng.gauss(0.0, args.turn_error_deg))
+        turn = math.pi + math.radians(turn_errors_deg[-1])
+        if args.turn_profile == "steady":
+            dur, profile = _steady_turn(turn, args)
+        else:
+            dur, profile = args.move_s, "smooth"
+        segments.append(("move", dur, up_axis, turn, profile))
+        r = _matmul(r, _axis_angle(up_axis, turn))
+        segments.append(("hold", hold_for(len(poses)), len(poses)))
+        poses.append(_up_entry(face + " turned", r, g_world, args.gravity))
+    for axis, angle_deg in (EXTRA_TILTS if args.extra_poses else []):
+        segments.append(("move", args.move_s, list(axis), math.radians(angle_deg), "smooth"))
+        r = _matmul(r, _axis_angle(list(axis), math.radians(angle_deg)))
+        segments.append(("hold", hold_for(len(poses)), len(poses)))
+        up = [c / args.gravity for c in _transpose_times(r, g_world)]
+        on_face = max(abs(c) for c in up) > math.cos(math.radians(20))
+        poses.append({"face": (_face_label(up) if on_face else "") + " extra",
+                      "up_body": [round(c, 12) for c in up]})
+    return segments, poses, turn_errors_deg, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+
+
+def _moves_through(orientations, args, g_world, hold_for, faces):
+    """Segments visiting R_world_body orientations in order, each move one rotation about a
+    body axis (the log of the relative rotation), the poses as sampled, and the orientation the
+    capture starts in."""
+    segments, poses = [], []
+    r = orientations[0]
+    for k, target in enumerate(orientations):
+        if k > 0:
+            axis, angle = _rotation_log(_matmul(_transpose(r), target))
+            segments.append(("move", args.move_s, axis, angle, "smooth"))
+            r = _matmul(r, _axis_angle(axis, angle))
+        segments.append(("hold", hold_for(k), k))
+        poses.append(_up_entry(faces[k], r, g_world, args.gravity))
+    return segments, poses, orientations[0]
+
+
+def _faces_once(args, g_world, hold_for):
+    orientations = []
+    r = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    for i, face in enumerate(FACE_ORDER):
+        if i > 0:
+            _, _, r = _tilt_to_face(r, face, g_world)
+        orientations.append(r)
+    if args.duplicate_face:
+        face, other = args.duplicate_face
+        j = FACE_ORDER.index(other)
+        # A horizontal body axis of OTHER's orientation: the next body axis after its up one.
+        up = "XYZ".index(other[0])
+        perp = [1.0 if i == (up + 1) % 3 else 0.0 for i in range(3)]
+        orientations[FACE_ORDER.index(face)] = _matmul(
+            orientations[j], _axis_angle(perp, math.radians(args.duplicate_angle_deg)))
+    segments, poses, r0 = _moves_through(orientations, args, g_world, hold_for, FACE_ORDER)
+    for p in poses:
+        # The face each pose was meant for (its file's name) and the one it actually holds.
+        p["meant_face"] = p["face"]
+        p["face"] = _face_label(p["up_body"])
+    return segments, poses, r0
+
+
+def _random(args, g_world, hold_for):
+    orient_rng = random.Random(args.seed * 1000003 + 29)
+    r = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    orientations, faces = [r], ["Z+"]
+    lo, hi = args.move_angle_range_deg
+    for _ in range(args.poses):
+        v = [orient_rng.gauss(0.0, 1.0) for _ in range(3)]
+        n = math.sqrt(sum(x * x for x in v))
+        angle = math.radians(orient_rng.uniform(lo, hi)) * orient_rng.choice((-1.0, 1.0))
+        r = _matmul(r, _axis_angle([x / n for x in v], angle))
+        orientations.append(r)
+        up = _transpose_times(r, [0.0, 0.0, 1.0])
+        faces.append(_face_label(up) if max(abs(c) for c in up) > math.cos(math.radians(20))
+                     else "")
+    return _moves_through(orientations, args, g_world, hold_for, faces)
 
 
 def simulate(args):
@@ -90,67 +400,50 @@ def simulate(args):
     # (the turns are about it); a tilted table leans the vertical away from that normal.
     tilt = math.radians(args.floor_tilt_deg)
     g_world = [args.gravity * math.sin(tilt), 0.0, args.gravity * math.cos(tilt)]
+    if args.duplicate_face and args.protocol != "faces-once":
+        raise ValueError("--duplicate-face needs --protocol faces-once")
+    hold_for = _Holds(args)
 
-    # The motion as segments: ("hold", seconds) or ("move", seconds, body axis, angle).
-    segments = []
-    poses = []
+    # The motion as segments: ("hold", seconds, pose) or ("move", seconds, body axis, angle,
+    # profile).
     turn_errors_deg = []
-    r = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]  # R_world_body, Z+ up
-    for i, face in enumerate(FACE_ORDER):
-        if i > 0:
-            # Tilt 90 degrees about the horizontal body axis that brings `face` up. `up` is the
-            # table's normal in the body frame (the face resting on it), not gravity.
-            up = _transpose_times(r, [0.0, 0.0, 1.0])
-            target = _unit_of_face(face)
-            axis = [up[1] * target[2] - up[2] * target[1],
-                    up[2] * target[0] - up[0] * target[2],
-                    up[0] * target[1] - up[1] * target[0]]
-            chosen = None
-            for sign in (1.0, -1.0):
-                cand = _matmul(r, _axis_angle(axis, sign * math.pi / 2))
-                if _face_label(_transpose_times(cand, g_world)) == face:
-                    chosen = (sign, cand)
-                    break
-            assert chosen, face
-            segments.append(("move", args.move_s, axis, chosen[0] * math.pi / 2))
-            r = chosen[1]
-        hold = args.first_hold_s if i == 0 else args.hold_s
-        segments.append(("hold", hold))
-        poses.append({"face": face, "up_body": [round(c / args.gravity, 12)
-                                                for c in _transpose_times(r, g_world)]})
-        # The 180-degree turn about the vertical (the up body axis), with a hand's error.
-        up_axis = _unit_of_face(face)
-        turn_errors_deg.append(rng.gauss(0.0, args.turn_error_deg))
-        turn = math.pi + math.radians(turn_errors_deg[-1])
-        segments.append(("move", args.move_s, up_axis, turn))
-        r = _matmul(r, _axis_angle(up_axis, turn))
-        segments.append(("hold", args.hold_s))
-        poses.append({"face": face + " turned", "up_body": [
-            round(c / args.gravity, 12) for c in _transpose_times(r, g_world)]})
-    for axis, angle_deg in (EXTRA_TILTS if args.extra_poses else []):
-        segments.append(("move", args.move_s, list(axis), math.radians(angle_deg)))
-        r = _matmul(r, _axis_angle(list(axis), math.radians(angle_deg)))
-        segments.append(("hold", args.hold_s))
-        up = [c / args.gravity for c in _transpose_times(r, g_world)]
-        on_face = max(abs(c) for c in up) > math.cos(math.radians(20))
-        poses.append({"face": (_face_label(up) if on_face else "") + " extra",
-                      "up_body": [round(c, 12) for c in up]})
+    if args.protocol == "six-face":
+        segments, poses, turn_errors_deg, r0 = _six_face(args, rng, g_world, hold_for)
+    elif args.protocol == "faces-once":
+        segments, poses, r0 = _faces_once(args, g_world, hold_for)
+    else:
+        segments, poses, r0 = _random(args, g_world, hold_for)
+
+    # The noisy rest's extra noise has its own generator: the other poses' noise is unchanged.
+    extra_rng = random.Random(args.seed * 1000003 + 53)
+    noisy = _NoisyRest(args, extra_rng) if args.noisy_rest is not None else None
 
     # Sample the segments. Rotations restart from the pose at the segment start, so the
     # orientation is exact (no integration drift), and the body rate is axis * dtheta/dt.
     samples = []
-    r = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    moves = []
+    r = r0
     k = 0
     for seg in segments:
         n = int(round(seg[1] * args.rate_hz))
+        if seg[0] == "hold":
+            poses[seg[2]]["t_start_s"] = k * dt
+            poses[seg[2]]["t_end_s"] = (k + n - 1) * dt
+        else:
+            _, dur, axis, angle, profile = seg
+            moves.append({"t_start_s": k * dt, "t_end_s": (k + n - 1) * dt,
+                          "axis_body": axis, "angle_deg": math.degrees(angle),
+                          "profile": "smooth" if profile == "smooth" else "steady"})
+            if profile != "smooth":
+                moves[-1].update({"ramp_s": profile["ramp_s"], "middle_s": profile["middle_s"],
+                                  "rate_deg_s": math.degrees(profile["rate"])})
         for j in range(n):
             if seg[0] == "hold":
                 rot, w_body = r, [0.0, 0.0, 0.0]
             else:
-                _, dur, axis, angle = seg
-                tau = (j + 0.5) * dt / dur  # mid-sample: the rate profile is sampled fairly
-                theta = angle * (tau - math.sin(2 * math.pi * tau) / (2 * math.pi))
-                rate = angle / dur * (1.0 - math.cos(2 * math.pi * tau))
+                # Mid-sample: the rate profile is sampled fairly (exactly, for the smooth
+                # profile's full cosine period and for a ramp whose ends fall between samples).
+                theta, rate = _move_angle_rate(profile, angle, dur, (j + 0.5) * dt)
                 rot = _matmul(r, _axis_angle(axis, theta))
                 w_body = [a * rate for a in axis]
             f_body = _transpose_times(rot, g_world)
@@ -158,13 +451,19 @@ def simulate(args):
                      (rng.gauss(0.0, args.accel_noise) if args.noise else 0.0) for i in range(3)]
             gyro = [w_body[i] / gyro_scale[i] + gyro_bias[i] +
                     (rng.gauss(0.0, args.gyro_noise) if args.noise else 0.0) for i in range(3)]
+            if noisy and seg[0] == "hold" and seg[2] == args.noisy_rest:
+                noisy.add(accel, gyro, (j + 0.5) * dt, n * dt)
+            if args.accel_step is not None:
+                accel = [round(v / args.accel_step) * args.accel_step for v in accel]
+            if args.gyro_step is not None:
+                gyro = [round(v / args.gyro_step) * args.gyro_step for v in gyro]
             samples.append((k * dt, gyro, accel))
             k += 1
         if seg[0] == "move":
             r = _matmul(r, _axis_angle(seg[2], seg[3]))
 
     truth = {
-        "protocol": "six-face",
+        "protocol": args.protocol,
         "seed": args.seed,
         "rate_hz": args.rate_hz,
         "gravity_m_s2": args.gravity,
@@ -185,4 +484,82 @@ def simulate(args):
         "model": "u = y / scale + bias + noise per axis (inverse of y = scale (u - bias)), "
                  "no misalignment; accel in m/s^2, gyro in rad/s",
     }
+    if _extended(args):
+        truth.update({
+            "noise": args.noise,
+            "accel_step_m_s2": args.accel_step,
+            "gyro_step_rad_s": args.gyro_step,
+            "quantisation": "u -> round(u / step) * step after the noise (half to even)",
+            "turn_profile": args.turn_profile,
+            "hold_range_s": args.hold_range_s,
+            "moves": moves,
+            "noisy_rest": noisy.truth() if noisy else None,
+            "duplicate_face": ({"face": args.duplicate_face[0],
+                                "holds": args.duplicate_face[1],
+                                "angle_deg": args.duplicate_angle_deg}
+                               if args.duplicate_face else None),
+            "times": "sample k at t = k / rate_hz s from the capture's first sample",
+        })
+    else:
+        for p in poses:
+            del p["t_start_s"], p["t_end_s"]
     return samples, truth
+
+
+class _NoisyRest:
+    """The extra noise of --noisy-rest (see the module's docstring)."""
+
+    def __init__(self, args, rng):
+        self.args = args
+        self.rng = rng
+        f = args.noisy_rest_factor
+        extra = math.sqrt(max(0.0, f * f - 1.0)) if args.noise else f
+        self.white = (extra * args.accel_noise, extra * args.gyro_noise)
+        self.phases = [rng.uniform(0.0, 2 * math.pi) for _ in range(6)]
+        self.d0 = args.settle_mg * 1e-3 * STANDARD_GRAVITY_M_S2
+        self.tau = args.noisy_rest_s * SETTLE_MEAN_MG / args.settle_mg
+        self.offsets = []
+
+    def add(self, accel, gyro, t, hold_s):
+        a = self.args
+        kind = a.noisy_rest_kind
+        if kind == "motor":
+            amp = (math.sqrt(2) * a.noisy_rest_factor * a.accel_noise,
+                   math.sqrt(2) * a.noisy_rest_factor * a.gyro_noise)
+            w = 2 * math.pi * a.motor_hz * t
+            for i in range(3):
+                accel[i] += amp[0] * math.sin(w + self.phases[i])
+                gyro[i] += amp[1] * math.sin(w + self.phases[3 + i])
+            return
+        env = self.envelope(t, hold_s)
+        for i in range(3):
+            accel[i] += self.rng.gauss(0.0, env * self.white[0])
+        for i in range(3):
+            gyro[i] += self.rng.gauss(0.0, env * self.white[1])
+        if kind == "settling":
+            d = self.d0 * math.exp(-t / self.tau)
+            self.offsets.append(d)
+            for i in range(3):
+                accel[i] += d
+
+    def envelope(self, t, hold_s):
+        """The extra noise's amplitude over the hold, its RMS over the hold 1: a hand presses
+        and relaxes (|sin| with a period of 2 HAND_PRESS_S), a settling sensor quietens
+        (exp(-t / tau) with tau = hold / 3)."""
+        if self.args.noisy_rest_kind == "hand":
+            return math.sqrt(2.0) * abs(math.sin(math.pi * t / HAND_PRESS_S))
+        tau = hold_s / 3.0
+        rms = math.sqrt(tau / (2.0 * hold_s) * (1.0 - math.exp(-2.0 * hold_s / tau)))
+        return math.exp(-t / tau) / rms
+
+    def truth(self):
+        a = self.args
+        out = {"pose": a.noisy_rest, "kind": a.noisy_rest_kind, "hold_s": a.noisy_rest_s,
+               "noise_factor": a.noisy_rest_factor}
+        if a.noisy_rest_kind == "motor":
+            out["motor_hz"] = a.motor_hz
+        if a.noisy_rest_kind == "settling":
+            out.update({"settle_start_m_s2": self.d0, "settle_tau_s": self.tau,
+                        "settle_mean_offset_m_s2": (sum(self.offsets) / len(self.offsets)
+                                                    if self.offsets else 0.0)})
+        return out

@@ -1,0 +1,451 @@
+#include "formats/plots.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <limits>
+
+#include "absl/strings/str_format.h"
+#include "core/regressor.h"
+
+namespace imucal::formats {
+namespace {
+
+using nlohmann::json;
+
+constexpr double kW = 720, kH = 440;                                // canvas, px
+constexpr double kLeft = 80, kRight = 20, kTop = 40, kBottom = 60;  // margins, px
+constexpr double kMg = 9.80665e-3;                                  // m/s^2 per mg
+constexpr double kRadToDeg = 180.0 / M_PI;
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+std::string Escape(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    if (c == '<')
+      out += "&lt;";
+    else if (c == '>')
+      out += "&gt;";
+    else if (c == '&')
+      out += "&amp;";
+    else
+      out += c;
+  }
+  return out;
+}
+
+// Round tick step for a span: 1, 2 or 5 times a power of ten, about 6 ticks.
+double TickStep(double span) {
+  const double raw = span / 6;
+  const double p = std::pow(10.0, std::floor(std::log10(raw)));
+  for (double m : {1.0, 2.0, 5.0, 10.0})
+    if (m * p >= raw) return m * p;
+  return 10 * p;
+}
+
+struct Range {
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  void Add(double v) {
+    if (std::isfinite(v)) lo = std::min(lo, v), hi = std::max(hi, v);
+  }
+  void Pad() {
+    if (!std::isfinite(lo)) lo = 0, hi = 1;
+    if (hi - lo < 1e-12 * (std::abs(lo) + 1))
+      lo -= 0.5 * (std::abs(lo) + 1e-9), hi += 0.5 * (std::abs(hi) + 1e-9);
+    const double pad = 0.05 * (hi - lo);
+    lo -= pad, hi += pad;
+  }
+};
+
+json Get(const json& j, const char* key) { return j.contains(key) ? j.at(key) : json(); }
+
+double Num(const json& j) {
+  return j.is_number() ? j.get<double>() : std::numeric_limits<double>::quiet_NaN();
+}
+
+using PlotWriter = std::function<absl::Status(const std::string&, const Plot&)>;
+
+const char* const kColours[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b"};
+
+// |a| - g per used pose after each stage, one line per stage.
+absl::Status WriteStagePlot(const json& report, const PlotWriter& write) {
+  const json stages = Get(report, "stages");
+  Plot plot{"Accelerometer |a| - g per pose after each stage", "pose", "|a| - g [mg]", {}};
+  for (size_t k = 0; stages.is_array() && k < stages.size(); ++k) {
+    const json poses = Get(stages[k], "poses"), res = Get(stages[k], "pose_residual");
+    if (!poses.is_array()) continue;
+    if (!res.is_array() || res.size() != poses.size()) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "stages[%d].pose_residual: expected one number per entry of poses", static_cast<int>(k)));
+    }
+    std::vector<std::pair<double, double>> pts;
+    for (size_t i = 0; i < poses.size(); ++i) pts.emplace_back(Num(poses[i]), Num(res[i]) / kMg);
+    std::sort(pts.begin(), pts.end());
+    const std::string name =
+        Get(stages[k], "name").is_string() ? Get(stages[k], "name").get<std::string>() : "";
+    PlotSeries line{
+        absl::StrFormat("after %s (rms %.3g mg)", name, Num(Get(stages[k], "accel_rms")) / kMg),
+        {},
+        {},
+        kColours[k % 6],
+        true};
+    for (const auto& [x, y] : pts) line.x.push_back(x), line.y.push_back(y);
+    PlotSeries dots = line;
+    dots.line = false;
+    dots.label = "";
+    plot.series.push_back(std::move(line));
+    plot.series.push_back(std::move(dots));
+  }
+  if (plot.series.empty()) return absl::OkStatus();
+  return write("residual_stages_per_pose.svg", plot);
+}
+
+// Each pose's gravity direction on the sphere: Lambert azimuthal equal-area projection of each
+// hemisphere of the body frame onto a unit disc, +z (left) and -z (right), seen from outside.
+absl::Status WriteCoveragePlot(const json& report, const PlotWriter& write) {
+  const json poses = Get(report, "poses");
+  if (!poses.is_array() || poses.empty()) return absl::OkStatus();
+  constexpr double kOffset = 1.2;  // disc centres at -+kOffset
+  auto project = [](double x, double y, double z, double* u, double* v) {
+    const double k = std::sqrt(1.0 / (1.0 + std::abs(z)));  // equator -> radius 1
+    *u = (z >= 0 ? -kOffset : kOffset) + k * x;
+    *v = k * y;
+  };
+  PlotSeries rims{"hemisphere rims (left +z, right -z)", {}, {}, "#888888", true};
+  PlotSeries faces{"the six faces' directions", {}, {}, "#aaaaaa", false, true};
+  PlotSeries used{"pose used", {}, {}, "#1f77b4"},
+      unused{"pose not used", {}, {}, "#d62728", false, true};
+  for (double side : {-kOffset, kOffset}) {
+    for (int i = 0; i <= 72; ++i) {
+      const double t = 2 * M_PI * i / 72;
+      rims.x.push_back(side + std::cos(t)), rims.y.push_back(std::sin(t));
+    }
+    rims.x.push_back(kNaN), rims.y.push_back(kNaN);
+  }
+  for (int a = 0; a < 3; ++a) {
+    for (double sign : {1.0, -1.0}) {
+      double dir[3] = {0, 0, 0}, u = 0, v = 0;
+      dir[a] = sign;
+      project(dir[0], dir[1], dir[2], &u, &v);
+      faces.x.push_back(u), faces.y.push_back(v);
+    }
+  }
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const json up = Get(poses[i], "up");
+    if (!up.is_array() || up.size() != 3) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("poses[%d].up: expected 3 numbers", static_cast<int>(i)));
+    }
+    const double n = std::hypot(Num(up[0]), std::hypot(Num(up[1]), Num(up[2])));
+    if (!(n > 0)) continue;  // a pose without a direction (not calibrated)
+    double u = 0, v = 0;
+    project(Num(up[0]) / n, Num(up[1]) / n, Num(up[2]) / n, &u, &v);
+    PlotSeries& s =
+        Get(poses[i], "used").is_boolean() && Get(poses[i], "used").get<bool>() ? used : unused;
+    s.x.push_back(u), s.y.push_back(v);
+  }
+  Plot plot{"Pose coverage: gravity direction in the body frame (equal-area)",
+            "left: +z hemisphere (x right, y up); right: -z hemisphere",
+            "",
+            {}};
+  // Room above the discs for the legend: an invisible point.
+  const PlotSeries headroom{"", {0.0}, {1.9}, "none"};
+  plot.series = {rims, faces, used, unused, headroom};
+  plot.equal_aspect = true;
+  plot.axes = false;
+  return write("coverage.svg", plot);
+}
+
+// Allan deviation per axis, log-log.
+absl::Status WriteAllanPlots(const json& report, const PlotWriter& write) {
+  const json allan = Get(report, "allan");
+  if (!allan.is_object()) return absl::OkStatus();
+  const json tau = Get(allan, "tau");
+  if (!tau.is_array()) return absl::InvalidArgumentError("allan.tau: expected an array");
+  for (const char* sensor : {"accel", "gyro"}) {
+    const json curves = Get(allan, sensor);
+    if (!curves.is_array() || curves.size() != tau.size()) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("allan.%s: expected one [x, y, z] per tau", sensor));
+    }
+    const bool accel = std::string(sensor) == "accel";
+    Plot plot{absl::StrFormat("Allan deviation, %s (calibrated, at rest)",
+                              accel ? "accelerometer" : "gyroscope"),
+              "tau [s]",
+              accel ? "Allan deviation [m/s^2]" : "Allan deviation [rad/s]",
+              {}};
+    plot.log_x = plot.log_y = true;
+    for (int a = 0; a < 3; ++a) {
+      PlotSeries s{std::string(1, "xyz"[a]), {}, {}, kColours[a], true};
+      for (size_t i = 0; i < tau.size(); ++i) {
+        s.x.push_back(Num(tau[i]));
+        s.y.push_back(curves[i].is_array() && curves[i].size() == 3
+                          ? Num(curves[i][static_cast<size_t>(a)])
+                          : kNaN);
+      }
+      plot.series.push_back(std::move(s));
+    }
+    if (absl::Status s = write(absl::StrFormat("allan_%s.svg", sensor), plot); !s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+std::string RenderSvg(const Plot& plot) {
+  // Log axes: everything below works on log10 of the value.
+  auto tx = [&](double x) { return plot.log_x ? (x > 0 ? std::log10(x) : kNaN) : x; };
+  auto ty = [&](double y) { return plot.log_y ? (y > 0 ? std::log10(y) : kNaN) : y; };
+  Range xr, yr;
+  for (const PlotSeries& s : plot.series) {
+    for (double v : s.x) xr.Add(tx(v));
+    for (double v : s.y) yr.Add(ty(v));
+  }
+  xr.Pad();
+  yr.Pad();
+  const double pw = kW - kLeft - kRight, ph = kH - kTop - kBottom;
+  if (plot.equal_aspect) {  // widen the tighter axis
+    const double ux = (xr.hi - xr.lo) / pw, uy = (yr.hi - yr.lo) / ph;
+    Range& r = ux < uy ? xr : yr;
+    const double half = 0.5 * std::max(ux, uy) * (ux < uy ? pw : ph), mid = 0.5 * (r.lo + r.hi);
+    r.lo = mid - half, r.hi = mid + half;
+  }
+  auto px = [&](double x) { return kLeft + (tx(x) - xr.lo) / (xr.hi - xr.lo) * pw; };
+  auto py = [&](double y) { return kTop + (yr.hi - ty(y)) / (yr.hi - yr.lo) * ph; };
+  auto gx = [&](double x) { return kLeft + (x - xr.lo) / (xr.hi - xr.lo) * pw; };  // axis units
+  auto gy = [&](double y) { return kTop + (yr.hi - y) / (yr.hi - yr.lo) * ph; };
+  auto label = [](double v, bool log, double step) {
+    if (log) return absl::StrFormat("%.2g", std::pow(10.0, v));
+    return absl::StrFormat("%.4g", std::abs(v) < 1e-9 * step ? 0.0 : v);
+  };
+  std::string s = absl::StrFormat(
+      "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" "
+      "viewBox=\"0 0 %.0f %.0f\" font-family=\"sans-serif\" font-size=\"12\">\n"
+      "<rect width=\"100%%\" height=\"100%%\" fill=\"white\"/>\n"
+      "<text x=\"%.0f\" y=\"22\" font-size=\"15\" text-anchor=\"middle\">%s</text>\n",
+      kW, kH, kW, kH, kW / 2, Escape(plot.title));
+  // Grid and ticks (log axes: one per decade when the span allows).
+  const double xs = plot.log_x && xr.hi - xr.lo >= 2 ? 1.0 : TickStep(xr.hi - xr.lo);
+  const double ys = plot.log_y && yr.hi - yr.lo >= 2 ? 1.0 : TickStep(yr.hi - yr.lo);
+  for (double x = std::ceil(xr.lo / xs) * xs; plot.axes && x <= xr.hi; x += xs) {
+    absl::StrAppendFormat(&s,
+                          "<line x1=\"%.1f\" y1=\"%.0f\" x2=\"%.1f\" y2=\"%.0f\" stroke=\"#ddd\"/>"
+                          "<text x=\"%.1f\" y=\"%.0f\" text-anchor=\"middle\">%s</text>\n",
+                          gx(x), kTop, gx(x), kTop + ph, gx(x), kTop + ph + 16,
+                          label(x, plot.log_x, xs));
+  }
+  for (double y = std::ceil(yr.lo / ys) * ys; plot.axes && y <= yr.hi; y += ys) {
+    absl::StrAppendFormat(&s,
+                          "<line x1=\"%.0f\" y1=\"%.1f\" x2=\"%.0f\" y2=\"%.1f\" stroke=\"#ddd\"/>"
+                          "<text x=\"%.0f\" y=\"%.1f\" text-anchor=\"end\">%s</text>\n",
+                          kLeft, gy(y), kLeft + pw, gy(y), kLeft - 6, gy(y) + 4,
+                          label(y, plot.log_y, ys));
+  }
+  if (plot.axes && !plot.log_y && yr.lo < 0 && yr.hi > 0) {
+    absl::StrAppendFormat(
+        &s, "<line x1=\"%.0f\" y1=\"%.1f\" x2=\"%.0f\" y2=\"%.1f\" stroke=\"#888\"/>\n", kLeft,
+        gy(0), kLeft + pw, gy(0));
+  }
+  if (plot.axes) {
+    absl::StrAppendFormat(&s,
+                          "<rect x=\"%.0f\" y=\"%.0f\" width=\"%.0f\" height=\"%.0f\" "
+                          "fill=\"none\" stroke=\"black\"/>\n",
+                          kLeft, kTop, pw, ph);
+  }
+  absl::StrAppendFormat(&s,
+                        "<text x=\"%.0f\" y=\"%.0f\" text-anchor=\"middle\">%s</text>\n"
+                        "<text transform=\"translate(18 %.0f) rotate(-90)\" "
+                        "text-anchor=\"middle\">%s</text>\n",
+                        kLeft + pw / 2, kH - 18, Escape(plot.x_label), kTop + ph / 2,
+                        Escape(plot.y_label));
+  // Series and legend.
+  double legend_y = kTop + 14;
+  for (const PlotSeries& ser : plot.series) {
+    if (ser.line) {
+      // A point that cannot be drawn (NaN, or <= 0 on a log axis) breaks the line.
+      std::string pts;
+      auto flush = [&] {
+        if (!pts.empty())
+          absl::StrAppendFormat(
+              &s, "<polyline points=\"%s\" fill=\"none\" stroke=\"%s\" stroke-width=\"1.5\"/>\n",
+              pts, ser.colour);
+        pts.clear();
+      };
+      for (size_t i = 0; i < ser.x.size() && i < ser.y.size(); ++i) {
+        if (std::isfinite(px(ser.x[i])) && std::isfinite(py(ser.y[i])))
+          absl::StrAppendFormat(&pts, "%.1f,%.1f ", px(ser.x[i]), py(ser.y[i]));
+        else
+          flush();
+      }
+      flush();
+    } else {
+      for (size_t i = 0; ser.colour != "none" && i < ser.x.size() && i < ser.y.size(); ++i) {
+        if (!std::isfinite(px(ser.x[i])) || !std::isfinite(py(ser.y[i]))) continue;
+        absl::StrAppendFormat(
+            &s, "<circle cx=\"%.1f\" cy=\"%.1f\" r=\"%s\" fill=\"%s\" stroke=\"%s\"/>\n",
+            px(ser.x[i]), py(ser.y[i]), ser.hollow ? "4.5" : "3", ser.hollow ? "none" : ser.colour,
+            ser.colour);
+      }
+    }
+    if (ser.label.empty()) continue;
+    absl::StrAppendFormat(&s,
+                          "<rect x=\"%.0f\" y=\"%.0f\" width=\"10\" height=\"10\" fill=\"%s\"/>"
+                          "<text x=\"%.0f\" y=\"%.0f\">%s</text>\n",
+                          kLeft + pw - 230, legend_y - 9, ser.colour, kLeft + pw - 214, legend_y,
+                          Escape(ser.label));
+    legend_y += 16;
+  }
+  s += "</svg>\n";
+  return s;
+}
+
+absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
+                                                          const std::string& dir) {
+  std::vector<std::string> written;
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec)
+    return absl::InvalidArgumentError(absl::StrFormat("%s: cannot create (%s)", dir, ec.message()));
+  auto write = [&](const std::string& name, const Plot& plot) -> absl::Status {
+    const std::string path = (std::filesystem::path(dir) / name).string();
+    std::ofstream f(path, std::ios::trunc);
+    f << RenderSvg(plot);
+    if (!f) return absl::InternalError(absl::StrFormat("%s: cannot write", path));
+    written.push_back(path);
+    return absl::OkStatus();
+  };
+
+  if (absl::Status s = WriteStagePlot(report, write); !s.ok()) return s;
+  if (absl::Status s = WriteCoveragePlot(report, write); !s.ok()) return s;
+  if (absl::Status s = WriteAllanPlots(report, write); !s.ok()) return s;
+  const json diag = Get(report, "effect_diagnostics");
+  if (!diag.is_object()) return written;
+  const json rows = Get(diag, "poses");
+  if (!rows.is_array()) {
+    return absl::InvalidArgumentError("effect_diagnostics.poses: expected an array");
+  }
+
+  // Per-pose residuals, before and after the effects.
+  Plot accel{"Accelerometer |a| - g per pose", "pose", "|a| - g [mg]", {}};
+  Plot gyro{"Gyroscope static rate per pose", "pose", "|rate| [deg/s]", {}};
+  PlotSeries ab{"before effects", {}, {}, "#d62728", false, true},
+      aa{"after effects", {}, {}, "#1f77b4"};
+  PlotSeries gb = ab, ga = aa;
+  for (size_t i = 0; i < rows.size(); ++i) {
+    const json& r = rows[i];
+    const double index = Num(Get(r, "index"));
+    ab.x.push_back(index), ab.y.push_back(Num(Get(r, "accel_before")) / kMg);
+    aa.x.push_back(index), aa.y.push_back(Num(Get(r, "accel_after")) / kMg);
+    auto norm = [](const json& v) {
+      double s = 0;
+      for (const json& c : v) s += Num(c) * Num(c);
+      return std::sqrt(s) * kRadToDeg;
+    };
+    gb.x.push_back(index), gb.y.push_back(norm(Get(r, "gyro_before")));
+    ga.x.push_back(index), ga.y.push_back(norm(Get(r, "gyro_after")));
+  }
+  accel.series = {aa, ab};  // hollow markers drawn last, on top
+  gyro.series = {ga, gb};
+  if (absl::Status s = write("residual_accel_per_pose.svg", accel); !s.ok()) return s;
+  if (absl::Status s = write("residual_gyro_per_pose.svg", gyro); !s.ok()) return s;
+
+  // One plot per effect: its partial residual against its regressor.
+  const json effects = Get(report, "effects");
+  for (size_t k = 0; effects.is_array() && k < effects.size(); ++k) {
+    const json& e = effects[k];
+    const std::string field = absl::StrFormat("effects[%d]", static_cast<int>(k));
+    const std::string sensor =
+        Get(e, "sensor").is_string() ? Get(e, "sensor").get<std::string>() : "";
+    const std::string axis = Get(e, "axis").is_string() ? Get(e, "axis").get<std::string>() : "";
+    const std::string name =
+        Get(e, "regressor").is_string() ? Get(e, "regressor").get<std::string>() : "";
+    const std::optional<core::Regressor> reg = core::ParseRegressor(name);
+    const int ax = axis == "x" ? 0 : axis == "y" ? 1 : axis == "z" ? 2 : -1;
+    if (!reg || ax < 0 || (sensor != "accel" && sensor != "gyro")) {
+      return absl::InvalidArgumentError(field + ": sensor, axis or regressor malformed");
+    }
+    const bool is_accel = sensor == "accel";
+    const double c = Num(Get(e, "coefficient"));
+    const bool applied = !Get(e, "applied").is_boolean() || Get(e, "applied").get<bool>();
+    const double unit = is_accel ? kMg : 1.0 / kRadToDeg;  // plotted in mg or deg/s
+    PlotSeries before{"without this effect", {}, {}, "#d62728", false, true},
+        after{"with it", {}, {}, "#1f77b4"}, line{"fitted term", {}, {}, "#2ca02c", true};
+    for (const json& r : rows) {
+      core::SignalArray sig{};
+      const json s = Get(r, "signals");
+      for (int q = 0; q < core::kNumSignals; ++q)
+        sig[static_cast<size_t>(q)] =
+            Num(Get(s, std::string(core::kSignalNames[static_cast<size_t>(q)]).c_str()));
+      double x = reg->Evaluate(sig);
+      double res = 0;
+      if (is_accel) {
+        const double n = std::hypot(sig[2], std::hypot(sig[3], sig[4]));
+        x *= sig[static_cast<size_t>(2 + ax)] / n;  // how the term reaches |a| - g
+        res = Num(Get(r, "accel_all"));
+      } else {
+        res = Num(Get(r, "gyro_all")[static_cast<size_t>(ax)]);
+      }
+      // `all`: the fit with every effect found, the one this coefficient comes from.
+      before.x.push_back(x), before.y.push_back((res + c * x) / unit);
+      after.x.push_back(x), after.y.push_back(res / unit);
+    }
+    if (!before.x.empty()) {
+      const auto [lo, hi] = std::minmax_element(before.x.begin(), before.x.end());
+      line.x = {*lo, *hi};
+      line.y = {c * *lo / unit, c * *hi / unit};
+    }
+    std::string safe = name;
+    for (char& ch : safe)
+      if (ch == '*')
+        ch = 'x';
+      else if (ch == '^')
+        ch = 'p';
+    Plot p{absl::StrFormat("%s %s ~ %s%s", sensor, axis, name,
+                           applied ? "" : " (reported, not applied)"),
+           is_accel ? absl::StrFormat("%s x gravity direction on %s", name, axis) : name,
+           is_accel ? "|a| - g [mg]" : absl::StrFormat("rate %s [deg/s]", axis),
+           {after, before, line}};
+    const std::string file =
+        absl::StrFormat("effect_%d_%s_%s_%s.svg", static_cast<int>(k) + 1, sensor, axis, safe);
+    if (absl::Status s = write(file, p); !s.ok()) return s;
+  }
+  return written;
+}
+
+absl::Status WriteFileAtomically(const std::string& path, const std::string& text) {
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
+    if (!f) return absl::InvalidArgumentError(absl::StrFormat("%s: cannot write", path));
+    f << text;
+    if (!f.flush()) return absl::InvalidArgumentError(absl::StrFormat("%s: write failed", path));
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return absl::InvalidArgumentError(absl::StrFormat("%s: %s", path, ec.message()));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::vector<std::string>> WriteReportBundle(const json& report,
+                                                           const std::string& report_text,
+                                                           const std::string& summary,
+                                                           const std::string& dir) {
+  absl::StatusOr<std::vector<std::string>> written = WriteReportPlots(report, dir);
+  if (!written.ok()) return written.status();
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);  // WriteReportPlots made it if it drew anything
+  if (ec)
+    return absl::InvalidArgumentError(absl::StrFormat("%s: cannot create (%s)", dir, ec.message()));
+  for (const auto& [name, text] :
+       {std::pair<const char*, const std::string*>{"report.json", &report_text},
+        {"summary.txt", &summary}}) {
+    const std::string path = (std::filesystem::path(dir) / name).string();
+    if (absl::Status s = WriteFileAtomically(path, *text); !s.ok()) return s;
+    written->insert(written->begin(), path);
+  }
+  return written;
+}
+
+}  // namespace imucal::formats

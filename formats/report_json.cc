@@ -1,0 +1,205 @@
+#include "formats/report_json.h"
+
+#include <cmath>
+
+#include "formats/params_json.h"
+#include "nlohmann/json.hpp"
+
+namespace imucal::formats {
+namespace {
+
+using nlohmann::json;
+
+json Num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+json Vec(const Eigen::Vector3d& v) { return json::array({Num(v.x()), Num(v.y()), Num(v.z())}); }
+
+json PoseJson(const core::PoseReport& p) {
+  const core::StaticInterval& s = p.interval;
+  json j = {{"index", p.index},
+            {"t_start", s.t_start_s},
+            {"t_end", s.t_end_s},
+            {"samples", s.samples()},
+            {"accel_mean", Vec(s.accel_mean)},
+            {"gyro_mean", Vec(s.gyro_mean)},
+            {"temp_mean", Num(s.temp_mean)},
+            {"used", s.used},
+            {"reason", s.reason},
+            {"issue", std::string(core::IntervalIssueName(s.issue))},
+            {"face", p.face},
+            {"up", Vec(p.up)},
+            {"residual", Num(p.residual_m_s2)},
+            {"residual_heldout", Num(p.heldout_m_s2)}};
+  if (!p.file.empty()) j["file"] = p.file;
+  if (p.first_line > 0) j["lines"] = {p.first_line, p.last_line};
+  return j;
+}
+
+}  // namespace
+
+// What the effect search examined, and per used pose the signals and the residuals without and
+// with the effects (the data of the plots).
+json DiagnosticsJson(const core::EffectDiagnostics& d) {
+  json j;
+  j["ran"] = d.ran;
+  j["rounds"] = d.rounds;
+  j["candidates"] = d.candidates;
+  j["absorbed_by_model"] = d.absorbed;
+  j["not_excited"] = d.not_excited;
+  j["accel_noise_floor"] = Num(d.accel_noise_floor_m_s2);
+  j["gyro_noise_floor"] = Num(d.gyro_noise_floor_rad_s);
+  j["accel_heldout_before"] = Num(d.accel_heldout_before_m_s2);
+  j["accel_heldout_after"] = Num(d.accel_heldout_after_m_s2);
+  j["gyro_heldout_before"] = Num(d.gyro_heldout_before_rad_s);
+  j["gyro_heldout_after"] = Num(d.gyro_heldout_after_rad_s);
+  j["units"] =
+      "accel m/s^2, gyro rad/s; signals: temperature degC, time s, ax..az m/s^2, gx..gz rad/s; "
+      "per pose: _before without effects, _after the stored model (applied effects), _all every "
+      "effect found";
+  j["top_candidates"] = json::array();
+  for (const core::CandidateScore& c : d.top) {
+    j["top_candidates"].push_back({{"sensor", c.sensor == core::Sensor::kGyro ? "gyro" : "accel"},
+                                   {"axis", std::string(1, "xyz"[c.axis])},
+                                   {"regressor", c.regressor},
+                                   {"f", Num(c.f)},
+                                   {"f_threshold", Num(c.f_threshold)},
+                                   {"delta_bic", Num(c.delta_bic)},
+                                   {"heldout_gain", Num(c.press_gain)},
+                                   {"coefficient", Num(c.coefficient)},
+                                   {"passed", c.passed}});
+  }
+  j["poses"] = json::array();
+  for (const core::EffectPoseRow& row : d.rows) {
+    json signals;
+    for (int s = 0; s < core::kNumSignals; ++s)
+      signals[std::string(core::kSignalNames[static_cast<size_t>(s)])] =
+          Num(row.signals[static_cast<size_t>(s)]);
+    j["poses"].push_back({{"index", row.pose_index},
+                          {"signals", std::move(signals)},
+                          {"accel_before", Num(row.accel_before_m_s2)},
+                          {"accel_after", Num(row.accel_after_m_s2)},
+                          {"accel_all", Num(row.accel_all_m_s2)},
+                          {"gyro_before", Vec(row.gyro_before_rad_s)},
+                          {"gyro_after", Vec(row.gyro_after_rad_s)},
+                          {"gyro_all", Vec(row.gyro_all_rad_s)}});
+  }
+  j["faces"] = json::array();
+  for (const core::FaceResidual& f : d.faces)
+    j["faces"].push_back({{"face", f.face}, {"residual", Vec(f.residual_m_s2)}});
+  // The gravity-direction error after the moves regressed on each signal of the moves (the
+  // rotation residuals; effects.h MoveTrend): slope and standard error in `unit`.
+  j["move_trends"] = json::array();
+  for (const core::MoveTrend& t : d.move_trends) {
+    j["move_trends"].push_back({{"signal", t.signal},
+                                {"unit", t.unit},
+                                {"slope", Num(t.slope_deg)},
+                                {"stderr", Num(t.slope_std_error_deg)},
+                                {"f", Num(t.f)},
+                                {"f_threshold", Num(t.f_threshold)},
+                                {"significant", t.significant}});
+  }
+  j["notes"] = d.notes;
+  return j;
+}
+
+std::string ReportToJson(const core::CalibrationReport& r) {
+  json j;
+  j["format"] = "imucal-report v1";
+  j["device"] = r.device;
+  j["gravity"] = r.gravity_m_s2;
+  j["protocol"] = std::string(core::ProtocolKindName(r.protocol));
+  j["protocol_detected"] = r.protocol_detected;
+  j["noise"] = {{"accel_std", Vec(r.noise.accel_std)},
+                {"gyro_std", Vec(r.noise.gyro_std)},
+                {"units", "input units per sample"},
+                {"source", r.noise.source},
+                {"static_threshold_multiplier", r.threshold_multiplier}};
+  j["poses"] = json::array();
+  for (const auto& p : r.poses) j["poses"].push_back(PoseJson(p));
+  j["pairs"] = json::array();
+  for (const auto& p : r.pairs) {
+    j["pairs"].push_back({{"poses", {p.pose_a, p.pose_b}},
+                          {"status", p.ok ? "ok" : "rejected"},
+                          {"face", p.face},
+                          {"tilt_deg", p.tilt_deg},
+                          {"rotation_deg", p.rotation_deg},
+                          {"reason", p.reason}});
+  }
+  j["moves"] = json::array();
+  for (const auto& m : r.moves) {
+    j["moves"].push_back({{"poses", {m.from_pose, m.to_pose}},
+                          {"rotation_deg", m.rotation_deg},
+                          {"gravity_error_deg", m.error_deg},
+                          {"gravity_error_heldout_deg", Num(m.heldout_error_deg)}});
+  }
+  j["stages"] = json::array();
+  for (const auto& s : r.stages) {
+    json stage = {{"name", s.name},
+                  {"accel_rms", s.accel_rms_m_s2},
+                  {"iterations", s.iterations},
+                  {"evaluations", s.evaluations},
+                  {"ms", s.ms}};
+    // |a| - g per used pose after the stage (m/s^2): the per-pose plot's data.
+    if (!s.pose_indices.empty()) {
+      stage["poses"] = s.pose_indices;
+      json residuals = json::array();
+      for (double v : s.pose_residual_m_s2) residuals.push_back(Num(v));
+      stage["pose_residual"] = std::move(residuals);
+    }
+    j["stages"].push_back(std::move(stage));
+  }
+  // Full turns about one axis (Ferraris): the known 360-degree angles that fix the gyro scale.
+  j["turns"] = json::array();
+  for (const auto& t : r.turns) {
+    j["turns"].push_back({{"t_start", t.t_start_s},
+                          {"t_end", t.t_end_s},
+                          {"turns", t.turns},
+                          {"axis", t.axis},
+                          {"axis_body", Vec(t.axis_body)},
+                          {"angle_deg", Num(t.angle_deg)},
+                          {"error_deg", Num(t.error_deg)}});
+  }
+  // Allan deviation of the calibrated signals over the rest the noise block was measured on.
+  if (!r.allan.tau_s.empty()) {
+    json accel = json::array(), gyro = json::array();
+    for (const auto& v : r.allan.accel_m_s2) accel.push_back(Vec(v));
+    for (const auto& v : r.allan.gyro_rad_s) gyro.push_back(Vec(v));
+    j["allan"] = {{"tau", r.allan.tau_s},
+                  {"accel", std::move(accel)},
+                  {"gyro", std::move(gyro)},
+                  {"units", "tau s; accel m/s^2; gyro rad/s (Allan deviation, per axis x y z)"}};
+  }
+  const core::Residuals& res = r.residual;
+  j["residual"] = {{"accel_rms", res.accel_rms_m_s2},
+                   {"accel_max", res.accel_max_m_s2},
+                   {"accel_noise_floor", Num(res.accel_noise_floor_m_s2)},
+                   {"accel_heldout_rms", Num(res.accel_heldout_rms_m_s2)},
+                   {"accel_heldout_max", Num(res.accel_heldout_max_m_s2)},
+                   {"accel_chi2_reduced", r.accel_chi2_reduced},
+                   {"gyro_static_rms", res.gyro_static_rms_rad_s},
+                   {"gravity_direction_rms_deg", Num(res.move_rms_deg)},
+                   {"gravity_direction_max_deg", Num(res.move_max_deg)},
+                   {"gravity_direction_heldout_rms_deg", Num(res.move_heldout_rms_deg)},
+                   {"gravity_direction_heldout_max_deg", Num(res.move_heldout_max_deg)}};
+  json params = json::parse(ParamSetToJson(r.params));
+  j["effects"] = params.contains("effects") ? params["effects"] : json::array();
+  // Beside the spec's fields: the coefficient in an engineer's units (mg/degC, deg/s/g, ...).
+  for (size_t k = 0; k < r.params.effects.size() && k < j["effects"].size(); ++k)
+    j["effects"][k]["human"] = core::HumanCoefficient(r.params.effects[k]);
+  if (r.effect_diagnostics.ran || !r.effect_diagnostics.notes.empty())
+    j["effect_diagnostics"] = DiagnosticsJson(r.effect_diagnostics);
+  // A refused capture has no parameters to apply: the report says why, not a confident number.
+  if (r.verdict != core::Verdict::kRefused) j["parameters"] = std::move(params);
+  j["verdict"] = std::string(core::VerdictName(r.verdict));
+  j["verdict_reasons"] = r.verdict_reasons;
+  if (r.refusal) {
+    j["refusal"] = {{"reason", std::string(core::RefusalReasonName(r.refusal->reason))},
+                    {"message", r.refusal->message}};
+  }
+  j["warnings"] = r.warnings;
+  j["ms"] = r.total_ms;
+  for (const auto& [phase, ms] : r.phase_ms) j["phase_ms"][phase] = ms;
+  return j.dump(2) + "\n";
+}
+
+}  // namespace imucal::formats

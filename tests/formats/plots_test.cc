@@ -1,0 +1,119 @@
+// The report plots (formats/plots.h): written from the report JSON of a real calibration of a
+// simulated capture with an effect, one SVG per effect plus the per-pose residuals; malformed
+// input names the field.
+#include "formats/plots.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+
+#include "core/calibrate/calibrate.h"
+#include "core/simulator.h"
+#include "formats/report_json.h"
+
+namespace imucal::formats {
+namespace {
+
+std::string Slurp(const std::string& path) {
+  std::ifstream f(path);
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+int Count(const std::string& s, const std::string& what) {
+  int n = 0;
+  for (size_t p = s.find(what); p != std::string::npos; p = s.find(what, p + 1)) ++n;
+  return n;
+}
+
+TEST(PlotsTest, OneSvgPerEffectAndPerPoseResiduals) {
+  core::SimOptions o;
+  o.seed = 3;
+  o.extra_poses = 24;
+  o.effects = {{core::Sensor::kGyro, 1, "ax", 0.05 * M_PI / 180 / core::kStandardGravity}};
+  const absl::StatusOr<core::SimResult> sim = core::Simulate(o);
+  ASSERT_TRUE(sim.ok());
+  const absl::StatusOr<core::CalibrationReport> rep = core::Calibrate(sim->capture, {});
+  ASSERT_TRUE(rep.ok()) << rep.status();
+  ASSERT_EQ(rep->params.effects.size(), 1u);
+  const nlohmann::json report = nlohmann::json::parse(ReportToJson(*rep));
+  // The rotation residuals' trends are in the report too: one per signal the moves carry
+  // (rotation angle, time, temperature), each with its unit and a finite slope.
+  const nlohmann::json& trends = report["effect_diagnostics"]["move_trends"];
+  ASSERT_EQ(trends.size(), 3u) << trends.dump();
+  for (const auto& t : trends) {
+    EXPECT_TRUE(t["slope"].is_number() && t["stderr"].is_number()) << t.dump();
+    EXPECT_EQ(t["unit"].get<std::string>().rfind("deg per ", 0), 0u) << t.dump();
+  }
+  const std::string dir = testing::TempDir() + "/plots_test";
+  std::filesystem::remove_all(dir);
+  const absl::StatusOr<std::vector<std::string>> files = WriteReportPlots(report, dir);
+  ASSERT_TRUE(files.ok()) << files.status();
+  std::map<std::string, std::string> svg;  // file name -> content
+  for (const std::string& f : *files) {
+    svg[std::filesystem::path(f).filename().string()] = Slurp(f);
+    EXPECT_EQ(svg.rbegin()->second.rfind("<svg xmlns=\"http://www.w3.org/2000/svg\"", 0), 0u) << f;
+    EXPECT_NE(Slurp(f).find("</svg>\n"), std::string::npos) << f;
+  }
+  for (const char* name :
+       {"residual_stages_per_pose.svg", "coverage.svg", "allan_accel.svg", "allan_gyro.svg",
+        "residual_accel_per_pose.svg", "residual_gyro_per_pose.svg", "effect_1_gyro_y_ax.svg"}) {
+    EXPECT_EQ(svg.count(name), 1u) << name;
+  }
+  EXPECT_EQ(files->size(), 7u);
+  // Residual plots: two series of markers (before and after), one per used pose each.
+  const size_t poses = report["effect_diagnostics"]["poses"].size();
+  for (const char* name :
+       {"residual_accel_per_pose.svg", "residual_gyro_per_pose.svg", "effect_1_gyro_y_ax.svg"}) {
+    EXPECT_EQ(Count(svg[name], "<circle"), static_cast<int>(2 * poses)) << name;
+  }
+  EXPECT_NE(svg["effect_1_gyro_y_ax.svg"].find("fitted term"), std::string::npos);
+  // Stages: a line and a marker per used pose for each stage that ran.
+  const size_t stages = report["stages"].size();
+  EXPECT_GE(stages, 3u);  // ls, bsas, lm (and effects)
+  EXPECT_EQ(Count(svg["residual_stages_per_pose.svg"], "<polyline"), static_cast<int>(stages));
+  EXPECT_EQ(Count(svg["residual_stages_per_pose.svg"], "<circle"),
+            static_cast<int>(stages * poses));
+  EXPECT_NE(svg["residual_stages_per_pose.svg"].find("after lm"), std::string::npos);
+  // Coverage: the six faces, then one marker per pose with a direction; the two rims.
+  int with_up = 0;
+  for (const auto& p : report["poses"]) {
+    const double x = p["up"][0], y = p["up"][1], z = p["up"][2];
+    with_up += x * x + y * y + z * z > 0;
+  }
+  EXPECT_EQ(Count(svg["coverage.svg"], "<circle"), 6 + with_up);
+  EXPECT_EQ(Count(svg["coverage.svg"], "<polyline"), 2);
+  // Allan: log-log, three axes, decade ticks.
+  EXPECT_EQ(Count(svg["allan_gyro.svg"], "<polyline"), 3);
+  EXPECT_NE(svg["allan_gyro.svg"].find(">0.1<"), std::string::npos);  // tau decade label
+}
+
+TEST(PlotsTest, NoDiagnosticsNoPlotsAndMalformedEffectIsNamed) {
+  const std::string dir = testing::TempDir() + "/plots_test_bad";
+  auto none = WriteReportPlots(nlohmann::json::object(), dir);
+  ASSERT_TRUE(none.ok());
+  EXPECT_TRUE(none->empty());
+  auto r0 = WriteReportPlots({{"allan", {{"tau", {1, 2}}, {"accel", {{1, 2, 3}}}}}}, dir);
+  ASSERT_FALSE(r0.ok());
+  EXPECT_NE(r0.status().message().find("allan.accel"), std::string::npos) << r0.status();
+  r0 = WriteReportPlots({{"poses", {{{"up", {1, 0}}}}}}, dir);
+  ASSERT_FALSE(r0.ok());
+  EXPECT_NE(r0.status().message().find("poses[0].up"), std::string::npos) << r0.status();
+  nlohmann::json bad = {{"effect_diagnostics", {{"poses", nlohmann::json::array()}}},
+                        {"effects", {{{"sensor", "accel"}, {"axis", "w"}, {"regressor", "ax"}}}}};
+  auto r = WriteReportPlots(bad, dir);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("effects[0]"), std::string::npos) << r.status();
+  bad["effect_diagnostics"]["poses"] = 3;
+  r = WriteReportPlots(bad, dir);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("effect_diagnostics.poses"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace imucal::formats

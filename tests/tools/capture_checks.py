@@ -1,0 +1,361 @@
+#!/usr/bin/env python3
+"""Checks an `imucal calibrate --json` report against the truth.json of write_columns.py, for
+capture_classes_test.sh. Asserts only what the report's spec (../shared/spec/report.md) and the
+README promise: the verdict, the poses found (used or not, with a reason), the file and line
+range of each pose of a capture read from several files, and the calibrated parameters against
+the simulated ones within tolerances derived from the simulated noise and quantisation.
+
+Tolerances (see tolerances()): a pose's mean has the noise sigma / sqrt(samples); quantisation
+adds step^2 / 12 to a sample's variance and, when the noise is below about half a step, a
+systematic error of the mean that no averaging removes: E[round(x + n)] - x for Gaussian n is
+the sawtooth x - round(x) smoothed by the noise, whose Fourier series bounds it by
+step / pi * sum_k exp(-2 pi^2 k^2 sigma^2 / step^2) / k (and by step / 2). Biases are allowed
+4 such pose errors, scales 4 pose errors / g; the gyroscope's scale 8 standard errors of the
+angle of a 90-degree move, as the gyroscope integrates it (its noise over the longest move) and
+as the accelerometer sees it (two poses' gravity directions), plus the angle a bias error leaves
+over the longest move. A floor assumed level (six faces once) moves each bias by up to
+g sin(t) / scale and each scale by up to 2 sin(t)^2 for a tilt of t. A noise-free capture is
+held to the tolerances of the writer's default noise (0.02 m/s^2, 0.004 rad/s): exact data must
+calibrate at least as well as noisy data (how much better is limited by the solver and the
+model choices, not by the data, so no tighter bound is derived).
+Each axis' bias and scale differ from the others' by more than these, so a swapped, negated or
+unit-confused axis fails.
+
+usage: capture_checks.py CHECK REPORT TRUTH [options]; prints what failed, exits 1 if anything
+did. CHECK: params, files, steady, noisy, refused, names (see main()).
+"""
+import argparse
+import json
+import math
+import os
+import sys
+
+DEFAULT_NOISE = (0.02, 0.004)  # imu_sim's default accel (m/s^2) and gyro (rad/s) noise
+
+
+def quantisation_bias(sigma, step):
+    """Bound on |E[round((x + n) / step) * step] - x| over x, for n ~ N(0, sigma^2)."""
+    if not step:
+        return 0.0
+    r = sigma / step
+    total = sum(math.exp(-2 * math.pi ** 2 * k * k * r * r) / k for k in range(1, 200))
+    return min(0.5, total / math.pi) * step
+
+
+class Checker:
+    def __init__(self):
+        self.errors = []
+
+    def check(self, what, ok):
+        if not ok:
+            self.errors.append(what)
+        return ok
+
+    def done(self, summary):
+        if self.errors:
+            print("\n".join("  " + e for e in self.errors))
+            sys.exit(1)
+        print("  " + summary)
+
+
+def load(path):
+    with open(path) as f:
+        return json.load(f)
+
+
+def used_poses(report):
+    return [p for p in report["poses"] if p["used"]]
+
+
+def noise_of(truth, sensor):
+    """The per-sample noise a pose's mean is judged with (a noise-free capture: the default)."""
+    i = 0 if sensor == "accel" else 1
+    if not truth.get("noise", True):
+        return DEFAULT_NOISE[i]
+    return truth["accel_noise_m_s2" if i == 0 else "gyro_noise_rad_s"]
+
+
+def tolerances(truth, report, faces_once):
+    """Tolerances in m/s^2, rad/s and scale units (see the module docstring)."""
+    g = truth["gravity_m_s2"]
+    used = used_poses(report)
+    n = min(p["samples"] for p in used) if used else 1
+    a_step, g_step = truth.get("accel_step_m_s2"), truth.get("gyro_step_rad_s")
+    sa, sg = noise_of(truth, "accel"), noise_of(truth, "gyro")
+    noisy = truth.get("noisy_rest") or {}
+    extra_a = 0.0
+    if noisy:
+        # The noisy pose's mean: its noise is F times the others', over its own samples, plus
+        # what the settling offset or the vibration leaves in it.
+        f = noisy["noise_factor"]
+        n_noisy = noisy["hold_s"] * truth["rate_hz"] * 0.5
+        sa = max(sa, f * sa * math.sqrt(n / n_noisy))
+        sg = max(sg, f * sg * math.sqrt(n / n_noisy))
+        extra_a = noisy.get("settle_mean_offset_m_s2", 0.0)
+        if noisy["kind"] == "motor":
+            extra_a = (math.sqrt(2) * f * noise_of(truth, "accel") /
+                       (math.pi * noisy["motor_hz"] * noisy["hold_s"] * 0.5))
+    # A pose mean's random error (standard deviation) and systematic error bound.
+    mean_a = math.sqrt(sa ** 2 + (a_step or 0) ** 2 / 12) / math.sqrt(n)
+    sys_a = quantisation_bias(sa, a_step) + extra_a
+    pose_a = 4 * mean_a + sys_a
+    pose_g = (4 * math.sqrt(sg ** 2 + (g_step or 0) ** 2 / 12) / math.sqrt(n) +
+              quantisation_bias(sg, g_step))
+    tol = {"accel bias": pose_a, "accel scale": pose_a / g, "gyro bias": pose_g}
+    moves = truth.get("moves") or []
+    if moves:
+        rate = truth["rate_hz"]
+        longest = max(m["t_end_s"] - m["t_start_s"] + 1 / rate for m in moves)
+        sigma_gyro = math.sqrt(sg ** 2 + (g_step or 0) ** 2 / 12) * math.sqrt(longest * rate) / rate
+        sigma_dirs = math.sqrt(2) * (mean_a + sys_a) / g
+        tol["gyro scale"] = (8 * math.hypot(sigma_gyro, sigma_dirs) +
+                             quantisation_bias(sg, g_step) * longest) / (math.pi / 2)
+    if faces_once:
+        t = math.radians(truth["floor_tilt_deg"])
+        tol["accel bias"] += g * math.sin(t) / min(truth["accel_scale"])
+        tol["accel scale"] += 2 * math.sin(t) ** 2
+    return tol
+
+
+def check_params(c, report, truth, args):
+    """The parameters against the truth, and each used pose's direction."""
+    tol = tolerances(truth, report, args.faces_once)
+    params = report.get("parameters") or {}
+    accel, gyro = params.get("accel") or {}, params.get("gyro") or {}
+    counts = truth.get("counts") if truth.get("writer", {}).get("counts") else None
+    unit_a, unit_g = ("counts", "counts") if counts else ("m/s^2", "rad/s")
+    if not c.check(f"input units {accel.get('input_unit')} {gyro.get('input_unit')}, "
+                   f"want {unit_a} {unit_g}",
+                   accel.get("input_unit") == unit_a and gyro.get("input_unit") == unit_g):
+        return tol
+    want = {"accel bias": truth["accel_bias_m_s2"], "accel scale": truth["accel_scale"],
+            "gyro bias": truth["gyro_bias_rad_s"], "gyro scale": truth["gyro_scale"]}
+    t_abs = dict(tol)
+    if counts:
+        # In counts: bias / step counts, scale * step per count; tolerances likewise.
+        a_step, g_step = counts["accel_step_m_s2"], counts["gyro_step_rad_s"]
+        want = {"accel bias": counts["accel_bias_counts"],
+                "accel scale": counts["accel_scale_m_s2_per_count"],
+                "gyro bias": counts["gyro_bias_counts"],
+                "gyro scale": counts["gyro_scale_rad_s_per_count"]}
+        t_abs["accel bias"] = tol["accel bias"] / a_step
+        t_abs["gyro bias"] = tol["gyro bias"] / g_step
+    got = {"accel bias": accel.get("bias"), "accel scale": accel.get("scale"),
+           "gyro bias": gyro.get("bias"), "gyro scale": gyro.get("scale")}
+    names = ["accel bias", "accel scale"]
+    if args.gyro in ("bias", "all"):
+        names.append("gyro bias")
+    if args.gyro == "all":
+        c.check("gyroscope not calibrated", gyro.get("calibrated") is True)
+        names.append("gyro scale")
+    for name in names:
+        v = got[name]
+        if not c.check(f"{name}: {v}", isinstance(v, list) and len(v) == 3 and
+                       all(isinstance(x, (int, float)) for x in v)):
+            continue
+        for i in range(3):
+            # Scales are relative: the tolerance is per unit of scale (times the step in counts).
+            t = t_abs[name] * (abs(want[name][i]) if name.endswith("scale") else 1.0)
+            c.check(f"{name}[{i}] = {v[i]:.6g}, simulated {want[name][i]:.6g} (tolerance "
+                    f"{t:.3g})", abs(v[i] - want[name][i]) <= t * (1 + 1e-9))
+    return tol
+
+
+def match_poses(c, report, truth, multi_file):
+    """Each simulated hold against the used poses: in a single file by time, from several files
+    by file. Returns [(truth pose, report pose)]."""
+    used = used_poses(report)
+    pairs = []
+    for k, want in enumerate(truth["poses"]):
+        if multi_file:
+            hits = [p for p in used if os.path.basename(str(p.get("file"))) == want["file"]]
+        else:
+            hits = [p for p in used
+                    if p["t_start"] <= want["t_end_s"] and want["t_start_s"] <= p["t_end"]]
+        c.check(f"simulated pose {k} ({want['face']}, "
+                + (want["file"] if multi_file else
+                   f"{want['t_start_s']:.2f}-{want['t_end_s']:.2f} s")
+                + f"): {len(hits)} used poses, want 1", len(hits) == 1)
+        if len(hits) == 1:
+            pairs.append((want, hits[0]))
+    c.check(f"{len(used)} used poses, the writer held {truth['pose_count']}",
+            len(used) == truth["pose_count"])
+    return pairs
+
+
+def check_directions(c, pairs, truth):
+    """Each used pose's mean specific force through the true model points along the simulated
+    up direction, within 6 standard errors of the mean's direction plus the quantisation bias
+    (a swapped axis, a wrong sign or a misplaced pose moves it by degrees)."""
+    counts = truth.get("counts") if truth.get("writer", {}).get("counts") else None
+    bias = counts["accel_bias_counts"] if counts else truth["accel_bias_m_s2"]
+    scale = counts["accel_scale_m_s2_per_count"] if counts else truth["accel_scale"]
+    g = truth["gravity_m_s2"]
+    sa = noise_of(truth, "accel")
+    step = truth.get("accel_step_m_s2") or 0.0
+    noisy = truth.get("noisy_rest") or {}
+    for want, p in pairs:
+        a = [scale[i] * (p["accel_mean"][i] - bias[i]) for i in range(3)]
+        norm = math.sqrt(sum(x * x for x in a))
+        cos = sum(x / norm * w for x, w in zip(a, want["up_body"]))
+        angle = math.acos(max(-1.0, min(1.0, cos)))
+        s = sa * (noisy["noise_factor"] if noisy and noisy["pose"] == truth["poses"].index(want)
+                  else 1.0)
+        err = (6 * math.sqrt(s ** 2 + step ** 2 / 12) / math.sqrt(p["samples"]) +
+               math.sqrt(3) * quantisation_bias(s, step) +
+               (noisy.get("settle_mean_offset_m_s2", 0.0) * math.sqrt(3) if noisy else 0.0))
+        c.check(f"pose {p['index']} ({want['face']}): {math.degrees(angle):.4f} deg from the "
+                f"simulated up direction (tolerance {math.degrees(err / g):.4f})",
+                angle <= err / g)
+
+
+def check_files(c, report, truth):
+    """A capture from several files: every pose names its file and its line range, inside
+    that file's data lines; each used pose's lines overlap the hold the writer put there."""
+    files = {f["name"]: f for f in truth["files"]}
+    for p in report["poses"]:
+        name = os.path.basename(str(p.get("file")))
+        lines = p.get("lines")
+        if not c.check(f"pose {p['index']}: file {p.get('file')!r}, not one of {list(files)}",
+                       name in files):
+            continue
+        if not c.check(f"pose {p['index']}: lines {lines!r}, want [first, last]",
+                       isinstance(lines, list) and len(lines) == 2 and
+                       all(isinstance(x, int) for x in lines)):
+            continue
+        first, last = files[name]["lines"]
+        c.check(f"pose {p['index']} in {name}: lines {lines}, the file's data are lines "
+                f"{first}-{last}", first <= lines[0] <= lines[1] <= last)
+        if p["used"]:
+            want = truth["poses"][files[name]["poses"][0]]["lines"]
+            c.check(f"pose {p['index']} in {name}: lines {lines} miss the hold {want}",
+                    lines[0] <= want[1] and want[0] <= lines[1])
+
+
+def check_reasons(c, report):
+    """Every pose found says whether it is used, and why not when it is not."""
+    for p in report.get("poses", []):
+        c.check(f"pose {p.get('index')}: no boolean 'used'", isinstance(p.get("used"), bool))
+        c.check(f"pose {p.get('index')}: unused without a reason",
+                p.get("used") is True or bool(str(p.get("reason", "")).strip()))
+
+
+def report_text(report, skip_keys=("file", "lines")):
+    """Every string in the report except the keys that merely name a pose's source."""
+    out = []
+
+    def walk(x, key=None):
+        if isinstance(x, dict):
+            for k, v in x.items():
+                if k not in skip_keys:
+                    walk(v, k)
+        elif isinstance(x, list):
+            for v in x:
+                walk(v, key)
+        elif isinstance(x, str):
+            out.append(x)
+    walk(report)
+    return "\n".join(out)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("check", choices=["params", "files", "steady", "noisy", "refused",
+                                          "names"])
+    parser.add_argument("report")
+    parser.add_argument("truth", nargs="?")
+    parser.add_argument("--verdict", default="pass,warn", help="allowed verdicts")
+    parser.add_argument("--faces-once", action="store_true",
+                        help="six faces once: the floor is assumed level")
+    parser.add_argument("--gyro", choices=["none", "bias", "all"], default="all",
+                        help="which gyroscope parameters the capture determines")
+    parser.add_argument("--multi-file", action="store_true",
+                        help="poses are matched to the simulated holds by file")
+    parser.add_argument("--stderr", help="names: the command's stderr, searched too")
+    parser.add_argument("--want", action="append", default=[],
+                        help="names: a string that must be said (A|B: either)")
+    args = parser.parse_args()
+    c = Checker()
+    report = load(args.report)
+    truth = load(args.truth) if args.truth else None
+    verdicts = args.verdict.split(",")
+    c.check(f"verdict {report.get('verdict')!r}, want one of {verdicts}",
+            report.get("verdict") in verdicts)
+
+    if args.check == "params":
+        pairs = match_poses(c, report, truth, args.multi_file)
+        check_directions(c, pairs, truth)
+        tol = check_params(c, report, truth, args)
+        c.done(f"{len(pairs)} poses, verdict {report.get('verdict')}; within " +
+               ", ".join(f"{k} {v:.2g}" for k, v in tol.items()))
+    elif args.check == "files":
+        check_files(c, report, truth)
+        check_reasons(c, report)
+        c.done(f"{len(report['poses'])} poses, each with its file and lines")
+    elif args.check == "steady":
+        # No used pose inside a turn's constant-rate middle: a steady rate is not rest. (An
+        # unused one that still split the move shows in the gravity direction below.)
+        for m in truth["moves"]:
+            if m["profile"] != "steady":
+                continue
+            lo, hi = m["t_start_s"] + m["ramp_s"], m["t_end_s"] - m["ramp_s"]
+            for p in used_poses(report):
+                c.check(f"used pose {p['index']} ({p['t_start']:.2f}-{p['t_end']:.2f} s) lies "
+                        f"in the steady turn at {lo:.2f}-{hi:.2f} s",
+                        p["t_end"] < lo or p["t_start"] > hi)
+        # The gravity direction after the moves: the move's integrated gyroscope noise and the
+        # two poses' direction noise; RMS within 3, max within 5 of that standard error.
+        res = report.get("residual", {})
+        rate, g = truth["rate_hz"], truth["gravity_m_s2"]
+        used = used_poses(report)
+        n = min(p["samples"] for p in used) if used else 1
+        longest = max(m["t_end_s"] - m["t_start_s"] + 1 / rate for m in truth["moves"])
+        sigma = math.sqrt((noise_of(truth, "gyro") * math.sqrt(longest * rate) / rate) ** 2 +
+                          2 * (noise_of(truth, "accel") / math.sqrt(n) / g) ** 2)
+        for key, k in (("gravity_direction_rms_deg", 3), ("gravity_direction_max_deg", 5)):
+            v = res.get(key)
+            c.check(f"residual.{key} = {v}, want <= {k} x {math.degrees(sigma):.3f} deg",
+                    isinstance(v, (int, float)) and v <= k * math.degrees(sigma))
+        # Static gyroscope rate: each pose's mean rate after calibration is noise / sqrt(n)
+        # per axis, sqrt(3) times that as a vector; allowed 3 times that.
+        v = res.get("gyro_static_rms")
+        lim = 3 * math.sqrt(3) * noise_of(truth, "gyro") / math.sqrt(n)
+        c.check(f"residual.gyro_static_rms = {v} rad/s, want <= {lim:.3g}",
+                isinstance(v, (int, float)) and v <= lim)
+        c.done(f"no pose mid-turn; gravity after the moves {res.get('gravity_direction_rms_deg')}"
+               f" deg RMS (limit {3 * math.degrees(sigma):.3f}), static gyro "
+               f"{res.get('gyro_static_rms')} rad/s (limit {lim:.3g})")
+    elif args.check == "noisy":
+        # The noisy rest stays one pose: one pose found across its hold, used, no fragments
+        # beside it, covering at least 40% of it. A settling sensor's start may be left out:
+        # its extra noise, 5x dying as exp(-3t/T), is still 1.6x the quiet rest's at 0.46 T,
+        # and the variance test decides at a rest's edges. A fragment may not be kept instead.
+        k = truth["noisy_rest"]["pose"]
+        want = truth["poses"][k]
+        hits = [p for p in report["poses"]
+                if p["t_start"] <= want["t_end_s"] and want["t_start_s"] <= p["t_end"]]
+        hold = want["t_end_s"] - want["t_start_s"]
+        desc = [(p["index"], round(p["t_start"], 2), round(p["t_end"], 2), p["used"],
+                 p.get("reason", "")) for p in hits]
+        c.check(f"the {truth['noisy_rest']['kind']} rest at {want['t_start_s']:.2f}-"
+                f"{want['t_end_s']:.2f} s: poses {desc}, want one used pose over >= 40% of it",
+                len(hits) == 1 and hits[0]["used"] and
+                hits[0]["t_end"] - hits[0]["t_start"] >= 0.4 * hold)
+        c.done(f"the {hold:.1f} s {truth['noisy_rest']['kind']} rest is one pose")
+    elif args.check == "refused":
+        c.check("no poses list", isinstance(report.get("poses"), list))
+        check_reasons(c, report)
+        c.done(f"refused report with {len(report.get('poses', []))} poses, each used or why not")
+    elif args.check == "names":
+        text = report_text(report)
+        if args.stderr:
+            with open(args.stderr, errors="replace") as f:
+                text += "\n" + f.read()
+        for want in args.want:
+            c.check(f"neither the report's reasons nor stderr say {want!r}",
+                    any(w in text for w in want.split("|")))
+        c.done("named: " + ", ".join(args.want))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,258 @@
+#!/usr/bin/env bash
+# `imucal calibrate` end to end on the classes of capture people record, written by an
+# independent writer (tests/tools/write_columns.py over imu_sim.py: standard library only,
+# nothing from imucal): quantised sensors, no noise at all, turns about the vertical at a steady
+# rate, six faces held once in six files, a duplicated face, a rest noisier than the others,
+# stops shorter than the 1 s hold, a commented header, and a NUL byte in a field.
+# Asserts only what the README ("Offline CLI": exit 0 pass/warn, 2 bad input, 3 refused, 4 fail)
+# and ../shared/spec/report.md promise: exit codes, the report's verdict and poses (file and
+# lines for a capture from several files; a refusal still writes the report), the number of
+# poses used, and the parameters against the writer's truth.json within tolerances derived from
+# the simulated noise and quantisation (tests/tools/capture_checks.py says how). Message texts
+# are not compared, beyond a refusal for short stops saying "too short" and a control byte being
+# shown as \0.
+# Runs every case and lists the failed ones. Skips (exit 0, "SKIP") without python3.
+# usage: capture_classes_test.sh IMUCAL [CASE...]   (CASE: a name from the list below)
+set -uo pipefail
+(($# >= 1)) || { echo "usage: $0 IMUCAL [CASE...]"; exit 1; }
+imucal=$1
+shift
+here=$(cd "$(dirname "$0")" && pwd)
+command -v python3 >/dev/null || { echo "SKIP: python3 not installed"; exit 0; }
+
+dir=$(mktemp -d)
+trap 'rm -rf "$dir"' EXIT
+export PYTHONDONTWRITEBYTECODE=1
+
+# write NAME ARGS...: write_columns.py into $dir/NAME (stdout: the files written, in order).
+write() {
+  local name=$1; shift
+  python3 "$here/write_columns.py" "$dir/$name" "$@" >"$dir/$name.files" ||
+    { echo "  writer failed: $*"; return 1; }
+}
+# files NAME: the files write_columns wrote, in capture order.
+files() { cat "$dir/$1.files"; }
+# columns NAME: the --columns value naming the writer's header.
+columns() { python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["columns_option"])' \
+  "$dir/$1/truth.json"; }
+# run NAME ARGS...: imucal calibrate ARGS, stdout to $dir/NAME.out, stderr to $dir/NAME.err;
+# the report to $dir/NAME.json (--json --out); sets rc.
+run() {
+  local name=$1; shift
+  rc=0
+  "$imucal" calibrate "$@" --json --out "$dir/$name.json" >"$dir/$name.out" 2>"$dir/$name.err" ||
+    rc=$?
+}
+checks() { python3 "$here/capture_checks.py" "$@"; }
+# want_rc NAME CODES...: the exit code is one of CODES, and the report was written.
+want_rc() {
+  local name=$1; shift
+  local c
+  for c in "$@"; do
+    if [[ $rc -eq $c ]]; then
+      [[ -s "$dir/$name.json" ]] || { echo "  exit $rc but no report at --out"; return 1; }
+      return 0
+    fi
+  done
+  echo "  exit $rc, want $*: $(tail -c 600 "$dir/$name.err")"
+  return 1
+}
+
+# Quantised coarsely: the gyroscope in steps of 0.01 rad/s and the accelerometer in steps of
+# 0.01 m/s^2, both without noise (every axis constant through every rest: the noise learnt from
+# a rest is zero). All 16 poses must be found and calibrated.
+case_quantised_si() {
+  write q1 --seed 11 --accel-step 0.01 --accel-noise 0 --gyro-step 0.01 --gyro-noise 0 ||
+    return 1
+  run q1 "$(files q1)" --columns "$(columns q1)" --time-unit us
+  want_rc q1 0 && checks params "$dir/q1.json" "$dir/q1/truth.json"
+}
+
+# Quantised in raw counts, an MPU-6050 at +-2 g and +-250 deg/s (1/16384 g, 1/131 deg/s per
+# count): the accelerometer's noise (0.02 m/s^2) spans many counts, the gyroscope's (0.00005
+# rad/s) is below one count, so one sensor is quantised coarsely and the other is not.
+case_quantised_counts() {
+  write q2 --seed 12 --counts --accel-step 1/16384g --accel-noise 0.02 \
+    --gyro-step 1/131deg --gyro-noise 0.00005 || return 1
+  run q2 "$(files q2)" --columns "$(columns q2)" --time-unit us --accel-unit counts \
+    --gyro-unit counts
+  want_rc q2 0 && checks params "$dir/q2.json" "$dir/q2/truth.json"
+}
+
+# Six faces once, one file per face, each held 28-37 s, the gyroscope quantised to 0.01 rad/s
+# without noise (a hobbyist's quantised unit).
+case_quantised_faces() {
+  write q3 --seed 13 --protocol faces-once --split pose --first-hold-s 30 --hold-range-s 28,37 \
+    --floor-tilt-deg 0 --accel-noise 0.004 --gyro-step 0.01 --gyro-noise 0 || return 1
+  mapfile -t f < <(files q3)
+  run q3 "${f[@]}" --columns "$(columns q3)" --time-unit us
+  want_rc q3 0 && checks params "$dir/q3.json" "$dir/q3/truth.json" --verdict warn \
+    --faces-once --gyro bias --multi-file
+}
+
+# No noise at all, as the imucal capture CSV of the capture-format spec.
+case_noise_free() {
+  write n1 --seed 14 --format imucal --no-noise || return 1
+  run n1 "$(files n1)"
+  want_rc n1 0 && checks params "$dir/n1.json" "$dir/n1/truth.json"
+}
+
+# A quiet sensor (a tenth of the default noise: 0.002 m/s^2, 0.0004 rad/s per sample), no
+# effect simulated, no quadratic term: the parameters must be the simulated ones within the
+# tolerances this noise allows (a model term the data do not need must not move them).
+case_low_noise() {
+  write l1 --seed 14 --accel-noise 0.002 --gyro-noise 0.0004 || return 1
+  run l1 "$(files l1)" --columns "$(columns l1)" --time-unit us
+  want_rc l1 0 && checks params "$dir/l1.json" "$dir/l1/truth.json"
+}
+
+# Turns about the vertical at a steady 96 deg/s on a level floor (the accelerometer does not
+# change through a turn, the gyroscope is constant mid-turn), no effect simulated: must pass, no
+# pose inside a turn, the gravity direction after the moves and the static rate at the noise.
+case_steady_turns() {
+  write s1 --seed 15 --turn-profile steady --turn-rate-deg-s 96 --floor-tilt-deg 0 || return 1
+  run s1 "$(files s1)" --columns "$(columns s1)" --time-unit us
+  want_rc s1 0 &&
+    checks steady "$dir/s1.json" "$dir/s1/truth.json" --verdict pass &&
+    checks params "$dir/s1.json" "$dir/s1/truth.json" --verdict pass
+}
+
+# The hobbyist's capture: six files, one per face, each face once, given together; each file
+# with its own header, time restarting at 0; the floor tilted 0.2 degrees. Calibrated by the
+# 12-parameter least squares with the floor assumed level: verdict warn, saying so.
+case_faces_files() {
+  write p1 --seed 16 --protocol faces-once --split pose --floor-tilt-deg 0.2 || return 1
+  mapfile -t f < <(files p1)
+  run p1 "${f[@]}" --columns "$(columns p1)" --time-unit us
+  want_rc p1 0 || return 1
+  checks params "$dir/p1.json" "$dir/p1/truth.json" --verdict warn --faces-once --gyro bias \
+    --multi-file &&
+    checks files "$dir/p1.json" "$dir/p1/truth.json" --verdict warn &&
+    python3 - "$dir/p1.json" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+errors = []
+if "ls" not in [s.get("name") for s in r.get("stages", [])]:
+    errors.append(f"no 'ls' stage (the 12-parameter least squares): {r.get('stages')}")
+if not any("level" in w for w in r.get("warnings", [])):
+    errors.append("no warning says the floor was assumed level")
+print("\n".join("  " + e for e in errors) or "  ls stage, floor assumed level")
+sys.exit(1 if errors else 0)
+PY
+}
+
+# The same as imucal capture CSVs (the spec's format), one per face, on an absolute time base
+# (Unix time: the gaps between the files are the unrecorded moves).
+case_faces_files_imucal() {
+  write p2 --seed 17 --format imucal --protocol faces-once --split pose --time-base absolute \
+    --floor-tilt-deg 0.2 || return 1
+  mapfile -t f < <(files p2)
+  run p2 "${f[@]}"
+  want_rc p2 0 &&
+    checks params "$dir/p2.json" "$dir/p2/truth.json" --verdict warn --faces-once --gyro bias \
+      --multi-file &&
+    checks files "$dir/p2.json" "$dir/p2/truth.json" --verdict warn
+}
+
+# Six faces once in one file, the moves between them recorded (the gyroscope's scale is not
+# asserted: six faces once promise the accelerometer's 12 parameters).
+case_faces_once() {
+  write f1 --seed 18 --protocol faces-once --floor-tilt-deg 0.2 || return 1
+  run f1 "$(files f1)" --columns "$(columns f1)" --time-unit us
+  want_rc f1 0 &&
+    checks params "$dir/f1.json" "$dir/f1/truth.json" --verdict warn --faces-once --gyro bias
+}
+
+# A duplicated face: the file for +Z holds -Z's orientation, 0.005 degrees apart. Refused, or
+# calibrated with verdict warn; either way the report's reasons or stderr name both files and
+# the missing face.
+case_duplicate_face() {
+  write d1 --seed 19 --protocol faces-once --split pose --duplicate-face Z+=Z- || return 1
+  mapfile -t f < <(files d1)
+  run d1 "${f[@]}" --columns "$(columns d1)" --time-unit us
+  want_rc d1 0 3 || return 1
+  local verdict=refused
+  [[ $rc -eq 0 ]] && verdict=warn
+  checks names "$dir/d1.json" --verdict $verdict --stderr "$dir/d1.err" \
+    --want imu_posZ.csv --want imu_negZ.csv --want '+Z|Z+' &&
+    checks files "$dir/d1.json" "$dir/d1/truth.json" --verdict $verdict
+}
+
+# A rest noisier than the others stays one pose: a 7 s hold (the first of the Z- pair) with a
+# hand pressing on the unit now and then (5x the noise RMS), a motor running (a vibration of 8x
+# the noise RMS), or a sensor settling (5x the noise RMS, dying away, its mean converging
+# exponentially, 0.1 mg on average from the end).
+noisy_case() {
+  local name=$1 kind=$2 factor=$3 seed=$4
+  write "$name" --seed "$seed" --noisy-rest 6 --noisy-rest-kind "$kind" --noisy-rest-s 7 \
+    --noisy-rest-factor "$factor" || return 1
+  run "$name" "$(files "$name")" --columns "$(columns "$name")" --time-unit us
+  want_rc "$name" 0 &&
+    checks noisy "$dir/$name.json" "$dir/$name/truth.json" &&
+    checks params "$dir/$name.json" "$dir/$name/truth.json"
+}
+case_noisy_rest_hand() { noisy_case r1 hand 5 20; }
+case_noisy_rest_motor() { noisy_case r2 motor 8 21; }
+case_noisy_rest_settling() { noisy_case r3 settling 5 22; }
+
+# Stops too short: an IMU-TK style capture, a 10 s rest then 40 stops of 0.3-0.8 s; and the
+# same with the first stop as short. Refused (exit 3), saying the stops are too short, and the
+# refusal still writes the report with every pose and why it is not used.
+short_case() {
+  local name=$1 first=$2 seed=$3
+  write "$name" --seed "$seed" --protocol random --poses 40 --first-hold-s "$first" \
+    --hold-range-s 0.3,0.8 || return 1
+  run "$name" "$(files "$name")" --columns "$(columns "$name")" --time-unit us
+  want_rc "$name" 3 || return 1
+  grep -qi "too short" "$dir/$name.err" ||
+    { echo "  stderr does not say the stops are too short: $(cat "$dir/$name.err")"; return 1; }
+  checks refused "$dir/$name.json" --verdict refused
+}
+case_short_stops() { short_case g1 10 23; }
+case_short_stops_all() { short_case g2 0.6 24; }
+
+# A commented header line (# time ax ay az gx gy gz), space-delimited, named with --columns.
+case_commented_header() {
+  write h1 --seed 25 --commented-header --delimiter space --time-unit s \
+    --header time,ax,ay,az,gx,gy,gz || return 1
+  run h1 "$(files h1)" --columns "$(columns h1)" --time-unit s
+  want_rc h1 0 && checks params "$dir/h1.json" "$dir/h1/truth.json"
+}
+
+# A NUL byte at the start of line 2's time field: bad input (exit 2) naming the file and line,
+# the byte shown as \0 and the message not cut off by it.
+case_nul_byte() {
+  write z1 --seed 26 --nul-at 2 || return 1
+  rc=0
+  "$imucal" calibrate "$(files z1)" --columns "$(columns z1)" --time-unit us \
+    >"$dir/z1.out" 2>"$dir/z1.err" || rc=$?
+  [[ $rc -eq 2 ]] || { echo "  exit $rc, want 2: $(head -c 600 "$dir/z1.err")"; return 1; }
+  local err
+  err=$(tr '\0' '@' <"$dir/z1.err")
+  [[ $(tr -d '\0' <"$dir/z1.err" | wc -c) -eq $(wc -c <"$dir/z1.err") ]] ||
+    { echo "  stderr holds a raw NUL: $err"; return 1; }
+  grep -qF '\0' "$dir/z1.err" ||
+    { printf '  the byte is not shown as \\0: %s\n' "$err"; return 1; }
+  # The field goes on after the byte (its value was "\0" then "0"): the message is not cut.
+  grep -qE '\\0[^[:space:]]' "$dir/z1.err" ||
+    { echo "  the message stops at the byte: $err"; return 1; }
+  grep -qE 'imu\.csv(:2\b|.*line 2\b)' "$dir/z1.err" ||
+    { echo "  the message does not name imu.csv and line 2: $err"; return 1; }
+  echo "  $(head -1 "$dir/z1.err")"
+}
+
+cases=(quantised_si quantised_counts quantised_faces noise_free low_noise steady_turns faces_files
+  faces_files_imucal faces_once duplicate_face noisy_rest_hand noisy_rest_motor
+  noisy_rest_settling short_stops short_stops_all commented_header nul_byte)
+(($# > 0)) && cases=("$@")
+failed=()
+for c in "${cases[@]}"; do
+  declare -F "case_$c" >/dev/null || { echo "unknown case $c"; exit 1; }
+  echo "== $c"
+  if "case_$c"; then echo "   ok"; else echo "   FAIL: $c"; failed+=("$c"); fi
+done
+if ((${#failed[@]})); then
+  echo "FAIL: ${#failed[@]} of ${#cases[@]} cases: ${failed[*]}"
+  exit 1
+fi
+echo "PASS: ${#cases[@]} cases"
