@@ -17,6 +17,7 @@
 #include "server/services.h"
 #include "server/unary.h"
 #include "storage/sample_codec.h"
+#include "util/str_util.h"
 
 namespace imucal::server {
 namespace {
@@ -42,6 +43,14 @@ StreamRegistry::Options RegistryOptions(const SessionServiceOptions& o) {
       std::min({o.first_batch_timeout, o.stream_idle_timeout, o.watch_stall_timeout});
   r.tick = std::clamp(shortest / 4, absl::Milliseconds(10), absl::Seconds(1));
   return r;
+}
+
+// A refused solve's error: the refusal's name (core/calibrate/report.h) and core's description
+// of the capture and of what to record.
+std::string RefusalMessage(const core::CalibrationReport& report) {
+  if (!report.refusal) return "the capture cannot support a calibration";
+  return Cat("the capture cannot support a calibration (",
+             core::RefusalReasonName(report.refusal->reason), "): ", report.refusal->message);
 }
 
 absl::Status RequireSession(const std::string& session_id) {
@@ -446,7 +455,24 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
     absl::StatusOr<core::CalibrationReport> report =
         capture.ok() ? core::Calibrate(*capture, options)
                      : absl::StatusOr<core::CalibrationReport>(capture.status());
-    if (report.ok()) {
+    if (report.ok() && report->verdict == core::Verdict::kRefused) {
+      // The capture cannot determine even bias and scale: no version. The report (the poses
+      // found, why each interval is unusable) is kept with the failed solve, and the session
+      // goes back to open, its samples untouched, so that more poses can be recorded into it.
+      for (std::string& w : load_warnings) report->warnings.push_back(std::move(w));
+      report->device = (*live)->device.id;
+      const std::string error = RefusalMessage(*report);
+      absl::StatusOr<storage::Solve> failed =
+          store_->FailSolve(task.solve_id, error, formats::ReportToJson(*report), task.actor,
+                            storage::SessionState::kOpen);
+      if (failed.ok()) {
+        job.set_state(v1::JOB_STATE_FAILED);
+        job.set_error(ScrubMessage(error));
+        job.set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
+      } else {
+        failure = failed.status();
+      }
+    } else if (report.ok()) {
       for (std::string& w : load_warnings) report->warnings.push_back(std::move(w));
       std::lock_guard lock(version_mu_);
       absl::StatusOr<std::vector<storage::ParamVersion>> versions =
@@ -485,7 +511,7 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
       failure = report.status();
     }
   }
-  if (job.state() != v1::JOB_STATE_DONE) {
+  if (job.state() != v1::JOB_STATE_DONE && job.state() != v1::JOB_STATE_FAILED) {
     if (failure.ok()) failure = absl::InternalError("solve ended without a result");
     job.set_state(v1::JOB_STATE_FAILED);
     job.set_error(ClientMessage(failure));
@@ -558,6 +584,9 @@ absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& req
     if (!v.ok()) return v.status();
     response->set_verdict(std::string(storage::VerdictName(v->verdict)));
     response->set_activated(v->state != storage::VersionState::kCandidate);
+  } else if (solve->state == storage::SolveState::kFailed && !solve->report_json.empty()) {
+    // Only a refusal keeps a report with a failed solve (RunSolve).
+    response->set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
   }
   return absl::OkStatus();
 }
@@ -577,14 +606,19 @@ absl::Status SessionServiceImpl::DoGetReport(const v1::GetReportRequest& request
   if (!session.ok()) return session.status();
   absl::StatusOr<std::vector<storage::Solve>> solves = store_->ListSolves(request.session_id());
   if (!solves.ok()) return solves.status();
-  int version = 0;
+  // The latest solve that wrote a report: a version's, or a refusal's kept with its failed solve.
+  const storage::Solve* latest = nullptr;
   for (const storage::Solve& s : *solves)
-    if (s.version > 0) version = s.version;
-  if (version == 0) {
+    if (s.version > 0 || !s.report_json.empty()) latest = &s;
+  if (latest == nullptr) {
     return absl::NotFoundError(
         absl::StrCat("session ", request.session_id(), " has no solved report yet"));
   }
-  absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, version);
+  if (latest->version == 0) {
+    response->set_json(latest->report_json);
+    return absl::OkStatus();
+  }
+  absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, latest->version);
   if (!v.ok()) return v.status();
   response->set_json(v->report_json);
   return absl::OkStatus();

@@ -757,6 +757,83 @@ TEST_F(ServerTest, FinishedSolveJobsLeaveMemory) {
   }
 }
 
+// A capture that cannot support a calibration (two orientations: a rest, not a calibration)
+// is refused by core with a report, not an error. The server keeps that report with the failed
+// solve and makes no version; the session goes back to open with its samples, so the rest of
+// the capture streamed into it afterwards solves. GetSolveJob says "refused" before and after a
+// restart.
+TEST_F(ServerTest, ARefusedCalibrationKeepsItsReportAndTheSessionMakesNoVersion) {
+  Register("robot-refused");
+  grpc::Status s;
+  const v1::Session session = Create("robot-refused", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  const core::SimResult sim = Sim();
+  ASSERT_GE(sim.poses.size(), 3u);
+  std::vector<v1::SampleBatch> batches = Batches(sim.capture, session.id());
+  // The batches up to the middle of the move after the second pose.
+  const double cut_s = (sim.poses[1].t_end_s + sim.poses[2].t_start_s) / 2;
+  size_t head = 0;
+  while (head < batches.size() && batches[head].t_s(0) < cut_s) ++head;
+  ASSERT_GT(head, 0u);
+  ASSERT_LT(head, batches.size());
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(
+      Stream(std::vector<v1::SampleBatch>(batches.begin(), batches.begin() + head), &acks).ok());
+  const int64_t stored = GetSession(session.id()).samples();
+  ASSERT_GT(stored, 0);
+
+  // Watched from before the solve: a refusal is quick, and the watch ends when the solve does.
+  Watch watch(sessions_.get(), session.id());
+  ASSERT_TRUE(watch.WaitFor([](const auto& events, bool) { return !events.empty(); }));
+  v1::SolveSessionRequest req;
+  req.set_session_id(session.id());
+  req.set_seed(1);
+  v1::SolveJob job;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+  ASSERT_TRUE(watch.WaitFor([](const auto&, bool ended) { return ended; }, seconds(30)));
+  const std::string job_id = job.id();
+  for (int round = 0; round < 2; ++round) {  // then again after a restart (from storage)
+    SCOPED_TRACE(round == 0 ? "running since the solve" : "after a restart");
+    v1::GetSolveJobRequest get;
+    get.set_job_id(job_id);
+    ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
+    EXPECT_EQ(job.state(), v1::JOB_STATE_FAILED);
+    EXPECT_EQ(job.verdict(), "refused");
+    EXPECT_EQ(job.version(), 0);
+    EXPECT_EQ(job.error().rfind("the capture cannot support a calibration (", 0), 0u)
+        << job.error();
+    const v1::Session after = GetSession(session.id());
+    EXPECT_EQ(after.state(), v1::SESSION_STATE_OPEN);
+    EXPECT_EQ(after.samples(), stored);
+    EXPECT_EQ(after.version(), 0);
+    v1::ListVersionsRequest list;
+    list.set_device_id("robot-refused");
+    v1::ListVersionsResponse versions;
+    ASSERT_TRUE(params_->ListVersions(Ctx().get(), list, &versions).ok());
+    EXPECT_EQ(versions.versions_size(), 0);
+    const std::string report = ReportOf(session.id());
+    EXPECT_NE(report.find("\"verdict\": \"refused\""), std::string::npos) << report.substr(0, 600);
+    EXPECT_NE(report.find("\"refusal\""), std::string::npos);
+    if (round == 0) StartServer();
+  }
+
+  // The rest of the capture into the same session: it now calibrates.
+  ASSERT_TRUE(
+      Stream(std::vector<v1::SampleBatch>(batches.begin() + head, batches.end()), &acks).ok());
+  EXPECT_EQ(GetSession(session.id()).samples(), static_cast<int64_t>(sim.capture.size()));
+  Watch again(sessions_.get(), session.id());
+  ASSERT_TRUE(again.WaitFor([](const auto& events, bool) { return !events.empty(); }));
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+  ASSERT_TRUE(again.WaitFor([](const auto&, bool ended) { return ended; }, seconds(60)));
+  v1::GetSolveJobRequest get;
+  get.set_job_id(job.id());
+  ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
+  EXPECT_EQ(job.state(), v1::JOB_STATE_DONE) << job.error();
+  EXPECT_EQ(job.version(), 1);
+  EXPECT_EQ(GetSession(session.id()).state(), v1::SESSION_STATE_SOLVED);
+  EXPECT_EQ(ReportOf(session.id()).find("\"verdict\": \"refused\""), std::string::npos);
+}
+
 TEST_F(ServerTest, ResolvePromoteAndRollback) {
   Register("robot-4");
   grpc::Status s;
