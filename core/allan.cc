@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 #include "absl/status/status.h"
@@ -211,6 +212,11 @@ AxisFigures FitAllanFigures(const std::vector<double>& tau_s, const std::vector<
 
 absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
                                            const AccelParams& accel, const GyroParams& gyro) {
+  return ComputeNoise(capture, begin, end, SampleCorrection(accel, gyro, {}, 0.0));
+}
+
+absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
+                                           const SampleCorrection& correction) {
   if (begin >= end || end > capture.size()) {
     return absl::InvalidArgumentError(Cat("noise interval [", begin, ", ", end,
                                           ") outside the capture of ", capture.size(), " samples"));
@@ -236,9 +242,12 @@ absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin,
   std::vector<double> series[6];
   for (auto& s : series) s.reserve(n);
   for (size_t i = begin; i < end; ++i) {
-    const Eigen::Vector3d a = accel.Apply(capture.accel[i]);
-    const Eigen::Vector3d g = gyro.Apply(capture.gyro[i], a);
-    for (int k = 0; k < 3; ++k) series[k].push_back(a(k)), series[3 + k].push_back(g(k));
+    const CorrectedSample c = correction.Apply(
+        capture.accel[i], capture.gyro[i],
+        capture.has_temp() ? capture.temp[i] : std::numeric_limits<double>::quiet_NaN(),
+        capture.t_s[i]);
+    for (int k = 0; k < 3; ++k)
+      series[k].push_back(c.accel_m_s2(k)), series[3 + k].push_back(c.gyro_rad_s(k));
   }
   const std::vector<size_t> m = LogSpacedClusterSizes(n);
   NoiseAnalysis out;
@@ -278,7 +287,8 @@ absl::StatusOr<NoiseAnalysis> NoiseFromLongestInterval(const Capture& capture,
   }
   if (longest == nullptr) return absl::FailedPreconditionError("no used static interval");
   absl::StatusOr<NoiseAnalysis> out =
-      ComputeNoise(capture, longest->begin, longest->end, params.accel, params.gyro);
+      ComputeNoise(capture, longest->begin, longest->end,
+                   SampleCorrection(params, capture.t_s.empty() ? 0.0 : capture.t_s.front()));
   if (out.ok() && !params.gyro_calibrated && params.gyro_unit == GyroUnit::kCounts) {
     // A nominal matrix on raw counts gives no rad/s: the gyro figures would be in counts.
     out->figures.gyro = SensorNoise{};
