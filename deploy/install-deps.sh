@@ -4,6 +4,7 @@
 set -euo pipefail
 packages=(
   g++ cmake ninja-build pkg-config
+  ccache  # the plain, sanitizer and fuzzer trees share objects; a repeat CI run is served from it
   libceres-dev libeigen3-dev libabsl-dev nlohmann-json3-dev libboost-math-dev
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler libsqlite3-dev
   libtomlplusplus-dev  # imucald's configuration file (TOML)
