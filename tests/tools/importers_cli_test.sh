@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The importers through the real CLI, on files imucal did not write:
-#  - a ROS 2 bag and a EuRoC imu0/data.csv written by independent Python writers
-#    (tests/tools/write_rosbag2.py, write_euroc.py: standard library only, their own CDR and
-#    SQLite), from a simulated six-face capture with a known bias and scale, calibrated with
+#  - a ROS 2 bag (sqlite3 and MCAP) and a EuRoC imu0/data.csv written by independent Python
+#    writers (tests/tools/write_rosbag2.py, write_mcap.py, write_euroc.py: standard library and
+#    the zstd/lz4 tools only, their own CDR, SQLite and MCAP), from a simulated six-face capture with a known bias and scale, calibrated with
 #    `imucal calibrate --json` and compared with the writers' truth.json;
 #  - the real captures in ../shared/data/real through the column mapping (README "Vendor CSV").
 # Skips (exit 0, "SKIP") without python3; the real-capture part skips without the shared data.
@@ -130,6 +130,25 @@ echo "rosbag2 (jazzy): --topic /imu/data selects the capture"
 run bag2_topic "$dir/bag2" --topic /imu/data --json
 expect_ok bag2_topic
 check_truth "$dir/bag2_topic.out" "$dir/bag2.truth.json" || fail "rosbag2 jazzy --topic /imu/data"
+
+# --- ROS 2 MCAP (rosbag2's default storage since Iron), from tests/tools/write_mcap.py --------
+python3 "$here/write_mcap.py" "$dir/capture.mcap" --seed 3 --compression lz4 >/dev/null
+echo "mcap: a bare .mcap file (lz4 chunks, summary) is auto-detected and calibrates"
+run mcap_auto "$dir/capture.mcap"
+expect_ok mcap_auto
+head -1 "$dir/mcap_auto.out" | grep -qF "(mcap, " || fail "summary: $(head -1 "$dir/mcap_auto.out")"
+run mcap_json "$dir/capture.mcap" --json
+expect_ok mcap_json
+check_truth "$dir/mcap_json.out" "$dir/capture.mcap.truth.json" || fail "mcap file"
+python3 "$here/write_mcap.py" "$dir/mcap_bag" --bag-dir --seed 4 --compression zstd \
+  --no-summary --decoy-imu /imu2/data >/dev/null
+echo "mcap: a bag directory (zstd chunks, no summary) with two Imu topics needs --topic"
+run mcap_bag_ambiguous "$dir/mcap_bag" --json
+[[ $rc -eq 2 ]] || fail "mcap bag, two Imu topics, no --topic: exit $rc, want 2"
+grep -qF "/imu2/data" "$dir/mcap_bag_ambiguous.err" || fail "error does not name /imu2/data: $(cat "$dir/mcap_bag_ambiguous.err")"
+run mcap_bag "$dir/mcap_bag" --topic /imu/data --json
+expect_ok mcap_bag
+check_truth "$dir/mcap_bag.out" "$dir/mcap_bag.truth.json" || fail "mcap bag --topic /imu/data"
 
 # --- EuRoC imu0/data.csv ----------------------------------------------------------------------
 python3 "$here/write_euroc.py" "$dir/euroc" --seed 5 >/dev/null
