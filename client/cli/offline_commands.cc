@@ -115,33 +115,6 @@ constexpr char kSimulateHelp[] =
     "                      streamed with `imucal upload`, the guide shows a failed pair and its\n"
     "                      re-do\n";
 
-absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
-  importers::ImportOptions o;
-  if (auto f = a.Get("format")) o.format = *f;
-  if (auto u = a.Get("accel-unit")) {
-    auto p = core::ParseAccelUnit(*u);
-    if (!p.ok())
-      return absl::InvalidArgumentError("--accel-unit: " + std::string(p.status().message()));
-    o.accel_unit = *p;
-  }
-  if (auto u = a.Get("gyro-unit")) {
-    auto p = core::ParseGyroUnit(*u);
-    if (!p.ok())
-      return absl::InvalidArgumentError("--gyro-unit: " + std::string(p.status().message()));
-    o.gyro_unit = *p;
-  }
-  if (a.Get("gravity")) {
-    auto g = a.GetDouble("gravity", 0);
-    if (!g.ok()) return g.status();
-    if (!(*g > 1 && *g < 20))
-      return absl::InvalidArgumentError("--gravity: expected m/s^2 between 1 and 20");
-    o.gravity_m_s2 = *g;
-  }
-  if (auto d = a.Get("device")) o.device = *d;
-  if (absl::Status s = ApplyImportFlags(a, &o); !s.ok()) return s;
-  return o;
-}
-
 absl::StatusOr<core::SimOptions> SimOptionsFrom(const Args& a) {
   core::SimOptions o;
   if (auto p = a.Get("protocol")) {
@@ -214,6 +187,33 @@ core::ParamSet TruthParams(const core::SimResult& sim) {
 }
 
 }  // namespace
+
+absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
+  importers::ImportOptions o;
+  if (auto f = a.Get("format")) o.format = *f;
+  if (auto u = a.Get("accel-unit")) {
+    auto p = core::ParseAccelUnit(*u);
+    if (!p.ok())
+      return absl::InvalidArgumentError("--accel-unit: " + std::string(p.status().message()));
+    o.accel_unit = *p;
+  }
+  if (auto u = a.Get("gyro-unit")) {
+    auto p = core::ParseGyroUnit(*u);
+    if (!p.ok())
+      return absl::InvalidArgumentError("--gyro-unit: " + std::string(p.status().message()));
+    o.gyro_unit = *p;
+  }
+  if (a.Get("gravity")) {
+    auto g = a.GetDouble("gravity", 0);
+    if (!g.ok()) return g.status();
+    if (!(*g > 1 && *g < 20))
+      return absl::InvalidArgumentError("--gravity: expected m/s^2 between 1 and 20");
+    o.gravity_m_s2 = *g;
+  }
+  if (auto d = a.Get("device")) o.device = *d;
+  if (absl::Status s = ApplyImportFlags(a, &o); !s.ok()) return s;
+  return o;
+}
 
 // Applies `params` to every sample of `in` through the SDK's Corrector (as a robot does).
 absl::StatusOr<core::Capture> ApplyParams(const core::ParamSet& params, const core::Capture& in) {
