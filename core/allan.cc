@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 #include "absl/status/status.h"
@@ -290,6 +291,11 @@ AxisReadings ReadAllanFigures(const std::vector<double>& tau_s, const std::vecto
 
 absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
                                            const AccelParams& accel, const GyroParams& gyro) {
+  return ComputeNoise(capture, begin, end, SampleCorrection(accel, gyro, {}, 0.0));
+}
+
+absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
+                                           const SampleCorrection& correction) {
   if (begin >= end || end > capture.size()) {
     return absl::InvalidArgumentError(Cat("noise interval [", begin, ", ", end,
                                           ") outside the capture of ", capture.size(), " samples"));
@@ -331,8 +337,11 @@ absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin,
   for (int k = 0; k < 6; ++k) {
     series.clear();
     for (size_t i = begin; i < end; ++i) {
-      const Eigen::Vector3d a = accel.Apply(capture.accel[i]);
-      series.push_back(k < 3 ? a(k) : gyro.Apply(capture.gyro[i], a)(k - 3));
+      const CorrectedSample corrected = correction.Apply(
+          capture.accel[i], capture.gyro[i],
+          capture.has_temp() ? capture.temp[i] : std::numeric_limits<double>::quiet_NaN(),
+          capture.t_s[i]);
+      series.push_back(k < 3 ? corrected.accel_m_s2(k) : corrected.gyro_rad_s(k - 3));
     }
     const std::vector<double> adev = OverlappingAllanDeviation(series, rate_hz, m);
     out.readings[static_cast<size_t>(k)] = ReadAllanFigures(c.tau_s, adev, n, rate_hz);
@@ -359,7 +368,8 @@ absl::StatusOr<NoiseAnalysis> NoiseFromLongestInterval(const Capture& capture,
   }
   if (longest == nullptr) return absl::FailedPreconditionError("no used static interval");
   absl::StatusOr<NoiseAnalysis> out =
-      ComputeNoise(capture, longest->begin, longest->end, params.accel, params.gyro);
+      ComputeNoise(capture, longest->begin, longest->end,
+                   SampleCorrection(params, capture.t_s.empty() ? 0.0 : capture.t_s.front()));
   if (out.ok() && !params.gyro_calibrated && params.gyro_unit == GyroUnit::kCounts) {
     // A nominal matrix on raw counts gives no rad/s: the gyro figures would be in counts.
     out->figures.gyro = SensorNoise{};

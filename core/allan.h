@@ -33,6 +33,7 @@
 #include "Eigen/Core"
 #include "absl/status/statusor.h"
 #include "core/capture.h"
+#include "core/correction.h"
 #include "core/model.h"
 #include "core/params.h"
 #include "core/static_detector.h"
@@ -125,9 +126,12 @@ struct NoiseAnalysis {
 // from drift).
 absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
                                            const AccelParams& accel, const GyroParams& gyro);
+// The same, each sample calibrated by `correction` (a parameter set with its effects).
+absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
+                                           const SampleCorrection& correction);
 
 // What the pipeline calls: the noise of the longest used static interval (the initial rest of a
-// protocol capture), calibrated with `params`. FailedPrecondition when no used interval is long
+// protocol capture), calibrated with `params` as the SDK applies them (effects included). FailedPrecondition when no used interval is long
 // enough.
 absl::StatusOr<NoiseAnalysis> NoiseFromLongestInterval(const Capture& capture,
                                                        const std::vector<StaticInterval>& intervals,

@@ -97,19 +97,30 @@ Eigen::Vector3d RunStd(const std::vector<Eigen::Vector3d>& x, size_t b, size_t e
 // its grid) and reads the same value through a fifth of a rest does not. A sensor that shows no
 // noise (readings constant at rest: noise-free, or quieter than its grid) reads its extreme at
 // rest legitimately; nothing tells a rail there, and the fit's residuals judge it.
-bool PiledOnRail(const std::vector<Eigen::Vector3d>& x, size_t b, size_t e,
-                 const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
+bool PiledOnRail(const std::array<std::vector<uint32_t>, 3>& at_rail, size_t b, size_t e,
                  const Eigen::Vector3d& noise_std, const Eigen::Vector3d& noise_floor, int* axis) {
   for (int j = 0; j < 3; ++j) {
     if (!(noise_std(j) > 1.5 * noise_floor(j))) continue;
-    size_t at_rail = 0;
-    for (size_t i = b; i < e; ++i) at_rail += (x[i](j) == lo(j) || x[i](j) == hi(j));
-    if (at_rail * 5 >= e - b && at_rail >= 3) {
+    const std::vector<uint32_t>& v = at_rail[static_cast<size_t>(j)];
+    const size_t count = static_cast<size_t>(std::lower_bound(v.begin(), v.end(), e) -
+                                             std::lower_bound(v.begin(), v.end(), b));
+    if (count * 5 >= e - b && count >= 3) {
       *axis = j;
       return true;
     }
   }
   return false;
+}
+
+// The samples of each axis that read its extreme (`lo` or `hi`).
+std::array<std::vector<uint32_t>, 3> AtRail(const std::vector<Eigen::Vector3d>& x,
+                                            const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+  std::array<std::vector<uint32_t>, 3> out;
+  for (size_t i = 0; i < x.size(); ++i)
+    for (int j = 0; j < 3; ++j)
+      if (x[i](j) == lo(j) || x[i](j) == hi(j))
+        out[static_cast<size_t>(j)].push_back(static_cast<uint32_t>(i));
+  return out;
 }
 
 void Extremes(const std::vector<Eigen::Vector3d>& x, Eigen::Vector3d* lo, Eigen::Vector3d* hi) {
@@ -309,10 +320,10 @@ void Classify(const Capture& capture, const MotionSignal& motion, const NoiseLev
     reject(IntervalIssue::kTooShort,
            absl::StrFormat("too short: held %.1f s, needs %.1f s; hold the pose longer", duration,
                            options.min_static_s));
-  } else if (PiledOnRail(capture.accel, s->begin, s->end, motion.accel_lo, motion.accel_hi,
-                         noise.accel_std, noise.accel_floor, &axis) ||
-             PiledOnRail(capture.gyro, s->begin, s->end, motion.gyro_lo, motion.gyro_hi,
-                         noise.gyro_std, noise.gyro_floor, &axis)) {
+  } else if (PiledOnRail(motion.accel_at_rail, s->begin, s->end, noise.accel_std,
+                         noise.accel_floor, &axis) ||
+             PiledOnRail(motion.gyro_at_rail, s->begin, s->end, noise.gyro_std,
+                         noise.gyro_floor, &axis)) {
     reject(IntervalIssue::kSaturated,
            absl::StrFormat(
                "saturated: axis %c sits on the sensor's range limit; use a larger range setting",
@@ -359,6 +370,8 @@ MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOpt
   out.window = w;
   Extremes(capture.accel, &out.accel_lo, &out.accel_hi);
   Extremes(capture.gyro, &out.gyro_lo, &out.gyro_hi);
+  out.accel_at_rail = AtRail(capture.accel, out.accel_lo, out.accel_hi);
+  out.gyro_at_rail = AtRail(capture.gyro, out.gyro_lo, out.gyro_hi);
   const PrefixMoments acc(capture.accel), gyr(capture.gyro);
   out.accel_var.resize(n);
   out.gyro_var.resize(n);

@@ -10,6 +10,8 @@
 #ifndef IMUCAL_CORE_STATIC_DETECTOR_H_
 #define IMUCAL_CORE_STATIC_DETECTOR_H_
 
+#include <array>
+#include <cstdint>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -90,6 +92,9 @@ struct MotionSignal {
   size_t window = 0;  // samples
   // The extreme reading of each axis over the capture: a sensor's range limit shows up here.
   Eigen::Vector3d accel_lo, accel_hi, gyro_lo, gyro_hi;
+  // Per axis, the samples that read its extreme, in order: an interval's count of them is two
+  // binary searches, not a pass over its samples at every threshold the sweep tries.
+  std::array<std::vector<uint32_t>, 3> accel_at_rail, gyro_at_rail;
 };
 
 // MotionSignal::mean_shift at or under this is still (4: a rest's |N(0,1)| on any of six axes

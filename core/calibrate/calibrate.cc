@@ -176,10 +176,6 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual);
   ReportGyroFit(cap, gyro.planned, rough.turns, gyro.fit, &rep);
   timer.Mark("report");
-  if (auto noise = NoiseFromLongestInterval(cap, intervals, rep.params); noise.ok()) {
-    rep.params.noise = std::move(noise->figures);
-    rep.allan = std::move(noise->curves);
-  }
 
   // -> effects: close the loop
   if (opt.effects.enabled) {
@@ -187,6 +183,14 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     if (!s.ok()) return s;
     timer.Mark("effects");
   }
+
+  // -> the figures a robot will see: the final parameter set applied as the SDK applies it
+  ReportFinalFigures(cap, intervals, accel->used, gyro.planned, &rep);
+  if (auto noise = NoiseFromLongestInterval(cap, intervals, rep.params); noise.ok()) {
+    rep.params.noise = std::move(noise->figures);
+    rep.allan = std::move(noise->curves);
+  }
+  timer.Mark("final");
 
   // -> verdict. Undetermined first-order parameters make it warn at best; undetermined
   //    second-order terms do not (six-face determines seeds/000's 12-parameter model

@@ -1,10 +1,13 @@
 #include "core/calibrate/residuals.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
 #include "absl/strings/str_format.h"
 #include "core/calibrate/protocol_checks.h"
+#include "core/correction.h"
+#include "core/gyro_solver.h"
 
 namespace imucal::core::pipeline {
 namespace {
@@ -190,6 +193,68 @@ std::vector<ParameterSpread> ParameterSpreads(const ParamSet& ps, const AccelMas
                        ps.stderrs.gyro_matrix(r, c), kGyroPlausibleRelative * scale});
   }
   return out;
+}
+
+void ReportFinalFigures(const Capture& cap, const std::vector<StaticInterval>& ivs,
+                        const std::vector<int>& used, const std::vector<PlannedMove>& planned,
+                        CalibrationReport* rep) {
+  const ParamSet& ps = rep->params;
+  if (!ps.gyro_calibrated && std::isnan(NominalGyroToSi(cap.gyro_unit))) return;
+  if (cap.t_s.empty()) return;
+  constexpr double kNoTemp = std::numeric_limits<double>::quiet_NaN();
+  const SampleCorrection correct(ps, cap.t_s.front());
+  const auto at = [&](size_t i) {
+    return correct.Apply(cap.accel[i], cap.gyro[i], cap.has_temp() ? cap.temp[i] : kNoTemp,
+                         cap.t_s[i]);
+  };
+  // A pose's mean of the corrected samples (the SDK corrects each sample, not the mean).
+  const auto pose_mean = [&](const StaticInterval& s) {
+    CorrectedSample m;
+    for (size_t i = s.begin; i < s.end; ++i) {
+      const CorrectedSample c = at(i);
+      m.accel_m_s2 += c.accel_m_s2;
+      m.gyro_rad_s += c.gyro_rad_s;
+    }
+    const double n = static_cast<double>(std::max<size_t>(1, s.end - s.begin));
+    m.accel_m_s2 /= n;
+    m.gyro_rad_s /= n;
+    return m;
+  };
+  double gyro_ss = 0;
+  for (int u : used) gyro_ss += pose_mean(ivs[static_cast<size_t>(u)]).gyro_rad_s.squaredNorm();
+  if (!used.empty()) {
+    rep->residual.gyro_static_rms_rad_s = std::sqrt(gyro_ss / static_cast<double>(used.size()));
+    rep->params.quality_gyro_static_rms_rad_s = rep->residual.gyro_static_rms_rad_s;
+  }
+  std::vector<double> errors_deg;
+  for (const PlannedMove& pm : planned) {
+    const StaticInterval& a = ivs[static_cast<size_t>(pm.from_pose)];
+    const StaticInterval& b = ivs[static_cast<size_t>(pm.to_pose)];
+    // The move's samples on their own, rates already in rad/s in the body frame.
+    const size_t first = pm.move.begin, last = pm.move.end;
+    std::vector<double> t_s(cap.t_s.begin() + static_cast<long>(first),
+                            cap.t_s.begin() + static_cast<long>(last) + 1);
+    std::vector<Eigen::Vector3d> rate;
+    rate.reserve(t_s.size());
+    for (size_t i = first; i <= last; ++i) rate.push_back(at(i).gyro_rad_s);
+    GyroMove m;
+    m.begin = 0;
+    m.end = last - first;
+    m.up_before = pose_mean(a).accel_m_s2.normalized();
+    m.up_after = pose_mean(b).accel_m_s2.normalized();
+    const Eigen::Vector3d predicted =
+        PredictUpAfterMove(t_s, rate, m, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(),
+                           /*interpolate_bias=*/false);
+    const double error_deg =
+        std::atan2(predicted.cross(m.up_after).norm(), predicted.dot(m.up_after)) * kRadToDeg;
+    errors_deg.push_back(error_deg);
+    for (MoveReport& r : rep->moves)
+      if (r.from_pose == pm.from_pose && r.to_pose == pm.to_pose) r.error_deg = error_deg;
+  }
+  if (!errors_deg.empty()) {
+    rep->residual.move_rms_deg = RmsFinite(errors_deg);
+    rep->residual.move_max_deg = MaxAbsFinite(errors_deg);
+  }
 }
 
 Eigen::Vector3d CorrectedSpecificForce(const AccelParams& accel, const std::vector<Effect>& effects,
