@@ -21,7 +21,6 @@ compressed with the `zstd` and `lz4` command-line tools (the LZ4 frame format), 
 [--no-summary] [--no-chunks] [--chunk-bytes N] [imu_sim and write_rosbag2 options]
 """
 import argparse
-import json
 import os
 import struct
 import subprocess
@@ -213,11 +212,7 @@ def main():
     parser.add_argument("--no-chunks", action="store_true", help="messages outside chunks")
     parser.add_argument("--chunk-bytes", type=int, default=65536,
                         help="uncompressed size at which a chunk is closed")
-    parser.add_argument("--truth", help="truth JSON (default: OUT.truth.json)")
-    parser.add_argument("--topic", default="/imu/data")
-    parser.add_argument("--frame-id", default="imu_link")
-    parser.add_argument("--decoy-imu", metavar="TOPIC", help="a second Imu topic")
-    imu_sim.add_arguments(parser)
+    write_rosbag2.add_bag_arguments(parser)
     args = parser.parse_args()
     samples, truth = imu_sim.simulate(args)
     topics = write_rosbag2.recorded_topics(args)
@@ -231,12 +226,7 @@ def main():
             f.write(metadata_yaml(name, topics, counts, rows))
     else:
         write_mcap(args.out, args, topics, rows)
-    truth["topic"] = args.topic
-    truth["topics"] = {name: type_name for name, type_name in topics.values()}
-    truth["first_stamp_ns"] = write_rosbag2.T0_NS
-    truth_path = args.truth or os.path.normpath(args.out) + ".truth.json"
-    with open(truth_path, "w") as f:
-        json.dump(truth, f, indent=1)
+    write_rosbag2.write_truth(truth, args, topics, args.out)
     print(args.out)
 
 

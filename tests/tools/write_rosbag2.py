@@ -143,6 +143,24 @@ def recorded_rows(args, samples):
     return rows
 
 
+def add_bag_arguments(parser):
+    """The options both bag writers take (this one and write_mcap.py), then imu_sim's."""
+    parser.add_argument("--truth", help="truth JSON (default: OUT.truth.json)")
+    parser.add_argument("--topic", default="/imu/data")
+    parser.add_argument("--frame-id", default="imu_link")
+    parser.add_argument("--decoy-imu", metavar="TOPIC", help="a second Imu topic")
+    imu_sim.add_arguments(parser)
+
+
+def write_truth(truth, args, topics, out):
+    """The simulation's truth with the bag's topics, to --truth or OUT.truth.json."""
+    truth["topic"] = args.topic
+    truth["topics"] = {name: type_name for name, type_name in topics.values()}
+    truth["first_stamp_ns"] = T0_NS
+    with open(args.truth or os.path.normpath(out) + ".truth.json", "w") as f:
+        json.dump(truth, f, indent=1)
+
+
 def create_tables(db, distro):
     """The schema of rosbag2_storage_sqlite3 (sqlite_storage.cpp): `schema` records its version
     (3 in Humble, 4 with `metadata` and type_description_hash from Iron on)."""
@@ -212,12 +230,8 @@ def metadata_yaml(distro, db_name, topics, counts, start_ns, end_ns):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bag_dir", help="created; must not exist (as with ros2 bag record -o)")
-    parser.add_argument("--truth", help="truth JSON (default: BAG_DIR.truth.json)")
     parser.add_argument("--distro", choices=["humble", "jazzy"], default="humble")
-    parser.add_argument("--topic", default="/imu/data")
-    parser.add_argument("--frame-id", default="imu_link")
-    parser.add_argument("--decoy-imu", metavar="TOPIC", help="a second Imu topic")
-    imu_sim.add_arguments(parser)
+    add_bag_arguments(parser)
     args = parser.parse_args()
     samples, truth = imu_sim.simulate(args)
 
@@ -241,12 +255,7 @@ def main():
     counts = {topic_id: sum(1 for r in rows if r[1] == topic_id) for topic_id in topics}
     with open(os.path.join(args.bag_dir, "metadata.yaml"), "w") as f:
         f.write(metadata_yaml(args.distro, db_name, topics, counts, rows[0][0], rows[-1][0]))
-    truth["topic"] = args.topic
-    truth["topics"] = {name: type_name for name, type_name in topics.values()}
-    truth["first_stamp_ns"] = T0_NS
-    truth_path = args.truth or os.path.normpath(args.bag_dir) + ".truth.json"
-    with open(truth_path, "w") as f:
-        json.dump(truth, f, indent=1)
+    write_truth(truth, args, topics, args.bag_dir)
     print(args.bag_dir)
 
 
