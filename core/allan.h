@@ -131,8 +131,8 @@ absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin,
                                            const SampleCorrection& correction);
 
 // What the pipeline calls: the noise of the longest used static interval (the initial rest of a
-// protocol capture), calibrated with `params` as the SDK applies them (effects included). FailedPrecondition when no used interval is long
-// enough.
+// protocol capture), calibrated with `params` as the SDK applies them (effects included).
+// FailedPrecondition when no used interval is long enough.
 absl::StatusOr<NoiseAnalysis> NoiseFromLongestInterval(const Capture& capture,
                                                        const std::vector<StaticInterval>& intervals,
                                                        const ParamSet& params);

@@ -179,6 +179,7 @@ std::string ReportToJson(const core::CalibrationReport& r) {
                    {"gyro_static_rms", res.gyro_static_rms_rad_s},
                    {"gravity_direction_rms_deg", Num(res.move_rms_deg)},
                    {"gravity_direction_max_deg", Num(res.move_max_deg)},
+                   {"gravity_direction_fit_rms_deg", Num(res.move_fit_rms_deg)},
                    {"gravity_direction_heldout_rms_deg", Num(res.move_heldout_rms_deg)},
                    {"gravity_direction_heldout_max_deg", Num(res.move_heldout_max_deg)}};
   json params = json::parse(ParamSetToJson(r.params));

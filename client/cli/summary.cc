@@ -100,7 +100,10 @@ std::string FormatSummary(const core::CalibrationReport& r) {
     for (const auto& w : r.warnings) absl::StrAppendFormat(&s, "warning     %s\n", w);
     return s;
   }
-  s += "stages      ";
+  // Each stage's unweighted |a| - g RMS over the used poses; bsas and lm minimise the cost
+  // weighted by each pose's noise (and the face references' priors), so theirs may sit above ls.
+  s += "stages      (|a|-g RMS, unweighted; ls fits it, bsas and lm the noise-weighted cost)\n";
+  s += "            ";
   for (const auto& st : r.stages)
     absl::StrAppendFormat(&s, "%s %.1f ug (%.1f ms)   ", st.name, 1e6 * st.accel_rms_m_s2 / g,
                           st.ms);
@@ -127,9 +130,11 @@ std::string FormatSummary(const core::CalibrationReport& r) {
   if (std::isfinite(res.move_rms_deg)) {
     absl::StrAppendFormat(
         &s,
-        "            gravity direction after %d moves: RMS %.3f deg, max %.3f deg; held out "
-        "RMS %.3f deg, max %.3f deg\n",
-        static_cast<int>(r.moves.size()), res.move_rms_deg, res.move_max_deg,
+        "            gravity direction after %d moves, final parameters as a robot applies them: "
+        "RMS %.3f deg, max %.3f deg\n"
+        "            the gyroscope fit's own (bias between poses): RMS %.3f deg; held out RMS "
+        "%.3f deg, max %.3f deg\n",
+        static_cast<int>(r.moves.size()), res.move_rms_deg, res.move_max_deg, res.move_fit_rms_deg,
         res.move_heldout_rms_deg, res.move_heldout_max_deg);
   }
   absl::StrAppendFormat(&s, "parameters  (inverse model raw -> SI; see `model` in the JSON)\n");

@@ -73,6 +73,7 @@ VerdictInputs VerdictInputsOf(const CalibrationReport& rep, const AccelStage& ac
   const double p = static_cast<double>(std::count(accel.free.begin(), accel.free.end(), true));
   if (n > p) in.accel_heldout_inflation = n / (n - p);
   in.move_rms_deg = rep.residual.move_rms_deg;
+  in.move_fit_rms_deg = rep.residual.move_fit_rms_deg;
   in.move_heldout_rms_deg = rep.residual.move_heldout_rms_deg;
   in.parameters = ParameterSpreads(rep.params, accel.free);
   in.incomplete = accel.incomplete;
@@ -185,7 +186,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   }
 
   // -> the figures a robot will see: the final parameter set applied as the SDK applies it
-  ReportFinalFigures(cap, intervals, accel->used, gyro.planned, &rep);
+  ReportFinalFigures(cap, intervals, gyro.planned, &rep);
   if (auto noise = NoiseFromLongestInterval(cap, intervals, rep.params); noise.ok()) {
     rep.params.noise = std::move(noise->figures);
     rep.allan = std::move(noise->curves);

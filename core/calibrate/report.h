@@ -59,8 +59,12 @@ struct Residuals {
   double accel_heldout_rms_m_s2 = std::numeric_limits<double>::quiet_NaN();
   double accel_heldout_max_m_s2 = std::numeric_limits<double>::quiet_NaN();
   double gyro_static_rms_rad_s = 0;  // |calibrated rate| over the static poses
+  // The gravity direction after the moves with the final parameter set as the SDK applies it
+  // (ReportFinalFigures), and as the gyroscope's fit left it (bias interpolated between each
+  // move's poses, the ups before the effects): the held-out figures compare with the fit's.
   double move_rms_deg = std::numeric_limits<double>::quiet_NaN();
   double move_max_deg = std::numeric_limits<double>::quiet_NaN();
+  double move_fit_rms_deg = std::numeric_limits<double>::quiet_NaN();
   double move_heldout_rms_deg = std::numeric_limits<double>::quiet_NaN();
   double move_heldout_max_deg = std::numeric_limits<double>::quiet_NaN();
 };

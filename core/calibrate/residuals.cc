@@ -79,12 +79,13 @@ void ReportGyroFit(const Capture& cap, const std::vector<PlannedMove>& planned,
                    const std::vector<TurnCandidate>& turns, const GyroFit& gyro,
                    CalibrationReport* rep) {
   rep->moves.clear();
-  rep->residual.move_rms_deg = rep->residual.move_max_deg = kNaN;
+  rep->residual.move_rms_deg = rep->residual.move_max_deg = rep->residual.move_fit_rms_deg = kNaN;
   rep->residual.move_heldout_rms_deg = rep->residual.move_heldout_max_deg = kNaN;
   for (TurnReport& t : rep->turns) t.error_deg = kNaN;
   if (gyro.result) {
     const auto& gr = *gyro.result;
     rep->residual.move_rms_deg = Rms(gr.move_error_rad) * kRadToDeg;
+    rep->residual.move_fit_rms_deg = rep->residual.move_rms_deg;
     rep->residual.move_max_deg = MaxAbsFinite(gr.move_error_rad) * kRadToDeg;
     if (!gr.heldout_error_rad.empty()) {
       rep->residual.move_heldout_rms_deg = RmsFinite(gr.heldout_error_rad) * kRadToDeg;
@@ -196,8 +197,7 @@ std::vector<ParameterSpread> ParameterSpreads(const ParamSet& ps, const AccelMas
 }
 
 void ReportFinalFigures(const Capture& cap, const std::vector<StaticInterval>& ivs,
-                        const std::vector<int>& used, const std::vector<PlannedMove>& planned,
-                        CalibrationReport* rep) {
+                        const std::vector<PlannedMove>& planned, CalibrationReport* rep) {
   const ParamSet& ps = rep->params;
   if (!ps.gyro_calibrated && std::isnan(NominalGyroToSi(cap.gyro_unit))) return;
   if (cap.t_s.empty()) return;
@@ -220,12 +220,6 @@ void ReportFinalFigures(const Capture& cap, const std::vector<StaticInterval>& i
     m.gyro_rad_s /= n;
     return m;
   };
-  double gyro_ss = 0;
-  for (int u : used) gyro_ss += pose_mean(ivs[static_cast<size_t>(u)]).gyro_rad_s.squaredNorm();
-  if (!used.empty()) {
-    rep->residual.gyro_static_rms_rad_s = std::sqrt(gyro_ss / static_cast<double>(used.size()));
-    rep->params.quality_gyro_static_rms_rad_s = rep->residual.gyro_static_rms_rad_s;
-  }
   std::vector<double> errors_deg;
   for (const PlannedMove& pm : planned) {
     const StaticInterval& a = ivs[static_cast<size_t>(pm.from_pose)];

@@ -53,14 +53,13 @@ void ReportGyroFit(const Capture& capture, const std::vector<PlannedMove>& plann
 // (core/correction.h: the stored bias, effects included), replacing the fits' own:
 //   - each move's gravity-direction error (its in-sample figure; the held-out one stays the
 //     fit's, a refit without the move), their RMS and maximum: the corrected rates integrated
-//     over the move, the ups of its two poses corrected;
-//   - the static rate's RMS over the used poses.
+//     over the move, the ups of its two poses corrected.
+// (The static rate's RMS is already the stored model's: GyroStaticRms, or the effects stage's.)
 // The fits' figures differ: the gyroscope's fit interpolates the bias between each move's poses
 // and its ups come from the accelerometer before the effects were added. Does nothing when the
 // gyroscope's output is not in rad/s (neither calibrated nor a known unit).
 void ReportFinalFigures(const Capture& capture, const std::vector<StaticInterval>& intervals,
-                        const std::vector<int>& used, const std::vector<PlannedMove>& planned,
-                        CalibrationReport* report);
+                        const std::vector<PlannedMove>& planned, CalibrationReport* report);
 
 // One report per interval (used or not): calibrated up direction, face, and for used poses the
 // residuals of `residuals` (in the order of `used`).

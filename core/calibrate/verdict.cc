@@ -59,6 +59,8 @@ VerdictResult JudgeVerdict(const VerdictInputs& in) {
     }
   }
   const double move = in.move_rms_deg, move_heldout = in.move_heldout_rms_deg;
+  // The held-out figure is the fit's: it compares with the fit's in-sample one.
+  const double move_fit = std::isfinite(in.move_fit_rms_deg) ? in.move_fit_rms_deg : move;
   if (std::isfinite(move) && move > kMoveFailRmsDeg) {
     fail.push_back(
         absl::StrFormat("gravity direction after the moves %.2f deg RMS is above the %.0f deg gate",
@@ -69,7 +71,7 @@ VerdictResult JudgeVerdict(const VerdictInputs& in) {
   }
   if (std::isfinite(move_heldout) &&
       (move_heldout > kMoveFailRmsDeg ||
-       (move_heldout > kMovePassRmsDeg && move_heldout > kHeldOutFailRatio * move))) {
+       (move_heldout > kMovePassRmsDeg && move_heldout > kHeldOutFailRatio * move_fit))) {
     fail.push_back(absl::StrFormat(
         "gravity direction after the moves, held out, %.2f deg RMS (in-sample %.2f deg): the "
         "gyroscope fit does not predict the moves it was not fitted to",

@@ -17,8 +17,9 @@
 //                                             fail when above 0.05 m/s^2 after dividing by
 //                                             sqrt(k) (the noise a held-out residual stands for)
 //   gravity direction after moves, in-sample  warn > 1 degree RMS, fail > 5 degrees RMS
-//   gravity direction after moves, held out   fail > 5 degrees RMS, or > 5 x the in-sample RMS
-//                                             when above 1 degree
+//   gravity direction after moves, held out   fail > 5 degrees RMS, or > 5 x the gyroscope fit's
+//                                             own in-sample RMS when above 1 degree (the held-out
+//                                             figure is the fit's, a refit without the move)
 //   every estimated parameter                 fail when its standard error is wider than the range
 //                                             a sensor plausibly has (the data did not determine
 //                                             it; accel_solver.h AccelPlausibleRange, and
@@ -76,6 +77,7 @@ struct VerdictInputs {
   // unknown).
   double accel_heldout_inflation = 1;
   double move_rms_deg = kNone;
+  double move_fit_rms_deg = kNone;  // the fit's own in-sample figure, beside its held-out one
   double move_heldout_rms_deg = kNone;
   std::vector<ParameterSpread> parameters;
   // Why the model is incomplete or assumed (at best warn), in a technician's words.

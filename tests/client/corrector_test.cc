@@ -14,6 +14,7 @@
 
 #include "Eigen/Core"
 #include "absl/strings/match.h"
+#include "core/correction.h"
 #include "core/model.h"
 #include "core/params.h"
 #include "gtest/gtest.h"
@@ -304,6 +305,40 @@ TEST(CorrectorTest, CreateRejectsInvalidParameters) {
   ExpectRejected(p, "effects[0].axis");
   p = IdentityWithEffects({MakeEffect(core::Sensor::kGyro, 1, "ax", kNan)});
   ExpectRejected(p, "effects[0].coefficient: not finite");
+}
+
+// The report's figures are computed with core::SampleCorrection: it must give what a robot's
+// Corrector gives, for every kind of effect, with and without a temperature.
+TEST(CorrectorTest, AgreesWithCoreSampleCorrection) {
+  std::mt19937_64 rng(kSeed + 1);
+  for (int set = 0; set < 100; ++set) {
+    SCOPED_TRACE(testing::Message() << "seed " << kSeed + 1 << " set " << set);
+    core::ParamSet p = RandomParams(rng, set % 2 == 1);
+    p.effects = {MakeEffect(core::Sensor::kAccel, 0, "temperature", Uniform(rng, -1e-3, 1e-3)),
+                 MakeEffect(core::Sensor::kAccel, 2, "ax*az", Uniform(rng, -1e-4, 1e-4)),
+                 MakeEffect(core::Sensor::kGyro, 1, "az", Uniform(rng, -1e-4, 1e-4)),
+                 MakeEffect(core::Sensor::kGyro, 2, "temperature^2", Uniform(rng, -1e-6, 1e-6)),
+                 MakeEffect(core::Sensor::kGyro, 0, "time", Uniform(rng, -1e-6, 1e-6)),
+                 MakeEffect(core::Sensor::kGyro, 0, "gx*gz", Uniform(rng, -1e-3, 1e-3)),
+                 MakeEffect(core::Sensor::kAccel, 1, "time^2", 1.0, /*applied=*/false)};
+    const double origin_s = Uniform(rng, 0.0, 100.0);
+    const absl::StatusOr<Corrector> c = Corrector::Create(p, origin_s);
+    ASSERT_TRUE(c.ok()) << c.status();
+    const core::SampleCorrection core_correction(p, origin_s);
+    for (int n = 0; n < 20; ++n) {
+      const Eigen::Vector3d u_a = RandomVec(rng, -2500.0, 2500.0);
+      const Eigen::Vector3d u_g = RandomVec(rng, -30000.0, 30000.0);
+      const double t_s = origin_s + Uniform(rng, 0.0, 600.0);
+      const double temp_c = n % 4 == 3 ? kNan : Uniform(rng, -10.0, 50.0);
+      CalibratedSample out;
+      c->Apply(MakeSample(t_s, u_a, u_g, temp_c), &out);
+      const core::CorrectedSample want = core_correction.Apply(u_a, u_g, temp_c, t_s);
+      for (int i = 0; i < 3; ++i) {
+        ExpectClose(out.accel_m_s2[i], want.accel_m_s2(i), 1e-12, "accel", i);
+        ExpectClose(out.gyro_rad_s[i], want.gyro_rad_s(i), 1e-12, "gyro", i);
+      }
+    }
+  }
 }
 
 TEST(CorrectorTest, ApplyBatchMatchesApply) {

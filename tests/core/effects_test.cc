@@ -389,8 +389,8 @@ TEST(AccelEffectRefit, FrameAndGyroscopeFollowTheCorrectedDirections) {
       // reported as a gyroscope effect static poses cannot test.
       for (const MoveTrend& t : rep.effect_diagnostics.move_trends)
         EXPECT_FALSE(t.significant) << t.signal << ": F " << t.f << " > " << t.f_threshold;
-      EXPECT_NE(Notes(rep).find(
-                    absl::StrFormat("(%.3f deg RMS) shows no trend", rep.residual.move_rms_deg)),
+      EXPECT_NE(Notes(rep).find(absl::StrFormat("(%.3f deg RMS) shows no trend",
+                                                rep.residual.move_fit_rms_deg)),
                 std::string::npos)
           << Notes(rep);
     }

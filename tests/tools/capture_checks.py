@@ -22,9 +22,10 @@ Each axis' bias and scale differ from the others' by more than these, so a swapp
 unit-confused axis fails.
 
 usage: capture_checks.py CHECK REPORT TRUTH [options]; prints what failed, exits 1 if anything
-did. CHECK: params, files, steady, noisy, refused, names (see main()).
+did. CHECK: params, files, steady, noisy, refused, names, final (see main()).
 """
 import argparse
+import bisect
 import json
 import math
 import os
@@ -258,10 +259,83 @@ def report_text(report, skip_keys=("file", "lines")):
     return "\n".join(out)
 
 
+def read_applied(path):
+    """`imucal apply`'s output (capture-format.md: '#' metadata, a header, then rows): time (s),
+    accel (m/s^2), gyro (rad/s) per row."""
+    rows, cols = [], None
+    with open(path) as f:
+        for line in f:
+            if line.startswith("#") or not line.strip():
+                continue
+            fields = line.strip().split(",")
+            if cols is None:
+                cols = {name: k for k, name in enumerate(fields)}
+                continue
+            v = [float(x) for x in fields]
+            rows.append((v[cols["t"]], [v[cols[a]] for a in ("ax", "ay", "az")],
+                         [v[cols[g]] for g in ("gx", "gy", "gz")]))
+    return rows
+
+
+def qmul(a, b):
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return (w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2)
+
+
+def rotate_back(q, v):
+    """R(q)^T v: v from the frame after the move into the frame before it, inverted."""
+    w, x, y, z = q
+    qc = (w, -x, -y, -z)
+    r = qmul(qmul(qc, (0.0, *v)), q)
+    return r[1:]
+
+
+def unit(v):
+    n = math.sqrt(sum(x * x for x in v))
+    return [x / n for x in v]
+
+
+def final_moves(report, rows):
+    """Each reported move's gravity-direction error (deg), recomputed from the calibrated samples
+    alone: the body rate integrated from the last sample of one pose to the first of the next
+    (trapezoids, body-frame right products), the ups the poses' mean calibrated accelerometer."""
+    t = [r[0] for r in rows]
+    poses = {p["index"]: p for p in report["poses"]}
+
+    def span(p):
+        b = bisect.bisect_left(t, p["t_start"] - 1e-9)
+        e = bisect.bisect_right(t, p["t_end"] + 1e-9)
+        return b, e
+
+    def up(p):
+        b, e = span(p)
+        return unit([sum(rows[i][1][k] for i in range(b, e)) for k in range(3)])
+
+    out = []
+    for m in report["moves"]:
+        a, b = poses[m["poses"][0]], poses[m["poses"][1]]
+        first, last = span(a)[1] - 1, span(b)[0]
+        q = (1.0, 0.0, 0.0, 0.0)
+        for i in range(first, last):
+            dt = t[i + 1] - t[i]
+            phi = [0.5 * (rows[i][2][k] + rows[i + 1][2][k]) * dt for k in range(3)]
+            th = math.sqrt(sum(x * x for x in phi))
+            s = 0.5 - th * th / 48 if th < 1e-4 else math.sin(th / 2) / th
+            q = qmul(q, (math.cos(th / 2), s * phi[0], s * phi[1], s * phi[2]))
+        pred, after = rotate_back(q, up(a)), up(b)
+        cross = [pred[1] * after[2] - pred[2] * after[1], pred[2] * after[0] - pred[0] * after[2],
+                 pred[0] * after[1] - pred[1] * after[0]]
+        out.append(math.degrees(math.atan2(math.sqrt(sum(x * x for x in cross)),
+                                           sum(p * q for p, q in zip(pred, after)))))
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("check", choices=["params", "files", "steady", "noisy", "refused",
-                                          "names"])
+                                          "names", "final"])
     parser.add_argument("report")
     parser.add_argument("truth", nargs="?")
     parser.add_argument("--verdict", default="pass,warn", help="allowed verdicts")
@@ -272,6 +346,7 @@ def main():
     parser.add_argument("--multi-file", action="store_true",
                         help="poses are matched to the simulated holds by file")
     parser.add_argument("--stderr", help="names: the command's stderr, searched too")
+    parser.add_argument("--applied", help="final: `imucal apply`'s output for the capture")
     parser.add_argument("--want", action="append", default=[],
                         help="names: a string that must be said (A|B: either)")
     args = parser.parse_args()
@@ -288,6 +363,17 @@ def main():
         tol = check_params(c, report, truth, args)
         c.done(f"{len(pairs)} poses, verdict {report.get('verdict')}; within " +
                ", ".join(f"{k} {v:.2g}" for k, v in tol.items()))
+    elif args.check == "final":
+        # The report's figures are the parameter set's as a robot applies it: the gravity
+        # direction after the moves, recomputed here from `imucal apply`'s samples alone.
+        errors = final_moves(report, read_applied(args.applied))
+        rms = math.sqrt(sum(e * e for e in errors) / len(errors))
+        want = report["residual"]["gravity_direction_rms_deg"]
+        c.check(f"gravity direction after {len(errors)} moves from the applied samples "
+                f"{rms:.4f} deg RMS, the report says {want:.4f}",
+                len(errors) > 0 and abs(rms - want) <= 0.02 * want + 1e-3)
+        c.done(f"the report's {want:.4f} deg RMS after the moves is the applied parameters' "
+               f"({rms:.4f} deg)")
     elif args.check == "files":
         check_files(c, report, truth)
         check_reasons(c, report)
