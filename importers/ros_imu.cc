@@ -189,8 +189,8 @@ absl::StatusOr<BagMetadata> ParseBagMetadata(std::string_view yaml, std::string_
     }
     BagMetadata metadata;
     if (const YAML::Node storage = info["storage_identifier"]; storage.IsDefined()) {
-      if (!storage.IsScalar()) {
-        return YamlError(source, storage.Mark(), "storage_identifier is not a string");
+      if (!storage.IsScalar() || !SafeMetadataValue(storage.Scalar())) {
+        return YamlError(source, storage.Mark(), "storage_identifier is not a one-line name");
       }
       metadata.storage_identifier = storage.Scalar();
     }
@@ -199,7 +199,12 @@ absl::StatusOr<BagMetadata> ParseBagMetadata(std::string_view yaml, std::string_
         return YamlError(source, files.Mark(), "relative_file_paths is not a list");
       }
       for (const YAML::Node& file : files) {
-        if (!file.IsScalar() || file.Scalar().empty()) {
+        // A file name: one line, no control characters, no surrounding spaces (a quoted scalar
+        // may fold lines; no bag names its files so).
+        if (!file.IsScalar() || file.Scalar().empty() ||
+            std::any_of(file.Scalar().begin(), file.Scalar().end(),
+                        [](char ch) { return static_cast<unsigned char>(ch) < 0x20; }) ||
+            TrimSpaces(file.Scalar()) != file.Scalar()) {
           return YamlError(source, file.Mark(), "a relative_file_paths entry is not a file name");
         }
         metadata.relative_file_paths.push_back(file.Scalar());

@@ -298,9 +298,15 @@ TEST(BagMetadataTest, ErrorsNameTheFileAndLine) {
   EXPECT_THAT(ParseBagMetadata("rosbag2_bagfile_information:\n  storage_identifier: [a]\n")
                   .status()
                   .message(),
-              HasSubstr("metadata.yaml:2: storage_identifier is not a string"));
+              HasSubstr("metadata.yaml:2: storage_identifier is not a one-line name"));
   EXPECT_THAT(ParseBagMetadata("rosbag2_bagfile_information:\n  relative_file_paths:\n"
                                "    - {path: a}\n")
+                  .status()
+                  .message(),
+              HasSubstr("metadata.yaml:3: a relative_file_paths entry is not a file name"));
+  // A quoted scalar that folds lines is YAML, but no file name.
+  EXPECT_THAT(ParseBagMetadata("rosbag2_bagfile_information:\n  relative_file_paths:\n"
+                               "    - 'bag_0\n      .db3'\n")
                   .status()
                   .message(),
               HasSubstr("metadata.yaml:3: a relative_file_paths entry is not a file name"));
