@@ -304,9 +304,9 @@ TEST(BagMetadataTest, ErrorsNameTheFileAndLine) {
                   .status()
                   .message(),
               HasSubstr("metadata.yaml:3: a relative_file_paths entry is not a file name"));
-  // A quoted scalar that folds lines is YAML, but no file name.
+  // A line break or a control character in a quoted scalar is YAML, but no file name.
   EXPECT_THAT(ParseBagMetadata("rosbag2_bagfile_information:\n  relative_file_paths:\n"
-                               "    - 'bag_0\n      .db3'\n")
+                               "    - \"bag_0\\n.db3\"\n")
                   .status()
                   .message(),
               HasSubstr("metadata.yaml:3: a relative_file_paths entry is not a file name"));
