@@ -5,11 +5,18 @@
 //   - the error before and after on a fresh validation capture of the same unit, through the
 //     SDK's Corrector (median over seeds), next to the validation capture's noise floor (the
 //     truth with its effects applied to it);
+//   - on other temperature histories of the same unit (a linear ramp, a cool-down, a plateau 2
+//     degC above the calibration's range; tests/core/effect_scenarios.h HistoryScenario), the
+//     validation error of the model found next to a reference fit given the true effect's form
+//     (its coefficient fitted with the model, nothing searched), both in units of the truth's
+//     floor on the sensor(s) the truth acts on, median over seeds and histories; `ratio` is
+//     found / reference (aim: at most 1.3);
 //   - the time the effect search adds to Calibrate.
 // Scenarios and magnitudes: tests/core/effect_scenarios.h (six-face + 24 extra poses, 200 Hz,
 // 2 mg noise, an 8 degC warm-up). Time effects are applied (opt-in) for the validation.
 //
-// Usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N] [--no-temperature]
+// Usage: effects_bench [--seeds=N] [--clean-seeds=N] [--case=NAME] [--seed=N] [--no-temperature]
+//   --clean-seeds sets how many clean captures measure the false alarms (default: --seeds).
 //   --no-temperature runs the cases that do not need a temperature channel on captures without
 //   one (the clean rows measure both anyway).
 //   --case and --seed run one scenario (a name of tests/core/effect_scenarios.h) or one seed,
@@ -41,11 +48,16 @@ struct Run {
   double ms = 0;
 };
 
-Run CalibrateTimed(const Capture& cap, bool effects, bool apply_time) {
+Run CalibrateTimed(const Capture& cap, bool effects, bool apply_time,
+                   const std::vector<SimEffect>* given = nullptr) {
   CalibrateOptions opt;
   opt.use_bsas = false;
   opt.effects.enabled = effects;
   opt.effects.apply_time_effects = apply_time;
+  if (given != nullptr) {  // the reference fit: the true forms, nothing searched
+    for (const SimEffect& e : *given) opt.effects.given.push_back({e.sensor, e.axis, e.regressor});
+    opt.effects.max_effects = 0;
+  }
   const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<CalibrationReport> r = Calibrate(cap, opt);
   const double ms =
@@ -64,11 +76,12 @@ double MatrixErrorPpm(const ParamSet& p, const SimTruth& truth) {
 }
 
 bool Same(const Effect& e, const SimEffect& s) {
-  return e.sensor == s.sensor && e.axis == s.axis && e.regressor == s.regressor;
+  return e.sensor == s.sensor && e.axis == s.axis && SameForm(e.regressor, s.regressor);
 }
 
 // What to run when not everything: one case by name, one seed.
 struct Only {
+  int clean_seeds = 0;  // the clean captures' seeds (0: as many as --seeds)
   std::string name;
   int seed = 0;
   bool no_temperature = false;  // the captures without a temperature channel
@@ -79,29 +92,39 @@ int Main(int seeds, const Only& only) {
       "effects_bench: %d seeds per row; six-face + 24 extra poses, 200 Hz, 2 mg noise, "
       "8 degC warm-up\n\n",
       seeds);
-  std::printf("%-30s %9s %9s %9s | %-25s | %-27s\n", "effect (truth)", "found", "within3se",
-              "other", "validation accel mg", "validation gyro deg/s");
-  std::printf("%-30s %9s %9s %9s | %7s %7s %7s   | %8s %8s %8s\n", "", "", "", "", "before",
-              "after", "floor", "before", "after", "floor");
+  std::printf("%-30s %9s %9s %9s | %-25s | %-27s | %s\n", "effect (truth)", "found", "within3se",
+              "other", "validation accel mg", "validation gyro deg/s",
+              "other histories: found / reference");
+  std::printf("%-30s %9s %9s %9s | %7s %7s %7s   | %8s %8s %8s   | %7s %7s %6s\n", "", "", "", "",
+              "before", "after", "floor", "before", "after", "floor", "found", "ref", "ratio");
   std::vector<double> search_ms, base_ms;
   std::string misses, matrix_rows;
-  for (const EffectCase& c : kEffectCases) {
+  std::vector<EffectCase> cases(std::begin(kEffectCases), std::end(kEffectCases));
+  cases.insert(cases.end(), std::begin(kHarderCases), std::end(kHarderCases));
+  std::string history_rows;
+  for (const EffectCase& c : cases) {
     if (!only.name.empty() && c.name != only.name) continue;
     if (only.no_temperature && UsesTemperature(c)) continue;  // needs the channel
     const bool temperature = !only.no_temperature;
     int found = 0, within = 0, other = 0;
     std::vector<double> ab, aa, af, gb, ga, gf, mb, ma;
+    // Per seed and other history: the found model's and the reference fit's validation error on
+    // the sensor(s) the truth acts on, each in units of that sensor's floor (so sensors add).
+    std::vector<double> hist_found, hist_ref;
+    bool on_accel = false, on_gyro = false;
+    for (const SimEffect& e : c.effects) (e.sensor == Sensor::kAccel ? on_accel : on_gyro) = true;
     for (int seed = 1; seed <= seeds; ++seed) {
       if (only.seed > 0 && seed != only.seed) continue;
+      const std::vector<SimEffect> effects = EffectsFor(c, static_cast<uint64_t>(seed));
       absl::StatusOr<SimResult> sim =
-          Simulate(EffectScenario(static_cast<uint64_t>(seed), c.effects, temperature));
+          Simulate(EffectScenario(static_cast<uint64_t>(seed), effects, temperature));
       if (!sim.ok()) return 1;
       bool time = false;
       for (const SimEffect& e : c.effects) time |= e.regressor.find("time") != std::string::npos;
       const Run run = CalibrateTimed(sim->capture, true, time);
       search_ms.push_back(run.ms);
       bool all = true, all3 = true;
-      for (const SimEffect& want : c.effects) {
+      for (const SimEffect& want : effects) {
         const Effect* got = nullptr;
         for (const Effect& e : run.report.params.effects)
           if (Same(e, want)) got = &e;
@@ -116,7 +139,7 @@ int Main(int seeds, const Only& only) {
       }
       found += all;
       within += all3;
-      const bool extra = static_cast<int>(run.report.params.effects.size()) >
+      const bool extra = CountMainEffects(run.report.params.effects) >
                          static_cast<int>(all ? c.effects.size() : 0);
       other += extra;
       if (!all || extra) {  // what was found instead, to read beside the table
@@ -128,8 +151,33 @@ int Main(int seeds, const Only& only) {
             absl::StrFormat("  %s seed %d:%s\n", c.name, seed, got.empty() ? " nothing" : got);
       }
       absl::StatusOr<SimResult> val = Simulate(
-          EffectScenario(static_cast<uint64_t>(seed) + 500, c.effects, temperature), sim->truth);
+          EffectScenario(static_cast<uint64_t>(seed) + 500, effects, temperature), sim->truth);
       if (!val.ok()) return 1;
+      if (temperature) {
+        const Run reference = CalibrateTimed(sim->capture, true, time, &effects);
+        for (History h : {History::kRamp, History::kCoolDown, History::kPlateau}) {
+          absl::StatusOr<SimResult> other =
+              Simulate(HistoryScenario(static_cast<uint64_t>(seed) + 700, effects, h), sim->truth);
+          if (!other.ok()) return 1;
+          const HoldError fo = ErrorOn(*other, run.report.params),
+                          re = ErrorOn(*other, reference.report.params),
+                          fl = ErrorOn(*other, TruthParams(*other));
+          // Relative to the floor, so a two-sensor case sums like with like.
+          const auto rel = [&](const HoldError& e) {
+            return (on_accel ? e.accel_m_s2 / fl.accel_m_s2 : 0.0) +
+                   (on_gyro ? e.gyro_rad_s / fl.gyro_rad_s : 0.0);
+          };
+          hist_found.push_back(rel(fo));
+          hist_ref.push_back(rel(re));
+          if (only.seed > 0)
+            std::printf(
+                "  %s seed %d %s: accel %.3f / %.3f mg, gyro %.4f / %.4f deg/s (found / "
+                "reference), floor %.3f mg %.4f deg/s\n",
+                c.name.c_str(), seed, HistoryName(h), fo.accel_m_s2 / kMg, re.accel_m_s2 / kMg,
+                fo.gyro_rad_s / kDegS, re.gyro_rad_s / kDegS, fl.accel_m_s2 / kMg,
+                fl.gyro_rad_s / kDegS);
+        }
+      }
       const Run plain = CalibrateTimed(sim->capture, false, false);
       mb.push_back(MatrixErrorPpm(plain.report.params, sim->truth));
       ma.push_back(MatrixErrorPpm(run.report.params, sim->truth));
@@ -143,13 +191,18 @@ int Main(int seeds, const Only& only) {
           gf.push_back(f.gyro_rad_s / kDegS);
     }
     std::string truth;
-    for (const SimEffect& e : c.effects)
+    for (const SimEffect& e : EffectsFor(c, 1))
       truth += absl::StrFormat("%s%s %c~%s", truth.empty() ? "" : " + ",
                                e.sensor == Sensor::kAccel ? "accel" : "gyro", "xyz"[e.axis],
                                e.regressor);
-    std::printf("%-30s %4d/%-4d %4d/%-4d %4d/%-4d | %7.3f %7.3f %7.3f   | %8.4f %8.4f %8.4f\n",
-                truth.c_str(), found, seeds, within, seeds, other, seeds, Median(ab), Median(aa),
-                Median(af), Median(gb), Median(ga), Median(gf));
+    if (c.name.find("Turnover") != std::string::npos) truth += " (T0 per seed)";
+    const int runs = only.seed > 0 ? 1 : seeds;
+    std::printf(
+        "%-30s %4d/%-4d %4d/%-4d %4d/%-4d | %7.3f %7.3f %7.3f   | %8.4f %8.4f %8.4f   | %7.2f "
+        "%7.2f %6.2f\n",
+        truth.c_str(), found, runs, within, runs, other, runs, Median(ab), Median(aa), Median(af),
+        Median(gb), Median(ga), Median(gf), Median(hist_found), Median(hist_ref),
+        Median(hist_found) / Median(hist_ref));
     matrix_rows += absl::StrFormat("%-30s %8.0f %8.0f\n", truth, Median(mb), Median(ma));
   }
   std::printf(
@@ -163,10 +216,11 @@ int Main(int seeds, const Only& only) {
   // One scenario looked at: no summary.
   if (!only.name.empty() || only.seed > 0 || only.no_temperature) return 0;
   std::printf("\nclean captures (no effect simulated): captures with any effect added\n");
+  const int clean = only.clean_seeds > 0 ? only.clean_seeds : seeds;
   for (bool temperature : {true, false}) {
     int alarms = 0;
     std::string which;
-    for (int seed = 1; seed <= seeds; ++seed) {
+    for (int seed = 1; seed <= clean; ++seed) {
       absl::StatusOr<SimResult> sim =
           Simulate(EffectScenario(static_cast<uint64_t>(seed) + 1000, {}, temperature));
       if (!sim.ok()) return 1;
@@ -183,8 +237,8 @@ int Main(int seeds, const Only& only) {
       }
     }
     std::printf("  %-22s %d/%d false alarms (%.0f%% clean)%s\n",
-                temperature ? "with temperature:" : "without temperature:", alarms, seeds,
-                100.0 * (seeds - alarms) / seeds, which.c_str());
+                temperature ? "with temperature:" : "without temperature:", alarms, clean,
+                100.0 * (clean - alarms) / clean, which.c_str());
   }
   std::printf(
       "\ncalibrate median %.1f ms with the effect search, %.1f ms without (clean captures)\n",
@@ -204,13 +258,16 @@ int main(int argc, char** argv) {
       seeds = std::atoi(argv[i] + 8);
     } else if (a.rfind("--case=", 0) == 0) {
       only.name = std::string(a.substr(7));
+    } else if (a.rfind("--clean-seeds=", 0) == 0) {
+      only.clean_seeds = std::atoi(argv[i] + 14);
     } else if (a == "--no-temperature") {
       only.no_temperature = true;
     } else if (a.rfind("--seed=", 0) == 0) {
       only.seed = std::atoi(argv[i] + 7);
     } else {
-      std::fprintf(
-          stderr, "usage: effects_bench [--seeds=N] [--case=NAME] [--seed=N] [--no-temperature]\n");
+      std::fprintf(stderr,
+                   "usage: effects_bench [--seeds=N] [--clean-seeds=N] [--case=NAME] [--seed=N] "
+                   "[--no-temperature]\n");
       return 1;
     }
   }

@@ -37,10 +37,7 @@
 //
 // "Kept up": every batch acknowledged, no errors, ack p99 under one batch period and no
 // robot fell behind its schedule by more than one batch.
-#include <arpa/inet.h>
-#include <netinet/in.h>
 #include <signal.h>
-#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -461,47 +458,6 @@ std::vector<std::string> Populate(const Flags& flags, const std::string& path) {
   return sessions;
 }
 
-// ---- imucald: fork + exec the real binary on a free loopback port.
-int FreeLoopbackPort() {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t len = sizeof addr;
-  int port = 0;
-  if (::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) == 0 &&
-      ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len) == 0)
-    port = ntohs(addr.sin_port);
-  ::close(fd);
-  return port;
-}
-
-pid_t StartImucald(const Flags& flags, const std::string& db, const std::string& listen) {
-  const pid_t pid = fork();
-  if (pid == 0) {
-    PinToCpu(flags.server_cpu);
-    std::vector<std::string> args = {flags.imucald, "--listen", listen, "--db", db};
-    args.insert(args.end(), flags.server_args.begin(), flags.server_args.end());
-    std::vector<char*> argv;
-    for (std::string& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    ::execv(flags.imucald.c_str(), argv.data());
-    std::perror("exec imucald");
-    ::_exit(127);
-  }
-  return pid;
-}
-
-// A field of /proc/PID/status in kB ("VmHWM", "VmRSS"); 0 if absent.
-int64_t ProcStatusKb(pid_t pid, const std::string& field) {
-  std::ifstream f("/proc/" + std::to_string(pid) + "/status");
-  std::string line;
-  while (std::getline(f, line)) {
-    if (line.rfind(field + ":", 0) == 0) return std::atoll(line.c_str() + field.size() + 1);
-  }
-  return 0;
-}
-
 // Per thread of `pid`, keyed "name/tid": seconds on a CPU and seconds runnable but waiting for
 // one (/proc/PID/task/TID/schedstat: run time and run-queue wait, in ns).
 struct ThreadTimes {
@@ -554,27 +510,27 @@ int main(int argc, char** argv) {
               sessions.size(), flags.devices, Seconds(Clock::now() - setup0), LoadAvg().c_str());
 
   // --tls: a certificate for 127.0.0.1 and imucald's flags to serve it (replacing --insecure).
+  // Every simulated robot and watcher shares the one admin token: the per-token stream cap is
+  // raised to hold them all (a fleet gives each robot its own token).
   Flags run_flags = flags;
-  const std::string cert = dir + "/server.crt", key = dir + "/server.key";
+  const std::string cert = dir + "/server.crt";
   const std::string token_file = dir + "/admin-token";
   if (flags.tls) {
-    const std::string openssl = absl::StrCat(
-        "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -days 1 "
-        "-subj /CN=localhost -addext subjectAltName=IP:127.0.0.1 -keyout '",
-        key, "' -out '", cert, "' 2>/dev/null");
-    if (std::system(openssl.c_str()) != 0) {
+    const std::vector<std::string> tls = TlsServerArgs(dir, token_file);
+    if (tls.empty()) {
       std::fprintf(stderr, "--tls: the openssl CLI could not make a certificate\n");
       return 1;
     }
     std::erase(run_flags.server_args, std::string("--insecure"));
-    for (const std::string& a : {std::string("--tls-cert"), cert, std::string("--tls-key"), key,
-                                 std::string("--admin-token-file"), token_file})
-      run_flags.server_args.push_back(a);
+    run_flags.server_args.insert(run_flags.server_args.end(), tls.begin(), tls.end());
+    run_flags.server_args.push_back(
+        absl::StrCat("--max-streams-per-token=", flags.robots + flags.watchers));
   }
 
   // Fork before any gRPC object exists in this process.
   const std::string listen = absl::StrCat("127.0.0.1:", FreeLoopbackPort());
-  const pid_t server = StartImucald(run_flags, db, listen);
+  const pid_t server =
+      StartImucald(run_flags.imucald, db, listen, run_flags.server_args, flags.server_cpu);
   PinToCpu(flags.client_cpu);
   // imucald writes its first admin token before it listens: once a TLS connection (without
   // the token, which is a per-call credential) is up, the file is there.

@@ -1,15 +1,22 @@
-// What the service benchmarks (ingest_bench, fetch_bench) share: a real imucald server in a forked
-// child (so client and server CPU are measured apart), CPU and load accounting, percentiles.
+// What the service benchmarks share: a real imucald server in a forked child (ingest_bench,
+// fetch_bench) or the imucald binary in a process of its own (load_bench, misuse_bench,
+// outage_bench), so client and server CPU and memory are measured apart; CPU and load
+// accounting, percentiles.
 #ifndef IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
 #define IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
 
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <netinet/in.h>
 #include <sched.h>
 #include <sys/resource.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
@@ -160,6 +167,84 @@ inline Child ForkServer(const std::string& db_path, int cpu = -1) {
 inline void StopServer(Child& child) {
   close(child.stop_fd);
   waitpid(child.pid, nullptr, 0);
+}
+
+// ---- The real imucald binary in a process of its own (load_bench, misuse_bench,
+// outage_bench): its CPU and memory are its own, and it can be killed and started again.
+
+// A loopback port that was free a moment ago (the kernel's pick for port 0).
+inline int FreeLoopbackPort() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  socklen_t len = sizeof addr;
+  int port = 0;
+  if (::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) == 0 &&
+      ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len) == 0)
+    port = ntohs(addr.sin_port);
+  ::close(fd);
+  return port;
+}
+
+// Whether something accepts TCP connections on 127.0.0.1:port now.
+inline bool Listening(int port) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = htons(static_cast<uint16_t>(port));
+  const bool ok = ::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) == 0;
+  ::close(fd);
+  return ok;
+}
+
+// fork + exec `imucald --listen LISTEN --db DB args...`, pinned to `cpu` when >= 0, its log
+// (stderr) appended to `log_path` when given. The child only execs, so other threads of this
+// process (gRPC's) may run meanwhile.
+inline pid_t StartImucald(const std::string& imucald, const std::string& db,
+                          const std::string& listen, const std::vector<std::string>& extra,
+                          int cpu = -1, const std::string& log_path = "") {
+  std::vector<std::string> args = {imucald, "--listen", listen, "--db", db};
+  args.insert(args.end(), extra.begin(), extra.end());
+  std::vector<char*> argv;
+  for (std::string& a : args) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  const pid_t pid = fork();
+  if (pid == 0) {
+    PinToCpu(cpu);
+    if (!log_path.empty()) {
+      const int fd = ::open(log_path.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0600);
+      if (fd >= 0) ::dup2(fd, STDERR_FILENO);
+    }
+    ::execv(imucald.c_str(), argv.data());
+    std::perror("exec imucald");
+    ::_exit(127);
+  }
+  return pid;
+}
+
+// A field of /proc/PID/status in kB ("VmHWM", "VmRSS"); 0 if absent.
+inline int64_t ProcStatusKb(pid_t pid, const std::string& field) {
+  std::ifstream f("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(f, line)) {
+    if (line.rfind(field + ":", 0) == 0) return std::atoll(line.c_str() + field.size() + 1);
+  }
+  return 0;
+}
+
+// A throwaway certificate for 127.0.0.1 in `dir` (the openssl CLI) and imucald's flags to
+// serve it with its first admin token written to `token_file`; empty when openssl failed.
+inline std::vector<std::string> TlsServerArgs(const std::string& dir,
+                                              const std::string& token_file) {
+  const std::string cert = dir + "/server.crt", key = dir + "/server.key";
+  const std::string openssl =
+      "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -days 1 "
+      "-subj /CN=localhost -addext subjectAltName=IP:127.0.0.1 -keyout '" +
+      key + "' -out '" + cert + "' 2>/dev/null";
+  if (std::system(openssl.c_str()) != 0) return {};
+  return {"--tls-cert", cert, "--tls-key", key, "--admin-token-file", token_file};
 }
 
 }  // namespace imucal::bench

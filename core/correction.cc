@@ -8,7 +8,10 @@ namespace imucal::core {
 
 SampleCorrection::SampleCorrection(const AccelParams& accel, const GyroParams& gyro,
                                    const std::vector<Effect>& effects, double time_origin_s)
-    : accel_(accel), gyro_(gyro), time_origin_s_(time_origin_s) {
+    : accel_(accel),
+      accel_misalignment_(accel.Misalignment()),
+      gyro_(gyro),
+      time_origin_s_(time_origin_s) {
   for (const Effect& e : effects) {
     const std::optional<Regressor> r = ParseRegressor(e.regressor);
     if (!e.applied || !r || e.axis < 0 || e.axis > 2) continue;
@@ -27,7 +30,7 @@ CorrectedSample SampleCorrection::Apply(const Eigen::Vector3d& accel_raw,
                                         const Eigen::Vector3d& gyro_raw, double temp_c,
                                         double t_s) const {
   CorrectedSample out;
-  out.accel_m_s2 = accel_.Apply(accel_raw);
+  out.accel_m_s2 = accel_misalignment_ * accel_.PerAxis(accel_raw);  // accel_.Apply(accel_raw)
   out.gyro_rad_s = gyro_.Apply(gyro_raw, out.accel_m_s2);
   if (terms_.empty()) return out;
   const Eigen::Vector3d& a = out.accel_m_s2;

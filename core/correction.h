@@ -43,6 +43,7 @@ class SampleCorrection {
     bool uses_temperature = false;
   };
   AccelParams accel_;
+  Eigen::Matrix3d accel_misalignment_;  // accel_.Misalignment(), once: it costs an exp map
   GyroParams gyro_;
   std::vector<Term> terms_;
   double time_origin_s_ = 0;

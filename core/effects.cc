@@ -22,6 +22,7 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kRadToDeg = 180.0 / M_PI;
+constexpr double kMgPerMs2 = kStandardGravity / 1e3;  // m/s^2 per mg
 // A candidate whose column keeps less than this fraction of its norm once the current model's
 // columns are projected out is numerically in the model (a bias, a scale). Nearly collinear
 // ones stay: the F test judges whether the part the model lacks is significant.
@@ -77,6 +78,7 @@ struct Term {
 // The working model: the accelerometer and gyroscope fits and the effects added so far.
 struct State {
   AccelParams accel;
+  AccelMask free{};  // the accelerometer model's estimated parameters (the search may free more)
   Eigen::Vector3d gyro_offset = Eigen::Vector3d::Zero();  // rad/s, added to the static rate fit
   std::vector<Term> terms;
 };
@@ -498,31 +500,47 @@ class Scorer {
   Eigen::Index dof_after() const { return n_ - p_ - 1; }
   double rss() const { return rss_; }
 
-  // Fills score (except threshold/passed); false when absorbed by the current model.
-  bool Score(const Eigen::VectorXd& col, CandidateScore* s, Eigen::VectorXd* perp) const {
-    *perp = col - q_ * (q_.transpose() * col);
-    const double norm2 = perp->squaredNorm();
-    if (!(norm2 > kAbsorbedFraction * kAbsorbedFraction * col.squaredNorm()) || norm2 <= 0)
-      return false;
-    const double proj = perp->dot(r_);
-    const double drss = proj * proj / norm2;
+  // Fills score (except threshold/passed) for a candidate of one or more columns entering
+  // together (a power with its lower powers); false when the current model absorbs any of them.
+  // `perp` is the fitted direction beyond the model (the columns' part the model lacks, times
+  // their coefficients); `coefficients` are per column, in column units.
+  bool Score(const Eigen::MatrixXd& cols, CandidateScore* s, Eigen::VectorXd* perp,
+             Eigen::VectorXd* coefficients) const {
+    const Eigen::MatrixXd p = cols - q_ * (q_.transpose() * cols);
+    const Eigen::Index k = cols.cols();
+    for (Eigen::Index c = 0; c < k; ++c) {
+      const double norm2 = p.col(c).squaredNorm();
+      if (!(norm2 > kAbsorbedFraction * kAbsorbedFraction * cols.col(c).squaredNorm()) ||
+          norm2 <= 0)
+        return false;
+    }
+    // Frisch-Waugh: the columns' coefficients in the joint fit are those of the residual on
+    // their part orthogonal to the model.
+    const Eigen::HouseholderQR<Eigen::MatrixXd> qr(p);
+    const Eigen::MatrixXd qp = qr.householderQ() * Eigen::MatrixXd::Identity(n_, k);
+    const Eigen::MatrixXd rp = qr.matrixQR().topRows(k).triangularView<Eigen::Upper>();
+    if (std::abs(rp.diagonal().prod()) <= 0) return false;
+    const Eigen::VectorXd qr_r = qp.transpose() * r_;
+    const double drss = qr_r.squaredNorm();
+    *coefficients = rp.triangularView<Eigen::Upper>().solve(qr_r);
+    *perp = qp * qr_r;  // = p * coefficients
     const double rss_after = std::max(1e-300, rss_ - drss);
-    const double s2 = std::max(noise_s2_, rss_after / static_cast<double>(dof_after()));
-    s->f = drss / s2;
+    const double s2 = std::max(
+        noise_s2_, rss_after / static_cast<double>(std::max<Eigen::Index>(1, n_ - p_ - k)));
+    s->f = drss / static_cast<double>(k) / s2;
     const double n = static_cast<double>(n_);
-    s->delta_bic = n * std::log(rss_after / rss_) + std::log(n);
-    // Held-out: leave-one-out residuals e_i / (1 - h_ii) before and after adding the column.
-    const double beta = proj / norm2;
+    s->delta_bic = n * std::log(rss_after / rss_) + static_cast<double>(k) * std::log(n);
+    // Held-out: leave-one-out residuals e_i / (1 - h_ii) before and after adding the columns.
     double press_before = 0, press_after = 0;
     for (Eigen::Index i = 0; i < n_; ++i) {
       const double before = r_(i) / std::max(1e-9, 1 - h_(i));
       const double after =
-          (r_(i) - beta * (*perp)(i)) / std::max(1e-9, 1 - h_(i) - (*perp)(i) * (*perp)(i) / norm2);
+          (r_(i) - (*perp)(i)) / std::max(1e-9, 1 - h_(i) - qp.row(i).squaredNorm());
       press_before += before * before;
       press_after += after * after;
     }
     s->press_gain = (press_before - press_after) / s2;
-    s->coefficient = beta;  // in column units; the caller converts
+    s->coefficient = (*coefficients)(k - 1);  // the last column's; the caller converts
     return true;
   }
 
@@ -535,9 +553,10 @@ class Scorer {
   double rss_ = 0;
 };
 
-double FThreshold(double alpha, int tests, Eigen::Index dof) {
+double FThreshold(double alpha, int tests, Eigen::Index dof, int df1 = 1) {
   if (dof < 1 || tests < 1) return std::numeric_limits<double>::infinity();
-  const boost::math::fisher_f_distribution<double> f(1.0, static_cast<double>(dof));
+  const boost::math::fisher_f_distribution<double> f(static_cast<double>(df1),
+                                                     static_cast<double>(dof));
   return boost::math::quantile(boost::math::complement(f, alpha / tests));
 }
 
@@ -597,6 +616,13 @@ std::array<bool, kNumSignals> ExcitedSignals(const std::vector<EffectPose>& pose
 struct RoundCandidate {
   CandidateScore score;
   Regressor regressor;
+  // Lower powers that enter with it (`(temperature-31.2)` with `(temperature-31.2)^2` when the
+  // first is not in yet) and their coefficients (SI per regressor unit).
+  std::vector<Regressor> lower;
+  std::vector<double> lower_coefficients;
+  // >= 0: not an effect but a held parameter of the accelerometer model, re-examined
+  // (PackAccel index).
+  int model_param = -1;
   Eigen::VectorXd perp;
   // Set when the rotations between poses were consulted (Search::ResolveByMoves): the
   // gravity-direction error after each move (rad) with the gyroscope refitted to this
@@ -615,6 +641,39 @@ std::string Describe(Sensor sensor, int axis, const Regressor& r) {
   return Cat(SensorName(sensor), " ", AxisName(axis), " ~ ", r.Name());
 }
 
+// The candidate's name, its lower powers first: "gyro x ~ (temperature-31.2) +
+// (temperature-31.2)^2".
+std::string Describe(const RoundCandidate& c) {
+  if (c.model_param >= 0) return Cat("accel model term ", AccelParamName(c.model_param));
+  std::string terms;
+  for (const Regressor& l : c.lower) terms += l.Name() + " + ";
+  return Cat(SensorName(c.score.sensor), " ", AxisName(c.score.axis), " ~ ", terms,
+             c.regressor.Name());
+}
+
+bool UsesTime(const RoundCandidate& c) {
+  bool time = UsesSignal(c.regressor, Signal::kTime);
+  for (const Regressor& l : c.lower) time |= UsesSignal(l, Signal::kTime);
+  return time;
+}
+
+// The terms a candidate adds to the model, lower powers first.
+std::vector<Term> TermsOf(const RoundCandidate& c, bool apply_time) {
+  std::vector<Term> out;
+  const auto add = [&](const Regressor& r, double coefficient) {
+    Term t;
+    t.sensor = c.score.sensor;
+    t.axis = c.score.axis;
+    t.regressor = r;
+    t.coefficient = coefficient;
+    t.applied = !UsesSignal(r, Signal::kTime) || apply_time;
+    out.push_back(t);
+  };
+  for (size_t k = 0; k < c.lower.size(); ++k) add(c.lower[k], c.lower_coefficients[k]);
+  add(c.regressor, c.score.coefficient);
+  return out;
+}
+
 // What would tell two regressors apart.
 std::string Separator(const Regressor& a, const Regressor& b) {
   const bool temp = UsesSignal(a, Signal::kTemperature) || UsesSignal(b, Signal::kTemperature);
@@ -625,18 +684,6 @@ std::string Separator(const Regressor& a, const Regressor& b) {
   }
   return "poses that vary one of them without the other, or per-axis references (known "
          "orientations), would tell them apart";
-}
-
-// The regressor with every `time` factor read as `temperature` (`time*ay` -> `temperature*ay`).
-Regressor TemperatureTwin(Regressor r) {
-  for (int i = 0; i < r.num_factors; ++i)
-    if (r.factors[i] == static_cast<int>(Signal::kTime))
-      r.factors[i] = static_cast<int>(Signal::kTemperature);
-  // Factors stay sorted (Regressor's invariant); at most kMaxRegressorFactors, so insertion.
-  for (int i = 1; i < r.num_factors; ++i)
-    for (int k = i; k > 0 && r.factors[k - 1] > r.factors[k]; --k)
-      std::swap(r.factors[k - 1], r.factors[k]);
-  return r;
 }
 
 std::string TermName(const Term& t) { return Describe(t.sensor, t.axis, t.regressor); }
@@ -673,6 +720,30 @@ class Search {
   Search(const EffectSearchInput& in, const EffectSearchOptions& opt) : in_(in), opt_(opt) {
     poses_ = in.poses;
     signals_ = PoseSignals(poses_, in.accel, in.gyro);
+    // The references of the centred factors (params.h EffectReference): the mean over the
+    // poses, rounded so the names stay readable (any reference is exact: the SDK evaluates the
+    // name as written).
+    double temp_sum = 0, time_sum = 0;
+    int temp_n = 0;
+    for (const EffectPose& p : poses_) {
+      if (std::isfinite(p.temp_c)) temp_sum += p.temp_c, ++temp_n;
+      time_sum += p.time_s;
+    }
+    if (temp_n > 0) reference_.temperature_c = std::round(temp_sum / temp_n * 10) / 10;
+    if (!poses_.empty())
+      reference_.time_s = std::round(time_sum / static_cast<double>(poses_.size()));
+    for (const GivenEffect& g : opt.given) {
+      const std::optional<Regressor> r = ParseRegressor(g.regressor);
+      if (!r) continue;  // Run() refuses it
+      for (int i = 0; i < r->num_factors; ++i) {
+        const double c = r->centre[static_cast<size_t>(r->factors[i])];
+        if (c == 0) continue;
+        (r->factors[i] == static_cast<int>(Signal::kTime) ? reference_.time_s
+                                                          : reference_.temperature_c) = c;
+      }
+    }
+    centre_[static_cast<size_t>(Signal::kTemperature)] = reference_.temperature_c;
+    centre_[static_cast<size_t>(Signal::kTime)] = reference_.time_s;
     rates_ = StaticRates(poses_, signals_);
     gyro_sigma_ = GyroSigmas(poses_, in.gyro);
   }
@@ -698,16 +769,16 @@ class Search {
 
   absl::Status RefitAccel(State* st, Fit* out) {
     Fit& fit = *out;
-    SetAccelModelSigma(*st, in_.accel_free, signals_, in_.gravity_m_s2, &poses_);
+    SetAccelModelSigma(*st, st->free, signals_, in_.gravity_m_s2, &poses_);
     absl::StatusOr<Eigen::MatrixXd> cov =
-        AccelJointFit(in_.accel_free, signals_, in_.gravity_m_s2, poses_, st);
+        AccelJointFit(st->free, signals_, in_.gravity_m_s2, poses_, st);
     if (!cov.ok()) return cov.status();
-    SetAccelModelSigma(*st, in_.accel_free, signals_, in_.gravity_m_s2, &poses_);
-    cov = AccelJointFit(in_.accel_free, signals_, in_.gravity_m_s2, poses_, st);
+    SetAccelModelSigma(*st, st->free, signals_, in_.gravity_m_s2, &poses_);
+    cov = AccelJointFit(st->free, signals_, in_.gravity_m_s2, poses_, st);
     if (!cov.ok()) return cov.status();
     fit.accel_cov = *cov;
     int n_free = 0;
-    for (bool f : in_.accel_free) n_free += f;
+    for (bool f : st->free) n_free += f;
     for (size_t k = 0, a = 0; k < st->terms.size(); ++k) {
       if (st->terms[k].sensor != Sensor::kAccel) continue;
       const auto idx = static_cast<Eigen::Index>(n_free + a++);
@@ -715,7 +786,7 @@ class Search {
     }
     SetAccelOffsets(*st, signals_, &poses_);
     fit.accel_residual = MagnitudeResiduals(st->accel, AccelPoses(poses_), in_.gravity_m_s2);
-    fit.accel_heldout = AccelHeldOut(*st, in_.accel_free, signals_, in_.gravity_m_s2, poses_);
+    fit.accel_heldout = AccelHeldOut(*st, st->free, signals_, in_.gravity_m_s2, poses_);
     return absl::OkStatus();
   }
 
@@ -757,10 +828,12 @@ class Search {
 
   absl::StatusOr<EffectSearchResult> Run() {
     EffectSearchResult out;
+    out.reference = reference_;
     EffectDiagnostics& diag = out.diagnostics;
     diag.ran = true;
     State st;
     st.accel = in_.accel;
+    st.free = in_.accel_free;
     absl::StatusOr<Fit> base = Refit(&st);
     if (!base.ok()) return base.status();
     Fit fit = *base;
@@ -769,6 +842,37 @@ class Search {
     NoiseFloors(&diag);
     diag.accel_heldout_before_m_s2 = RmsOf(base->accel_heldout);
     diag.gyro_heldout_before_rad_s = GyroRms(base->gyro_heldout);
+    if (!opt_.given.empty()) {
+      State next = st;
+      for (size_t k = 0; k < opt_.given.size(); ++k) {
+        const GivenEffect& g = opt_.given[k];
+        const std::optional<Regressor> r = ParseRegressor(g.regressor);
+        if (!r || g.axis < 0 || g.axis > 2 || !CentreMismatch(*r, reference_).empty())
+          return absl::InvalidArgumentError(absl::StrFormat(
+              "given effect %d: \"%s\" on axis %d is not a regressor (core/regressor.h) on x, y "
+              "or z, centred on one reference per signal",
+              static_cast<int>(k), g.regressor, g.axis));
+        Term t;
+        t.sensor = g.sensor;
+        t.axis = g.axis;
+        t.regressor = *r;
+        t.applied = !UsesSignal(*r, Signal::kTime) || opt_.apply_time_effects;
+        next.terms.push_back(t);
+      }
+      absl::StatusOr<Fit> after = Refit(&next);
+      if (!after.ok()) return after.status();
+      for (size_t k = 0; k < next.terms.size(); ++k) {
+        Effect e = ToEffect(next.terms[k]);
+        e.std_error = after->term_stderr[k];
+        const bool accel = e.sensor == Sensor::kAccel;
+        e.error_before = accel ? RmsOf(fit.accel_heldout) : GyroRms(fit.gyro_heldout);
+        e.error_after = accel ? RmsOf(after->accel_heldout) : GyroRms(after->gyro_heldout);
+        e.evidence = "given: its form was stated, not searched for";
+        out.effects.push_back(e);
+      }
+      st = next;
+      fit = *after;
+    }
 
     for (int round = 0; round < opt_.max_effects; ++round) {
       std::vector<RoundCandidate> cands;
@@ -785,8 +889,11 @@ class Search {
       int best = -1;
       for (size_t c = 0; c < cands.size(); ++c) {
         CandidateScore& s = cands[c].score;
-        s.f_threshold = FThreshold(opt_.family_alpha, tests, DofAfter(st, s.sensor, s.axis));
-        s.passed = s.f > s.f_threshold && s.delta_bic < 0 && s.press_gain > s.f_threshold;
+        const auto k = static_cast<int>(1 + cands[c].lower.size());
+        s.f_threshold =
+            FThreshold(opt_.family_alpha, tests, DofAfter(st, s.sensor, s.axis) - (k - 1), k);
+        // The held-out margin is the same F* s^2 per column entering.
+        s.passed = s.f > s.f_threshold && s.delta_bic < 0 && s.press_gain > k * s.f_threshold;
         // Ranked by BIC, which compares candidates of different axes on one scale.
         if (s.passed &&
             (best < 0 || s.delta_bic < cands[static_cast<size_t>(best)].score.delta_bic))
@@ -817,56 +924,94 @@ class Search {
       // temperature explain equally is attributed to temperature, which the SDK applies on every
       // sample and which holds across power cycles (the ambiguity is reported either way).
       const size_t first = static_cast<size_t>(best);
-      auto rank = [](const Regressor& r) {
-        return 2 * r.num_factors + (UsesSignal(r, Signal::kTime) ? 1 : 0);
+      // (A candidate's size counts the lower powers entering with it.)
+      auto rank = [](const RoundCandidate& c) {
+        int factors = c.regressor.num_factors;
+        for (const Regressor& l : c.lower) factors += l.num_factors;
+        return 2 * factors + (UsesTime(c) ? 1 : 0);
       };
       for (size_t c = 0; c < cands.size(); ++c) {
         if (cands[c].score.passed && Ambiguous(cands[first], cands[c]) &&
-            rank(cands[c].regressor) < rank(cands[static_cast<size_t>(best)].regressor))
+            rank(cands[c]) < rank(cands[static_cast<size_t>(best)]))
           best = static_cast<int>(c);
       }
-      // A time effect that the data favour over its temperature twin, but not strongly (BIC
-      // within kWeakEvidenceBic; the same sensor and axis, the regressor with temperature in
-      // place of time: `time*ay` against `temperature*ay`), gives way to it. The choice decides
-      // what the robot gets: a time effect is not applied (time since power-on grows without bound
-      // once the warm-up is over), so choosing it on weak evidence leaves a real temperature effect
-      // uncorrected; choosing temperature corrects the warm-up the capture saw either way, and
-      // stays bounded by the temperatures the robot meets. The notes still name both and what would
-      // tell them apart (a capture at a steady temperature).
-      if (UsesSignal(cands[static_cast<size_t>(best)].regressor, Signal::kTime)) {
+      // Prefer what the robot can apply. A time effect is not applied (time since power-on grows
+      // without bound once the warm-up is over), so choosing it where a candidate made only of
+      // run-time signals (temperature, specific force) explains the data about as well leaves a
+      // real effect uncorrected. Such a candidate wins when it is within the weak-evidence band
+      // of BIC (kWeakEvidenceBic: the data do not strongly prefer time), collinear with the
+      // time one or not; among several, the lowest BIC. The notes still name both
+      // and say what capture would tell them apart.
+      int gave_way = -1;  // the time candidate that gave way, if any
+      if (!opt_.apply_time_effects && UsesTime(cands[static_cast<size_t>(best)])) {
         const RoundCandidate& timed = cands[static_cast<size_t>(best)];
         int swap = -1;
         for (size_t c = 0; c < cands.size(); ++c) {
           const RoundCandidate& x = cands[c];
-          if (x.score.passed && x.score.sensor == timed.score.sensor &&
-              x.score.axis == timed.score.axis && x.regressor == TemperatureTwin(timed.regressor) &&
-              Ambiguous(timed, x, kWeakEvidenceBic))
+          if (!x.score.passed || UsesTime(x) || x.score.sensor != timed.score.sensor) continue;
+          if (!(x.score.delta_bic - timed.score.delta_bic < kWeakEvidenceBic)) continue;
+          if (swap < 0 || x.score.delta_bic < cands[static_cast<size_t>(swap)].score.delta_bic)
             swap = static_cast<int>(c);
         }
-        if (swap >= 0) best = swap;
+        if (swap >= 0) gave_way = best, best = swap;
       }
       const int static_best = best;
       ResolveByMoves(st, &cands, &best);
       const RoundCandidate& win = cands[static_cast<size_t>(best)];
-      Term term;
-      term.sensor = win.score.sensor;
-      term.axis = win.score.axis;
-      term.regressor = win.regressor;
-      term.coefficient = win.score.coefficient;
-      term.applied = !UsesSignal(win.regressor, Signal::kTime) || opt_.apply_time_effects;
+      if (win.model_param >= 0) {  // a held parameter freed (RE-EXAMINATION)
+        State next = st;
+        next.free[static_cast<size_t>(win.model_param)] = true;
+        absl::StatusOr<Fit> after = Refit(&next);
+        if (!after.ok()) return after.status();
+        diag.notes.push_back(absl::StrFormat(
+            "re-examined with the effects in: %s, held before the search, is estimated now "
+            "(F %.1f > %.1f, BIC %+.1f, held-out sum of squares -%.1f noise units; accelerometer "
+            "held-out RMS %.3f -> %.3f mg)",
+            AccelParamName(win.model_param), win.score.f, win.score.f_threshold,
+            win.score.delta_bic, win.score.press_gain, RmsOf(fit.accel_heldout) / kMgPerMs2,
+            RmsOf(after->accel_heldout) / kMgPerMs2));
+        freed_.push_back(win.model_param);
+        st = next;
+        fit = *after;
+        continue;
+      }
+      const std::vector<Term> entering = TermsOf(win, opt_.apply_time_effects);
+      const bool gyro_only = win.score.sensor == Sensor::kGyro;
       State next = st;
-      next.terms.push_back(term);
-      absl::StatusOr<Fit> after = Refit(&next, term.sensor == Sensor::kGyro ? &fit : nullptr);
+      for (const Term& t : entering) next.terms.push_back(t);
+      absl::StatusOr<Fit> after = Refit(&next, gyro_only ? &fit : nullptr);
       if (!after.ok()) return after.status();
-      Effect e = ToEffect(next.terms.back());
-      e.std_error = after->term_stderr.back();
-      const bool accel = term.sensor == Sensor::kAccel;
-      e.error_before = accel ? RmsOf(fit.accel_heldout) : GyroRms(fit.gyro_heldout);
-      e.error_after = accel ? RmsOf(after->accel_heldout) : GyroRms(after->gyro_heldout);
-      e.evidence = Evidence(win, cands[static_cast<size_t>(static_best)], cands, tests, &diag);
+      const bool accel = !gyro_only;
+      const double before_rms = accel ? RmsOf(fit.accel_heldout) : GyroRms(fit.gyro_heldout);
+      const double after_rms = accel ? RmsOf(after->accel_heldout) : GyroRms(after->gyro_heldout);
+      const std::string evidence =
+          Evidence(win, cands[static_cast<size_t>(static_best)], cands, tests, &diag);
+      if (gave_way >= 0 && !Collinear(win, cands[static_cast<size_t>(gave_way)])) {
+        // Evidence() names collinear rivals; one that gave way on the BIC band alone is named
+        // here, with what would tell them apart.
+        const RoundCandidate& timed = cands[static_cast<size_t>(gave_way)];
+        diag.notes.push_back(absl::StrFormat(
+            "ambiguous: %s entered rather than %s, which the data favour but not strongly (BIC "
+            "%+.1f vs %+.1f, a difference under 6 is not strong evidence): a time term is not "
+            "applied on the robot; %s",
+            Describe(win), Describe(timed), win.score.delta_bic, timed.score.delta_bic,
+            Separator(win.regressor, timed.regressor)));
+      }
+      for (size_t k = 0; k < entering.size(); ++k) {
+        const size_t at = next.terms.size() - entering.size() + k;
+        Effect e = ToEffect(next.terms[at]);
+        e.std_error = after->term_stderr[at];
+        e.error_before = before_rms;
+        e.error_after = after_rms;
+        e.evidence = k + 1 == entering.size() ? evidence
+                                              : Cat("entered with ", Describe(win),
+                                                    " (a power enters with the lower "
+                                                    "ones): ",
+                                                    evidence);
+        out.effects.push_back(e);
+      }
       st = next;
       fit = *after;
-      out.effects.push_back(e);
     }
     // Coefficients as finally refitted (each effect's error_before/after stays as measured when
     // it entered).
@@ -887,7 +1032,8 @@ class Search {
     out.accel = stored.accel;
     out.gyro = in_.gyro;
     out.gyro.bias = in_.gyro.bias + in_.gyro.matrix.inverse() * stored.gyro_offset;
-    FillAccelCovariance(*final_fit, &out);
+    FillAccelCovariance(stored.free, *final_fit, &out);
+    out.accel_free = stored.free;
     for (size_t k = 0, s = 0; k < st.terms.size(); ++k) {
       if (!st.terms[k].applied) continue;
       out.effects[k].coefficient = stored.terms[s].coefficient;
@@ -910,7 +1056,7 @@ class Search {
     const auto n = static_cast<Eigen::Index>(poses_.size());
     Eigen::Index p = 0;
     if (sensor == Sensor::kAccel) {
-      for (bool f : in_.accel_free) p += f;
+      for (bool f : st.free) p += f;
       for (const Term& t : st.terms) p += t.sensor == Sensor::kAccel;
     } else {
       p = 1;
@@ -919,12 +1065,59 @@ class Search {
     return n - p - 1;
   }
 
+  bool InModel(const State& st, Sensor sensor, int axis, const Regressor& r) const {
+    for (const Term& t : st.terms)
+      if (t.sensor == sensor && t.axis == axis && t.regressor == r) return true;
+    return false;
+  }
+
+  // The physical forms of temperature and time (effects.h, POLYNOMIALS): the lower powers that
+  // must enter with `r` on this output (empty: none missing), or nullopt when `r` is not a
+  // candidate yet (a product of temperature and time before both its main terms are in).
+  std::optional<std::vector<Regressor>> LowerPowers(const State& st, Sensor sensor, int axis,
+                                                    const Regressor& r) const {
+    int count[kNumSignals] = {};
+    for (int i = 0; i < r.num_factors; ++i) ++count[r.factors[i]];
+    const int temp = static_cast<int>(Signal::kTemperature);
+    const int time = static_cast<int>(Signal::kTime);
+    if (count[temp] > 0 && count[time] > 0) {
+      if (!InModel(st, sensor, axis, Without(r, temp)) ||
+          !InModel(st, sensor, axis, Without(r, time)))
+        return std::nullopt;
+      return std::vector<Regressor>{};
+    }
+    for (int s : {temp, time}) {
+      if (count[s] < 2) continue;
+      const Regressor below = Without(r, s);
+      if (InModel(st, sensor, axis, below)) return std::vector<Regressor>{};
+      return std::vector<Regressor>{below};
+    }
+    return std::vector<Regressor>{};
+  }
+
+  // `r` with one factor of `signal` removed (its centre kept while a factor of it remains).
+  static Regressor Without(const Regressor& r, int signal) {
+    Regressor out;
+    bool removed = false;
+    for (int i = 0; i < r.num_factors; ++i) {
+      if (!removed && r.factors[i] == signal) {
+        removed = true;
+        continue;
+      }
+      out.factors[out.num_factors++] = r.factors[i];
+    }
+    for (int i = 0; i < out.num_factors; ++i)
+      out.centre[static_cast<size_t>(out.factors[i])] =
+          r.centre[static_cast<size_t>(out.factors[i])];
+    return out;
+  }
+
   void ScoreRound(const State& st, const std::array<bool, kNumSignals>& excited,
                   std::vector<RoundCandidate>* cands, int* absorbed, int* not_excited) {
     // Accelerometer design at the current state.
-    SetAccelModelSigma(st, in_.accel_free, signals_, in_.gravity_m_s2, &poses_);
+    SetAccelModelSigma(st, st.free, signals_, in_.gravity_m_s2, &poses_);
     const std::vector<AccelPose> ap = AccelPoses(poses_);
-    const Design ad = AccelDesign(st, ap, in_.accel_free, signals_, in_.gravity_m_s2);
+    const Design ad = AccelDesign(st, ap, st.free, signals_, in_.gravity_m_s2);
     const Scorer accel_scorer(ad);
     std::vector<std::unique_ptr<Scorer>> gyro_scorers;
     std::vector<std::vector<double>> gyro_w;
@@ -937,7 +1130,8 @@ class Search {
       gyro_w.push_back(g.design.weight);
     }
     const auto n = static_cast<Eigen::Index>(poses_.size());
-    for (const Regressor& r : Dictionary(opt_.max_factors)) {
+    for (const Regressor& plain : Dictionary(opt_.max_factors)) {
+      const Regressor r = plain.CentredOn(centre_);
       bool ok = true;
       for (int f = 0; f < r.num_factors; ++f) ok &= excited[static_cast<size_t>(r.factors[f])];
       bool has_values = true;
@@ -958,30 +1152,60 @@ class Search {
             continue;
           }
           if (!MainTermModelled(st, static_cast<Sensor>(sensor), axis, r)) continue;
-          Eigen::VectorXd col(n);
+          const std::optional<std::vector<Regressor>> lower =
+              LowerPowers(st, static_cast<Sensor>(sensor), axis, r);
+          if (!lower.has_value()) continue;
+          std::vector<Regressor> group = *lower;
+          group.push_back(r);
+          Eigen::MatrixXd cols(n, static_cast<Eigen::Index>(group.size()));
           for (Eigen::Index i = 0; i < n; ++i) {
             const auto ii = static_cast<size_t>(i);
-            const double x = r.Evaluate(signals_[ii]);
-            col(i) = sensor == 0 ? AccelEffectDerivative(st.accel, ap[ii], axis, x) * ad.weight[ii]
-                                 : x * gyro_w[static_cast<size_t>(axis)][ii];
+            for (size_t g = 0; g < group.size(); ++g) {
+              const double x = group[g].Evaluate(signals_[ii]);
+              cols(i, static_cast<Eigen::Index>(g)) =
+                  sensor == 0 ? AccelEffectDerivative(st.accel, ap[ii], axis, x) * ad.weight[ii]
+                              : x * gyro_w[static_cast<size_t>(axis)][ii];
+            }
           }
           RoundCandidate c;
           c.regressor = r;
+          c.lower = *lower;
           c.score.sensor = sensor == 0 ? Sensor::kAccel : Sensor::kGyro;
           c.score.axis = axis;
           c.score.regressor = r.Name();
           const Scorer& scorer =
               sensor == 0 ? accel_scorer : *gyro_scorers[static_cast<size_t>(axis)];
-          if (!scorer.Score(col, &c.score, &c.perp)) {
+          Eigen::VectorXd coefficients;
+          if (!scorer.Score(cols, &c.score, &c.perp, &coefficients)) {
             ++*absorbed;
             continue;
           }
           // The accelerometer column is d r / d c = -n x: the coefficient has the opposite sign
           // of the projection.
-          if (sensor == 0) c.score.coefficient = -c.score.coefficient;
+          if (sensor == 0) coefficients = -coefficients;
+          c.score.coefficient = coefficients(coefficients.size() - 1);
+          for (size_t g = 0; g < c.lower.size(); ++g)
+            c.lower_coefficients.push_back(coefficients(static_cast<Eigen::Index>(g)));
           cands->push_back(std::move(c));
         }
       }
+    }
+    // RE-EXAMINATION (effects.h): once an effect is in, the parameters the model held.
+    if (st.terms.empty()) return;
+    const Eigen::MatrixXd j = MagnitudeJacobian(st.accel, ap);
+    for (int p = 0; p < kAccelParams; ++p) {
+      if (!in_.accel_held[static_cast<size_t>(p)] || st.free[static_cast<size_t>(p)]) continue;
+      Eigen::MatrixXd col(n, 1);
+      for (Eigen::Index i = 0; i < n; ++i) col(i, 0) = j(i, p) * ad.weight[static_cast<size_t>(i)];
+      RoundCandidate c;
+      c.model_param = p;
+      c.score.sensor = Sensor::kAccel;
+      c.score.axis = p % 3;
+      c.score.regressor = Cat("model ", AccelParamName(p));
+      Eigen::VectorXd coefficients;
+      if (!accel_scorer.Score(col, &c.score, &c.perp, &coefficients)) continue;
+      c.score.coefficient = -c.score.coefficient;  // the Gauss-Newton step of the parameter
+      cands->push_back(std::move(c));
     }
   }
 
@@ -992,6 +1216,14 @@ class Search {
     if (a.score.sensor == Sensor::kGyro && a.score.axis != b.score.axis) return false;
     const double corr = std::abs(a.perp.dot(b.perp)) / (a.perp.norm() * b.perp.norm());
     return corr > kAmbiguousCorrelation;
+  }
+
+  // True when `b` holds `a`'s terms and more (`a` = (temperature-31.2), `b` = (temperature-31.2)
+  // + (temperature-31.2)^2) on the same output.
+  static bool Nested(const RoundCandidate& a, const RoundCandidate& b) {
+    if (a.score.sensor != b.score.sensor || a.score.axis != b.score.axis || !a.lower.empty())
+      return false;
+    return std::find(b.lower.begin(), b.lower.end(), a.regressor) != b.lower.end();
   }
 
   // True when `a` and `b` are collinear and their BIC differ by less than `max_delta_bic`.
@@ -1063,12 +1295,13 @@ class Search {
   // misalignment of the gyroscope would explain, not a quadratic pattern over the poses.
   void ResolveByMoves(const State& st, std::vector<RoundCandidate>* cands, int* best) const {
     const size_t b = static_cast<size_t>(*best);
-    if (!in_.move_fit || (*cands)[b].score.sensor != Sensor::kAccel) return;
+    if (!in_.move_fit || (*cands)[b].score.sensor != Sensor::kAccel || (*cands)[b].model_param >= 0)
+      return;
     std::vector<size_t> group = {b};
     std::vector<size_t> others;
     for (size_t c = 0; c < cands->size(); ++c)
       if (c != b && (*cands)[c].score.passed && (*cands)[c].score.sensor == Sensor::kAccel &&
-          !SameGeometry((*cands)[b], (*cands)[c]))
+          (*cands)[c].model_param < 0 && !SameGeometry((*cands)[b], (*cands)[c]))
         others.push_back(c);
     std::sort(others.begin(), others.end(), [&](size_t x, size_t y) {
       return (*cands)[x].score.delta_bic < (*cands)[y].score.delta_bic;
@@ -1079,13 +1312,8 @@ class Search {
     std::vector<std::vector<double>> errors;  // per group member; kept only if all were judged
     for (size_t c : group) {
       State trial = st;
-      Term term;
-      term.sensor = Sensor::kAccel;
-      term.axis = (*cands)[c].score.axis;
-      term.regressor = (*cands)[c].regressor;
-      term.coefficient = (*cands)[c].score.coefficient;
-      trial.terms.push_back(term);
-      AccelGaussNewton(in_.accel_free, signals_, in_.gravity_m_s2, poses_, &trial, 8);
+      for (const Term& t : TermsOf((*cands)[c], true)) trial.terms.push_back(t);
+      AccelGaussNewton(trial.free, signals_, in_.gravity_m_s2, poses_, &trial, 8);
       const std::optional<MoveFit> f = in_.move_fit(Directions(trial));
       if (!f || f->error_rad.size() < 3) return;  // the moves say nothing: the static choice
       for (double e : f->error_rad)
@@ -1118,7 +1346,7 @@ class Search {
   std::string Evidence(const RoundCandidate& win, const RoundCandidate& static_best,
                        const std::vector<RoundCandidate>& cands, int tests,
                        EffectDiagnostics* diag) {
-    const std::string win_name = Describe(win.score.sensor, win.score.axis, win.regressor);
+    const std::string win_name = Describe(win);
     const auto judged = static_cast<int>(
         std::count_if(cands.begin(), cands.end(), [](const auto& c) { return c.Judged(); }));
     const double t_crit = MoveTThreshold(judged - 1, win.move_error_rad.size());
@@ -1127,15 +1355,17 @@ class Search {
           "resolved by the rotations between poses: %s rather than %s, %s (BIC %+.1f vs %+.1f); "
           "the gyroscope, refitted to each one's pose directions, leaves %.4f vs %.4f deg RMS "
           "after the %d moves (paired t %.1f > %.1f)",
-          win_name, Describe(lost.score.sensor, lost.score.axis, lost.regressor), why,
-          win.score.delta_bic, lost.score.delta_bic, win.MoveRms() * kRadToDeg,
-          lost.MoveRms() * kRadToDeg, static_cast<int>(win.move_error_rad.size()),
-          MovePairedT(lost, win), t_crit));
+          win_name, Describe(lost), why, win.score.delta_bic, lost.score.delta_bic,
+          win.MoveRms() * kRadToDeg, lost.MoveRms() * kRadToDeg,
+          static_cast<int>(win.move_error_rad.size()), MovePairedT(lost, win), t_crit));
     };
     if (&win != &static_best) by_moves(static_best, "which |a| - g preferred");
     std::string rivals;
     for (const RoundCandidate& c : cands) {
       if (&c == &win || &c == &static_best || !Ambiguous(win, c, kWeakEvidenceBic)) continue;
+      // A polynomial and its own lower power are not rival explanations: the higher one is
+      // tested again next round, with the lower one in.
+      if (Nested(win, c) || Nested(c, win)) continue;
       // |a| - g does not tell them apart; the moves may, unless they differ in temperature or
       // time only.
       const double t = SameGeometry(win, c) ? kNaN : MovePairedT(c, win);
@@ -1143,7 +1373,7 @@ class Search {
         by_moves(c, "which explains |a| - g as well");
         continue;
       }
-      const std::string name = Describe(c.score.sensor, c.score.axis, c.regressor);
+      const std::string name = Describe(c);
       rivals += Cat(rivals.empty() ? "" : ", ", name);
       const double gap = std::abs(win.score.delta_bic - c.score.delta_bic);
       const std::string favoured = win.score.delta_bic <= c.score.delta_bic ? win_name : name;
@@ -1196,10 +1426,10 @@ class Search {
     }
   }
 
-  void FillAccelCovariance(const Fit& fit, EffectSearchResult* out) const {
+  static void FillAccelCovariance(const AccelMask& free, const Fit& fit, EffectSearchResult* out) {
     std::vector<int> idx;
     for (int c = 0; c < kAccelParams; ++c)
-      if (in_.accel_free[static_cast<size_t>(c)]) idx.push_back(c);
+      if (free[static_cast<size_t>(c)]) idx.push_back(c);
     for (size_t a = 0; a < idx.size(); ++a)
       for (size_t b = 0; b < idx.size(); ++b)
         out->accel_covariance(idx[a], idx[b]) =
@@ -1264,6 +1494,9 @@ class Search {
   std::vector<SignalArray> signals_;
   std::vector<Eigen::Vector3d> rates_;
   std::vector<Eigen::Vector3d> gyro_sigma_;
+  EffectReference reference_;
+  SignalArray centre_{};    // reference_ indexed by Signal
+  std::vector<int> freed_;  // held parameters freed by the re-examination, in order
 };
 
 }  // namespace

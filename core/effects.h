@@ -31,6 +31,16 @@
 // Without moves, or when they do not decide, the search reports the tie rather than pretending
 // to know the axis.
 //
+// POLYNOMIALS in temperature and time are written about a reference inside the capture
+// (EffectReference: the mean pose temperature and time), `(temperature-31.2)` rather than
+// `temperature`: degC and time since power-on have no physical zero, so a polynomial about 0
+// has nearly collinear coefficients and a square alone cannot put its turnover anywhere but at
+// 0. A power enters only with its lower powers: `(temperature-31.2)^2` on an output where
+// `(temperature-31.2)` is not in is scored as the pair (an F test on 2 degrees of freedom, BIC
+// penalty 2 ln N, the held-out margin per column), so a quadratic with its turnover anywhere is
+// one candidate. A product of temperature and time is a candidate only once both its main
+// terms are in on that output.
+//
 // MARGINALITY: a regressor that multiplies temperature or time with sensor signals
 // (`temperature*ax`) is a candidate on an output only once its sensor part (`ax`) is modelled
 // there, by the model's own terms or an effect already in: it says how a coefficient changes,
@@ -53,10 +63,19 @@
 // the current model, correlation over 0.9) whose BIC is within 6 of it are named in the notes
 // with what would tell them apart: the data do not strongly prefer one (Kass and Raftery: a
 // BIC difference under 2 is "barely worth a mention", 2-6 "positive", over 6 "strong"). Within 2
-// the simpler regressor (and one without `time`) enters. A `time` term that wins by less than
-// 6 over its temperature twin (the same term with temperature in place of time) gives way to
-// it: the twin is applied on the robot, a time term is not, so a weak preference for time would
-// leave a real temperature effect uncorrected (the note still names both).
+// the simpler regressor (and one without `time`) enters. PREFER WHAT THE ROBOT CAN APPLY: unless
+// time effects are opted in, a candidate containing `time` gives way to the best passing one
+// made only of run-time signals (temperature, specific force) on the same sensor within 6 of its
+// BIC (collinear with it or not): a time term is not applied on the robot, so a weak
+// preference for time would leave a real effect uncorrected (the notes still name both, and
+// what capture would tell them apart).
+// RE-EXAMINATION: an unmodelled effect masks what the base model's selection saw (a warm-up's
+// drift hides a quadratic's evidence, so the selection held it at 0). Once an effect is in, every
+// parameter in EffectSearchInput::accel_held is a candidate of each round beside the effects,
+// scored by the same F, BIC and held-out rule on its column of the |a| - g Jacobian; one that
+// passes and wins the round is freed (estimated from then on) and the rounds go on, so the
+// model is examined again after every change until nothing passes. The notes name each one
+// freed. (The gyroscope's static model is its bias alone: it holds nothing to re-examine.)
 // THE MOVES then judge accelerometer candidates when the pipeline gives EffectSearchInput::
 // move_fit: the best passing ones by BIC (up to 8) that differ from the chosen one in their
 // output axis or specific-force factors (not only in temperature or time, which the moves,
@@ -110,9 +129,19 @@ struct MoveFit {
   std::vector<double> error_rad;
 };
 
+// An effect whose form the caller knows (sensor, axis, regressor): it enters the model before the
+// search, its coefficient fitted with the model's. A centred factor sets the reference the other
+// effects are centred on (all given effects must agree on it).
+struct GivenEffect {
+  Sensor sensor = Sensor::kAccel;
+  int axis = 0;
+  std::string regressor;
+};
+
 struct EffectSearchOptions {
   bool enabled = true;
-  double family_alpha = 0.01;  // false-alarm probability per round over all candidates
+  std::vector<GivenEffect> given;  // entered before the search (e.g. a reference fit)
+  double family_alpha = 0.01;      // false-alarm probability per round over all candidates
   int max_effects = 10;
   int max_factors = 2;  // regressors of at most this many factors
   // Effects on `time` (drift since power-on) are found and reported; applied only when true.
@@ -190,6 +219,10 @@ struct EffectSearchInput {
   double gravity_m_s2 = kStandardGravity;
   AccelParams accel;       // the converged model without effects
   AccelMask accel_free{};  // its free parameters
+  // Parameters the data determine but the model held (a quadratic the selection kept at 0, an
+  // angle kept at the face references): once an effect is in, each is tested again with it
+  // present, by the same rule as a candidate effect (RE-EXAMINATION).
+  AccelMask accel_held{};
   GyroParams gyro;
   // False when the gyro model's output is not in rad/s (raw counts without a calibrated scale):
   // gyroscope effects are then not searched.
@@ -210,7 +243,9 @@ struct EffectSearchResult {
   AccelParams accel;  // refitted jointly with the applied accelerometer effects
   GyroParams gyro;    // bias refitted with the applied gyroscope effects
   AccelMatrix accel_covariance = AccelMatrix::Zero();
+  AccelMask accel_free{};       // the parameters estimated in the end (input's, and any freed)
   std::vector<Effect> effects;  // in the order found
+  EffectReference reference;    // what the effects' centred factors are taken about
   EffectDiagnostics diagnostics;
 };
 

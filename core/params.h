@@ -12,6 +12,7 @@
 
 #include "core/capture.h"
 #include "core/model.h"
+#include "core/regressor.h"
 
 namespace imucal::core {
 
@@ -33,6 +34,41 @@ struct Effect {
   bool applied = true;        // time effects are reported but applied only if the user opts in
   std::string evidence;
 };
+
+// The references that effects' centred factors are taken about (report.md, effect_reference):
+// a regressor `(temperature-31.2)^2` reads temperature_c = 31.2. The search takes the capture's
+// mean pose temperature (rounded to 0.1 degC) and mean pose time (rounded to 1 s), where a
+// polynomial's coefficients are least correlated. Parameter sets written before centring had
+// none: a missing reference is 0, which is what their uncentred names mean.
+struct EffectReference {
+  double temperature_c = 0.0;  // degC
+  double time_s = 0.0;         // s from the time origin (capture start)
+  friend bool operator==(const EffectReference&, const EffectReference&) = default;
+};
+
+// Empty when every centred factor of `r` is taken about `reference` (a plain factor means what
+// it says, about 0, whatever the reference); else what differs, e.g.
+// `centred on temperature 30 but effect_reference.temperature is 31.2` (a name that the
+// reference does not state would make the SDK evaluate something other than what was fitted).
+inline std::string CentreMismatch(const Regressor& r, const EffectReference& reference) {
+  const auto check = [&](Signal s, double stated) -> std::string {
+    const double c = r.centre[static_cast<size_t>(s)];
+    bool uses = false;
+    for (int i = 0; i < r.num_factors; ++i) uses |= r.factors[i] == static_cast<int>(s);
+    if (!uses || c == 0.0 || c == stated) return "";
+    const std::string name(kSignalNames[static_cast<size_t>(s)]);
+    Regressor one;  // the shortest spelling of each number, as names write them
+    one.factors[0] = static_cast<int>(s);
+    one.num_factors = 1;
+    one.centre[static_cast<size_t>(s)] = c;
+    Regressor ref = one;
+    ref.centre[static_cast<size_t>(s)] = stated;
+    return "written " + one.Name() + " but effect_reference." + name + " makes it " + ref.Name();
+  };
+  std::string out = check(Signal::kTemperature, reference.temperature_c);
+  if (out.empty()) out = check(Signal::kTime, reference.time_s);
+  return out;
+}
 
 // One-sigma standard errors of the parameters, in the parameters' own units. NaN where the
 // data did not determine the parameter (see CalibrationReport::observability).
@@ -85,6 +121,7 @@ struct ParamSet {
   GyroParams gyro;
   bool gyro_calibrated = false;  // false: only the gyro bias was determined (matrix nominal)
   std::vector<Effect> effects;
+  EffectReference effect_reference;
   ParamStdErrors stderrs;
   double quality_accel_rms_m_s2 = 0.0;
   double quality_gyro_static_rms_rad_s = 0.0;
@@ -101,7 +138,8 @@ inline constexpr const char* kModelText =
     "a[m/s^2] = R(frame_angles)*L(tri_angles)*z, L unit lower-triangular "
     "[[1,0,0],[t_yx,1,0],[t_zx,t_zy,1]], R = exp([frame_angles]x). "
     "gyro: w[rad/s] = matrix*(u - bias) - accel_coupling*a. "
-    "effects: out[axis] -= coefficient*regressor. u in the stated input units.";
+    "effects: out[axis] -= coefficient*regressor, a centred factor (temperature-T0) read about "
+    "effect_reference. u in the stated input units.";
 
 }  // namespace imucal::core
 

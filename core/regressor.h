@@ -3,8 +3,17 @@
 //
 // Grammar (case-sensitive; spaces and tabs around a term are ignored):
 //   regressor = term ('*' term)*        at most kMaxRegressorFactors factors in all
-//   term      = signal | signal '^2'
+//   term      = base | base '^2'
+//   base      = signal | '(' centred ('-' | '+') number ')'
 //   signal    = temperature | time | ax | ay | az | gx | gy | gz
+//   centred   = temperature | time
+// A centred factor `(temperature-31.2)` is the signal minus its reference (report.md,
+// "effect_reference"): degC and time since power-on have no physical zero, so a polynomial in
+// them is written about a reference inside the data, where its coefficients are nearly
+// independent (`(temperature-31.2)^2` next to `(temperature-31.2)` is a quadratic with its
+// turnover wherever the two put it). One reference per signal within a regressor. The number is
+// written in the shortest form that reads back to the same double, so a name evaluates exactly
+// what was fitted.
 // Units: temperature degC; time s from capture start; ax..az specific force m/s^2; gx..gz rate
 // rad/s (calibrated values in a solve, true values in the simulator).
 //
@@ -18,6 +27,7 @@
 #define IMUCAL_CORE_REGRESSOR_H_
 
 #include <array>
+#include <charconv>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -51,12 +61,35 @@ struct Regressor {
   // that the defaulted == compares the factor multiset only.
   std::array<int, kMaxRegressorFactors> factors = {};
   int num_factors = 0;  // 0: the constant 1 (never produced by ParseRegressor; Name() is "")
+  // Per signal, the reference its factors are centred on (0: not centred). Only temperature and
+  // time are ever centred; entries of signals the regressor does not use stay 0.
+  SignalArray centre{};
 
-  // Product of the factor signals. `signals` indexed by Signal.
+  // Product of the factor signals, each minus its centre. `signals` indexed by Signal.
   double Evaluate(const SignalArray& signals) const {
     double value = 1.0;
-    for (int i = 0; i < num_factors; ++i) value *= signals[static_cast<size_t>(factors[i])];
+    for (int i = 0; i < num_factors; ++i) {
+      const auto s = static_cast<size_t>(factors[i]);
+      value *= signals[s] - centre[s];
+    }
     return value;
+  }
+
+  // This regressor with its temperature and time factors centred on `reference` (indexed by
+  // Signal; only the temperature and time entries are read).
+  Regressor CentredOn(const SignalArray& reference) const {
+    Regressor out = *this;
+    out.centre = {};
+    for (int i = 0; i < num_factors; ++i) {
+      const auto s = static_cast<size_t>(factors[i]);
+      if (IsCentrable(factors[i])) out.centre[s] = reference[s];
+    }
+    return out;
+  }
+
+  static bool IsCentrable(int signal) {
+    return signal == static_cast<int>(Signal::kTemperature) ||
+           signal == static_cast<int>(Signal::kTime);
   }
 
   // The canonical name; ParseRegressor(Name()) == *this.
@@ -69,7 +102,7 @@ struct Regressor {
       while (i + run < num_factors && factors[i + run] == signal) ++run;
       for (int k = 0; k < run; k += 2) {
         if (!name.empty()) name += '*';
-        name += kSignalNames[static_cast<size_t>(signal)];
+        name += FactorName(signal);
         if (k + 1 < run) name += "^2";
       }
       i += run;
@@ -78,6 +111,19 @@ struct Regressor {
   }
 
   friend bool operator==(const Regressor&, const Regressor&) = default;
+
+ private:
+  // `temperature`, or `(temperature-31.2)` when centred.
+  std::string FactorName(int signal) const {
+    const std::string_view base = kSignalNames[static_cast<size_t>(signal)];
+    const double c = centre[static_cast<size_t>(signal)];
+    if (c == 0.0) return std::string(base);
+    std::array<char, 32> digits{};
+    const std::to_chars_result r =
+        std::to_chars(digits.data(), digits.data() + digits.size(), c < 0 ? -c : c);
+    return "(" + std::string(base) + (c < 0 ? "+" : "-") +
+           std::string(digits.data(), static_cast<size_t>(r.ptr - digits.data())) + ")";
+  }
 };
 
 namespace regressor_internal {
@@ -96,12 +142,35 @@ inline std::optional<int> SignalIndex(std::string_view name) {
   return std::nullopt;
 }
 
+// `(temperature-31.2)` -> (signal, centre); nullopt when `term` is not a well-formed centred
+// factor of a centrable signal.
+inline std::optional<std::pair<int, double>> CentredFactor(std::string_view term) {
+  if (term.size() < 5 || term.front() != '(' || term.back() != ')') return std::nullopt;
+  term = term.substr(1, term.size() - 2);
+  const size_t sign = term.find_first_of("+-");
+  if (sign == std::string_view::npos) return std::nullopt;
+  const std::optional<int> signal = SignalIndex(Trim(term.substr(0, sign)));
+  if (!signal.has_value() || !Regressor::IsCentrable(*signal)) return std::nullopt;
+  const std::string_view number = Trim(term.substr(sign + 1));
+  double value = 0;
+  const std::from_chars_result r =
+      std::from_chars(number.data(), number.data() + number.size(), value);
+  if (r.ec != std::errc() || r.ptr != number.data() + number.size() || !(value == value) ||
+      value - value != 0) {  // NaN or infinite
+    return std::nullopt;
+  }
+  return std::make_pair(*signal, term[sign] == '-' ? value : -value);
+}
+
 }  // namespace regressor_internal
 
 // Parses a regressor name (grammar above). nullopt for anything else: an unknown signal, an
-// empty term (`ax**az`, `ax*`), another power (`ax^3`), more than kMaxRegressorFactors factors.
+// empty term (`ax**az`, `ax*`), another power (`ax^3`), more than kMaxRegressorFactors factors,
+// a centred sensor signal (`(ax-1)`), one signal with two references
+// (`temperature*(temperature-30)`).
 inline std::optional<Regressor> ParseRegressor(std::string_view text) {
   Regressor regressor;
+  std::array<bool, kNumSignals> seen{};
   while (true) {
     const size_t star = text.find('*');
     std::string_view term = regressor_internal::Trim(text.substr(0, star));
@@ -110,10 +179,19 @@ inline std::optional<Regressor> ParseRegressor(std::string_view text) {
       power = 2;
       term = regressor_internal::Trim(term.substr(0, term.size() - 2));
     }
-    const std::optional<int> signal = regressor_internal::SignalIndex(term);
+    std::optional<int> signal = regressor_internal::SignalIndex(term);
+    double centre = 0.0;
+    if (!signal.has_value()) {
+      const auto centred = regressor_internal::CentredFactor(term);
+      if (centred.has_value()) signal = centred->first, centre = centred->second;
+    }
     if (!signal.has_value() || regressor.num_factors + power > kMaxRegressorFactors) {
       return std::nullopt;
     }
+    const auto s = static_cast<size_t>(*signal);
+    if (seen[s] && regressor.centre[s] != centre) return std::nullopt;
+    seen[s] = true;
+    regressor.centre[s] = centre;
     for (int k = 0; k < power; ++k) regressor.factors[regressor.num_factors++] = *signal;
     if (star == std::string_view::npos) break;
     text.remove_prefix(star + 1);

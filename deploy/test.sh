@@ -43,7 +43,7 @@ cmake --build build-tsan -j "$jobs" --target server_test validation_test store_t
   auth_matrix_test log_test config_test
 TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$root/tests/tsan.supp" \
   ctest --test-dir build-tsan -j "$jobs" --output-on-failure --timeout 1800 \
-  -R '^(ServerTest|ValidationTest|ParamCrcCacheTest|ActiveParamCacheTest|StatusUtilTest|StoreTest|BatchTest|SqliteDbTest|SqliteStatusTest|AuthRules|AuthTest|LogTest|RpcLogTest|ConfigTest)\.'
+  -R '^(ServerTest|ValidationTest|ParamCrcCacheTest|ActiveParamCacheTest|StatusUtilTest|StreamRegistryTest|StoreTest|BatchTest|SqliteDbTest|SqliteStatusTest|AuthRules|AuthTest|LogTest|RpcLogTest|ConfigTest)\.'
 
 # 3. Fuzzers: each target for FUZZ_SECONDS from its seeds; a crash fails the run and leaves
 # the input in build-fuzz/crashes/<target>/ (keep it in tests/fuzz/regressions/<target>/).

@@ -393,6 +393,16 @@ absl::Status ReadEffects(const Json& j, const std::string& path, std::vector<cor
   return absl::OkStatus();
 }
 
+// Optional, and each field in it: a missing reference is 0 (parameter sets written before
+// centred factors existed use plain `temperature`, i.e. about 0 degC).
+absl::Status ReadEffectReference(const Json& j, const std::string& path,
+                                 core::EffectReference* out) {
+  IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
+  IMUCAL_RETURN_IF_ERROR(
+      Member(j, path, "temperature", kOptional, Numbers(Null::kReject), &out->temperature_c));
+  return Member(j, path, "time", kOptional, Numbers(Null::kReject), &out->time_s);
+}
+
 absl::Status ReadQuality(const Json& j, const std::string& path, core::ParamSet* out) {
   IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
   IMUCAL_RETURN_IF_ERROR(
@@ -475,6 +485,14 @@ absl::Status ReadParamSet(const Json& j, const std::string& path, core::ParamSet
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "accel", kRequired, ReadAccel, out));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "gyro", kRequired, ReadGyro, out));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "effects", kOptional, ReadEffects, &out->effects));
+  IMUCAL_RETURN_IF_ERROR(
+      Member(j, path, "effect_reference", kOptional, ReadEffectReference, &out->effect_reference));
+  for (size_t i = 0; i < out->effects.size(); ++i) {
+    const std::string mismatch = core::CentreMismatch(
+        *core::ParseRegressor(out->effects[i].regressor), out->effect_reference);
+    if (!mismatch.empty())
+      return PathError(Child(Element(Child(path, "effects"), i), "regressor"), mismatch);
+  }
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "quality", kOptional, ReadQuality, out));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "noise", kOptional, ReadNoise, &out->noise));
   return Member(j, path, "source", kOptional, ReadSource, out);
@@ -539,6 +557,14 @@ std::string ParamSetToJson(const core::ParamSet& params) {
   OrderedJson effects = OrderedJson::array();
   for (const core::Effect& e : params.effects) effects.push_back(EffectToJson(e));
   j["effects"] = std::move(effects);
+  // Written whenever it is not the default, so an older reader that ignores it still sees the
+  // references spelled in each centred name.
+  if (params.effect_reference != core::EffectReference()) {
+    OrderedJson reference = OrderedJson::object();
+    reference["temperature"] = Number(params.effect_reference.temperature_c);
+    reference["time"] = Number(params.effect_reference.time_s);
+    j["effect_reference"] = std::move(reference);
+  }
 
   OrderedJson quality = OrderedJson::object();
   quality["accel_rms"] = Number(params.quality_accel_rms_m_s2);

@@ -285,6 +285,10 @@ absl::StatusOr<PrincipalRef> Authorizer::FromToken(std::string_view secret, int6
   if (!token.ok()) return absl::UnavailableError("the token table cannot be read; retry");
   CacheEntry entry;
   entry.expires = now + options_.cache_ttl;
+  std::unique_lock lock(cache_mu_);
+  // Read before a revocation through this server committed, the row still says valid: the
+  // revoked id, noted before the revocation cleared the cache, says otherwise.
+  if (!token->revoked() && revoked_ids_.contains(token->id)) token->revoked_at = now;
   if (token->revoked()) {
     entry.revoked_id = token->id;
     entry.revoked_reason =
@@ -298,7 +302,6 @@ absl::StatusOr<PrincipalRef> Authorizer::FromToken(std::string_view secret, int6
     p->actor = ActorOfToken(*token);
     entry.principal = std::move(p);
   }
-  std::unique_lock lock(cache_mu_);
   CacheEntry& stored = cache_[key] = std::move(entry);
   if (stored.principal == nullptr) {
     *revoked_id = stored.revoked_id;
@@ -407,11 +410,18 @@ absl::StatusOr<storage::NewToken> Authorizer::CreateToken(storage::Role role,
 absl::StatusOr<storage::Token> Authorizer::RevokeToken(int64_t id, std::string_view actor) {
   if (tokens_ == nullptr) return NoTokensWhenInsecure();
   absl::StatusOr<storage::Token> revoked = tokens_->Revoke(id, actor);
-  if (revoked.ok()) {
+  if (!revoked.ok()) return revoked;
+  {
     std::unique_lock lock(cache_mu_);
+    revoked_ids_.insert(id);
     absl::erase_if(cache_, [id](const auto& kv) {
       return kv.second.principal != nullptr && kv.second.principal->token_id == id;
     });
+  }
+  if (on_revoke_) {
+    const absl::Time at = revoked->revoked_at.value_or(absl::Now());
+    on_revoke_(id, Cat("token ", id, " was revoked at ",
+                       absl::FormatTime(absl::RFC3339_sec, at, absl::UTCTimeZone())));
   }
   return revoked;
 }

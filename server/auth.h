@@ -16,9 +16,12 @@
 // Cost. The hot path (GetActiveParameters) hashes the secret (SHA-256, about a microsecond)
 // and finds the principal in an in-memory cache keyed by that hash, under a shared lock; the
 // token table is read only on a miss. Revoking through the server drops the token's entries at
-// once; an entry also expires after `cache_ttl`, so a change made to the file by another
-// process is seen within that time. Unknown secrets are remembered too (a bounded set), so a
-// client retrying a bad token does not read the table on every call.
+// once, remembers the id (a lookup that read the table just before the revocation cannot put
+// it back), and ends the calls still open with it (the revocation listener: the server's open
+// streams and watches); an entry also expires after `cache_ttl`, so a change made to the file
+// by another process is seen within that time (streams check their token at every batch).
+// Unknown secrets are remembered too (a bounded set), so a client retrying a bad token does
+// not read the table on every call.
 //
 // Audit. Every denial is recorded in the audit log (action "auth.deny", target "rpc:<method>",
 // the actor naming the token id, the detail the code and the reason), coalesced so that a flood
@@ -37,6 +40,7 @@
 #define IMUCAL_SERVER_AUTH_H_
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -48,6 +52,7 @@
 #include <vector>
 
 #include "absl/container/flat_hash_map.h"
+#include "absl/container/flat_hash_set.h"
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
@@ -157,6 +162,11 @@ class Authorizer {
   absl::StatusOr<storage::NewToken> CreateToken(storage::Role role, std::string_view device_id,
                                                 std::string_view label, std::string_view actor);
   absl::StatusOr<storage::Token> RevokeToken(int64_t id, std::string_view actor);
+  // Called by RevokeToken, after the revocation is stored, with the token's id and why: the
+  // server ends the calls still open with it. Set once, before the server serves.
+  void SetRevocationListener(std::function<void(int64_t id, const std::string& why)> listener) {
+    on_revoke_ = std::move(listener);
+  }
   absl::StatusOr<std::vector<storage::Token>> ListTokens(bool include_revoked);
 
   // Audit rows written for denials so far, and denials suppressed (coalesced) so far.
@@ -198,9 +208,13 @@ class Authorizer {
   AuthorizerOptions options_;
   PrincipalRef insecure_principal_;
 
+  std::function<void(int64_t id, const std::string& why)> on_revoke_;
+
   std::shared_mutex cache_mu_;
   absl::flat_hash_map<std::string, CacheEntry> cache_;  // by SHA-256; guarded by cache_mu_
   absl::flat_hash_map<std::string, bool> unknown_;      // hashes of unknown secrets; cache_mu_
+  // Tokens revoked through this server (ids: a few per revocation ever made); cache_mu_.
+  absl::flat_hash_set<int64_t> revoked_ids_;
 
   mutable std::mutex deny_mu_;
   // (caller key, rpc, code) -> its coalescing state; guarded by deny_mu_. Bounded: callers are

@@ -243,6 +243,34 @@ std::vector<ConfigOption> BuildOptions() {
           "RESOURCE_EXHAUSTED (default 16)",
           1, 100000,
           [](DaemonConfig& c) -> int& { return c.server.sessions.max_watchers_per_session; }),
+      // Streams that hold a place without using it (SessionServiceOptions, stream_registry.h).
+      IntegerOption<int>(
+          "max_streams", "IMUCALD_MAX_STREAMS",
+          "StreamSamples and WatchSession calls open on the server at once, counted from the "
+          "moment they open; more are refused with RESOURCE_EXHAUSTED (default 10000)",
+          1, 1000000, [](DaemonConfig& c) -> int& { return c.server.sessions.max_streams; }),
+      IntegerOption<int>(
+          "max_streams_per_token", "IMUCALD_MAX_STREAMS_PER_TOKEN",
+          "StreamSamples and WatchSession calls one token (or robot client certificate) may "
+          "have open; more are refused with RESOURCE_EXHAUSTED (default 16)",
+          1, 1000000,
+          [](DaemonConfig& c) -> int& { return c.server.sessions.max_streams_per_token; }),
+      DurationOption(
+          "first_batch_timeout", "IMUCALD_FIRST_BATCH_TIMEOUT",
+          "a sample stream that sends no batch this long after it opens is ended "
+          "DEADLINE_EXCEEDED (default 30s)",
+          [](DaemonConfig& c) -> absl::Duration& { return c.server.sessions.first_batch_timeout; }),
+      DurationOption(
+          "stream_idle_timeout", "IMUCALD_STREAM_IDLE_TIMEOUT",
+          "a sample stream that sends no batch this long after an ack is ended "
+          "DEADLINE_EXCEEDED; one that does not read its ack this long is cancelled "
+          "(default 1m)",
+          [](DaemonConfig& c) -> absl::Duration& { return c.server.sessions.stream_idle_timeout; }),
+      DurationOption(
+          "watch_stall_timeout", "IMUCALD_WATCH_STALL_TIMEOUT",
+          "a WatchSession whose client reads no event this long is cancelled and its "
+          "slot freed (default 1m)",
+          [](DaemonConfig& c) -> absl::Duration& { return c.server.sessions.watch_stall_timeout; }),
   };
 }
 
@@ -393,7 +421,13 @@ absl::StatusOr<LoadedConfig> LoadConfig(std::span<const std::string> args, const
     }
     if (!value.has_value()) {
       if (option != nullptr && option->type == OptionType::kBoolean) {
-        value = "true";  // a bare boolean flag turns it on
+        // "--insecure true" as --help shows it ("--insecure BOOL"), or bare: true. The word
+        // after it is its value unless it is the next flag.
+        if (i + 1 < args.size() && !args[i + 1].starts_with("-")) {
+          value = args[++i];
+        } else {
+          value = "true";
+        }
       } else if (i + 1 < args.size()) {
         value = args[++i];
       } else {

@@ -117,6 +117,7 @@ v1::Session ToProto(const storage::Session& session, int live_poses_accepted) {
   out.set_samples(session.samples);
   out.set_poses_accepted(live_poses_accepted >= 0 ? live_poses_accepted : session.poses_accepted);
   out.set_version(session.version);
+  out.set_source(session.source);
   return out;
 }
 
@@ -127,6 +128,9 @@ storage::Verdict ToStorage(core::Verdict verdict) {
     case core::Verdict::kWarn:
       return storage::Verdict::kWarn;
     case core::Verdict::kFail:
+    // A refused calibration never becomes a version (SessionServiceImpl::RunSolve): no case of
+    // its own in storage.
+    case core::Verdict::kRefused:
       return storage::Verdict::kFail;
   }
   return storage::Verdict::kFail;

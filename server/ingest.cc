@@ -52,6 +52,10 @@ absl::StatusOr<PreparedBatch> PrepareBatch(const LiveSession& session, const v1:
   absl::StatusOr<std::string> payload = storage::EncodeSamples(out.samples);
   if (!payload.ok()) return payload.status();
   out.payload = *std::move(payload);
+  if (!out.retransmission) {
+    out.digest_after = session.digest;
+    out.digest_after.AddRecords(std::string_view(out.payload).substr(storage::kSampleHeaderBytes));
+  }
   return out;
 }
 
@@ -60,9 +64,12 @@ IngestResult CompleteBatch(storage::Store& store, LiveSession& session, const Pr
   IngestResult result;
   // A retransmission (or a batch another stream of the session stored first) changes nothing.
   if (!batch.retransmission && ack.last_acked_seq > session.last_acked_seq) {
+    const int64_t samples_after = session.samples + static_cast<int64_t>(batch.samples.size());
     session.last_acked_seq = ack.last_acked_seq;
     session.samples = ack.samples;
     session.last_t_s = batch.samples.back().t_s;
+    session.digest = batch.digest_after;
+    RecordProof(session, batch.seq, samples_after);
     std::vector<LiveEvent> events;
     Segment(session, batch.samples, &events);
     // Poses and pair verdicts are stored as they are judged (a few per minute). The batch is

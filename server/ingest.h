@@ -17,6 +17,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "formats/sample_digest.h"
 #include "imucal/v1/imucal.pb.h"
 #include "server/session_hub.h"
 #include "server/validate.h"
@@ -38,6 +39,9 @@ struct PreparedBatch {
   bool retransmission = false;  // seq <= the session's last acked: the store compares it
   std::string payload;          // EncodeSamples(samples)
   std::vector<storage::ImuSample> samples;
+  // The session's sample digest once this batch is stored (not for a retransmission); hashed
+  // here, off the store's committer thread.
+  formats::SampleDigest digest_after;
 };
 
 // The three steps of one batch; the caller holds `session.mu` during the first and the last.

@@ -3,6 +3,7 @@
 // finish) and exits 0. `imucald --help` lists the options; server/daemon_commands.h has the
 // health-check, backup and restore commands.
 #include <semaphore.h>
+#include <sys/stat.h>
 
 #include <csignal>
 #include <cstdio>
@@ -73,6 +74,11 @@ int Serve(const imucal::server::DaemonConfig& config) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // The database, its WAL files and backups hold every calibration and the tokens' hashes:
+  // never world-readable, nor group-writable, whatever umask imucald is started with (by hand,
+  // in a container; the systemd unit sets UMask=0077 too). A stricter umask is kept. Set first:
+  // every command (serve, backup, restore) creates files.
+  ::umask(::umask(0) | 027);
   // absl::Mutex deadlock detection (on by default in non-NDEBUG builds; gRPC's locks are
   // absl::Mutex) keeps a lock-order graph updated on every acquisition: that bookkeeping cost
   // ~5% of the server's CPU in the GetActiveParameters fetch benchmark. Only imucald turns it

@@ -22,13 +22,33 @@ absl::Status RequireVersion(int version, const char* field) {
                       : absl::InvalidArgumentError(absl::StrCat(field, ": must be 1 or more"));
 }
 
+// Promote's and Rollback's `reason` goes into the audit log: free text, but a paragraph at
+// most (a 120 KB one was once stored), and no control characters but tab and newline (a log
+// reader's terminal would interpret them).
+constexpr size_t kMaxReasonBytes = 1024;
+
+absl::Status ValidateReason(const std::string& reason) {
+  if (reason.size() > kMaxReasonBytes) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("reason: ", reason.size(), " bytes, at most ", kMaxReasonBytes));
+  }
+  for (size_t i = 0; i < reason.size(); ++i) {
+    const auto c = static_cast<unsigned char>(reason[i]);
+    if ((c < 0x20 && c != '\t' && c != '\n') || c == 0x7f)
+      return absl::InvalidArgumentError(
+          absl::StrCat("reason: a control character at byte ", i + 1));
+  }
+  return absl::OkStatus();
+}
+
 // The export request's options; a 0 (or empty) field means "not given".
 absl::StatusOr<core::ExportOptions> ExportOptionsOf(const v1::ExportRequest& r) {
   core::ExportOptions o;
   if (!r.rostopic().empty()) {
     // Written into the YAML as is: a request field, so INVALID_ARGUMENT here rather than the
     // exporter's refusal of the stored version.
-    if (absl::Status s = core::ValidateRosTopic(r.rostopic()); !s.ok()) return s;
+    // Its message quotes the topic as sent ("/imu0 raw"): not a path of the server's.
+    if (absl::Status s = core::ValidateRosTopic(r.rostopic()); !s.ok()) return EchoesRequest(s);
     o.rostopic = r.rostopic();
   }
   struct Field {
@@ -157,6 +177,7 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::Promote(grpc::CallbackServerCont
   if (!who.ok()) return FinishUnary(context, who.status());
   absl::Status valid = RequireDevice(request->device_id());
   if (valid.ok()) valid = RequireVersion(request->version(), "version");
+  if (valid.ok()) valid = ValidateReason(request->reason());
   if (!valid.ok()) return FinishUnary(context, valid);
   absl::StatusOr<storage::ParamVersion> v =
       store_->Promote(request->device_id(), request->version(), (*who)->actor, request->reason());
@@ -172,6 +193,7 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::Rollback(grpc::CallbackServerCon
   if (!who.ok()) return FinishUnary(context, who.status());
   absl::Status valid = RequireDevice(request->device_id());
   if (valid.ok()) valid = RequireVersion(request->to_version(), "to_version");
+  if (valid.ok()) valid = ValidateReason(request->reason());
   if (!valid.ok()) return FinishUnary(context, valid);
   absl::StatusOr<storage::ParamVersion> v = store_->Rollback(
       request->device_id(), request->to_version(), (*who)->actor, request->reason());

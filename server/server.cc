@@ -69,6 +69,19 @@ absl::StatusOr<std::string> BootstrapAdminToken(storage::TokenStore& tokens,
   return path;
 }
 
+// A zero timeout would end every stream at once, a zero cap refuse them all.
+absl::Status CheckStreamLimits(const SessionServiceOptions& o) {
+  for (const auto& [name, d] : {std::pair{"first_batch_timeout", o.first_batch_timeout},
+                                std::pair{"stream_idle_timeout", o.stream_idle_timeout},
+                                std::pair{"watch_stall_timeout", o.watch_stall_timeout}}) {
+    if (d <= absl::ZeroDuration())
+      return absl::InvalidArgumentError(absl::StrCat(name, ": must be longer than 0"));
+  }
+  if (o.max_streams < 1 || o.max_streams_per_token < 1)
+    return absl::InvalidArgumentError("max_streams, max_streams_per_token: must be 1 or more");
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& options) {
@@ -78,6 +91,7 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
   const size_t colon = options.listen.rfind(':');
   if (colon == std::string::npos) return absl::InvalidArgumentError("listen: expected host:port");
+  if (absl::Status s = CheckStreamLimits(options.sessions); !s.ok()) return s;
   if (absl::Status s = CheckRulesCoverServices(); !s.ok()) return s;
   absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> credentials =
       ListenerCredentials(options.listen, options.security);
@@ -139,6 +153,11 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->devices_ = std::make_unique<DeviceServiceImpl>(s->store_.get(), s->auth_.get());
   s->sessions_ =
       std::make_unique<SessionServiceImpl>(s->store_.get(), options.sessions, s->auth_.get());
+  // A revoked token's open streams and watches end at once, not at their next message.
+  s->auth_->SetRevocationListener(
+      [sessions = s->sessions_.get()](int64_t id, const std::string& why) {
+        sessions->RevokeStreams(id, why);
+      });
   s->parameters_ = std::make_unique<ParameterServiceImpl>(s->store_.get(), s->active_cache_.get(),
                                                           s->auth_.get());
 
@@ -175,6 +194,8 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
 Server::~Server() { Shutdown(); }
 
 size_t Server::live_sessions() const { return sessions_->live_sessions(); }
+size_t Server::open_streams() const { return sessions_->open_streams(); }
+size_t Server::solve_jobs_in_memory() const { return sessions_->solve_jobs_in_memory(); }
 
 std::string Server::address() const { return absl::StrCat(host_, ":", port_); }
 

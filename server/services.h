@@ -5,9 +5,13 @@
 #define IMUCAL_SERVER_SERVICES_H_
 
 #include <cstdint>
+#include <deque>
+#include <functional>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <string>
+#include <utility>
 
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
@@ -16,6 +20,7 @@
 #include "server/convert.h"
 #include "server/session_hub.h"
 #include "server/solve_pool.h"
+#include "server/stream_registry.h"
 #include "server/stream_slots.h"
 #include "server/validate.h"
 #include "storage/store.h"
@@ -101,6 +106,41 @@ struct SessionServiceOptions {
   // from its first batch until it ends (a dead peer is found by keepalive, see ServerOptions).
   int max_streams_per_device = 1;
   int max_watchers_per_session = 16;  // concurrent WatchSession streams (RESOURCE_EXHAUSTED)
+
+  // Calls that hold a place without using it (server/stream_registry.h). A StreamSamples stream
+  // sends its first batch within first_batch_timeout of opening and each next one within
+  // stream_idle_timeout of the previous ack (a robot batches every 0.1-1 s), else the server
+  // ends it DEADLINE_EXCEEDED; one whose ack is not read for stream_idle_timeout, or a watch
+  // whose event is not read for watch_stall_timeout (its client stopped reading), is
+  // cancelled. Counted from the moment they open: at most max_streams StreamSamples and
+  // WatchSession calls on the server (about 13 kB each while silent, so 10000 cost ~130 MB)
+  // and max_streams_per_token per token or robot client certificate (RESOURCE_EXHAUSTED
+  // beyond; a robot needs one stream, a technician's laptop a few).
+  absl::Duration first_batch_timeout = absl::Seconds(30);
+  absl::Duration stream_idle_timeout = absl::Seconds(60);
+  absl::Duration watch_stall_timeout = absl::Seconds(60);
+  int max_streams = 10000;
+  int max_streams_per_token = 16;
+
+  // GetSolveJob answers from memory for jobs queued, running, or finished within
+  // finished_job_ttl, the newest finished_jobs_kept of them; older ones from storage.
+  size_t finished_jobs_kept = 1000;
+  absl::Duration finished_job_ttl = absl::Minutes(10);
+};
+
+// What the stream reactors of session_streams.cc use of the service.
+struct StreamEnv {
+  storage::Store* store = nullptr;
+  SessionHub* hub = nullptr;
+  const SessionServiceOptions* options = nullptr;
+  Authorizer* auth = nullptr;
+  StreamRegistry* registry = nullptr;
+  StreamSlots* device_slots = nullptr;   // StreamSamples per device
+  StreamSlots* watcher_slots = nullptr;  // WatchSession per session
+  // Runs `work` on the session loaders, off the RPC threads; false when their queue is full.
+  std::function<bool(std::function<void()> work)> defer;
+  // The session as GetSession answers it, without loading it (SessionServiceImpl).
+  std::function<absl::StatusOr<v1::Session>(const std::string& session_id)> session_proto;
 };
 
 // StreamSamples is a raw method (ByteBuffers in and out): a batch that is not a SampleBatch
@@ -123,6 +163,11 @@ class SessionServiceImpl final : public SessionServiceBase {
   SessionServiceImpl(storage::Store* store, SessionServiceOptions options, Authorizer* auth);
   ~SessionServiceImpl() override;
   size_t live_sessions() { return hub_.LiveSessions(); }  // SessionHub::LiveSessions
+  size_t open_streams() { return registry_.size(); }      // StreamSamples and WatchSession
+  size_t solve_jobs_in_memory();
+  // Ends the open streams and watches of a token that was just revoked (Authorizer::RevokeToken
+  // calls it), and refuses the token's streams from now on.
+  void RevokeStreams(int64_t token_id, const std::string& why);
 
   grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* context,
                                           const v1::CreateSessionRequest* request,
@@ -154,7 +199,10 @@ class SessionServiceImpl final : public SessionServiceBase {
                                       v1::Report* response) override;
 
   // Stops taking solves and finishes the queued ones (graceful shutdown, after the server's).
-  void DrainSolves() { pool_.Shutdown(); }
+  void DrainSolves() {
+    loaders_.Shutdown();
+    pool_.Shutdown();
+  }
 
  private:
   struct SolveTask {
@@ -164,8 +212,17 @@ class SessionServiceImpl final : public SessionServiceBase {
     uint64_t seed = 1;
     std::string actor;
   };
-  absl::Status DoSolve(const grpc::CallbackServerContext& context,
+  // Runs `work` with the session's live state and finishes the call with its status: at once
+  // when the session is in memory, else on the session loaders after loading it (decoding and
+  // replaying every stored batch: seconds for millions of samples, never on an RPC thread).
+  grpc::ServerUnaryReactor* WithLiveSession(
+      grpc::CallbackServerContext* context, const std::string& session_id,
+      std::function<absl::Status(const std::shared_ptr<LiveSession>& live)> work);
+  bool Defer(std::function<void()> work);  // on the session loaders; false when full
+  absl::Status DoSolve(const std::string& actor, const std::shared_ptr<LiveSession>& live,
                        const v1::SolveSessionRequest& request, v1::SolveJob* response);
+  absl::Status DoCancel(const std::string& actor, const std::shared_ptr<LiveSession>& live,
+                        v1::Session* response);
   absl::Status DoGetSolveJob(const v1::GetSolveJobRequest& request, v1::SolveJob* response);
   absl::Status DoGetReport(const v1::GetReportRequest& request, v1::Report* response);
   absl::Status DoListPoses(const v1::ListPosesRequest& request, v1::ListPosesResponse* response);
@@ -182,10 +239,15 @@ class SessionServiceImpl final : public SessionServiceBase {
   StreamSlots watcher_slots_;  // WatchSession per session
   std::mutex jobs_mu_;
   std::map<std::string, v1::SolveJob> jobs_;  // guarded by jobs_mu_
+  // Finished jobs in jobs_, oldest first, with when they finished; guarded by jobs_mu_.
+  std::deque<std::pair<std::string, absl::Time>> finished_jobs_;
   // Serialises "predict the next version number, store the version": the params JSON carries
   // its version, so the number must be known before the version is stored.
   std::mutex version_mu_;
-  SolvePool pool_;  // last: its workers use the members above
+  StreamRegistry registry_;  // every open StreamSamples and WatchSession
+  StreamEnv env_;
+  SolvePool pool_;     // its workers use the members above
+  SolvePool loaders_;  // last: loads sessions off the RPC threads (WithLiveSession, streams)
 };
 
 }  // namespace imucal::server

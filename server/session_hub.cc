@@ -97,6 +97,17 @@ void FlushSegment(LiveSession& session, std::vector<LiveEvent>* events) {
   AddSegmenterEvents(session, fresh, events);
 }
 
+void RecordProof(LiveSession& session, int64_t seq, int64_t samples) {
+  session.proofs.push_back({seq, samples, session.digest.Sha256()});
+  while (session.proofs.size() > LiveSession::kProofHistory) session.proofs.pop_front();
+}
+
+const LiveSession::Proof* ProofAfter(const LiveSession& session, int64_t seq) {
+  for (const LiveSession::Proof& p : session.proofs)
+    if (p.seq == seq) return &p;
+  return nullptr;
+}
+
 void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* poses,
             std::vector<storage::PosePair>* pairs) {
   for (const LiveEvent& e : events) {
@@ -129,16 +140,34 @@ void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* po
 }
 
 absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Get(std::string_view session_id) {
+  std::promise<Loaded> promise;
+  std::shared_future<Loaded> pending;  // another caller's load of the same session
   {
     std::lock_guard lock(mu_);
     if (auto it = sessions_.find(session_id); it != sessions_.end()) return it->second;
+    if (auto it = loading_.find(session_id); it != loading_.end()) {
+      pending = it->second;
+    } else {
+      loading_.emplace(std::string(session_id), promise.get_future().share());
+    }
   }
-  // Loading decodes the stored batches: outside mu_, then the first one to finish wins.
-  absl::StatusOr<std::shared_ptr<LiveSession>> loaded = Load(session_id);
-  if (!loaded.ok()) return loaded.status();
+  if (pending.valid()) return pending.get();
+  // Loading decodes every stored batch: outside mu_.
+  Loaded loaded = Load(session_id);
+  {
+    std::lock_guard lock(mu_);
+    // Only what needs its live state stays: a closed session is forgotten at once.
+    if (loaded.ok() && !(*loaded)->closed) sessions_.emplace(std::string(session_id), *loaded);
+    loading_.erase(loading_.find(session_id));
+  }
+  promise.set_value(loaded);
+  return loaded;
+}
+
+std::shared_ptr<LiveSession> SessionHub::Find(std::string_view session_id) {
   std::lock_guard lock(mu_);
-  auto [it, inserted] = sessions_.emplace(std::string(session_id), *std::move(loaded));
-  return it->second;
+  auto it = sessions_.find(session_id);
+  return it == sessions_.end() ? nullptr : it->second;
 }
 
 SessionHub::~SessionHub() {
@@ -154,13 +183,8 @@ size_t SessionHub::LiveSessions() {
 }
 
 int SessionHub::PeekPosesAccepted(std::string_view session_id) {
-  std::shared_ptr<LiveSession> s;
-  {
-    std::lock_guard lock(mu_);
-    auto it = sessions_.find(session_id);
-    if (it == sessions_.end()) return -1;
-    s = it->second;
-  }
+  std::shared_ptr<LiveSession> s = Find(session_id);
+  if (s == nullptr) return -1;
   std::lock_guard lock(s->mu);
   return s->segmenter->poses_accepted();
 }
@@ -175,6 +199,7 @@ absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Load(std::string_view s
   live->device = *device;
   live->protocol = ParseProtocol(session->protocol);
   live->gravity_m_s2 = session->gravity_m_s2;
+  live->source = session->source;
   live->segmenter =
       std::make_unique<core::OnlineSegmenter>(SegmenterOptionsFor(*device, live->protocol));
   live->pairs = std::make_unique<PairTracker>(live->protocol == v1::PROTOCOL_SIX_FACE,
@@ -185,15 +210,21 @@ absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Load(std::string_view s
   std::vector<storage::Pose> poses;
   std::vector<storage::PosePair> pairs;
   std::vector<storage::ImuSample> samples;
-  for (const storage::SampleBatch& b : *batches) {
+  const size_t first_proof = batches->size() > LiveSession::kProofHistory
+                                 ? batches->size() - LiveSession::kProofHistory
+                                 : 0;
+  for (size_t k = 0; k < batches->size(); ++k) {
+    const storage::SampleBatch& b = (*batches)[k];
     samples.clear();
     if (absl::Status s = storage::DecodeSamplesInto(b.payload, &samples); !s.ok()) return s;
+    live->digest.AddRecords(std::string_view(b.payload).substr(storage::kSampleHeaderBytes));
     Segment(*live, samples, &events);
     ToRows(events, &poses, &pairs);
     events.clear();
     if (!samples.empty()) live->last_t_s = samples.back().t_s;
     live->samples += static_cast<int64_t>(samples.size());
     live->last_acked_seq = b.seq;
+    if (k >= first_proof) RecordProof(*live, b.seq, live->samples);
   }
   // A server killed between a batch's commit and its poses' leaves them missing: the replay
   // found them again (the segmentation is deterministic); store what is not there yet.
@@ -242,9 +273,13 @@ void SessionHub::CloseSession(LiveSession& session) {
   session.watchers.clear();
 }
 
-void SessionHub::Reopen(LiveSession& session) {
-  std::lock_guard lock(session.watchers_mu);
-  session.closed = false;
+void SessionHub::Reopen(const std::shared_ptr<LiveSession>& session) {
+  {
+    std::lock_guard lock(mu_);
+    sessions_.emplace(session->id, session);
+  }
+  std::lock_guard lock(session->watchers_mu);
+  session->closed = false;
 }
 
 v1::SessionEvent SessionHub::NextPoseEvent(const core::NextPoseUpdate& next) {

@@ -8,11 +8,16 @@
 // Live state is rebuilt from storage the first time a session is touched after a restart (its
 // stored batches are decoded and replayed through the segmenter and the pair tracker, without
 // publishing; poses or verdicts missing from storage are stored then), so samples, poses, pair
-// verdicts, the guidance and resume points survive a server restart.
+// verdicts, the guidance and resume points survive a server restart. That load takes seconds
+// for millions of samples: the service runs it off the RPC threads, and only for sessions that
+// need their live state (open ones, and those being solved); closed ones are answered from
+// storage.
 #ifndef IMUCAL_SERVER_SESSION_HUB_H_
 #define IMUCAL_SERVER_SESSION_HUB_H_
 
 #include <cstdint>
+#include <deque>
+#include <future>
 #include <limits>
 #include <map>
 #include <memory>
@@ -23,6 +28,7 @@
 
 #include "absl/status/statusor.h"
 #include "core/online_segmenter.h"
+#include "formats/sample_digest.h"
 #include "imucal/v1/imucal.pb.h"
 #include "server/convert.h"
 #include "server/pair_tracker.h"
@@ -52,6 +58,20 @@ struct LiveSession {
   double last_t_s = std::numeric_limits<double>::quiet_NaN();  // NaN: no sample yet
   std::unique_ptr<core::OnlineSegmenter> segmenter;
   std::unique_ptr<PairTracker> pairs;  // six-face pair verdicts while streaming
+  // The SHA-256 of the stored samples so far (formats/sample_digest.h), and the name of the
+  // capture they came from.
+  formats::SampleDigest digest;
+  std::string source;
+  // The digest after each of the last kProofHistory batches, oldest first: a stream that starts
+  // at batch n proves the samples of batches 1..n-1, and n - 1 may be behind the last stored
+  // batch (batches in flight on a stream the robot dropped land after it read GetSession).
+  struct Proof {
+    int64_t seq = 0;      // the batch after which...
+    int64_t samples = 0;  // ...the session held this many samples...
+    std::string sha256;   // ...whose digest was this
+  };
+  static constexpr size_t kProofHistory = 64;  // far more than a client keeps in flight (8)
+  std::deque<Proof> proofs;
 
   std::mutex watchers_mu;
   std::vector<Watcher*> watchers;  // guarded by watchers_mu
@@ -77,6 +97,12 @@ void Segment(LiveSession& session, const std::vector<storage::ImuSample>& sample
              std::vector<LiveEvent>* events);
 // Ends the current still run (the session is closing for a solve): its pose, if any.
 void FlushSegment(LiveSession& session, std::vector<LiveEvent>* events);
+// Notes the session's digest, just updated with batch `seq`, after which it holds `samples`
+// samples, in `proofs` (the caller holds `mu`).
+void RecordProof(LiveSession& session, int64_t seq, int64_t samples);
+// The digest after batch `seq`, if it is among the last kProofHistory; null otherwise.
+const LiveSession::Proof* ProofAfter(const LiveSession& session, int64_t seq);
+
 // The poses and pair verdicts among `events`, as storage rows.
 void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* poses,
             std::vector<storage::PosePair>* pairs);
@@ -89,8 +115,12 @@ class SessionHub {
   // then; the lock also shows that order to ThreadSanitizer, which cannot see it through gRPC.
   ~SessionHub();
 
-  // The session's live state, loading it from storage on first use.
+  // The session's live state, loading it from storage on first use (slow: not on an RPC
+  // thread). Concurrent loads of one session share one. A session that is neither open nor
+  // being solved is returned but not kept (Reopen keeps it for a re-solve).
   absl::StatusOr<std::shared_ptr<LiveSession>> Get(std::string_view session_id);
+  // The session's live state if it is in memory, else null; never loads.
+  std::shared_ptr<LiveSession> Find(std::string_view session_id);
   // The online segmenter's accepted poses if the session is live in memory, else -1.
   int PeekPosesAccepted(std::string_view session_id);
   // Sessions whose live state is in memory: the open ones touched since the start, and those
@@ -102,8 +132,9 @@ class SessionHub {
   void RemoveWatcher(LiveSession& session, Watcher* watcher);
   // Ends every watcher's stream (the session closed) and forgets the live state.
   void CloseSession(LiveSession& session);
-  // A closed (solved or failed) session is being solved again: watchers may follow it.
-  void Reopen(LiveSession& session);
+  // A closed (solved or failed) session is being solved again: it is kept in memory until it
+  // closes again, and watchers may follow it.
+  void Reopen(const std::shared_ptr<LiveSession>& session);
 
   // Converts live events to SessionEvents (each pose followed by its Progress).
   static std::vector<v1::SessionEvent> ToEvents(const std::vector<LiveEvent>& events);
@@ -114,9 +145,12 @@ class SessionHub {
  private:
   absl::StatusOr<std::shared_ptr<LiveSession>> Load(std::string_view session_id);
 
+  using Loaded = absl::StatusOr<std::shared_ptr<LiveSession>>;
+
   storage::Store* store_;
   std::mutex mu_;
   std::map<std::string, std::shared_ptr<LiveSession>, std::less<>> sessions_;  // guarded by mu_
+  std::map<std::string, std::shared_future<Loaded>, std::less<>> loading_;     // guarded by mu_
 };
 
 core::OnlineSegmenterOptions SegmenterOptionsFor(const storage::Device& device,

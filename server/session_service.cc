@@ -17,11 +17,41 @@
 #include "server/services.h"
 #include "server/unary.h"
 #include "storage/sample_codec.h"
+#include "util/str_util.h"
 
 namespace imucal::server {
 namespace {
 
 constexpr char kJobPrefix[] = "solve-";
+
+// Sessions are loaded (every stored batch decoded and replayed) on threads of their own, off
+// gRPC's: two, as many as this machine's cores, since a load is CPU work. Waiting loads are
+// bounded; beyond, the call is RESOURCE_EXHAUSTED.
+constexpr int kLoaderThreads = 2;
+constexpr size_t kLoaderQueueLimit = 4096;
+
+absl::Status LoadersFull() {
+  return absl::ResourceExhaustedError("too many sessions are being loaded; retry in a moment");
+}
+
+// Deadlines are checked a few times per the shortest timeout, at least every second.
+StreamRegistry::Options RegistryOptions(const SessionServiceOptions& o) {
+  StreamRegistry::Options r;
+  r.max_streams = o.max_streams;
+  r.max_per_caller = o.max_streams_per_token;
+  const absl::Duration shortest =
+      std::min({o.first_batch_timeout, o.stream_idle_timeout, o.watch_stall_timeout});
+  r.tick = std::clamp(shortest / 4, absl::Milliseconds(10), absl::Seconds(1));
+  return r;
+}
+
+// A refused solve's error: the refusal's name (core/calibrate/report.h) and core's description
+// of the capture and of what to record.
+std::string RefusalMessage(const core::CalibrationReport& report) {
+  if (!report.refusal) return "the capture cannot support a calibration";
+  return Cat("the capture cannot support a calibration (",
+             core::RefusalReasonName(report.refusal->reason), "): ", report.refusal->message);
+}
 
 absl::Status RequireSession(const std::string& session_id) {
   return session_id.empty() ? absl::InvalidArgumentError("session_id: required") : absl::OkStatus();
@@ -98,28 +128,75 @@ SessionServiceImpl::SessionServiceImpl(storage::Store* store, SessionServiceOpti
       auth_(auth),
       options_(options),
       hub_(store),
-      pool_(options.solve_threads, options.solve_queue_limit) {}
+      registry_(RegistryOptions(options)),
+      pool_(options.solve_threads, options.solve_queue_limit),
+      loaders_(kLoaderThreads, kLoaderQueueLimit) {
+  env_.store = store_;
+  env_.hub = &hub_;
+  env_.options = &options_;
+  env_.auth = auth_;
+  env_.registry = &registry_;
+  env_.device_slots = &stream_slots_;
+  env_.watcher_slots = &watcher_slots_;
+  env_.defer = [this](std::function<void()> work) { return Defer(std::move(work)); };
+  env_.session_proto = [this](const std::string& id) { return SessionProto(id); };
+}
 
-SessionServiceImpl::~SessionServiceImpl() { pool_.Shutdown(); }
+SessionServiceImpl::~SessionServiceImpl() {
+  loaders_.Shutdown();
+  pool_.Shutdown();
+}
+
+size_t SessionServiceImpl::solve_jobs_in_memory() {
+  std::lock_guard lock(jobs_mu_);
+  return jobs_.size();
+}
+
+void SessionServiceImpl::RevokeStreams(int64_t token_id, const std::string& why) {
+  registry_.RevokeToken(token_id, grpc::Status(grpc::StatusCode::UNAUTHENTICATED, why));
+}
+
+bool SessionServiceImpl::Defer(std::function<void()> work) {
+  if (!loaders_.Reserve()) return false;
+  loaders_.Submit(std::move(work));
+  return true;
+}
+
+grpc::ServerUnaryReactor* SessionServiceImpl::WithLiveSession(
+    grpc::CallbackServerContext* context, const std::string& session_id,
+    std::function<absl::Status(const std::shared_ptr<LiveSession>& live)> work) {
+  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+  if (std::shared_ptr<LiveSession> live = hub_.Find(session_id)) {
+    reactor->Finish(ToGrpcStatus(work(live)));
+    return reactor;
+  }
+  const bool queued = Defer([this, reactor, session_id, work = std::move(work)] {
+    absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(session_id);
+    reactor->Finish(ToGrpcStatus(live.ok() ? work(*live) : live.status()));
+  });
+  if (!queued) reactor->Finish(ToGrpcStatus(LoadersFull()));
+  return reactor;
+}
 
 absl::StatusOr<v1::Session> SessionServiceImpl::SessionProto(const std::string& session_id) {
   absl::StatusOr<storage::Session> session = store_->GetSession(session_id);
   if (!session.ok()) return session.status();
-  // A session in memory gives its live count. One that is not open is answered from its stored
-  // poses: loading it into the hub would decode every stored batch and keep that state until
-  // the server stops, so reading old sessions would grow memory without bound. An open one is
-  // loaded: its robot is streaming (or about to, after a restart) and segmentation goes on.
-  if (const int live = hub_.PeekPosesAccepted(session_id); live >= 0)
-    return ToProto(*session, live);
-  if (session->state != storage::SessionState::kOpen) return ToProto(*session, -1);
-  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(session_id);
-  if (!live.ok()) return live.status();
-  int poses = 0;
-  {
-    std::lock_guard lock((*live)->mu);
-    poses = (*live)->segmenter->poses_accepted();
+  // A session in memory gives its live count (and, open, the digest of its samples). One that
+  // is not is answered from its stored poses, never loaded here: loading decodes every stored
+  // batch, so reading old sessions would cost seconds and grow memory.
+  std::shared_ptr<LiveSession> live = hub_.Find(session_id);
+  if (live == nullptr) return ToProto(*session, -1);
+  std::lock_guard lock(live->mu);
+  v1::Session out = ToProto(*session, live->segmenter->poses_accepted());
+  if (session->state == storage::SessionState::kOpen) {
+    // The samples, last batch and digest the session has taken in, all three as of one moment:
+    // a batch whose commit has not been acknowledged yet shows in none of them (storage may be
+    // a batch ahead), so a client resuming from them resumes consistently.
+    out.set_samples(live->samples);
+    out.set_last_acked_seq(live->last_acked_seq);
+    out.set_samples_sha256(live->digest.Sha256());
   }
-  return ToProto(*session, poses);
+  return out;
 }
 
 grpc::ServerUnaryReactor* SessionServiceImpl::CreateSession(grpc::CallbackServerContext* context,
@@ -155,15 +232,25 @@ grpc::ServerUnaryReactor* SessionServiceImpl::GetSession(grpc::CallbackServerCon
   if (!who.ok()) return FinishUnary(context, who.status());
   if (absl::Status s = RequireSession(request->session_id()); !s.ok())
     return FinishUnary(context, s);
-  absl::StatusOr<v1::Session> session = SessionProto(request->session_id());
-  if (!session.ok()) return FinishUnary(context, session.status());
+  absl::StatusOr<storage::Session> stored = store_->GetSession(request->session_id());
+  if (!stored.ok()) return FinishUnary(context, stored.status());
   // A robot reads only its own device's sessions (its uploader resumes from them).
-  if (absl::Status s =
-          auth_->AuthorizeDevice(*context, **who, Rpc::kGetSession, session->device_id());
+  if (absl::Status s = auth_->AuthorizeDevice(*context, **who, Rpc::kGetSession, stored->device_id);
       !s.ok())
     return FinishUnary(context, s);
-  *response = *std::move(session);
-  return FinishUnary(context, absl::OkStatus());
+  const std::string id = request->session_id();
+  // An open session is brought into memory (its robot is streaming, or about to after a
+  // restart, and its digest is wanted to resume); others are answered from storage.
+  if (stored->state != storage::SessionState::kOpen || hub_.Find(id) != nullptr) {
+    absl::StatusOr<v1::Session> session = SessionProto(id);
+    if (session.ok()) *response = *std::move(session);
+    return FinishUnary(context, session.status());
+  }
+  return WithLiveSession(context, id, [this, id, response](const auto&) {
+    absl::StatusOr<v1::Session> session = SessionProto(id);
+    if (session.ok()) *response = *std::move(session);
+    return session.status();
+  });
 }
 
 grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(grpc::CallbackServerContext* context,
@@ -201,23 +288,39 @@ grpc::ServerUnaryReactor* SessionServiceImpl::CancelSession(grpc::CallbackServer
   if (!who.ok()) return FinishUnary(context, who.status());
   if (absl::Status s = RequireSession(request->session_id()); !s.ok())
     return FinishUnary(context, s);
-  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(request->session_id());
-  if (!live.ok()) return FinishUnary(context, live.status());
+  // The state from storage first: a closed session is refused without being loaded.
+  absl::StatusOr<storage::Session> stored = store_->GetSession(request->session_id());
+  if (!stored.ok()) return FinishUnary(context, stored.status());
+  if (stored->state != storage::SessionState::kOpen) {
+    return FinishUnary(context, absl::FailedPreconditionError(absl::StrCat(
+                                    "session ", stored->id, " is ",
+                                    std::string(storage::SessionStateName(stored->state)),
+                                    ": only an open session can be cancelled")));
+  }
+  const std::string actor = (*who)->actor;
+  return WithLiveSession(context, stored->id,
+                         [this, actor, response](const std::shared_ptr<LiveSession>& live) {
+                           return DoCancel(actor, live, response);
+                         });
+}
+
+absl::Status SessionServiceImpl::DoCancel(const std::string& actor,
+                                          const std::shared_ptr<LiveSession>& live,
+                                          v1::Session* response) {
   absl::StatusOr<storage::Session> cancelled;
   {
-    std::lock_guard lock((*live)->mu);  // no batch is half ingested while it closes
-    cancelled = store_->SetSessionState(request->session_id(), storage::SessionState::kCancelled,
-                                        (*who)->actor);
+    std::lock_guard lock(live->mu);  // no batch is half ingested while it closes
+    cancelled = store_->SetSessionState(live->id, storage::SessionState::kCancelled, actor);
   }
-  if (!cancelled.ok()) return FinishUnary(context, cancelled.status());
-  absl::StatusOr<v1::Session> proto = SessionProto(request->session_id());
-  if (!proto.ok()) return FinishUnary(context, proto.status());
+  if (!cancelled.ok()) return cancelled.status();
+  absl::StatusOr<v1::Session> proto = SessionProto(live->id);
+  if (!proto.ok()) return proto.status();
   v1::SessionEvent e = Stamped();
   *e.mutable_session() = *proto;
-  hub_.Publish(**live, e);
-  hub_.CloseSession(**live);
+  hub_.Publish(*live, e);
+  hub_.CloseSession(*live);
   *response = *std::move(proto);
-  return FinishUnary(context, absl::OkStatus());
+  return absl::OkStatus();
 }
 
 absl::Status SessionServiceImpl::DoListPoses(const v1::ListPosesRequest& request,
@@ -262,26 +365,21 @@ grpc::ServerUnaryReactor* SessionServiceImpl::ListPoses(grpc::CallbackServerCont
 
 // ---- Solves.
 
-absl::Status SessionServiceImpl::DoSolve(const grpc::CallbackServerContext& context,
+absl::Status SessionServiceImpl::DoSolve(const std::string& actor,
+                                         const std::shared_ptr<LiveSession>& live,
                                          const v1::SolveSessionRequest& request,
                                          v1::SolveJob* response) {
-  absl::StatusOr<PrincipalRef> who = auth_->Authorize(context, Rpc::kSolveSession);
-  if (!who.ok()) return who.status();
-  if (absl::Status s = RequireSession(request.session_id()); !s.ok()) return s;
-  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(request.session_id());
-  if (!live.ok()) return live.status();
   if (!pool_.Reserve()) {
     return absl::ResourceExhaustedError(
         "the solve queue is full; retry in a minute (GetSolveJob shows running jobs)");
   }
-  const std::string actor = (*who)->actor;
   absl::StatusOr<storage::Solve> solve;
   std::vector<LiveEvent> last_pose;
   {
-    std::lock_guard lock((*live)->mu);  // no batch lands after the solve has started
+    std::lock_guard lock(live->mu);  // no batch lands after the solve has started
     solve = store_->StartSolve(request.session_id(), actor);
     if (solve.ok()) {
-      FlushSegment(**live, &last_pose);  // the final hold is a pose
+      FlushSegment(*live, &last_pose);  // the final hold is a pose
       std::vector<storage::Pose> poses;
       std::vector<storage::PosePair> pairs;
       ToRows(last_pose, &poses, &pairs);
@@ -292,8 +390,8 @@ absl::Status SessionServiceImpl::DoSolve(const grpc::CallbackServerContext& cont
     pool_.Release();
     return solve.status();
   }
-  hub_.Reopen(**live);
-  for (const v1::SessionEvent& e : SessionHub::ToEvents(last_pose)) hub_.Publish(**live, e);
+  hub_.Reopen(live);
+  for (const v1::SessionEvent& e : SessionHub::ToEvents(last_pose)) hub_.Publish(*live, e);
   SolveTask task;
   task.solve_id = solve->id;
   task.job_id = absl::StrCat(kJobPrefix, solve->id);
@@ -308,7 +406,7 @@ absl::Status SessionServiceImpl::DoSolve(const grpc::CallbackServerContext& cont
   if (absl::StatusOr<v1::Session> s = SessionProto(task.session_id); s.ok()) {
     v1::SessionEvent e = Stamped();
     *e.mutable_session() = *std::move(s);
-    hub_.Publish(**live, e);
+    hub_.Publish(*live, e);
   }
   pool_.Submit([this, task] { RunSolve(task); });
   *response = job;
@@ -319,12 +417,24 @@ void SessionServiceImpl::UpdateJob(const v1::SolveJob& job) {
   {
     std::lock_guard lock(jobs_mu_);
     jobs_[job.id()] = job;
+    // Finished jobs stay a while for GetSolveJob, within bounds; storage answers after.
+    if (job.state() == v1::JOB_STATE_DONE || job.state() == v1::JOB_STATE_FAILED) {
+      const absl::Time now = absl::Now();
+      finished_jobs_.emplace_back(job.id(), now);
+      while (!finished_jobs_.empty() &&
+             (finished_jobs_.size() > options_.finished_jobs_kept ||
+              finished_jobs_.front().second < now - options_.finished_job_ttl)) {
+        jobs_.erase(finished_jobs_.front().first);
+        finished_jobs_.pop_front();
+      }
+    }
   }
-  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(job.session_id());
-  if (!live.ok()) return;
+  // Only watchers of a session in memory can hear of it: nothing is loaded to tell them.
+  std::shared_ptr<LiveSession> live = hub_.Find(job.session_id());
+  if (live == nullptr) return;
   v1::SessionEvent e = Stamped();
   *e.mutable_solve() = job;
-  hub_.Publish(**live, e);
+  hub_.Publish(*live, e);
 }
 
 void SessionServiceImpl::RunSolve(const SolveTask& task) {
@@ -345,7 +455,24 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
     absl::StatusOr<core::CalibrationReport> report =
         capture.ok() ? core::Calibrate(*capture, options)
                      : absl::StatusOr<core::CalibrationReport>(capture.status());
-    if (report.ok()) {
+    if (report.ok() && report->verdict == core::Verdict::kRefused) {
+      // The capture cannot determine even bias and scale: no version. The report (the poses
+      // found, why each interval is unusable) is kept with the failed solve, and the session
+      // goes back to open, its samples untouched, so that more poses can be recorded into it.
+      for (std::string& w : load_warnings) report->warnings.push_back(std::move(w));
+      report->device = (*live)->device.id;
+      const std::string error = RefusalMessage(*report);
+      absl::StatusOr<storage::Solve> failed =
+          store_->FailSolve(task.solve_id, error, formats::ReportToJson(*report), task.actor,
+                            storage::SessionState::kOpen);
+      if (failed.ok()) {
+        job.set_state(v1::JOB_STATE_FAILED);
+        job.set_error(ScrubMessage(error));
+        job.set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
+      } else {
+        failure = failed.status();
+      }
+    } else if (report.ok()) {
       for (std::string& w : load_warnings) report->warnings.push_back(std::move(w));
       std::lock_guard lock(version_mu_);
       absl::StatusOr<std::vector<storage::ParamVersion>> versions =
@@ -384,10 +511,10 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
       failure = report.status();
     }
   }
-  if (job.state() != v1::JOB_STATE_DONE) {
+  if (job.state() != v1::JOB_STATE_DONE && job.state() != v1::JOB_STATE_FAILED) {
     if (failure.ok()) failure = absl::InternalError("solve ended without a result");
     job.set_state(v1::JOB_STATE_FAILED);
-    job.set_error(ScrubMessage(failure.message()));
+    job.set_error(ClientMessage(failure));
     store_->FailSolve(task.solve_id, job.error(), /*report_json=*/"", task.actor).IgnoreError();
   }
   UpdateJob(job);
@@ -403,7 +530,29 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
 grpc::ServerUnaryReactor* SessionServiceImpl::SolveSession(grpc::CallbackServerContext* context,
                                                            const v1::SolveSessionRequest* request,
                                                            v1::SolveJob* response) {
-  return FinishUnary(context, DoSolve(*context, *request, response));
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kSolveSession);
+  if (!who.ok()) return FinishUnary(context, who.status());
+  if (absl::Status s = RequireSession(request->session_id()); !s.ok())
+    return FinishUnary(context, s);
+  // The state from storage first: a session that cannot be solved is refused without loading.
+  absl::StatusOr<storage::Session> stored = store_->GetSession(request->session_id());
+  if (!stored.ok()) return FinishUnary(context, stored.status());
+  if (stored->state == storage::SessionState::kCancelled ||
+      stored->state == storage::SessionState::kSolving) {
+    return FinishUnary(
+        context, absl::FailedPreconditionError(absl::StrCat(
+                     "session ", stored->id, " is ",
+                     std::string(storage::SessionStateName(stored->state)), ": ",
+                     stored->state == storage::SessionState::kCancelled
+                         ? "a cancelled session cannot be solved"
+                         : "a solve is already running (GetSolveJob or WatchSession follow it)")));
+  }
+  const std::string actor = (*who)->actor;
+  return WithLiveSession(
+      context, stored->id,
+      [this, actor, request, response](const std::shared_ptr<LiveSession>& live) {
+        return DoSolve(actor, live, *request, response);
+      });
 }
 
 absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& request,
@@ -435,6 +584,9 @@ absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& req
     if (!v.ok()) return v.status();
     response->set_verdict(std::string(storage::VerdictName(v->verdict)));
     response->set_activated(v->state != storage::VersionState::kCandidate);
+  } else if (solve->state == storage::SolveState::kFailed && !solve->report_json.empty()) {
+    // Only a refusal keeps a report with a failed solve (RunSolve).
+    response->set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
   }
   return absl::OkStatus();
 }
@@ -454,14 +606,19 @@ absl::Status SessionServiceImpl::DoGetReport(const v1::GetReportRequest& request
   if (!session.ok()) return session.status();
   absl::StatusOr<std::vector<storage::Solve>> solves = store_->ListSolves(request.session_id());
   if (!solves.ok()) return solves.status();
-  int version = 0;
+  // The latest solve that wrote a report: a version's, or a refusal's kept with its failed solve.
+  const storage::Solve* latest = nullptr;
   for (const storage::Solve& s : *solves)
-    if (s.version > 0) version = s.version;
-  if (version == 0) {
+    if (s.version > 0 || !s.report_json.empty()) latest = &s;
+  if (latest == nullptr) {
     return absl::NotFoundError(
         absl::StrCat("session ", request.session_id(), " has no solved report yet"));
   }
-  absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, version);
+  if (latest->version == 0) {
+    response->set_json(latest->report_json);
+    return absl::OkStatus();
+  }
+  absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, latest->version);
   if (!v.ok()) return v.status();
   response->set_json(v->report_json);
   return absl::OkStatus();

@@ -1,11 +1,15 @@
 #include "server/status_util.h"
 
 #include <cstdio>
+#include <optional>
+#include <string>
 
+#include "absl/strings/cord.h"
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
+#include "storage/types.h"
 
 namespace imucal::server {
 namespace {
@@ -23,6 +27,26 @@ bool LooksLikePath(absl::string_view token) {
   return absl::StrContains(token, ".db") || absl::StrContains(token, ".sqlite");
 }
 
+constexpr char kEchoesRequestPayload[] = "imucal.server/echoes-request";
+
+std::string Capped(std::string message) {
+  if (message.size() > kMaxStatusMessage) {
+    message.resize(kMaxStatusMessage - 3);
+    message += "...";
+  }
+  return message;
+}
+
+// The message without the storage operation's name in front of it (storage/types.h).
+std::string WithoutOperation(const absl::Status& status) {
+  std::string message(status.message());
+  if (auto prefix = status.GetPayload(storage::kOperationPayload); prefix.has_value()) {
+    const std::string p(*prefix);
+    if (const size_t at = message.find(p); at != std::string::npos) message.erase(at, p.size());
+  }
+  return message;
+}
+
 grpc::StatusCode ToGrpcCode(absl::StatusCode code) {
   // absl's canonical codes are gRPC's, number for number.
   return static_cast<grpc::StatusCode>(static_cast<int>(code));
@@ -34,12 +58,18 @@ std::string ScrubMessage(absl::string_view message) {
   std::vector<std::string> tokens = absl::StrSplit(message, ' ');
   for (std::string& t : tokens)
     if (LooksLikePath(t)) t = "<path>";
-  std::string out = absl::StrJoin(tokens, " ");
-  if (out.size() > kMaxStatusMessage) {
-    out.resize(kMaxStatusMessage - 3);
-    out += "...";
-  }
-  return out;
+  return Capped(absl::StrJoin(tokens, " "));
+}
+
+absl::Status EchoesRequest(absl::Status status) {
+  if (!status.ok()) status.SetPayload(kEchoesRequestPayload, absl::Cord("1"));
+  return status;
+}
+
+std::string ClientMessage(const absl::Status& status) {
+  const std::string message = WithoutOperation(status);
+  return status.GetPayload(kEchoesRequestPayload).has_value() ? Capped(message)
+                                                              : ScrubMessage(message);
 }
 
 grpc::Status ToGrpcStatus(const absl::Status& status) {
@@ -54,7 +84,7 @@ grpc::Status ToGrpcStatus(const absl::Status& status) {
                               ? "stored data is damaged; see the server log"
                               : "internal error; see the server log");
     default:
-      return grpc::Status(ToGrpcCode(status.code()), ScrubMessage(status.message()));
+      return grpc::Status(ToGrpcCode(status.code()), ClientMessage(status));
   }
 }
 

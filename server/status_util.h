@@ -1,7 +1,9 @@
 // The one place where absl::Status becomes grpc::Status (as TensorFlow Serving's
 // grpc_status_util.cc): codes map one to one; messages are capped at kMaxStatusMessage bytes
 // and scrubbed of file paths; INTERNAL, UNKNOWN and DATA_LOSS say only what kind of failure it
-// was (their details, which may name files or SQLite, go to the server log).
+// was (their details, which may name files or SQLite, go to the server log). The name of the
+// storage operation that failed ("SetSessionState: ", storage::kOperationPayload) is taken off:
+// a client is told what is wrong, not which function found it.
 #ifndef IMUCAL_SERVER_STATUS_UTIL_H_
 #define IMUCAL_SERVER_STATUS_UTIL_H_
 
@@ -20,6 +22,15 @@ grpc::Status ToGrpcStatus(const absl::Status& status);
 
 // What ToGrpcStatus does to a message: paths replaced by "<path>", capped. Exposed for tests.
 std::string ScrubMessage(absl::string_view message);
+
+// The message ToGrpcStatus would send for `status` (for errors carried in a response, such as
+// SolveJob.error).
+std::string ClientMessage(const absl::Status& status);
+
+// Marks a message made of the request's own fields (a rostopic, a capture's name) and ids,
+// with nothing of the server's files in it: ToGrpcStatus leaves it unscrubbed (only capped),
+// since the scrubber would garble what the client sent ("/imu0" looks like a path).
+absl::Status EchoesRequest(absl::Status status);
 
 }  // namespace imucal::server
 

@@ -148,10 +148,19 @@ CREATE TABLE tokens (
 PRAGMA user_version = 3;
 )sql";
 
+// Version 4: a session's source, the name of the capture it holds (a file the CLI uploaded, a
+// robot's capture label), so that a stream that tries to continue it with another capture is
+// refused naming both (server/session_streams.cc).
+constexpr char kSchemaV4[] = R"sql(
+ALTER TABLE sessions ADD COLUMN source TEXT NOT NULL DEFAULT '';
+PRAGMA user_version = 4;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, kSchemaV1},
     {2, kSchemaV2},
     {3, kSchemaV3},
+    {4, kSchemaV4},
 };
 
 absl::Status ApplyOne(Connection& conn, const Migration& m) {

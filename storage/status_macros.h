@@ -7,6 +7,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "storage/types.h"
 #include "util/str_util.h"
 
 #define STORAGE_RETURN_IF_ERROR(expr)                                   \
@@ -29,9 +30,10 @@
 
 namespace imucal::storage {
 
-// Errors name what they come from (a call, a file): "<op>: <message>".
+// Errors name what they come from (a call, a file): "<op>: <message>", the prefix also kept as
+// kOperationPayload (types.h), by which the server takes it off before a client sees it.
 inline absl::Status WithContext(std::string_view op, const absl::Status& s) {
-  return absl::Status(s.code(), Cat(op, ": ", s.message()));
+  return WithOperation(op, s);
 }
 // `result` unchanged when it is OK, else with `op` as WithContext adds it.
 template <typename T>

@@ -121,6 +121,10 @@ class Store {
   // Moves a session along the transitions of types.h; FailedPrecondition for any other.
   absl::StatusOr<Session> SetSessionState(std::string_view id, SessionState state,
                                           std::string_view actor);
+  // Names the capture an open session holds (Session::source) before its first batch is
+  // stored; FailedPrecondition once it holds samples or is closed. Not audited: it comes with
+  // the data, like a batch.
+  absl::Status SetSessionSource(std::string_view id, std::string_view source);
 
   // ---- Raw samples. Stores batch `seq` (EncodeSamples() bytes) of an open session and
   // returns the acknowledgement. Batches are numbered 1, 2, 3, ...:

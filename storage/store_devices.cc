@@ -79,8 +79,9 @@ absl::StatusOr<Device> Store::CreateDevice(const Device& device, std::string_vie
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(device.id, "device id")));
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   if (!std::isfinite(device.nominal_rate_hz) || device.nominal_rate_hz < 0) {
-    return absl::InvalidArgumentError(
-        Cat(kOp, ": nominal_rate_hz ", device.nominal_rate_hz, " is not a non-negative number"));
+    return WithContext(
+        kOp, absl::InvalidArgumentError(
+                 Cat("nominal_rate_hz ", device.nominal_rate_hz, " is not a non-negative number")));
   }
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Device> {

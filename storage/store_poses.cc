@@ -75,16 +75,16 @@ absl::Status Store::PutPoses(std::string_view session_id, const std::vector<Pose
   for (size_t i = 0; i < poses.size(); ++i) {
     const Pose& p = poses[i];
     if (p.index != static_cast<int>(i)) {
-      return absl::InvalidArgumentError(
-          Cat(kOp, ": pose #", i, " has index ", p.index, "; expected ", i));
+      return WithContext(kOp, absl::InvalidArgumentError(
+                                  Cat("pose #", i, " has index ", p.index, "; expected ", i)));
     }
     if (!p.session_id.empty() && p.session_id != session_id) {
-      return absl::InvalidArgumentError(
-          Cat(kOp, ": pose ", i, " belongs to session '", p.session_id, "'"));
+      return WithContext(kOp, absl::InvalidArgumentError(
+                                  Cat("pose ", i, " belongs to session '", p.session_id, "'")));
     }
     if (!std::isfinite(p.t_start_s) || !std::isfinite(p.t_end_s) || p.t_end_s < p.t_start_s) {
-      return absl::InvalidArgumentError(
-          Cat(kOp, ": pose ", i, " has bad times [", p.t_start_s, ", ", p.t_end_s, "]"));
+      return WithContext(kOp, absl::InvalidArgumentError(Cat("pose ", i, " has bad times [",
+                                                             p.t_start_s, ", ", p.t_end_s, "]")));
     }
     used += p.used ? 1 : 0;
   }
@@ -117,14 +117,16 @@ absl::Status Store::SavePoses(std::string_view session_id, const std::vector<Pos
   for (const Pose& p : poses) {
     if (p.index < 0 || !std::isfinite(p.t_start_s) || !std::isfinite(p.t_end_s) ||
         p.t_end_s < p.t_start_s) {
-      return absl::InvalidArgumentError(Cat(kOp, ": pose ", p.index, " has a bad index or times [",
-                                            p.t_start_s, ", ", p.t_end_s, "]"));
+      return WithContext(
+          kOp, absl::InvalidArgumentError(Cat("pose ", p.index, " has a bad index or times [",
+                                              p.t_start_s, ", ", p.t_end_s, "]")));
     }
   }
   for (const PosePair& p : pairs) {
     if (p.pose_a < 0 || p.pose_b <= p.pose_a) {
-      return absl::InvalidArgumentError(
-          Cat(kOp, ": pair (", p.pose_a, ", ", p.pose_b, ") is not two increasing pose indexes"));
+      return WithContext(kOp,
+                         absl::InvalidArgumentError(Cat("pair (", p.pose_a, ", ", p.pose_b,
+                                                        ") is not two increasing pose indexes")));
     }
   }
   if (poses.empty() && pairs.empty()) return absl::OkStatus();

@@ -116,15 +116,16 @@ absl::StatusOr<BatchAck> AppendOne(Connection& conn, std::string_view session_id
 absl::StatusOr<EncodedBatchInfo> CheckBatch(int64_t seq, std::string_view payload) {
   constexpr std::string_view kOp = "AppendBatch";
   if (seq < 1) {
-    return absl::InvalidArgumentError(
-        Cat(kOp, ": batch seq ", seq, " is invalid; batches are numbered from 1"));
+    return WithContext(kOp, absl::InvalidArgumentError(Cat(
+                                "batch seq ", seq, " is invalid; batches are numbered from 1")));
   }
   absl::StatusOr<EncodedBatchInfo> info = InspectSamples(payload);
   if (!info.ok()) {
-    return absl::InvalidArgumentError(Cat(kOp, ": batch ", seq, ": ", info.status().message()));
+    return WithContext(
+        kOp, absl::InvalidArgumentError(Cat("batch ", seq, ": ", info.status().message())));
   }
   if (info->count == 0) {
-    return absl::InvalidArgumentError(Cat(kOp, ": batch ", seq, " has no samples"));
+    return WithContext(kOp, absl::InvalidArgumentError(Cat("batch ", seq, " has no samples")));
   }
   return info;
 }

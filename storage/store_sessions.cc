@@ -30,7 +30,7 @@ namespace {
   "ORDER BY b.seq DESC LIMIT 1), 0), "                                               \
   "(SELECT COUNT(*) FROM poses p WHERE p.session_id = s.id AND p.used = 1), "        \
   "COALESCE((SELECT v.version FROM solves v WHERE v.session_id = s.id "              \
-  "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0) "
+  "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0), s.source "
 constexpr char kSelectSession[] = IMUCAL_SELECT_SESSION_COLUMNS "FROM sessions s WHERE s.id = ?1";
 // Lists page by rowid (creation order): ?3 is the rowid of the previous page's last session.
 constexpr char kSelectSessionsOfDevice[] = IMUCAL_SELECT_SESSION_COLUMNS
@@ -49,6 +49,9 @@ constexpr char kInsertSession[] =
     "updated_at_us) VALUES (?1, ?2, 'open', ?3, ?4, ?5, ?5)";
 constexpr char kUpdateSessionState[] =
     "UPDATE sessions SET state = ?2, updated_at_us = ?3 WHERE id = ?1";
+constexpr char kUpdateSessionSource[] =
+    "UPDATE sessions SET source = ?2 WHERE id = ?1 AND state = 'open' AND NOT EXISTS "
+    "(SELECT 1 FROM sample_batches b WHERE b.session_id = ?1)";
 constexpr char kSessionExists[] = "SELECT 1 FROM sessions WHERE id = ?1";
 
 // Columns as in kSelectSession.
@@ -65,6 +68,7 @@ absl::StatusOr<Session> ReadSession(const Statement& st) {
   s.samples = st.ColumnInt64(8);
   s.poses_accepted = static_cast<int>(st.ColumnInt64(9));
   s.version = static_cast<int>(st.ColumnInt64(10));
+  s.source = st.ColumnText(11);
   return s;
 }
 
@@ -154,8 +158,8 @@ absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(session.device_id, "device_id")));
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   if (!std::isfinite(session.gravity_m_s2) || session.gravity_m_s2 <= 0) {
-    return absl::InvalidArgumentError(
-        Cat(kOp, ": gravity_m_s2 ", session.gravity_m_s2, " is not a positive number"));
+    return WithContext(kOp, absl::InvalidArgumentError(Cat("gravity_m_s2 ", session.gravity_m_s2,
+                                                           " is not a positive number")));
   }
   const std::string id = session.id.empty() ? GenerateSessionId() : session.id;
   std::lock_guard lock(write_mu_);
@@ -226,6 +230,20 @@ absl::StatusOr<Session> Store::SetSessionState(std::string_view id, SessionState
           Cat("abandoned: session set to ", SessionStateName(state), " by ", actor)));
     }
     return LoadSession(conn, id);
+  });
+}
+
+absl::Status Store::SetSessionSource(std::string_view id, std::string_view source) {
+  constexpr std::string_view kOp = "SetSessionSource";
+  std::lock_guard lock(write_mu_);
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::Status {
+    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, id));
+    if (session.state != SessionState::kOpen || session.samples > 0) {
+      return absl::FailedPreconditionError(Cat("session '", id, "' is ",
+                                               SessionStateName(session.state), " and holds ",
+                                               session.samples, " samples: its source is set"));
+    }
+    return RunStatement(conn, kUpdateSessionSource, id, source);
   });
 }
 

@@ -10,6 +10,7 @@
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "storage/store_internal.h"
+#include "storage/types.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {

@@ -4,6 +4,7 @@
 #include <utility>
 
 #include "absl/status/status.h"
+#include "absl/strings/cord.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -57,5 +58,15 @@ absl::StatusOr<VersionState> ParseVersionState(std::string_view name) {
 
 std::string DeviceTarget(std::string_view device_id) { return Cat("device:", device_id); }
 std::string SessionTarget(std::string_view session_id) { return Cat("session:", session_id); }
+
+absl::Status WithOperation(std::string_view op, const absl::Status& s) {
+  if (s.ok()) return s;
+  absl::Status out(s.code(), Cat(op, ": ", s.message()));
+  std::string prefix = Cat(op, ": ");
+  if (auto inner = s.GetPayload(kOperationPayload); inner.has_value())
+    prefix += std::string(*inner);
+  out.SetPayload(kOperationPayload, absl::Cord(prefix));
+  return out;
+}
 
 }  // namespace imucal::storage

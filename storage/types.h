@@ -53,6 +53,9 @@ struct Session {
   int64_t samples = 0;     // samples in the stored batches
   int poses_accepted = 0;  // poses with used = true (PutPoses)
   int version = 0;         // version created by the session's latest successful solve; 0 none
+  // A name for the capture (a file, a robot's capture label), set while the session holds no
+  // samples (SetSessionSource); "" when none was given.
+  std::string source;
 };
 
 // One batch of raw samples as the robot sent it, in `sample_codec.h`'s binary form.
@@ -157,6 +160,14 @@ absl::StatusOr<VersionState> ParseVersionState(std::string_view name);
 // Audit targets.
 std::string DeviceTarget(std::string_view device_id);
 std::string SessionTarget(std::string_view session_id);
+
+// Errors name the storage operation that failed first ("SetSessionState: session 's-1' is
+// cancelled; ..."), for the server's log. That prefix (all of it, when operations nest) is
+// also attached as this payload, so that the server's boundary can take it off: a client is
+// told what is wrong, not which function found it.
+inline constexpr char kOperationPayload[] = "imucal.storage/operation";
+// `s` with "op: " in front of its message (and in the payload); OK stays OK.
+absl::Status WithOperation(std::string_view op, const absl::Status& s);
 
 }  // namespace imucal::storage
 

@@ -24,6 +24,7 @@ inline constexpr int kExitDenied = 7;       // the server refused the token or t
 // The exit code of a finished calibration by its verdict: kExitVerdictFail for "fail" (and for a
 // name this client does not know: it cannot vouch for it), else kExitOk.
 inline int ExitForVerdict(core::Verdict verdict) {
+  if (verdict == core::Verdict::kRefused) return kExitUndetermined;  // a report, no parameters
   return verdict == core::Verdict::kFail ? kExitVerdictFail : kExitOk;
 }
 inline int ExitForVerdict(std::string_view name) {

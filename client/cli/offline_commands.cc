@@ -381,7 +381,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
     std::fputs(FormatSummary(*report).c_str(), stdout);
     for (const auto& p : plot_paths) std::printf("wrote       %s\n", p.c_str());
   }
-  return refused ? kExitUndetermined : ExitForVerdict(report->verdict);
+  return ExitForVerdict(report->verdict);
 }
 
 int RunApply(const std::vector<std::string>& argv) {

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <string>
 #include <thread>
 #include <vector>
@@ -348,8 +349,10 @@ constexpr char kUploadHelp[] =
     "usage: imucal upload FILE... --device D [--session S] [--solve] [options]\n"
     "  Streams a capture's raw samples to a session: the given one; else the device's open\n"
     "  session while it holds no samples (the one `guide --device D` opened); else a new one.\n"
-    "  Resumes after the last acknowledged batch when the connection drops, and when run again\n"
-    "  for the same session and file. FILE: imucal CSV or an imu_tk pair.\n"
+    "  Resumes after the last acknowledged batch when the connection drops or the server\n"
+    "  restarts (it retries until nothing was acknowledged for 5 minutes), and when run again\n"
+    "  for the same session and file; a session holding another capture's start is refused,\n"
+    "  naming both. FILE: imucal CSV or an imu_tk pair.\n"
     "options:\n"
     "  --protocol six-face|positions|free|ferraris|auto   for a new session (default auto)\n"
     "  --format F   --accel-unit U   --gyro-unit U   input as for calibrate (and below)\n"
@@ -381,6 +384,14 @@ class ProgressBar {
   bool enabled_;
   int last_percent_ = -1;
 };
+
+// The capture's name for the session (SampleBatch.source): its file names without their
+// directories, which are the technician's business, not the server's.
+std::string CaptureName(const std::vector<std::string>& files) {
+  std::vector<std::string> names;
+  for (const std::string& f : files) names.push_back(std::filesystem::path(f).filename().string());
+  return absl::StrJoin(names, "+");
+}
 
 absl::StatusOr<importers::ImportOptions> UploadImportOptions(const Args& a) {
   importers::ImportOptions o;
@@ -496,17 +507,21 @@ int RunUpload(const std::vector<std::string>& argv) {
   }
 
   ProgressBar bar(::isatty(STDERR_FILENO) == 1);
+  // The SDK's Uploader with its retry policy (client/sdk/uploader.h): a server restart is
+  // ridden out, the same way a robot's upload rides it out.
   sdk::UploadOptions options;
   options.batch_samples = static_cast<int>(*batch);
-  options.max_retries = 8;
+  options.source = CaptureName(a->positional());
   options.progress = [&bar](int64_t done, int64_t total) { bar.Update(done, total); };
   sdk::Uploader uploader(server.channel, options);
   absl::StatusOr<sdk::UploadResult> result = uploader.Upload(session.id(), *capture);
   bar.Finish();
   if (!result.ok()) {
     const int code = RpcError(server, result.status());
-    std::fprintf(stderr, "imucal: run the same command with --session %s to resume\n",
-                 session.id().c_str());
+    // A refusal (another capture's session, a closed one) is not cured by running it again.
+    if (!absl::IsFailedPrecondition(result.status()) && !absl::IsInvalidArgument(result.status()))
+      std::fprintf(stderr, "imucal: run the same command with --session %s to resume\n",
+                   session.id().c_str());
     return code;
   }
   if (!a->Has("json")) {

@@ -1,5 +1,6 @@
 #include "client/sdk/client.h"
 
+#include <algorithm>
 #include <fstream>
 #include <sstream>
 #include <utility>
@@ -74,9 +75,22 @@ absl::Status ValidateClientOptions(const ClientOptions& options) {
 
 std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target,
                                            const ClientOptions& options) {
-  if (options.credentials) return grpc::CreateChannel(target, options.credentials);
+  // gRPC's own reconnect backoff (1 s, x1.6 per attempt, up to 120 s) would leave a robot
+  // unconnected for up to two minutes after a server restart; capped at
+  // max_reconnect_backoff, the channel tries every few seconds at most, so a call waiting for
+  // it (wait-for-ready, as the Uploader's are) goes out soon after the server is back. (Not
+  // GRPC_ARG_MIN_RECONNECT_BACKOFF_MS: gRPC takes that as each attempt's minimum time to
+  // connect, 20 s by default, which a slow link's TLS handshake needs.)
+  grpc::ChannelArguments args;
+  const int max_ms = static_cast<int>(absl::ToInt64Milliseconds(options.max_reconnect_backoff));
+  args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, std::min(max_ms, 250));
+  args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, max_ms);
+  auto channel = [&](const std::shared_ptr<grpc::ChannelCredentials>& credentials) {
+    return grpc::CreateCustomChannel(target, credentials, args);
+  };
+  if (options.credentials) return channel(options.credentials);
   if (options.ca_cert_pem.empty() || !ValidateClientOptions(options).ok())
-    return grpc::CreateChannel(target, grpc::InsecureChannelCredentials());
+    return channel(grpc::InsecureChannelCredentials());
   grpc::SslCredentialsOptions tls;
   tls.pem_root_certs = options.ca_cert_pem;
   tls.pem_cert_chain = options.client_cert_pem;
@@ -87,7 +101,7 @@ std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target,
     credentials = grpc::CompositeChannelCredentials(
         credentials, grpc::AccessTokenCredentials(options.bearer_token));
   }
-  return grpc::CreateChannel(target, credentials);
+  return channel(credentials);
 }
 
 StoredParams FromProto(const imucal::v1::ParameterSet& set) {

@@ -40,6 +40,11 @@ struct ClientOptions {
   std::string bearer_token;
   // Overrides all of the above when set (e.g. credentials a test builds).
   std::shared_ptr<grpc::ChannelCredentials> credentials;
+  // The longest the channel waits between attempts to (re)connect (gRPC's default is 120 s;
+  // each wait is jittered by +-20%). After the server comes back, a call waiting for the
+  // channel goes out within about this long; while it is down, each robot tries a connection
+  // this often. The Uploader's retry policy (uploader.h) counts on it.
+  absl::Duration max_reconnect_backoff = absl::Seconds(2);
 };
 
 // Reads the PEM files and the token (a file holding the secret; surrounding whitespace is

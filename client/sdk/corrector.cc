@@ -114,6 +114,8 @@ absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
     if (!regressor.has_value()) {
       return PathError(path + ".regressor", "unknown regressor \"" + e.regressor + "\"");
     }
+    const std::string mismatch = core::CentreMismatch(*regressor, params.effect_reference);
+    if (!mismatch.empty()) return PathError(path + ".regressor", mismatch);
     if (!e.applied) continue;
     CompiledEffect compiled;
     compiled.regressor = *regressor;

@@ -8,12 +8,14 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/sdk/grpc_status.h"
+#include "formats/sample_digest.h"
 #include "grpcpp/grpcpp.h"
 
 namespace imucal::sdk {
 namespace {
 
 namespace pb = imucal::v1;
+using formats::SampleDigest;
 
 absl::Status CheckColumns(const SampleColumns& s) {
   const size_t n = s.t_s.size();
@@ -27,17 +29,27 @@ absl::Status CheckColumns(const SampleColumns& s) {
 absl::Status CheckOptions(const UploadOptions& o) {
   if (o.batch_samples < 1) return absl::InvalidArgumentError("batch_samples must be >= 1");
   if (o.max_in_flight < 1) return absl::InvalidArgumentError("max_in_flight must be >= 1");
-  if (o.max_retries < 0) return absl::InvalidArgumentError("max_retries must be >= 0");
+  if (o.retry_for < absl::ZeroDuration())
+    return absl::InvalidArgumentError("retry_for must not be negative");
   return absl::OkStatus();
 }
 
 // Codes after which the same batches may be sent again on a new stream: the connection broke
-// or the server went away; the session's last_acked_seq says what survived. RESOURCE_EXHAUSTED
-// too: after a reconnect the server may not have ended this device's previous stream yet (one
-// stream per device), and backing off lets it.
+// or the server went away (or ended a stream it found idle); the session's last_acked_seq says
+// what survived. RESOURCE_EXHAUSTED too: after a reconnect the server may not have ended this
+// device's previous stream yet (one stream per device), and backing off lets it.
 bool IsRetryable(const absl::Status& s) {
   return absl::IsUnavailable(s) || absl::IsDeadlineExceeded(s) || absl::IsAborted(s) ||
          absl::IsCancelled(s) || absl::IsUnknown(s) || absl::IsResourceExhausted(s);
+}
+
+// Adds samples [begin, end) of `s` to `digest`.
+void AddToDigest(const SampleColumns& s, int64_t begin, int64_t end, SampleDigest* digest) {
+  const bool temp = !s.temp_c.empty();
+  for (int64_t i = begin; i < end; ++i) {
+    const size_t k = static_cast<size_t>(i);
+    digest->AddSample(s.t_s[k], &s.accel[3 * k], &s.gyro[3 * k], temp ? &s.temp_c[k] : nullptr);
+  }
 }
 
 pb::SampleBatch MakeBatch(const std::string& session_id, const SampleColumns& s, int64_t begin,
@@ -71,7 +83,8 @@ SampleColumns ColumnsFromCapture(const core::Capture& capture) {
 Uploader::Uploader(std::shared_ptr<grpc::Channel> channel, UploadOptions options)
     : channel_(std::move(channel)),
       stub_(pb::SessionService::NewStub(channel_)),
-      options_(std::move(options)) {}
+      options_(std::move(options)),
+      rng_(std::random_device{}()) {}
 
 Uploader::~Uploader() = default;
 
@@ -87,6 +100,10 @@ void Uploader::DropStream() {
   if (stream_context_ != nullptr) stream_context_->TryCancel();
 }
 
+absl::Duration Uploader::Jittered(absl::Duration d) {
+  return d * std::uniform_real_distribution<double>(0.8, 1.2)(rng_);
+}
+
 bool Uploader::WaitBackoff(absl::Duration backoff) {
   std::unique_lock<std::mutex> lock(mu_);
   return !cancel_cv_.wait_for(lock, absl::ToChronoNanoseconds(backoff),
@@ -95,6 +112,7 @@ bool Uploader::WaitBackoff(absl::Duration backoff) {
 
 absl::StatusOr<pb::Session> Uploader::GetSession(const std::string& session_id) {
   grpc::ClientContext context;
+  context.set_wait_for_ready(true);  // through a restart: wait for the channel, not fail
   context.set_deadline(absl::ToChronoTime(absl::Now() + options_.call_deadline));
   pb::GetSessionRequest request;
   request.set_session_id(session_id);
@@ -120,9 +138,12 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
   UploadResult result;
   result.total_samples = samples.size();
   bool first = true;
-  int retries = 0;
   absl::Duration backoff = options_.initial_backoff;
-  absl::Status last_error;
+  absl::Time last_progress = absl::Now();
+  // The digest of this capture's first `digested` samples: what the session must hold to be
+  // continued.
+  SampleDigest digest;
+  int64_t digested = 0;
   for (;;) {
     {
       std::lock_guard<std::mutex> lock(mu_);
@@ -140,6 +161,16 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
             absl::StrFormat("session %s already holds %d samples, more than the %d of this capture",
                             session_id, stored, samples.size()));
       }
+      if (stored < digested) {  // never in practice: what the server holds only grows
+        digest = SampleDigest();
+        digested = 0;
+      }
+      if (stored > digested) {
+        AddToDigest(samples, digested, stored, &digest);
+        digested = stored;
+      }
+      // The proof that this capture is the one the session holds (the server checks it).
+      const std::string resume = stored > 0 ? digest.Sha256() : std::string();
       if (first) result.skipped_samples = stored;
       first = false;
       result.last_acked_seq = session->last_acked_seq();
@@ -153,7 +184,7 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
             absl::AsciiStrToLower(pb::SessionState_Name(session->state()).substr(14))));
       }
       attempt_status =
-          StreamOnce(session_id, samples, stored, session->last_acked_seq() + 1, &result);
+          StreamOnce(session_id, samples, stored, session->last_acked_seq() + 1, resume, &result);
       if (attempt_status.ok()) return result;
     }
     {
@@ -161,24 +192,30 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
       if (cancelled_) return absl::CancelledError("upload cancelled");
     }
     if (!IsRetryable(attempt_status)) return attempt_status;
+    const absl::Time now = absl::Now();
     if (result.sent_samples > sent_before) {
-      retries = 0;
+      last_progress = now;
       backoff = options_.initial_backoff;
     }
-    if (++retries > options_.max_retries) {
+    if (now - last_progress >= options_.retry_for) {
       return absl::Status(
           attempt_status.code(),
-          absl::StrFormat("upload to session %s gave up after %d reconnects: %s", session_id,
-                          options_.max_retries, attempt_status.message()));
+          absl::StrFormat("upload to session %s gave up after %s without an acknowledgement (%d "
+                          "attempts): %s",
+                          session_id, absl::FormatDuration(options_.retry_for),
+                          result.reconnects + 1, attempt_status.message()));
     }
-    if (!WaitBackoff(backoff)) return absl::CancelledError("upload cancelled");
+    const absl::Duration wait =
+        std::min(Jittered(backoff), last_progress + options_.retry_for - now);
+    if (!WaitBackoff(wait)) return absl::CancelledError("upload cancelled");
     backoff = std::min(backoff * 2, options_.max_backoff);
     ++result.reconnects;
   }
 }
 
 absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleColumns& samples,
-                                  int64_t first_sample, int64_t first_seq, UploadResult* result) {
+                                  int64_t first_sample, int64_t first_seq,
+                                  const std::string& resume_sha256, UploadResult* result) {
   const int64_t total = samples.size();
   const int64_t n = options_.batch_samples;
   const int64_t batches = (total - first_sample + n - 1) / n;
@@ -190,6 +227,7 @@ absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleCol
     if (cancelled_) return absl::CancelledError("upload cancelled");
     stream_context_ = &context;
   }
+  context.set_wait_for_ready(true);
   context.set_deadline(absl::ToChronoTime(absl::Now() + options_.stream_deadline));
   auto stream = stub_->StreamSamples(&context);
 
@@ -210,7 +248,12 @@ absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleCol
       }
       const int64_t begin = first_sample + k * n;
       const int64_t end = std::min(total, begin + n);
-      if (!stream->Write(MakeBatch(session_id, samples, begin, end, seq))) return;
+      pb::SampleBatch batch = MakeBatch(session_id, samples, begin, end, seq);
+      if (k == 0) {
+        batch.set_resume_sha256(resume_sha256);
+        batch.set_source(options_.source);
+      }
+      if (!stream->Write(batch)) return;
     }
     stream->WritesDone();
   });

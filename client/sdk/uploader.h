@@ -1,12 +1,27 @@
 // Streams a robot's raw samples to a calibration session (SessionService.StreamSamples) and
-// survives dropped connections.
+// survives dropped connections and server restarts.
 //
 // Protocol (imucal.proto): batches carry seq 1, 2, 3, ... per session; the server acknowledges
 // the highest seq it has durably stored. A session holds one capture, so the session's stored
 // sample count says where this capture resumes: on (re)connecting the Uploader reads GetSession
 // (samples, last_acked_seq) and sends samples [samples, total) as batches last_acked_seq + 1,
-// + 2, ... Uploading the same capture again to a session that already holds part of it resumes
-// after the last acknowledged batch; every sample reaches the server exactly once.
+// + 2, ... The first batch of a stream that continues a session carries the SHA-256 of this
+// capture's first `samples` samples (SampleBatch.resume_sha256, sample_digest.h): the server
+// refuses the stream when the session holds another capture's start, naming both
+// (UploadOptions::source names this one). Uploading the same capture again to a session that
+// already holds part of it resumes after the last acknowledged batch; every sample reaches the
+// server exactly once.
+//
+// Retry policy (the CLI's `upload` is this Uploader on sdk::MakeChannel, so the same): a failed
+// call or a dropped stream is retried until `retry_for` has passed without a batch
+// acknowledged. Every call waits for the channel to be connected (gRPC wait-for-ready) rather
+// than failing at once while the channel is between reconnect attempts, and MakeChannel caps
+// those attempts' backoff (ClientOptions::max_reconnect_backoff, 2 s), so the upload goes on
+// within seconds of the server coming back however long it was away. Between attempts that
+// reached the server and failed (RESOURCE_EXHAUSTED while the server has not yet seen the
+// previous stream end, a draining server) the Uploader backs off exponentially with +-20%
+// jitter, so that a fleet does not retry in step. bench/outage_bench.cc measures the resume
+// after outages of 0 to 60 s; tests/server/outage_test.cc kills the real server for as long.
 //
 // Batches are sent up to `max_in_flight` ahead of the acks (a writer thread; acks are read on
 // the calling thread), so throughput does not wait on the round trip.
@@ -19,6 +34,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -50,14 +66,21 @@ SampleColumns ColumnsFromCapture(const core::Capture& capture);
 struct UploadOptions {
   int batch_samples = 2000;  // samples per batch (the last one may be shorter)
   int max_in_flight = 8;     // batches sent and not yet acknowledged
-  // Reconnects after a dropped stream, counted since the last attempt that made progress.
-  int max_retries = 5;
-  absl::Duration initial_backoff = absl::Milliseconds(200);  // doubles per retry
-  absl::Duration max_backoff = absl::Seconds(5);
-  absl::Duration call_deadline = absl::Seconds(10);  // for GetSession
+  // The upload gives up when no batch has been acknowledged for this long (see the retry
+  // policy above): a server restart of a minute, or several, is ridden out.
+  absl::Duration retry_for = absl::Minutes(5);
+  // Backoff between attempts: doubles from initial_backoff up to max_backoff, each wait
+  // jittered by +-20%; back to initial_backoff after an attempt that stored something.
+  absl::Duration initial_backoff = absl::Milliseconds(100);
+  absl::Duration max_backoff = absl::Seconds(2);
+  // Deadline of one GetSession call, including its wait for the channel to connect.
+  absl::Duration call_deadline = absl::Seconds(10);
   // Deadline of one StreamSamples stream. A stream that reaches it ends with DEADLINE_EXCEEDED
   // and the upload resumes on a new one (a stalled server does not hold the robot for ever).
   absl::Duration stream_deadline = absl::Minutes(10);
+  // The capture's name, sent as SampleBatch.source: a file name, a boot or capture label. The
+  // session keeps the first stream's; a refusal to splice names both.
+  std::string source;
   // Called on the calling thread after each acknowledgement: samples of this capture stored in
   // the session, and the capture's total.
   std::function<void(int64_t acked_samples, int64_t total_samples)> progress;
@@ -68,7 +91,7 @@ struct UploadResult {
   int64_t skipped_samples = 0;  // already in the session when Upload started (a resume)
   int64_t sent_samples = 0;     // acknowledged during this Upload
   int64_t last_acked_seq = 0;
-  int reconnects = 0;  // streams re-opened after a drop
+  int reconnects = 0;  // attempts after the first (a dropped stream, a failed call)
 };
 
 class Uploader {
@@ -80,9 +103,10 @@ class Uploader {
 
   // Uploads `samples` into `session_id` (resuming if the session holds a prefix of them) and
   // returns when every sample is acknowledged. Errors: InvalidArgument for malformed columns or
-  // options; FailedPrecondition if the session is not open or holds more samples than given;
-  // the server's status for a non-retryable error (INVALID_ARGUMENT, NOT_FOUND, ...);
-  // UNAVAILABLE after max_retries reconnects without progress; Cancelled after Cancel().
+  // options; FailedPrecondition if the session is not open, holds more samples than given, or
+  // holds the start of another capture; the server's status for a non-retryable error
+  // (INVALID_ARGUMENT, NOT_FOUND, ...); the last attempt's UNAVAILABLE or DEADLINE_EXCEEDED
+  // once retry_for has passed without an acknowledgement; Cancelled after Cancel().
   absl::StatusOr<UploadResult> Upload(const std::string& session_id, const SampleColumns& samples);
   absl::StatusOr<UploadResult> Upload(const std::string& session_id, const core::Capture& capture);
 
@@ -95,15 +119,20 @@ class Uploader {
 
  private:
   struct Attempt;
+  // One stream: samples [first_sample, total) as batches first_seq, ...; the first batch
+  // carries `resume_sha256` (empty when the session holds nothing).
   absl::Status StreamOnce(const std::string& session_id, const SampleColumns& samples,
-                          int64_t first_sample, int64_t first_seq, UploadResult* result);
+                          int64_t first_sample, int64_t first_seq, const std::string& resume_sha256,
+                          UploadResult* result);
   absl::StatusOr<imucal::v1::Session> GetSession(const std::string& session_id);
-  bool WaitBackoff(absl::Duration backoff);  // false when cancelled meanwhile
+  bool WaitBackoff(absl::Duration backoff);   // false when cancelled meanwhile
+  absl::Duration Jittered(absl::Duration d);  // d times a uniform factor in [0.8, 1.2]
 
   std::shared_ptr<grpc::Channel> channel_;
   std::unique_ptr<imucal::v1::SessionService::Stub> stub_;
   UploadOptions options_;
 
+  std::mt19937_64 rng_;  // the backoff's jitter; used by Upload's thread only
   std::mutex mu_;
   std::condition_variable cancel_cv_;
   bool cancelled_ = false;                         // guarded by mu_

@@ -64,6 +64,11 @@ absl::StatusOr<EffectSearchInput> SearchInput(const Capture& cap, const EffectsS
   for (const AccelPrior& q : in.accel.priors)
     out.accel_free[static_cast<size_t>(q.index)] =
         in.accel.refit_free[static_cast<size_t>(q.index)];
+  // Held, though the data determine them: tested again once an effect is in.
+  for (int c = 0; c < kAccelParams; ++c) {
+    const auto k = static_cast<size_t>(c);
+    out.accel_held[k] = in.accel.observability.determined[k] && !out.accel_free[k];
+  }
   out.gyro = rep.params.gyro;
   out.gyro_output_si = gyro.calibrated || !std::isnan(NominalGyroToSi(cap.gyro_unit));
   const double t0 = cap.t_s.empty() ? 0.0 : cap.t_s.front();
@@ -118,12 +123,14 @@ void TakeSearchResult(EffectSearchResult res, const AccelMask& searched, const A
   ps.accel = res.accel;
   ps.gyro = res.gyro;
   ps.effects = std::move(res.effects);
+  ps.effect_reference = res.reference;
   AccelVector se = res.accel_covariance.diagonal().cwiseSqrt();
   const AccelVector before = PackAccel(ps.stderrs.accel);
   for (int c = 0; c < kAccelParams; ++c) {
     const size_t k = static_cast<size_t>(c);
-    if (!free[k]) se(c) = kNaN;
-    if (free[k] && !searched[k]) se(c) = before(c);  // estimated before, held by the search
+    if (res.accel_free[k]) continue;  // estimated by the search (a held one freed included)
+    // Estimated before and held by the search, or never estimated.
+    se(c) = free[k] && !searched[k] ? before(c) : kNaN;
   }
   ps.stderrs.accel = UnpackAccel(se, ps.stderrs.accel.frame_angles);
   // Residuals of the model as stored (with its applied effects).

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <map>
 
 #include "absl/strings/str_format.h"
 #include "core/calibrate/protocol_checks.h"
@@ -207,23 +208,19 @@ void ReportFinalFigures(const Capture& cap, const std::vector<StaticInterval>& i
     return correct.Apply(cap.accel[i], cap.gyro[i], cap.has_temp() ? cap.temp[i] : kNoTemp,
                          cap.t_s[i]);
   };
-  // A pose's mean of the corrected samples (the SDK corrects each sample, not the mean).
-  const auto pose_mean = [&](const StaticInterval& s) {
-    CorrectedSample m;
-    for (size_t i = s.begin; i < s.end; ++i) {
-      const CorrectedSample c = at(i);
-      m.accel_m_s2 += c.accel_m_s2;
-      m.gyro_rad_s += c.gyro_rad_s;
-    }
-    const double n = static_cast<double>(std::max<size_t>(1, s.end - s.begin));
-    m.accel_m_s2 /= n;
-    m.gyro_rad_s /= n;
-    return m;
+  // A pose's up: the mean of its corrected samples (the SDK corrects each sample, not the
+  // mean), once per pose (a pose ends one move and starts the next).
+  std::map<int, Eigen::Vector3d> ups;
+  const auto up = [&](int pose) -> const Eigen::Vector3d& {
+    auto [it, inserted] = ups.try_emplace(pose, Eigen::Vector3d::Zero());
+    if (!inserted) return it->second;
+    const StaticInterval& s = ivs[static_cast<size_t>(pose)];
+    for (size_t i = s.begin; i < s.end; ++i) it->second += at(i).accel_m_s2;
+    it->second.normalize();
+    return it->second;
   };
   std::vector<double> errors_deg;
   for (const PlannedMove& pm : planned) {
-    const StaticInterval& a = ivs[static_cast<size_t>(pm.from_pose)];
-    const StaticInterval& b = ivs[static_cast<size_t>(pm.to_pose)];
     // The move's samples on their own, rates already in rad/s in the body frame.
     const size_t first = pm.move.begin, last = pm.move.end;
     std::vector<double> t_s(cap.t_s.begin() + static_cast<long>(first),
@@ -234,8 +231,8 @@ void ReportFinalFigures(const Capture& cap, const std::vector<StaticInterval>& i
     GyroMove m;
     m.begin = 0;
     m.end = last - first;
-    m.up_before = pose_mean(a).accel_m_s2.normalized();
-    m.up_after = pose_mean(b).accel_m_s2.normalized();
+    m.up_before = up(pm.from_pose);
+    m.up_after = up(pm.to_pose);
     const Eigen::Vector3d predicted =
         PredictUpAfterMove(t_s, rate, m, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(),
                            /*interpolate_bias=*/false);

@@ -200,6 +200,43 @@ TEST_F(CliServerTest, UploadAgainToTheSameSessionResumes) {
   EXPECT_NE(out_.find("already stored"), std::string::npos) << out_;
 }
 
+// An upload cut short, then another capture "resumed" into its session: refused, naming both
+// files, the session untouched; the right file then resumes. (It used to print "resumed: 4001
+// were already stored" and splice the second capture onto the first one's start.)
+TEST_F(CliServerTest, UploadingAnotherCaptureToAStartedSessionIsRefused) {
+  Register("robot-cli-7");
+  core::SimOptions sim;
+  sim.seed = 9;
+  auto a = core::Simulate(sim);
+  sim.seed = 10;
+  auto b = core::Simulate(sim);
+  ASSERT_TRUE(a.ok() && b.ok());
+  const std::string a_path = (dir_ / "a.csv").string();
+  const std::string b_path = (dir_ / "b.csv").string();
+  ASSERT_TRUE(importers::WriteImucalCsvFile(a->capture, a_path).ok());
+  ASSERT_TRUE(importers::WriteImucalCsvFile(b->capture, b_path).ok());
+  // What an interrupted upload of a.csv leaves: its first 4001 samples (the same file name).
+  core::Capture part = a->capture;
+  part.t_s.resize(4001), part.accel.resize(4001), part.gyro.resize(4001);
+  if (part.has_temp()) part.temp.resize(4001);
+  fs::create_directories(dir_ / "cut");
+  const std::string part_path = (dir_ / "cut" / "a.csv").string();
+  ASSERT_TRUE(importers::WriteImucalCsvFile(part, part_path).ok());
+  ASSERT_EQ(Run(RunSession, {"start", "--device", "robot-cli-7", "--json"}), kExitOk) << err_;
+  const std::string id = json::parse(out_)["id"];
+  ASSERT_EQ(Run(RunUpload, {part_path, "--session", id}), kExitOk) << err_;
+
+  EXPECT_EQ(Run(RunUpload, {b_path, "--session", id}), kExitUndetermined) << out_;
+  EXPECT_NE(err_.find("'b.csv' does not continue"), std::string::npos) << err_;
+  EXPECT_NE(err_.find("'a.csv'"), std::string::npos) << err_;
+  EXPECT_EQ(err_.find("to resume"), std::string::npos) << err_;  // nothing to resume with b.csv
+  ASSERT_EQ(Run(RunSession, {"show", id, "--json"}), kExitOk) << err_;
+  EXPECT_EQ(json::parse(out_)["samples"], "4001") << out_;
+
+  ASSERT_EQ(Run(RunUpload, {a_path, "--session", id}), kExitOk) << err_;
+  EXPECT_NE(out_.find("(resumed: 4001 were already stored)"), std::string::npos) << out_;
+}
+
 // `guide --device D` opens the session; `upload FILE --device D` beside it streams into it.
 // A device's open session that already holds samples is not joined (the uploader resumes by
 // batch number and would skip this capture's first batches): the message says what to do.

@@ -187,6 +187,44 @@ TEST(CorrectorTest, AppliesEffectsWithTheRightSignAndRegressor) {
   EXPECT_EQ(out.effects_skipped, 0);
 }
 
+void ExpectRejected(const core::ParamSet& p, const std::string& path_prefix);
+
+// A quadratic written about the parameter set's reference temperature, as the search writes it:
+// the SDK evaluates exactly the centred polynomial, (T - 31.2) and (T - 31.2)^2, not T and T^2.
+TEST(CorrectorTest, AppliesCentredQuadraticAboutTheStatedReference) {
+  core::ParamSet p = IdentityWithEffects({
+      MakeEffect(core::Sensor::kGyro, 0, "(temperature-31.2)", 2e-4),
+      MakeEffect(core::Sensor::kGyro, 0, "(temperature-31.2)^2", 3.5e-5),
+      MakeEffect(core::Sensor::kAccel, 2, "(temperature-31.2)*az", 1e-4),
+      MakeEffect(core::Sensor::kAccel, 1, "(time-120)", 1e-5, /*applied=*/false),
+  });
+  p.effect_reference.temperature_c = 31.2;
+  p.effect_reference.time_s = 120;
+  const absl::StatusOr<Corrector> c = Corrector::Create(p);
+  ASSERT_TRUE(c.ok()) << c.status();
+  EXPECT_EQ(c->num_applied_effects(), 3);
+  EXPECT_FALSE(c->NeedsTime());
+  const Eigen::Vector3d a(0.1, -0.2, 9.8), w(0.01, 0.02, -0.03);
+  for (double temp : {22.0, 31.2, 42.0}) {
+    CalibratedSample out;
+    c->Apply(MakeSample(5.0, a, w, temp), &out);
+    const double d = temp - 31.2;
+    EXPECT_DOUBLE_EQ(out.gyro_rad_s[0], w(0) - 2e-4 * d - 3.5e-5 * d * d) << temp;
+    EXPECT_DOUBLE_EQ(out.accel_m_s2[2], a(2) - 1e-4 * d * a(2)) << temp;
+    EXPECT_DOUBLE_EQ(out.accel_m_s2[1], a(1)) << temp;  // not applied
+  }
+  // A centred name the reference does not state is refused where it is: the SDK would otherwise
+  // evaluate a polynomial other than the one fitted. Old parameter sets state none (0) and use
+  // uncentred names, which still load; a plain name means what it says whatever the reference.
+  p.effect_reference.temperature_c = 30;
+  ExpectRejected(p,
+                 "effects[0].regressor: written (temperature-31.2) but "
+                 "effect_reference.temperature makes it (temperature-30)");
+  p.effect_reference = core::EffectReference();
+  p.effects = {MakeEffect(core::Sensor::kGyro, 0, "temperature^2", 3.5e-5)};
+  EXPECT_TRUE(Corrector::Create(p).ok());
+}
+
 TEST(CorrectorTest, EffectsReadCalibratedSignals) {
   // A non-trivial model: the `ax` an effect reads is the calibrated accel, not the raw one.
   std::mt19937_64 rng(kSeed + 2);

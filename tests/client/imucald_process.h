@@ -22,6 +22,7 @@
 #include "absl/strings/str_cat.h"
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
+#include "imucal/v1/imucal.grpc.pb.h"
 
 namespace imucal::testing_util {
 
@@ -80,6 +81,8 @@ class ImucaldProcess {
     Stop(SIGKILL);
     return Launch();
   }
+  // Starts it again after a Stop(), on the same port and database (an outage of any length).
+  absl::Status Relaunch() { return Launch(); }
   void Stop(int signal) {
     if (pid_ <= 0) return;
     ::kill(pid_, signal);
@@ -148,6 +151,31 @@ class ImucaldProcess {
   int port_ = 0;
   pid_t pid_ = -1;
 };
+
+// Registers `device` (200 Hz, m/s^2 and rad/s) and opens a session of `protocol` for it on
+// `channel`; the session's id, or "" (with a test failure) when either call fails.
+inline std::string RegisterAndOpenSession(const std::shared_ptr<grpc::Channel>& channel,
+                                          const std::string& device,
+                                          imucal::v1::Protocol protocol) {
+  imucal::v1::RegisterDeviceRequest reg;
+  reg.mutable_device()->set_id(device);
+  reg.mutable_device()->set_sensor_model("sim");
+  reg.mutable_device()->set_nominal_rate_hz(200);
+  reg.mutable_device()->set_accel_unit("m/s^2");
+  reg.mutable_device()->set_gyro_unit("rad/s");
+  imucal::v1::Device d;
+  grpc::ClientContext c1;
+  grpc::Status s = imucal::v1::DeviceService::NewStub(channel)->RegisterDevice(&c1, reg, &d);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+  imucal::v1::CreateSessionRequest create;
+  create.set_device_id(device);
+  create.set_protocol(protocol);
+  imucal::v1::Session session;
+  grpc::ClientContext c2;
+  s = imucal::v1::SessionService::NewStub(channel)->CreateSession(&c2, create, &session);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+  return s.ok() ? session.id() : "";
+}
 
 // A test against a real imucald with its database in a fresh per-test directory (skipped when
 // imucald is not built). `prefix` names the directory, e.g. "imucal_uploader_test".

@@ -15,6 +15,7 @@
 #include "absl/strings/str_cat.h"
 #include "client/sdk/client.h"
 #include "core/simulator.h"
+#include "formats/sample_digest.h"
 #include "grpcpp/grpcpp.h"
 #include "tests/client/fake_services.h"
 #include "tests/client/imucald_process.h"
@@ -24,6 +25,7 @@ namespace {
 
 namespace fs = std::filesystem;
 namespace pb = imucal::v1;
+using formats::SampleDigest;
 using testing_util::FakeServer;
 using testing_util::FakeSessionService;
 
@@ -153,15 +155,18 @@ TEST_F(UploaderFakeTest, UnknownSessionIsNotFound) {
   EXPECT_TRUE(absl::IsNotFound(uploader.Upload("nope", MakeColumns(10)).status()));
 }
 
-TEST(UploaderTest, UnreachableServerGivesUpAfterRetries) {
+// The uploader retries by time, not by count: it gives up only after retry_for without an
+// acknowledgement, and says so.
+TEST(UploaderTest, UnreachableServerGivesUpAfterItsRetryTime) {
   UploadOptions o = SmallBatches();
-  o.max_retries = 2;
+  o.retry_for = absl::Seconds(1);
   o.initial_backoff = absl::Milliseconds(1);
   o.call_deadline = absl::Milliseconds(300);
   Uploader uploader(MakeChannel(absl::StrCat("127.0.0.1:", testing_util::FreeLoopbackPort())), o);
   absl::Status s = uploader.Upload("s-1", MakeColumns(10)).status();
   EXPECT_TRUE(absl::IsUnavailable(s) || absl::IsDeadlineExceeded(s)) << s;
-  EXPECT_NE(s.message().find("gave up after 2 reconnects"), std::string::npos) << s;
+  EXPECT_NE(s.message().find("gave up after 1s without an acknowledgement"), std::string::npos)
+      << s;
 }
 
 TEST(UploaderTest, MalformedColumnsAreInvalidArgument) {
@@ -178,27 +183,8 @@ class UploaderImucaldTest : public testing_util::ImucaldTest {
   UploaderImucaldTest() : ImucaldTest("imucal_uploader_test") {}
 
   std::string CreateSession(const std::string& device) {
-    auto channel = server_->NewChannel();
-    auto devices = pb::DeviceService::NewStub(channel);
-    auto sessions = pb::SessionService::NewStub(channel);
-    grpc::ClientContext c1;
-    pb::RegisterDeviceRequest reg;
-    reg.mutable_device()->set_id(device);
-    reg.mutable_device()->set_sensor_model("sim");
-    reg.mutable_device()->set_nominal_rate_hz(200);
-    reg.mutable_device()->set_accel_unit("m/s^2");
-    reg.mutable_device()->set_gyro_unit("rad/s");
-    pb::Device d;
-    grpc::Status s = devices->RegisterDevice(&c1, reg, &d);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    grpc::ClientContext c2;
-    pb::CreateSessionRequest create;
-    create.set_device_id(device);
-    create.set_protocol(pb::PROTOCOL_SIX_FACE);
-    pb::Session session;
-    s = sessions->CreateSession(&c2, create, &session);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return session.id();
+    return testing_util::RegisterAndOpenSession(server_->NewChannel(), device,
+                                                pb::PROTOCOL_SIX_FACE);
   }
 
   pb::Session GetSession(const std::string& id) {
@@ -251,6 +237,54 @@ TEST_F(UploaderImucaldTest, CancelThenUploadAgainStoresEverySampleOnce) {
   EXPECT_EQ(done.last_acked_seq(), r->last_acked_seq);
 }
 
+// The SDK proves its resume as the CLI does: a session that holds the start of one capture
+// does not take another one's rest (each Upload names its capture in UploadOptions::source).
+TEST_F(UploaderImucaldTest, AnotherCaptureDoesNotResumeTheSession) {
+  const SampleColumns first = SimulatedColumns();
+  SampleColumns second = first;  // the same times, other readings: another capture
+  for (double& g : second.gyro) g += 0.01;
+  const int64_t total = first.size();
+  const std::string session = CreateSession("robot-up-3");
+  ASSERT_FALSE(session.empty());
+  UploadOptions o;
+  o.batch_samples = 500;
+  o.source = "boot-1";
+  Uploader* self = nullptr;
+  o.progress = [&](int64_t acked, int64_t) {
+    if (acked >= total / 2) self->Cancel();
+  };
+  Uploader cut(server_->NewChannel(), o);
+  self = &cut;
+  ASSERT_TRUE(absl::IsCancelled(cut.Upload(session, first).status()));
+  const pb::Session half = GetSession(session);
+  ASSERT_GT(half.samples(), 0);
+  EXPECT_EQ(half.source(), "boot-1");
+
+  UploadOptions other;
+  other.batch_samples = 500;
+  other.source = "boot-2";
+  absl::Status refused = Uploader(server_->NewChannel(), other).Upload(session, second).status();
+  EXPECT_TRUE(absl::IsFailedPrecondition(refused)) << refused;
+  EXPECT_NE(refused.message().find("'boot-2' does not continue"), std::string::npos) << refused;
+  EXPECT_NE(refused.message().find("'boot-1'"), std::string::npos) << refused;
+
+  // The first capture resumes (after any batch still in flight when it was cut), and the
+  // session then holds it alone: its digest is the first capture's.
+  absl::StatusOr<UploadResult> resumed =
+      Uploader(server_->NewChannel(), other).Upload(session, first);
+  ASSERT_TRUE(resumed.ok()) << resumed.status();
+  EXPECT_GE(resumed->skipped_samples, half.samples());
+  const pb::Session done = GetSession(session);
+  EXPECT_EQ(done.samples(), total);
+  SampleDigest digest;
+  for (int64_t i = 0; i < total; ++i) {
+    const size_t k = static_cast<size_t>(i);
+    digest.AddSample(first.t_s[k], &first.accel[3 * k], &first.gyro[3 * k],
+                     first.temp_c.empty() ? nullptr : &first.temp_c[k]);
+  }
+  EXPECT_EQ(done.samples_sha256(), digest.Sha256());
+}
+
 TEST_F(UploaderImucaldTest, ServerRestartMidUploadResumes) {
   const SampleColumns samples = SimulatedColumns();
   const int64_t total = samples.size();
@@ -258,7 +292,6 @@ TEST_F(UploaderImucaldTest, ServerRestartMidUploadResumes) {
   ASSERT_FALSE(session.empty());
   UploadOptions o;
   o.batch_samples = 500;
-  o.max_retries = 20;
   o.initial_backoff = absl::Milliseconds(50);
   o.max_backoff = absl::Milliseconds(500);
   bool restarted = false;

@@ -6,7 +6,10 @@
 #define IMUCAL_TESTS_CORE_EFFECT_SCENARIOS_H_
 
 #include <cmath>
+#include <cstdio>
+#include <optional>
 #include <ostream>
+#include <random>
 #include <string>
 #include <utility>
 #include <vector>
@@ -70,6 +73,15 @@ inline HoldError ErrorOn(const SimResult& sim, const ParamSet& params) {
 // The oracle: the simulated truth with its effects, the validation capture's noise floor.
 inline ParamSet TruthParams(const SimResult& sim) {
   ParamSet p;
+  // A truth written about its own turnover, `(temperature-17.3)^2`, states that reference.
+  for (const SimEffect& e : sim.effects) {
+    const std::optional<Regressor> r = ParseRegressor(e.regressor);
+    if (!r) continue;
+    const double t = r->centre[static_cast<size_t>(Signal::kTemperature)];
+    const double s = r->centre[static_cast<size_t>(Signal::kTime)];
+    if (t != 0) p.effect_reference.temperature_c = t;
+    if (s != 0) p.effect_reference.time_s = s;
+  }
   p.accel = sim.truth.accel;
   p.gyro = sim.truth.gyro;
   p.gyro_calibrated = true;
@@ -83,6 +95,45 @@ inline ParamSet TruthParams(const SimResult& sim) {
     p.effects.push_back(fx);
   }
   return p;
+}
+
+// True when two regressor names are the same form up to the references their temperature and
+// time factors are centred on (`(temperature-31.2)^2` and `temperature^2`): the coefficient of
+// a polynomial's highest power, the one the truth's form names, does not depend on the centre.
+inline bool SameForm(const std::string& a, const std::string& b) {
+  const std::optional<Regressor> x = ParseRegressor(a);
+  const std::optional<Regressor> y = ParseRegressor(b);
+  return x && y && x->factors == y->factors && x->num_factors == y->num_factors;
+}
+
+// True when `e` is a lower power that entered with a higher one in `all` (the search adds
+// `(temperature-31.2)` with `(temperature-31.2)^2`, core/effects.h POLYNOMIALS): the same
+// sensor, axis and form but one temperature or time factor fewer.
+inline bool IsLowerPower(const Effect& e, const std::vector<Effect>& all) {
+  const std::optional<Regressor> r = ParseRegressor(e.regressor);
+  if (!r) return false;
+  for (const Effect& h : all) {
+    if (&h == &e || h.sensor != e.sensor || h.axis != e.axis) continue;
+    const std::optional<Regressor> hr = ParseRegressor(h.regressor);
+    if (!hr || hr->num_factors != r->num_factors + 1) continue;
+    for (int i = 0; i < hr->num_factors; ++i) {
+      const int f = hr->factors[i];
+      if (f != static_cast<int>(Signal::kTemperature) && f != static_cast<int>(Signal::kTime))
+        continue;
+      Regressor lower;
+      for (int k = 0; k < hr->num_factors; ++k)
+        if (k != i) lower.factors[lower.num_factors++] = hr->factors[k];
+      if (lower.factors == r->factors && lower.num_factors == r->num_factors) return true;
+    }
+  }
+  return false;
+}
+
+// The effects that are not lower powers of another (one per physical effect).
+inline int CountMainEffects(const std::vector<Effect>& all) {
+  int n = 0;
+  for (const Effect& e : all) n += !IsLowerPower(e, all);
+  return n;
 }
 
 struct EffectCase {
@@ -107,6 +158,60 @@ inline const EffectCase kEffectCases[] = {
     {"GyroBiasDrift", {Fx(Sensor::kGyro, 0, "time", 0.01 * kDegS / 60)}},                 // /min
     {"AccelCrossQuadratic", {Fx(Sensor::kAccel, 0, "ax*az", 3e-4)}},  // /(m/s^2)
 };
+
+// Harder shapes, run by bench/effects_bench only (with validation on other temperature
+// histories). `T0` in a regressor is a turnover drawn per seed (TurnoverFor).
+//   - a temperature quadratic whose turnover lies anywhere in 0-50 degC, on the gyroscope (0.002
+//     deg/s/degC^2, the size an independent simulator used) and on the accelerometer (0.05
+//     mg/degC^2: 3 mg at 8 degC off the turnover);
+//   - two effects on different sensors at once.
+inline const EffectCase kHarderCases[] = {
+    {"GyroTemperatureTurnover", {Fx(Sensor::kGyro, 0, "(temperature-T0)^2", 0.002 * kDegS)}},
+    {"AccelTemperatureTurnover", {Fx(Sensor::kAccel, 2, "(temperature-T0)^2", 0.05 * kMg)}},
+    {"AccelTempGyroGSensitivity",
+     {Fx(Sensor::kAccel, 1, "temperature", 0.5 * kMg),
+      Fx(Sensor::kGyro, 2, "ax", 0.05 * kDegS / kStandardGravity)}},
+};
+
+// The case's effects for one seed: `T0` becomes a turnover uniform in 0-50 degC (0.1 degC steps),
+// drawn from the seed.
+inline std::vector<SimEffect> EffectsFor(const EffectCase& c, uint64_t seed) {
+  std::vector<SimEffect> out = c.effects;
+  std::mt19937_64 rng(seed * 0x9E3779B97F4A7C15ull + 17);
+  const double t0 = std::round(std::uniform_real_distribution<double>(0, 50)(rng) * 10) / 10;
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.1f", t0);
+  for (SimEffect& e : out) {
+    const size_t at = e.regressor.find("T0");
+    if (at != std::string::npos) e.regressor.replace(at, 2, text);
+  }
+  return out;
+}
+
+// Other temperature histories of the same unit, for validation: what a correction must also hold
+// on. The calibration capture warms 25 -> 33 degC with a 120 s time constant.
+enum class History { kRamp, kCoolDown, kPlateau };
+inline const char* HistoryName(History h) {
+  return h == History::kRamp ? "ramp" : h == History::kCoolDown ? "cool-down" : "plateau";
+}
+inline SimOptions HistoryScenario(uint64_t seed, std::vector<SimEffect> effects, History h) {
+  SimOptions o = EffectScenario(seed, std::move(effects));
+  switch (h) {
+    case History::kRamp:  // 25 -> 33 degC nearly linearly over the ~240 s capture
+      o.temp_tau_s = 2400;
+      o.temp_rise_c = 8 / (1 - std::exp(-0.1));
+      break;
+    case History::kCoolDown:  // 33 -> 25 degC
+      o.temp_start_c = 33;
+      o.temp_rise_c = -8;
+      break;
+    case History::kPlateau:  // steady, 2 degC above the calibration's range
+      o.temp_start_c = 35;
+      o.temp_rise_c = 0;
+      break;
+  }
+  return o;
+}
 
 // True when some effect of the case reads `temperature` (it needs a temperature channel).
 inline bool UsesTemperature(const EffectCase& c) {

@@ -44,7 +44,8 @@ CalibrationReport MustCalibrate(const Capture& cap, bool apply_time_effects = fa
 
 const Effect* FindEffect(const ParamSet& p, const SimEffect& want) {
   for (const Effect& e : p.effects)
-    if (e.sensor == want.sensor && e.axis == want.axis && e.regressor == want.regressor) return &e;
+    if (e.sensor == want.sensor && e.axis == want.axis && SameForm(e.regressor, want.regressor))
+      return &e;
   return nullptr;
 }
 
@@ -97,11 +98,10 @@ std::vector<UndeclaredParam> UndeclaredParams() {
     for (bool temperature : {true, false}) {
       if (!temperature && UsesTemperature(c)) continue;
       // Seeds 1-3 here; the detection rate over 20 seeds is measured by bench/effects_bench.
-      // Seed 4 of the accelerometer bias temperature case attributes the effect to time (6.1
-      // BIC apart over the 120 s warm-up, past the weak-evidence band in which a temperature
-      // twin is preferred): reported, not applied by default, so its validation error stays
-      // above the floor. That is an open finding (README, "Closing the loop"), not a tolerance
-      // to widen.
+      // Seeds beyond 3 can attribute a temperature effect to time (more than 6 BIC apart over
+      // the 120 s warm-up, past the band in which a run-time explanation is preferred):
+      // reported, not applied by default, so the validation error stays above the floor. That
+      // is an open finding (README, "Closing the loop"), not a tolerance to widen.
       for (int seed = 1; seed <= 3; ++seed) out.emplace_back(c, temperature, seed);
     }
   }
@@ -127,7 +127,7 @@ TEST_P(UndeclaredEffect, FoundWithinThreeSigmaAndValidationDropsToNoiseFloor) {
   // coefficients misses about once in ten suites by chance alone. It is held to 4 and named,
   // not dropped from the seeds: if it moved beyond 4, the standard error would be wrong.
   const bool known_miss = c.name == "AccelCrossQuadratic" && !temperature && seed == 2;
-  EXPECT_EQ(rep.params.effects.size(), c.effects.size());
+  EXPECT_EQ(CountMainEffects(rep.params.effects), static_cast<int>(c.effects.size()));
   for (const SimEffect& want : c.effects) {
     const Effect* got = FindEffect(rep.params, want);
     ASSERT_NE(got, nullptr) << "missing " << want.regressor;
@@ -168,7 +168,7 @@ TEST_P(TwoUndeclaredEffects, BothFoundAndResidualStatedAgainstNoiseFloor) {
   const CalibrationReport rep = MustCalibrate(sim.capture);
   const EffectDiagnostics& diag = rep.effect_diagnostics;
   SCOPED_TRACE(List(rep.params) + "\n" + Notes(rep));
-  ASSERT_EQ(rep.params.effects.size(), 2u);
+  ASSERT_EQ(CountMainEffects(rep.params.effects), 2);
   // One round per effect added and a last one that found nothing more.
   EXPECT_EQ(diag.rounds, 3);
   for (const SimEffect& want : sim.effects) {
@@ -242,9 +242,10 @@ TEST_P(WarmUpAmbiguity, NotesSayTemperatureAndTimeAreHardToTellApart) {
   const std::string notes = Notes(rep);
   SCOPED_TRACE(List(rep.params) + "\n" + notes);
   const SimEffect& want = c.effects[0];
-  // One effect, on the right sensor and axis, explained by temperature or by time.
-  ASSERT_EQ(rep.params.effects.size(), 1u);
-  const Effect& got = rep.params.effects[0];
+  // One effect, on the right sensor and axis, explained by temperature or by time (a power
+  // with the lower one it entered with).
+  ASSERT_EQ(CountMainEffects(rep.params.effects), 1);
+  const Effect& got = rep.params.effects.back();
   EXPECT_EQ(got.sensor, want.sensor);
   EXPECT_EQ(got.axis, want.axis);
   // (temperature, time, their squares or product: the warm-up makes them all alike.)
@@ -257,8 +258,10 @@ TEST_P(WarmUpAmbiguity, NotesSayTemperatureAndTimeAreHardToTellApart) {
   }
   // A note pairs the entering term with a rival that differs from it in temperature versus
   // time, and says what would tell them apart.
+  std::string terms;  // the entering term as the notes name it: lower powers first
+  for (const Effect& e : rep.params.effects) terms += Cat(terms.empty() ? "" : " + ", e.regressor);
   const std::string term = Cat(want.sensor == Sensor::kAccel ? "accel " : "gyro ",
-                               std::string(1, "xyz"[want.axis]), " ~ ", got.regressor);
+                               std::string(1, "xyz"[want.axis]), " ~ ", terms);
   bool said = false;
   for (const std::string& n : rep.effect_diagnostics.notes) {
     said |= n.starts_with("ambiguous: ") && NamesTerm(n, term) &&
@@ -272,7 +275,7 @@ TEST_P(WarmUpAmbiguity, NotesSayTemperatureAndTimeAreHardToTellApart) {
   // The entering effect's evidence names its rival too.
   EXPECT_NE(got.evidence.find("ambiguous with"), std::string::npos) << got.evidence;
   // A temperature effect chosen for a temperature truth is also right in size.
-  if (got.regressor == want.regressor) {
+  if (SameForm(got.regressor, want.regressor)) {
     EXPECT_LT(std::abs(got.coefficient - want.coefficient), 3 * got.std_error)
         << "truth " << want.coefficient;
   }
@@ -294,14 +297,21 @@ INSTANTIATE_TEST_SUITE_P(Effects, WarmUpAmbiguity,
                                   std::to_string(std::get<1>(param_info.param));
                          });
 
-// The temperature twin rule (core/effects.cc): a time effect that the data favour over the
-// same term with temperature in place of time, but by less than strong evidence (BIC within 6),
-// gives way to the temperature term, which the robot applies. Over slow warm-ups of a
-// temperature truth and of a time truth: no `time` term enters while its temperature twin is
-// named beside it as weakly disfavoured, and the rule is exercised (some capture enters the
-// temperature twin although the data lean to time), else this test would check nothing.
-TEST(TemperatureTwin, WeaklyFavouredTimeGivesWayToTemperature) {
+// Prefer what the robot can apply (core/effects.h): a time effect that the data favour over a
+// candidate made only of run-time signals, but by less than strong evidence (BIC within 6), gives
+// way to it, because the robot applies the run-time one. Over slow warm-ups of a temperature
+// truth and of a time truth: no `time` term enters while a run-time rival is named beside it as
+// weakly disfavoured, and the rule is exercised (some capture enters the run-time term although
+// the data lean to time), else this test would check nothing.
+TEST(PreferRunTime, WeaklyFavouredTimeGivesWayToRunTimeSignals) {
   int exercised = 0;
+  const auto between = [](const std::string& n, const std::string& from, const std::string& to) {
+    const size_t a = n.find(from);
+    if (a == std::string::npos) return std::string();
+    const size_t b = n.find(to, a + from.size());
+    return b == std::string::npos ? std::string() : n.substr(a + from.size(), b - a - from.size());
+  };
+  const auto timed = [](const std::string& term) { return term.find("time") != std::string::npos; };
   for (const EffectCase& c : kWarmUpCases) {
     for (int seed = 1; seed <= 5; ++seed) {
       const SimResult sim =
@@ -309,29 +319,19 @@ TEST(TemperatureTwin, WeaklyFavouredTimeGivesWayToTemperature) {
       const CalibrationReport rep = MustCalibrate(sim.capture);
       SCOPED_TRACE(c.name + " seed " + std::to_string(seed) + ": " + List(rep.params) + "\n" +
                    Notes(rep));
-      for (const Effect& e : rep.params.effects) {
-        const std::string prefix = Cat(e.sensor == Sensor::kAccel ? "accel " : "gyro ",
-                                       std::string(1, "xyz"[e.axis]), " ~ ");
-        const size_t at = e.regressor.find("time");
-        if (at != std::string::npos) {
-          std::string twin = e.regressor;
-          twin.replace(at, 4, "temperature");
-          for (const std::string& n : rep.effect_diagnostics.notes) {
-            EXPECT_FALSE(n.starts_with("ambiguous: ") && NamesTerm(n, prefix + twin) &&
-                         n.find("but not strongly") != std::string::npos)
-                << "time entered over its weakly disfavoured temperature twin: " << n;
-          }
-        } else if (e.regressor.find("temperature") != std::string::npos) {
-          std::string twin = e.regressor;
-          twin.replace(e.regressor.find("temperature"), 11, "time");
-          for (const std::string& n : rep.effect_diagnostics.notes)
-            exercised += n.find("the data favour " + prefix + twin + " but not strongly") !=
-                         std::string::npos;
-        }
+      for (const std::string& n : rep.effect_diagnostics.notes) {
+        if (!n.starts_with("ambiguous: ") || n.find("but not strongly") == std::string::npos)
+          continue;
+        const std::string win = between(n, "ambiguous: ", " and ");
+        const std::string rival = between(n, win + " and ", " both explain");
+        const std::string favoured = between(n, "the data favour ", " but not strongly");
+        EXPECT_FALSE(timed(win) && favoured == win && !timed(rival))
+            << "time entered over a weakly disfavoured run-time rival: " << n;
+        exercised += !timed(win) && timed(favoured);
       }
     }
   }
-  EXPECT_GT(exercised, 0) << "no capture had a time term weakly favoured over its temperature twin";
+  EXPECT_GT(exercised, 0) << "no capture had a time term weakly favoured over a run-time one";
 }
 
 // The cross-axis quadratic: |a| - g moves alike for `ax*az` on x and `ax^2` on z (and for the
@@ -466,13 +466,41 @@ TEST_P(TimeEffect, ReportedButAppliedOnlyOnOptIn) {
   const CalibrationReport on = MustCalibrate(sim.capture, /*apply_time_effects=*/true);
   SCOPED_TRACE("default: " + List(off.params) + "\n" + Notes(off) + "opt-in: " + List(on.params));
 
-  // Default: found, within 3 standard errors, reported as not applied.
-  ASSERT_EQ(off.params.effects.size(), 1u);
+  // Opt-in: the same effect, applied, in the SDK as -c (t - t0) on gyro x.
+  ASSERT_EQ(on.params.effects.size(), 1u);
+  const Effect* applied = FindEffect(on.params, drift);
+  ASSERT_NE(applied, nullptr);
+  EXPECT_TRUE(applied->applied);
+  EXPECT_LT(std::abs(applied->coefficient - drift.coefficient), 3 * applied->std_error);
+  const double t0 = sim.capture.t_s.front();
+  EXPECT_FALSE(sdk::Corrector::Create(on.params).ok())
+      << "an applied time effect needs a time origin";
+  absl::StatusOr<sdk::Corrector> on_corrector = sdk::Corrector::Create(on.params, t0);
+  ASSERT_TRUE(on_corrector.ok()) << on_corrector.status();
+  EXPECT_EQ(on_corrector->num_applied_effects(), 1);
+  EXPECT_TRUE(on_corrector->NeedsTime());
+
+  // Default: a drift that a run-time explanation (a temperature polynomial over the warm-up)
+  // fits as well, within the BIC band, gives way to it (prefer what the robot can apply); the
+  // notes then name the time term beside it and what capture would separate them, and no time
+  // term is applied (one may still enter after it, reported). Otherwise the drift itself:
+  // found, within 3 standard errors, not applied.
   const Effect* found = FindEffect(off.params, drift);
-  ASSERT_NE(found, nullptr);
+  if (found == nullptr || off.params.effects.size() > 1) {
+    bool noted = false;
+    for (const std::string& n : off.effect_diagnostics.notes)
+      noted |= n.starts_with("ambiguous: ") && n.find("gyro x ~ (time-") != std::string::npos &&
+               n.find("a capture at a steady temperature") != std::string::npos;
+    EXPECT_TRUE(noted) << "the time drift gave way without a note naming it";
+    for (const Effect& e : off.params.effects)
+      if (e.regressor.find("time") != std::string::npos) EXPECT_FALSE(e.applied) << e.regressor;
+    return;
+  }
+  ASSERT_EQ(off.params.effects.size(), 1u);
   EXPECT_FALSE(found->applied);
   EXPECT_LT(std::abs(found->coefficient - drift.coefficient), 3 * found->std_error);
-  EXPECT_NE(Notes(off).find("gyro x ~ time: a dependence on time since the capture started is "
+  EXPECT_NE(Notes(off).find("gyro x ~ " + found->regressor +
+                            ": a dependence on time since the capture started is "
                             "reported, not applied"),
             std::string::npos);
 
@@ -502,20 +530,6 @@ TEST_P(TimeEffect, ReportedButAppliedOnlyOnOptIn) {
   bare_off.effects.clear();
   absl::StatusOr<sdk::Corrector> bare_off_corrector = sdk::Corrector::Create(bare_off);
   ASSERT_TRUE(bare_off_corrector.ok()) << bare_off_corrector.status();
-
-  // Opt-in: the same effect, applied, in the SDK as -c (t - t0) on gyro x.
-  ASSERT_EQ(on.params.effects.size(), 1u);
-  const Effect* applied = FindEffect(on.params, drift);
-  ASSERT_NE(applied, nullptr);
-  EXPECT_TRUE(applied->applied);
-  EXPECT_LT(std::abs(applied->coefficient - drift.coefficient), 3 * applied->std_error);
-  const double t0 = sim.capture.t_s.front();
-  EXPECT_FALSE(sdk::Corrector::Create(on.params).ok())
-      << "an applied time effect needs a time origin";
-  absl::StatusOr<sdk::Corrector> on_corrector = sdk::Corrector::Create(on.params, t0);
-  ASSERT_TRUE(on_corrector.ok()) << on_corrector.status();
-  EXPECT_EQ(on_corrector->num_applied_effects(), 1);
-  EXPECT_TRUE(on_corrector->NeedsTime());
 
   // Over the capture: the default model's output differs from the opt-in model's only on gyro
   // x, by c (t - t_mid): zero where the default bias holds the drift's mean, mid-capture, not

@@ -100,8 +100,14 @@ TEST(RegressorTest, ParsesAndGivesCanonicalName) {
 }
 
 TEST(RegressorTest, RejectsMalformedNames) {
-  for (const char* text : {"foo", "ax**az", "", "*", "ax*", "*ax", "ax^3", "ax^2^2", "Ax", "ax^",
-                           "temperature2", "ax*ay*az*gx*gy", "ax^2*ay^2*az", "ax+az", "1"}) {
+  for (const char* text :
+       {"foo", "ax**az", "", "*", "ax*", "*ax", "ax^3", "ax^2^2", "Ax", "ax^", "temperature2",
+        "ax*ay*az*gx*gy", "ax^2*ay^2*az", "ax+az", "1",
+        // Centred factors: temperature and time only, a finite number, one
+        // reference per signal.
+        "(ax-1)", "(temperature)", "(temperature-)", "(temperature-abc)", "(temperature-1x)",
+        "temperature-30", "(temperature-nan)", "(temperature-inf)", "temperature*(temperature-30)",
+        "(time-1)*(time-2)", "(temperature*30)"}) {
     SCOPED_TRACE(text);
     EXPECT_FALSE(ParseRegressor(text).has_value());
   }
@@ -124,6 +130,34 @@ TEST(RegressorTest, EvaluatesProductOfSignals) {
   EXPECT_DOUBLE_EQ(ParseRegressor("gx*gy*gz")->Evaluate(signals), 120.0);
   EXPECT_DOUBLE_EQ(ParseRegressor("ax^2*az^2")->Evaluate(signals), 20.25);
   EXPECT_DOUBLE_EQ(Regressor().Evaluate(signals), 1.0);
+  // Centred factors read the signal minus the reference written in the name.
+  EXPECT_DOUBLE_EQ(ParseRegressor("(temperature-31.5)^2")->Evaluate(signals), 2.25);
+  EXPECT_DOUBLE_EQ(ParseRegressor("(temperature+5)")->Evaluate(signals), 35.0);
+  EXPECT_DOUBLE_EQ(ParseRegressor("(time-0.5)*ax")->Evaluate(signals), 2.25);
+  EXPECT_DOUBLE_EQ(ParseRegressor("(temperature-25)*(time-1)")->Evaluate(signals), 5.0);
+}
+
+TEST(RegressorTest, CentredNamesRoundTripExactly) {
+  // The reference is written in the shortest form that reads back to the same double, so the
+  // SDK evaluates exactly what the search fitted, whatever the reference.
+  for (double centre : {31.2, 31.25, -4.0, 0.1 + 0.2, 1e-7, 123456.789, 29.999999999999996}) {
+    Regressor r = *ParseRegressor("temperature^2*ax");
+    SignalArray reference{};
+    reference[static_cast<int>(Signal::kTemperature)] = centre;
+    reference[static_cast<int>(Signal::kTime)] = 7;  // not a factor: not centred
+    r = r.CentredOn(reference);
+    SCOPED_TRACE(r.Name());
+    const std::optional<Regressor> back = ParseRegressor(r.Name());
+    ASSERT_TRUE(back.has_value());
+    EXPECT_EQ(*back, r);
+    EXPECT_EQ(r.centre[static_cast<int>(Signal::kTime)], 0.0);
+    EXPECT_EQ(r.centre[static_cast<int>(Signal::kTemperature)], centre);
+  }
+  EXPECT_EQ(ParseRegressor("(temperature-31.2)^2")->Name(), "(temperature-31.2)^2");
+  EXPECT_EQ(ParseRegressor("ax * (time+3)")->Name(), "(time+3)*ax");
+  EXPECT_EQ(ParseRegressor("(temperature-0)")->Name(), "temperature");
+  // The same form about different references is a different regressor.
+  EXPECT_NE(*ParseRegressor("(temperature-30)"), *ParseRegressor("(temperature-31)"));
 }
 
 // --- Simulator -------------------------------------------------------------------------------

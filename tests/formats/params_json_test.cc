@@ -59,6 +59,8 @@ void ExpectSameParamSet(const core::ParamSet& a, const core::ParamSet& b) {
   EXPECT_TRUE(SameBits(a.quality_gyro_static_rms_rad_s, b.quality_gyro_static_rms_rad_s));
   EXPECT_EQ(a.source_session, b.source_session);
   EXPECT_EQ(a.software, b.software);
+  EXPECT_TRUE(SameBits(a.effect_reference.temperature_c, b.effect_reference.temperature_c));
+  EXPECT_TRUE(SameBits(a.effect_reference.time_s, b.effect_reference.time_s));
   ASSERT_EQ(a.effects.size(), b.effects.size());
   for (size_t i = 0; i < a.effects.size(); ++i) {
     const core::Effect& x = a.effects[i];
@@ -131,6 +133,15 @@ core::ParamSet FullParamSet(uint64_t seed) {
   e.evidence = "";
   e.applied = true;
   p.effects.push_back(e);
+  // A centred quadratic about the stated reference (report.md, effect_reference).
+  p.effect_reference.temperature_c = 31.2;
+  p.effect_reference.time_s = 118;
+  e.sensor = core::Sensor::kGyro;
+  e.regressor = "(temperature-31.2)^2";
+  p.effects.push_back(e);
+  e.regressor = "(time-118)";
+  e.applied = false;
+  p.effects.push_back(e);
   p.quality_accel_rms_m_s2 = 0.0004;
   p.quality_gyro_static_rms_rad_s = 2e-5;
   p.source_session = "session-17";
@@ -188,6 +199,42 @@ TEST(ParamsJsonTest, WritesTheSpecLayout) {
   EXPECT_EQ(j["effects"][1]["applied"], false);
   EXPECT_EQ(j["quality"]["accel_rms"], 0.0004);
   EXPECT_EQ(j["source"]["software"], "imucal 0.1.0");
+  EXPECT_EQ(j["effect_reference"]["temperature"], 31.2);
+  EXPECT_EQ(j["effect_reference"]["time"], 118);
+  EXPECT_EQ(j["effects"][3]["regressor"], "(temperature-31.2)^2");
+  // A parameter set without centred effects writes no reference (the layout older readers saw).
+  EXPECT_FALSE(Json::parse(ParamSetToJson(core::ParamSet())).contains("effect_reference"));
+}
+
+// Parameter sets from before centred factors have no effect_reference: it reads as 0, the
+// meaning their plain names had. A centred name the stated reference contradicts is refused
+// with the effect's path.
+TEST(ParamsJsonTest, EffectReferenceOptionalAndCheckedAgainstTheNames) {
+  Json j = Json::parse(ParamSetToJson(FullParamSet(1)));
+  Json old = j;
+  old.erase("effect_reference");
+  old["effects"].erase(4);
+  old["effects"].erase(3);
+  const core::ParamSet back = ParseOk(old.dump());
+  EXPECT_EQ(back.effect_reference, core::EffectReference());
+  Json wrong = j;
+  wrong["effect_reference"]["temperature"] = 30.0;
+  absl::StatusOr<core::ParamSet> bad = ParamSetFromJson(wrong.dump());
+  ASSERT_FALSE(bad.ok());
+  EXPECT_EQ(bad.status().message(),
+            "effects[3].regressor: written (temperature-31.2) but effect_reference.temperature "
+            "makes it (temperature-30)");
+  Json missing = j;
+  missing.erase("effect_reference");
+  bad = ParamSetFromJson(missing.dump());
+  ASSERT_FALSE(bad.ok());
+  EXPECT_TRUE(absl::StartsWith(bad.status().message(), "effects[3].regressor: written "))
+      << bad.status();
+  Json not_number = j;
+  not_number["effect_reference"]["time"] = "soon";
+  bad = ParamSetFromJson(not_number.dump());
+  ASSERT_FALSE(bad.ok());
+  EXPECT_TRUE(absl::StartsWith(bad.status().message(), "effect_reference.time")) << bad.status();
 }
 
 TEST(ParamsJsonTest, AcceptsAWholeReport) {

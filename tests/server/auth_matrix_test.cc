@@ -593,6 +593,120 @@ TEST_F(AuthTest, RevokingATokenRefusesItsNextCall) {
   EXPECT_EQ(tokens.tokens_size(), 1);  // only the valid ones by default
 }
 
+// "Revokes a token at once" holds for calls already open: a sample stream and a watch made with
+// the token end UNAUTHENTICATED when it is revoked, without waiting for their next message,
+// and a batch the robot writes after that is not acknowledged (nor stored).
+TEST_F(AuthTest, RevokingATokenEndsItsOpenStreamsAndWatches) {
+  StartServer();
+  const std::string admin = AdminSecret();
+  const v1::CreateTokenResponse robot = CreateToken(admin, v1::ROLE_ROBOT, kDeviceA, "robot A");
+  const v1::CreateTokenResponse tech = CreateToken(admin, v1::ROLE_TECHNICIAN, "", "guide");
+  auto admin_channel = Channel(admin);
+  v1::RegisterDeviceRequest reg;
+  reg.mutable_device()->set_id(kDeviceA);
+  reg.mutable_device()->set_sensor_model("test IMU");
+  reg.mutable_device()->set_nominal_rate_hz(100);
+  reg.mutable_device()->set_accel_unit("m/s^2");
+  reg.mutable_device()->set_gyro_unit("rad/s");
+  v1::Device device;
+  ASSERT_TRUE(
+      v1::DeviceService::NewStub(admin_channel)->RegisterDevice(Ctx().get(), reg, &device).ok());
+  auto admin_sessions = v1::SessionService::NewStub(admin_channel);
+  v1::CreateSessionRequest create;
+  create.set_device_id(kDeviceA);
+  v1::Session session;
+  ASSERT_TRUE(admin_sessions->CreateSession(Ctx().get(), create, &session).ok());
+  auto batch = [&](int64_t seq) {
+    v1::SampleBatch b;
+    b.set_session_id(session.id());
+    b.set_seq(seq);
+    for (int i = 0; i < 10; ++i) {
+      b.add_t_s(static_cast<double>((seq - 1) * 10 + i) / 100);
+      for (double x : {0.0, 0.0, 9.81}) b.add_accel(x);
+      for (double x : {0.0, 0.0, 0.0}) b.add_gyro(x);
+    }
+    return b;
+  };
+
+  auto robot_sessions = v1::SessionService::NewStub(Channel(robot.secret()));
+  auto stream_ctx = Ctx();
+  auto stream = robot_sessions->StreamSamples(stream_ctx.get());
+  ASSERT_TRUE(stream->Write(batch(1)));
+  v1::SampleAck ack;
+  ASSERT_TRUE(stream->Read(&ack));
+  EXPECT_EQ(ack.last_acked_seq(), 1);
+  auto watch_ctx = Ctx();
+  v1::WatchSessionRequest watch_req;
+  watch_req.set_session_id(session.id());
+  auto watch =
+      v1::SessionService::NewStub(Channel(tech.secret()))->WatchSession(watch_ctx.get(), watch_req);
+  v1::SessionEvent event;
+  ASSERT_TRUE(watch->Read(&event));  // the snapshot: the watch is open
+  EXPECT_TRUE(event.has_session());
+
+  Revoke(admin, robot.token().id());
+  Revoke(admin, tech.token().id());
+  // Both calls end at once, the robot having sent nothing more.
+  EXPECT_FALSE(stream->Read(&ack));
+  const grpc::Status ended = stream->Finish();
+  EXPECT_EQ(ended.error_code(), StatusCode::UNAUTHENTICATED) << ended.error_message();
+  EXPECT_NE(ended.error_message().find("revoked"), std::string::npos) << ended.error_message();
+  while (watch->Read(&event)) {
+  }
+  const grpc::Status watch_end = watch->Finish();
+  EXPECT_EQ(watch_end.error_code(), StatusCode::UNAUTHENTICATED) << watch_end.error_message();
+  // Another stream with the revoked token is refused, and the batch never stored.
+  auto again_ctx = Ctx();
+  auto again = robot_sessions->StreamSamples(again_ctx.get());
+  v1::SampleBatch second = batch(2);
+  again->Write(second);
+  EXPECT_FALSE(again->Read(&ack));
+  EXPECT_EQ(again->Finish().error_code(), StatusCode::UNAUTHENTICATED);
+  v1::GetSessionRequest get;
+  get.set_session_id(session.id());
+  ASSERT_TRUE(admin_sessions->GetSession(Ctx().get(), get, &session).ok());
+  EXPECT_EQ(session.last_acked_seq(), 1);
+  EXPECT_EQ(session.samples(), 10);
+}
+
+// One token may hold at most max_streams_per_token streams (StreamSamples and WatchSession
+// together), counted from the moment a stream opens, not from its first batch: a robot (or a
+// stolen token) cannot open thousands of silent streams. Other tokens are not affected.
+TEST_F(AuthTest, ATokenHoldsAtMostItsShareOfStreams) {
+  options_.sessions.max_streams_per_token = 2;
+  options_.sessions.first_batch_timeout = absl::Seconds(3);
+  StartServer();
+  const std::string admin = AdminSecret();
+  const v1::CreateTokenResponse robot = CreateToken(admin, v1::ROLE_ROBOT, kDeviceA, "robot A");
+  auto robot_sessions = v1::SessionService::NewStub(Channel(robot.secret()));
+  std::vector<std::unique_ptr<grpc::ClientContext>> contexts;
+  std::vector<std::unique_ptr<grpc::ClientReaderWriter<v1::SampleBatch, v1::SampleAck>>> streams;
+  for (int i = 0; i < 3; ++i) {
+    contexts.push_back(Ctx());
+    streams.push_back(robot_sessions->StreamSamples(contexts.back().get()));
+  }
+  // Two hold their place until the server ends them for silence, whichever third is refused
+  // at once.
+  const std::string token_id = std::to_string(robot.token().id());
+  int refused = 0, ended = 0;
+  for (auto& stream : streams) {
+    v1::SampleAck ack;
+    EXPECT_FALSE(stream->Read(&ack));
+    const grpc::Status st = stream->Finish();
+    if (st.error_code() == StatusCode::RESOURCE_EXHAUSTED) {
+      ++refused;
+      EXPECT_NE(st.error_message().find("token " + token_id + " already has 2 streams open"),
+                std::string::npos)
+          << st.error_message();
+    } else {
+      ++ended;
+      EXPECT_EQ(st.error_code(), StatusCode::DEADLINE_EXCEEDED) << st.error_message();
+    }
+  }
+  EXPECT_EQ(ended, 2);
+  EXPECT_EQ(refused, 1);
+}
+
 TEST_F(AuthTest, TheFirstAdminTokenIsWrittenOnceToAPrivateFile) {
   StartServer();
   const std::string path = server_->admin_token_written();

@@ -185,6 +185,35 @@ TEST(ConfigTest, TheOriginalFlagsStillWorkAndBooleanFlagsStandAlone) {
   EXPECT_TRUE(loaded->config.server.log_rpcs);
 }
 
+// --help shows "--insecure BOOL": the value may follow as the next word, as for every other
+// option (true/false/1/0/yes/no), or be left out (true); the word after a bare flag that is
+// not a boolean is the next flag.
+TEST(ConfigTest, BooleanFlagsTakeTheirValueAsTheNextWordToo) {
+  for (const auto& [word, expected] : std::vector<std::pair<std::string, bool>>{{"true", true},
+                                                                                {"1", true},
+                                                                                {"yes", true},
+                                                                                {"false", false},
+                                                                                {"0", false},
+                                                                                {"no", false}}) {
+    SCOPED_TRACE(word);
+    absl::StatusOr<LoadedConfig> loaded = Load({"--insecure", word, "--listen", "127.0.0.1:0"});
+    ASSERT_TRUE(loaded.ok()) << loaded.status();
+    EXPECT_EQ(loaded->config.server.security.insecure, expected);
+    EXPECT_EQ(loaded->config.server.listen, "127.0.0.1:0");
+  }
+  absl::StatusOr<LoadedConfig> loaded = Load({"--insecure", "--db", "x.db"});
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_TRUE(loaded->config.server.security.insecure);
+  EXPECT_EQ(loaded->config.server.db_path, "x.db");
+  loaded = Load({"--db", "x.db", "--insecure"});  // last on the line
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_TRUE(loaded->config.server.security.insecure);
+  // A word that is neither a boolean nor a flag after a boolean flag is not taken silently.
+  loaded = Load({"--insecure", "maybe"});
+  ASSERT_FALSE(loaded.ok());
+  EXPECT_THAT(Message(loaded.status()), HasSubstr("maybe"));
+}
+
 TEST(ConfigTest, EveryOptionHasItsVariableFlagAndHelpLine) {
   const std::string help = HelpText();
   for (const ConfigOption& option : ConfigOptions()) {

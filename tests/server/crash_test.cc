@@ -263,7 +263,6 @@ class CrashIngestTest : public CrashTest, public testing::WithParamInterface<uin
       o.batch_samples = kBatchSamples;
       // Reconnects without progress, counted from the last one that made some: a restart
       // takes well under the 100 * 200 ms this allows.
-      o.max_retries = 100;
       o.initial_backoff = absl::Milliseconds(20);
       o.max_backoff = absl::Milliseconds(200);
       o.progress = [this, id = *session](int64_t acked, int64_t) { OnAck(id, acked); };

@@ -15,6 +15,7 @@
 //     configuration's `listen`), 1 with a message when nothing listens.
 #include <fcntl.h>
 #include <signal.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -329,7 +330,6 @@ TEST_F(DrainTest, SigtermFinishesQueuedSolvesKeepsAckedSamplesExitsZeroAndTheRob
   sdk::UploadOptions o;
   o.batch_samples = 200;
   // Reconnects while imucald drains, is down and restarts: 200 tries, backoff at most 200 ms.
-  o.max_retries = 200;
   o.initial_backoff = absl::Milliseconds(20);
   o.max_backoff = absl::Milliseconds(200);
   bool signalled = false;
@@ -575,6 +575,32 @@ TEST_F(DaemonTest, OnlineBackupWhileStreamingRestoresEverythingAcknowledgedBefor
 }
 
 // ---- Health probes -------------------------------------------------------------------------
+
+// The database, its WAL files and backups hold every calibration and the token hashes: imucald
+// keeps them from other users whatever umask it was started with (by hand, in a container),
+// not only under the systemd unit's UMask=0077.
+TEST_F(DaemonTest, TheDatabaseAndBackupsAreNotWorldReadable) {
+  const mode_t before = ::umask(022);  // a login shell's: files 0644 unless imucald sets its own
+  const std::filesystem::path dir = dir_ / "fresh";
+  std::filesystem::create_directories(dir);
+  absl::StatusOr<std::unique_ptr<ImucaldProcess>> fresh = ImucaldProcess::Start(dir.string());
+  ASSERT_TRUE(fresh.ok()) << fresh.status();
+  ASSERT_FALSE(OpenSession(**fresh, "robot-perm").empty());  // writes: the WAL files exist
+  const std::filesystem::path backup = dir / "backup.db";
+  const CommandResult run =
+      RunImucald(dir_, {"backup", "--db", (*fresh)->db_path(), "--out", backup.string()});
+  ::umask(before);
+  ASSERT_EQ(run.exit_code, 0) << Describe(run);
+  for (const std::filesystem::path& file :
+       {std::filesystem::path((*fresh)->db_path()),
+        std::filesystem::path((*fresh)->db_path() + "-wal"), backup}) {
+    struct stat st {};
+    ASSERT_EQ(::stat(file.c_str(), &st), 0) << file;
+    EXPECT_EQ(st.st_mode & 07, 0) << file << " is readable by other users: mode " << std::oct
+                                  << (st.st_mode & 0777);
+    EXPECT_EQ(st.st_mode & 020, 0) << file << " is writable by the group";
+  }
+}
 
 TEST_F(DaemonTest, HealthCheckIsZeroAgainstAServingImucaldAndNonZeroWhenNothingListens) {
   const CommandResult serving =

@@ -109,7 +109,6 @@ TEST_F(DurabilityTest, SigkillMidStreamKeepsEveryAckedSampleAndTheRobotResumes) 
 
   sdk::UploadOptions o;
   o.batch_samples = 500;
-  o.max_retries = 20;
   o.initial_backoff = absl::Milliseconds(50);
   o.max_backoff = absl::Milliseconds(500);
   bool killed = false;

@@ -2,6 +2,7 @@
 // driven by the generated stubs.
 #include "server/server.h"
 
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
@@ -27,7 +28,9 @@
 #include "server/active_cache.h"
 #include "server/convert.h"
 #include "server/status_util.h"
+#include "server/stream_registry.h"
 #include "storage/store.h"
+#include "tests/server/resume_proofs.h"
 #include "tests/server/watch.h"
 #include "tests/test_dir.h"
 
@@ -118,20 +121,26 @@ class ServerTest : public testing::Test {
     return out;
   }
 
-  // Streams `batches` on one stream; returns the stream's final status and the acks.
-  grpc::Status Stream(const std::vector<v1::SampleBatch>& batches,
-                      std::vector<v1::SampleAck>* acks) {
+  // Streams `batches` on one stream; returns the stream's final status and the acks. A stream
+  // that continues a session proves it continues the stored capture (SampleBatch.
+  // resume_sha256): the batches this test had acknowledged give the proof
+  // (tests/server/resume_proofs.h; validation_test checks the proof itself).
+  grpc::Status Stream(std::vector<v1::SampleBatch> batches, std::vector<v1::SampleAck>* acks) {
+    proofs_.Prove(&batches, sessions_.get());
+    std::vector<v1::SampleAck> got;
     auto ctx = Ctx();
     auto stream = sessions_->StreamSamples(ctx.get());
     for (const v1::SampleBatch& b : batches) {
       if (!stream->Write(b)) break;
       v1::SampleAck ack;
       if (!stream->Read(&ack)) break;
-      acks->push_back(ack);
+      got.push_back(ack);
     }
     stream->WritesDone();
     v1::SampleAck extra;
-    while (stream->Read(&extra)) acks->push_back(extra);
+    while (stream->Read(&extra)) got.push_back(extra);
+    proofs_.Acked(batches, got);
+    acks->insert(acks->end(), got.begin(), got.end());
     return stream->Finish();
   }
 
@@ -153,6 +162,7 @@ class ServerTest : public testing::Test {
   }
 
   testing_util::TestDir dir_{"server_test"};  // first: outlives the server that uses it
+  testing_util::ResumeProofs proofs_;
   ServerOptions options_;
   std::unique_ptr<Server> server_;
   std::shared_ptr<grpc::Channel> channel_;
@@ -623,6 +633,207 @@ TEST_F(ServerTest, ReadingAClosedSessionDoesNotLoadIt) {
   }
 }
 
+// CancelSession, StreamSamples and SolveSession on a closed session answer from the session's
+// state in storage: the hub is not touched, so the session's samples are not decoded and
+// replayed (10 M samples: 1.6 s and 470 MB, kept until the server stops). Measured in
+// bench/misuse_bench.cc; here, through the count of sessions in memory.
+TEST_F(ServerTest, ClosedSessionsAreRefusedWithoutLoadingThem) {
+  Register("robot-closed");
+  grpc::Status s;
+  const v1::Session session = Create("robot-closed", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  std::vector<v1::SampleAck> acks;
+  std::vector<v1::SampleBatch> batches = Batches(Sim().capture, session.id());
+  batches.resize(10);
+  ASSERT_TRUE(Stream(batches, &acks).ok());
+  v1::CancelSessionRequest cancel;
+  cancel.set_session_id(session.id());
+  v1::Session cancelled;
+  ASSERT_TRUE(sessions_->CancelSession(Ctx().get(), cancel, &cancelled).ok());
+  EXPECT_EQ(cancelled.state(), v1::SESSION_STATE_CANCELLED);
+
+  // Refused, naming the state, and nothing loaded.
+  auto refused = [&](const grpc::Status& st, const char* call) {
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::FAILED_PRECONDITION)
+        << call << ": " << st.error_message();
+    EXPECT_NE(st.error_message().find("is cancelled"), std::string::npos) << st.error_message();
+    EXPECT_EQ(server_->live_sessions(), 0u) << call;
+  };
+  for (int round = 0; round < 2; ++round) {  // then again after a restart
+    SCOPED_TRACE(round == 0 ? "running since the cancel" : "after a restart");
+    EXPECT_EQ(server_->live_sessions(), 0u);
+    refused(sessions_->CancelSession(Ctx().get(), cancel, &cancelled), "CancelSession");
+    acks.clear();
+    refused(Stream({Batches(Sim().capture, session.id())[10]}, &acks), "StreamSamples");
+    EXPECT_TRUE(acks.empty());
+    v1::SolveSessionRequest solve;
+    solve.set_session_id(session.id());
+    v1::SolveJob job;
+    refused(sessions_->SolveSession(Ctx().get(), solve, &job), "SolveSession");
+    EXPECT_EQ(GetSession(session.id()).samples(), 10 * kBatch);
+    StartServer();
+  }
+}
+
+// Messages name the field, the id or the state, never the server's own functions: store
+// operations ("SetSessionState: ...", "CreateSession: ...") stay in the server.
+TEST_F(ServerTest, NoInternalFunctionNamesReachClients) {
+  Register("robot-names");
+  grpc::Status s;
+  const v1::Session session = Create("robot-names", v1::PROTOCOL_FREE, &s);
+  ASSERT_TRUE(s.ok());
+  std::vector<grpc::Status> refused;
+  Create("robot-names", v1::PROTOCOL_FREE, &s);  // a second open session
+  refused.push_back(s);
+  v1::RegisterDeviceRequest other;  // the same id, other metadata
+  other.mutable_device()->set_id("robot-names");
+  other.mutable_device()->set_sensor_model("another");
+  other.mutable_device()->set_nominal_rate_hz(100);
+  other.mutable_device()->set_accel_unit("g");
+  other.mutable_device()->set_gyro_unit("deg/s");
+  v1::Device device;
+  refused.push_back(devices_->RegisterDevice(Ctx().get(), other, &device));
+  v1::CancelSessionRequest cancel;
+  cancel.set_session_id(session.id());
+  v1::Session out;
+  ASSERT_TRUE(sessions_->CancelSession(Ctx().get(), cancel, &out).ok());
+  refused.push_back(sessions_->CancelSession(Ctx().get(), cancel, &out));
+  v1::GetSessionRequest get;
+  get.set_session_id("s-00000000000000000000000000000000");
+  refused.push_back(sessions_->GetSession(Ctx().get(), get, &out));
+  v1::PromoteRequest promote;
+  promote.set_device_id("robot-names");
+  promote.set_version(3);
+  v1::ParameterSet set;
+  refused.push_back(params_->Promote(Ctx().get(), promote, &set));
+  v1::RollbackRequest rollback;
+  rollback.set_device_id("robot-names");
+  rollback.set_to_version(1);
+  refused.push_back(params_->Rollback(Ctx().get(), rollback, &set));
+  for (const grpc::Status& r : refused) {
+    EXPECT_FALSE(r.ok());
+    // "Word: ..." with a capitalised identifier is a function's name (fields are snake_case).
+    const std::string& m = r.error_message();
+    const size_t colon = m.find(": ");
+    const std::string head = colon == std::string::npos ? "" : m.substr(0, colon);
+    const bool function_name = !head.empty() && std::isupper(static_cast<unsigned char>(head[0])) &&
+                               head.find(' ') == std::string::npos;
+    EXPECT_FALSE(function_name) << m;
+    for (const char* op : {"SetSessionState", "CreateSession", "CreateDevice", "LoadSession",
+                           "GetSession", "Promote:", "Rollback:"})
+      EXPECT_EQ(m.find(op), std::string::npos) << m;
+  }
+}
+
+// GetSolveJob answers from memory while a job is queued or running and a while after; finished
+// jobs beyond the bound leave memory (storage still answers for them).
+TEST_F(ServerTest, FinishedSolveJobsLeaveMemory) {
+  options_.sessions.finished_jobs_kept = 1;
+  StartServer();
+  Register("robot-jobs");
+  grpc::Status s;
+  const v1::Session session = Create("robot-jobs", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream(Batches(Sim().capture, session.id()), &acks).ok());
+  std::vector<std::string> jobs;
+  for (uint64_t seed = 1; seed <= 3; ++seed) {
+    v1::SolveSessionRequest req;
+    req.set_session_id(session.id());
+    req.set_seed(seed);
+    v1::SolveJob job;
+    ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+    jobs.push_back(job.id());
+    ASSERT_TRUE(testing_util::FollowToEnd(sessions_.get(), session.id(), seconds(30)).ok());
+  }
+  EXPECT_EQ(server_->solve_jobs_in_memory(), 1u);
+  for (const std::string& id : jobs) {
+    v1::GetSolveJobRequest get;
+    get.set_job_id(id);
+    v1::SolveJob job;
+    ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok()) << id;
+    EXPECT_EQ(job.state(), v1::JOB_STATE_DONE) << id;
+    EXPECT_GT(job.version(), 0) << id;
+  }
+}
+
+// A capture that cannot support a calibration (two orientations: a rest, not a calibration)
+// is refused by core with a report, not an error. The server keeps that report with the failed
+// solve and makes no version; the session goes back to open with its samples, so the rest of
+// the capture streamed into it afterwards solves. GetSolveJob says "refused" before and after a
+// restart.
+TEST_F(ServerTest, ARefusedCalibrationKeepsItsReportAndTheSessionMakesNoVersion) {
+  Register("robot-refused");
+  grpc::Status s;
+  const v1::Session session = Create("robot-refused", v1::PROTOCOL_SIX_FACE, &s);
+  ASSERT_TRUE(s.ok());
+  const core::SimResult sim = Sim();
+  ASSERT_GE(sim.poses.size(), 3u);
+  std::vector<v1::SampleBatch> batches = Batches(sim.capture, session.id());
+  // The batches up to the middle of the move after the second pose.
+  const double cut_s = (sim.poses[1].t_end_s + sim.poses[2].t_start_s) / 2;
+  size_t head = 0;
+  while (head < batches.size() && batches[head].t_s(0) < cut_s) ++head;
+  ASSERT_GT(head, 0u);
+  ASSERT_LT(head, batches.size());
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(
+      Stream(std::vector<v1::SampleBatch>(batches.begin(), batches.begin() + head), &acks).ok());
+  const int64_t stored = GetSession(session.id()).samples();
+  ASSERT_GT(stored, 0);
+
+  // Watched from before the solve: a refusal is quick, and the watch ends when the solve does.
+  Watch watch(sessions_.get(), session.id());
+  ASSERT_TRUE(watch.WaitFor([](const auto& events, bool) { return !events.empty(); }));
+  v1::SolveSessionRequest req;
+  req.set_session_id(session.id());
+  req.set_seed(1);
+  v1::SolveJob job;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+  ASSERT_TRUE(watch.WaitFor([](const auto&, bool ended) { return ended; }, seconds(30)));
+  const std::string job_id = job.id();
+  for (int round = 0; round < 2; ++round) {  // then again after a restart (from storage)
+    SCOPED_TRACE(round == 0 ? "running since the solve" : "after a restart");
+    v1::GetSolveJobRequest get;
+    get.set_job_id(job_id);
+    ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
+    EXPECT_EQ(job.state(), v1::JOB_STATE_FAILED);
+    EXPECT_EQ(job.verdict(), "refused");
+    EXPECT_EQ(job.version(), 0);
+    EXPECT_EQ(job.error().rfind("the capture cannot support a calibration (", 0), 0u)
+        << job.error();
+    const v1::Session after = GetSession(session.id());
+    EXPECT_EQ(after.state(), v1::SESSION_STATE_OPEN);
+    EXPECT_EQ(after.samples(), stored);
+    EXPECT_EQ(after.version(), 0);
+    v1::ListVersionsRequest list;
+    list.set_device_id("robot-refused");
+    v1::ListVersionsResponse versions;
+    ASSERT_TRUE(params_->ListVersions(Ctx().get(), list, &versions).ok());
+    EXPECT_EQ(versions.versions_size(), 0);
+    const std::string report = ReportOf(session.id());
+    EXPECT_NE(report.find("\"verdict\": \"refused\""), std::string::npos) << report.substr(0, 600);
+    EXPECT_NE(report.find("\"refusal\""), std::string::npos);
+    if (round == 0) StartServer();
+  }
+
+  // The rest of the capture into the same session: it now calibrates.
+  ASSERT_TRUE(
+      Stream(std::vector<v1::SampleBatch>(batches.begin() + head, batches.end()), &acks).ok());
+  EXPECT_EQ(GetSession(session.id()).samples(), static_cast<int64_t>(sim.capture.size()));
+  Watch again(sessions_.get(), session.id());
+  ASSERT_TRUE(again.WaitFor([](const auto& events, bool) { return !events.empty(); }));
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+  ASSERT_TRUE(again.WaitFor([](const auto&, bool ended) { return ended; }, seconds(60)));
+  v1::GetSolveJobRequest get;
+  get.set_job_id(job.id());
+  ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
+  EXPECT_EQ(job.state(), v1::JOB_STATE_DONE) << job.error();
+  EXPECT_EQ(job.version(), 1);
+  EXPECT_EQ(GetSession(session.id()).state(), v1::SESSION_STATE_SOLVED);
+  EXPECT_EQ(ReportOf(session.id()).find("\"verdict\": \"refused\""), std::string::npos);
+}
+
 TEST_F(ServerTest, ResolvePromoteAndRollback) {
   Register("robot-4");
   grpc::Status s;
@@ -814,6 +1025,78 @@ TEST_F(ServerTest, HealthIsServingAndUnknownsAreNotFound) {
   v1::SolveJob j;
   EXPECT_EQ(sessions_->GetSolveJob(Ctx().get(), job, &j).error_code(),
             grpc::StatusCode::INVALID_ARGUMENT);
+}
+
+// The registry's rules alone (server/stream_registry.h): the caps count from Add, a revoked
+// token's streams are told and its later streams refused, and the sweeper tells a stream past
+// its deadline.
+class RegisteredStream final : public StreamRegistry::Stream {
+ public:
+  void Revoke(const grpc::Status& status) override {
+    std::lock_guard lock(mu_);
+    revoked_ = status.error_message();
+  }
+  void Expire(absl::Time now) override {
+    std::lock_guard lock(mu_);
+    if (PastDeadline(now)) ++expired_;
+    cv_.notify_all();
+  }
+  std::string revoked() {
+    std::lock_guard lock(mu_);
+    return revoked_;
+  }
+  bool WaitExpired(std::chrono::seconds timeout) {
+    std::unique_lock lock(mu_);
+    return cv_.wait_for(lock, timeout, [this] { return expired_ > 0; });
+  }
+  int expired() {
+    std::lock_guard lock(mu_);
+    return expired_;
+  }
+
+ private:
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::string revoked_;  // guarded by mu_
+  int expired_ = 0;      // guarded by mu_
+};
+
+TEST(StreamRegistryTest, CapsRevocationAndDeadlines) {
+  StreamRegistry::Options options;
+  options.max_streams = 3;
+  options.max_per_caller = 2;
+  options.tick = absl::Milliseconds(10);
+  StreamRegistry registry(options);
+  std::vector<std::shared_ptr<RegisteredStream>> s;
+  for (int i = 0; i < 5; ++i) s.push_back(std::make_shared<RegisteredStream>());
+  ASSERT_TRUE(registry.Add(s[0], "token:1", 1).ok());
+  ASSERT_TRUE(registry.Add(s[1], "token:1", 1).ok());
+  absl::Status refused = registry.Add(s[2], "token:1", 1);
+  EXPECT_TRUE(absl::IsResourceExhausted(refused)) << refused;
+  EXPECT_NE(refused.message().find("token 1 already has 2 streams open"), std::string::npos)
+      << refused;
+  ASSERT_TRUE(registry.Add(s[2], "token:2", 2).ok());  // another token has its own share
+  refused = registry.Add(s[3], "", 0);                 // but the server is full
+  EXPECT_TRUE(absl::IsResourceExhausted(refused)) << refused;
+  EXPECT_NE(refused.message().find("the server has 3 streams open"), std::string::npos) << refused;
+  registry.Remove(s[1].get());  // a place of token 1's and of the server's again
+  ASSERT_TRUE(registry.Add(s[3], "token:1", 1).ok());
+  EXPECT_EQ(registry.size(), 3u);
+
+  registry.RevokeToken(1, grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "token 1 was revoked"));
+  EXPECT_EQ(s[0]->revoked(), "token 1 was revoked");
+  EXPECT_EQ(s[3]->revoked(), "token 1 was revoked");
+  EXPECT_EQ(s[2]->revoked(), "");
+  registry.Remove(s[0].get());
+  refused = registry.Add(s[4], "token:1", 1);  // authorised before the revocation, added after
+  EXPECT_TRUE(absl::IsUnauthenticated(refused)) << refused;
+
+  s[2]->SetDeadline(absl::Now() - absl::Seconds(1));
+  s[3]->SetDeadline(absl::InfiniteFuture());
+  EXPECT_TRUE(s[2]->WaitExpired(std::chrono::seconds(10)));
+  EXPECT_EQ(s[3]->expired(), 0);
+  for (const auto& stream : s) registry.Remove(stream.get());
+  EXPECT_EQ(registry.size(), 0u);
 }
 
 TEST(StatusUtilTest, MapsCodesOneToOneAndScrubsPaths) {

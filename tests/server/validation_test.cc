@@ -21,6 +21,7 @@
 #include "server/validate.h"
 #include "storage/sample_codec.h"
 #include "storage/store.h"
+#include "tests/server/resume_proofs.h"
 #include "tests/test_dir.h"
 
 namespace imucal::server {
@@ -150,9 +151,27 @@ class ValidationTest : public testing::Test {
     return session.id();
   }
 
-  // Streams `batches` on one stream, one ack awaited per batch.
-  grpc::Status Stream(const std::vector<v1::SampleBatch>& batches,
+  // Streams `batches` on one stream, one ack awaited per batch. A stream that continues a
+  // session proves it continues the stored capture (SampleBatch.resume_sha256): the batches
+  // this test had acknowledged give the proof (tests/server/resume_proofs.h).
+  grpc::Status Stream(std::vector<v1::SampleBatch> batches,
                       std::vector<v1::SampleAck>* acks = nullptr) {
+    proofs_.Prove(&batches, sessions_.get());
+    std::vector<v1::SampleAck> got;
+    const grpc::Status s = StreamAsIs(batches, &got);
+    proofs_.Acked(batches, got);
+    if (acks != nullptr) acks->insert(acks->end(), got.begin(), got.end());
+    return s;
+  }
+
+  // The SHA-256 a stream continuing after `stored` sends.
+  static std::string Digest(const std::vector<v1::SampleBatch>& stored) {
+    return testing_util::DigestOf(stored);
+  }
+
+  // Streams `batches` exactly as given.
+  grpc::Status StreamAsIs(const std::vector<v1::SampleBatch>& batches,
+                          std::vector<v1::SampleAck>* acks = nullptr) {
     auto ctx = Ctx();
     auto stream = sessions_->StreamSamples(ctx.get());
     for (const v1::SampleBatch& b : batches) {
@@ -178,6 +197,7 @@ class ValidationTest : public testing::Test {
   }
 
   testing_util::TestDir dir_{"validation_test"};  // first: outlives the server that uses it
+  testing_util::ResumeProofs proofs_;
   ServerOptions options_;
   std::unique_ptr<Server> server_;
   std::shared_ptr<grpc::Channel> channel_;
@@ -419,7 +439,9 @@ TEST_F(ValidationTest, OneConcurrentStreamPerDevice) {
   // A stream cancelled by the robot frees the slot too: the Uploader resumes after it.
   auto third_ctx = Ctx();
   auto third = sessions_->StreamSamples(third_ctx.get());
-  ASSERT_TRUE(third->Write(RestBatch(s, 4)));
+  v1::SampleBatch fourth = RestBatch(s, 4);
+  fourth.set_resume_sha256(Digest({RestBatch(s, 1), RestBatch(s, 2), RestBatch(s, 3)}));
+  ASSERT_TRUE(third->Write(fourth));
   ASSERT_TRUE(third->Read(&ack));
   third_ctx->TryCancel();
   EXPECT_EQ(third->Finish().error_code(), grpc::StatusCode::CANCELLED);
@@ -576,8 +598,222 @@ TEST_F(ValidationTest, GarbageBytesAreRefusedAndTheServerKeepsServing) {
   EXPECT_TRUE(Stream({RestBatch(s, 2)}).ok());
 }
 
+// Streams that never send, and watchers that never read, give their place back: a stream gets
+// first_batch_timeout for its first batch and stream_idle_timeout between an ack and the next
+// batch; a watcher whose write has not gone out for watch_stall_timeout (its client stopped
+// reading) is cancelled and its slot freed. The server as a whole holds at most max_streams.
+// (Before these, 30,000 silent streams took imucald from 190 to 574 MB: bench/misuse_bench.)
+TEST_F(ValidationTest, SilentStreamsAreEndedAndCounted) {
+  options_.sessions.first_batch_timeout = absl::Milliseconds(300);
+  options_.sessions.stream_idle_timeout = absl::Milliseconds(300);
+  options_.sessions.max_streams = 3;
+  StartServer();
+  const std::string s = NewSession("robot-silent");
+  // Four silent streams: three fill the server, whichever comes fourth is refused at once, and
+  // the three are ended by the server, no batch ever sent.
+  std::vector<std::unique_ptr<grpc::ClientContext>> contexts;
+  std::vector<std::unique_ptr<grpc::ClientReaderWriter<v1::SampleBatch, v1::SampleAck>>> silent;
+  for (int i = 0; i < 4; ++i) {
+    contexts.push_back(Ctx());
+    silent.push_back(sessions_->StreamSamples(contexts.back().get()));
+  }
+  v1::SampleAck ack;
+  int refused = 0, ended = 0;
+  for (auto& stream : silent) {
+    EXPECT_FALSE(stream->Read(&ack));
+    const grpc::Status st = stream->Finish();
+    if (st.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED) {
+      ++refused;
+      EXPECT_THAT(st.error_message(), HasSubstr("the server has 3 streams open"));
+    } else {
+      ++ended;
+      EXPECT_STATUS(st, DEADLINE_EXCEEDED, "no batch within 0.3 s of the stream's start");
+    }
+  }
+  EXPECT_EQ(refused, 1);
+  EXPECT_EQ(ended, 3);
+  std::vector<v1::SampleAck> acks;
+  // A stream that sends a batch and then falls silent: its batch is stored and acknowledged,
+  // then the stream ends.
+  auto idle_ctx = Ctx();
+  auto idle = sessions_->StreamSamples(idle_ctx.get());
+  ASSERT_TRUE(idle->Write(RestBatch(s, 1)));
+  ASSERT_TRUE(idle->Read(&ack));
+  EXPECT_EQ(ack.last_acked_seq(), 1);
+  EXPECT_FALSE(idle->Read(&ack));
+  EXPECT_STATUS(idle->Finish(), DEADLINE_EXCEEDED, "no batch within 0.3 s of the last ack");
+  EXPECT_EQ(GetSession(s).samples(), kBatch);
+  // The slots are free again: a robot that streams is served.
+  ASSERT_TRUE(Stream({RestBatch(s, 2)}, &acks).ok());
+  EXPECT_EQ(acks.at(0).last_acked_seq(), 2);
+}
+
+// A watcher that reads its snapshot and then stops reading: once its unread events fill the
+// transport's window, the server's write cannot finish; after watch_stall_timeout the server
+// cancels the watch and the session's watcher slot is free for a technician who reads. (The
+// client that does not read does not learn of it: its transport holds the status behind the
+// unread events.)
+class StalledWatch final : public grpc::ClientReadReactor<v1::SessionEvent> {
+ public:
+  StalledWatch(v1::SessionService::Stub* stub, const std::string& session) {
+    request_.set_session_id(session);
+    context_.set_deadline(system_clock::now() + seconds(120));
+    stub->async()->WatchSession(&context_, &request_, this);
+    StartRead(&event_);
+    StartCall();
+  }
+  // Hangs up, and lets the call end before the reactor goes.
+  ~StalledWatch() override {
+    context_.TryCancel();
+    done_.get_future().wait();
+  }
+  // The snapshot arrived: the watch holds its slot. No read follows.
+  void OnReadDone(bool ok) override { snapshot_.set_value(ok && event_.has_session()); }
+  void OnDone(const grpc::Status&) override { done_.set_value(); }
+  bool WaitForSnapshot() { return snapshot_.get_future().get(); }
+
+ private:
+  grpc::ClientContext context_;
+  v1::WatchSessionRequest request_;
+  v1::SessionEvent event_;
+  std::promise<bool> snapshot_;
+  std::promise<void> done_;
+};
+
+TEST_F(ValidationTest, AWatcherThatNeverReadsGivesItsSlotBack) {
+  options_.sessions.max_watchers_per_session = 1;
+  options_.sessions.watch_stall_timeout = absl::Milliseconds(500);
+  options_.durability = storage::Durability::kNormal;  // thousands of batches, one at a time
+  StartServer();
+  const std::string s = NewSession("robot-unread");
+  // The watcher's own channel with a small window (no BDP growth): a few KB of events fill it.
+  grpc::ChannelArguments args;
+  args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+  args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, 1024);
+  args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+  auto stalled_channel =
+      grpc::CreateCustomChannel(server_->address(), grpc::InsecureChannelCredentials(), args);
+  auto stalled_stub = v1::SessionService::NewStub(stalled_channel);
+  StalledWatch stalled(stalled_stub.get(), s);
+  ASSERT_TRUE(stalled.WaitForSnapshot());
+  // It holds the session's one slot.
+  v1::WatchSessionRequest req;
+  req.set_session_id(s);
+  v1::SessionEvent e;
+  {
+    auto ctx = Ctx();
+    auto second = sessions_->WatchSession(ctx.get(), req);
+    EXPECT_FALSE(second->Read(&e));
+    EXPECT_STATUS(second->Finish(), RESOURCE_EXHAUSTED, "already has 1 watchers");
+  }
+  // Samples make events: a stillness every 0.25 s of sample time, one or two written a batch
+  // (the rest coalesce while a write is out), some 35 bytes each: far more than the window.
+  std::vector<v1::SampleBatch> batches;
+  for (int64_t seq = 1; seq <= 500; ++seq)
+    batches.push_back(RestBatch(s, seq, kBatch, /*with_temp=*/false));
+  const grpc::Status streamed = Stream(batches);
+  ASSERT_TRUE(streamed.ok()) << streamed.error_message();
+  // The server frees the slot once the watch's write has been stuck for watch_stall_timeout: a
+  // watcher that reads is admitted then (each attempt a round trip, within a deadline).
+  bool admitted = false;
+  const auto deadline = system_clock::now() + seconds(30);
+  while (!admitted && system_clock::now() < deadline) {
+    auto ctx = Ctx();
+    auto reader = sessions_->WatchSession(ctx.get(), req);
+    if (reader->Read(&e)) {
+      admitted = true;
+      EXPECT_TRUE(e.has_session());
+      ctx->TryCancel();
+      reader->Finish();
+    } else {
+      EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+    }
+  }
+  EXPECT_TRUE(admitted) << "the watch that never reads still holds its slot";
+}
+
+// A stream that continues a session holding samples proves it continues the same capture: its
+// first batch carries the SHA-256 of the samples it believes stored (SampleBatch.resume_sha256,
+// formats/sample_digest.h). Without it, or with another capture's, the stream is refused
+// naming both captures, and nothing of the other capture is stored.
+TEST_F(ValidationTest, AResumeMustProveItContinuesTheStoredCapture) {
+  StartServer();
+  const std::string s = NewSession("robot-splice");
+  v1::SampleBatch first = RestBatch(s, 1);
+  first.set_source("a.csv");
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(StreamAsIs({first, RestBatch(s, 2)}, &acks).ok());
+  // Another capture: the same times, other values.
+  auto other = [&](int64_t seq) {
+    v1::SampleBatch b = RestBatch(s, seq);
+    for (double& a : *b.mutable_accel()) a += 0.5;
+    return b;
+  };
+  v1::SampleBatch unproven = other(3);
+  unproven.set_source("b.csv");
+  acks.clear();
+  EXPECT_STATUS(StreamAsIs({unproven}, &acks), FAILED_PRECONDITION, "resume_sha256: required");
+  v1::SampleBatch wrong = unproven;
+  wrong.set_resume_sha256(Digest({other(1), other(2)}));
+  const grpc::Status refused = StreamAsIs({wrong}, &acks);
+  EXPECT_STATUS(refused, FAILED_PRECONDITION, "'b.csv' does not continue");
+  EXPECT_THAT(refused.error_message(), HasSubstr("'a.csv'"));
+  EXPECT_THAT(refused.error_message(), HasSubstr("400 samples"));
+  EXPECT_TRUE(acks.empty());
+  EXPECT_EQ(GetSession(s).samples(), 2 * kBatch);
+  EXPECT_EQ(GetSession(s).source(), "a.csv");
+  // The same capture resumes, on the proof of its first 400 samples.
+  v1::SampleBatch next = RestBatch(s, 3);
+  next.set_resume_sha256(Digest({RestBatch(s, 1), RestBatch(s, 2)}));
+  ASSERT_TRUE(StreamAsIs({next}, &acks).ok());
+  EXPECT_EQ(acks.at(0).samples(), 3 * kBatch);
+  EXPECT_EQ(GetSession(s).samples_sha256(),
+            Digest({RestBatch(s, 1), RestBatch(s, 2), RestBatch(s, 3)}));
+}
+
+// Promote and Rollback write `reason` to the audit log: bounded, like every other free text.
+TEST_F(ValidationTest, PromoteAndRollbackReasonsAreCapped) {
+  StartServer();
+  NewSession("robot-reason");
+  auto params = v1::ParameterService::NewStub(channel_);
+  v1::PromoteRequest promote;
+  promote.set_device_id("robot-reason");
+  promote.set_version(1);
+  promote.set_reason(std::string(120 << 10, 'x'));
+  v1::ParameterSet set;
+  EXPECT_STATUS(params->Promote(Ctx().get(), promote, &set), INVALID_ARGUMENT,
+                "reason: 122880 bytes, at most 1024");
+  v1::RollbackRequest rollback;
+  rollback.set_device_id("robot-reason");
+  rollback.set_to_version(1);
+  rollback.set_reason(std::string(1025, 'y'));
+  EXPECT_STATUS(params->Rollback(Ctx().get(), rollback, &set), INVALID_ARGUMENT,
+                "reason: 1025 bytes, at most 1024");
+  rollback.set_reason(std::string("line one\x01", 9));
+  EXPECT_STATUS(params->Rollback(Ctx().get(), rollback, &set), INVALID_ARGUMENT,
+                "reason: a control character at byte 9");
+}
+
+// A bad rostopic is echoed as it was sent: the path scrubber (which hides the server's files)
+// leaves request fields alone ("/imu0 raw" used to come back as "<path> raw").
+TEST_F(ValidationTest, ABadRostopicIsNamedAsSent) {
+  StartServer();
+  NewSession("robot-topic");
+  auto params = v1::ParameterService::NewStub(channel_);
+  v1::ExportRequest req;
+  req.set_device_id("robot-topic");
+  req.set_format("kalibr");
+  req.set_rostopic("/imu0 raw");
+  v1::ExportResponse out;
+  EXPECT_STATUS(params->Export(Ctx().get(), req, &out), INVALID_ARGUMENT,
+                "rostopic: \"/imu0 raw\" is not a ROS 2 topic name: character 6");
+  req.set_rostopic("../x.db");
+  EXPECT_STATUS(params->Export(Ctx().get(), req, &out), INVALID_ARGUMENT,
+                "rostopic: \"../x.db\" is not a ROS 2 topic name");
+}
+
 // The SDK sets a deadline on its stream too: a stream that outlives it ends DEADLINE_EXCEEDED
-// and the upload gives up after its retries rather than waiting for ever.
+// and the upload gives up after its retry time rather than waiting for ever.
 TEST_F(ValidationTest, UploaderStreamsHaveADeadline) {
   StartServer();
   const std::string s = NewSession("robot-deadline");
@@ -588,7 +824,7 @@ TEST_F(ValidationTest, UploaderStreamsHaveADeadline) {
   cols.gyro.assign(b.gyro().begin(), b.gyro().end());
   sdk::UploadOptions o;
   o.batch_samples = 10;
-  o.max_retries = 1;
+  o.retry_for = absl::Milliseconds(200);
   o.initial_backoff = absl::Milliseconds(1);
   o.stream_deadline = absl::Microseconds(1);
   sdk::Uploader uploader(channel_, o);

@@ -22,13 +22,14 @@ Each axis' bias and scale differ from the others' by more than these, so a swapp
 unit-confused axis fails.
 
 usage: capture_checks.py CHECK REPORT TRUTH [options]; prints what failed, exits 1 if anything
-did. CHECK: params, files, steady, noisy, refused, names, final (see main()).
+did. CHECK: params, files, steady, noisy, refused, names, effects, final (see main()).
 """
 import argparse
 import bisect
 import json
 import math
 import os
+import re
 import sys
 
 DEFAULT_NOISE = (0.02, 0.004)  # imu_sim's default accel (m/s^2) and gyro (rad/s) noise
@@ -259,6 +260,122 @@ def report_text(report, skip_keys=("file", "lines")):
     return "\n".join(out)
 
 
+def read_csv(path):
+    """(columns, rows) of an imucal CSV: '#' lines skipped, the first other line names them."""
+    names, rows = None, []
+    with open(path) as f:
+        for line in f:
+            if line.startswith("#") or not line.strip():
+                continue
+            if names is None:
+                names = line.strip().split(",")
+                continue
+            rows.append([float(v) for v in line.split(",")])
+    return names, rows
+
+
+def hold_errors(truth, names, rows, calibrate):
+    """Per simulated hold (0.3 s trimmed each side): |mean a| - g and |mean w| of the samples
+    that calibrate(row) maps to (a, w)."""
+    col = {n: i for i, n in enumerate(names)}
+    t = [r[col["t"]] for r in rows]
+    t0 = t[0]
+    accel_err, gyro_err = [], []
+    for p in truth["poses"]:
+        lo, hi = p["t_start_s"] + 0.3, p["t_end_s"] - 0.3
+        sa, sw, n = [0.0] * 3, [0.0] * 3, 0
+        for r, tk in zip(rows, t):
+            if lo <= tk - t0 <= hi:
+                a, w = calibrate(r, col)
+                sa = [x + y for x, y in zip(sa, a)]
+                sw = [x + y for x, y in zip(sw, w)]
+                n += 1
+        accel_err.append(math.sqrt(sum((x / n) ** 2 for x in sa)) - truth["gravity_m_s2"])
+        gyro_err.append(math.sqrt(sum((x / n) ** 2 for x in sw)))
+    rms = lambda v: math.sqrt(sum(x * x for x in v) / len(v))  # noqa: E731
+    return rms(accel_err), rms(gyro_err)
+
+
+def truth_calibrate(truth):
+    """The simulated truth as a calibration: y = scale (u - bias) minus the temperature
+    quadratics (imu_sim.py's model)."""
+    temp = truth["temperature"]
+
+    def apply(r, col):
+        u_a = [r[col[k]] for k in ("ax", "ay", "az")]
+        u_w = [r[col[k]] for k in ("gx", "gy", "gz")]
+        a = [s * (u - b) for s, u, b in zip(truth["accel_scale"], u_a, truth["accel_bias_m_s2"])]
+        w = [s * (u - b) for s, u, b in zip(truth["gyro_scale"], u_w, truth["gyro_bias_rad_s"])]
+        tc = r[col["temp"]]
+        for q in temp["gyro_temp_quad"]:
+            w["xyz".index(q["axis"])] -= q["c_rad_s_per_degc2"] * (tc - q["turnover_c"]) ** 2
+        for q in temp["accel_temp_quad"]:
+            a["xyz".index(q["axis"])] -= q["c_m_s2_per_degc2"] * (tc - q["turnover_c"]) ** 2
+        return a, w
+    return apply
+
+
+def calibrated_columns(r, col):
+    return ([r[col[k]] for k in ("ax", "ay", "az")], [r[col[k]] for k in ("gx", "gy", "gz")])
+
+
+def check_effects(c, report, truth, args):
+    """The simulated temperature quadratics found in their centred form, each a pair
+    (temperature-R) and (temperature-R)^2 on the right sensor and axis with R the parameter
+    set's effect_reference, the square's coefficient within 3 standard errors of the truth (the
+    highest power's coefficient does not depend on the centre); then on the validation capture
+    (another temperature history), the calibrated holds' error within --ratio of what the truth
+    itself leaves, and below what the model without its effects leaves."""
+    params = report.get("parameters", {})
+    ref = params.get("effect_reference", {}).get("temperature", 0.0)
+    effects = report.get("effects", [])
+    pattern = re.compile(r"^\(temperature([-+])([0-9.eE+-]+)\)(\^2)?$")
+    temp = truth["temperature"]
+    wanted = ([("gyro", q["axis"], q["c_rad_s_per_degc2"]) for q in temp["gyro_temp_quad"]] +
+              [("accel", q["axis"], q["c_m_s2_per_degc2"]) for q in temp["accel_temp_quad"]])
+    for sensor, axis, coeff in wanted:
+        square = linear = None
+        for e in effects:
+            m = pattern.match(e.get("regressor", ""))
+            if e.get("sensor") != sensor or e.get("axis") != axis or not m:
+                continue
+            centre = float(m.group(2)) * (1 if m.group(1) == "-" else -1)
+            c.check(f"{sensor} {axis} ~ {e['regressor']} centred on the stated reference {ref}",
+                    abs(centre - ref) < 1e-9)
+            if m.group(3):
+                square = e
+            else:
+                linear = e
+        c.check(f"{sensor} {axis}: a centred quadratic (temperature-R)^2 found among "
+                f"{[(e['sensor'], e['axis'], e['regressor']) for e in effects]}",
+                square is not None)
+        c.check(f"{sensor} {axis}: its lower power (temperature-R) beside it", linear is not None)
+        if square is not None:
+            se = square.get("stderr") or 0
+            c.check(f"{sensor} {axis}: coefficient {square['coefficient']:.4g} +- {se:.2g}, "
+                    f"truth {coeff:.4g}: within 3 standard errors",
+                    abs(square["coefficient"] - coeff) <= 3 * se)
+            c.check(f"{sensor} {axis}: applied", square.get("applied", True))
+    val_truth = load(args.val_truth)
+    names, rows = read_csv(args.val_raw)
+    floor = hold_errors(val_truth, names, rows, truth_calibrate(val_truth))
+    names, rows = read_csv(args.applied)
+    found = hold_errors(val_truth, names, rows, calibrated_columns)
+    names, rows = read_csv(args.applied_without)
+    without = hold_errors(val_truth, names, rows, calibrated_columns)
+    for k, (sensor, unit, scale) in enumerate((("accel", "mg", 1e3 / 9.80665),
+                                               ("gyro", "deg/s", math.degrees(1)))):
+        if not any(s == sensor for s, _, _ in wanted):
+            continue
+        c.check(f"validation {sensor}: {found[k] * scale:.4f} {unit} with the effects, within "
+                f"{args.ratio} x the truth's {floor[k] * scale:.4f} {unit}",
+                found[k] <= args.ratio * floor[k])
+        c.check(f"validation {sensor}: {found[k] * scale:.4f} {unit} with the effects, below "
+                f"half of {without[k] * scale:.4f} {unit} without them",
+                found[k] < 0.5 * without[k])
+    return found, floor, without
+
+
 def read_applied(path):
     """`imucal apply`'s output (capture-format.md: '#' metadata, a header, then rows): time (s),
     accel (m/s^2), gyro (rad/s) per row."""
@@ -335,7 +452,7 @@ def final_moves(report, rows):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("check", choices=["params", "files", "steady", "noisy", "refused",
-                                          "names", "final"])
+                                          "names", "effects", "final"])
     parser.add_argument("report")
     parser.add_argument("truth", nargs="?")
     parser.add_argument("--verdict", default="pass,warn", help="allowed verdicts")
@@ -346,9 +463,16 @@ def main():
     parser.add_argument("--multi-file", action="store_true",
                         help="poses are matched to the simulated holds by file")
     parser.add_argument("--stderr", help="names: the command's stderr, searched too")
-    parser.add_argument("--applied", help="final: `imucal apply`'s output for the capture")
     parser.add_argument("--want", action="append", default=[],
                         help="names: a string that must be said (A|B: either)")
+    parser.add_argument("--val-truth", help="effects: the validation capture's truth.json")
+    parser.add_argument("--val-raw", help="effects: the validation capture (raw)")
+    parser.add_argument("--applied",
+                        help="final: `imucal apply`'s output for the capture; effects: for the "
+                             "validation capture")
+    parser.add_argument("--applied-without", help="effects: the same without the effects")
+    parser.add_argument("--ratio", type=float, default=1.3,
+                        help="effects: validation error allowed, times the truth's")
     args = parser.parse_args()
     c = Checker()
     report = load(args.report)
@@ -357,7 +481,14 @@ def main():
     c.check(f"verdict {report.get('verdict')!r}, want one of {verdicts}",
             report.get("verdict") in verdicts)
 
-    if args.check == "params":
+    if args.check == "effects":
+        found, floor, without = check_effects(c, report, truth, args)
+        c.done("validation accel %.3f mg (truth %.3f, without effects %.3f), gyro %.4f deg/s "
+               "(truth %.4f, without effects %.4f)" % (
+                   found[0] * 1e3 / 9.80665, floor[0] * 1e3 / 9.80665,
+                   without[0] * 1e3 / 9.80665, math.degrees(found[1]), math.degrees(floor[1]),
+                   math.degrees(without[1])))
+    elif args.check == "params":
         pairs = match_poses(c, report, truth, args.multi_file)
         check_directions(c, pairs, truth)
         tol = check_params(c, report, truth, args)

@@ -55,6 +55,17 @@ Classes of capture (each off by default; the default output is the same as befor
       turned --duplicate-angle-deg (default 0.005) about one of OTHER's horizontal body axes:
       e.g. Z+=Z- leaves no pose with +Z up. The truth keeps the face each pose was meant for.
 
+Temperature (off by default; then no sample has one and nothing depends on it):
+  --temp-history KIND:ARGS  the temperature T(t), t from the first sample, in degC:
+        warmup:T0,T1,TAU  T0 + (T1 - T0) (1 - exp(-t / TAU))
+        ramp:T0,T1        linear from T0 at the first sample to T1 at the last
+        plateau:T         constant
+      Each sample then carries T (write_columns.py writes it in the temp column).
+  --gyro-temp-quad AXIS,C,TREF / --accel-temp-quad AXIS,C,TREF  a temperature quadratic with a
+      turnover: C (T - TREF)^2 added to the TRUE rate (rad/s) or specific force (m/s^2) on AXIS
+      (x, y or z) before the sensor's scale and bias, so the calibrated value carries it with
+      coefficient C. Repeatable.
+
 The truth (JSON-ready dict) says what was used. When any option above is not at its default
 (or a writer sets args.full_truth), it also holds each pose's time range and each move's time
 range, axis, angle and profile; times are the sample times t = k / rate_hz of the capture's
@@ -169,6 +180,32 @@ def _parse_duplicate(text):
     return face, other
 
 
+def _parse_history(text):
+    kind, _, rest = text.partition(":")
+    values = [float(v) for v in rest.split(",")] if rest else []
+    want = {"warmup": 3, "ramp": 2, "plateau": 1}
+    if kind not in want or len(values) != want[kind]:
+        raise ValueError(f"--temp-history: expected warmup:T0,T1,TAU, ramp:T0,T1 or plateau:T, "
+                         f"got {text!r}")
+    return (kind, values)
+
+
+def _parse_quad(text):
+    parts = text.split(",")
+    if len(parts) != 3 or parts[0] not in ("x", "y", "z"):
+        raise ValueError(f"expected AXIS,C,TREF with AXIS x, y or z, got {text!r}")
+    return ("xyz".index(parts[0]), float(parts[1]), float(parts[2]))
+
+
+def _temperature(history, t, duration):
+    kind, v = history
+    if kind == "warmup":
+        return v[0] + (v[1] - v[0]) * (1.0 - math.exp(-t / v[2]))
+    if kind == "ramp":
+        return v[0] + (v[1] - v[0]) * (t / duration if duration > 0 else 0.0)
+    return v[0]
+
+
 def add_arguments(parser):
     """The simulation's options, the same for every writer."""
     parser.add_argument("--seed", type=int, default=1, help="noise and turn-error seed")
@@ -216,6 +253,13 @@ def add_arguments(parser):
     parser.add_argument("--duplicate-face", type=_parse_duplicate, default=None,
                         metavar="FACE=OTHER", help="faces-once: FACE's pose holds OTHER's")
     parser.add_argument("--duplicate-angle-deg", type=float, default=0.005)
+    parser.add_argument("--temp-history", type=_parse_history, default=None, metavar="KIND:ARGS",
+                        help="warmup:T0,T1,TAU, ramp:T0,T1 or plateau:T (degC, s)")
+    parser.add_argument("--gyro-temp-quad", type=_parse_quad, action="append", default=[],
+                        metavar="AXIS,C,TREF", help="C (T - TREF)^2 rad/s on the true rate")
+    parser.add_argument("--accel-temp-quad", type=_parse_quad, action="append", default=[],
+                        metavar="AXIS,C,TREF",
+                        help="C (T - TREF)^2 m/s^2 on the true specific force")
 
 
 def _extended(args):
@@ -418,6 +462,13 @@ def simulate(args):
     extra_rng = random.Random(args.seed * 1000003 + 53)
     noisy = _NoisyRest(args, extra_rng) if args.noisy_rest is not None else None
 
+    history = getattr(args, "temp_history", None)
+    quads = (getattr(args, "gyro_temp_quad", []), getattr(args, "accel_temp_quad", []))
+    if (quads[0] or quads[1]) and history is None:
+        raise ValueError("--gyro-temp-quad and --accel-temp-quad need --temp-history")
+    total = sum(int(round(seg[1] * args.rate_hz)) for seg in segments)
+    duration = (total - 1) * dt
+
     # Sample the segments. Rotations restart from the pose at the segment start, so the
     # orientation is exact (no integration drift), and the body rate is axis * dtheta/dt.
     samples = []
@@ -447,6 +498,14 @@ def simulate(args):
                 rot = _matmul(r, _axis_angle(axis, theta))
                 w_body = [a * rate for a in axis]
             f_body = _transpose_times(rot, g_world)
+            temp = _temperature(history, k * dt, duration) if history else None
+            if history:
+                w_body = list(w_body)
+                f_body = list(f_body)
+                for axis_i, c, ref in quads[0]:
+                    w_body[axis_i] += c * (temp - ref) ** 2
+                for axis_i, c, ref in quads[1]:
+                    f_body[axis_i] += c * (temp - ref) ** 2
             accel = [f_body[i] / accel_scale[i] + accel_bias[i] +
                      (rng.gauss(0.0, args.accel_noise) if args.noise else 0.0) for i in range(3)]
             gyro = [w_body[i] / gyro_scale[i] + gyro_bias[i] +
@@ -457,7 +516,7 @@ def simulate(args):
                 accel = [round(v / args.accel_step) * args.accel_step for v in accel]
             if args.gyro_step is not None:
                 gyro = [round(v / args.gyro_step) * args.gyro_step for v in gyro]
-            samples.append((k * dt, gyro, accel))
+            samples.append((k * dt, gyro, accel) + ((temp,) if history else ()))
             k += 1
         if seg[0] == "move":
             r = _matmul(r, _axis_angle(seg[2], seg[3]))
@@ -484,6 +543,15 @@ def simulate(args):
         "model": "u = y / scale + bias + noise per axis (inverse of y = scale (u - bias)), "
                  "no misalignment; accel in m/s^2, gyro in rad/s",
     }
+    if history:
+        truth["temperature"] = {
+            "history": {"kind": history[0], "values": history[1]},
+            "gyro_temp_quad": [{"axis": "xyz"[a], "c_rad_s_per_degc2": c, "turnover_c": ref}
+                               for a, c, ref in quads[0]],
+            "accel_temp_quad": [{"axis": "xyz"[a], "c_m_s2_per_degc2": c, "turnover_c": ref}
+                                for a, c, ref in quads[1]],
+            "model": "C (T - TREF)^2 added to the true rate / specific force before scale and "
+                     "bias"}
     if _extended(args):
         truth.update({
             "noise": args.noise,

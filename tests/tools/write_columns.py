@@ -155,10 +155,11 @@ def main():
         lines = list(preamble)
         first_line = len(lines) + 1
         for k in range(first, last + 1):
-            _, gyro, accel = samples[k]
+            gyro, accel = samples[k][1], samples[k][2]
             row = [time_text(k, first, args)] + values(gyro, accel)
-            if len(names) == 8:
-                row.append(f"{args.temp_c:.2f}")
+            if len(names) == 8:  # the simulated temperature history, else --temp-c
+                temp = samples[k][3] if len(samples[k]) > 3 else args.temp_c
+                row.append(f"{temp:.3f}" if len(samples[k]) > 3 else f"{temp:.2f}")
             lines.append(delimiter.join(row))
         if n == 0 and args.nul_at:
             fields = lines[args.nul_at - 1].split(delimiter)

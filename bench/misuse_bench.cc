@@ -1,0 +1,410 @@
+// What clients that hold the server's resources without using them cost imucald: the real
+// binary in its own process on loopback (its memory is its own), RSS from /proc/PID/status.
+//
+//   --case=silent-streams: one robot token (TLS, as a fleet runs) opens --streams sample streams
+//     (default 30,000, over --channels connections) that never send a batch. Reported: imucald's
+//     RSS idle, its peak while they are open, how many were refused at once (max_streams,
+//     max_streams_per_token), how many the server ended for silence within --wait seconds
+//     (first_batch_timeout), its RSS then, and after the client hung up on the rest.
+//   --case=closed-cancels: a session of --samples samples (default 10,000,000, streamed through
+//     the API in 20,000-sample batches, then cancelled), imucald restarted on the file, and
+//     --calls CancelSession calls on it (then a StreamSamples and a SolveSession on it): each
+//     call's time, its answer and imucald's RSS after it. Before the fix the first call decoded
+//     and replayed the whole session into memory and kept it there.
+//
+//   ninja -C build bench/misuse_bench imucald
+//   build/bench/misuse_bench [--case=all|silent-streams|closed-cancels] [--streams=30000]
+//                            [--channels=8] [--wait=40] [--samples=10000000] [--calls=5]
+//                            [--imucald=PATH] [--keep]
+// --imucald=PATH measures another build (e.g. one from before the limits, for a "before"
+// column); it is run with --listen, --db, and the TLS flags or --insecure only. Not part of
+// ctest.
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "bench/service_bench_util.h"
+#include "grpcpp/grpcpp.h"
+#include "imucal/v1/imucal.grpc.pb.h"
+#include "server/log.h"
+
+namespace {
+
+namespace v1 = imucal::v1;
+using namespace imucal::bench;  // Clock, Seconds, StartImucald, ProcStatusKb, ...
+
+struct Flags {
+  std::string which = "all";
+  int streams = 30000;
+  int channels = 8;
+  double wait_s = 40;  // first_batch_timeout (30 s) and the sweeper's tick, with a margin
+  int64_t samples = 10'000'000;
+  int calls = 5;
+  std::string imucald = IMUCAL_IMUCALD_PATH;
+  bool keep = false;
+};
+
+Flags ParseFlags(int argc, char** argv) {
+  Flags f;
+  for (int i = 1; i < argc; ++i) {
+    const std::string_view a = argv[i];
+    auto value = [&](std::string_view name) -> std::optional<std::string> {
+      if (!a.starts_with(name)) return std::nullopt;
+      return std::string(a.substr(name.size()));
+    };
+    if (auto c = value("--case=")) {
+      f.which = *c;
+    } else if (auto s = value("--streams=")) {
+      f.streams = std::atoi(s->c_str());
+    } else if (auto ch = value("--channels=")) {
+      f.channels = std::max(1, std::atoi(ch->c_str()));
+    } else if (auto w = value("--wait=")) {
+      f.wait_s = std::atof(w->c_str());
+    } else if (auto n = value("--samples=")) {
+      f.samples = std::atoll(n->c_str());
+    } else if (auto k = value("--calls=")) {
+      f.calls = std::atoi(k->c_str());
+    } else if (auto p = value("--imucald=")) {
+      f.imucald = *p;
+    } else if (a == "--keep") {
+      f.keep = true;
+    } else {
+      std::fprintf(stderr, "unknown flag %s (see the header of bench/misuse_bench.cc)\n", argv[i]);
+      std::exit(2);
+    }
+  }
+  if (f.which != "all" && f.which != "silent-streams" && f.which != "closed-cancels") {
+    std::fprintf(stderr, "--case: all, silent-streams or closed-cancels\n");
+    std::exit(2);
+  }
+  return f;
+}
+
+double Mb(int64_t kb) { return static_cast<double>(kb) / 1024.0; }
+
+void Die(const std::string& what, pid_t server) {
+  std::fprintf(stderr, "%s\n", what.c_str());
+  if (server > 0) {
+    kill(server, SIGKILL);
+    waitpid(server, nullptr, 0);
+  }
+  std::exit(1);
+}
+
+std::shared_ptr<grpc::Channel> Channel(const std::string& target,
+                                       const std::shared_ptr<grpc::ChannelCredentials>& creds,
+                                       int index) {
+  grpc::ChannelArguments args;
+  args.SetInt("imucal.bench.channel", index);  // distinct args: a connection per channel
+  args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+  return grpc::CreateCustomChannel(target, creds, args);
+}
+
+// ---- silent streams ----------------------------------------------------------------------
+
+// A sample stream that never sends: it only waits to hear how it ends.
+class SilentStream final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAck> {
+ public:
+  struct Tally {
+    std::mutex mu;
+    std::condition_variable cv;
+    std::map<grpc::StatusCode, int> ended;  // by code; guarded by mu
+    int done = 0;                           // guarded by mu
+  };
+  SilentStream(v1::SessionService::Stub* stub, Tally* tally) : tally_(tally) {
+    stub->async()->StreamSamples(&context_, this);
+    StartRead(&ack_);
+    StartCall();
+  }
+  void HangUp() { context_.TryCancel(); }
+  void OnReadDone(bool ok) override {
+    if (ok) StartRead(&ack_);
+  }
+  void OnDone(const grpc::Status& status) override {
+    std::lock_guard lock(tally_->mu);
+    ++tally_->ended[status.error_code()];
+    ++tally_->done;
+    tally_->cv.notify_all();
+  }
+
+ private:
+  Tally* tally_;
+  grpc::ClientContext context_;
+  v1::SampleAck ack_;
+};
+
+int SilentStreams(const Flags& flags, const std::string& dir) {
+  const std::string db = dir + "/silent.db", token_file = dir + "/admin-token";
+  const std::vector<std::string> tls = TlsServerArgs(dir, token_file);
+  if (tls.empty()) Die("the openssl CLI could not make a certificate", -1);
+  const int port = FreeLoopbackPort();
+  const std::string listen = absl::StrCat("127.0.0.1:", port);
+  const pid_t server = StartImucald(flags.imucald, db, listen, tls, -1, dir + "/imucald.log");
+  std::ifstream cert_in(dir + "/server.crt");
+  grpc::SslCredentialsOptions ssl;
+  ssl.pem_root_certs.assign(std::istreambuf_iterator<char>(cert_in),
+                            std::istreambuf_iterator<char>());
+  auto probe = grpc::CreateChannel(listen, grpc::SslCredentials(ssl));
+  if (!probe->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60)))
+    Die("imucald did not come up", server);
+  std::string admin;
+  std::getline(std::ifstream(token_file), admin);
+  auto admin_stub = v1::AdminService::NewStub(grpc::CreateChannel(
+      listen, grpc::CompositeChannelCredentials(grpc::SslCredentials(ssl),
+                                                grpc::AccessTokenCredentials(admin))));
+  v1::CreateTokenRequest create;
+  create.set_role(v1::ROLE_ROBOT);
+  create.set_device_id("misuse-robot");
+  create.set_label("misuse bench");
+  v1::CreateTokenResponse robot;
+  {
+    grpc::ClientContext ctx;
+    if (grpc::Status s = admin_stub->CreateToken(&ctx, create, &robot); !s.ok())
+      Die("CreateToken: " + s.error_message(), server);
+  }
+  auto robot_creds = grpc::CompositeChannelCredentials(
+      grpc::SslCredentials(ssl), grpc::AccessTokenCredentials(robot.secret()));
+  std::vector<std::shared_ptr<grpc::Channel>> channels;
+  std::vector<std::unique_ptr<v1::SessionService::Stub>> stubs;
+  for (int i = 0; i < flags.channels; ++i) {
+    channels.push_back(Channel(listen, robot_creds, i));
+    if (!channels.back()->WaitForConnected(std::chrono::system_clock::now() +
+                                           std::chrono::seconds(30)))
+      Die("a robot channel did not connect", server);
+    stubs.push_back(v1::SessionService::NewStub(channels.back()));
+  }
+  const int64_t rss_idle = ProcStatusKb(server, "VmRSS");
+
+  SilentStream::Tally tally;
+  std::vector<std::unique_ptr<SilentStream>> streams;
+  const Clock::time_point t0 = Clock::now();
+  for (int i = 0; i < flags.streams; ++i)
+    streams.push_back(
+        std::make_unique<SilentStream>(stubs[static_cast<size_t>(i) % stubs.size()].get(), &tally));
+  const double open_s = Seconds(Clock::now() - t0);
+  int64_t peak = 0;
+  int refused_early = -1;
+  while (Seconds(Clock::now() - t0) < flags.wait_s) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(250));  // the sampling period
+    peak = std::max(peak, ProcStatusKb(server, "VmRSS"));
+    if (refused_early < 0 && Seconds(Clock::now() - t0) > open_s + 5) {
+      std::lock_guard lock(tally.mu);
+      const auto it = tally.ended.find(grpc::StatusCode::RESOURCE_EXHAUSTED);
+      refused_early = it == tally.ended.end() ? 0 : it->second;
+    }
+  }
+  const int64_t rss_after_wait = ProcStatusKb(server, "VmRSS");
+  std::map<grpc::StatusCode, int> by_server;
+  {
+    std::lock_guard lock(tally.mu);
+    by_server = tally.ended;
+  }
+  int ended_by_server = 0;
+  for (const auto& [code, n] : by_server) ended_by_server += n;
+  for (auto& s : streams) s->HangUp();
+  {
+    std::unique_lock lock(tally.mu);
+    tally.cv.wait(lock, [&] { return tally.done == flags.streams; });
+  }
+  std::this_thread::sleep_for(std::chrono::seconds(2));  // lets imucald free what it held
+  const int64_t rss_after_hangup = ProcStatusKb(server, "VmRSS");
+  const int64_t hwm = ProcStatusKb(server, "VmHWM");
+  streams.clear();
+  stubs.clear();
+  channels.clear();
+  kill(server, SIGTERM);
+  waitpid(server, nullptr, 0);
+
+  std::printf("silent streams: %d opened in %.1f s by one robot token over %d connections (%s)\n",
+              flags.streams, open_s, flags.channels, flags.imucald.c_str());
+  std::printf("  imucald RSS idle %.1f MB, peak with the streams %.1f MB (VmHWM %.1f MB)\n",
+              Mb(rss_idle), Mb(peak), Mb(hwm));
+  std::printf("  refused at once (RESOURCE_EXHAUSTED): %d\n", std::max(refused_early, 0));
+  std::printf("  ended by the server within %.0f s:", flags.wait_s);
+  if (by_server.empty()) std::printf(" none");
+  for (const auto& [code, n] : by_server)
+    std::printf(" %s=%d", std::string(imucal::server::CodeName(code)).c_str(), n);
+  std::printf(" (%d of %d)\n", ended_by_server, flags.streams);
+  std::printf("  imucald RSS after %.0f s %.1f MB; after the client hung up on the rest %.1f MB\n",
+              flags.wait_s, Mb(rss_after_wait), Mb(rss_after_hangup));
+  return 0;
+}
+
+// ---- cancels of a closed session ---------------------------------------------------------
+
+// A device and a session of `samples` samples (a robot at rest, 200 Hz, 20,000 a batch)
+// streamed through `stub`'s server and then cancelled; returns the session's id. Through the
+// API, not storage::Store, so that any imucald build can be measured on a file of its own
+// schema.
+std::string StreamClosedSession(v1::DeviceService::Stub* devices, v1::SessionService::Stub* stub,
+                                int64_t samples, pid_t server) {
+  auto deadline = [] {
+    auto c = std::make_unique<grpc::ClientContext>();
+    c->set_deadline(std::chrono::system_clock::now() + std::chrono::minutes(10));
+    return c;
+  };
+  v1::RegisterDeviceRequest reg;
+  reg.mutable_device()->set_id("misuse-closed");
+  reg.mutable_device()->set_sensor_model("sim");
+  reg.mutable_device()->set_nominal_rate_hz(200);
+  reg.mutable_device()->set_accel_unit("m/s^2");
+  reg.mutable_device()->set_gyro_unit("rad/s");
+  v1::Device device;
+  if (grpc::Status s = devices->RegisterDevice(deadline().get(), reg, &device); !s.ok())
+    Die("RegisterDevice: " + s.error_message(), server);
+  v1::CreateSessionRequest create;
+  create.set_device_id("misuse-closed");
+  v1::Session session;
+  if (grpc::Status s = stub->CreateSession(deadline().get(), create, &session); !s.ok())
+    Die("CreateSession: " + s.error_message(), server);
+  constexpr int64_t kBatch = 20000;
+  auto ctx = deadline();
+  auto stream = stub->StreamSamples(ctx.get());
+  int64_t seq = 0;
+  for (int64_t first = 0; first < samples; first += kBatch) {
+    v1::SampleBatch b;
+    b.set_session_id(session.id());
+    b.set_seq(++seq);
+    for (int64_t k = first; k < std::min(samples, first + kBatch); ++k) {
+      const double x = static_cast<double>(k);
+      b.add_t_s(x / 200);
+      for (double v : {0.01 * std::sin(x), -0.02 * std::cos(x), 9.80665 + 0.01 * std::sin(3 * x)})
+        b.add_accel(v);
+      for (double v : {1e-3 * std::cos(x), -1e-3 * std::sin(2 * x), 2e-3}) b.add_gyro(v);
+    }
+    v1::SampleAck ack;
+    if (!stream->Write(b) || !stream->Read(&ack)) break;
+  }
+  stream->WritesDone();
+  if (grpc::Status s = stream->Finish(); !s.ok())
+    Die("StreamSamples: " + s.error_message(), server);
+  v1::CancelSessionRequest cancel;
+  cancel.set_session_id(session.id());
+  v1::Session cancelled;
+  if (grpc::Status s = stub->CancelSession(deadline().get(), cancel, &cancelled); !s.ok())
+    Die("CancelSession: " + s.error_message(), server);
+  return session.id();
+}
+
+int ClosedCancels(const Flags& flags, const std::string& dir) {
+  const std::string db = dir + "/closed.db";
+  const int port = FreeLoopbackPort();
+  const std::string listen = absl::StrCat("127.0.0.1:", port);
+  const std::string log = dir + "/imucald.log";
+  pid_t server = StartImucald(flags.imucald, db, listen, {"--insecure"}, -1, log);
+  std::string session;
+  {
+    auto channel = grpc::CreateChannel(listen, grpc::InsecureChannelCredentials());
+    if (!channel->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60)))
+      Die("imucald did not come up", server);
+    const Clock::time_point p0 = Clock::now();
+    session =
+        StreamClosedSession(v1::DeviceService::NewStub(channel).get(),
+                            v1::SessionService::NewStub(channel).get(), flags.samples, server);
+    std::printf("closed session: %lld samples streamed and the session cancelled in %.1f s\n",
+                static_cast<long long>(flags.samples), Seconds(Clock::now() - p0));
+  }
+  // A fresh server on the file: what it holds is what the calls below make it load.
+  kill(server, SIGTERM);
+  waitpid(server, nullptr, 0);
+  server = StartImucald(flags.imucald, db, listen, {"--insecure"}, -1, log);
+  auto channel = grpc::CreateChannel(listen, grpc::InsecureChannelCredentials());
+  if (!channel->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60)))
+    Die("imucald did not come up again", server);
+  auto stub = v1::SessionService::NewStub(channel);
+  std::printf("  imucald (%s) RSS idle %.1f MB\n", flags.imucald.c_str(),
+              Mb(ProcStatusKb(server, "VmRSS")));
+  std::printf("  %-14s %10s  %-20s %12s\n", "call", "time", "answer", "RSS after");
+  auto row = [&](const std::string& what, const Clock::time_point& start, const grpc::Status& s) {
+    const double ms = 1e3 * Seconds(Clock::now() - start);
+    std::printf("  %-14s %7.1f ms  %-20s %9.1f MB\n", what.c_str(), ms,
+                std::string(imucal::server::CodeName(s.error_code())).c_str(),
+                Mb(ProcStatusKb(server, "VmRSS")));
+  };
+  auto deadline = [] {
+    auto c = std::make_unique<grpc::ClientContext>();
+    c->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    return c;
+  };
+  for (int i = 1; i <= flags.calls; ++i) {
+    v1::CancelSessionRequest req;
+    req.set_session_id(session);
+    v1::Session out;
+    const Clock::time_point t = Clock::now();
+    const grpc::Status s = stub->CancelSession(deadline().get(), req, &out);
+    row(absl::StrCat("CancelSession ", i), t, s);
+  }
+  {
+    auto ctx = deadline();
+    const Clock::time_point t = Clock::now();
+    auto stream = stub->StreamSamples(ctx.get());
+    v1::SampleBatch b;
+    b.set_session_id(session);
+    b.set_seq(flags.samples / 20000 + 2);
+    b.add_t_s(1e9);
+    for (double x : {0.0, 0.0, 9.81}) b.add_accel(x);
+    for (double x : {0.0, 0.0, 0.0}) b.add_gyro(x);
+    stream->Write(b);
+    stream->WritesDone();
+    v1::SampleAck ack;
+    while (stream->Read(&ack)) {
+    }
+    row("StreamSamples", t, stream->Finish());
+  }
+  {
+    v1::SolveSessionRequest req;
+    req.set_session_id(session);
+    v1::SolveJob job;
+    const Clock::time_point t = Clock::now();
+    const grpc::Status s = stub->SolveSession(deadline().get(), req, &job);
+    row("SolveSession", t, s);
+  }
+  std::printf("  imucald VmHWM %.1f MB\n", Mb(ProcStatusKb(server, "VmHWM")));
+  stub.reset();
+  channel.reset();
+  kill(server, SIGTERM);
+  waitpid(server, nullptr, 0);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const Flags flags = ParseFlags(argc, argv);
+  char tmpl[] = "/tmp/imucal-misuse-bench-XXXXXX";
+  if (mkdtemp(tmpl) == nullptr) {
+    std::perror("mkdtemp");
+    return 1;
+  }
+  const std::string dir = tmpl;
+  std::printf("imucal misuse bench, %ld cores, load %s\n", sysconf(_SC_NPROCESSORS_ONLN),
+              LoadAvg().c_str());
+  int status = 0;
+  if (flags.which == "all" || flags.which == "silent-streams") status |= SilentStreams(flags, dir);
+  if (flags.which == "all" || flags.which == "closed-cancels") status |= ClosedCancels(flags, dir);
+  std::error_code ec;
+  if (flags.keep) {
+    std::printf("kept %s\n", dir.c_str());
+  } else {
+    std::filesystem::remove_all(dir, ec);
+  }
+  return status;
+}
