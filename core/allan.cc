@@ -7,6 +7,7 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
+#include "boost/math/distributions/chi_squared.hpp"
 #include "util/str_util.h"
 
 namespace imucal::core {
@@ -152,8 +153,15 @@ AxisFigures FitAllanFigures(const std::vector<double>& tau_s, const std::vector<
   size_t i = 0;
   while (i < n && !near(slope[i], -0.5)) ++i;
   double sw = 0, swl = 0;
-  for (; i < n && near(slope[i], -0.5); ++i) sw += w[i], swl += w[i] * (la[i] + 0.5 * lt[i]);
-  if (sw > 0) f.noise_density = std::exp(swl / sw);
+  size_t nearest_1s = n;
+  for (; i < n && near(slope[i], -0.5); ++i) {
+    sw += w[i], swl += w[i] * (la[i] + 0.5 * lt[i]);
+    if (nearest_1s == n || std::abs(lt[i]) < std::abs(lt[nearest_1s])) nearest_1s = i;
+  }
+  if (sw > 0) {
+    f.noise_density = std::exp(swl / sw);
+    f.noise_density_tau_s = std::exp(lt[nearest_1s]);
+  }
 
   // K: reached when, past the curve's minimum, at least kMinRandomWalkPoints cluster times
   // have slope +1/2 and the curve has risen by kMinRise. Every point past the minimum then
@@ -170,19 +178,26 @@ AxisFigures FitAllanFigures(const std::vector<double>& tau_s, const std::vector<
   if (rising >= kMinRandomWalkPoints && highest_after_min - la[k_min] > std::log(kMinRise)) {
     const double white = std::isnan(f.noise_density) ? 0.0 : f.noise_density * f.noise_density;
     double k2 = 0;
+    size_t heaviest = k_min;  // the point of largest weight in the last pass
     for (int pass = 0; pass < 3; ++pass) {
       sw = swl = 0;
+      double heaviest_weight = -1;
       for (size_t k = k_min; k < n; ++k) {
         const double tau = std::exp(lt[k]);
         const double avar = std::exp(2 * la[k]);
         const double share = pass == 0 ? 1.0 : (k2 * tau / 3) / (white / tau + k2 * tau / 3);
         sw += w[k] * share * share;
         swl += w[k] * share * share * (avar - white / tau) * 3.0 / tau;
+        if (w[k] * share * share > heaviest_weight)
+          heaviest_weight = w[k] * share * share, heaviest = k;
       }
       k2 = sw > 0 ? swl / sw : 0.0;
       if (!(k2 > 0)) break;
     }
-    if (k2 > 0) f.random_walk = std::sqrt(k2);
+    if (k2 > 0) {
+      f.random_walk = std::sqrt(k2);
+      f.random_walk_tau_s = std::exp(lt[heaviest]);
+    }
   }
   if (std::isnan(f.random_walk)) {
     f.random_walk_bound = std::exp(la.back()) * std::sqrt(3.0 / f.tau_max_fit_s);
@@ -205,9 +220,73 @@ AxisFigures FitAllanFigures(const std::vector<double>& tau_s, const std::vector<
     for (size_t k = 0; k < k_floor; ++k) fell_before |= slope[k] < -kSlopeTolerance;
     if (fell_before && near(slope[k_floor], 0.0) && k_floor + 1 < n_floor) {
       f.bias_instability = std::exp(la[k_floor]) / kFlickerFloor;
+      f.bias_instability_tau_s = std::exp(lt[k_floor]);
     }
   }
   return f;
+}
+
+double AllanEdf(AllanNoise noise, size_t n, size_t m) {
+  const double N = static_cast<double>(n) + 1;  // phase points
+  const double M = static_cast<double>(m);
+  double edf = kNaN;
+  switch (noise) {
+    case AllanNoise::kWhite:
+      edf = (3 * (N - 1) / (2 * M) - 2 * (N - 2) / N) * 4 * M * M / (4 * M * M + 5);
+      break;
+    case AllanNoise::kFlicker:
+      edf = m == 1 ? 2 * (N - 2) / (2.3 * N - 4.9) : 5 * N * N / (4 * M * (N + 3 * M));
+      break;
+    case AllanNoise::kRandomWalk:
+      edf = (N - 2) / M * ((N - 1) * (N - 1) - 3 * M * (N - 1) + 4 * M * M) / ((N - 3) * (N - 3));
+      break;
+  }
+  return edf > 0 ? edf : kNaN;
+}
+
+AxisReadings ReadAllanFigures(const std::vector<double>& tau_s, const std::vector<double>& adev,
+                              size_t n, double rate_hz) {
+  const double duration_s = static_cast<double>(n) / rate_hz;
+  const AxisFigures f = FitAllanFigures(tau_s, adev, duration_s);
+  // A figure is a fixed multiple of the deviation it was read from, so its interval is the
+  // deviation's: adev^2 edf / avar is chi-squared with edf degrees of freedom.
+  // The factors (low, high) that take a deviation measured at cluster time tau to its interval.
+  auto interval = [&](AllanNoise noise, double tau) -> std::pair<double, double> {
+    const auto m = static_cast<size_t>(std::max(1.0, std::round(tau * rate_hz)));
+    const double edf = AllanEdf(noise, n, m);
+    if (!(edf > 0)) return {kNaN, kNaN};
+    const boost::math::chi_squared chi2(edf);
+    return {std::sqrt(edf / boost::math::quantile(chi2, 0.975)),
+            std::sqrt(edf / boost::math::quantile(chi2, 0.025))};
+  };
+  auto read = [&](double value, double tau, double (*factor)(double), AllanNoise noise,
+                  AllanReading* out) {
+    if (!std::isnan(value)) {
+      const auto [low, high] = interval(noise, tau);
+      *out = AllanReading{value, tau, value * low, value * high, false};
+      return;
+    }
+    // Not reached: the bound is the least 95% upper limit over the usable cluster times.
+    for (size_t i = 0; i < tau_s.size(); ++i) {
+      if (duration_s / tau_s[i] < kMinClustersForFit || !(adev[i] > 0) || !std::isfinite(adev[i]))
+        continue;
+      const double bound = factor(tau_s[i]) * adev[i] * interval(noise, tau_s[i]).second;
+      if (std::isnan(out->value) || bound < out->value) {
+        *out = AllanReading{bound, tau_s[i], kNaN, bound, true};
+      }
+    }
+  };
+  AxisReadings r;
+  read(
+      f.noise_density, f.noise_density_tau_s, [](double tau) { return std::sqrt(tau); },
+      AllanNoise::kWhite, &r.noise_density);
+  read(
+      f.bias_instability, f.bias_instability_tau_s, [](double) { return 1 / kFlickerFloor; },
+      AllanNoise::kFlicker, &r.bias_instability);
+  read(
+      f.random_walk, f.random_walk_tau_s, [](double tau) { return std::sqrt(3 / tau); },
+      AllanNoise::kRandomWalk, &r.random_walk);
+  return r;
 }
 
 absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
@@ -238,17 +317,6 @@ absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin,
   // (200.00000000000426 Hz), and the rate is written into files robots read.
   const double rate_hz = std::round(1e6 / median_dt) / 1e6;
 
-  // The calibrated body-frame signals, one series per axis.
-  std::vector<double> series[6];
-  for (auto& s : series) s.reserve(n);
-  for (size_t i = begin; i < end; ++i) {
-    const CorrectedSample c = correction.Apply(
-        capture.accel[i], capture.gyro[i],
-        capture.has_temp() ? capture.temp[i] : std::numeric_limits<double>::quiet_NaN(),
-        capture.t_s[i]);
-    for (int k = 0; k < 3; ++k)
-      series[k].push_back(c.accel_m_s2(k)), series[3 + k].push_back(c.gyro_rad_s(k));
-  }
   const std::vector<size_t> m = LogSpacedClusterSizes(n);
   NoiseAnalysis out;
   NoiseFigures& nf = out.figures;
@@ -262,8 +330,21 @@ absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin,
   c.gyro_rad_s.assign(m.size(), Eigen::Vector3d::Zero());
   const double duration_s = static_cast<double>(n) / rate_hz;
   double tau_max_s = 0;
+  // The calibrated body-frame signal of one axis at a time: memory is one series (and its
+  // integral), whatever the number of axes or of cluster times.
+  std::vector<double> series;
+  series.reserve(n);
   for (int k = 0; k < 6; ++k) {
-    const std::vector<double> adev = OverlappingAllanDeviation(series[k], rate_hz, m);
+    series.clear();
+    for (size_t i = begin; i < end; ++i) {
+      const CorrectedSample corrected = correction.Apply(
+          capture.accel[i], capture.gyro[i],
+          capture.has_temp() ? capture.temp[i] : std::numeric_limits<double>::quiet_NaN(),
+          capture.t_s[i]);
+      series.push_back(k < 3 ? corrected.accel_m_s2(k) : corrected.gyro_rad_s(k - 3));
+    }
+    const std::vector<double> adev = OverlappingAllanDeviation(series, rate_hz, m);
+    out.readings[static_cast<size_t>(k)] = ReadAllanFigures(c.tau_s, adev, n, rate_hz);
     for (size_t j = 0; j < m.size(); ++j) (k < 3 ? c.accel_m_s2 : c.gyro_rad_s)[j](k % 3) = adev[j];
     const AxisFigures f = FitAllanFigures(c.tau_s, adev, duration_s);
     SensorNoise& s = k < 3 ? nf.accel : nf.gyro;

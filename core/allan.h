@@ -25,6 +25,7 @@
 #ifndef IMUCAL_CORE_ALLAN_H_
 #define IMUCAL_CORE_ALLAN_H_
 
+#include <array>
 #include <cstddef>
 #include <string>
 #include <vector>
@@ -70,13 +71,53 @@ struct AxisFigures {
   double random_walk = SensorNoise::kUnknown;
   double random_walk_bound = SensorNoise::kUnknown;
   double tau_max_fit_s = 0.0;  // the longest cluster time used for the figures
+  // The cluster time each figure was read at (NaN where not reached): N the point of its
+  // slope -1/2 run nearest 1 s; B the flat minimum; K the point that weighs most in its fit.
+  double noise_density_tau_s = SensorNoise::kUnknown;
+  double bias_instability_tau_s = SensorNoise::kUnknown;
+  double random_walk_tau_s = SensorNoise::kUnknown;
 };
 AxisFigures FitAllanFigures(const std::vector<double>& tau_s, const std::vector<double>& adev,
                             double duration_s);
 
+// One figure as `imucal noise` states it: the value, the cluster time it was read at and its
+// 95% confidence interval. upper_bound: the record is too short to reach the figure, and value
+// is a 95% upper limit (low NaN, high = value): each term alone bounds its figure (white noise:
+// avar(tau) >= N^2 / tau; flicker: avar >= (0.664 B)^2; random walk: avar >= K^2 tau / 3), so
+// the deviation's 95% upper limit at one cluster time bounds the figure; the least of these over
+// the usable cluster times.
+struct AllanReading {
+  double value = SensorNoise::kUnknown;
+  double tau_s = SensorNoise::kUnknown;
+  double low = SensorNoise::kUnknown;  // 95% confidence interval of value
+  double high = SensorNoise::kUnknown;
+  bool upper_bound = false;
+};
+struct AxisReadings {
+  AllanReading noise_density;     // N
+  AllanReading bias_instability;  // B
+  AllanReading random_walk;       // K
+};
+
+// The noise types of the three figures (their Allan deviation slopes -1/2, 0, +1/2; in the
+// frequency-stability literature white FM, flicker FM and random-walk FM).
+enum class AllanNoise { kWhite, kFlicker, kRandomWalk };
+
+// Equivalent degrees of freedom of the overlapping Allan variance at cluster size m of a series
+// of n samples (NIST SP 1065, Howe, Allan and Barnes, Table 5, with N = n + 1 phase points).
+double AllanEdf(AllanNoise noise, size_t n, size_t m);
+
+// The figures of one series with the cluster time each was read at, 95% confidence intervals
+// (chi-squared with AllanEdf degrees of freedom at that cluster time) and upper bounds for those
+// the record does not reach. n: samples of the series; rate_hz: its rate.
+AxisReadings ReadAllanFigures(const std::vector<double>& tau_s, const std::vector<double>& adev,
+                              size_t n, double rate_hz);
+
 struct NoiseAnalysis {
   NoiseFigures figures;
   AllanCurves curves;
+  // accel x, y, z, then gyro x, y, z.
+  std::array<AxisReadings, 6> readings;
 };
 
 // Noise of samples [begin, end) of `capture`, calibrated with `accel` and `gyro` (core/model.h;

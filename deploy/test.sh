@@ -51,7 +51,7 @@ step "fuzzers (build-fuzz/)"
 cmake -S . -B build-fuzz -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DIMUCAL_BUILD_FUZZERS=ON \
   -DIMUCAL_BUILD_TESTS=OFF -DIMUCAL_BUILD_BENCH=OFF >/dev/null
 cmake --build build-fuzz -j "$jobs" --target imucal_fuzzers
-for target in capture_csv imutk columns euroc rosbag2_cdr rosbag2_metadata sample_batch; do
+for target in capture_csv imutk columns euroc rosbag2_cdr rosbag2_metadata mcap sample_batch; do
   work="build-fuzz/runs/$target"
   rm -rf "$work"
   mkdir -p "$work" "build-fuzz/crashes/$target"

@@ -8,6 +8,7 @@
 #include <limits>
 
 #include "absl/strings/str_format.h"
+#include "core/calibrate/verdict.h"
 #include "core/regressor.h"
 
 namespace imucal::formats {
@@ -15,8 +16,8 @@ namespace {
 
 using nlohmann::json;
 
-constexpr double kW = 720, kH = 440;                                // canvas, px
-constexpr double kLeft = 80, kRight = 20, kTop = 40, kBottom = 60;  // margins, px
+constexpr double kW = 720, kH = 460;                                // canvas, px
+constexpr double kLeft = 80, kRight = 20, kTop = 40, kBottom = 80;  // margins, px
 constexpr double kMg = 9.80665e-3;                                  // m/s^2 per mg
 constexpr double kRadToDeg = 180.0 / M_PI;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -69,10 +70,52 @@ using PlotWriter = std::function<absl::Status(const std::string&, const Plot&)>;
 
 const char* const kColours[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b"};
 
+// The accelerometer's reference lines on a |a| - g [mg] plot: the verdict's RMS gates
+// (core/calibrate/verdict.h; a pose above them alone does not fail a calibration, but many do)
+// and the noise floor the residuals cannot go below (report.residual.accel_noise_floor, m/s^2).
+std::vector<RefLine> AccelRefLines(const json& report) {
+  std::vector<RefLine> lines = {
+      {core::kAccelPassRmsM_s2 / kMg,
+       absl::StrFormat("warn: RMS above %.1f mg", core::kAccelPassRmsM_s2 / kMg), "#e69f00"},
+      {core::kAccelFailRmsM_s2 / kMg,
+       absl::StrFormat("fail: RMS above %.1f mg", core::kAccelFailRmsM_s2 / kMg), "#d62728"},
+      {-core::kAccelPassRmsM_s2 / kMg, "", "#e69f00"},
+      {-core::kAccelFailRmsM_s2 / kMg, "", "#d62728"}};
+  const double floor = Num(Get(Get(report, "residual"), "accel_noise_floor"));
+  if (floor > 0) {
+    lines.push_back({floor / kMg, absl::StrFormat("noise floor %.2g mg", floor / kMg), "#555555"});
+    lines.push_back({-floor / kMg, "", "#555555"});
+  }
+  return lines;
+}
+
+// A regressor's unit, from its factors' (core/regressor.h): "degC*m/s^2", "(rad/s)^2".
+std::string RegressorUnit(const core::Regressor& reg) {
+  static constexpr const char* kUnits[core::kNumSignals] = {"degC",  "s",     "m/s^2", "m/s^2",
+                                                            "m/s^2", "rad/s", "rad/s", "rad/s"};
+  std::vector<std::string> parts;
+  for (int i = 0; i < reg.num_factors; ++i) parts.push_back(kUnits[reg.factors[i]]);
+  std::string out;
+  for (size_t i = 0; i < parts.size(); ++i) {
+    size_t run = 1;
+    while (i + run < parts.size() && parts[i + run] == parts[i]) ++run;
+    const bool compound = parts[i].find('/') != std::string::npos;
+    std::string unit = run > 1 && compound ? "(" + parts[i] + ")" : parts[i];
+    if (run > 1) unit += absl::StrFormat("^%d", static_cast<int>(run));
+    if (!out.empty()) out += "*";
+    out += unit;
+    i += run - 1;
+  }
+  return out;
+}
+
 // |a| - g per used pose after each stage, one line per stage.
 absl::Status WriteStagePlot(const json& report, const PlotWriter& write) {
   const json stages = Get(report, "stages");
-  Plot plot{"Accelerometer |a| - g per pose after each stage", "pose", "|a| - g [mg]", {}};
+  Plot plot{"Accelerometer |a| - g per pose after each stage", "pose number", "|a| - g [mg]", {}};
+  plot.ref_lines = AccelRefLines(report);
+  plot.caption =
+      "Good: the last stage's points near 0, inside the noise floor lines, far below the gates";
   for (size_t k = 0; stages.is_array() && k < stages.size(); ++k) {
     const json poses = Get(stages[k], "poses"), res = Get(stages[k], "pose_residual");
     if (!poses.is_array()) continue;
@@ -145,6 +188,8 @@ absl::Status WriteCoveragePlot(const json& report, const PlotWriter& write) {
     PlotSeries& s =
         Get(poses[i], "used").is_boolean() && Get(poses[i], "used").get<bool>() ? used : unused;
     s.x.push_back(u), s.y.push_back(v);
+    const double index = Num(Get(poses[i], "index"));
+    s.point_labels.push_back(std::isfinite(index) ? absl::StrFormat("%.0f", index) : "");
   }
   Plot plot{"Pose coverage: gravity direction in the body frame (equal-area)",
             "left: +z hemisphere (x right, y up); right: -z hemisphere",
@@ -153,6 +198,7 @@ absl::Status WriteCoveragePlot(const json& report, const PlotWriter& write) {
   // Room above the discs for the legend: an invisible point.
   const PlotSeries headroom{"", {0.0}, {1.9}, "none"};
   plot.series = {rims, faces, used, unused, headroom};
+  plot.caption = "Good: poses on both discs, at or near all six grey face marks (numbers: pose)";
   plot.equal_aspect = true;
   plot.axes = false;
   return write("coverage.svg", plot);
@@ -173,10 +219,13 @@ absl::Status WriteAllanPlots(const json& report, const PlotWriter& write) {
     const bool accel = std::string(sensor) == "accel";
     Plot plot{absl::StrFormat("Allan deviation, %s (calibrated, at rest)",
                               accel ? "accelerometer" : "gyroscope"),
-              "tau [s]",
+              "cluster time tau [s]",
               accel ? "Allan deviation [m/s^2]" : "Allan deviation [rad/s]",
               {}};
     plot.log_x = plot.log_y = true;
+    plot.caption =
+        "Good: falls with slope -1/2 (white noise) to a flat floor (bias instability); dashed: "
+        "the fitted N, B, K";
     for (int a = 0; a < 3; ++a) {
       PlotSeries s{std::string(1, "xyz"[a]), {}, {}, kColours[a], true};
       for (size_t i = 0; i < tau.size(); ++i) {
@@ -186,6 +235,37 @@ absl::Status WriteAllanPlots(const json& report, const PlotWriter& write) {
                           : kNaN);
       }
       plot.series.push_back(std::move(s));
+    }
+    // The fitted figures (parameters.noise.<sensor>, core/allan.h): N / sqrt(tau) for white
+    // noise, 0.664 B for the flicker floor, K sqrt(tau / 3) for the rate random walk, dashed in
+    // the axis' colour over the plotted cluster times. A figure not reached is null: no line.
+    const json noise = Get(Get(Get(report, "parameters"), "noise"), sensor);
+    const double tau_lo = tau.empty() ? kNaN : Num(tau.front());
+    const double tau_hi = tau.empty() ? kNaN : Num(tau.back());
+    bool labelled = false;
+    for (int a = 0; a < 3 && noise.is_object(); ++a) {
+      auto figure = [&](const char* key) {
+        const json v = Get(noise, key);
+        return v.is_array() && v.size() == 3 ? Num(v[static_cast<size_t>(a)]) : kNaN;
+      };
+      auto fit = [&](double value, double (*curve)(double, double)) {
+        if (!(value > 0) || !(tau_lo > 0) || !(tau_hi > tau_lo)) return;
+        PlotSeries line{labelled ? "" : "dashed: fitted N, B, K",
+                        {},
+                        {},
+                        kColours[a],
+                        true};
+        line.dashed = true;
+        labelled = true;
+        for (int i = 0; i <= 20; ++i) {
+          const double t = tau_lo * std::pow(tau_hi / tau_lo, i / 20.0);
+          line.x.push_back(t), line.y.push_back(curve(value, t));
+        }
+        plot.series.push_back(std::move(line));
+      };
+      fit(figure("noise_density"), [](double v, double t) { return v / std::sqrt(t); });
+      fit(figure("bias_instability"), [](double v, double) { return 0.664 * v; });
+      fit(figure("random_walk"), [](double v, double t) { return v * std::sqrt(t / 3); });
     }
     if (absl::Status s = write(absl::StrFormat("allan_%s.svg", sensor), plot); !s.ok()) return s;
   }
@@ -203,6 +283,7 @@ std::string RenderSvg(const Plot& plot) {
     for (double v : s.x) xr.Add(tx(v));
     for (double v : s.y) yr.Add(ty(v));
   }
+  for (const RefLine& r : plot.ref_lines) yr.Add(ty(r.y));
   xr.Pad();
   yr.Pad();
   const double pw = kW - kLeft - kRight, ph = kH - kTop - kBottom;
@@ -258,8 +339,24 @@ std::string RenderSvg(const Plot& plot) {
                         "<text x=\"%.0f\" y=\"%.0f\" text-anchor=\"middle\">%s</text>\n"
                         "<text transform=\"translate(18 %.0f) rotate(-90)\" "
                         "text-anchor=\"middle\">%s</text>\n",
-                        kLeft + pw / 2, kH - 18, Escape(plot.x_label), kTop + ph / 2,
+                        kLeft + pw / 2, kTop + ph + 34, Escape(plot.x_label), kTop + ph / 2,
                         Escape(plot.y_label));
+  if (!plot.caption.empty()) {
+    absl::StrAppendFormat(&s,
+                          "<text x=\"%.0f\" y=\"%.0f\" text-anchor=\"middle\" fill=\"#444\" "
+                          "font-style=\"italic\">%s</text>\n",
+                          kW / 2, kH - 12, Escape(plot.caption));
+  }
+  for (const RefLine& r : plot.ref_lines) {
+    const double y = py(r.y);
+    if (!std::isfinite(y)) continue;
+    absl::StrAppendFormat(&s,
+                          "<line x1=\"%.0f\" y1=\"%.1f\" x2=\"%.0f\" y2=\"%.1f\" stroke=\"%s\" "
+                          "stroke-dasharray=\"2 3\"/><text x=\"%.0f\" y=\"%.1f\" "
+                          "text-anchor=\"start\" font-size=\"10\" fill=\"%s\">%s</text>\n",
+                          kLeft, y, kLeft + pw, y, r.colour, kLeft + 4, y - 3, r.colour,
+                          Escape(r.label));
+  }
   // Series and legend.
   double legend_y = kTop + 14;
   for (const PlotSeries& ser : plot.series) {
@@ -269,8 +366,8 @@ std::string RenderSvg(const Plot& plot) {
       auto flush = [&] {
         if (!pts.empty())
           absl::StrAppendFormat(
-              &s, "<polyline points=\"%s\" fill=\"none\" stroke=\"%s\" stroke-width=\"1.5\"/>\n",
-              pts, ser.colour);
+              &s, "<polyline points=\"%s\" fill=\"none\" stroke=\"%s\" stroke-width=\"1.5\"%s/>\n",
+              pts, ser.colour, ser.dashed ? " stroke-dasharray=\"6 4\"" : "");
         pts.clear();
       };
       for (size_t i = 0; i < ser.x.size() && i < ser.y.size(); ++i) {
@@ -287,6 +384,11 @@ std::string RenderSvg(const Plot& plot) {
             &s, "<circle cx=\"%.1f\" cy=\"%.1f\" r=\"%s\" fill=\"%s\" stroke=\"%s\"/>\n",
             px(ser.x[i]), py(ser.y[i]), ser.hollow ? "4.5" : "3", ser.hollow ? "none" : ser.colour,
             ser.colour);
+        if (i < ser.point_labels.size() && !ser.point_labels[i].empty()) {
+          absl::StrAppendFormat(
+              &s, "<text x=\"%.1f\" y=\"%.1f\" font-size=\"9\" fill=\"#333\">%s</text>\n",
+              px(ser.x[i]) + 4, py(ser.y[i]) - 4, Escape(ser.point_labels[i]));
+        }
       }
     }
     if (ser.label.empty()) continue;
@@ -328,14 +430,23 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
   }
 
   // Per-pose residuals, before and after the effects.
-  Plot accel{"Accelerometer |a| - g per pose", "pose", "|a| - g [mg]", {}};
-  Plot gyro{"Gyroscope static rate per pose", "pose", "|rate| [deg/s]", {}};
+  Plot accel{"Accelerometer |a| - g per pose", "pose number", "|a| - g [mg]", {}};
+  Plot gyro{"Gyroscope static rate per pose", "pose number", "|rate| [deg/s]", {}};
+  accel.ref_lines = AccelRefLines(report);
+  accel.caption = "Good: the filled points (after effects) inside the noise floor lines";
+  if (const double floor = Num(Get(diag, "gyro_noise_floor")); floor > 0) {
+    gyro.ref_lines.push_back(
+        {floor * kRadToDeg, absl::StrFormat("noise floor %.2g deg/s", floor * kRadToDeg)});
+  }
+  gyro.caption = "Good: every pose near the noise floor line (at rest, bias removed)";
   PlotSeries ab{"before effects", {}, {}, "#d62728", false, true},
       aa{"after effects", {}, {}, "#1f77b4"};
   PlotSeries gb = ab, ga = aa;
   for (size_t i = 0; i < rows.size(); ++i) {
     const json& r = rows[i];
     const double index = Num(Get(r, "index"));
+    const std::string number = std::isfinite(index) ? absl::StrFormat("%.0f", index) : "";
+    aa.point_labels.push_back(number), ga.point_labels.push_back(number);
     ab.x.push_back(index), ab.y.push_back(Num(Get(r, "accel_before")) / kMg);
     aa.x.push_back(index), aa.y.push_back(Num(Get(r, "accel_after")) / kMg);
     auto norm = [](const json& v) {
@@ -402,11 +513,16 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
         ch = 'x';
       else if (ch == '^')
         ch = 'p';
+    const std::string unit_x = RegressorUnit(*reg);
     Plot p{absl::StrFormat("%s %s ~ %s%s", sensor, axis, name,
                            applied ? "" : " (reported, not applied)"),
-           is_accel ? absl::StrFormat("%s x gravity direction on %s", name, axis) : name,
+           is_accel ? absl::StrFormat("%s x gravity direction on %s [%s]", name, axis, unit_x)
+                    : absl::StrFormat("%s [%s]", name, unit_x),
            is_accel ? "|a| - g [mg]" : absl::StrFormat("rate %s [deg/s]", axis),
            {after, before, line}};
+    p.caption =
+        "Good: the filled points (with the effect) flat around 0; the hollow ones on the "
+        "fitted line";
     const std::string file =
         absl::StrFormat("effect_%d_%s_%s_%s.svg", static_cast<int>(k) + 1, sensor, axis, safe);
     if (absl::Status s = write(file, p); !s.ok()) return s;

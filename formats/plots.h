@@ -9,7 +9,11 @@
 //   coverage.svg                  the gravity direction of each pose in the body frame on the
 //       sphere (Lambert equal-area, one disc per hemisphere; used poses filled, others hollow)
 //   allan_accel.svg, allan_gyro.svg   Allan deviation per axis against tau, log-log, over the
-//       rest the noise figures were measured on (m/s^2 and rad/s)
+//       rest the noise figures were measured on (m/s^2 and rad/s), with the lines of the fitted
+//       figures (parameters.noise): N / sqrt(tau), 0.664 B and K sqrt(tau / 3), dashed
+// Every plot has units on its axes and a one-line caption under it saying what good looks like;
+// the per-pose plots draw the verdict's thresholds and the noise floor as lines and number the
+// poses (formats/plots.cc says where each line comes from).
 //   effect_N_<sensor>_<axis>_<regressor>.svg   for effect N: the residual it explains against
 //       its regressor (partial residual: every other effect removed), before and after, with
 //       the fitted line. For the accelerometer the abscissa is the regressor times the pose's
@@ -48,6 +52,15 @@ struct PlotSeries {
   std::string colour = "#1f77b4";
   bool line = false;    // join the points in order instead of drawing markers
   bool hollow = false;  // open markers
+  bool dashed = false;  // a dashed line (fitted or reference curves)
+  // A small label beside each point (pose numbers); empty, or one per point.
+  std::vector<std::string> point_labels;
+};
+// A horizontal reference line across the plot (a threshold, a noise floor), labelled at its end.
+struct RefLine {
+  double y = 0;
+  std::string label;
+  std::string colour = "#555555";
 };
 struct Plot {
   std::string title, x_label, y_label;
@@ -55,6 +68,8 @@ struct Plot {
   bool log_x = false, log_y = false;  // decades; non-positive values are left out
   bool equal_aspect = false;          // one unit is as long on both axes (maps)
   bool axes = true;                   // false: no grid, ticks or frame (maps)
+  std::vector<RefLine> ref_lines;
+  std::string caption;  // one line under the plot: what good looks like
 };
 std::string RenderSvg(const Plot& plot);
 

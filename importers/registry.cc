@@ -19,6 +19,7 @@
 #include "importers/euroc.h"
 #include "importers/imucal_csv.h"
 #include "importers/imutk.h"
+#include "importers/mcap.h"
 #include "importers/rosbag2.h"
 #include "importers/text_scan.h"
 #include "util/str_util.h"
@@ -109,10 +110,10 @@ absl::StatusOr<core::Capture> ImportParts(const CaptureImporter& importer,
 
 std::span<const CaptureImporter* const> CaptureImporters() {
   // Order is the auto-detection order: explicit markers (imucal, EuRoC's header) before content
-  // heuristics; a bag is a directory or an SQLite file, which no text format accepts.
-  static const std::array<const CaptureImporter*, 5> kImporters = {
+  // heuristics; a bag is a directory, an SQLite or an MCAP file, which no text format accepts.
+  static const std::array<const CaptureImporter*, 6> kImporters = {
       ImucalCsvImporter(), EurocCsvImporter(), ImuTkImporter(),
-      ColumnCsvImporter(), Rosbag2Importer(),
+      ColumnCsvImporter(), Rosbag2Importer(),  McapImporter(),
   };
   return kImporters;
 }

@@ -4,7 +4,8 @@
 //   euroc    importers/euroc.h       EuRoC / ASL imu0/data.csv
 //   imutk    importers/imutk.h       the imu_tk ASCII pair (units: importers/unit_inference.h)
 //   columns  importers/columns.h     a delimited vendor CSV whose columns the user names
-//   rosbag2  importers/rosbag2.h     a ROS 2 bag (sqlite3 storage), sensor_msgs/msg/Imu
+//   rosbag2  importers/rosbag2.h     a ROS 2 bag (sqlite3 or mcap storage), sensor_msgs/msg/Imu
+//   mcap     importers/mcap.h        a bare ROS 2 .mcap file, sensor_msgs/msg/Imu
 //
 // Every reader either returns a complete, valid Capture (ValidateCapture holds) or an error:
 // nothing is half-imported. Data errors are InvalidArgument with a message that starts
@@ -50,7 +51,7 @@ struct ColumnCsvOptions {
 
 struct ImportOptions {
   // "auto" (detect from the content), or the name of an importer: "imucal", "euroc", "imutk",
-  // "columns", "rosbag2".
+  // "columns", "rosbag2", "mcap".
   std::string format = "auto";
   // Units to use instead of the file's own (imucal) or the inferred ones (imutk).
   std::optional<core::AccelUnit> accel_unit;
@@ -109,7 +110,7 @@ class CaptureImporter {
 inline constexpr size_t kSniffBytes = 4096;
 
 // The importers, in auto-detection order: "imucal", "euroc", "imutk", "columns" (never
-// auto-detected: it needs ImportOptions::columns), "rosbag2".
+// auto-detected: it needs ImportOptions::columns), "rosbag2", "mcap".
 std::span<const CaptureImporter* const> CaptureImporters();
 
 // Reads a capture from `paths` with the importer named by options.format, or for "auto"
@@ -120,7 +121,8 @@ std::span<const CaptureImporter* const> CaptureImporters();
 //   lines of exactly four numbers  -> imutk (two files: accelerometer, then gyroscope; if the
 //                                     file names say "gyr" then "acc", they are swapped back and
 //                                     a note says so);
-//   a directory with metadata.yaml, or a file that starts with the SQLite header -> rosbag2.
+//   a directory with metadata.yaml, or a file that starts with the SQLite header -> rosbag2;
+//   a file that starts with the MCAP magic -> mcap.
 // If nothing matches, InvalidArgument names the file and what each format expected. If `report`
 // is non-null it receives the format used and the notes (only on success).
 // More paths than the format reads for one capture (several files, bags, or imutk pairs) are

@@ -38,6 +38,8 @@ int RunCalibrate(const std::vector<std::string>& args);
 int RunApply(const std::vector<std::string>& args);
 int RunSimulate(const std::vector<std::string>& args);
 int RunDemo(const std::vector<std::string>& args);
+// `imucal noise REST...`: noise figures from a rest recording alone (noise_command.cc).
+int RunNoise(const std::vector<std::string>& args);
 // `imucal export --params FILE --format F`: a parameter set file as json, Kalibr or OpenVINS
 // YAML (core/export.h). main.cc sends `export` here unless it names a --device (the server's).
 int RunExportFile(const std::vector<std::string>& args);

@@ -13,7 +13,8 @@ namespace imucal::cli {
 
 const char kImportFlagsHelp[] =
     "input formats (--format, default auto): imucal CSV, EuRoC imu0/data.csv, imu_tk pair,\n"
-    "  ROS 2 bag (directory with metadata.yaml, or .db3), and vendor CSV with --columns:\n"
+    "  ROS 2 bag (directory with metadata.yaml, sqlite3 or mcap storage; a .db3 or .mcap file),\n"
+    "  and vendor CSV with --columns:\n"
     "  --columns ax=C,ay=C,az=C,gx=C,gy=C,gz=C[,t=C][,temp=C]   C: header name or column number\n"
     "  --time-unit s|ms|us|ns|index   unit of the t column (index: a sample counter; needs a "
     "rate)\n"

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "absl/status/status.h"
+#include "absl/status/statusor.h"
 #include "client/cli/args.h"
 #include "importers/registry.h"
 
@@ -23,6 +24,10 @@ std::set<std::string> WithImportSwitches(std::set<std::string> switches);
 // Reads the importer flags into `options`. A bad value, or a column option without --columns, is
 // InvalidArgument naming the flag (a usage error).
 absl::Status ApplyImportFlags(const Args& args, importers::ImportOptions* options);
+
+// The import options of a command's flags: --format, --accel-unit, --gyro-unit, --gravity,
+// --device and the importer flags (ApplyImportFlags). InvalidArgument naming the flag.
+absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& args);
 
 }  // namespace imucal::cli
 

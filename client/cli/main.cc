@@ -14,6 +14,8 @@ constexpr char kHelp[] =
     "  calibrate FILE...        calibrate accelerometer and gyroscope from a capture\n"
     "  apply --params P IN OUT  apply a parameter set to a capture (writes m/s^2, rad/s)\n"
     "  simulate --out FILE      write a simulated capture with known truth\n"
+    "  noise REST...            noise figures (N, B, K) of a rest recording; Kalibr and\n"
+    "                           OpenVINS noise keys\n"
     "  demo                     simulate, calibrate, apply, print the error before and after\n"
     "                           (with --server ADDR: the same through the service, guided)\n"
     "  export --params P --format F   a parameter set as json, kalibr, kalibr-intrinsics or\n"
@@ -27,7 +29,8 @@ constexpr char kHelp[] =
     "  solve --session S [--wait]         solve a session\n"
     "  report --session S [--json]        the latest solve's report\n"
     "  params get|list|promote|rollback   parameter versions of a device\n"
-    "  export --device D --format F       a parameter version as json, kalibr or openvins\n"
+    "  export --device D --format F       a parameter version as json, kalibr,\n"
+    "                                     kalibr-intrinsics or openvins\n"
     "  admin token create|list|revoke     API tokens (admin role)\n"
     "connection (any server command, anywhere on the line): --ca-cert PEM (CA of the server's\n"
     "TLS certificate, else $IMUCAL_CA_CERT), --token-file F or --token T (bearer token, else\n"
@@ -84,6 +87,7 @@ int main(int argc, char** argv) {
   if (command == "calibrate") return imucal::cli::RunCalibrate(args);
   if (command == "apply") return imucal::cli::RunApply(args);
   if (command == "simulate") return imucal::cli::RunSimulate(args);
+  if (command == "noise") return imucal::cli::RunNoise(args);
   if (command == "demo") {
     // With a server, the demo runs through the service; without, offline.
     for (const std::string& a : args)

@@ -62,9 +62,10 @@ constexpr char kCalibrateHelp[] =
     "usage: imucal calibrate FILE... [options]\n"
     "  Calibrates the accelerometer and gyroscope from a static multi-pose capture.\n"
     "  FILE: an imucal capture CSV, an imu_tk pair (accelerometer file, gyroscope file), a\n"
-    "  EuRoC imu0/data.csv, a ROS 2 bag, or a vendor CSV with --columns (see below).\n"
+    "  EuRoC imu0/data.csv, a ROS 2 bag or .mcap file, or a vendor CSV with --columns (see "
+    "below).\n"
     "options:\n"
-    "  --format auto|imucal|euroc|imutk|columns|rosbag2   (default auto: from the content)\n"
+    "  --format auto|imucal|euroc|imutk|columns|rosbag2|mcap   (default auto: from the content)\n"
     "  --protocol auto|six-face|positions|free|ferraris   (default auto: from the poses)\n"
     "  --gravity G                   local gravity, m/s^2 (default: the file's, else 9.80665)\n"
     "  --accel-unit m/s^2|g|counts   --gyro-unit rad/s|deg/s|counts   override the units\n"
@@ -113,33 +114,6 @@ constexpr char kSimulateHelp[] =
     "                      is held, then finished (as `imucal demo --server --botch-turn`):\n"
     "                      streamed with `imucal upload`, the guide shows a failed pair and its\n"
     "                      re-do\n";
-
-absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
-  importers::ImportOptions o;
-  if (auto f = a.Get("format")) o.format = *f;
-  if (auto u = a.Get("accel-unit")) {
-    auto p = core::ParseAccelUnit(*u);
-    if (!p.ok())
-      return absl::InvalidArgumentError("--accel-unit: " + std::string(p.status().message()));
-    o.accel_unit = *p;
-  }
-  if (auto u = a.Get("gyro-unit")) {
-    auto p = core::ParseGyroUnit(*u);
-    if (!p.ok())
-      return absl::InvalidArgumentError("--gyro-unit: " + std::string(p.status().message()));
-    o.gyro_unit = *p;
-  }
-  if (a.Get("gravity")) {
-    auto g = a.GetDouble("gravity", 0);
-    if (!g.ok()) return g.status();
-    if (!(*g > 1 && *g < 20))
-      return absl::InvalidArgumentError("--gravity: expected m/s^2 between 1 and 20");
-    o.gravity_m_s2 = *g;
-  }
-  if (auto d = a.Get("device")) o.device = *d;
-  if (absl::Status s = ApplyImportFlags(a, &o); !s.ok()) return s;
-  return o;
-}
 
 absl::StatusOr<core::SimOptions> SimOptionsFrom(const Args& a) {
   core::SimOptions o;
@@ -213,6 +187,33 @@ core::ParamSet TruthParams(const core::SimResult& sim) {
 }
 
 }  // namespace
+
+absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
+  importers::ImportOptions o;
+  if (auto f = a.Get("format")) o.format = *f;
+  if (auto u = a.Get("accel-unit")) {
+    auto p = core::ParseAccelUnit(*u);
+    if (!p.ok())
+      return absl::InvalidArgumentError("--accel-unit: " + std::string(p.status().message()));
+    o.accel_unit = *p;
+  }
+  if (auto u = a.Get("gyro-unit")) {
+    auto p = core::ParseGyroUnit(*u);
+    if (!p.ok())
+      return absl::InvalidArgumentError("--gyro-unit: " + std::string(p.status().message()));
+    o.gyro_unit = *p;
+  }
+  if (a.Get("gravity")) {
+    auto g = a.GetDouble("gravity", 0);
+    if (!g.ok()) return g.status();
+    if (!(*g > 1 && *g < 20))
+      return absl::InvalidArgumentError("--gravity: expected m/s^2 between 1 and 20");
+    o.gravity_m_s2 = *g;
+  }
+  if (auto d = a.Get("device")) o.device = *d;
+  if (absl::Status s = ApplyImportFlags(a, &o); !s.ok()) return s;
+  return o;
+}
 
 // Applies `params` to every sample of `in` through the SDK's Corrector (as a robot does).
 absl::StatusOr<core::Capture> ApplyParams(const core::ParamSet& params, const core::Capture& in) {

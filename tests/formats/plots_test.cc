@@ -5,6 +5,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdint>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -88,9 +90,54 @@ TEST(PlotsTest, OneSvgPerEffectAndPerPoseResiduals) {
   }
   EXPECT_EQ(Count(svg["coverage.svg"], "<circle"), 6 + with_up);
   EXPECT_EQ(Count(svg["coverage.svg"], "<polyline"), 2);
-  // Allan: log-log, three axes, decade ticks.
-  EXPECT_EQ(Count(svg["allan_gyro.svg"], "<polyline"), 3);
+  // Allan: log-log, three axes, decade ticks; the fitted figures dashed (N at least, on each
+  // axis: the initial rest reaches it).
+  const int dashed = Count(svg["allan_gyro.svg"], "stroke-dasharray=\"6 4\"");
+  EXPECT_EQ(Count(svg["allan_gyro.svg"], "<polyline") - dashed, 3);
+  EXPECT_GE(dashed, 3);
   EXPECT_NE(svg["allan_gyro.svg"].find(">0.1<"), std::string::npos);  // tau decade label
+  // Every plot: a caption that says what good looks like, and units on its axes.
+  for (const auto& [name, text] : svg) {
+    EXPECT_NE(text.find("font-style=\"italic\">Good: "), std::string::npos) << name;
+    // Units in brackets on both axes; a pose number (the per-pose plots' x axis) has none.
+    if (name != "coverage.svg")
+      EXPECT_GE(Count(text, "["), name.starts_with("residual_") ? 1 : 2) << name;
+  }
+  EXPECT_NE(svg["effect_1_gyro_y_ax.svg"].find("ax [m/s^2]"), std::string::npos);
+  // The per-pose plots: the gates and the noise floor as lines, and the pose numbers.
+  for (const char* name : {"residual_accel_per_pose.svg", "residual_stages_per_pose.svg"}) {
+    EXPECT_NE(svg[name].find("warn: RMS above 2.0 mg"), std::string::npos) << name;
+    EXPECT_NE(svg[name].find("fail: RMS above 5.1 mg"), std::string::npos) << name;
+    EXPECT_NE(svg[name].find(">noise floor "), std::string::npos) << name;
+  }
+  EXPECT_NE(svg["residual_gyro_per_pose.svg"].find(">noise floor "), std::string::npos);
+  EXPECT_EQ(Count(svg["residual_accel_per_pose.svg"], "font-size=\"9\""),
+            static_cast<int>(poses));
+  EXPECT_EQ(Count(svg["coverage.svg"], "font-size=\"9\""), with_up);
+
+  // Each plot renders (rsvg-convert, librsvg) to a valid PNG of the canvas' size, 720 x 460.
+  if (std::system("command -v rsvg-convert >/dev/null") != 0) {
+    GTEST_SKIP() << "rsvg-convert (librsvg2-bin) not installed";
+  }
+  for (const std::string& f : *files) {
+    SCOPED_TRACE(f);
+    const std::string png = f + ".png";
+    ASSERT_EQ(std::system(("rsvg-convert -o '" + png + "' '" + f + "'").c_str()), 0);
+    std::ifstream in(png, std::ios::binary);
+    std::string head(24, '\0');
+    ASSERT_TRUE(in.read(head.data(), 24));
+    EXPECT_EQ(head.substr(0, 8), std::string("\x89PNG\r\n\x1a\n", 8));
+    EXPECT_EQ(head.substr(12, 4), "IHDR");
+    auto be32 = [&](size_t at) {
+      uint32_t v = 0;
+      for (size_t i = 0; i < 4; ++i) v = v << 8 | static_cast<unsigned char>(head[at + i]);
+      return v;
+    };
+    EXPECT_EQ(be32(16), 720u);
+    EXPECT_EQ(be32(20), 460u);
+    // More than a blank canvas: a 720 x 460 PNG of one colour compresses to a few hundred bytes.
+    EXPECT_GT(std::filesystem::file_size(png), 5000u);
+  }
 }
 
 TEST(PlotsTest, NoDiagnosticsNoPlotsAndMalformedEffectIsNamed) {

@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -13,11 +14,13 @@
 #include "importers/euroc.h"
 #include "importers/imucal_csv.h"
 #include "importers/imutk.h"
+#include "importers/mcap.h"
 #include "importers/registry.h"
-#include "importers/rosbag2.h"
+#include "importers/ros_imu.h"
 #include "imucal/v1/imucal.pb.h"
 #include "server/validate.h"
 #include "storage/sample_codec.h"
+#include "yaml-cpp/yaml.h"
 
 namespace imucal::fuzz {
 namespace {
@@ -167,26 +170,59 @@ void FuzzRosbag2Cdr(std::string_view data) {
 }
 
 void FuzzRosbag2Metadata(std::string_view data) {
-  const importers::BagMetadata m = importers::ParseBagMetadata(data);
-  // Every value comes from one line of the file (a file name the importer opens).
-  auto from_one_line = [&](const std::string& value) {
-    return value.find('\n') == std::string::npos && value.size() <= data.size();
-  };
-  if (!from_one_line(m.storage_identifier))
-    Fail("rosbag2_metadata", "storage_identifier spans lines");
-  for (const std::string& path : m.relative_file_paths)
-    if (!from_one_line(path)) Fail("rosbag2_metadata", "a relative_file_paths entry spans lines");
-  // What it read, written back in rosbag2's layout (every value quoted), reads back the same:
-  // the quoting and trimming rules lose nothing a metadata.yaml can say.
-  std::string yaml = "rosbag2_bagfile_information:\n  version: 5\n";
-  yaml += "  storage_identifier: '" + m.storage_identifier + "'\n  relative_file_paths:\n";
-  for (const std::string& path : m.relative_file_paths) yaml += "    - '" + path + "'\n";
-  yaml += "  duration:\n    nanoseconds: 0\n";
-  const importers::BagMetadata again = importers::ParseBagMetadata(yaml);
-  if (again.storage_identifier != m.storage_identifier)
+  const absl::StatusOr<importers::BagMetadata> m = importers::ParseBagMetadata(data);
+  if (!m.ok()) {
+    if (m.status().message().substr(0, 14) != "metadata.yaml:")
+      Fail("rosbag2_metadata", "an error that does not name the file: " + m.status().ToString());
+    return;
+  }
+  for (const std::string& path : m->relative_file_paths)
+    if (path.empty()) Fail("rosbag2_metadata", "an empty relative_file_paths entry accepted");
+  // What it read, written back in rosbag2's layout by yaml-cpp's emitter, reads back the same.
+  YAML::Emitter out;
+  out << YAML::BeginMap << YAML::Key << "rosbag2_bagfile_information" << YAML::Value
+      << YAML::BeginMap << YAML::Key << "version" << YAML::Value << 5;
+  if (!m->storage_identifier.empty())
+    out << YAML::Key << "storage_identifier" << YAML::Value << m->storage_identifier;
+  out << YAML::Key << "relative_file_paths" << YAML::Value << YAML::BeginSeq;
+  for (const std::string& path : m->relative_file_paths) out << path;
+  out << YAML::EndSeq << YAML::EndMap << YAML::EndMap;
+  if (!out.good()) return;  // a value the emitter cannot write (not UTF-8): nothing to compare
+  const absl::StatusOr<importers::BagMetadata> again = importers::ParseBagMetadata(out.c_str());
+  if (!again.ok())
+    Fail("rosbag2_metadata", "its own rewrite does not parse: " + again.status().ToString());
+  if (again->storage_identifier != m->storage_identifier)
     Fail("rosbag2_metadata", "storage_identifier changed in a write -> parse round trip");
-  if (again.relative_file_paths != m.relative_file_paths)
+  if (again->relative_file_paths != m->relative_file_paths)
     Fail("rosbag2_metadata", "relative_file_paths changed in a write -> parse round trip");
+}
+
+void FuzzMcap(std::string_view data) {
+  absl::StatusOr<std::unique_ptr<importers::McapReader>> reader =
+      importers::McapReader::FromBytes(data, "fuzz.mcap");
+  if (!reader.ok()) {
+    if (reader.status().message().empty()) Fail("mcap", "an error without a message");
+    return;
+  }
+  absl::StatusOr<std::vector<importers::BagTopic>> topics = (*reader)->Topics();
+  if (!topics.ok()) {
+    if (topics.status().message().empty()) Fail("mcap", "an error without a message");
+    return;
+  }
+  // Every Imu topic read to a capture: it satisfies ValidateCapture, or is an error.
+  for (const importers::BagTopic& topic : *topics) {
+    if (topic.type != importers::kRosImuType) continue;
+    importers::ImuMessages messages;
+    const absl::Status s = (*reader)->ReadTopic(topic.name, &messages);
+    if (!s.ok()) {
+      if (s.message().empty()) Fail("mcap", "an error without a message");
+      continue;
+    }
+    messages.SortByBagTime();
+    std::vector<std::string> notes;
+    CheckImported(
+        "mcap", messages.ToCapture("fuzz.mcap", topic.name, 1, importers::ImportOptions{}, &notes));
+  }
 }
 
 void FuzzSampleBatch(std::string_view data) {

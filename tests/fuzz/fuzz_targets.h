@@ -1,8 +1,8 @@
 // One function per fuzzed parser: feeds `data` through it and checks what must hold for any
 // input (an accepted capture satisfies ValidateCapture; an accepted imucal CSV that is writable
-// formats and parses back to itself, and so does a bag's metadata.yaml; a SampleBatch that
-// validation accepts encodes and decodes to the same samples). A violated property aborts with
-// a message (a crash for libFuzzer).
+// formats and parses back to itself, and so does a bag's metadata.yaml rewritten by yaml-cpp; a
+// SampleBatch that validation accepts encodes and decodes to the same samples). A violated property
+// aborts with a message (a crash for libFuzzer).
 //
 // The libFuzzer binaries (tests/fuzz/CMakeLists.txt, IMUCAL_BUILD_FUZZERS) call them; so does
 // fuzz_regression_test in the ordinary build, over the seed corpora and every crashing input
@@ -20,6 +20,7 @@ void FuzzColumns(std::string_view data);     // importers::ParseColumnCsv (optio
 void FuzzEuroc(std::string_view data);       // importers::ParseEurocCsv
 void FuzzRosbag2Cdr(std::string_view data);  // importers::DecodeImuCdr (sensor_msgs/Imu)
 void FuzzRosbag2Metadata(std::string_view data);  // importers::ParseBagMetadata (+ round trip)
+void FuzzMcap(std::string_view data);             // importers::McapReader (every Imu topic)
 void FuzzSampleBatch(std::string_view data);      // v1::SampleBatch bytes -> server validation
 
 // The targets by name (the directory names under tests/fuzz/corpus and regressions).
@@ -35,6 +36,7 @@ inline constexpr FuzzTarget kFuzzTargets[] = {
     {"rosbag2_cdr", FuzzRosbag2Cdr},
     {"sample_batch", FuzzSampleBatch},
     {"rosbag2_metadata", FuzzRosbag2Metadata},
+    {"mcap", FuzzMcap},
 };
 
 }  // namespace imucal::fuzz

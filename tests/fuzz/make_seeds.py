@@ -126,7 +126,7 @@ write("sample_batch", "three_samples.pb", batch(3, 1))
 write("sample_batch", "no_temp.pb", batch(5, 7, temp=False))
 
 
-# rosbag2_metadata: a bag directory's metadata.yaml (importers/rosbag2.h ParseBagMetadata).
+# rosbag2_metadata: a bag directory's metadata.yaml (importers/ros_imu.h ParseBagMetadata).
 def bag_metadata(storage, files, quote="", eol="\n"):
     lines = ["rosbag2_bagfile_information:", "  version: 5",
              "  storage_identifier: %s%s%s" % (quote, storage, quote), "  relative_file_paths:"]
@@ -144,3 +144,38 @@ write("rosbag2_metadata", "split_quoted_crlf.yaml",
 write("rosbag2_metadata", "mcap.yaml", bag_metadata("mcap", ["bag_0.mcap"], quote='"'))
 write("rosbag2_metadata", "no_paths.yaml",
       "rosbag2_bagfile_information:\n  version: 1\n  storage_identifier: sqlite3\n")
+
+
+# mcap: small ROS 2 MCAP files (importers/mcap.h) from tests/tools/write_mcap.py, three Imu
+# messages and a temperature, in each layout the reader knows (under libFuzzer's 4096 bytes).
+def mcap_seeds():
+    import argparse
+    import sys
+    import tempfile
+    sys.dont_write_bytecode = True
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tools"))
+    import write_mcap
+    import write_rosbag2
+    topics = {1: ("/imu", write_rosbag2.IMU_TYPE), 2: ("/temperature", write_rosbag2.TEMPERATURE_TYPE)}
+    rows = [(1000 + k * 5_000_000, 1, write_rosbag2.imu_message(
+        1_700_000_000_000_000_000 + k * 5_000_000, "imu", [0.01 * k, -0.02, 0.003],
+        [0.1, -0.2 * k, 9.81])) for k in range(3)]
+    rows.append((2000, 2, write_rosbag2.temperature_message(1_700_000_000_000_000_000, "imu",
+                                                            31.5)))
+    rows.sort()
+    layouts = [("none", False, False), ("none", True, False), ("zstd", False, False),
+               ("lz4", True, False), ("none", False, True)]
+    for compression, no_summary, no_chunks in layouts:
+        args = argparse.Namespace(compression=compression, no_summary=no_summary,
+                                  no_chunks=no_chunks, chunk_bytes=1200)
+        with tempfile.TemporaryDirectory() as d:
+            path = os.path.join(d, "seed.mcap")
+            write_mcap.write_mcap(path, args, topics, rows)
+            with open(path, "rb") as f:
+                data = f.read()
+        name = "%s%s%s.mcap" % (compression, "_no_summary" if no_summary else "",
+                                "_unchunked" if no_chunks else "")
+        write("mcap", name, data)
+
+
+mcap_seeds()

@@ -34,7 +34,7 @@ TEST(ImportCaptureTest, RegistryListsTheFormats) {
     names.push_back(importer->name());
     EXPECT_FALSE(importer->description().empty());
   }
-  EXPECT_THAT(names, ElementsAre("imucal", "euroc", "imutk", "columns", "rosbag2"));
+  EXPECT_THAT(names, ElementsAre("imucal", "euroc", "imutk", "columns", "rosbag2", "mcap"));
 }
 
 TEST(ImportCaptureTest, AutoDetectsImucal) {
@@ -129,10 +129,15 @@ TEST(ImportCaptureTest, WrongCallsAreClearErrors) {
               HasSubstr("the imutk format reads its files in 2s, got 3"));
   EXPECT_THAT(std::string(ImportCapture({tk_path}, {}).status().message()),
               HasSubstr("the imutk format reads two files"));
+  ImportOptions hdf5;
+  hdf5.format = "hdf5";
+  EXPECT_EQ(ImportCapture({imucal_path}, hdf5).status().message(),
+            "unknown capture format 'hdf5' (known: auto, imucal, euroc, imutk, columns, rosbag2, "
+            "mcap)");
   ImportOptions mcap;
   mcap.format = "mcap";
-  EXPECT_EQ(ImportCapture({imucal_path}, mcap).status().message(),
-            "unknown capture format 'mcap' (known: auto, imucal, euroc, imutk, columns, rosbag2)");
+  EXPECT_THAT(std::string(ImportCapture({imucal_path}, mcap).status().message()),
+              HasSubstr("count_imucal.csv: not an MCAP file (no MCAP magic at the start)"));
   ImportOptions bad_gravity;
   bad_gravity.gravity_m_s2 = -1.0;
   EXPECT_FALSE(ImportCapture({imucal_path}, bad_gravity).ok());

@@ -270,6 +270,49 @@ TEST(ImuCdrTest, MalformedFields) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// metadata.yaml (yaml-cpp).
+
+TEST(BagMetadataTest, ReadsRosbag2Layouts) {
+  absl::StatusOr<BagMetadata> m = ParseBagMetadata(
+      "rosbag2_bagfile_information:\n  version: 9\n  storage_identifier: mcap\n"
+      "  relative_file_paths:\n    - \"bag_0.mcap\"\n    - 'bag_1.mcap'\n"
+      "  files:\n    - path: bag_0.mcap\n  custom_data: ~\n");
+  ASSERT_TRUE(m.ok()) << m.status();
+  EXPECT_EQ(m->storage_identifier, "mcap");
+  EXPECT_EQ(m->relative_file_paths, (std::vector<std::string>{"bag_0.mcap", "bag_1.mcap"}));
+  // Flow style and CRLF line ends are YAML too.
+  m = ParseBagMetadata(
+      "rosbag2_bagfile_information: {storage_identifier: sqlite3,\r\n"
+      "  relative_file_paths: [a.db3, b.db3]}\r\n");
+  ASSERT_TRUE(m.ok()) << m.status();
+  EXPECT_EQ(m->relative_file_paths, (std::vector<std::string>{"a.db3", "b.db3"}));
+}
+
+TEST(BagMetadataTest, ErrorsNameTheFileAndLine) {
+  EXPECT_EQ(ParseBagMetadata("a: [1,\n", "bag/metadata.yaml").status().message().substr(0, 20),
+            "bag/metadata.yaml:2:");
+  EXPECT_THAT(ParseBagMetadata("- 1\n- 2\n").status().message(),
+              HasSubstr("metadata.yaml:1: not a rosbag2 metadata file (not a YAML mapping)"));
+  EXPECT_THAT(ParseBagMetadata("version: 5\n").status().message(),
+              HasSubstr("no rosbag2_bagfile_information mapping"));
+  EXPECT_THAT(ParseBagMetadata("rosbag2_bagfile_information:\n  storage_identifier: [a]\n")
+                  .status()
+                  .message(),
+              HasSubstr("metadata.yaml:2: storage_identifier is not a one-line name"));
+  EXPECT_THAT(ParseBagMetadata("rosbag2_bagfile_information:\n  relative_file_paths:\n"
+                               "    - {path: a}\n")
+                  .status()
+                  .message(),
+              HasSubstr("metadata.yaml:3: a relative_file_paths entry is not a file name"));
+  // A line break or a control character in a quoted scalar is YAML, but no file name.
+  EXPECT_THAT(ParseBagMetadata("rosbag2_bagfile_information:\n  relative_file_paths:\n"
+                               "    - \"bag_0\\n.db3\"\n")
+                  .status()
+                  .message(),
+              HasSubstr("metadata.yaml:3: a relative_file_paths entry is not a file name"));
+}
+
+// ---------------------------------------------------------------------------------------------
 // Bags.
 
 TEST(Rosbag2ImportTest, AutoDetectedDirectoryWithHeaderStamps) {
@@ -391,11 +434,21 @@ TEST(Rosbag2ImportTest, BadMessagesNameTheirIndexAndTime) {
 }
 
 TEST(Rosbag2ImportTest, NotABagOrUnsupportedStorage) {
-  const std::string mcap = BagDir("mcap_bag");
-  WriteMetadata(mcap, {"mcap_bag_0.mcap"}, "mcap");
-  absl::StatusOr<core::Capture> c = ImportCapture({mcap}, ImportOptions{});
+  const std::string hdf5 = BagDir("hdf5_bag");
+  WriteMetadata(hdf5, {"hdf5_bag_0.h5"}, "hdf5");
+  absl::StatusOr<core::Capture> c = ImportCapture({hdf5}, ImportOptions{});
   ASSERT_FALSE(c.ok());
-  EXPECT_THAT(c.status().message(), HasSubstr("storage 'mcap' is not supported (only sqlite3"));
+  EXPECT_THAT(c.status().message(),
+              HasSubstr("storage 'hdf5' is not supported (sqlite3 and mcap are"));
+
+  const std::string bad_yaml = BagDir("bad_yaml");
+  {
+    std::ofstream out(std::filesystem::path(bad_yaml) / "metadata.yaml");
+    out << "rosbag2_bagfile_information:\n  version: 5\n  relative_file_paths: [a.db3\n";
+  }
+  absl::StatusOr<core::Capture> y = ImportCapture({bad_yaml}, ImportOptions{});
+  ASSERT_FALSE(y.ok());
+  EXPECT_THAT(y.status().message(), HasSubstr("bad_yaml/metadata.yaml:"));
 
   const std::string empty_dir = BagDir("not_a_bag");
   absl::StatusOr<core::Capture> d = ImportCapture({empty_dir}, ImportOptions{});

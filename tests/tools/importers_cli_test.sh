@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The importers through the real CLI, on files imucal did not write:
-#  - a ROS 2 bag and a EuRoC imu0/data.csv written by independent Python writers
-#    (tests/tools/write_rosbag2.py, write_euroc.py: standard library only, their own CDR and
-#    SQLite), from a simulated six-face capture with a known bias and scale, calibrated with
+#  - a ROS 2 bag (sqlite3 and MCAP) and a EuRoC imu0/data.csv written by independent Python
+#    writers (tests/tools/write_rosbag2.py, write_mcap.py, write_euroc.py: standard library and
+#    the zstd/lz4 tools only, their own CDR, SQLite and MCAP), from a simulated six-face capture with a known bias and scale, calibrated with
 #    `imucal calibrate --json` and compared with the writers' truth.json;
 #  - the real captures in ../shared/data/real through the column mapping (README "Vendor CSV").
 # Skips (exit 0, "SKIP") without python3; the real-capture part skips without the shared data.
@@ -130,6 +130,67 @@ echo "rosbag2 (jazzy): --topic /imu/data selects the capture"
 run bag2_topic "$dir/bag2" --topic /imu/data --json
 expect_ok bag2_topic
 check_truth "$dir/bag2_topic.out" "$dir/bag2.truth.json" || fail "rosbag2 jazzy --topic /imu/data"
+
+# --- ROS 2 MCAP (rosbag2's default storage since Iron), from tests/tools/write_mcap.py --------
+python3 "$here/write_mcap.py" "$dir/capture.mcap" --seed 3 --compression lz4 >/dev/null
+echo "mcap: a bare .mcap file (lz4 chunks, summary) is auto-detected and calibrates"
+run mcap_auto "$dir/capture.mcap"
+expect_ok mcap_auto
+head -1 "$dir/mcap_auto.out" | grep -qF "(mcap, " || fail "summary: $(head -1 "$dir/mcap_auto.out")"
+run mcap_json "$dir/capture.mcap" --json
+expect_ok mcap_json
+check_truth "$dir/mcap_json.out" "$dir/capture.mcap.truth.json" || fail "mcap file"
+python3 "$here/write_mcap.py" "$dir/mcap_bag" --bag-dir --seed 4 --compression zstd \
+  --no-summary --decoy-imu /imu2/data >/dev/null
+echo "mcap: a bag directory (zstd chunks, no summary) with two Imu topics needs --topic"
+run mcap_bag_ambiguous "$dir/mcap_bag" --json
+[[ $rc -eq 2 ]] || fail "mcap bag, two Imu topics, no --topic: exit $rc, want 2"
+grep -qF "/imu2/data" "$dir/mcap_bag_ambiguous.err" || fail "error does not name /imu2/data: $(cat "$dir/mcap_bag_ambiguous.err")"
+run mcap_bag "$dir/mcap_bag" --topic /imu/data --json
+expect_ok mcap_bag
+check_truth "$dir/mcap_bag.out" "$dir/mcap_bag.truth.json" || fail "mcap bag --topic /imu/data"
+
+# --- imucal noise: a 5-minute rest of known white noise, written here --------------------------
+echo "noise: N of each axis within 10% of the simulated density; B, K upper bounds; YAML keys"
+python3 - "$dir/rest.csv" <<'PY'
+import math, random, sys
+random.seed(11)
+rate, n = 200, 200 * 300
+with open(sys.argv[1], "w") as f:
+    f.write("# imucal-capture v1\n# device=rest\n# accel_unit=m/s^2\n# gyro_unit=rad/s\n"
+            "# gravity=9.80665\n# rate_hz=200\nt,ax,ay,az,gx,gy,gz\n")
+    for i in range(n):
+        a = [2e-3 * math.sqrt(rate) * random.gauss(0, 1) for _ in range(3)]
+        g = [2e-4 * math.sqrt(rate) * random.gauss(0, 1) for _ in range(3)]
+        a[2] += 9.80665
+        f.write("%.6f,%s\n" % (i / rate, ",".join("%.8g" % v for v in a + g)))
+PY
+rc=0
+"$imucal" noise "$dir/rest.csv" --out "$dir/noise" --json >"$dir/noise.out" 2>"$dir/noise.err" || rc=$?
+expect_ok noise
+python3 - "$dir/noise.out" <<'PY' || fail "noise figures"
+import json, sys
+j = json.load(open(sys.argv[1]))
+bad = []
+for axis, f in j["axes"].items():
+    truth = 2e-3 if axis.startswith("accel") else 2e-4
+    n = f["noise_density"]
+    if not (abs(n["value"] / truth - 1) < 0.10 and not n["upper_bound"]):
+        bad.append(f"{axis} N {n}")
+    for k in ("bias_instability", "random_walk"):
+        if not f[k]["upper_bound"]:
+            bad.append(f"{axis} {k} is not an upper bound on white noise: {f[k]}")
+print("\n".join(bad) if bad else "  N within 10% on 6 axes; B and K upper bounds")
+sys.exit(1 if bad else 0)
+PY
+for key in accelerometer_noise_density accelerometer_random_walk gyroscope_noise_density \
+           gyroscope_random_walk rostopic update_rate; do
+  grep -q "^$key: " "$dir/noise/imu.yaml" || fail "imu.yaml has no $key"
+  grep -q "^  $key: " "$dir/noise/kalibr_imu_chain.yaml" || fail "kalibr_imu_chain.yaml has no $key"
+done
+grep -q "UPPER BOUND" "$dir/noise/imu.yaml" || fail "imu.yaml does not say the random walk is a bound"
+head -1 "$dir/noise/kalibr_imu_chain.yaml" | grep -qx '%YAML:1.0' || fail "OpenVINS file header"
+[[ -s "$dir/noise/allan_gyro.svg" ]] || fail "no Allan plot"
 
 # --- EuRoC imu0/data.csv ----------------------------------------------------------------------
 python3 "$here/write_euroc.py" "$dir/euroc" --seed 5 >/dev/null

@@ -108,6 +108,59 @@ def temperature_message(stamp_ns, frame_id, temp_c):
     return cdr.bytes()
 
 
+def recorded_topics(args):
+    """Topic id -> (name, type): the capture, a 1 Hz temperature, and the decoy Imu if asked."""
+    topics = {1: (args.topic, IMU_TYPE), 2: ("/temperature", TEMPERATURE_TYPE)}
+    if args.decoy_imu:
+        topics[3] = (args.decoy_imu, IMU_TYPE)
+    return topics
+
+
+def recorded_rows(args, samples):
+    """The messages as `ros2 bag record` receives them, in receive order: (receive time ns,
+    topic id, CDR data). Shared with write_mcap.py, so both storages hold the same messages."""
+    # (receive time, topic id, data): the bag's timestamp is when the recorder received the
+    # message, a little after the driver stamped it; the capture's time is the header stamp.
+    rows = []
+    period_ns = round(1e9 / args.rate_hz)
+    for k, (_, gyro, accel) in enumerate(samples):
+        stamp_ns = T0_NS + k * period_ns
+        rows.append((stamp_ns + 350_000 + (k * 7919) % 200_000, 1,
+                     imu_message(stamp_ns, args.frame_id, gyro, accel)))
+    duration_ns = len(samples) * period_ns
+    for s in range(duration_ns // 1_000_000_000 + 1):
+        stamp_ns = T0_NS + s * 1_000_000_000 + 2_500_000
+        rows.append((stamp_ns + 400_000, 2,
+                     temperature_message(stamp_ns, args.frame_id, 31.0 + 0.02 * s)))
+    if args.decoy_imu:
+        # The other IMU lies flat and still, read at 10 Hz: one pose, never a calibration.
+        for k in range(0, len(samples), 10):
+            stamp_ns = T0_NS + k * period_ns + 1_000_000
+            rows.append((stamp_ns + 300_000, 3, imu_message(
+                stamp_ns, "imu2_link", [0.001, -0.002, 0.0005],
+                [0.05, -0.03, args.gravity + 0.1 * math.sin(k)])))
+    rows.sort()
+    return rows
+
+
+def add_bag_arguments(parser):
+    """The options both bag writers take (this one and write_mcap.py), then imu_sim's."""
+    parser.add_argument("--truth", help="truth JSON (default: OUT.truth.json)")
+    parser.add_argument("--topic", default="/imu/data")
+    parser.add_argument("--frame-id", default="imu_link")
+    parser.add_argument("--decoy-imu", metavar="TOPIC", help="a second Imu topic")
+    imu_sim.add_arguments(parser)
+
+
+def write_truth(truth, args, topics, out):
+    """The simulation's truth with the bag's topics, to --truth or OUT.truth.json."""
+    truth["topic"] = args.topic
+    truth["topics"] = {name: type_name for name, type_name in topics.values()}
+    truth["first_stamp_ns"] = T0_NS
+    with open(args.truth or os.path.normpath(out) + ".truth.json", "w") as f:
+        json.dump(truth, f, indent=1)
+
+
 def create_tables(db, distro):
     """The schema of rosbag2_storage_sqlite3 (sqlite_storage.cpp): `schema` records its version
     (3 in Humble, 4 with `metadata` and type_description_hash from Iron on)."""
@@ -177,12 +230,8 @@ def metadata_yaml(distro, db_name, topics, counts, start_ns, end_ns):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bag_dir", help="created; must not exist (as with ros2 bag record -o)")
-    parser.add_argument("--truth", help="truth JSON (default: BAG_DIR.truth.json)")
     parser.add_argument("--distro", choices=["humble", "jazzy"], default="humble")
-    parser.add_argument("--topic", default="/imu/data")
-    parser.add_argument("--frame-id", default="imu_link")
-    parser.add_argument("--decoy-imu", metavar="TOPIC", help="a second Imu topic")
-    imu_sim.add_arguments(parser)
+    add_bag_arguments(parser)
     args = parser.parse_args()
     samples, truth = imu_sim.simulate(args)
 
@@ -190,36 +239,14 @@ def main():
     db_name = os.path.basename(os.path.normpath(args.bag_dir)) + "_0.db3"
     db = sqlite3.connect(os.path.join(args.bag_dir, db_name))
     create_tables(db, args.distro)
-    topics = {1: (args.topic, IMU_TYPE), 2: ("/temperature", TEMPERATURE_TYPE)}
-    if args.decoy_imu:
-        topics[3] = (args.decoy_imu, IMU_TYPE)
+    topics = recorded_topics(args)
     for topic_id, (name, type_name) in topics.items():
         columns = [topic_id, name, type_name, "cdr", QOS_YAML]
         if args.distro != "humble":
             columns.append("")
         db.execute(f"INSERT INTO topics VALUES ({','.join('?' * len(columns))})", columns)
 
-    # (receive time, topic id, data): the bag's timestamp is when the recorder received the
-    # message, a little after the driver stamped it; the capture's time is the header stamp.
-    rows = []
-    period_ns = round(1e9 / args.rate_hz)
-    for k, (_, gyro, accel) in enumerate(samples):
-        stamp_ns = T0_NS + k * period_ns
-        rows.append((stamp_ns + 350_000 + (k * 7919) % 200_000, 1,
-                     imu_message(stamp_ns, args.frame_id, gyro, accel)))
-    duration_ns = len(samples) * period_ns
-    for s in range(duration_ns // 1_000_000_000 + 1):
-        stamp_ns = T0_NS + s * 1_000_000_000 + 2_500_000
-        rows.append((stamp_ns + 400_000, 2,
-                     temperature_message(stamp_ns, args.frame_id, 31.0 + 0.02 * s)))
-    if args.decoy_imu:
-        # The other IMU lies flat and still, read at 10 Hz: one pose, never a calibration.
-        for k in range(0, len(samples), 10):
-            stamp_ns = T0_NS + k * period_ns + 1_000_000
-            rows.append((stamp_ns + 300_000, 3, imu_message(
-                stamp_ns, "imu2_link", [0.001, -0.002, 0.0005],
-                [0.05, -0.03, args.gravity + 0.1 * math.sin(k)])))
-    rows.sort()
+    rows = recorded_rows(args, samples)
     db.executemany("INSERT INTO messages (topic_id, timestamp, data) VALUES (?, ?, ?)",
                    [(topic_id, t_ns, data) for t_ns, topic_id, data in rows])
     db.commit()
@@ -228,12 +255,7 @@ def main():
     counts = {topic_id: sum(1 for r in rows if r[1] == topic_id) for topic_id in topics}
     with open(os.path.join(args.bag_dir, "metadata.yaml"), "w") as f:
         f.write(metadata_yaml(args.distro, db_name, topics, counts, rows[0][0], rows[-1][0]))
-    truth["topic"] = args.topic
-    truth["topics"] = {name: type_name for name, type_name in topics.values()}
-    truth["first_stamp_ns"] = T0_NS
-    truth_path = args.truth or os.path.normpath(args.bag_dir) + ".truth.json"
-    with open(truth_path, "w") as f:
-        json.dump(truth, f, indent=1)
+    write_truth(truth, args, topics, args.bag_dir)
     print(args.bag_dir)
 
 

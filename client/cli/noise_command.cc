@@ -1,0 +1,281 @@
+// `imucal noise REST...`: the noise figures of a rest recording alone (core/allan.h), with their
+// cluster times and 95% intervals, and the noise keys of Kalibr's imu.yaml and of OpenVINS's
+// kalibr_imu_chain.yaml written with yaml-cpp.
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "client/cli/args.h"
+#include "client/cli/commands.h"
+#include "client/cli/demo_common.h"
+#include "client/cli/import_flags.h"
+#include "core/allan.h"
+#include "core/export.h"
+#include "formats/params_json.h"
+#include "formats/plots.h"
+#include "importers/registry.h"
+#include "nlohmann/json.hpp"
+#include "yaml-cpp/yaml.h"
+
+namespace imucal::cli {
+namespace {
+
+constexpr char kNoiseHelp[] =
+    "usage: imucal noise REST... [options]\n"
+    "  The noise figures of a recording at rest (minutes to hours, the sensor untouched): the\n"
+    "  overlapping Allan deviation of each calibrated axis and, read off it, the white-noise\n"
+    "  density N, the bias instability B and the rate random walk K, each with the cluster time\n"
+    "  it was read at and its 95% confidence interval. A figure the record is too short to\n"
+    "  reach is an upper bound (a 95% upper limit), marked '<='. REST: any capture format\n"
+    "  calibrate reads.\n"
+    "options:\n"
+    "  --params P.json     apply this parameter set first (the figures of the calibrated\n"
+    "                      signal; needed for a capture in raw counts)\n"
+    "  --out DIR           write DIR/imu.yaml (Kalibr), DIR/kalibr_imu_chain.yaml (OpenVINS noise\n"
+    "                      keys), DIR/noise.json and the Allan plots DIR/allan_{accel,gyro}.svg\n"
+    "  --rostopic T        rostopic of the YAML files (default /imu0)\n"
+    "  --json              print the figures as JSON\n"
+    "  --format F, --accel-unit U, --gyro-unit U, --gravity G: as for calibrate\n";
+
+constexpr const char* kAxes[6] = {"accel x", "accel y", "accel z", "gyro x", "gyro y", "gyro z"};
+
+int Usage(const std::string& message) {
+  std::fprintf(stderr, "imucal: %s\n\n%s", message.c_str(), kNoiseHelp);
+  return kExitUsage;
+}
+
+std::string Fig(const core::AllanReading& r) {
+  if (std::isnan(r.value)) return "not reached";
+  if (r.upper_bound) return absl::StrFormat("<= %.3g (95%%) at %.3g s", r.value, r.tau_s);
+  return absl::StrFormat("%.3g [%.3g, %.3g] at %.3g s", r.value, r.low, r.high, r.tau_s);
+}
+
+nlohmann::json Num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); }
+
+nlohmann::json ReadingJson(const core::AllanReading& r) {
+  return {{"value", Num(r.value)},
+          {"tau_s", Num(r.tau_s)},
+          {"interval_95", {Num(r.low), Num(r.high)}},
+          {"upper_bound", r.upper_bound}};
+}
+
+// The value a filter is given for one sensor's figure: the largest axis (conservative, as
+// core/export.h), and whether any axis' figure is only an upper bound.
+struct Key {
+  double value = 0;
+  bool bound = false;
+};
+Key Largest(const core::NoiseAnalysis& na, bool gyro, core::AllanReading core::AxisReadings::*f) {
+  Key key;
+  for (size_t k = gyro ? 3 : 0; k < (gyro ? 6u : 3u); ++k) {
+    const core::AllanReading& r = na.readings[k].*f;
+    if (!(r.value > key.value)) continue;
+    key.value = r.value;
+    key.bound = r.upper_bound;
+  }
+  return key;
+}
+
+// The four noise keys with a comment on each that is a bound; `emit` is inside a map.
+void EmitNoiseKeys(const core::NoiseAnalysis& na, YAML::Emitter* out) {
+  struct Row {
+    const char* key;
+    bool gyro;
+    core::AllanReading core::AxisReadings::*figure;
+    const char* unit;
+  };
+  for (const Row& row :
+       {Row{"accelerometer_noise_density", false, &core::AxisReadings::noise_density,
+            "m/s^2/sqrt(Hz)"},
+        Row{"accelerometer_random_walk", false, &core::AxisReadings::random_walk, "m/s^3/sqrt(Hz)"},
+        Row{"gyroscope_noise_density", true, &core::AxisReadings::noise_density, "rad/s/sqrt(Hz)"},
+        Row{"gyroscope_random_walk", true, &core::AxisReadings::random_walk, "rad/s^2/sqrt(Hz)"}}) {
+    const Key key = Largest(na, row.gyro, row.figure);
+    *out << YAML::Key << row.key << YAML::Value << key.value;
+    *out << YAML::Comment(key.bound ? absl::StrFormat("%s; an UPPER BOUND: the rest is too short "
+                                                      "to reach it (largest axis)",
+                                                      row.unit)
+                                    : absl::StrFormat("%s (largest axis)", row.unit));
+  }
+}
+
+std::string KalibrImuYaml(const core::NoiseAnalysis& na, const std::string& rostopic) {
+  YAML::Emitter out;
+  out << YAML::Comment(absl::StrFormat(
+      "Kalibr imu.yaml: noise of a %.0f s rest at %.6g Hz (imucal noise; continuous-time "
+      "densities)",
+      static_cast<double>(na.figures.samples) / na.figures.rate_hz, na.figures.rate_hz));
+  out << YAML::BeginMap;
+  EmitNoiseKeys(na, &out);
+  out << YAML::Key << "rostopic" << YAML::Value << rostopic;
+  out << YAML::Key << "update_rate" << YAML::Value << na.figures.rate_hz;
+  out << YAML::EndMap;
+  return std::string(out.c_str()) + "\n";
+}
+
+std::string OpenVinsNoiseYaml(const core::NoiseAnalysis& na, const std::string& rostopic) {
+  YAML::Emitter out;
+  out << YAML::Comment(
+      "OpenVINS kalibr_imu_chain.yaml noise keys (imucal noise); the intrinsics come from "
+      "imucal export --format openvins");
+  out << YAML::BeginMap << YAML::Key << "imu0" << YAML::Value << YAML::BeginMap;
+  EmitNoiseKeys(na, &out);
+  out << YAML::Key << "rostopic" << YAML::Value << rostopic;
+  out << YAML::Key << "update_rate" << YAML::Value << na.figures.rate_hz;
+  out << YAML::EndMap << YAML::EndMap;
+  // OpenVINS reads the file with OpenCV's FileStorage, which wants this first line.
+  return "%YAML:1.0\n---\n" + std::string(out.c_str()) + "\n";
+}
+
+nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const importers::ImportReport& import) {
+  nlohmann::json axes = nlohmann::json::object();
+  for (size_t k = 0; k < 6; ++k) {
+    axes[std::string(kAxes[k]).replace(std::string(kAxes[k]).find(' '), 1, "_")] = {
+        {"noise_density", ReadingJson(na.readings[k].noise_density)},
+        {"bias_instability", ReadingJson(na.readings[k].bias_instability)},
+        {"random_walk", ReadingJson(na.readings[k].random_walk)}};
+  }
+  return {{"format", "imucal-noise v1"},
+          {"inputs", import.paths},
+          {"samples", na.figures.samples},
+          {"rate_hz", na.figures.rate_hz},
+          {"units",
+           {{"accel",
+             {{"noise_density", "m/s^2/sqrt(Hz)"},
+              {"bias_instability", "m/s^2"},
+              {"random_walk", "m/s^3/sqrt(Hz)"}}},
+            {"gyro",
+             {{"noise_density", "rad/s/sqrt(Hz)"},
+              {"bias_instability", "rad/s"},
+              {"random_walk", "rad/s^2/sqrt(Hz)"}}}}},
+          {"axes", axes},
+          {"notes", na.figures.notes}};
+}
+
+}  // namespace
+
+int RunNoise(const std::vector<std::string>& argv) {
+  auto a = Args::Parse(argv,
+                       WithImportValuedFlags({"format", "accel-unit", "gyro-unit", "gravity",
+                                              "device", "params", "out", "rostopic"}),
+                       WithImportSwitches({"json", "help"}));
+  if (!a.ok()) return Usage(std::string(a.status().message()));
+  if (a->Has("help")) return std::printf("%s%s", kNoiseHelp, kImportFlagsHelp), kExitOk;
+  if (a->positional().empty()) return Usage("noise needs a REST recording");
+  const std::string rostopic = a->Get("rostopic").value_or("/imu0");
+  if (absl::Status s = core::ValidateRosTopic(rostopic); !s.ok()) {
+    return Usage("--rostopic: " + std::string(s.message()));
+  }
+  auto io = ImportOptionsFrom(*a);
+  if (!io.ok()) return Usage(std::string(io.status().message()));
+  importers::ImportReport import;
+  auto capture = importers::ImportCapture(a->positional(), *io, &import);
+  if (!capture.ok()) return ReportError(capture.status());
+
+  // The signal analysed: the parameter set's calibration applied (through the SDK, as a robot
+  // applies it), else the capture in SI through the nominal factor of its units.
+  core::AccelParams accel;
+  core::GyroParams gyro;
+  if (auto params_path = a->Get("params")) {
+    std::ifstream f(*params_path, std::ios::binary);
+    if (!f) return ReportError(absl::NotFoundError(*params_path + ": cannot open"));
+    std::stringstream text;
+    text << f.rdbuf();
+    auto params = formats::ParamSetFromJson(text.str());
+    if (!params.ok()) {
+      return ReportError(absl::InvalidArgumentError(
+          absl::StrFormat("%s: %s", *params_path, params.status().message())));
+    }
+    auto calibrated = ApplyParams(*params, *capture);
+    if (!calibrated.ok()) return ReportError(calibrated.status());
+    *capture = *std::move(calibrated);
+  } else {
+    const double ka = core::NominalAccelToSi(capture->accel_unit, capture->gravity_m_s2);
+    const double kg = core::NominalGyroToSi(capture->gyro_unit);
+    if (std::isnan(ka) || std::isnan(kg)) {
+      return ReportError(absl::InvalidArgumentError(
+          "the capture is in raw counts, which have no unit: give --params P.json (a "
+          "calibration of this sensor) or --accel-unit/--gyro-unit"));
+    }
+    accel.scale = Eigen::Vector3d::Constant(ka);
+    gyro.matrix = kg * Eigen::Matrix3d::Identity();
+  }
+  auto na = core::ComputeNoise(*capture, 0, capture->size(), accel, gyro);
+  if (!na.ok()) return ReportError(na.status());
+  if (capture->files.size() > 1) {
+    // Joined files: the Allan deviation runs across the gaps between them.
+    na->figures.notes.push_back(
+        "several files were joined: the curve spans the gaps between them (a single "
+        "uninterrupted rest is what the figures assume)");
+  }
+
+  const nlohmann::json json = NoiseJson(*na, import);
+  if (auto dir = a->Get("out")) {
+    std::error_code error;
+    std::filesystem::create_directories(*dir, error);
+    const std::filesystem::path d(*dir);
+    nlohmann::json report = {{"allan", nlohmann::json::object()}};
+    std::vector<nlohmann::json> ac, gc;
+    for (size_t i = 0; i < na->curves.tau_s.size(); ++i) {
+      const Eigen::Vector3d& va = na->curves.accel_m_s2[i];
+      const Eigen::Vector3d& vg = na->curves.gyro_rad_s[i];
+      ac.push_back({Num(va.x()), Num(va.y()), Num(va.z())});
+      gc.push_back({Num(vg.x()), Num(vg.y()), Num(vg.z())});
+    }
+    report["allan"] = {{"tau", na->curves.tau_s}, {"accel", ac}, {"gyro", gc}};
+    core::ParamSet fitted;
+    fitted.noise = na->figures;
+    report["parameters"] = nlohmann::json::parse(formats::ParamSetToJson(fitted));
+    for (const auto& [name, text] :
+         {std::pair<std::string, std::string>{"imu.yaml", KalibrImuYaml(*na, rostopic)},
+          {"kalibr_imu_chain.yaml", OpenVinsNoiseYaml(*na, rostopic)},
+          {"noise.json", json.dump(1) + "\n"}}) {
+      if (absl::Status s = formats::WriteFileAtomically((d / name).string(), text); !s.ok())
+        return ReportError(s);
+      if (!a->Has("json")) std::printf("wrote       %s\n", (d / name).c_str());
+    }
+    auto plots = formats::WriteReportPlots(report, *dir);
+    if (!plots.ok()) return ReportError(plots.status());
+    if (!a->Has("json"))
+      for (const auto& p : *plots) std::printf("wrote       %s\n", p.c_str());
+  }
+  if (a->Has("json")) {
+    std::puts(json.dump(1).c_str());
+    return kExitOk;
+  }
+  std::printf("input       %s (%s, %lld samples at %.6g Hz, %.0f s)\n",
+              absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(),
+              static_cast<long long>(na->figures.samples), na->figures.rate_hz,
+              static_cast<double>(na->figures.samples) / na->figures.rate_hz);
+  for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
+  std::printf(
+      "figures     value [95%% interval] at the cluster time read; '<=' a 95%% upper bound\n"
+      "            units: accel N m/s^2/sqrt(Hz), B m/s^2, K m/s^3/sqrt(Hz); gyro N "
+      "rad/s/sqrt(Hz), B rad/s, K rad/s^2/sqrt(Hz)\n");
+  std::printf("%-8s  %-40s  %-40s  %s\n", "axis", "N (white noise density)", "B (bias instability)",
+              "K (rate random walk)");
+  for (size_t k = 0; k < 6; ++k) {
+    const core::AxisReadings& r = na->readings[k];
+    std::printf("%-8s  %-40s  %-40s  %s\n", kAxes[k], Fig(r.noise_density).c_str(),
+                Fig(r.bias_instability).c_str(), Fig(r.random_walk).c_str());
+  }
+  bool bounds = false;
+  for (const auto& r : na->readings)
+    bounds |=
+        r.noise_density.upper_bound || r.bias_instability.upper_bound || r.random_walk.upper_bound;
+  if (bounds) {
+    std::printf(
+        "note        '<=' figures are upper bounds, not measurements: the record is too short "
+        "to reach them (B and K need minutes to hours at rest)\n");
+  }
+  for (const auto& n : na->figures.notes) std::printf("note        %s\n", n.c_str());
+  return kExitOk;
+}
+
+}  // namespace imucal::cli
