@@ -250,16 +250,10 @@ void ReportFinalFigures(const Capture& cap, const std::vector<StaticInterval>& i
 
 Eigen::Vector3d CorrectedSpecificForce(const AccelParams& accel, const std::vector<Effect>& effects,
                                        const StaticInterval& s, double t0_s) {
-  Eigen::Vector3d a = accel.Apply(s.accel_mean);
-  SignalArray sig{};
-  sig[static_cast<size_t>(Signal::kTemperature)] = s.temp_mean;
-  sig[static_cast<size_t>(Signal::kTime)] = 0.5 * (s.t_start_s + s.t_end_s) - t0_s;
-  for (int k = 0; k < 3; ++k) sig[static_cast<size_t>(Signal::kAx) + k] = a(k);
-  for (const Effect& e : effects) {
-    const std::optional<Regressor> r = ParseRegressor(e.regressor);
-    if (e.sensor == Sensor::kAccel && e.applied && r) a(e.axis) -= e.coefficient * r->Evaluate(sig);
-  }
-  return a;
+  // The gyroscope left out (zero rate): only the accelerometer's output is read.
+  return SampleCorrection(accel, GyroParams(), effects, t0_s)
+      .Apply(s.accel_mean, Eigen::Vector3d::Zero(), s.temp_mean, 0.5 * (s.t_start_s + s.t_end_s))
+      .accel_m_s2;
 }
 
 std::vector<FaceResidual> FaceResiduals(const Capture& cap, const std::vector<StaticInterval>& ivs,
