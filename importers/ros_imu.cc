@@ -118,10 +118,33 @@ std::string ListTopics(const std::vector<BagTopic>& topics) {
   return names.empty() ? std::string("none") : Join(names, ", ");
 }
 
-// A metadata value that survives the capture CSV (one line, no surrounding spaces).
-bool SafeMetadataValue(std::string_view value) {
-  return !value.empty() && value.find_first_of("\r\n") == std::string_view::npos &&
-         TrimSpaces(value) == value;
+// A name read from a bag (storage identifier, file name, topic, frame id) that the capture CSV
+// and YAML both carry unchanged: not empty, no surrounding spaces, well-formed UTF-8 (no overlong
+// form, no surrogate, at most U+10FFFF) of printable characters on one line: no C0 or C1 control,
+// no DEL, no U+2028/U+2029 separator and no U+FEFF byte-order mark.
+bool IsOneLineName(std::string_view value) {
+  if (value.empty() || TrimSpaces(value) != value) return false;
+  const auto byte = [&](std::size_t k) { return static_cast<unsigned char>(value[k]); };
+  for (std::size_t i = 0; i < value.size();) {
+    const unsigned char lead = byte(i);
+    const std::size_t length = lead < 0x80 ? 1 : (lead >> 5) == 0x6 ? 2 : (lead >> 4) == 0xE ? 3
+                               : (lead >> 3) == 0x1E                ? 4
+                                                                    : 0;
+    if (length == 0 || i + length > value.size()) return false;
+    std::uint32_t code = length == 1 ? lead : lead & (0x7F >> length);
+    for (std::size_t k = 1; k < length; ++k) {
+      if ((byte(i + k) & 0xC0) != 0x80) return false;
+      code = (code << 6) | (byte(i + k) & 0x3F);
+    }
+    constexpr std::uint32_t kSmallest[] = {0, 0, 0x80, 0x800, 0x10000};
+    if (code < kSmallest[length] || code > 0x10FFFF || (code >= 0xD800 && code <= 0xDFFF) ||
+        code < 0x20 || (code >= 0x7F && code <= 0x9F) || code == 0x2028 || code == 0x2029 ||
+        code == 0xFEFF) {
+      return false;
+    }
+    i += length;
+  }
+  return true;
 }
 
 // "SOURCE:LINE: what" for a YAML node (yaml-cpp counts lines from 0).
@@ -189,7 +212,7 @@ absl::StatusOr<BagMetadata> ParseBagMetadata(std::string_view yaml, std::string_
     }
     BagMetadata metadata;
     if (const YAML::Node storage = info["storage_identifier"]; storage.IsDefined()) {
-      if (!storage.IsScalar() || !SafeMetadataValue(storage.Scalar())) {
+      if (!storage.IsScalar() || !IsOneLineName(storage.Scalar())) {
         return YamlError(source, storage.Mark(), "storage_identifier is not a one-line name");
       }
       metadata.storage_identifier = storage.Scalar();
@@ -199,12 +222,8 @@ absl::StatusOr<BagMetadata> ParseBagMetadata(std::string_view yaml, std::string_
         return YamlError(source, files.Mark(), "relative_file_paths is not a list");
       }
       for (const YAML::Node& file : files) {
-        // A file name: one line, no control characters, no surrounding spaces (a quoted scalar
-        // may fold lines; no bag names its files so).
-        if (!file.IsScalar() || file.Scalar().empty() ||
-            std::any_of(file.Scalar().begin(), file.Scalar().end(),
-                        [](char ch) { return static_cast<unsigned char>(ch) < 0x20; }) ||
-            TrimSpaces(file.Scalar()) != file.Scalar()) {
+        // A quoted scalar may fold lines or hold escapes; no bag names its files so.
+        if (!file.IsScalar() || !IsOneLineName(file.Scalar())) {
           return YamlError(source, file.Mark(), "a relative_file_paths entry is not a file name");
         }
         metadata.relative_file_paths.push_back(file.Scalar());
@@ -317,8 +336,8 @@ absl::StatusOr<core::Capture> ImuMessages::ToCapture(std::string_view path, std:
     capture.accel.push_back(samples_[i].accel);
   }
   capture.extra_metadata.emplace_back("t0_ns", Cat(t0_ns));
-  if (SafeMetadataValue(topic)) capture.extra_metadata.emplace_back("ros_topic", topic);
-  if (frame_ids_.size() == 1 && SafeMetadataValue(frame_ids_[0])) {
+  if (IsOneLineName(topic)) capture.extra_metadata.emplace_back("ros_topic", topic);
+  if (frame_ids_.size() == 1 && IsOneLineName(frame_ids_[0])) {
     capture.extra_metadata.emplace_back("frame_id", frame_ids_[0]);
   }
   notes->push_back(Cat("topic ", topic, ": ", samples_.size(), " messages from ", file_count,

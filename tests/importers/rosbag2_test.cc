@@ -12,9 +12,11 @@
 #include <string_view>
 #include <vector>
 
+#include "absl/strings/escaping.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "importers/registry.h"
+#include "util/str_util.h"
 
 namespace imucal::importers {
 namespace {
@@ -307,6 +309,31 @@ TEST(BagMetadataTest, ErrorsNameTheFileAndLine) {
   // A line break or a control character in a quoted scalar is YAML, but no file name.
   EXPECT_THAT(ParseBagMetadata("rosbag2_bagfile_information:\n  relative_file_paths:\n"
                                "    - \"bag_0\\n.db3\"\n")
+                  .status()
+                  .message(),
+              HasSubstr("metadata.yaml:3: a relative_file_paths entry is not a file name"));
+}
+
+// A name is printable UTF-8 on one line, so the capture CSV and a YAML rewrite carry it unchanged
+// (the fuzzer found a storage_identifier with a vertical tab and stray bytes that did not).
+TEST(BagMetadataTest, NamesAreOneLineOfPrintableUtf8) {
+  const auto storage = [](std::string_view value) {
+    return ParseBagMetadata(
+        Cat("rosbag2_bagfile_information:\n  storage_identifier: ", value, "\n"));
+  };
+  for (const std::string_view bad :
+       {"sqlite3\v", "sql\xD7\xDBite3", "\"sq\\x7Flite3\"", "\"sq\\u0085lite3\"",
+        "sq\xE2\x80\xA8lite3", "\xC0\xAFsqlite3", "\xED\xA0\x80", "sqlite3\xF0\x9F"}) {
+    EXPECT_THAT(storage(bad).status().message(),
+                HasSubstr("metadata.yaml:2: storage_identifier is not a one-line name"))
+        << absl::CEscape(std::string(bad));
+  }
+  // Printable UTF-8 beyond ASCII is a name.
+  const absl::StatusOr<BagMetadata> m = storage("m\xC3\xA9tadonn\xC3\xA9\x65s_\xF0\x9F\x9A\x80");
+  ASSERT_TRUE(m.ok()) << m.status();
+  EXPECT_EQ(m->storage_identifier, "m\xC3\xA9tadonn\xC3\xA9\x65s_\xF0\x9F\x9A\x80");
+  EXPECT_THAT(ParseBagMetadata("rosbag2_bagfile_information:\n  relative_file_paths:\n"
+                               "    - \"a\\tb.db3\"\n")
                   .status()
                   .message(),
               HasSubstr("metadata.yaml:3: a relative_file_paths entry is not a file name"));
