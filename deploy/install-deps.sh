@@ -11,6 +11,8 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev tmux
   python3  # tests/tools: the independent ROS 2 bag and EuRoC writers (standard library only)
   clang libclang-rt-dev  # deploy/test.sh: libFuzzer targets (tests/fuzz)
+  libcli11-dev  # every executable's command-line flags (util/flags.h)
+  zsh  # tests: the zsh completion script is checked by zsh itself
   libyaml-cpp-dev  # metadata.yaml of ROS 2 bags, the YAML exports
   libzstd-dev liblz4-dev zlib1g-dev  # MCAP chunks (zstd, LZ4 frame) and their CRC-32
   zstd lz4  # tests/tools/write_mcap.py compresses its chunks with the command-line tools

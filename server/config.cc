@@ -6,12 +6,14 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <set>
 #include <utility>
 #include <vector>
 
 #include "absl/strings/string_view.h"
 #include "absl/time/time.h"
 #include "toml++/toml.h"
+#include "util/flags.h"
 #include "util/str_util.h"
 
 namespace imucal::server {
@@ -289,13 +291,6 @@ const ConfigOption* FindByKey(std::string_view key) {
   return nullptr;
 }
 
-const ConfigOption* FindByFlag(std::string_view flag) {
-  for (const ConfigOption& option : ConfigOptions()) {
-    if (FlagOf(option.key) == flag) return &option;
-  }
-  return nullptr;
-}
-
 std::string_view TomlTypeName(toml::node_type type) {
   switch (type) {
     case toml::node_type::table:
@@ -394,52 +389,29 @@ absl::Status ApplyConfigFile(const std::string& path, DaemonConfig& config) {
 }
 
 absl::StatusOr<LoadedConfig> LoadConfig(std::span<const std::string> args, const EnvLookup& env) {
-  // Split the command line first: the file named by --config is applied before any flag.
-  struct FlagValue {
-    const ConfigOption* option;
-    std::string flag;
-    std::string value;
-  };
-  std::vector<FlagValue> flags;
-  std::optional<std::string> config_path;
-  LoadedConfig loaded;
-  for (size_t i = 0; i < args.size(); ++i) {
-    std::string flag = args[i];
-    std::optional<std::string> value;
-    if (const size_t eq = flag.find('='); flag.starts_with("--") && eq != std::string::npos) {
-      value = flag.substr(eq + 1);
-      flag.resize(eq);
-    }
-    if (flag == "--help" || flag == "-h") {
-      loaded.help = true;
-      continue;
-    }
-    const ConfigOption* option = FindByFlag(flag);
-    if (option == nullptr && flag != "--config") {
-      return absl::InvalidArgumentError(
-          Cat("unknown flag ", flag, " (imucald --help lists the flags)"));
-    }
-    if (!value.has_value()) {
-      if (option != nullptr && option->type == OptionType::kBoolean) {
-        // "--insecure true" as --help shows it ("--insecure BOOL"), or bare: true. The word
-        // after it is its value unless it is the next flag.
-        if (i + 1 < args.size() && !args[i + 1].starts_with("-")) {
-          value = args[++i];
-        } else {
-          value = "true";
-        }
-      } else if (i + 1 < args.size()) {
-        value = args[++i];
-      } else {
-        return absl::InvalidArgumentError(Cat(flag, ": missing value"));
-      }
-    }
-    if (option == nullptr) {
-      config_path = *value;
-    } else {
-      flags.push_back({option, flag, *value});
-    }
+  // The command line first (util/flags.h): the file named by --config is applied before any
+  // flag. A BOOL option stands alone (true) or takes its value: "--insecure true" as --help
+  // shows it ("--insecure BOOL"), or --insecure=false.
+  std::set<std::string> valued = {"config"}, booleans;
+  for (const ConfigOption& option : ConfigOptions()) {
+    (option.type == OptionType::kBoolean ? booleans : valued).insert(FlagOf(option.key).substr(2));
   }
+  absl::StatusOr<flags::Args> flags = flags::Args::Parse(
+      std::vector<std::string>(args.begin(), args.end()), valued, {"help", "version"}, booleans);
+  if (!flags.ok()) {
+    const std::string message(flags.status().message());
+    return absl::InvalidArgumentError(
+        message.starts_with("unknown flag") ? Cat(message, " (imucald --help lists the flags)")
+                                            : message);
+  }
+  if (!flags->positional().empty()) {
+    return absl::InvalidArgumentError(Cat("unexpected argument '", flags->positional()[0],
+                                          "' (imucald --help lists the commands)"));
+  }
+  LoadedConfig loaded;
+  loaded.help = flags->Has("help");
+  loaded.version = flags->Has("version");
+  std::optional<std::string> config_path = flags->Get("config");
   if (!config_path.has_value()) config_path = env("IMUCALD_CONFIG");
   if (config_path.has_value()) {
     if (config_path->empty()) return absl::InvalidArgumentError("--config: empty path");
@@ -452,9 +424,12 @@ absl::StatusOr<LoadedConfig> LoadConfig(std::span<const std::string> args, const
       return absl::InvalidArgumentError(Cat("environment ", option.env, ": ", s.message()));
     }
   }
-  for (const FlagValue& f : flags) {
-    if (absl::Status s = f.option->set(f.value, loaded.config); !s.ok()) {
-      return absl::InvalidArgumentError(Cat(f.flag, ": ", s.message()));
+  for (const ConfigOption& option : ConfigOptions()) {
+    const std::string flag = FlagOf(option.key);
+    const std::optional<std::string> value = flags->Get(flag.substr(2));
+    if (!value.has_value()) continue;
+    if (absl::Status s = option.set(*value, loaded.config); !s.ok()) {
+      return absl::InvalidArgumentError(Cat(flag, ": ", s.message()));
     }
   }
   return loaded;
@@ -467,12 +442,15 @@ std::string HelpText() {
       "usage:\n"
       "  imucald [--config FILE] [OPTIONS]       serve until SIGTERM/SIGINT, then drain and exit "
       "0\n"
+      "  imucald --version                      the version\n"
+      "  imucald completion bash|zsh            a shell completion script (deploy/install.sh)\n"
       "  imucald --health-check HOST:PORT       exit 0 if the server there is SERVING, else 1\n"
       "  imucald backup --db PATH --out FILE    online backup of a live database\n"
       "  imucald restore --from FILE --db PATH  restore a backup (imucald must be stopped)\n"
       "\n"
       "Settings are read from, later ones winning: built-in defaults, the TOML file\n"
-      "(--config FILE, else $IMUCALD_CONFIG), the environment, the flags.\n"
+      "(--config FILE, else $IMUCALD_CONFIG), the environment, the flags: --name value or\n"
+      "--name=value; a BOOL flag alone means true. Each command takes -h/--help.\n"
       "\n"
       "options (flag / file key / environment variable):\n"
       "  --config FILE  (-)  IMUCALD_CONFIG\n"

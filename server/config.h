@@ -57,7 +57,8 @@ EnvLookup ProcessEnvironment();
 // What LoadConfig made of the command line.
 struct LoadedConfig {
   DaemonConfig config;
-  bool help = false;  // --help / -h: print HelpText() and exit 0
+  bool help = false;     // --help / -h: print HelpText() and exit 0
+  bool version = false;  // --version: print the version and exit 0
 };
 
 // `args` excludes the program name. InvalidArgument for an unknown flag, a missing value, a bad

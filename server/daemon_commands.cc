@@ -18,6 +18,7 @@
 #include "grpcpp/security/credentials.h"
 #include "server/config.h"
 #include "storage/backup.h"
+#include "util/flags.h"
 #include "util/str_util.h"
 
 namespace imucal::server {
@@ -26,33 +27,30 @@ namespace {
 constexpr char kBackupPrefix[] = "imucal-";
 constexpr char kBackupSuffix[] = ".db";
 
-// "--name value" / "--name=value" pairs, each name from `allowed`; InvalidArgument otherwise.
-absl::StatusOr<std::map<std::string, std::string>> ParseFlags(
-    std::span<const std::string> args, const std::set<std::string>& allowed) {
-  std::map<std::string, std::string> flags;
-  for (size_t i = 0; i < args.size(); ++i) {
-    std::string name = args[i];
-    std::string value;
-    if (const size_t eq = name.find('='); eq != std::string::npos) {
-      value = name.substr(eq + 1);
-      name.resize(eq);
-    } else if (i + 1 < args.size()) {
-      value = args[++i];
-    } else {
-      return absl::InvalidArgumentError(Cat(name, ": missing value"));
-    }
-    if (!allowed.contains(name)) {
-      return absl::InvalidArgumentError(Cat("unknown flag ", name));
-    }
-    flags[name] = value;
-  }
-  return flags;
+// Each command's flags (without "--"): the parsers below and the completion scripts read these.
+const std::set<std::string> kHealthCheckValued = {"config", "ca-cert", "ca", "server-name",
+                                                  "timeout"};
+const std::set<std::string> kHealthCheckSwitches = {"insecure"};
+const std::set<std::string> kBackupValued = {"db", "config", "out", "out-dir", "keep"};
+const std::set<std::string> kRestoreValued = {"from", "db", "config"};
+
+// A subcommand's flags (util/flags.h): `valued` take a value, `switches` do not; -h/--help too.
+absl::StatusOr<flags::Args> ParseFlags(std::span<const std::string> args,
+                                       const std::set<std::string>& valued,
+                                       std::set<std::string> switches = {}) {
+  switches.insert("help");
+  return flags::Args::Parse(std::vector<std::string>(args.begin(), args.end()), valued, switches);
 }
 
 int Fail(std::string_view command, const absl::Status& status) {
   std::fprintf(stderr, "imucald %.*s: %.*s\n", static_cast<int>(command.size()), command.data(),
                static_cast<int>(status.message().size()), status.message().data());
   return 1;
+}
+
+int Help(const char* usage) {
+  std::printf("usage: %s\n", usage);
+  return 0;
 }
 
 int UsageError(std::string_view command, const absl::Status& status, const char* usage) {
@@ -62,10 +60,10 @@ int UsageError(std::string_view command, const absl::Status& status, const char*
 }
 
 // --db, else the database the configuration names (--config, $IMUCALD_CONFIG, $IMUCALD_DB).
-absl::StatusOr<std::string> DatabasePath(const std::map<std::string, std::string>& flags) {
-  if (auto it = flags.find("--db"); it != flags.end()) return it->second;
+absl::StatusOr<std::string> DatabasePath(const flags::Args& flags) {
+  if (auto db = flags.Get("db")) return *db;
   std::vector<std::string> args;
-  if (auto it = flags.find("--config"); it != flags.end()) args = {"--config", it->second};
+  if (auto config = flags.Get("config")) args = {"--config", *config};
   absl::StatusOr<LoadedConfig> loaded = LoadConfig(args, ProcessEnvironment());
   if (!loaded.ok()) return loaded.status();
   return loaded->config.server.db_path;
@@ -147,50 +145,40 @@ int RunHealthCheckCommand(std::span<const std::string> args) {
   constexpr char kUsage[] =
       "imucald --health-check [HOST:PORT] [--config FILE] [--ca-cert FILE] [--server-name NAME] "
       "[--insecure] [--timeout 5s]";
-  std::string address;
-  if (!args.empty() && !args[0].starts_with("-")) {
-    address = args[0];
-    args = args.subspan(1);
-  }
-  // --insecure takes no value: turn it into a pair for ParseFlags.
-  std::vector<std::string> pairs;
-  HealthCheckOptions options;
-  bool insecure_flag = false;
-  for (const std::string& arg : args) {
-    if (arg == "--insecure") {
-      insecure_flag = true;
-    } else {
-      pairs.push_back(arg);
-    }
-  }
-  absl::StatusOr<std::map<std::string, std::string>> flags =
-      ParseFlags(pairs, {"--config", "--ca-cert", "--ca", "--server-name", "--timeout"});
+  absl::StatusOr<flags::Args> flags = ParseFlags(args, kHealthCheckValued, kHealthCheckSwitches);
   if (!flags.ok()) return UsageError("--health-check", flags.status(), kUsage);
-  if (auto it = flags->find("--timeout"); it != flags->end()) {
-    if (!absl::ParseDuration(it->second, &options.timeout) ||
+  if (flags->Has("help")) return Help(kUsage);
+  if (flags->positional().size() > 1) {
+    return UsageError("--health-check",
+                      absl::InvalidArgumentError(
+                          Cat("one HOST:PORT, got '", flags->positional()[1], "' as well")),
+                      kUsage);
+  }
+  std::string address = flags->positional().empty() ? "" : flags->positional()[0];
+  HealthCheckOptions options;
+  if (auto timeout = flags->Get("timeout")) {
+    if (!absl::ParseDuration(*timeout, &options.timeout) ||
         options.timeout <= absl::ZeroDuration()) {
       return UsageError(
           "--health-check",
           absl::InvalidArgumentError(
-              Cat("--timeout: expected a positive duration such as 5s, got '", it->second, "'")),
+              Cat("--timeout: expected a positive duration such as 5s, got '", *timeout, "'")),
           kUsage);
     }
   }
   // The rest comes from the configuration imucald itself reads (file, environment).
   std::vector<std::string> config_args;
-  if (auto it = flags->find("--config"); it != flags->end()) config_args = {"--config", it->second};
+  if (auto config = flags->Get("config")) config_args = {"--config", *config};
   absl::StatusOr<LoadedConfig> loaded = LoadConfig(config_args, ProcessEnvironment());
   if (!loaded.ok()) return Fail("--health-check", loaded.status());
   const ServerOptions& server = loaded->config.server;
   if (address.empty()) address = ProbeAddress(server.listen);
-  options.insecure = insecure_flag || server.security.insecure;
+  options.insecure = flags->Has("insecure") || server.security.insecure;
   options.ca_path = server.security.tls_cert_path;
   // --ca-cert as the imucal CLI spells it; --ca, its first name, still works.
-  for (const char* flag : {"--ca", "--ca-cert"})
-    if (auto it = flags->find(flag); it != flags->end()) options.ca_path = it->second;
-  if (auto it = flags->find("--server-name"); it != flags->end()) {
-    options.server_name = it->second;
-  }
+  for (const char* flag : {"ca", "ca-cert"})
+    if (auto path = flags->Get(flag)) options.ca_path = *path;
+  if (auto name = flags->Get("server-name")) options.server_name = *name;
   if (absl::Status s = CheckHealth(address, options); !s.ok()) return Fail("--health-check", s);
   std::printf("%s: SERVING\n", address.c_str());
   return 0;
@@ -222,22 +210,28 @@ absl::StatusOr<int> PruneBackups(const std::string& dir, int keep) {
 int RunBackupCommand(std::span<const std::string> args) {
   constexpr char kUsage[] =
       "imucald backup [--db PATH | --config FILE] (--out FILE | --out-dir DIR [--keep N])";
-  absl::StatusOr<std::map<std::string, std::string>> flags =
-      ParseFlags(args, {"--db", "--config", "--out", "--out-dir", "--keep"});
+  absl::StatusOr<flags::Args> flags =
+      ParseFlags(args, kBackupValued);
   if (!flags.ok()) return UsageError("backup", flags.status(), kUsage);
-  const bool to_file = flags->contains("--out");
-  const bool to_dir = flags->contains("--out-dir");
+  if (flags->Has("help")) return Help(kUsage);
+  if (!flags->positional().empty()) {
+    return UsageError(
+        "backup", absl::InvalidArgumentError(Cat("unexpected '", flags->positional()[0], "'")),
+        kUsage);
+  }
+  const bool to_file = flags->Has("out");
+  const bool to_dir = flags->Has("out-dir");
   if (to_file == to_dir) {
     return UsageError("backup", absl::InvalidArgumentError("give one of --out and --out-dir"),
                       kUsage);
   }
   int keep = 7;
-  if (auto it = flags->find("--keep"); it != flags->end()) {
-    if (!to_dir || !absl::SimpleAtoi(it->second, &keep) || keep < 1) {
+  if (auto keep_text = flags->Get("keep")) {
+    if (!to_dir || !absl::SimpleAtoi(*keep_text, &keep) || keep < 1) {
       return UsageError("backup",
                         absl::InvalidArgumentError(Cat("--keep: expected a count of at least 1 "
                                                        "with --out-dir, got '",
-                                                       it->second, "'")),
+                                                       *keep_text, "'")),
                         kUsage);
     }
   }
@@ -245,20 +239,20 @@ int RunBackupCommand(std::span<const std::string> args) {
   if (!db.ok()) return Fail("backup", db.status());
   std::string out;
   if (to_file) {
-    out = flags->at("--out");
+    out = *flags->Get("out");
   } else {
     std::error_code ec;
-    std::filesystem::create_directories(flags->at("--out-dir"), ec);
+    std::filesystem::create_directories(*flags->Get("out-dir"), ec);
     if (ec)
       return Fail("backup",
-                  absl::UnavailableError(Cat(flags->at("--out-dir"), ": ", ec.message())));
-    out = (std::filesystem::path(flags->at("--out-dir")) / BackupFileName(absl::Now())).string();
+                  absl::UnavailableError(Cat(*flags->Get("out-dir"), ": ", ec.message())));
+    out = (std::filesystem::path(*flags->Get("out-dir")) / BackupFileName(absl::Now())).string();
   }
   absl::StatusOr<storage::DatabaseInfo> info = storage::BackupDatabase(*db, out);
   if (!info.ok()) return Fail("backup", info.status());
   std::printf("backup: %s -> %s (%s)\n", db->c_str(), out.c_str(), Describe(*info).c_str());
   if (to_dir) {
-    absl::StatusOr<int> removed = PruneBackups(flags->at("--out-dir"), keep);
+    absl::StatusOr<int> removed = PruneBackups(*flags->Get("out-dir"), keep);
     if (!removed.ok()) return Fail("backup", removed.status());
     if (*removed > 0) std::printf("backup: removed %d old backups (keeping %d)\n", *removed, keep);
   }
@@ -267,19 +261,113 @@ int RunBackupCommand(std::span<const std::string> args) {
 
 int RunRestoreCommand(std::span<const std::string> args) {
   constexpr char kUsage[] = "imucald restore --from FILE [--db PATH | --config FILE]";
-  absl::StatusOr<std::map<std::string, std::string>> flags =
-      ParseFlags(args, {"--from", "--db", "--config"});
+  absl::StatusOr<flags::Args> flags = ParseFlags(args, kRestoreValued);
   if (!flags.ok()) return UsageError("restore", flags.status(), kUsage);
-  if (!flags->contains("--from")) {
+  if (flags->Has("help")) return Help(kUsage);
+  if (!flags->positional().empty()) {
+    return UsageError(
+        "restore", absl::InvalidArgumentError(Cat("unexpected '", flags->positional()[0], "'")),
+        kUsage);
+  }
+  if (!flags->Has("from")) {
     return UsageError("restore", absl::InvalidArgumentError("--from FILE is required"), kUsage);
   }
   absl::StatusOr<std::string> db = DatabasePath(*flags);
   if (!db.ok()) return Fail("restore", db.status());
-  absl::StatusOr<storage::DatabaseInfo> info = storage::RestoreDatabase(flags->at("--from"), *db);
+  absl::StatusOr<storage::DatabaseInfo> info = storage::RestoreDatabase(*flags->Get("from"), *db);
   if (!info.ok()) return Fail("restore", info.status());
   std::printf("restore: %s -> %s (%s); the previous database, if any, is %s.pre-restore\n",
-              flags->at("--from").c_str(), db->c_str(), Describe(*info).c_str(), db->c_str());
+              flags->Get("from")->c_str(), db->c_str(), Describe(*info).c_str(), db->c_str());
   return 0;
+}
+
+std::string DaemonCompletion(std::string_view shell) {
+  // What each word offers: the serve options (config.h's table) at the top, each command's own
+  // flags after it; every flag but the switches takes a file-like value.
+  std::set<std::string> serve = {"--config", "--help", "--version", "--health-check"};
+  std::set<std::string> serve_valued = {"--config"};
+  for (const ConfigOption& option : ConfigOptions()) {
+    std::string flag = Cat("--", option.key);
+    std::replace(flag.begin(), flag.end(), '_', '-');
+    serve.insert(flag);
+    if (option.type != OptionType::kBoolean) serve_valued.insert(flag);
+  }
+  const auto dashed = [](const std::set<std::string>& names) {
+    std::set<std::string> flags = {"--help"};
+    for (const std::string& name : names) flags.insert("--" + name);
+    return flags;
+  };
+  struct Word {
+    std::string_view word;
+    std::set<std::string> flags, valued;
+  };
+  std::set<std::string> health = dashed(kHealthCheckValued);
+  health.insert("--insecure");
+  const std::vector<Word> words = {
+      {"--health-check", health, dashed(kHealthCheckValued)},
+      {"backup", dashed(kBackupValued), dashed(kBackupValued)},
+      {"restore", dashed(kRestoreValued), dashed(kRestoreValued)},
+  };
+  std::string cases;
+  if (shell == "bash") {
+    for (const Word& w : words) {
+      AppendTo(&cases, "    ", w.word, ") flags=\"", Join(w.flags, " "), "\" valued=\"",
+               Join(w.valued, " "), "\" ;;\n");
+    }
+    return Cat(
+        "# bash completion for imucald: generated by `imucald completion bash` from its own\n"
+        "# option table (server/config.cc, server/daemon_commands.cc). Installed by\n"
+        "# deploy/install.sh.\n"
+        "_imucald() {\n"
+        "  local cur=${COMP_WORDS[COMP_CWORD]} prev=${COMP_WORDS[COMP_CWORD-1]}\n"
+        "  local flags=\"",
+        Join(serve, " "), "\" valued=\"", Join(serve_valued, " "),
+        "\"\n"
+        "  case ${COMP_WORDS[1]} in\n",
+        cases,
+        "  esac\n"
+        "  if [[ \" $valued \" == *\" $prev \"* ]]; then\n"
+        "    COMPREPLY=($(compgen -f -- \"$cur\"))\n"
+        "  elif [[ $COMP_CWORD -eq 1 && $cur != -* ]]; then\n"
+        "    COMPREPLY=($(compgen -W \"backup restore completion\" -- \"$cur\"))\n"
+        "  elif [[ ${COMP_WORDS[1]} == completion ]]; then\n"
+        "    COMPREPLY=($(compgen -W \"bash zsh\" -- \"$cur\"))\n"
+        "  else\n"
+        "    COMPREPLY=($(compgen -W \"$flags\" -- \"$cur\"))\n"
+        "  fi\n"
+        "}\n"
+        "complete -o filenames -F _imucald imucald\n");
+  }
+  if (shell == "zsh") {
+    for (const Word& w : words) {
+      AppendTo(&cases, "    ", w.word, ") flags=(", Join(w.flags, " "), ") valued=(",
+               Join(w.valued, " "), ") ;;\n");
+    }
+    return Cat(
+        "#compdef imucald\n"
+        "# zsh completion for imucald: generated by `imucald completion zsh` from its own option\n"
+        "# table (server/config.cc, server/daemon_commands.cc). Installed by deploy/install.sh.\n"
+        "_imucald() {\n"
+        "  local -a flags valued\n"
+        "  flags=(",
+        Join(serve, " "), ")\n  valued=(", Join(serve_valued, " "),
+        ")\n"
+        "  case $words[2] in\n",
+        cases,
+        "  esac\n"
+        "  if (( ${valued[(Ie)$words[CURRENT-1]]} )); then\n"
+        "    _files\n"
+        "  elif (( CURRENT == 2 )) && [[ $PREFIX != -* ]]; then\n"
+        "    compadd -- backup restore completion\n"
+        "  elif [[ $words[2] == completion ]]; then\n"
+        "    compadd -- bash zsh\n"
+        "  else\n"
+        "    compadd -- $flags\n"
+        "  fi\n"
+        "}\n"
+        "_imucald \"$@\"\n");
+  }
+  return "";
 }
 
 }  // namespace imucal::server

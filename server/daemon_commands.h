@@ -22,6 +22,7 @@
 
 #include <span>
 #include <string>
+#include <string_view>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -44,6 +45,10 @@ absl::Status CheckHealth(const std::string& address, const HealthCheckOptions& o
 // word. Messages go to stdout (result) and stderr (errors).
 int RunHealthCheckCommand(std::span<const std::string> args);
 int RunBackupCommand(std::span<const std::string> args);
+
+// `imucald completion bash|zsh`: the completion script for that shell, from the option table
+// and the commands' flags; empty for another shell.
+std::string DaemonCompletion(std::string_view shell);
 int RunRestoreCommand(std::span<const std::string> args);
 
 // Deletes the oldest `imucal-*.db` backups in `dir` beyond the newest `keep`; returns how many.

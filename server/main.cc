@@ -88,6 +88,15 @@ int main(int argc, char** argv) {
   const std::span<const std::string> rest = std::span(args).subspan(args.empty() ? 0 : 1);
   if (!args.empty() && args[0] == "backup") return imucal::server::RunBackupCommand(rest);
   if (!args.empty() && args[0] == "restore") return imucal::server::RunRestoreCommand(rest);
+  if (!args.empty() && args[0] == "completion") {
+    const std::string script = rest.size() == 1 ? imucal::server::DaemonCompletion(rest[0]) : "";
+    if (script.empty()) {
+      std::fputs("usage: imucald completion bash|zsh   (a completion script, on stdout)\n", stderr);
+      return 2;
+    }
+    std::fputs(script.c_str(), stdout);
+    return 0;
+  }
   if (!args.empty() && args[0] == "--health-check") {
     return imucal::server::RunHealthCheckCommand(rest);
   }
@@ -100,6 +109,10 @@ int main(int argc, char** argv) {
   }
   if (loaded->help) {
     std::fputs(imucal::server::HelpText().c_str(), stdout);
+    return 0;
+  }
+  if (loaded->version) {
+    std::puts("imucald " IMUCAL_VERSION);
     return 0;
   }
   return Serve(loaded->config);

@@ -12,6 +12,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "client/cli/args.h"
+#include "client/cli/command_table.h"
 #include "client/cli/commands.h"
 #include "client/cli/server_common.h"
 
@@ -160,7 +161,7 @@ int Revoke(const Server& server, const Args& a) {
 }  // namespace
 
 int RunAdmin(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "role", "device", "label", "out"}, {"json", "all", "help"});
+  auto a = ParseCommandFlags("admin", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kAdminHelp);
   if (a->Has("help")) return std::printf("%s", kAdminHelp), kExitOk;
   const std::vector<std::string>& pos = a->positional();

@@ -12,6 +12,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/cli/args.h"
+#include "client/cli/command_table.h"
 #include "client/cli/commands.h"
 #include "client/cli/guide_view.h"
 #include "client/cli/server_common.h"
@@ -49,8 +50,7 @@ int ExitFor(const pb::SolveJob& job) {
 }  // namespace
 
 int RunGuide(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "device", "session", "protocol", "seed", "reconnects"},
-                       {"no-solve", "help"});
+  auto a = ParseCommandFlags("guide", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kGuideHelp);
   if (a->Has("help")) return std::printf("%s", kGuideHelp), kExitOk;
   auto device = a->Get("device");

@@ -2,14 +2,19 @@
 // come with the calibration service.
 #include <cstdio>
 #include <string>
+#include <utility>
 #include <vector>
 
+#include "client/cli/command_table.h"
 #include "client/cli/commands.h"
 
 namespace {
 
+using imucal::cli::BashCompletion;
+using imucal::cli::ZshCompletion;
+
 constexpr char kHelp[] =
-    "usage: imucal COMMAND [options]   (imucal COMMAND --help for each)\n"
+    "usage: imucal COMMAND [options]   (imucal help COMMAND, or imucal COMMAND -h, for each)\n"
     "offline commands:\n"
     "  calibrate FILE...        calibrate accelerometer and gyroscope from a capture\n"
     "  apply --params P IN OUT  apply a parameter set to a capture (writes m/s^2, rad/s)\n"
@@ -34,7 +39,56 @@ constexpr char kHelp[] =
     "  admin token create|list|revoke     API tokens (admin role)\n"
     "connection (any server command, anywhere on the line): --ca-cert PEM (CA of the server's\n"
     "TLS certificate, else $IMUCAL_CA_CERT), --token-file F or --token T (bearer token, else\n"
-    "$IMUCAL_TOKEN_FILE or $IMUCAL_TOKEN); exit code 7 when the server refuses them\n";
+    "$IMUCAL_TOKEN_FILE or $IMUCAL_TOKEN); exit code 7 when the server refuses them\n"
+    "other:\n"
+    "  help [COMMAND]           this text, or a command's\n"
+    "  completion bash|zsh      a shell completion script (deploy/install.sh installs both)\n"
+    "  --version                the version\n"
+    "flags: --name value or --name=value; a switch alone (--json) or --json=false; -- ends the\n"
+    "flags. An unknown flag is an error that names it (exit code 1).\n";
+
+// Runs `command` with its arguments; kExitUsage for a word that is no command.
+int Dispatch(const std::string& command, std::vector<std::string> args) {
+  if (command == "calibrate") return imucal::cli::RunCalibrate(args);
+  if (command == "apply") return imucal::cli::RunApply(args);
+  if (command == "simulate") return imucal::cli::RunSimulate(args);
+  if (command == "noise") return imucal::cli::RunNoise(args);
+  if (command == "demo") {
+    // With a server, the demo runs through the service; without, offline.
+    for (const std::string& a : args)
+      if (a == "--server" || a.rfind("--server=", 0) == 0) return imucal::cli::RunServerDemo(args);
+    return imucal::cli::RunDemo(args);
+  }
+  if (command == "devices") return imucal::cli::RunDevices(args);
+  if (command == "session") return imucal::cli::RunSession(args);
+  if (command == "upload") return imucal::cli::RunUpload(args);
+  if (command == "guide") return imucal::cli::RunGuide(args);
+  if (command == "solve") return imucal::cli::RunSolve(args);
+  if (command == "report") return imucal::cli::RunReport(args);
+  if (command == "params") return imucal::cli::RunParams(args);
+  if (command == "admin") return imucal::cli::RunAdmin(args);
+  if (command == "export") {
+    // A parameter set file (--params) is exported offline; a stored version (--device) by the
+    // server. Without either, the offline help.
+    bool has_device = false, has_params = false;
+    for (const std::string& a : args) {
+      has_device |= a == "--device" || a.rfind("--device=", 0) == 0;
+      has_params |= a == "--params" || a.rfind("--params=", 0) == 0;
+    }
+    if (has_params || !has_device) return imucal::cli::RunExportFile(args);
+    return imucal::cli::RunExport(args);
+  }
+  if (command == "completion") {
+    const bool help = args.size() == 1 && (args[0] == "-h" || args[0] == "--help");
+    if (args.size() == 1 && args[0] == "bash") return std::fputs(BashCompletion().c_str(), stdout), 0;
+    if (args.size() == 1 && args[0] == "zsh") return std::fputs(ZshCompletion().c_str(), stdout), 0;
+    std::fputs("usage: imucal completion bash|zsh   (a completion script, on stdout)\n",
+               help ? stdout : stderr);
+    return help ? imucal::cli::kExitOk : imucal::cli::kExitUsage;
+  }
+  std::fprintf(stderr, "imucal: unknown command '%s'\n\n%s", command.c_str(), kHelp);
+  return imucal::cli::kExitUsage;
+}
 
 }  // namespace
 
@@ -74,45 +128,24 @@ int main(int argc, char** argv) {
     return imucal::cli::kExitUsage;
   }
   const std::string command = argv[first];
-  std::vector<std::string> args(argv + first + 1, argv + argc);
-  args.insert(args.begin(), global.begin(), global.end());
-  if (command == "--help" || command == "-h" || command == "help") {
+  const std::vector<std::string> own(argv + first + 1, argv + argc);
+  if (command == "--help" || command == "-h" || (command == "help" && own.empty())) {
     std::fputs(kHelp, stdout);
     return imucal::cli::kExitOk;
+  }
+  if (command == "help") {
+    // help COMMAND: the command's own --help.
+    if (own.size() != 1 || own[0].starts_with("-")) {
+      std::fprintf(stderr, "imucal: usage: imucal help [COMMAND]\n");
+      return imucal::cli::kExitUsage;
+    }
+    return Dispatch(own[0], {"--help"});
   }
   if (command == "--version") {
     std::puts("imucal " IMUCAL_VERSION);
     return imucal::cli::kExitOk;
   }
-  if (command == "calibrate") return imucal::cli::RunCalibrate(args);
-  if (command == "apply") return imucal::cli::RunApply(args);
-  if (command == "simulate") return imucal::cli::RunSimulate(args);
-  if (command == "noise") return imucal::cli::RunNoise(args);
-  if (command == "demo") {
-    // With a server, the demo runs through the service; without, offline.
-    for (const std::string& a : args)
-      if (a == "--server" || a.rfind("--server=", 0) == 0) return imucal::cli::RunServerDemo(args);
-    return imucal::cli::RunDemo(args);
-  }
-  if (command == "devices") return imucal::cli::RunDevices(args);
-  if (command == "session") return imucal::cli::RunSession(args);
-  if (command == "upload") return imucal::cli::RunUpload(args);
-  if (command == "guide") return imucal::cli::RunGuide(args);
-  if (command == "solve") return imucal::cli::RunSolve(args);
-  if (command == "report") return imucal::cli::RunReport(args);
-  if (command == "params") return imucal::cli::RunParams(args);
-  if (command == "admin") return imucal::cli::RunAdmin(args);
-  if (command == "export") {
-    // A parameter set file (--params) is exported offline; a stored version (--device) by the
-    // server. Without either, the offline help.
-    bool has_device = false, has_params = false;
-    for (const std::string& a : args) {
-      has_device |= a == "--device" || a.rfind("--device=", 0) == 0;
-      has_params |= a == "--params" || a.rfind("--params=", 0) == 0;
-    }
-    if (has_params || !has_device) return imucal::cli::RunExportFile(args);
-    return imucal::cli::RunExport(args);
-  }
-  std::fprintf(stderr, "imucal: unknown command '%s'\n\n%s", command.c_str(), kHelp);
-  return imucal::cli::kExitUsage;
+  std::vector<std::string> args = global;
+  args.insert(args.end(), own.begin(), own.end());
+  return Dispatch(command, std::move(args));
 }

@@ -12,6 +12,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "client/cli/args.h"
+#include "client/cli/command_table.h"
 #include "client/cli/commands.h"
 #include "client/cli/demo_common.h"
 #include "client/cli/import_flags.h"
@@ -41,7 +42,7 @@ constexpr char kNoiseHelp[] =
     "                      keys), DIR/noise.json and the Allan plots DIR/allan_{accel,gyro}.svg\n"
     "  --rostopic T        rostopic of the YAML files (default /imu0)\n"
     "  --json              print the figures as JSON\n"
-    "  --format F, --accel-unit U, --gyro-unit U, --gravity G: as for calibrate\n";
+    "  --format F, --accel-unit U, --gyro-unit U, --gravity G, --device ID: as for calibrate\n";
 
 constexpr const char* kAxes[6] = {"accel x", "accel y", "accel z", "gyro x", "gyro y", "gyro z"};
 
@@ -161,10 +162,7 @@ nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const importers::ImportR
 }  // namespace
 
 int RunNoise(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv,
-                       WithImportValuedFlags({"format", "accel-unit", "gyro-unit", "gravity",
-                                              "device", "params", "out", "rostopic"}),
-                       WithImportSwitches({"json", "help"}));
+  auto a = ParseCommandFlags("noise", argv);
   if (!a.ok()) return Usage(std::string(a.status().message()));
   if (a->Has("help")) return std::printf("%s%s", kNoiseHelp, kImportFlagsHelp), kExitOk;
   if (a->positional().empty()) return Usage("noise needs a REST recording");

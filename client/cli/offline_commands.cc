@@ -17,6 +17,7 @@
 #include "absl/time/time.h"
 #include "client/cli/args.h"
 #include "client/cli/botch.h"
+#include "client/cli/command_table.h"
 #include "client/cli/commands.h"
 #include "client/cli/demo_common.h"
 #include "client/cli/export_flags.h"
@@ -309,11 +310,7 @@ int ReportError(const absl::Status& status) {
 
 int RunCalibrate(const std::vector<std::string>& argv) {
   auto a =
-      Args::Parse(argv,
-                  WithImportValuedFlags({"format", "protocol", "gravity", "accel-unit", "gyro-unit",
-                                         "device", "seed", "out", "params-out", "plots"}),
-                  WithImportSwitches({"json", "no-bsas", "no-heldout", "no-effects",
-                                      "apply-time-effects", "help"}));
+      ParseCommandFlags("calibrate", argv);
   if (!a.ok()) return Usage(std::string(a.status().message()), kCalibrateHelp);
   if (a->Has("help")) return std::printf("%s%s", kCalibrateHelp, kImportFlagsHelp), kExitOk;
   if (a->positional().empty()) return Usage("calibrate needs a capture FILE", kCalibrateHelp);
@@ -385,8 +382,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
 }
 
 int RunApply(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, WithImportValuedFlags({"params", "format", "accel-unit", "gyro-unit"}),
-                       WithImportSwitches({"help"}));
+  auto a = ParseCommandFlags("apply", argv);
   if (!a.ok()) return Usage(std::string(a.status().message()), kApplyHelp);
   if (a->Has("help")) return std::printf("%s%s", kApplyHelp, kImportFlagsHelp), kExitOk;
   if (!a->Get("params")) return Usage("apply needs --params FILE", kApplyHelp);
@@ -413,11 +409,7 @@ int RunApply(const std::vector<std::string>& argv) {
 }
 
 int RunSimulate(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv,
-                       {"out", "protocol", "seed", "rate", "extra-poses", "free-poses",
-                        "accel-noise", "gyro-noise", "accel-step", "gyro-step", "accel-unit",
-                        "gyro-unit", "floor-tilt", "turn-error", "effect", "truth"},
-                       {"no-temperature", "botch-turn", "help"});
+  auto a = ParseCommandFlags("simulate", argv);
   if (!a.ok()) return Usage(std::string(a.status().message()), kSimulateHelp);
   if (a->Has("help")) return std::printf("%s", kSimulateHelp), kExitOk;
   if (!a->Get("out")) return Usage("simulate needs --out FILE.csv", kSimulateHelp);
@@ -452,13 +444,12 @@ int RunSimulate(const std::vector<std::string>& argv) {
 // The offline main job: simulate a six-face session with extra poses, calibrate it, apply the
 // result to a fresh noise-free validation capture, print the error before and after.
 int RunDemo(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"out-dir", "seed", "extra-poses"}, {"help", "no-bsas"});
-  if (!a.ok() || a->Has("help")) {
-    std::printf(
-        "usage: imucal demo [--out-dir DIR] [--seed N] [--extra-poses N] [--no-bsas]\n"
-        "       imucal demo --server ADDR [--seed N]   (the same through the service)\n");
-    return a.ok() ? kExitOk : kExitUsage;
-  }
+  constexpr char kDemoHelp[] =
+      "usage: imucal demo [--out-dir DIR] [--seed N] [--extra-poses N] [--no-bsas]\n"
+      "       imucal demo --server ADDR [--seed N]   (the same through the service)\n";
+  auto a = ParseCommandFlags("demo", argv);
+  if (!a.ok()) return Usage(std::string(a.status().message()), kDemoHelp);
+  if (a->Has("help")) return std::printf("%s", kDemoHelp), kExitOk;
   const std::string dir = a->Get("out-dir").value_or("imucal-demo");
   auto seed = a->GetInt("seed", 7);
   if (!seed.ok()) return Usage(std::string(seed.status().message()), "");
@@ -519,7 +510,7 @@ constexpr char kExportFileHelpTail[] =
 
 int RunExportFile(const std::vector<std::string>& argv) {
   auto a =
-      Args::Parse(argv, WithExportValuedFlags({"params", "format", "out", "server"}), {"help"});
+      ParseCommandFlags("export-file", argv);
   if (!a.ok()) return Usage(std::string(a.status().message()), kExportFileHelp);
   if (a->Has("help")) {
     return std::printf("%s%s%s", kExportFileHelp, kExportOptionsHelp, kExportFileHelpTail), kExitOk;

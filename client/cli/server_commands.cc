@@ -15,6 +15,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "client/cli/args.h"
+#include "client/cli/command_table.h"
 #include "client/cli/commands.h"
 #include "client/cli/export_flags.h"
 #include "client/cli/import_flags.h"
@@ -63,8 +64,7 @@ int DevicesHelp() { return std::printf("%s%s", kDevicesHelp, kServerFlagHelp), k
 }  // namespace
 
 int RunDevices(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "sensor-model", "rate", "accel-unit", "gyro-unit"},
-                       {"json", "help"});
+  auto a = ParseCommandFlags("devices", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kDevicesHelp);
   if (a->Has("help")) return DevicesHelp();
   Server server = Connect(*a);
@@ -183,7 +183,7 @@ absl::StatusOr<pb::SessionState> ParseState(const std::string& name) {
 
 int RunSession(const std::vector<std::string>& argv) {
   auto a =
-      Args::Parse(argv, {"server", "device", "protocol", "state", "gravity"}, {"json", "help"});
+      ParseCommandFlags("session", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kSessionHelp);
   if (a->Has("help")) return std::printf("%s%s", kSessionHelp, kServerFlagHelp), kExitOk;
   const auto& pos = a->positional();
@@ -325,7 +325,7 @@ int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t
 }  // namespace
 
 int RunSolve(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "session", "seed", "timeout"}, {"wait", "json", "help"});
+  auto a = ParseCommandFlags("solve", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kSolveHelp);
   if (a->Has("help")) return std::printf("%s%s", kSolveHelp, kServerFlagHelp), kExitOk;
   auto session = a->Get("session");
@@ -358,6 +358,8 @@ constexpr char kUploadHelp[] =
     "  --format F   --accel-unit U   --gyro-unit U   input as for calibrate (and below)\n"
     "  --batch N          samples per batch (default 2000)\n"
     "  --solve            solve when the upload is complete and wait for the verdict\n"
+    "  --seed N           with --solve: the solve's BSAS seed (default 0)\n"
+    "  --timeout SECONDS  with --solve: how long to wait for the verdict (default 600)\n"
     "  --json             print the session (and solve job) as JSON\n";
 
 // Draws "[#####.....]  42%  12000/28000 samples" on stderr, over itself.
@@ -416,10 +418,7 @@ absl::StatusOr<importers::ImportOptions> UploadImportOptions(const Args& a) {
 
 int RunUpload(const std::vector<std::string>& argv) {
   auto a =
-      Args::Parse(argv,
-                  WithImportValuedFlags({"server", "device", "session", "protocol", "format",
-                                         "accel-unit", "gyro-unit", "batch", "seed", "timeout"}),
-                  WithImportSwitches({"solve", "json", "help"}));
+      ParseCommandFlags("upload", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kUploadHelp);
   if (a->Has("help"))
     return std::printf("%s%s%s", kUploadHelp, kImportFlagsHelp, kServerFlagHelp), kExitOk;
@@ -654,7 +653,7 @@ std::string FormatReportSummary(const json& r) {
 }  // namespace
 
 int RunReport(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "session", "out"}, {"json", "help"});
+  auto a = ParseCommandFlags("report", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kReportHelp);
   if (a->Has("help")) return std::printf("%s%s", kReportHelp, kServerFlagHelp), kExitOk;
   auto session = a->Get("session");
@@ -711,7 +710,7 @@ void PrintParamHeader(const pb::ParameterSet& p) {
 }  // namespace
 
 int RunParams(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(argv, {"server", "device", "version", "to", "reason"}, {"json", "help"});
+  auto a = ParseCommandFlags("params", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kParamsHelp);
   if (a->Has("help")) return std::printf("%s%s", kParamsHelp, kServerFlagHelp), kExitOk;
   const auto& pos = a->positional();
@@ -823,8 +822,7 @@ constexpr char kExportHelp[] =
 }  // namespace
 
 int RunExport(const std::vector<std::string>& argv) {
-  auto a = Args::Parse(
-      argv, WithExportValuedFlags({"server", "device", "version", "format", "out"}), {"help"});
+  auto a = ParseCommandFlags("export-server", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kExportHelp);
   if (a->Has("help"))
     return std::printf("%s%s%s", kExportHelp, kExportOptionsHelp, kServerFlagHelp), kExitOk;

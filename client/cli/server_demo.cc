@@ -11,6 +11,7 @@
 #include "absl/time/time.h"
 #include "client/cli/args.h"
 #include "client/cli/botch.h"
+#include "client/cli/command_table.h"
 #include "client/cli/commands.h"
 #include "client/cli/demo_common.h"
 #include "client/cli/server_common.h"
@@ -22,7 +23,7 @@ namespace pb = ::imucal::v1;
 
 int RunServerDemo(const std::vector<std::string>& argv) {
   auto a =
-      Args::Parse(argv, {"server", "seed", "device", "robot-token-file"}, {"help", "botch-turn"});
+      ParseCommandFlags("demo-server", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), "");
   if (a->Has("help")) {
     std::printf(

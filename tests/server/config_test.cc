@@ -160,7 +160,7 @@ TEST(ConfigTest, BadValuesFromEnvironmentAndFlagsNameTheVariableOrFlag) {
 
   loaded = Load({"--solve-threads"});
   ASSERT_EQ(loaded.status().code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_EQ(Message(loaded.status()), "--solve-threads: missing value");
+  EXPECT_EQ(Message(loaded.status()), "--solve-threads needs a value");
 
   loaded = Load({"--listne", "x:1"});
   ASSERT_EQ(loaded.status().code(), absl::StatusCode::kInvalidArgument);
