@@ -19,9 +19,14 @@ reader without the summary must find them there), and again in the summary. Chun
 compressed with the `zstd` and `lz4` command-line tools (the LZ4 frame format), whichever
 --compression names. Usage: write_mcap.py OUT [--bag-dir] [--compression none|zstd|lz4]
 [--no-summary] [--no-chunks] [--chunk-bytes N] [imu_sim and write_rosbag2 options]
+
+With --from-db3 FILE, the messages are not simulated: every message of a recorded rosbag2
+sqlite3 file (its `topics` and `messages` tables) is carried over byte for byte, in timestamp
+order, as `ros2 bag convert` would carry it into the mcap storage.
 """
 import argparse
 import os
+import sqlite3
 import struct
 import subprocess
 import sys
@@ -72,8 +77,9 @@ def record(op, content):
 
 
 def schema_record(schema_id, type_name):
+    # A type this file has no .msg text for (from a recorded bag) gets an empty definition.
     return record(OP_SCHEMA, u16(schema_id) + string(type_name) + string("ros2msg") +
-                  string(DEFINITIONS[type_name]))
+                  string(DEFINITIONS.get(type_name, "")))
 
 
 def channel_record(channel_id, schema_id, topic):
@@ -212,11 +218,22 @@ def main():
     parser.add_argument("--no-chunks", action="store_true", help="messages outside chunks")
     parser.add_argument("--chunk-bytes", type=int, default=65536,
                         help="uncompressed size at which a chunk is closed")
+    parser.add_argument("--from-db3", metavar="FILE",
+                        help="carry over a recorded rosbag2 sqlite3 file instead of simulating")
     write_rosbag2.add_bag_arguments(parser)
     args = parser.parse_args()
-    samples, truth = imu_sim.simulate(args)
-    topics = write_rosbag2.recorded_topics(args)
-    rows = write_rosbag2.recorded_rows(args, samples)
+    truth = None
+    if args.from_db3:
+        db = sqlite3.connect(f"file:{args.from_db3}?mode=ro", uri=True)
+        topics = {topic_id: (name, type_name) for topic_id, name, type_name in
+                  db.execute("SELECT id, name, type FROM topics ORDER BY id")}
+        rows = list(db.execute(
+            "SELECT timestamp, topic_id, data FROM messages ORDER BY timestamp, id"))
+        db.close()
+    else:
+        samples, truth = imu_sim.simulate(args)
+        topics = write_rosbag2.recorded_topics(args)
+        rows = write_rosbag2.recorded_rows(args, samples)
 
     if args.bag_dir:
         os.makedirs(args.out)
@@ -226,7 +243,8 @@ def main():
             f.write(metadata_yaml(name, topics, counts, rows))
     else:
         write_mcap(args.out, args, topics, rows)
-    write_rosbag2.write_truth(truth, args, topics, args.out)
+    if truth is not None:
+        write_rosbag2.write_truth(truth, args, topics, args.out)
     print(args.out)
 
 
