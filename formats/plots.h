@@ -54,7 +54,7 @@ struct PlotSeries {
   bool hollow = false;  // open markers
   bool dashed = false;  // a dashed line (fitted or reference curves)
   // A small label beside each point (pose numbers); empty, or one per point.
-  std::vector<std::string> point_labels;
+  std::vector<std::string> point_labels = {};
 };
 // A horizontal reference line across the plot (a threshold, a noise floor), labelled at its end.
 struct RefLine {
@@ -68,8 +68,8 @@ struct Plot {
   bool log_x = false, log_y = false;  // decades; non-positive values are left out
   bool equal_aspect = false;          // one unit is as long on both axes (maps)
   bool axes = true;                   // false: no grid, ticks or frame (maps)
-  std::vector<RefLine> ref_lines;
-  std::string caption;  // one line under the plot: what good looks like
+  std::vector<RefLine> ref_lines = {};
+  std::string caption = {};  // one line under the plot: what good looks like
 };
 std::string RenderSvg(const Plot& plot);
 

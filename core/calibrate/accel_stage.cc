@@ -362,9 +362,9 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
     const AccelObservability alone = AnalyseAccelObservability(*s1, poses, g, all);
     for (const AccelPrior& q : priors) {
       const size_t k = static_cast<size_t>(q.index);
-      const double faces = faces_fit_sigma(q.index);
-      out.refit_free[k] =
-          alone.determined[k] && !(std::isfinite(faces) && 10 * faces < alone.sigma(q.index));
+      const double faces_sigma = faces_fit_sigma(q.index);
+      out.refit_free[k] = alone.determined[k] &&
+                          !(std::isfinite(faces_sigma) && 10 * faces_sigma < alone.sigma(q.index));
     }
   }
   // An angle the face references measure is free whatever |a| = g adds: it is not neutral (0)

@@ -79,10 +79,10 @@ VerdictInputs VerdictInputsOf(const CalibrationReport& rep, const AccelStage& ac
   in.incomplete = accel.incomplete;
   if (!gyro.calibrated)
     in.incomplete.push_back("gyroscope: only the bias was calibrated (the warnings say why)");
-  for (const PairCheck& p : rep.pairs)
-    if (!p.ok)
+  for (const PairCheck& pair : rep.pairs)
+    if (!pair.ok)
       in.incomplete.push_back(absl::StrFormat("six-face pair of poses %d and %d (%s) rejected",
-                                              p.pose_a, p.pose_b, p.face));
+                                              pair.pose_a, pair.pose_b, pair.face));
   return in;
 }
 

@@ -100,8 +100,9 @@ TEST(PlotsTest, OneSvgPerEffectAndPerPoseResiduals) {
   for (const auto& [name, text] : svg) {
     EXPECT_NE(text.find("font-style=\"italic\">Good: "), std::string::npos) << name;
     // Units in brackets on both axes; a pose number (the per-pose plots' x axis) has none.
-    if (name != "coverage.svg")
+    if (name != "coverage.svg") {
       EXPECT_GE(Count(text, "["), name.starts_with("residual_") ? 1 : 2) << name;
+    }
   }
   EXPECT_NE(svg["effect_1_gyro_y_ax.svg"].find("ax [m/s^2]"), std::string::npos);
   // The per-pose plots: the gates and the noise floor as lines, and the pose numbers.

@@ -123,9 +123,9 @@ TEST_P(McapFileTest, SameCaptureAsTheSqliteBag) {
 
 INSTANTIATE_TEST_SUITE_P(EveryCompression, McapFileTest,
                          testing::Combine(testing::Values("none", "zstd", "lz4"), testing::Bool()),
-                         [](const auto& info) {
-                           return std::get<0>(info.param) +
-                                  (std::get<1>(info.param) ? "_summary" : "_no_summary");
+                         [](const auto& param_info) {
+                           return std::get<0>(param_info.param) +
+                                  (std::get<1>(param_info.param) ? "_summary" : "_no_summary");
                          });
 
 TEST(McapTest, UnchunkedFile) {
@@ -192,7 +192,9 @@ TEST(McapTest, DamagedFilesAreErrorsNamingTheOffset) {
           McapReader::FromBytes(std::string_view(bytes.data(), cut), "cut.mcap");
       ASSERT_FALSE(reader.ok());
       EXPECT_THAT(reader.status().message(), HasSubstr("cut.mcap: "));
-      if (cut >= 8) EXPECT_THAT(reader.status().message(), HasSubstr("byte "));
+      if (cut >= 8) {
+        EXPECT_THAT(reader.status().message(), HasSubstr("byte "));
+      }
     }
     // A byte in the middle of the first chunk's records: the chunk follows the magic (8 bytes)
     // and the header record (opcode, u64 length, content).
