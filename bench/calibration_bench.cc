@@ -17,7 +17,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -26,6 +25,7 @@
 
 #include "Eigen/Dense"
 #include "absl/strings/str_format.h"
+#include "bench/bench_flags.h"
 #include "benchmark/benchmark.h"
 #include "core/accel_solver.h"
 #include "core/calibrate/accel_stage.h"
@@ -509,21 +509,35 @@ BENCHMARK(BM_XsensImportAndCalibrate)->Unit(benchmark::kMillisecond)->MinTime(3.
 }  // namespace
 }  // namespace imucal::core
 
+namespace {
+
+// benchmark::Initialize takes --help itself (it prints its usage and exits 0): this bench's
+// flags are printed first. -h reaches CLI11, whose help ends with a pointer to --help.
+const CLI::App* help_app = nullptr;
+void PrintHelp() {
+  std::fputs(help_app->help().c_str(), stdout);
+  std::printf("\nGoogle Benchmark's flags:\n");
+  benchmark::PrintDefaultHelp();
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
-  benchmark::Initialize(&argc, argv);
   int seeds = imucal::core::kDefaultSeeds;
-  bool tables = true;
-  for (int i = 1; i < argc; ++i) {
-    const std::string_view arg = argv[i];
-    if (arg.starts_with("--seeds=")) {
-      seeds = std::max(1, std::atoi(argv[i] + 8));
-    } else if (arg == "--skip_tables") {
-      tables = false;
-    } else {
-      std::fprintf(stderr, "unknown argument %s\n", argv[i]);
-      return 2;
-    }
-  }
+  bool skip_tables = false;
+  CLI::App app{
+      "BSAS against LM and the Xsens capture of IMU-TK: tables first, then Google Benchmark "
+      "times the runs.",
+      "calibration_bench"};
+  app.add_option("--seeds", seeds, "simulated captures per table (seeds 1..N; at least 1)");
+  app.add_flag("--skip_tables", skip_tables, "only the Google Benchmark timings");
+  app.footer("--benchmark_* flags go to Google Benchmark; --help lists them too.");
+  imucal::bench::ShowDefaultsTakeLast(app);
+  help_app = &app;
+  benchmark::Initialize(&argc, argv, PrintHelp);  // removes the --benchmark_* flags
+  imucal::bench::ParseBenchFlags(app, argc, argv);
+  seeds = std::max(1, seeds);
+  const bool tables = !skip_tables;
   if (tables) {
     const auto pipeline = imucal::core::PrintPipelineComparison(seeds);
     const auto stages = imucal::core::PrintStageComparison(seeds);

@@ -19,14 +19,13 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <optional>
 #include <string>
-#include <string_view>
 #include <vector>
 
 #include "Eigen/Core"
 #include "absl/strings/str_format.h"
+#include "bench/bench_flags.h"
 #include "core/accel_solver.h"
 #include "core/calibrate/calibrate.h"
 #include "core/crb.h"
@@ -261,15 +260,11 @@ void Print(const std::vector<Run>& runs, int seeds) {
 
 int main(int argc, char** argv) {
   int seeds = imucal::core::kDefaultSeeds;
-  for (int i = 1; i < argc; ++i) {
-    const std::string_view arg = argv[i];
-    if (arg.starts_with("--seeds=")) {
-      seeds = std::max(1, std::atoi(argv[i] + 8));
-    } else {
-      std::fprintf(stderr, "usage: crb_bench [--seeds=N]\n");
-      return 2;
-    }
-  }
+  CLI::App app{"How close Calibrate's estimates come to the Cramer-Rao bound, over many seeds.",
+               "crb_bench"};
+  app.add_option("--seeds", seeds, "simulated captures (seeds 1..N; at least 1)");
+  imucal::bench::ParseBenchFlags(app, argc, argv);
+  seeds = std::max(1, seeds);
   std::vector<imucal::core::Run> runs;
   for (int s = 1; s <= seeds; ++s) {
     if (auto run = imucal::core::RunSeed(static_cast<uint64_t>(s))) runs.push_back(*run);

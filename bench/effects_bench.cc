@@ -27,10 +27,10 @@
 #include <cstdio>
 #include <cstdlib>
 #include <string>
-#include <string_view>
 #include <vector>
 
 #include "absl/strings/str_format.h"
+#include "bench/bench_flags.h"
 #include "core/calibrate/calibrate.h"
 #include "tests/core/effect_scenarios.h"
 
@@ -252,24 +252,18 @@ int Main(int seeds, const Only& only) {
 int main(int argc, char** argv) {
   int seeds = 20;
   imucal::core::Only only;
-  for (int i = 1; i < argc; ++i) {
-    const std::string_view a = argv[i];
-    if (a.rfind("--seeds=", 0) == 0) {
-      seeds = std::atoi(argv[i] + 8);
-    } else if (a.rfind("--case=", 0) == 0) {
-      only.name = std::string(a.substr(7));
-    } else if (a.rfind("--clean-seeds=", 0) == 0) {
-      only.clean_seeds = std::atoi(argv[i] + 14);
-    } else if (a == "--no-temperature") {
-      only.no_temperature = true;
-    } else if (a.rfind("--seed=", 0) == 0) {
-      only.seed = std::atoi(argv[i] + 7);
-    } else {
-      std::fprintf(stderr,
-                   "usage: effects_bench [--seeds=N] [--clean-seeds=N] [--case=NAME] [--seed=N] "
-                   "[--no-temperature]\n");
-      return 1;
-    }
-  }
+  CLI::App app{
+      "Closing the loop: detection and false-alarm rates of the effect search, and the error "
+      "before and after on validation captures, over many seeds.",
+      "effects_bench"};
+  app.add_option("--seeds", seeds, "seeds per row (at least 1)");
+  app.add_option("--clean-seeds", only.clean_seeds,
+                 "clean captures that measure the false alarms (0: as many as --seeds)");
+  app.add_option("--case", only.name,
+                 "run this scenario only (a name of tests/core/effect_scenarios.h)");
+  app.add_option("--seed", only.seed, "run this seed only (0: every seed)");
+  app.add_flag("--no-temperature", only.no_temperature,
+               "the cases that do not need a temperature channel, on captures without one");
+  imucal::bench::ParseBenchFlags(app, argc, argv);
   return imucal::core::Main(std::max(1, seeds), only);
 }

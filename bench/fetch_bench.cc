@@ -38,18 +38,17 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <mutex>
-#include <optional>
 #include <random>
 #include <sstream>
 #include <string>
 #include <vector>
 
-#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "absl/strings/str_split.h"
+#include "bench/bench_flags.h"
 #include "bench/service_bench_util.h"
 #include "core/params.h"
 #include "formats/params_json.h"
@@ -78,41 +77,27 @@ struct Flags {
 
 Flags ParseFlags(int argc, char** argv) {
   Flags f;
-  for (int i = 1; i < argc; ++i) {
-    std::string_view a = argv[i];
-    auto value = [&](std::string_view name) -> std::optional<std::string> {
-      if (!a.starts_with(name)) return std::nullopt;
-      return std::string(a.substr(name.size()));
-    };
-    if (auto v = value("--devices=")) {
-      f.devices = std::atoi(v->c_str());
-    } else if (auto ve = value("--versions=")) {
-      f.versions = std::atoi(ve->c_str());
-    } else if (auto s = value("--seconds=")) {
-      f.seconds = std::atof(s->c_str());
-    } else if (auto c = value("--callers=")) {
-      f.callers.clear();
-      for (const std::string& x : std::vector<std::string>(absl::StrSplit(*c, ','))) {
-        int n = 0;
-        if (absl::SimpleAtoi(x, &n) && n > 0) f.callers.push_back(n);
-      }
-    } else if (auto ch = value("--channels=")) {
-      f.channels = std::max(1, std::atoi(ch->c_str()));
-    } else if (auto d = value("--db=")) {
-      f.db = *d;
-    } else if (a == "--keep") {
-      f.keep = true;
-    } else if (a == "--warm") {
-      f.warm = true;
-    } else if (auto sc = value("--server-cpu=")) {
-      f.server_cpu = std::atoi(sc->c_str());
-    } else if (auto cc = value("--client-cpu=")) {
-      f.client_cpu = std::atoi(cc->c_str());
-    } else {
-      std::fprintf(stderr, "unknown flag %s\n", argv[i]);
-      std::exit(2);
-    }
-  }
+  CLI::App app{
+      "Active-parameters fetch (GetActiveParameters) for random devices against a fleet-sized "
+      "SQLite store, from a forked server.",
+      "fetch_bench"};
+  app.add_option("--devices", f.devices, "devices in the store");
+  app.add_option("--versions", f.versions, "parameter versions per device (the last active)");
+  app.add_option("--seconds", f.seconds, "seconds per row");
+  app.add_option("--callers", f.callers, "calls in flight, one row each, comma-separated")
+      ->delimiter(',')
+      ->check(CLI::Range(1, std::numeric_limits<int>::max()).description("POSITIVE"));
+  app.add_option("--channels", f.channels,
+                 "HTTP/2 connections the callers are spread over (at least 1)");
+  app.add_option("--db", f.db,
+                 "the store: populated there if missing, reused if present "
+                 "(default: a fresh one in a temp directory)");
+  app.add_flag("--keep", f.keep, "keep the temp directory");
+  app.add_flag("--warm", f.warm, "fetch every device once before the rows (a warm cache)");
+  app.add_option("--server-cpu", f.server_cpu, "pin the server to this core (-1: no pinning)");
+  app.add_option("--client-cpu", f.client_cpu, "pin this client to this core (-1: no pinning)");
+  imucal::bench::ParseBenchFlags(app, argc, argv);
+  f.channels = std::max(1, f.channels);
   return f;
 }
 

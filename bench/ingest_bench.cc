@@ -35,19 +35,17 @@
 #include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
-#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <mutex>
-#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
 
-#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "absl/strings/str_split.h"
+#include "bench/bench_flags.h"
 #include "bench/service_bench_util.h"
 #include "core/simulator.h"
 #include "grpcpp/grpcpp.h"
@@ -77,43 +75,26 @@ struct Flags {
 
 Flags ParseFlags(int argc, char** argv) {
   Flags f;
-  for (int i = 1; i < argc; ++i) {
-    std::string_view a = argv[i];
-    auto value = [&](std::string_view name) -> std::optional<std::string_view> {
-      if (!a.starts_with(name)) return std::nullopt;
-      return a.substr(name.size());
-    };
-    if (auto v = value("--n=")) {
-      f.ns.clear();
-      for (const std::string& s : std::vector<std::string>(absl::StrSplit(std::string(*v), ','))) {
-        int n = 0;
-        if (!absl::SimpleAtoi(s, &n) || n < 1) {
-          std::fprintf(stderr, "--n: bad value\n");
-          std::exit(2);
-        }
-        f.ns.push_back(n);
-      }
-    } else if (auto s = value("--seconds=")) {
-      f.seconds = std::atof(std::string(*s).c_str());
-    } else if (auto b = value("--batch=")) {
-      f.batch = std::atoi(std::string(*b).c_str());
-    } else if (auto w = value("--window=")) {
-      f.window = std::max(1, std::atoi(std::string(*w).c_str()));
-    } else if (auto c = value("--channels=")) {
-      f.channels = std::max(1, std::atoi(std::string(*c).c_str()));
-    } else if (auto k = value("--breakdown=")) {
-      f.breakdown = *k != "0";
-    } else if (a == "--keep") {
-      f.keep = true;
-    } else if (a.starts_with("--server-cpu=")) {
-      f.server_cpu = std::atoi(argv[i] + std::strlen("--server-cpu="));
-    } else if (a.starts_with("--client-cpu=")) {
-      f.client_cpu = std::atoi(argv[i] + std::strlen("--client-cpu="));
-    } else {
-      std::fprintf(stderr, "unknown flag %s\n", argv[i]);
-      std::exit(2);
-    }
-  }
+  CLI::App app{
+      "Durable ingest throughput: N simulated robots stream StreamSamples batches to a forked "
+      "server over loopback; what the server acknowledges is counted.",
+      "ingest_bench"};
+  app.add_option("--n", f.ns, "robots (streams), one round each, comma-separated")
+      ->delimiter(',')
+      ->check(CLI::Range(1, std::numeric_limits<int>::max()).description("POSITIVE"));
+  app.add_option("--seconds", f.seconds, "seconds of sending per round (then the drain)");
+  app.add_option("--batch", f.batch, "samples per batch");
+  app.add_option("--window", f.window, "unacknowledged batches per stream (at least 1)");
+  app.add_option("--channels", f.channels,
+                 "HTTP/2 connections the streams are spread over (at least 1)");
+  app.add_option("--breakdown", f.breakdown,
+                 "then one batch's cost piece by piece, in process (0: skip it)");
+  app.add_flag("--keep", f.keep, "keep the temp directory");
+  app.add_option("--server-cpu", f.server_cpu, "pin the server to this core (-1: no pinning)");
+  app.add_option("--client-cpu", f.client_cpu, "pin this client to this core (-1: no pinning)");
+  imucal::bench::ParseBenchFlags(app, argc, argv);
+  f.window = std::max(1, f.window);
+  f.channels = std::max(1, f.channels);
   return f;
 }
 

@@ -55,7 +55,6 @@
 #include <map>
 #include <memory>
 #include <mutex>
-#include <optional>
 #include <random>
 #include <sstream>
 #include <string>
@@ -64,7 +63,9 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
+#include "bench/bench_flags.h"
 #include "bench/service_bench_util.h"
 #include "core/params.h"
 #include "core/simulator.h"
@@ -99,45 +100,34 @@ struct Flags {
 
 Flags ParseFlags(int argc, char** argv) {
   Flags f;
-  for (int i = 1; i < argc; ++i) {
-    std::string_view a = argv[i];
-    auto value = [&](std::string_view name) -> std::optional<std::string> {
-      if (!a.starts_with(name)) return std::nullopt;
-      return std::string(a.substr(name.size()));
-    };
-    if (auto v = value("--robots=")) {
-      f.robots = std::atoi(v->c_str());
-    } else if (auto b = value("--batch-ms=")) {
-      f.batch_ms = std::max(1, std::atoi(b->c_str()));
-    } else if (auto r = value("--rate-hz=")) {
-      f.rate_hz = std::atof(r->c_str());
-    } else if (auto w = value("--watchers=")) {
-      f.watchers = std::atoi(w->c_str());
-    } else if (auto d = value("--devices=")) {
-      f.devices = std::atoi(d->c_str());
-    } else if (auto fr = value("--fetch-rate=")) {
-      f.fetch_rate = std::atof(fr->c_str());
-    } else if (auto s = value("--seconds=")) {
-      f.seconds = std::atof(s->c_str());
-    } else if (auto c = value("--channels=")) {
-      f.channels = std::max(1, std::atoi(c->c_str()));
-    } else if (auto p = value("--imucald=")) {
-      f.imucald = *p;
-    } else if (auto sa = value("--server-args=")) {
-      f.server_args = absl::StrSplit(*sa, ' ', absl::SkipEmpty());
-    } else if (a == "--keep") {
-      f.keep = true;
-    } else if (a == "--tls") {
-      f.tls = true;
-    } else if (auto sc = value("--server-cpu=")) {
-      f.server_cpu = std::atoi(sc->c_str());
-    } else if (auto cc = value("--client-cpu=")) {
-      f.client_cpu = std::atoi(cc->c_str());
-    } else {
-      std::fprintf(stderr, "unknown flag %s (see the header of bench/load_bench.cc)\n", argv[i]);
-      std::exit(2);
-    }
-  }
+  std::string server_args = absl::StrJoin(f.server_args, " ");
+  CLI::App app{
+      "The load test: robots streaming, technicians watching sessions and fleet startup "
+      "fetches against the imucald binary on loopback, for a bounded time.",
+      "load_bench"};
+  app.add_option("--robots", f.robots, "robots, one StreamSamples stream each");
+  app.add_option("--batch-ms", f.batch_ms, "ms between a robot's batches (at least 1)");
+  app.add_option("--rate-hz", f.rate_hz, "samples per second per robot");
+  app.add_option("--watchers", f.watchers, "WatchSession streams, on the first robots' sessions");
+  app.add_option("--devices", f.devices, "fleet devices with an active version, fetched in turn");
+  app.add_option("--fetch-rate", f.fetch_rate, "startup fetches per second");
+  app.add_option("--seconds", f.seconds, "seconds of load (then the drain)");
+  app.add_option("--channels", f.channels,
+                 "HTTP/2 connections the calls are spread over (at least 1)");
+  app.add_option("--imucald", f.imucald, "the imucald binary to run");
+  app.add_option("--server-args", server_args,
+                 "imucald's flags besides --listen and --db, space-separated, in one word "
+                 "(e.g. --server-args=\"--insecure --durability=normal\")");
+  app.add_flag("--keep", f.keep, "keep the temp directory");
+  app.add_flag("--tls", f.tls,
+               "TLS and a bearer token on every call, as production runs it (replaces "
+               "--insecure)");
+  app.add_option("--server-cpu", f.server_cpu, "pin imucald to this core (-1: no pinning)");
+  app.add_option("--client-cpu", f.client_cpu, "pin this client to this core (-1: no pinning)");
+  imucal::bench::ParseBenchFlags(app, argc, argv);
+  f.server_args = absl::StrSplit(server_args, ' ', absl::SkipEmpty());
+  f.batch_ms = std::max(1, f.batch_ms);
+  f.channels = std::max(1, f.channels);
   const int per_batch = static_cast<int>(f.rate_hz * f.batch_ms / 1000.0 + 0.5);
   if (f.robots < 0 || f.devices < 0 || f.watchers < 0 || f.watchers > f.robots || per_batch < 1 ||
       f.seconds <= 0 || f.fetch_rate < 0) {

@@ -23,6 +23,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -35,12 +36,12 @@
 #include <map>
 #include <memory>
 #include <mutex>
-#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "bench/bench_flags.h"
 #include "bench/service_bench_util.h"
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
@@ -64,37 +65,24 @@ struct Flags {
 
 Flags ParseFlags(int argc, char** argv) {
   Flags f;
-  for (int i = 1; i < argc; ++i) {
-    const std::string_view a = argv[i];
-    auto value = [&](std::string_view name) -> std::optional<std::string> {
-      if (!a.starts_with(name)) return std::nullopt;
-      return std::string(a.substr(name.size()));
-    };
-    if (auto c = value("--case=")) {
-      f.which = *c;
-    } else if (auto s = value("--streams=")) {
-      f.streams = std::atoi(s->c_str());
-    } else if (auto ch = value("--channels=")) {
-      f.channels = std::max(1, std::atoi(ch->c_str()));
-    } else if (auto w = value("--wait=")) {
-      f.wait_s = std::atof(w->c_str());
-    } else if (auto n = value("--samples=")) {
-      f.samples = std::atoll(n->c_str());
-    } else if (auto k = value("--calls=")) {
-      f.calls = std::atoi(k->c_str());
-    } else if (auto p = value("--imucald=")) {
-      f.imucald = *p;
-    } else if (a == "--keep") {
-      f.keep = true;
-    } else {
-      std::fprintf(stderr, "unknown flag %s (see the header of bench/misuse_bench.cc)\n", argv[i]);
-      std::exit(2);
-    }
-  }
-  if (f.which != "all" && f.which != "silent-streams" && f.which != "closed-cancels") {
-    std::fprintf(stderr, "--case: all, silent-streams or closed-cancels\n");
-    std::exit(2);
-  }
+  CLI::App app{
+      "What clients that hold imucald's resources without using them cost it: silent sample "
+      "streams, and cancels of a closed session of many samples.",
+      "misuse_bench"};
+  app.add_option("--case", f.which, "which case to run")
+      ->check(CLI::IsMember({"all", "silent-streams", "closed-cancels"}));
+  app.add_option("--streams", f.streams, "silent-streams: sample streams that never send a batch");
+  app.add_option("--channels", f.channels,
+                 "silent-streams: connections the streams are spread over (at least 1)");
+  app.add_option("--wait", f.wait_s,
+                 "silent-streams: seconds to wait for the server to end them for silence");
+  app.add_option("--samples", f.samples, "closed-cancels: samples in the session");
+  app.add_option("--calls", f.calls, "closed-cancels: CancelSession calls on it");
+  app.add_option("--imucald", f.imucald,
+                 "the imucald binary to run (another build, e.g. one from before the limits)");
+  app.add_flag("--keep", f.keep, "keep the temp directory");
+  imucal::bench::ParseBenchFlags(app, argc, argv);
+  f.channels = std::max(1, f.channels);
   return f;
 }
 

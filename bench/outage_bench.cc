@@ -22,18 +22,17 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
-#include <cstdlib>
 #include <filesystem>
+#include <limits>
 #include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
 #include <vector>
 
-#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "absl/strings/str_split.h"
+#include "bench/bench_flags.h"
 #include "bench/service_bench_util.h"
 #include "client/sdk/client.h"
 #include "client/sdk/uploader.h"
@@ -54,28 +53,17 @@ struct Flags {
 
 Flags ParseFlags(int argc, char** argv) {
   Flags f;
-  for (int i = 1; i < argc; ++i) {
-    const std::string_view a = argv[i];
-    if (a.starts_with("--outages=")) {
-      f.outages_s.clear();
-      const std::vector<std::string> parts = absl::StrSplit(std::string(a.substr(10)), ',');
-      for (const std::string& part : parts) {
-        int s = 0;
-        if (!absl::SimpleAtoi(part, &s) || s < 0) {
-          std::fprintf(stderr, "--outages: seconds, comma-separated\n");
-          std::exit(2);
-        }
-        f.outages_s.push_back(s);
-      }
-    } else if (a.starts_with("--runs=")) {
-      f.runs = std::max(1, std::atoi(argv[i] + 7));
-    } else if (a.starts_with("--imucald=")) {
-      f.imucald = std::string(a.substr(10));
-    } else {
-      std::fprintf(stderr, "unknown flag %s (see the header of bench/outage_bench.cc)\n", argv[i]);
-      std::exit(2);
-    }
-  }
+  CLI::App app{
+      "How soon an upload through the SDK's Uploader resumes once imucald is back from an "
+      "outage.",
+      "outage_bench"};
+  app.add_option("--outages", f.outages_s, "outages to measure, in seconds, comma-separated")
+      ->delimiter(',')
+      ->check(CLI::Range(0, std::numeric_limits<int>::max()).description("NONNEGATIVE"));
+  app.add_option("--runs", f.runs, "runs per outage (at least 1)");
+  app.add_option("--imucald", f.imucald, "the imucald binary to run");
+  imucal::bench::ParseBenchFlags(app, argc, argv);
+  f.runs = std::max(1, f.runs);
   return f;
 }
 
