@@ -156,12 +156,12 @@ int Main(int seeds, const Only& only) {
       if (temperature) {
         const Run reference = CalibrateTimed(sim->capture, true, time, &effects);
         for (History h : {History::kRamp, History::kCoolDown, History::kPlateau}) {
-          absl::StatusOr<SimResult> other =
+          absl::StatusOr<SimResult> history =
               Simulate(HistoryScenario(static_cast<uint64_t>(seed) + 700, effects, h), sim->truth);
-          if (!other.ok()) return 1;
-          const HoldError fo = ErrorOn(*other, run.report.params),
-                          re = ErrorOn(*other, reference.report.params),
-                          fl = ErrorOn(*other, TruthParams(*other));
+          if (!history.ok()) return 1;
+          const HoldError fo = ErrorOn(*history, run.report.params),
+                          re = ErrorOn(*history, reference.report.params),
+                          fl = ErrorOn(*history, TruthParams(*history));
           // Relative to the floor, so a two-sensor case sums like with like.
           const auto rel = [&](const HoldError& e) {
             return (on_accel ? e.accel_m_s2 / fl.accel_m_s2 : 0.0) +

@@ -1,5 +1,5 @@
-// Command-line flags for every imucal executable (imucal, imucald, the benchmarks), parsed by
-// CLI11 (Debian libcli11-dev) behind one small interface:
+// Command-line flags for imucal and imucald, parsed by CLI11 (Debian libcli11-dev) behind one
+// small interface (the benchmarks use CLI11 directly, bench/bench_flags.h):
 //
 //   - positionals, plus `--name value` and `--name=value` for the flags that take a value (as
 //     with getopt, the word after such a flag is its value, whatever it looks like);
