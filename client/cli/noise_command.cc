@@ -98,7 +98,7 @@ void EmitNoiseKeys(const core::NoiseAnalysis& na, YAML::Emitter* out) {
         Row{"gyroscope_noise_density", true, &core::AxisReadings::noise_density, "rad/s/sqrt(Hz)"},
         Row{"gyroscope_random_walk", true, &core::AxisReadings::random_walk, "rad/s^2/sqrt(Hz)"}}) {
     const Key key = Largest(na, row.gyro, row.figure);
-    *out << YAML::Key << row.key << YAML::Value << key.value;
+    *out << YAML::Key << row.key << YAML::Value << core::YamlFloat(key.value);
     *out << YAML::Comment(key.bound ? absl::StrFormat("%s; an UPPER BOUND: the rest is too short "
                                                       "to reach it (largest axis)",
                                                       row.unit)
@@ -115,7 +115,7 @@ std::string KalibrImuYaml(const core::NoiseAnalysis& na, const std::string& rost
   out << YAML::BeginMap;
   EmitNoiseKeys(na, &out);
   out << YAML::Key << "rostopic" << YAML::Value << rostopic;
-  out << YAML::Key << "update_rate" << YAML::Value << na.figures.rate_hz;
+  out << YAML::Key << "update_rate" << YAML::Value << core::YamlFloat(na.figures.rate_hz);
   out << YAML::EndMap;
   return std::string(out.c_str()) + "\n";
 }
@@ -128,7 +128,7 @@ std::string OpenVinsNoiseYaml(const core::NoiseAnalysis& na, const std::string& 
   out << YAML::BeginMap << YAML::Key << "imu0" << YAML::Value << YAML::BeginMap;
   EmitNoiseKeys(na, &out);
   out << YAML::Key << "rostopic" << YAML::Value << rostopic;
-  out << YAML::Key << "update_rate" << YAML::Value << na.figures.rate_hz;
+  out << YAML::Key << "update_rate" << YAML::Value << core::YamlFloat(na.figures.rate_hz);
   out << YAML::EndMap << YAML::EndMap;
   // OpenVINS reads the file with OpenCV's FileStorage, which wants this first line.
   return "%YAML:1.0\n---\n" + std::string(out.c_str()) + "\n";
