@@ -12,6 +12,7 @@
 #include "absl/status/status.h"
 #include "core/capture.h"
 #include "util/str_util.h"
+#include "yaml-cpp/yaml.h"
 
 namespace imucal::core {
 namespace {
@@ -77,34 +78,48 @@ Factors LqFactors(const Matrix3d& m) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// YAML text.
+// YAML text, written with yaml-cpp's emitter. Numbers go in as the text of YamlFloat, which the
+// emitter writes as plain scalars: its own double output would give "200" for a whole number and
+// 17 digits ("0.10000000000000001") for the rest.
 
-// Shortest round-trip digits, always with a decimal point and a signed exponent, so that YAML
-// 1.1 readers (PyYAML: Kalibr) and OpenCV's FileStorage (OpenVINS) all read a float.
-std::string Num(double v) {
-  if (v == 0.0) return "0.0";  // also -0.0
-  std::string s = Cat(v);
-  const size_t e = s.find_first_of("eE");
-  std::string mantissa = s.substr(0, e);
-  std::string exponent = e == std::string::npos ? "" : s.substr(e + 1);
-  if (mantissa.find('.') == std::string::npos) mantissa += ".0";
-  if (!exponent.empty() && exponent[0] != '-' && exponent[0] != '+') exponent = "+" + exponent;
-  return exponent.empty() ? mantissa : mantissa + "e" + exponent;
-}
+std::string Num(double v) { return YamlFloat(v); }
 
 std::string VecText(const Vector3d& v) {
   return Cat("[", Num(v(0)), ", ", Num(v(1)), ", ", Num(v(2)), "]");
 }
 
-// A block-style matrix under `key:` at `indent` spaces, one flow row per line.
-void AppendMatrix(std::string* out, int indent, const char* key, const Eigen::MatrixXd& m) {
-  const std::string pad(static_cast<size_t>(indent), ' ');
-  AppendTo(out, pad, key, ":\n");
-  for (Eigen::Index r = 0; r < m.rows(); ++r) {
-    AppendTo(out, pad, "  - [");
-    for (Eigen::Index c = 0; c < m.cols(); ++c) AppendTo(out, c ? ", " : "", Num(m(r, c)));
-    AppendTo(out, "]\n");
+// Comment lines, each "# line" on its own: the emitter would put a comment on the previous
+// comment's line without a newline between them (a newline after the last one leaves a blank
+// line). A line break inside a line continues it as a comment.
+void EmitComments(YAML::Emitter* out, const std::vector<std::string>& lines) {
+  for (size_t i = 0; i < lines.size(); ++i) {
+    if (i > 0) *out << YAML::Newline;
+    *out << YAML::Comment(lines[i]);
   }
+}
+
+template <typename... Lists>
+std::vector<std::string> Lines(std::vector<std::string> first, const Lists&... more) {
+  (first.insert(first.end(), more.begin(), more.end()), ...);
+  return first;
+}
+
+// `key:` and a matrix under it, one flow row per line: "  - [a, b, c]".
+void EmitMatrix(YAML::Emitter* out, const char* key, const Eigen::MatrixXd& m) {
+  *out << YAML::Key << key << YAML::Value << YAML::BeginSeq;
+  for (Eigen::Index r = 0; r < m.rows(); ++r) {
+    *out << YAML::Flow << YAML::BeginSeq;
+    for (Eigen::Index c = 0; c < m.cols(); ++c) *out << Num(m(r, c));
+    *out << YAML::EndSeq;
+  }
+  *out << YAML::EndSeq;
+}
+
+// The emitter's text, ending in a newline; Internal if the emitter found the document
+// malformed (a bug here, not a user's error).
+absl::StatusOr<std::string> EmittedText(const YAML::Emitter& out, std::string prefix = "") {
+  if (!out.good()) return absl::InternalError(Cat("YAML emitter: ", out.GetLastError()));
+  return Cat(prefix, std::string_view(out.c_str(), out.size()), "\n");
 }
 
 Eigen::Matrix4d Homogeneous(const Matrix3d& r) {
@@ -236,85 +251,99 @@ absl::StatusOr<Noise> ResolveNoise(const ParamSet& p, const ExportOptions& o) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// The common header comment.
+// The common header comment: who wrote the file, what it leaves out, its units.
 
-void AppendHeader(std::string* out, const ParamSet& p, ExportFormat format, const SiModel& m,
-                  const std::vector<std::string>& notes) {
-  AppendTo(out, "# ", ExportFormatName(format), " export by imucal");
-  if (!p.software.empty()) AppendTo(out, " (", p.software, ")");
-  AppendTo(out, "\n# device: ", p.device.empty() ? "(none)" : p.device,
-           "  parameter version: ", p.version);
-  if (!p.created_at.empty()) AppendTo(out, "  created: ", p.created_at);
-  AppendTo(out, "\n");
-  for (const std::string& n : notes) AppendTo(out, "# ", n, "\n");
-  AppendTo(out, "# measurements in SI (m/s^2, rad/s) as a ROS sensor_msgs/Imu carries them");
+std::vector<std::string> HeaderLines(const ParamSet& p, ExportFormat format, const SiModel& m,
+                                     const std::vector<std::string>& notes) {
+  std::vector<std::string> lines;
+  std::string first = Cat(ExportFormatName(format), " export by imucal");
+  if (!p.software.empty()) AppendTo(&first, " (", p.software, ")");
+  lines.push_back(std::move(first));
+  std::string second =
+      Cat("device: ", p.device.empty() ? "(none)" : p.device, "  parameter version: ", p.version);
+  if (!p.created_at.empty()) AppendTo(&second, "  created: ", p.created_at);
+  lines.push_back(std::move(second));
+  lines.insert(lines.end(), notes.begin(), notes.end());
+  std::string units = "measurements in SI (m/s^2, rad/s) as a ROS sensor_msgs/Imu carries them";
   if (m.k_accel != 1.0 || m.k_gyro != 1.0) {
-    AppendTo(out, "; imucal's input units converted with the nominal factors (accel ", m.k_accel,
+    AppendTo(&units, "; imucal's input units converted with the nominal factors (accel ", m.k_accel,
              ", gyro ", m.k_gyro, " SI per unit)");
   }
-  AppendTo(out, "\n");
+  lines.push_back(std::move(units));
+  return lines;
 }
 
-void AppendNoiseKeys(std::string* out, int indent, const Noise& n) {
-  const std::string pad(static_cast<size_t>(indent), ' ');
-  AppendTo(out, pad, "accelerometer_noise_density: ", Num(n.accel_density),
-           "  # [m/s^2/sqrt(Hz)] continuous-time white noise\n");
-  AppendTo(out, pad, "accelerometer_random_walk: ", Num(n.accel_walk),
-           "  # [m/s^3/sqrt(Hz)] bias random walk\n");
-  AppendTo(out, pad, "gyroscope_noise_density: ", Num(n.gyro_density),
-           "  # [rad/s/sqrt(Hz)] continuous-time white noise\n");
-  AppendTo(out, pad, "gyroscope_random_walk: ", Num(n.gyro_walk),
-           "  # [rad/s^2/sqrt(Hz)] bias random walk\n");
+std::vector<std::string> NoiseCommentLines(const Noise& n) {
+  std::vector<std::string> lines;
+  for (const std::string& l : n.lines) lines.push_back(Cat("noise: ", l));
+  return lines;
 }
 
-void AppendNoiseComment(std::string* out, const Noise& n) {
-  for (const std::string& l : n.lines) AppendTo(out, "# noise: ", l, "\n");
+// The four noise keys, each with its unit in a comment; `out` is inside a map.
+void EmitNoiseKeys(YAML::Emitter* out, const Noise& n) {
+  *out << YAML::Key << "accelerometer_noise_density" << YAML::Value << Num(n.accel_density)
+       << YAML::Comment("[m/s^2/sqrt(Hz)] continuous-time white noise");
+  *out << YAML::Key << "accelerometer_random_walk" << YAML::Value << Num(n.accel_walk)
+       << YAML::Comment("[m/s^3/sqrt(Hz)] bias random walk");
+  *out << YAML::Key << "gyroscope_noise_density" << YAML::Value << Num(n.gyro_density)
+       << YAML::Comment("[rad/s/sqrt(Hz)] continuous-time white noise");
+  *out << YAML::Key << "gyroscope_random_walk" << YAML::Value << Num(n.gyro_walk)
+       << YAML::Comment("[rad/s^2/sqrt(Hz)] bias random walk");
 }
 
-std::string KalibrImu(const ParamSet& p, const ExportOptions& o, const SiModel& m, const Noise& n,
-                      const std::vector<std::string>& notes) {
-  std::string out;
-  AppendHeader(&out, p, ExportFormat::kKalibrImu, m, notes);
-  AppendNoiseComment(&out, n);
-  AppendTo(&out, "\n");
-  AppendNoiseKeys(&out, 0, n);
-  AppendTo(&out, "rostopic: ", o.rostopic, "\n");
-  AppendTo(&out, "update_rate: ", Num(n.rate_hz), "  # [Hz]\n");
-  return out;
+absl::StatusOr<std::string> KalibrImu(const ParamSet& p, const ExportOptions& o, const SiModel& m,
+                                      const Noise& n, const std::vector<std::string>& notes) {
+  YAML::Emitter out;
+  EmitComments(&out,
+               Lines(HeaderLines(p, ExportFormat::kKalibrImu, m, notes), NoiseCommentLines(n)));
+  out << YAML::Newline << YAML::BeginMap;  // a blank line after the comments
+  EmitNoiseKeys(&out, n);
+  out << YAML::Key << "rostopic" << YAML::Value << o.rostopic;
+  out << YAML::Key << "update_rate" << YAML::Value << Num(n.rate_hz) << YAML::Comment("[Hz]");
+  out << YAML::EndMap;
+  return EmittedText(out);
 }
 
-std::string KalibrIntrinsics(const ParamSet& p, const ExportOptions& o, const SiModel& m,
-                             const Noise& n, const std::vector<std::string>& notes) {
+absl::StatusOr<std::string> KalibrIntrinsics(const ParamSet& p, const ExportOptions& o,
+                                             const SiModel& m, const Noise& n,
+                                             const std::vector<std::string>& notes) {
   // Kalibr's frame i: the accelerometer's sensing-aligned frame, a_i = R_f^T a_b.
   const Matrix3d c_i_b = m.frame.transpose();
   const Matrix3d m_accel = m.accel_lower.inverse();
   const Matrix3d g_inv = m.gyro.inverse();
   const Factors lq = LqFactors(g_inv * m.frame);  // M_g C_gyro_i
   const Matrix3d a_gyro = g_inv * m.coupling * m.frame * lq.rotation.transpose();
-  std::string out;
-  AppendHeader(&out, p, ExportFormat::kKalibrIntrinsics, m, notes);
-  AppendTo(&out,
-           "# model (Kalibr scale-misalignment, FORWARD true -> measured, frame i):\n"
-           "#   a_meas = M_a a_i + b_a ;  w_meas = M_g C_gyro_i w_i + A C_gyro_i a_i + b_g\n"
-           "#   M lower-triangular, C_gyro_i a rotation, A [(rad/s)/(m/s^2)];\n"
-           "#   a_i = C_i_b a_b (C_i_b = T_i_b's rotation; b = imucal's body frame)\n");
-  AppendNoiseComment(&out, n);
-  AppendTo(&out, "imu0:\n");
-  AppendMatrix(&out, 2, "T_i_b", Homogeneous(c_i_b));
-  AppendNoiseKeys(&out, 2, n);
-  AppendTo(&out, "  model: scale-misalignment\n  accelerometers:\n");
-  AppendMatrix(&out, 4, "M", m_accel);
-  AppendTo(&out, "  gyroscopes:\n");
-  AppendMatrix(&out, 4, "M", lq.triangular);
-  AppendMatrix(&out, 4, "A", a_gyro);
-  AppendMatrix(&out, 4, "C_gyro_i", lq.rotation);
-  AppendTo(&out, "  rostopic: ", o.rostopic, "\n  time_offset: 0.0\n");
-  AppendTo(&out, "  update_rate: ", Num(n.rate_hz), "\n");
-  return out;
+  YAML::Emitter out;
+  EmitComments(
+      &out,
+      Lines(HeaderLines(p, ExportFormat::kKalibrIntrinsics, m, notes),
+            std::vector<std::string>{
+                "model (Kalibr scale-misalignment, FORWARD true -> measured, frame i):",
+                "  a_meas = M_a a_i + b_a ;  w_meas = M_g C_gyro_i w_i + A C_gyro_i a_i + b_g",
+                "  M lower-triangular, C_gyro_i a rotation, A [(rad/s)/(m/s^2)];",
+                "  a_i = C_i_b a_b (C_i_b = T_i_b's rotation; b = imucal's body frame)"},
+            NoiseCommentLines(n)));
+  out << YAML::BeginMap << YAML::Key << "imu0" << YAML::Value << YAML::BeginMap;
+  EmitMatrix(&out, "T_i_b", Homogeneous(c_i_b));
+  EmitNoiseKeys(&out, n);
+  out << YAML::Key << "model" << YAML::Value << "scale-misalignment";
+  out << YAML::Key << "accelerometers" << YAML::Value << YAML::BeginMap;
+  EmitMatrix(&out, "M", m_accel);
+  out << YAML::EndMap;
+  out << YAML::Key << "gyroscopes" << YAML::Value << YAML::BeginMap;
+  EmitMatrix(&out, "M", lq.triangular);
+  EmitMatrix(&out, "A", a_gyro);
+  EmitMatrix(&out, "C_gyro_i", lq.rotation);
+  out << YAML::EndMap;
+  out << YAML::Key << "rostopic" << YAML::Value << o.rostopic;
+  out << YAML::Key << "time_offset" << YAML::Value << Num(0.0);
+  out << YAML::Key << "update_rate" << YAML::Value << Num(n.rate_hz);
+  out << YAML::EndMap << YAML::EndMap;
+  return EmittedText(out);
 }
 
-std::string OpenVins(const ParamSet& p, const ExportOptions& o, const SiModel& m, const Noise& n,
-                     const std::vector<std::string>& notes) {
+absl::StatusOr<std::string> OpenVins(const ParamSet& p, const ExportOptions& o, const SiModel& m,
+                                     const Noise& n, const std::vector<std::string>& notes) {
   const bool kalibr = o.openvins_model == OpenVinsModel::kKalibr;
   Factors acc, gyr;
   if (kalibr) {
@@ -325,31 +354,50 @@ std::string OpenVins(const ParamSet& p, const ExportOptions& o, const SiModel& m
     gyr = QrFactors(m.gyro);
   }
   const Matrix3d tg = m.gyro.inverse() * m.coupling;
-  std::string out = "%YAML:1.0\n";
-  AppendHeader(&out, p, ExportFormat::kOpenVins, m, notes);
-  AppendTo(&out,
-           "# model (OpenVINS, applied after it inverts Tw and Ta on load; I = imucal's body "
-           "frame):\n"
-           "#   a_I = R_IMUtoACC^T Ta^-1 (a_m - b_a) ;  w_I = R_IMUtoGYRO^T Tw^-1 (w_m - b_g - Tg "
-           "a_I)\n#   Tw, Ta ",
-           kalibr ? "lower" : "upper", "-triangular (model ", kalibr ? "kalibr" : "rpng",
-           "), Tg [(rad/s)/(m/s^2)]\n");
-  AppendNoiseComment(&out, n);
-  AppendTo(&out, "\nimu0:\n");
-  AppendMatrix(&out, 2, "T_i_b", Eigen::Matrix4d::Identity());
-  AppendNoiseKeys(&out, 2, n);
-  AppendTo(&out, "  rostopic: ", o.rostopic, "\n  time_offset: 0.0\n");
-  AppendTo(&out, "  update_rate: ", Num(n.rate_hz), "\n");
-  AppendTo(&out, "  model: \"", kalibr ? "kalibr" : "rpng", "\"\n");
-  AppendMatrix(&out, 2, "Tw", gyr.triangular.inverse());
-  AppendMatrix(&out, 2, "R_IMUtoGYRO", gyr.rotation.transpose());
-  AppendMatrix(&out, 2, "Ta", acc.triangular.inverse());
-  AppendMatrix(&out, 2, "R_IMUtoACC", acc.rotation.transpose());
-  AppendMatrix(&out, 2, "Tg", tg);
-  return out;
+  YAML::Emitter out;
+  EmitComments(
+      &out,
+      Lines(HeaderLines(p, ExportFormat::kOpenVins, m, notes),
+            std::vector<std::string>{
+                "model (OpenVINS, applied after it inverts Tw and Ta on load; I = imucal's body "
+                "frame):",
+                "  a_I = R_IMUtoACC^T Ta^-1 (a_m - b_a) ;  w_I = R_IMUtoGYRO^T Tw^-1 (w_m - b_g - "
+                "Tg a_I)",
+                Cat("  Tw, Ta ", kalibr ? "lower" : "upper", "-triangular (model ",
+                    kalibr ? "kalibr" : "rpng", "), Tg [(rad/s)/(m/s^2)]")},
+            NoiseCommentLines(n)));
+  out << YAML::Newline << YAML::BeginMap << YAML::Key << "imu0" << YAML::Value << YAML::BeginMap;
+  EmitMatrix(&out, "T_i_b", Eigen::Matrix4d::Identity());
+  EmitNoiseKeys(&out, n);
+  out << YAML::Key << "rostopic" << YAML::Value << o.rostopic;
+  out << YAML::Key << "time_offset" << YAML::Value << Num(0.0);
+  out << YAML::Key << "update_rate" << YAML::Value << Num(n.rate_hz);
+  out << YAML::Key << "model" << YAML::Value << YAML::DoubleQuoted << (kalibr ? "kalibr" : "rpng");
+  EmitMatrix(&out, "Tw", gyr.triangular.inverse());
+  EmitMatrix(&out, "R_IMUtoGYRO", gyr.rotation.transpose());
+  EmitMatrix(&out, "Ta", acc.triangular.inverse());
+  EmitMatrix(&out, "R_IMUtoACC", acc.rotation.transpose());
+  EmitMatrix(&out, "Tg", tg);
+  out << YAML::EndMap << YAML::EndMap;
+  // OpenCV's FileStorage, which OpenVINS reads the file with, wants this first line; yaml-cpp
+  // cannot emit it (it is not a YAML 1.2 directive) and skips it when it reads the file.
+  return EmittedText(out, "%YAML:1.0\n");
 }
 
 }  // namespace
+
+std::string YamlFloat(double v) {
+  if (std::isnan(v)) return ".nan";  // YAML's spelling
+  if (std::isinf(v)) return v > 0 ? ".inf" : "-.inf";
+  if (v == 0.0) return "0.0";  // also -0.0
+  std::string s = Cat(v);
+  const size_t e = s.find_first_of("eE");
+  std::string mantissa = s.substr(0, e);
+  std::string exponent = e == std::string::npos ? "" : s.substr(e + 1);
+  if (mantissa.find('.') == std::string::npos) mantissa += ".0";
+  if (!exponent.empty() && exponent[0] != '-' && exponent[0] != '+') exponent = "+" + exponent;
+  return exponent.empty() ? mantissa : mantissa + "e" + exponent;
+}
 
 std::string_view ExportFormatName(ExportFormat format) {
   switch (format) {

@@ -41,8 +41,8 @@
 //
 // None of the formats holds biases, imucal's second-order (quadratic) terms or its effects: the
 // file says so in a comment at its top (with the biases, for reference), and ExportNotes returns
-// the same for the CLI. Numbers are written in their shortest round-trip form, always with a
-// decimal point (YAML 1.1 readers such as PyYAML read "1e-05" as a string).
+// the same for the CLI. The files are written with yaml-cpp's emitter (comments included); numbers
+// in their shortest round-trip form, always with a decimal point (YamlFloat).
 #ifndef IMUCAL_CORE_EXPORT_H_
 #define IMUCAL_CORE_EXPORT_H_
 
@@ -81,6 +81,13 @@ struct ExportOptions {
   // asks for the value instead.
   bool random_walk_bound_as_value = true;
 };
+
+// A double as YAML text every reader of these files takes as the same float: the shortest digits
+// that read back to the same double (std::to_chars), always with a decimal point and a signed
+// exponent ("1.0e-05", "200.0", "0.0"): YAML 1.1 readers such as PyYAML (Kalibr) read "1e-05" as
+// a string, and OpenCV's FileStorage (OpenVINS) reads "200" as an integer. Non-finite values are
+// YAML's ".nan", ".inf", "-.inf" (ExportParams never writes them: it refuses them).
+std::string YamlFloat(double v);
 
 // OK when `topic` is a valid ROS 2 topic name (design.ros2.org "Topic and Service name
 // mapping"): not empty; only letters, digits, '_', '/', a leading '~' and '{' '}' for

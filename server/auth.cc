@@ -46,6 +46,9 @@ constexpr RpcRule kRpcRules[] = {
      "the technician follows the solve"},
     {Rpc::kGetReport, "/imucal.v1.SessionService/GetReport", false, true, true,
      "the technician reads the report"},
+    {Rpc::kReadSamples, "/imucal.v1.SessionService/ReadSamples", false, true, true,
+     "the technician analyses a session's stored samples (imucal noise --session), as the "
+     "report; a robot has its own samples and resumes from GetSession"},
     {Rpc::kGetActiveParameters, "/imucal.v1.ParameterService/GetActiveParameters", true, true, true,
      "a robot fetches its own active parameters at startup (the hot path)"},
     {Rpc::kGetParameters, "/imucal.v1.ParameterService/GetParameters", true, true, true,

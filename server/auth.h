@@ -77,6 +77,7 @@ enum class Rpc {
   kSolveSession,
   kGetSolveJob,
   kGetReport,
+  kReadSamples,
   kGetActiveParameters,
   kGetParameters,
   kListVersions,

@@ -248,12 +248,14 @@ std::vector<ConfigOption> BuildOptions() {
       // Streams that hold a place without using it (SessionServiceOptions, stream_registry.h).
       IntegerOption<int>(
           "max_streams", "IMUCALD_MAX_STREAMS",
-          "StreamSamples and WatchSession calls open on the server at once, counted from the "
+          "StreamSamples, WatchSession and ReadSamples calls open on the server at once, counted "
+          "from the "
           "moment they open; more are refused with RESOURCE_EXHAUSTED (default 10000)",
           1, 1000000, [](DaemonConfig& c) -> int& { return c.server.sessions.max_streams; }),
       IntegerOption<int>(
           "max_streams_per_token", "IMUCALD_MAX_STREAMS_PER_TOKEN",
-          "StreamSamples and WatchSession calls one token (or robot client certificate) may "
+          "StreamSamples, WatchSession and ReadSamples calls one token (or robot client "
+          "certificate) may "
           "have open; more are refused with RESOURCE_EXHAUSTED (default 16)",
           1, 1000000,
           [](DaemonConfig& c) -> int& { return c.server.sessions.max_streams_per_token; }),
@@ -265,8 +267,8 @@ std::vector<ConfigOption> BuildOptions() {
       DurationOption(
           "stream_idle_timeout", "IMUCALD_STREAM_IDLE_TIMEOUT",
           "a sample stream that sends no batch this long after an ack is ended "
-          "DEADLINE_EXCEEDED; one that does not read its ack this long is cancelled "
-          "(default 1m)",
+          "DEADLINE_EXCEEDED; one that does not read its ack this long, or a ReadSamples "
+          "that does not read its samples this long, is cancelled (default 1m)",
           [](DaemonConfig& c) -> absl::Duration& { return c.server.sessions.stream_idle_timeout; }),
       DurationOption(
           "watch_stall_timeout", "IMUCALD_WATCH_STALL_TIMEOUT",

@@ -59,7 +59,7 @@ class Server {
   // Sessions whose live state is in memory (SessionHub::LiveSessions): what bounds the
   // server's memory per session.
   size_t live_sessions() const;
-  // StreamSamples and WatchSession calls open now (what max_streams bounds).
+  // StreamSamples, WatchSession and ReadSamples calls open now (what max_streams bounds).
   size_t open_streams() const;
   // Solve jobs GetSolveJob answers from memory (bounded: SessionServiceOptions).
   size_t solve_jobs_in_memory() const;

@@ -111,9 +111,11 @@ struct SessionServiceOptions {
   // sends its first batch within first_batch_timeout of opening and each next one within
   // stream_idle_timeout of the previous ack (a robot batches every 0.1-1 s), else the server
   // ends it DEADLINE_EXCEEDED; one whose ack is not read for stream_idle_timeout, or a watch
-  // whose event is not read for watch_stall_timeout (its client stopped reading), is
-  // cancelled. Counted from the moment they open: at most max_streams StreamSamples and
-  // WatchSession calls on the server (about 13 kB each while silent, so 10000 cost ~130 MB)
+  // whose event is not read for watch_stall_timeout (its client stopped reading), or a
+  // ReadSamples whose message is not read for stream_idle_timeout, is cancelled. Counted from
+  // the moment they open: at most max_streams StreamSamples, WatchSession and ReadSamples
+  // calls on the server (about 13 kB each while silent, so 10000 cost ~130 MB; a ReadSamples
+  // also holds its page, at most ~2.5 MB at the default max_batch_samples)
   // and max_streams_per_token per token or robot client certificate (RESOURCE_EXHAUSTED
   // beyond; a robot needs one stream, a technician's laptop a few).
   absl::Duration first_batch_timeout = absl::Seconds(30);
@@ -156,14 +158,15 @@ using SessionServiceBase = v1::SessionService::WithRawCallbackMethod_StreamSampl
                             v1::SessionService::WithCallbackMethod_SolveSession<
                                 v1::SessionService::WithCallbackMethod_GetSolveJob<
                                     v1::SessionService::WithCallbackMethod_GetReport<
-                                        v1::SessionService::Service>>>>>>>>>>;
+                                        v1::SessionService::WithCallbackMethod_ReadSamples<
+                                            v1::SessionService::Service>>>>>>>>>>>;
 
 class SessionServiceImpl final : public SessionServiceBase {
  public:
   SessionServiceImpl(storage::Store* store, SessionServiceOptions options, Authorizer* auth);
   ~SessionServiceImpl() override;
   size_t live_sessions() { return hub_.LiveSessions(); }  // SessionHub::LiveSessions
-  size_t open_streams() { return registry_.size(); }      // StreamSamples and WatchSession
+  size_t open_streams() { return registry_.size(); }      // the streaming calls
   size_t solve_jobs_in_memory();
   // Ends the open streams and watches of a token that was just revoked (Authorizer::RevokeToken
   // calls it), and refuses the token's streams from now on.
@@ -197,6 +200,9 @@ class SessionServiceImpl final : public SessionServiceBase {
   grpc::ServerUnaryReactor* GetReport(grpc::CallbackServerContext* context,
                                       const v1::GetReportRequest* request,
                                       v1::Report* response) override;
+  // session_streams.cc: pages the stored batches out of storage, one message at a time.
+  grpc::ServerWriteReactor<v1::SampleBatch>* ReadSamples(
+      grpc::CallbackServerContext* context, const v1::ReadSamplesRequest* request) override;
 
   // Stops taking solves and finishes the queued ones (graceful shutdown, after the server's).
   void DrainSolves() {
@@ -244,7 +250,7 @@ class SessionServiceImpl final : public SessionServiceBase {
   // Serialises "predict the next version number, store the version": the params JSON carries
   // its version, so the number must be known before the version is stored.
   std::mutex version_mu_;
-  StreamRegistry registry_;  // every open StreamSamples and WatchSession
+  StreamRegistry registry_;  // every open StreamSamples, WatchSession and ReadSamples
   StreamEnv env_;
   SolvePool pool_;     // its workers use the members above
   SolvePool loaders_;  // last: loads sessions off the RPC threads (WithLiveSession, streams)

@@ -1,6 +1,7 @@
-// The two streaming RPCs of SessionService as callback reactors (no thread per stream).
+// The three streaming RPCs of SessionService as callback reactors (no thread per stream):
+// StreamSamples, WatchSession and ReadSamples.
 //
-// Both are registered with the service's StreamRegistry for their whole life (server/
+// All are registered with the service's StreamRegistry for their whole life (server/
 // stream_registry.h): counted against max_streams and max_streams_per_token from the moment they
 // open, ended at once when their token is revoked, and ended when they stop moving (a deadline
 // each keeps there). A reactor is owned by a shared_ptr that it drops in OnDone, so that the
@@ -10,11 +11,16 @@
 // are started under it (their reactions never run inline, the reactors not being inlineable).
 // TryCancel is called without mu_ (OnCancel may run inline and takes it), under ctx_mu_, which
 // OnDone takes first: the call's context is valid while ctx_mu_ is held and done_ is false.
+#include <algorithm>
+#include <cmath>
 #include <deque>
+#include <iterator>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/time/clock.h"
@@ -22,6 +28,7 @@
 #include "server/ingest.h"
 #include "server/services.h"
 #include "server/status_util.h"
+#include "storage/sample_codec.h"
 
 namespace imucal::server {
 namespace {
@@ -667,6 +674,195 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>,
   bool done_ = false;  // guarded by ctx_mu_: OnDone has begun, context_ is going
 };
 
+// ReadSamples: the session's stored batches, paged out of storage (Store::ReadBatchPage) as
+// the client reads them, one message in flight: the server holds one page of stored payloads
+// (at most kPageSamples samples past its first batch) and one decoded batch, whatever the
+// session's length. The end is the session's last stored batch when the call started (an open
+// session may grow meanwhile). A client that reads no message for stream_idle_timeout is
+// cancelled. Storage is read on the thread of the write that finished, as unary handlers read it:
+// a page is a short read of the file.
+class ReadReactor final : public grpc::ServerWriteReactor<v1::SampleBatch>,
+                          public StreamRegistry::Stream,
+                          public std::enable_shared_from_this<ReadReactor> {
+ public:
+  static constexpr int64_t kMaxMessageSamples = 10000;  // 0.6 MB with temperature
+  static constexpr int64_t kPageBatches = 256;
+  static constexpr int64_t kPageSamples = 20000;
+
+  ReadReactor(const StreamEnv& env, grpc::CallbackServerContext* context, PrincipalRef who,
+              std::string session_id)
+      : env_(env), context_(context), who_(std::move(who)), session_id_(std::move(session_id)) {}
+
+  // Called once, by the handler, on a reactor owned by `self`.
+  void Start(std::shared_ptr<ReadReactor> self) {
+    self_ = std::move(self);
+    if (absl::Status s = env_.registry->Add(shared_from_this(), CallerKey(*who_), who_->token_id);
+        !s.ok()) {
+      End(ToGrpcStatus(s));
+      return;
+    }
+    registered_ = true;
+    absl::StatusOr<storage::Session> session = env_.store->GetSession(session_id_);
+    if (!session.ok()) {
+      End(ToGrpcStatus(session.status()));
+      return;
+    }
+    std::lock_guard lock(mu_);
+    end_seq_ = session->last_acked_seq;
+    WriteNextLocked();
+  }
+
+  void OnWriteDone(bool ok) override {
+    std::lock_guard lock(mu_);
+    writing_ = false;
+    SetDeadline(absl::InfiniteFuture());
+    if (!ok) {
+      FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "the reader went away"));
+      return;
+    }
+    WriteNextLocked();
+  }
+
+  void OnCancel() override {
+    std::lock_guard lock(mu_);
+    cancelled_ = true;
+    WriteNextLocked();
+  }
+
+  void OnDone() override {
+    {
+      std::lock_guard lock(ctx_mu_);
+      done_ = true;
+    }
+    if (registered_) env_.registry->Remove(this);
+    std::shared_ptr<ReadReactor> last = std::move(self_);  // may delete this on return
+  }
+
+  void Revoke(const grpc::Status& status) override {
+    std::lock_guard lock(mu_);
+    if (finished_) return;
+    revoked_ = status;
+    WriteNextLocked();  // at once, or when the write in flight completes
+  }
+
+  void Expire(absl::Time now) override {
+    {
+      std::lock_guard lock(mu_);
+      if (finished_ || !writing_ || !PastDeadline(now)) return;
+    }
+    std::lock_guard lock(ctx_mu_);
+    if (!done_) context_->TryCancel();  // the write then fails
+  }
+
+ private:
+  void End(const grpc::Status& status) {
+    std::lock_guard lock(mu_);
+    FinishLocked(status);
+  }
+
+  void FinishLocked(const grpc::Status& status) {
+    if (finished_) return;
+    finished_ = true;
+    SetDeadline(absl::InfiniteFuture());
+    // What is held goes now, not when gRPC lets go of the reactor.
+    page_.clear();
+    samples_.clear();
+    samples_.shrink_to_fit();
+    Finish(status);
+  }
+
+  // Makes the next message: the next (at most kMaxMessageSamples) samples of the current
+  // batch, decoding the page's next batch or reading the next page when needed. false: no
+  // samples are left (or an error ended the call).
+  bool NextMessageLocked() {
+    while (offset_ >= samples_.size()) {
+      if (page_.empty()) {
+        if (after_seq_ >= end_seq_) return false;
+        absl::StatusOr<std::vector<storage::SampleBatch>> page = env_.store->ReadBatchPage(
+            session_id_, after_seq_, std::min(kPageBatches, end_seq_ - after_seq_), kPageSamples);
+        if (!page.ok()) {
+          FinishLocked(ToGrpcStatus(page.status()));
+          return false;
+        }
+        if (page->empty()) return false;
+        after_seq_ = page->back().seq;
+        page_.assign(std::make_move_iterator(page->begin()), std::make_move_iterator(page->end()));
+      }
+      storage::SampleBatch batch = std::move(page_.front());
+      page_.pop_front();
+      samples_.clear();
+      if (absl::Status s = storage::DecodeSamplesInto(batch.payload, &samples_); !s.ok()) {
+        FinishLocked(ToGrpcStatus(absl::DataLossError(
+            absl::StrCat("session ", session_id_, " batch ", batch.seq, ": ", s.message()))));
+        return false;
+      }
+      offset_ = 0;
+      seq_ = batch.seq;
+    }
+    const size_t n = std::min(samples_.size() - offset_, static_cast<size_t>(kMaxMessageSamples));
+    const bool temp = !std::isnan(samples_[offset_].temp);  // a batch has it for all or none
+    message_.Clear();
+    message_.set_session_id(session_id_);
+    message_.set_seq(seq_);
+    message_.mutable_t_s()->Reserve(static_cast<int>(n));
+    message_.mutable_accel()->Reserve(static_cast<int>(3 * n));
+    message_.mutable_gyro()->Reserve(static_cast<int>(3 * n));
+    if (temp) message_.mutable_temp_c()->Reserve(static_cast<int>(n));
+    for (size_t i = offset_; i < offset_ + n; ++i) {
+      const storage::ImuSample& x = samples_[i];
+      message_.add_t_s(x.t_s);
+      for (int k = 0; k < 3; ++k) message_.add_accel(x.accel[k]);
+      for (int k = 0; k < 3; ++k) message_.add_gyro(x.gyro[k]);
+      if (temp) message_.add_temp_c(x.temp);
+    }
+    offset_ += n;
+    return true;
+  }
+
+  // Writes the next message, or ends the call: cancelled, revoked, or every sample sent.
+  void WriteNextLocked() {
+    if (finished_ || writing_) return;
+    if (cancelled_) {
+      FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"));
+      return;
+    }
+    if (revoked_) {
+      FinishLocked(*revoked_);
+      return;
+    }
+    if (!NextMessageLocked()) {
+      FinishLocked(grpc::Status::OK);  // a no-op when an error has finished the call
+      return;
+    }
+    writing_ = true;
+    SetDeadline(absl::Now() + env_.options->stream_idle_timeout);
+    StartWrite(&message_);
+  }
+
+  const StreamEnv& env_;
+  grpc::CallbackServerContext* context_;  // the call's; valid until OnDone
+  PrincipalRef who_;
+  const std::string session_id_;
+  std::shared_ptr<ReadReactor> self_;  // from Start to OnDone
+  bool registered_ = false;            // set in Start, read in OnDone
+
+  std::mutex mu_;
+  int64_t end_seq_ = 0;                      // guarded by mu_: the last batch to send
+  int64_t after_seq_ = 0;                    // guarded by mu_: the last batch read from storage
+  std::deque<storage::SampleBatch> page_;    // guarded by mu_: read, not yet decoded
+  std::vector<storage::ImuSample> samples_;  // guarded by mu_: the batch being sent
+  size_t offset_ = 0;                        // guarded by mu_: its first sample not yet sent
+  int64_t seq_ = 0;                          // guarded by mu_: its seq
+  v1::SampleBatch message_;                  // guarded by mu_; the one being written
+  bool writing_ = false;                     // guarded by mu_
+  bool finished_ = false;                    // guarded by mu_
+  bool cancelled_ = false;                   // guarded by mu_
+  std::optional<grpc::Status> revoked_;      // guarded by mu_
+
+  std::mutex ctx_mu_;
+  bool done_ = false;  // guarded by ctx_mu_: OnDone has begun, context_ is going
+};
+
 // A call refused before it starts (its caller may not make it).
 class FailedStream final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer> {
  public:
@@ -674,9 +870,10 @@ class FailedStream final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grpc
   void OnDone() override { delete this; }
 };
 
-class FailedWriter final : public grpc::ServerWriteReactor<v1::SessionEvent> {
+template <typename Message>
+class FailedWriter final : public grpc::ServerWriteReactor<Message> {
  public:
-  explicit FailedWriter(const grpc::Status& status) { Finish(status); }
+  explicit FailedWriter(const grpc::Status& status) { this->Finish(status); }
   void OnDone() override { delete this; }
 };
 
@@ -695,13 +892,27 @@ grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* SessionServiceImpl:
 grpc::ServerWriteReactor<v1::SessionEvent>* SessionServiceImpl::WatchSession(
     grpc::CallbackServerContext* context, const v1::WatchSessionRequest* request) {
   absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kWatchSession);
-  if (!who.ok()) return new FailedWriter(ToGrpcStatus(who.status()));
+  if (!who.ok()) return new FailedWriter<v1::SessionEvent>(ToGrpcStatus(who.status()));
   if (request->session_id().empty())
-    return new FailedWriter(
+    return new FailedWriter<v1::SessionEvent>(
         grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "session_id: required"));
   auto reactor =
       std::make_shared<WatchReactor>(env_, context, *std::move(who), request->session_id());
   WatchReactor* raw = reactor.get();
+  raw->Start(std::move(reactor));
+  return raw;
+}
+
+grpc::ServerWriteReactor<v1::SampleBatch>* SessionServiceImpl::ReadSamples(
+    grpc::CallbackServerContext* context, const v1::ReadSamplesRequest* request) {
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kReadSamples);
+  if (!who.ok()) return new FailedWriter<v1::SampleBatch>(ToGrpcStatus(who.status()));
+  if (request->session_id().empty())
+    return new FailedWriter<v1::SampleBatch>(
+        grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "session_id: required"));
+  auto reactor =
+      std::make_shared<ReadReactor>(env_, context, *std::move(who), request->session_id());
+  ReadReactor* raw = reactor.get();
   raw->Start(std::move(reactor));
   return raw;
 }

@@ -149,6 +149,13 @@ class Store {
   // The session's batches with seq > after_seq, in seq order.
   absl::StatusOr<std::vector<SampleBatch>> ReadBatches(std::string_view session_id,
                                                        int64_t after_seq = 0);
+  // One page of ReadBatches, for reading a long session without holding it all: the batches
+  // after `after_seq` in seq order, at most `max_batches` of them and, after the first (always
+  // returned whole), only while the page's samples stay within `max_samples`. Empty after the
+  // last batch. NotFound for an unknown session; InvalidArgument for after_seq < 0 or a max < 1.
+  absl::StatusOr<std::vector<SampleBatch>> ReadBatchPage(std::string_view session_id,
+                                                         int64_t after_seq, int64_t max_batches,
+                                                         int64_t max_samples);
 
   // ---- Poses: replaces the session's pose list (indexes must be 0..n-1 in order).
   absl::Status PutPoses(std::string_view session_id, const std::vector<Pose>& poses,

@@ -1,5 +1,5 @@
 // Store: raw sample batches (store.h "Raw samples"): AppendBatch, the group commit of
-// AppendBatchAsync (its committer thread) and ReadBatches.
+// AppendBatchAsync (its committer thread), ReadBatches and ReadBatchPage.
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -28,6 +28,14 @@ constexpr char kInsertBatch[] =
 constexpr char kSelectBatches[] =
     "SELECT seq, first_t_s, last_t_s, count, payload FROM sample_batches "
     "WHERE session_id = ?1 AND seq > ?2 ORDER BY seq";
+// A page: seqs are gapless (AppendOne), so `seq <= ?2 + ?3` bounds the rows SQLite visits to the
+// page's own; past the first batch, only those that end within ?4 samples of the page's start
+// (the end_sample of batch ?2, 0 before the first).
+constexpr char kSelectBatchPage[] =
+    "SELECT seq, first_t_s, last_t_s, count, payload FROM sample_batches "
+    "WHERE session_id = ?1 AND seq > ?2 AND seq <= ?2 + ?3 AND (seq = ?2 + 1 OR end_sample <= ?4 + "
+    "COALESCE((SELECT end_sample FROM sample_batches WHERE session_id = ?1 AND seq = ?2), 0)) "
+    "ORDER BY seq";
 
 struct LastBatch {
   int64_t seq = 0;  // 0: no batch yet
@@ -201,6 +209,26 @@ absl::StatusOr<std::vector<SampleBatch>> Store::ReadBatches(std::string_view ses
         [&](const Statement& st) { return ReadBatch(st, session_id); }, session_id, after_seq);
   };
   return Annotate("ReadBatches", read());
+}
+
+absl::StatusOr<std::vector<SampleBatch>> Store::ReadBatchPage(std::string_view session_id,
+                                                              int64_t after_seq,
+                                                              int64_t max_batches,
+                                                              int64_t max_samples) {
+  if (after_seq < 0 || max_batches < 1 || max_samples < 1) {
+    return absl::InvalidArgumentError(Cat("ReadBatchPage: after_seq ", after_seq, ", max_batches ",
+                                          max_batches, ", max_samples ", max_samples,
+                                          " (want >= 0, >= 1, >= 1)"));
+  }
+  ReadLease lease = AcquireReader();
+  auto read = [&]() -> absl::StatusOr<std::vector<SampleBatch>> {
+    STORAGE_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
+    return ReadRows(
+        lease.conn(), kSelectBatchPage,
+        [&](const Statement& st) { return ReadBatch(st, session_id); }, session_id, after_seq,
+        max_batches, max_samples);
+  };
+  return Annotate("ReadBatchPage", read());
 }
 
 }  // namespace imucal::storage

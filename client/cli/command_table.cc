@@ -38,10 +38,11 @@ std::vector<CommandSpec> BuildTable() {
        .switches = {"no-temperature", "botch-turn", "help"}},
       {.id = "noise",
        .word = "noise",
-       .summary = "noise figures (N, B, K) of a rest recording",
+       .summary = "noise figures (N, B, K) of a rest recording or a stored session",
        .positional_files = true,
+       .server = true,  // --session S reads a stored session (noise_session.cc)
        .valued = WithImportValuedFlags({"format", "accel-unit", "gyro-unit", "gravity", "device",
-                                        "params", "out", "rostopic"}),
+                                        "params", "out", "rostopic", "session", "server"}),
        .switches = WithImportSwitches({"json", "help"})},
       {.id = "demo",
        .word = "demo",

@@ -38,7 +38,9 @@ int RunCalibrate(const std::vector<std::string>& args);
 int RunApply(const std::vector<std::string>& args);
 int RunSimulate(const std::vector<std::string>& args);
 int RunDemo(const std::vector<std::string>& args);
-// `imucal noise REST...`: noise figures from a rest recording alone (noise_command.cc).
+// `imucal noise REST...` or `imucal noise --session S`: noise figures from a rest recording
+// alone (noise_command.cc), read from files or from the server (noise_session.cc, in the server
+// commands' library).
 int RunNoise(const std::vector<std::string>& args);
 // `imucal export --params FILE --format F`: a parameter set file as json, Kalibr or OpenVINS
 // YAML (core/export.h). main.cc sends `export` here unless it names a --device (the server's).

@@ -1,6 +1,8 @@
-// `imucal noise REST...`: the noise figures of a rest recording alone (core/allan.h), with their
-// cluster times and 95% intervals, and the noise keys of Kalibr's imu.yaml and of OpenVINS's
-// kalibr_imu_chain.yaml written with yaml-cpp.
+// `imucal noise REST...` / `imucal noise --session S`: the noise figures of a rest recording
+// alone (core/allan.h), with their cluster times and 95% intervals, and the noise keys of
+// Kalibr's imu.yaml and of OpenVINS's kalibr_imu_chain.yaml written with yaml-cpp. The rest comes
+// from files (the importers) or from a robot's stored session on the server (noise_source.h);
+// everything after reading it is the same code.
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -16,6 +18,7 @@
 #include "client/cli/commands.h"
 #include "client/cli/demo_common.h"
 #include "client/cli/import_flags.h"
+#include "client/cli/noise_source.h"
 #include "core/allan.h"
 #include "core/export.h"
 #include "formats/params_json.h"
@@ -29,20 +32,31 @@ namespace {
 
 constexpr char kNoiseHelp[] =
     "usage: imucal noise REST... [options]\n"
+    "       imucal noise --session S [--server ADDR] [options]\n"
     "  The noise figures of a recording at rest (minutes to hours, the sensor untouched): the\n"
     "  overlapping Allan deviation of each calibrated axis and, read off it, the white-noise\n"
     "  density N, the bias instability B and the rate random walk K, each with the cluster time\n"
     "  it was read at and its 95% confidence interval. A figure the record is too short to\n"
     "  reach is an upper bound (a 95% upper limit), marked '<='. REST: any capture format\n"
-    "  calibrate reads.\n"
+    "  calibrate reads. --session S: a robot's rest as the server stored it (its samples in the\n"
+    "  device's registered units), with the same figures as the same samples in a file.\n"
     "options:\n"
+    "  --session S         read session S's stored samples from the server instead of files\n"
+    "  --server ADDR       with --session: the calibration service (default $IMUCAL_SERVER,\n"
+    "                      else 127.0.0.1:50051); --ca-cert, --token-file / --token as for the\n"
+    "                      server commands\n"
     "  --params P.json     apply this parameter set first (the figures of the calibrated\n"
     "                      signal; needed for a capture in raw counts)\n"
     "  --out DIR           write DIR/imu.yaml (Kalibr), DIR/kalibr_imu_chain.yaml (OpenVINS noise\n"
     "                      keys), DIR/noise.json and the Allan plots DIR/allan_{accel,gyro}.svg\n"
     "  --rostopic T        rostopic of the YAML files (default /imu0)\n"
     "  --json              print the figures as JSON\n"
-    "  --format F, --accel-unit U, --gyro-unit U, --gravity G, --device ID: as for calibrate\n";
+    "  --gravity G         local gravity, m/s^2, for a capture in g (default: the file's,\n"
+    "                      else 9.80665)\n"
+    "  --format F, --accel-unit U, --gyro-unit U, --device ID: files only, as for calibrate\n"
+    "exit codes: 0 ok, 1 usage, 2 bad input or unknown session, 3 the session holds no\n"
+    "            samples yet, 5 internal, 6 server unreachable, 7 the server refused the\n"
+    "            token or its role\n";
 
 constexpr const char* kAxes[6] = {"accel x", "accel y", "accel z", "gyro x", "gyro y", "gyro z"};
 
@@ -98,7 +112,7 @@ void EmitNoiseKeys(const core::NoiseAnalysis& na, YAML::Emitter* out) {
         Row{"gyroscope_noise_density", true, &core::AxisReadings::noise_density, "rad/s/sqrt(Hz)"},
         Row{"gyroscope_random_walk", true, &core::AxisReadings::random_walk, "rad/s^2/sqrt(Hz)"}}) {
     const Key key = Largest(na, row.gyro, row.figure);
-    *out << YAML::Key << row.key << YAML::Value << key.value;
+    *out << YAML::Key << row.key << YAML::Value << core::YamlFloat(key.value);
     *out << YAML::Comment(key.bound ? absl::StrFormat("%s; an UPPER BOUND: the rest is too short "
                                                       "to reach it (largest axis)",
                                                       row.unit)
@@ -115,7 +129,7 @@ std::string KalibrImuYaml(const core::NoiseAnalysis& na, const std::string& rost
   out << YAML::BeginMap;
   EmitNoiseKeys(na, &out);
   out << YAML::Key << "rostopic" << YAML::Value << rostopic;
-  out << YAML::Key << "update_rate" << YAML::Value << na.figures.rate_hz;
+  out << YAML::Key << "update_rate" << YAML::Value << core::YamlFloat(na.figures.rate_hz);
   out << YAML::EndMap;
   return std::string(out.c_str()) + "\n";
 }
@@ -128,13 +142,14 @@ std::string OpenVinsNoiseYaml(const core::NoiseAnalysis& na, const std::string& 
   out << YAML::BeginMap << YAML::Key << "imu0" << YAML::Value << YAML::BeginMap;
   EmitNoiseKeys(na, &out);
   out << YAML::Key << "rostopic" << YAML::Value << rostopic;
-  out << YAML::Key << "update_rate" << YAML::Value << na.figures.rate_hz;
+  out << YAML::Key << "update_rate" << YAML::Value << core::YamlFloat(na.figures.rate_hz);
   out << YAML::EndMap << YAML::EndMap;
   // OpenVINS reads the file with OpenCV's FileStorage, which wants this first line.
   return "%YAML:1.0\n---\n" + std::string(out.c_str()) + "\n";
 }
 
-nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const importers::ImportReport& import) {
+nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const NoiseInput& input) {
+  const importers::ImportReport& import = input.report;
   nlohmann::json axes = nlohmann::json::object();
   for (size_t k = 0; k < 6; ++k) {
     axes[std::string(kAxes[k]).replace(std::string(kAxes[k]).find(' '), 1, "_")] = {
@@ -142,39 +157,73 @@ nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const importers::ImportR
         {"bias_instability", ReadingJson(na.readings[k].bias_instability)},
         {"random_walk", ReadingJson(na.readings[k].random_walk)}};
   }
-  return {{"format", "imucal-noise v1"},
-          {"inputs", import.paths},
-          {"samples", na.figures.samples},
-          {"rate_hz", na.figures.rate_hz},
-          {"units",
-           {{"accel",
-             {{"noise_density", "m/s^2/sqrt(Hz)"},
-              {"bias_instability", "m/s^2"},
-              {"random_walk", "m/s^3/sqrt(Hz)"}}},
-            {"gyro",
-             {{"noise_density", "rad/s/sqrt(Hz)"},
-              {"bias_instability", "rad/s"},
-              {"random_walk", "rad/s^2/sqrt(Hz)"}}}}},
-          {"axes", axes},
-          {"notes", na.figures.notes}};
+  nlohmann::json out = {{"format", "imucal-noise v1"},
+                        {"inputs", import.paths},
+                        {"samples", na.figures.samples},
+                        {"rate_hz", na.figures.rate_hz},
+                        {"units",
+                         {{"accel",
+                           {{"noise_density", "m/s^2/sqrt(Hz)"},
+                            {"bias_instability", "m/s^2"},
+                            {"random_walk", "m/s^3/sqrt(Hz)"}}},
+                          {"gyro",
+                           {{"noise_density", "rad/s/sqrt(Hz)"},
+                            {"bias_instability", "rad/s"},
+                            {"random_walk", "rad/s^2/sqrt(Hz)"}}}}},
+                        {"axes", axes},
+                        {"notes", na.figures.notes}};
+  if (input.session) {
+    out["session"] = {{"id", input.session->id},
+                      {"device", input.session->device},
+                      {"server", input.session->server}};
+  }
+  return out;
+}
+
+// The rest to analyse: the files' capture (the importers), or the session's (`read_session`).
+int ReadNoiseInput(const Args& a, const NoiseSessionReader& read_session, NoiseInput* in) {
+  auto io = ImportOptionsFrom(a);
+  if (!io.ok()) return Usage(std::string(io.status().message()));
+  auto session = a.Get("session");
+  if (!session) {
+    if (a.positional().empty()) return Usage("noise needs a REST recording or --session S");
+    auto capture = importers::ImportCapture(a.positional(), *io, &in->report);
+    if (!capture.ok()) return ReportError(capture.status());
+    in->capture = *std::move(capture);
+    return kExitOk;
+  }
+  if (session->empty()) return Usage("--session: empty (a session id, from imucal session list)");
+  if (!a.positional().empty()) {
+    return Usage("give REST files or --session S, not both (" + a.positional().front() + ")");
+  }
+  // A session's samples are in its device's registered units: what names a file's units or
+  // layout has nothing to say about them.
+  for (const char* flag : {"format", "accel-unit", "gyro-unit", "device", "columns", "topic"}) {
+    if (a.Has(flag)) {
+      return Usage(absl::StrFormat(
+          "--%s applies to files; a session's samples are in its device's registered units", flag));
+    }
+  }
+  if (!read_session) return Usage("--session needs the server commands (this build has none)");
+  if (int code = read_session(*session, a.Get("server"), in); code != kExitOk) return code;
+  if (io->gravity_m_s2) in->capture.gravity_m_s2 = *io->gravity_m_s2;
+  return kExitOk;
 }
 
 }  // namespace
 
-int RunNoise(const std::vector<std::string>& argv) {
+int RunNoiseWith(const std::vector<std::string>& argv, const NoiseSessionReader& read_session) {
   auto a = ParseCommandFlags("noise", argv);
   if (!a.ok()) return Usage(std::string(a.status().message()));
   if (a->Has("help")) return std::printf("%s%s", kNoiseHelp, kImportFlagsHelp), kExitOk;
-  if (a->positional().empty()) return Usage("noise needs a REST recording");
   const std::string rostopic = a->Get("rostopic").value_or("/imu0");
   if (absl::Status s = core::ValidateRosTopic(rostopic); !s.ok()) {
     return Usage("--rostopic: " + std::string(s.message()));
   }
-  auto io = ImportOptionsFrom(*a);
-  if (!io.ok()) return Usage(std::string(io.status().message()));
-  importers::ImportReport import;
-  auto capture = importers::ImportCapture(a->positional(), *io, &import);
-  if (!capture.ok()) return ReportError(capture.status());
+  NoiseInput input;
+  if (int code = ReadNoiseInput(*a, read_session, &input); code != kExitOk) return code;
+  core::Capture* const capture = &input.capture;
+  const importers::ImportReport& import = input.report;
 
   // The signal analysed: the parameter set's calibration applied (through the SDK, as a robot
   // applies it), else the capture in SI through the nominal factor of its units.
@@ -198,8 +247,10 @@ int RunNoise(const std::vector<std::string>& argv) {
     const double kg = core::NominalGyroToSi(capture->gyro_unit);
     if (std::isnan(ka) || std::isnan(kg)) {
       return ReportError(absl::InvalidArgumentError(
-          "the capture is in raw counts, which have no unit: give --params P.json (a "
-          "calibration of this sensor) or --accel-unit/--gyro-unit"));
+          input.session ? "the device's samples are in raw counts, which have no unit: give "
+                          "--params P.json (a calibration of this sensor)"
+                        : "the capture is in raw counts, which have no unit: give --params "
+                          "P.json (a calibration of this sensor) or --accel-unit/--gyro-unit"));
     }
     accel.scale = Eigen::Vector3d::Constant(ka);
     gyro.matrix = kg * Eigen::Matrix3d::Identity();
@@ -213,7 +264,7 @@ int RunNoise(const std::vector<std::string>& argv) {
         "uninterrupted rest is what the figures assume)");
   }
 
-  const nlohmann::json json = NoiseJson(*na, import);
+  const nlohmann::json json = NoiseJson(*na, input);
   if (auto dir = a->Get("out")) {
     std::error_code error;
     std::filesystem::create_directories(*dir, error);

@@ -17,8 +17,10 @@ namespace imucal::cli {
 
 namespace pb = imucal::v1;
 
-std::string ServerAddress(const Args& args) {
-  if (auto s = args.Get("server"); s && !s->empty()) return *s;
+std::string ServerAddress(const Args& args) { return ServerAddress(args.Get("server")); }
+
+std::string ServerAddress(const std::optional<std::string>& server_flag) {
+  if (server_flag && !server_flag->empty()) return *server_flag;
   if (const char* env = std::getenv("IMUCAL_SERVER"); env != nullptr && *env != '\0') return env;
   return kDefaultServer;
 }

@@ -4,6 +4,7 @@
 #define IMUCAL_CLIENT_CLI_SERVER_COMMON_H_
 
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "absl/status/statusor.h"
@@ -19,6 +20,7 @@ inline constexpr char kDefaultServer[] = "127.0.0.1:50051";
 
 // --server, else $IMUCAL_SERVER, else kDefaultServer.
 std::string ServerAddress(const Args& args);
+std::string ServerAddress(const std::optional<std::string>& server_flag);
 
 // The stubs of one channel to the server.
 struct Server {

@@ -4,10 +4,12 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <random>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -15,9 +17,11 @@
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
 #include "core/simulator.h"
+#include "formats/params_json.h"
 #include "importers/imucal_csv.h"
 #include "nlohmann/json.hpp"
 #include "tests/client/imucald_process.h"
+#include "yaml-cpp/yaml.h"
 
 namespace imucal::cli {
 namespace {
@@ -265,6 +269,153 @@ TEST_F(CliServerTest, UnitsDifferentFromTheDevicesAreRefused) {
       << err_;
   EXPECT_EQ(Run(RunUpload, {WriteSimulatedCapture(7), "--device", "robot-cli-5"}), kExitBadInput);
   EXPECT_NE(err_.find("registered with accel g"), std::string::npos) << err_;
+}
+
+// A rest of `seconds` at 200 Hz, gravity on z: white noise of density n (per axis: accel
+// m/s^2/sqrt(Hz), gyro rad/s/sqrt(Hz)) and a rate random walk, the sensor's own values
+// (m/s^2, rad/s).
+core::Capture SimulatedRest(double seconds, uint64_t seed) {
+  constexpr double kRate = 200;
+  const double accel_n = 1.4e-3, gyro_n = 1.4e-4, accel_k = 2e-4, gyro_k = 2e-5;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal;
+  core::Capture cap;
+  cap.device = "robot-noise";
+  cap.rate_hz = kRate;
+  Eigen::Vector3d walk_a = Eigen::Vector3d::Zero(), walk_g = Eigen::Vector3d::Zero();
+  const auto n = static_cast<size_t>(seconds * kRate);
+  for (size_t i = 0; i < n; ++i) {
+    Eigen::Vector3d a, g;
+    for (int k = 0; k < 3; ++k) {
+      walk_a(k) += accel_k / std::sqrt(kRate) * normal(rng);
+      walk_g(k) += gyro_k / std::sqrt(kRate) * normal(rng);
+      a(k) = walk_a(k) + accel_n * std::sqrt(kRate) * normal(rng);
+      g(k) = walk_g(k) + gyro_n * std::sqrt(kRate) * normal(rng);
+    }
+    cap.t_s.push_back(static_cast<double>(i) / kRate);
+    cap.accel.push_back(a + Eigen::Vector3d(0, 0, core::kStandardGravity));
+    cap.gyro.push_back(g);
+  }
+  return cap;
+}
+
+std::string ReadFile(const fs::path& path) {
+  std::ifstream f(path, std::ios::binary);
+  std::stringstream text;
+  text << f.rdbuf();
+  return text.str();
+}
+
+// `imucal noise --session S` reads a robot's stored rest through ReadSamples and gives the same
+// figures, YAML and JSON as `imucal noise FILE` on the same samples, with and without --params;
+// what it writes parses back (yaml-cpp) to the figures it printed.
+TEST_F(CliServerTest, NoiseFromAStoredSessionEqualsTheSameSamplesAsAFile) {
+  Register("robot-noise");
+  const std::string rest = (dir_ / "rest.csv").string();
+  ASSERT_TRUE(importers::WriteImucalCsvFile(SimulatedRest(120, 21), rest).ok());
+  ASSERT_EQ(Run(RunUpload, {rest, "--device", "robot-noise", "--batch", "5000"}), kExitOk) << err_;
+  ASSERT_EQ(Run(RunSession, {"list", "--device", "robot-noise", "--json"}), kExitOk) << err_;
+  const std::string session = json::parse(out_)["sessions"][0]["id"];
+
+  // A calibration to apply first (--params), as a robot's parameter set would be.
+  core::ParamSet params;
+  params.device = "robot-noise";
+  params.version = 1;
+  params.accel.scale = Eigen::Vector3d(1.01, 0.99, 1.002);
+  params.accel.bias = Eigen::Vector3d(0.02, -0.01, 0.03);
+  params.gyro.matrix = Eigen::Vector3d(1.02, 0.98, 1.0).asDiagonal();
+  params.gyro.bias = Eigen::Vector3d(1e-3, -2e-3, 5e-4);
+  const std::string params_path = (dir_ / "params.json").string();
+  std::ofstream(params_path) << formats::ParamSetToJson(params);
+
+  for (const std::vector<std::string>& extra :
+       {std::vector<std::string>{}, std::vector<std::string>{"--params", params_path}}) {
+    const std::string tag = extra.empty() ? "raw" : "params";
+    std::vector<std::string> from_file = {rest, "--json", "--out",
+                                          (dir_ / ("file_" + tag)).string()};
+    std::vector<std::string> from_session = {"--session", session, "--json", "--out",
+                                             (dir_ / ("session_" + tag)).string()};
+    from_file.insert(from_file.end(), extra.begin(), extra.end());
+    from_session.insert(from_session.end(), extra.begin(), extra.end());
+    ASSERT_EQ(Run(RunNoise, from_file), kExitOk) << err_;
+    const json file = json::parse(out_);
+    ASSERT_EQ(Run(RunNoise, from_session), kExitOk) << err_;
+    const json stored = json::parse(out_);
+    EXPECT_EQ(stored["samples"], 24000) << tag;
+    for (const char* key : {"samples", "rate_hz", "axes", "units", "notes"})
+      EXPECT_EQ(stored[key], file[key]) << tag << " " << key;
+    EXPECT_EQ(stored["session"]["id"], session);
+    EXPECT_EQ(stored["session"]["device"], "robot-noise");
+    EXPECT_EQ(stored["inputs"], json::array({session}));
+    EXPECT_FALSE(file.contains("session"));
+    for (const char* name : {"imu.yaml", "kalibr_imu_chain.yaml", "allan_accel.svg"}) {
+      EXPECT_EQ(ReadFile(dir_ / ("session_" + tag) / name), ReadFile(dir_ / ("file_" + tag) / name))
+          << tag << " " << name;
+    }
+    // The YAML keys are the largest axis' figure, to the last bit (shortest round-trip text).
+    const YAML::Node kalibr = YAML::LoadFile((dir_ / ("session_" + tag) / "imu.yaml").string());
+    const YAML::Node openvins =
+        YAML::LoadFile((dir_ / ("session_" + tag) / "kalibr_imu_chain.yaml").string())["imu0"];
+    auto largest = [&](const char* sensor, const char* figure) {
+      double v = 0;
+      for (const char* axis : {"x", "y", "z"}) {
+        const json& f = stored["axes"][std::string(sensor) + "_" + axis][figure]["value"];
+        if (f.is_number()) v = std::max(v, f.get<double>());
+      }
+      return v;
+    };
+    for (const auto& [key, sensor, figure] :
+         {std::tuple{"accelerometer_noise_density", "accel", "noise_density"},
+          std::tuple{"accelerometer_random_walk", "accel", "random_walk"},
+          std::tuple{"gyroscope_noise_density", "gyro", "noise_density"},
+          std::tuple{"gyroscope_random_walk", "gyro", "random_walk"}}) {
+      const double want = largest(sensor, figure);
+      EXPECT_GT(want, 0) << key;
+      EXPECT_NEAR(kalibr[key].as<double>(), want, 1e-15 * want) << tag << " " << key;
+      EXPECT_NEAR(openvins[key].as<double>(), want, 1e-15 * want) << tag << " " << key;
+    }
+    EXPECT_EQ(kalibr["update_rate"].as<double>(), stored["rate_hz"].get<double>());
+    EXPECT_EQ(openvins["update_rate"].as<double>(), stored["rate_hz"].get<double>());
+  }
+  // The human summary says where the samples came from.
+  ASSERT_EQ(Run(RunNoise, {"--session", session}), kExitOk) << err_;
+  EXPECT_NE(out_.find("input       " + session + " (stored session of robot-noise at "),
+            std::string::npos)
+      << out_;
+  EXPECT_NE(out_.find("accel x"), std::string::npos) << out_;
+}
+
+TEST_F(CliServerTest, NoiseFromASessionRefusesWhatCannotBeRead) {
+  Register("robot-noise-2");
+  // An unknown session: the server's NOT_FOUND, exit 2.
+  EXPECT_EQ(Run(RunNoise, {"--session", "s-00000000000000000000000000000000"}), kExitBadInput);
+  EXPECT_NE(err_.find("s-00000000000000000000000000000000"), std::string::npos) << err_;
+  // --session without its value, or empty; files and a session at once; file-only flags.
+  EXPECT_EQ(Run(RunNoise, {"--session"}), kExitUsage);
+  EXPECT_NE(err_.find("--session needs a value"), std::string::npos) << err_;
+  for (const std::vector<std::string>& empty_value :
+       {std::vector<std::string>{"--session="}, std::vector<std::string>{"--session", ""}}) {
+    EXPECT_EQ(Run(RunNoise, empty_value), kExitUsage);
+    EXPECT_NE(err_.find("imucal: --session"), std::string::npos) << err_;
+  }
+  EXPECT_EQ(Run(RunNoise, {"rest.csv", "--session", "s-1"}), kExitUsage);
+  EXPECT_NE(err_.find("not both"), std::string::npos) << err_;
+  EXPECT_EQ(Run(RunNoise, {"--session", "s-1", "--accel-unit", "g"}), kExitUsage);
+  EXPECT_NE(err_.find("--accel-unit applies to files"), std::string::npos) << err_;
+  // A session without samples yet: nothing to analyse, said so.
+  ASSERT_EQ(Run(RunSession, {"start", "--device", "robot-noise-2", "--json"}), kExitOk) << err_;
+  const std::string empty = json::parse(out_)["id"];
+  EXPECT_EQ(Run(RunNoise, {"--session", empty}), kExitUndetermined);
+  EXPECT_NE(err_.find("holds no samples"), std::string::npos) << err_;
+  // No server there: exit 6, naming the address.
+  const std::string nowhere = absl::StrCat("127.0.0.1:", testing_util::FreeLoopbackPort());
+  testing::internal::CaptureStdout();
+  testing::internal::CaptureStderr();
+  const int code = RunNoise({"--session", empty, "--server", nowhere});
+  testing::internal::GetCapturedStdout();
+  const std::string err = testing::internal::GetCapturedStderr();
+  EXPECT_EQ(code, kExitUnavailable) << err;
+  EXPECT_NE(err.find(nowhere), std::string::npos) << err;
 }
 
 TEST(CliServerUnreachableTest, ExitCodeSix) {

@@ -1,7 +1,9 @@
 // Exporters (core/export.h), round-tripped: each exported file is read back with a small YAML
-// reader written here, its model applied to simulated raw data with the format's own equations
-// (written here from OpenVINS's and Kalibr's source, independently of export.cc), and the result
-// compared with imucal's SDK Corrector on the same raw data, the biases removed both ways.
+// reader written here (the layout: one key per line, matrix rows in flow style) and with yaml-cpp
+// (every number to 1e-15 relative, YamlCppReadsBackEveryNumber), its model applied to simulated raw
+// data with the format's own equations (written here from OpenVINS's and Kalibr's source,
+// independently of export.cc), and the result compared with imucal's SDK Corrector on the same raw
+// data, the biases removed both ways.
 #include "core/export.h"
 
 #include <gtest/gtest.h>
@@ -21,6 +23,7 @@
 #include "core/model.h"
 #include "core/params.h"
 #include "core/simulator.h"
+#include "yaml-cpp/yaml.h"
 
 namespace imucal::core {
 namespace {
@@ -107,6 +110,14 @@ Eigen::Matrix3d Mat3(const Yaml& y, const std::string& key) {
   EXPECT_TRUE(it != y.matrices.end()) << key;
   if (it == y.matrices.end() || it->second.rows() < 3) return Eigen::Matrix3d::Constant(NAN);
   return it->second.topLeftCorner<3, 3>();
+}
+
+Eigen::Matrix3d Mat3FromNode(const YAML::Node& node) {
+  Eigen::Matrix3d m = Eigen::Matrix3d::Constant(NAN);
+  if (!node.IsSequence() || node.size() < 3) return m;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) m(r, c) = node[r][c].as<double>();
+  return m;
 }
 
 double Scalar(const Yaml& y, const std::string& key) {
@@ -477,6 +488,136 @@ TEST(ExportTest, SaysWhatIsLeftOut) {
   EXPECT_NE(all.find("biases"), std::string::npos);
   EXPECT_NE(all.find("quadratic"), std::string::npos);
   EXPECT_NE(all.find("effect"), std::string::npos);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Every exported file read back with yaml-cpp (a full YAML parser, not the subset reader above):
+// each number is the double the parameter set gives, to 1e-15 relative (the text is the shortest
+// that reads back to the same double, so it is exact), the strings as written, and the header's
+// units and frames still there as comments.
+
+double Rel(double got, double want) {
+  return want == 0 ? std::abs(got) : std::abs(got - want) / std::abs(want);
+}
+
+// `node` (a matrix as a sequence of rows) against `want`, entry by entry; a zero entry must be
+// exactly zero.
+void ExpectMatrix(const YAML::Node& node, const Eigen::MatrixXd& want, const std::string& what) {
+  ASSERT_TRUE(node.IsSequence()) << what;
+  ASSERT_EQ(node.size(), static_cast<size_t>(want.rows())) << what;
+  for (Eigen::Index r = 0; r < want.rows(); ++r) {
+    ASSERT_EQ(node[r].size(), static_cast<size_t>(want.cols())) << what;
+    for (Eigen::Index c = 0; c < want.cols(); ++c) {
+      const double got = node[r][c].as<double>();
+      EXPECT_LE(Rel(got, want(r, c)), 1e-15)
+          << what << "(" << r << ", " << c << "): " << got << " vs " << want(r, c);
+    }
+  }
+}
+
+Eigen::Matrix4d Homogeneous4(const Eigen::Matrix3d& r) {
+  Eigen::Matrix4d t = Eigen::Matrix4d::Identity();
+  t.topLeftCorner<3, 3>() = r;
+  return t;
+}
+
+void ExpectNoiseKeys(const YAML::Node& n, const ParamSet& p) {
+  const NoiseFigures& f = *p.noise;
+  for (const auto& [key, want] :
+       {std::pair{"accelerometer_noise_density", f.accel.noise_density.maxCoeff()},
+        std::pair{"accelerometer_random_walk", f.accel.random_walk.maxCoeff()},
+        std::pair{"gyroscope_noise_density", f.gyro.noise_density.maxCoeff()},
+        std::pair{"gyroscope_random_walk", f.gyro.random_walk.maxCoeff()},
+        std::pair{"update_rate", f.rate_hz}}) {
+    ASSERT_TRUE(n[key]) << key;
+    EXPECT_LE(Rel(n[key].as<double>(), want), 1e-15) << key;
+  }
+}
+
+TEST(ExportTest, YamlCppReadsBackEveryNumber) {
+  for (const auto& [au, gu] : {std::pair{AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond},
+                               std::pair{AccelUnit::kG, GyroUnit::kDegPerSecond}}) {
+    const ParamSet p = TestParams(au, gu);
+    // What each format derives from the parameter set (core/export.h), computed here.
+    const double ka = SiPerAccelUnit(p), kg = SiPerGyroUnit(p);
+    const Eigen::Matrix3d frame = ExpSo3<double>(p.accel.frame_angles);
+    const Eigen::Matrix3d lower =
+        LowerMisalignment<double>(p.accel.tri_angles) * p.accel.scale.asDiagonal() / ka;
+    const Eigen::Matrix3d gyro = p.gyro.matrix / kg;
+    ExportOptions o;
+    o.rostopic = "/robot/imu_raw";
+
+    absl::StatusOr<std::string> kalibr = ExportParams(p, ExportFormat::kKalibrImu, o);
+    ASSERT_TRUE(kalibr.ok()) << kalibr.status();
+    const YAML::Node k = YAML::Load(*kalibr);
+    ExpectNoiseKeys(k, p);
+    EXPECT_EQ(k["rostopic"].as<std::string>(), "/robot/imu_raw");
+    EXPECT_EQ(k.size(), 6u);
+
+    absl::StatusOr<std::string> intrinsics = ExportParams(p, ExportFormat::kKalibrIntrinsics, o);
+    ASSERT_TRUE(intrinsics.ok()) << intrinsics.status();
+    const YAML::Node ki = YAML::Load(*intrinsics)["imu0"];
+    ExpectNoiseKeys(ki, p);
+    ExpectMatrix(ki["T_i_b"], Homogeneous4(frame.transpose()), "T_i_b");
+    ExpectMatrix(ki["accelerometers"]["M"], lower.inverse(), "accelerometers.M");
+    EXPECT_EQ(ki["model"].as<std::string>(), "scale-misalignment");
+    EXPECT_EQ(ki["rostopic"].as<std::string>(), "/robot/imu_raw");
+    EXPECT_EQ(ki["time_offset"].as<double>(), 0.0);
+    // The gyroscope's factors multiply back to G'^-1 R_f and G'^-1 C R_f.
+    const Eigen::Matrix3d m_g = Mat3FromNode(ki["gyroscopes"]["M"]);
+    const Eigen::Matrix3d c_gyro_i = Mat3FromNode(ki["gyroscopes"]["C_gyro_i"]);
+    const Eigen::Matrix3d a_g = Mat3FromNode(ki["gyroscopes"]["A"]);
+    EXPECT_LT((m_g * c_gyro_i - gyro.inverse() * frame).norm(), 1e-14);
+    EXPECT_LT((a_g * c_gyro_i - gyro.inverse() * p.gyro.accel_coupling * frame).norm(), 1e-14);
+
+    for (OpenVinsModel model : {OpenVinsModel::kKalibr, OpenVinsModel::kRpng}) {
+      o.openvins_model = model;
+      absl::StatusOr<std::string> ov = ExportParams(p, ExportFormat::kOpenVins, o);
+      ASSERT_TRUE(ov.ok()) << ov.status();
+      ASSERT_EQ(ov->rfind("%YAML:1.0\n", 0), 0u);  // OpenCV's first line; yaml-cpp skips it
+      const YAML::Node v = YAML::Load(*ov)["imu0"];
+      ExpectNoiseKeys(v, p);
+      ExpectMatrix(v["T_i_b"], Eigen::Matrix4d::Identity(), "T_i_b");
+      ExpectMatrix(v["Tg"], gyro.inverse() * p.gyro.accel_coupling, "Tg");
+      EXPECT_EQ(v["model"].as<std::string>(), model == OpenVinsModel::kKalibr ? "kalibr" : "rpng");
+      EXPECT_EQ(v["rostopic"].as<std::string>(), "/robot/imu_raw");
+      const Eigen::Matrix3d tw = Mat3FromNode(v["Tw"]), ta = Mat3FromNode(v["Ta"]);
+      const Eigen::Matrix3d r_gyro = Mat3FromNode(v["R_IMUtoGYRO"]);
+      const Eigen::Matrix3d r_acc = Mat3FromNode(v["R_IMUtoACC"]);
+      if (model == OpenVinsModel::kKalibr) {
+        // The accelerometer's factors are imucal's own: no decomposition in between.
+        ExpectMatrix(v["R_IMUtoACC"], frame.transpose(), "R_IMUtoACC");
+        ExpectMatrix(v["Ta"], lower.inverse(), "Ta");
+      }
+      EXPECT_LT((r_gyro.transpose() * tw.inverse() - gyro).norm(), 1e-14);
+      EXPECT_LT((r_acc.transpose() * ta.inverse() - frame * lower).norm(), 1e-14);
+    }
+    // The header's conventions survive as comments, in every format.
+    for (const std::string* text : {&*kalibr, &*intrinsics}) {
+      EXPECT_NE(text->find("# measurements in SI (m/s^2, rad/s) as a ROS sensor_msgs/Imu"),
+                std::string::npos);
+      EXPECT_NE(text->find("# device: robot-0042  parameter version: 7"), std::string::npos);
+      EXPECT_NE(text->find("  # [m/s^2/sqrt(Hz)] continuous-time white noise"), std::string::npos);
+    }
+    EXPECT_NE(intrinsics->find("#   a_meas = M_a a_i + b_a ;"), std::string::npos) << *intrinsics;
+  }
+}
+
+// A device id or software name with a line break cannot add YAML to the file: the emitter keeps
+// each line of a comment a comment (a hand-written "# " + text did not).
+TEST(ExportTest, ALineBreakInTheHeaderStaysAComment) {
+  ParamSet p = TestParams(AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond);
+  p.device = "robot-1\nTw: [[9]]";
+  p.software = "imucal\nextra_key: 1";
+  for (ExportFormat f :
+       {ExportFormat::kKalibrImu, ExportFormat::kKalibrIntrinsics, ExportFormat::kOpenVins}) {
+    absl::StatusOr<std::string> text = ExportParams(p, f, ExportOptions());
+    ASSERT_TRUE(text.ok()) << text.status();
+    const YAML::Node n = YAML::Load(*text);
+    EXPECT_FALSE(n["extra_key"]) << *text;
+    EXPECT_FALSE(n["Tw"]) << *text;
+    EXPECT_NE(text->find("# Tw: [[9]]"), std::string::npos) << *text;
+  }
 }
 
 TEST(ExportTest, FormatNames) {

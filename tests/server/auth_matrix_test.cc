@@ -385,6 +385,17 @@ grpc::Status Call(Rpc rpc, const std::shared_ptr<grpc::Channel>& channel, const 
       v1::Report out;
       return sessions->GetReport(Ctx().get(), r, &out);
     }
+    case Rpc::kReadSamples: {
+      // Allowed: the session holds no samples, so the stream ends OK with none.
+      auto ctx = Ctx();
+      v1::ReadSamplesRequest r;
+      r.set_session_id(fleet.session_a);
+      auto reader = sessions->ReadSamples(ctx.get(), r);
+      v1::SampleBatch batch;
+      while (reader->Read(&batch)) {
+      }
+      return reader->Finish();
+    }
     case Rpc::kGetActiveParameters: {
       v1::GetActiveParametersRequest r;
       r.set_device_id(kDeviceA);

@@ -20,6 +20,7 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -39,6 +40,7 @@
 #include "gtest/gtest.h"
 #include "importers/imucal_csv.h"
 #include "imucal/v1/imucal.grpc.pb.h"
+#include "nlohmann/json.hpp"
 #include "tests/client/imucald_process.h"
 #include "tests/server/watch.h"
 
@@ -84,9 +86,10 @@ const pb::SolveJob* DoneSolve(const std::vector<pb::SessionEvent>& events) {
   return nullptr;
 }
 
-// Runs the real CLI binary with `args`, its stdout and stderr into `log_path`; the exit code
-// (-1 if it did not exit normally).
-int RunCli(const std::vector<std::string>& args, const std::string& log_path) {
+// Runs the real CLI binary with `args`, its stdout and stderr into `log_path` (stderr into
+// `err_path` when given); the exit code (-1 if it did not exit normally).
+int RunCli(const std::vector<std::string>& args, const std::string& log_path,
+           const std::string& err_path = "") {
 #ifdef IMUCAL_CLI_PATH
   std::vector<char*> argv;
   std::string exe = IMUCAL_CLI_PATH;
@@ -101,6 +104,10 @@ int RunCli(const std::vector<std::string>& args, const std::string& log_path) {
       ::dup2(fd, STDOUT_FILENO);
       ::dup2(fd, STDERR_FILENO);
     }
+    if (!err_path.empty()) {
+      const int err = ::open(err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      if (err >= 0) ::dup2(err, STDERR_FILENO);
+    }
     ::execv(argv[0], argv.data());
     ::_exit(127);
   }
@@ -109,7 +116,7 @@ int RunCli(const std::vector<std::string>& args, const std::string& log_path) {
   ::waitpid(pid, &status, 0);
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 #else
-  (void)args, (void)log_path;
+  (void)args, (void)log_path, (void)err_path;
   return -1;
 #endif
 }
@@ -442,6 +449,69 @@ TEST_F(EndToEndTest, StreamWatchSolvePromoteFetchApplyMatchesOfflineCli) {
   // Here raw ~0.76 -> ~0.002 m/s^2 and ~0.020 -> ~0.0002 rad/s: the bounds leave room.
   EXPECT_LT(cal_accel, raw_accel / 50);
   EXPECT_LT(cal_gyro, raw_gyro / 20);
+}
+
+// `imucal noise --session S` as a technician runs it, all through the real binaries: a 2-minute
+// rest from the independent simulator (tests/tools/write_euroc.py, imu_sim.py) uploaded with
+// `imucal upload`, its stored samples read back through ReadSamples, and the figures equal to
+// those of `imucal noise` on the same file; the white-noise densities are the simulated ones.
+TEST_F(EndToEndTest, NoiseOfAStoredRestThroughTheCliBinary) {
+#ifndef IMUCAL_TOOLS_DIR
+  GTEST_SKIP() << "IMUCAL_TOOLS_DIR is not set";
+#else
+  const std::string rest_dir = (dir_ / "rest").string();
+  const std::string write = std::string("python3 '") + IMUCAL_TOOLS_DIR + "/write_euroc.py' '" +
+                            rest_dir +
+                            "' --protocol random --poses 0 --first-hold-s 120 --rate-hz 200 "
+                            "--seed 5 >/dev/null";
+  ASSERT_EQ(std::system(write.c_str()), 0) << write;
+  const std::string rest = rest_dir + "/mav0/imu0/data.csv";
+  const nlohmann::json truth = nlohmann::json::parse(ReadText(rest_dir + "/truth.json"));
+  const std::string server = server_->address();
+  const std::string log = (dir_ / "noise_cli.log").string();
+  const std::string err = (dir_ / "noise_cli.err").string();
+  ASSERT_EQ(RunCli({"--server", server, "devices", "register", "robot-rest", "--rate", "200",
+                    "--accel-unit", "m/s^2", "--gyro-unit", "rad/s"},
+                   log),
+            0)
+      << ReadText(log);
+  ASSERT_EQ(RunCli({"--server", server, "upload", rest, "--device", "robot-rest"}, log), 0)
+      << ReadText(log);
+  ASSERT_EQ(
+      RunCli({"--server", server, "session", "list", "--device", "robot-rest", "--json"}, log, err),
+      0)
+      << ReadText(err);
+  const std::string session = nlohmann::json::parse(ReadText(log))["sessions"][0]["id"];
+
+  ASSERT_EQ(RunCli({"noise", "--session", session, "--server", server, "--json"}, log, err), 0)
+      << ReadText(err);
+  const nlohmann::json stored = nlohmann::json::parse(ReadText(log));
+  ASSERT_EQ(RunCli({"noise", rest, "--json"}, log, err), 0) << ReadText(err);
+  const nlohmann::json file = nlohmann::json::parse(ReadText(log));
+  EXPECT_EQ(stored["samples"], 24000);
+  EXPECT_EQ(stored["session"]["id"], session);
+  for (const char* key : {"samples", "rate_hz", "axes", "notes"})
+    EXPECT_EQ(stored[key], file[key]) << key;
+  // The simulated white noise per sample, as a density: sigma / sqrt(rate), within 10%.
+  const double rate = truth["rate_hz"].get<double>();
+  for (const char* axis : {"accel_x", "accel_y", "accel_z", "gyro_x", "gyro_y", "gyro_z"}) {
+    const double sigma =
+        truth[std::string(axis).rfind("accel", 0) == 0 ? "accel_noise_m_s2" : "gyro_noise_rad_s"]
+            .get<double>();
+    const double n = stored["axes"][axis]["noise_density"]["value"].get<double>();
+    EXPECT_NEAR(n, sigma / std::sqrt(rate), 0.1 * sigma / std::sqrt(rate)) << axis;
+  }
+
+  // Refusals, with the exit codes scripts rely on.
+  EXPECT_EQ(RunCli({"noise", "--session"}, log), 1) << ReadText(log);
+  EXPECT_NE(ReadText(log).find("--session needs a value"), std::string::npos) << ReadText(log);
+  EXPECT_EQ(
+      RunCli({"--server", server, "noise", "--session", "s-00000000000000000000000000000000"}, log),
+      2)
+      << ReadText(log);
+  EXPECT_NE(ReadText(log).find("s-00000000000000000000000000000000"), std::string::npos)
+      << ReadText(log);
+#endif
 }
 
 }  // namespace

@@ -600,6 +600,85 @@ TEST_F(ServerTest, PairVerdictsWhileStreamingWithARedoAndStoredPoses) {
 // Memory per session is bounded: a closed session's live state is forgotten when it closes,
 // and reading it afterwards (GetSession, WatchSession), before or after a restart, answers from
 // storage without loading it back.
+// ReadSamples gives back exactly what was stored, in order: a batch larger than a message
+// (10,000 samples) split under its seq, batches with and without temperature, pages of storage
+// crossed (20,000 samples a page); an empty id is INVALID_ARGUMENT naming session_id, an unknown
+// one NOT_FOUND; the call is counted as a stream while it runs, and not after.
+TEST_F(ServerTest, ReadSamplesGivesBackTheStoredSamplesInOrder) {
+  Register("robot-read");
+  grpc::Status status;
+  const v1::Session session = Create("robot-read", v1::PROTOCOL_UNSPECIFIED, &status);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  // Batch 1: 15,000 samples with temperature; batches 2..151: 200 samples each, without.
+  std::vector<v1::SampleBatch> sent;
+  size_t i = 0;
+  auto add = [&](size_t n, bool temp) {
+    v1::SampleBatch b;
+    b.set_session_id(session.id());
+    b.set_seq(static_cast<int64_t>(sent.size()) + 1);
+    for (size_t k = 0; k < n; ++k, ++i) {
+      const double x = static_cast<double>(i);
+      b.add_t_s(x / 200.0);
+      for (double v : {std::sin(x), std::cos(x), 9.8 + 1e-7 * x}) b.add_accel(v);
+      for (double v : {1e-3 * std::sin(0.1 * x), -2e-3, 1e-9 * x}) b.add_gyro(v);
+      if (temp) b.add_temp_c(25 + 1e-4 * x);
+    }
+    sent.push_back(std::move(b));
+  };
+  add(15000, true);
+  for (int b = 0; b < 150; ++b) add(200, false);
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream(sent, &acks).ok());
+  ASSERT_EQ(acks.back().samples(), 45000);
+
+  auto read = [&](const std::string& id, std::vector<v1::SampleBatch>* got) {
+    v1::ReadSamplesRequest req;
+    req.set_session_id(id);
+    auto ctx = Ctx();
+    auto reader = sessions_->ReadSamples(ctx.get(), req);
+    v1::SampleBatch b;
+    while (reader->Read(&b)) {
+      if (got->empty()) {
+        EXPECT_GE(server_->open_streams(), 1u);  // counted while it runs
+      }
+      got->push_back(b);
+    }
+    return reader->Finish();
+  };
+  // A call leaves the registry when gRPC is done with it, just after its client has finished.
+  auto streams_closed = [&] {
+    const auto deadline = system_clock::now() + seconds(5);
+    while (server_->open_streams() != 0 && system_clock::now() < deadline)
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    return server_->open_streams() == 0;
+  };
+  std::vector<v1::SampleBatch> got;
+  ASSERT_TRUE(read(session.id(), &got).ok());
+  EXPECT_TRUE(streams_closed());
+  ASSERT_EQ(got.size(), 152u);  // batch 1 in two messages
+  EXPECT_EQ(got[0].seq(), 1);
+  EXPECT_EQ(got[0].t_s_size(), 10000);
+  EXPECT_EQ(got[1].seq(), 1);
+  EXPECT_EQ(got[1].t_s_size(), 5000);
+  v1::SampleBatch first = got[0];  // batch 1 joined again
+  first.MergeFrom(got[1]);
+  EXPECT_EQ(first.SerializeAsString(), sent[0].SerializeAsString());
+  for (size_t k = 2; k < got.size(); ++k) {
+    EXPECT_EQ(got[k].session_id(), session.id());
+    EXPECT_EQ(got[k].temp_c_size(), 0);
+    ASSERT_EQ(got[k].SerializeAsString(), sent[k - 1].SerializeAsString()) << "message " << k;
+  }
+
+  std::vector<v1::SampleBatch> none;
+  grpc::Status empty = read("", &none);
+  EXPECT_EQ(empty.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(empty.error_message().find("session_id"), std::string::npos) << empty.error_message();
+  grpc::Status unknown = read("s-00000000000000000000000000000000", &none);
+  EXPECT_EQ(unknown.error_code(), grpc::StatusCode::NOT_FOUND) << unknown.error_message();
+  EXPECT_TRUE(none.empty());
+  EXPECT_TRUE(streams_closed());
+}
+
 TEST_F(ServerTest, ReadingAClosedSessionDoesNotLoadIt) {
   Register("robot-mem");
   grpc::Status s;

@@ -9,6 +9,7 @@
 #include <memory>
 #include <random>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "client/sdk/uploader.h"
@@ -730,6 +731,81 @@ TEST_F(ValidationTest, AWatcherThatNeverReadsGivesItsSlotBack) {
     }
   }
   EXPECT_TRUE(admitted) << "the watch that never reads still holds its slot";
+}
+
+// A ReadSamples that reads its first message and no more (a stalled client).
+class StalledRead final : public grpc::ClientReadReactor<v1::SampleBatch> {
+ public:
+  StalledRead(v1::SessionService::Stub* stub, const std::string& session) {
+    request_.set_session_id(session);
+    context_.set_deadline(system_clock::now() + seconds(120));
+    stub->async()->ReadSamples(&context_, &request_, this);
+    StartRead(&batch_);
+    StartCall();
+  }
+  // Hangs up, and lets the call end before the reactor goes. (The call's status does not come
+  // while messages lie unread: gRPC delivers it after them.)
+  ~StalledRead() override {
+    context_.TryCancel();
+    done_.get_future().wait();
+  }
+  void OnReadDone(bool ok) override { first_.set_value(ok && batch_.t_s_size() > 0); }
+  void OnDone(const grpc::Status&) override { done_.set_value(); }
+  bool WaitForFirst() { return first_.get_future().get(); }
+
+ private:
+  grpc::ClientContext context_;
+  v1::ReadSamplesRequest request_;
+  v1::SampleBatch batch_;
+  std::promise<bool> first_;
+  std::promise<void> done_;
+};
+
+// ReadSamples holds a page of the session while its client reads: a client that stops reading
+// is cancelled once a write has waited stream_idle_timeout, and its call leaves the server's
+// stream count (what max_streams bounds; with a 60 s timeout it is still counted 10 s later);
+// a client that reads gets every sample.
+TEST_F(ValidationTest, AReaderThatStopsReadingIsCancelled) {
+  options_.sessions.stream_idle_timeout = absl::Milliseconds(500);
+  options_.durability = storage::Durability::kNormal;  // hundreds of batches, one at a time
+  StartServer();
+  const std::string s = NewSession("robot-read-stall");
+  std::vector<v1::SampleBatch> batches;
+  for (int64_t seq = 1; seq <= 200; ++seq)
+    batches.push_back(RestBatch(s, seq, kBatch, /*with_temp=*/false));
+  const grpc::Status streamed = Stream(batches);
+  ASSERT_TRUE(streamed.ok()) << streamed.error_message();
+  // 40,000 samples (2.2 MB) against a small window that does not grow: writes stop going out.
+  grpc::ChannelArguments args;
+  args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+  args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, 1024);
+  args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+  auto stalled_channel =
+      grpc::CreateCustomChannel(server_->address(), grpc::InsecureChannelCredentials(), args);
+  auto stalled_stub = v1::SessionService::NewStub(stalled_channel);
+  StalledRead stalled(stalled_stub.get(), s);
+  ASSERT_TRUE(stalled.WaitForFirst());
+  bool closed = false;
+  for (const auto deadline = system_clock::now() + seconds(10);
+       !closed && system_clock::now() < deadline;
+       std::this_thread::sleep_for(std::chrono::milliseconds(10)))
+    closed = server_->open_streams() == 0;
+  EXPECT_TRUE(closed) << server_->open_streams() << " streams still open";
+  // A reader that reads: every sample, in order.
+  v1::ReadSamplesRequest req;
+  req.set_session_id(s);
+  auto ctx = Ctx();
+  auto reader = sessions_->ReadSamples(ctx.get(), req);
+  v1::SampleBatch b;
+  int64_t samples = 0;
+  double last_t = -1;
+  while (reader->Read(&b)) {
+    samples += b.t_s_size();
+    EXPECT_GT(b.t_s(0), last_t);
+    last_t = b.t_s(b.t_s_size() - 1);
+  }
+  EXPECT_TRUE(reader->Finish().ok());
+  EXPECT_EQ(samples, 200 * kBatch);
 }
 
 // A stream that continues a session holding samples proves it continues the same capture: its

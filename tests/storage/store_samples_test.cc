@@ -41,6 +41,43 @@ TEST_F(BatchTest, BatchesAreAcknowledgedInOrder) {
   EXPECT_EQ(tail[0].seq, 3);
 }
 
+// Pages of a session's batches: in order, none twice or left out, bounded by batch count and
+// by samples (the first batch of a page whole, however large), empty after the last.
+TEST_F(BatchTest, BatchPagesCoverTheSessionInOrder) {
+  // Batches of 50, 50, 200, 50, 50, 50 samples.
+  const std::vector<int> sizes = {50, 50, 200, 50, 50, 50};
+  for (size_t i = 0; i < sizes.size(); ++i) {
+    const auto seq = static_cast<int64_t>(i + 1);
+    ASSERT_OK(store_->AppendBatch("S1", seq, BatchPayload(seq, sizes[i])).status());
+  }
+  auto seqs = [](const std::vector<SampleBatch>& page) {
+    std::vector<int64_t> out;
+    for (const SampleBatch& b : page) out.push_back(b.seq);
+    return out;
+  };
+  // At most 120 samples a page: 1+2 (100), 3 alone (200: the first of its page), 4+5 (100), 6.
+  std::vector<std::vector<int64_t>> pages;
+  int64_t after = 0;
+  for (;;) {
+    ASSERT_OK_AND_ASSIGN(std::vector<SampleBatch> page,
+                         store_->ReadBatchPage("S1", after, 10, 120));
+    if (page.empty()) break;
+    for (const SampleBatch& b : page) EXPECT_EQ(b.payload, BatchPayload(b.seq, sizes[b.seq - 1]));
+    pages.push_back(seqs(page));
+    after = page.back().seq;
+    ASSERT_LT(pages.size(), 10u);
+  }
+  EXPECT_EQ(pages, (std::vector<std::vector<int64_t>>{{1, 2}, {3}, {4, 5}, {6}}));
+  // At most two batches a page, samples unbounded.
+  ASSERT_OK_AND_ASSIGN(std::vector<SampleBatch> two, store_->ReadBatchPage("S1", 2, 2, 1 << 30));
+  EXPECT_EQ(seqs(two), (std::vector<int64_t>{3, 4}));
+  ASSERT_OK_AND_ASSIGN(std::vector<SampleBatch> end, store_->ReadBatchPage("S1", 6, 2, 100));
+  EXPECT_TRUE(end.empty());
+  EXPECT_EQ(store_->ReadBatchPage("nope", 0, 2, 100).status().code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(store_->ReadBatchPage("S1", 0, 0, 100).status().code(),
+            absl::StatusCode::kInvalidArgument);
+}
+
 // Group commit: many sessions' batches submitted at once share commits; each answer is the one
 // AppendBatch would give, a bad batch fails alone, and every acknowledged batch is stored.
 TEST_F(BatchTest, AsyncAppendsShareCommitsAndAnswerEachBatch) {
