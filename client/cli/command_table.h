@@ -20,11 +20,11 @@ struct CommandSpec {
   std::string_view id;
   std::string_view word;                  // what the user types: imucal WORD
   std::string_view summary;               // one line
-  std::vector<std::string_view> actions;  // first positionals: session start|list|...
+  std::vector<std::string_view> actions = {};  // first positionals: session start|list|...
   bool positional_files = false;          // takes file names (completion offers files)
   bool server = false;                    // talks to the server: takes the connection flags
-  std::set<std::string> valued;           // flags that take a value (without "--")
-  std::set<std::string> switches;         // flags that do not ("help" is also -h)
+  std::set<std::string> valued = {};      // flags that take a value (without "--")
+  std::set<std::string> switches = {};    // flags that do not ("help" is also -h)
 };
 
 const std::vector<CommandSpec>& CommandTable();

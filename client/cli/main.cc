@@ -20,7 +20,7 @@ constexpr char kHelp[] =
     "  apply --params P IN OUT  apply a parameter set to a capture (writes m/s^2, rad/s)\n"
     "  simulate --out FILE      write a simulated capture with known truth\n"
     "  noise REST...            noise figures (N, B, K) of a rest recording; Kalibr and\n"
-    "                           OpenVINS noise keys\n"
+    "                           OpenVINS noise keys (or noise --session S: a stored session)\n"
     "  demo                     simulate, calibrate, apply, print the error before and after\n"
     "                           (with --server ADDR: the same through the service, guided)\n"
     "  export --params P --format F   a parameter set as json, kalibr, kalibr-intrinsics or\n"
