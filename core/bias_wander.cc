@@ -288,23 +288,32 @@ BiasWander AnalyseBiasWander(const std::vector<WanderPose>& poses, const Eigen::
   std::string allan;
   if (std::isfinite(out.allan_step_rad_s) && out.allan_step_rad_s > 0) {
     allan = absl::StrFormat(
-        ", %.0f times what the rest's rate random walk allows over that time (K %s %.5f "
+        ", %.0f times what the rest's rate random walk allows over that time (K %s%.5f "
         "deg/s/sqrt(s): %.4f deg/s)",
-        out.step_rms_rad_s / out.allan_step_rad_s, out.allan_is_bound ? "at most" : "",
+        out.step_rms_rad_s / out.allan_step_rad_s, out.allan_is_bound ? "at most " : "",
         k_allan.norm() * d, out.allan_step_rad_s * d);
   }
+  // What the halves of each pose say: only when a drift in time of the steps' size would part
+  // them clearly (1.5 x the noise) can agreeing halves rule it out.
   std::string within;
   if (std::isfinite(out.within_pose_ratio)) {
-    within = out.within_pose_ratio < 1.5
-                 ? absl::StrFormat(
-                       "; within each pose its two halves agree to %.2f x the noise "
-                       "(a drift in time that made those steps would give %.1f x): "
-                       "the bias moves when the unit is moved, not while it rests",
-                       out.within_pose_ratio, out.drift_within_pose_ratio)
-                 : absl::StrFormat(
-                       "; it moves within the poses too (their two halves differ by "
-                       "%.2f x the noise)",
-                       out.within_pose_ratio);
+    if (out.within_pose_ratio >= 1.5) {
+      within = absl::StrFormat(
+          "; it moves within the poses too (their two halves differ by %.2f x the noise)",
+          out.within_pose_ratio);
+    } else if (out.drift_within_pose_ratio >= 1.5) {
+      within = absl::StrFormat(
+          "; within each pose its two halves agree to %.2f x the noise (a drift in time that "
+          "made those steps would give %.1f x): the bias moves when the unit is moved, not while "
+          "it rests",
+          out.within_pose_ratio, out.drift_within_pose_ratio);
+    } else {
+      within = absl::StrFormat(
+          "; the poses are too short for their halves to tell a drift in time from steps at the "
+          "moves (they agree to %.2f x the noise, a drift would give %.2f x): hold each pose "
+          "longer to tell",
+          out.within_pose_ratio, out.drift_within_pose_ratio);
+    }
   }
   const bool predicted = out.heldout_after_rad_s < 0.8 * out.heldout_before_rad_s;
   out.note = absl::StrFormat(

@@ -89,6 +89,17 @@ TEST(BiasWanderTest, AnOffsetPerPoseIsAShiftTheNeighboursDoNotPredict) {
   }
 }
 
+TEST(BiasWanderTest, HalvesThatCannotTellAreNotReadAsProof) {
+  // Offsets 1.5 x the noise: a drift in time of that size would part a 2 s pose's halves by
+  // under 1.5 x the noise, so agreeing halves rule nothing out, and the note says so.
+  const BiasWander w = AnalyseBiasWander(Sequence(40, 1e-4, 1.5e-4, 0, 2), kNoK, kNoK);
+  ASSERT_TRUE(w.ran);
+  EXPECT_LT(w.drift_within_pose_ratio, 1.5);
+  for (const AxisWander& a : w.axes) EXPECT_EQ(a.model, WanderModel::kShift) << w.note;
+  EXPECT_EQ(w.note.find("not while it rests"), std::string::npos) << w.note;
+  EXPECT_NE(w.note.find("too short"), std::string::npos) << w.note;
+}
+
 TEST(BiasWanderTest, StepsThatStayAreAWalkTheNeighboursPredict) {
   for (uint64_t seed = 1; seed <= 5; ++seed) {
     const double walk = 5e-4;
