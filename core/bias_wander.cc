@@ -287,11 +287,17 @@ BiasWander AnalyseBiasWander(const std::vector<WanderPose>& poses, const Eigen::
   }
   std::string allan;
   if (std::isfinite(out.allan_step_rad_s) && out.allan_step_rad_s > 0) {
-    allan = absl::StrFormat(
-        ", %.0f times what the rest's rate random walk allows over that time (K %s%.5f "
-        "deg/s/sqrt(s): %.4f deg/s)",
-        out.step_rms_rad_s / out.allan_step_rad_s, out.allan_is_bound ? "at most " : "",
-        k_allan.norm() * d, out.allan_step_rad_s * d);
+    const double ratio = out.step_rms_rad_s / out.allan_step_rad_s;
+    const std::string k =
+        absl::StrFormat("K %s%.5f deg/s/sqrt(s): %.4f deg/s", out.allan_is_bound ? "at most " : "",
+                        k_allan.norm() * d, out.allan_step_rad_s * d);
+    allan = ratio <= 1
+                ? absl::StrFormat(
+                      ", within what the rest's rate random walk allows over that time (%s)", k)
+                : absl::StrFormat(
+                      ", %.*f times what the rest's rate random walk allows over that time "
+                      "(%s)",
+                      ratio < 10 ? 1 : 0, ratio, k);
   }
   // What the halves of each pose say: only when a drift in time of the steps' size would part
   // them clearly (1.5 x the noise) can agreeing halves rule it out.
