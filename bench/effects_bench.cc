@@ -19,7 +19,8 @@
 //   --clean-seeds sets how many clean captures measure the false alarms (default: --seeds).
 //   --no-temperature runs the cases that do not need a temperature channel on captures without
 //   one (the clean rows measure both anyway).
-//   --case and --seed run one scenario (a name of tests/core/effect_scenarios.h) or one seed,
+//   --case and --seed run one scenario (a name of tests/core/effect_scenarios.h, or Wander for
+//   the wandering gyro bias's rows: --seeds of them) or one seed,
 //   to look at a capture the table lists; with IMUCAL_DEBUG_EFFECTS=1 the search prints each
 //   round's best candidates.
 #include <algorithm>
@@ -87,7 +88,84 @@ struct Only {
   bool no_temperature = false;  // the captures without a temperature channel
 };
 
+// A gyro bias that wanders (core/simulator.h gyro_bias_shift_rad_s, gyro_bias_walk), without an
+// effect and with the g-sensitivity case's: does the search add effects the wander makes up,
+// does it still find the real one, and does the wander's analysis (core/bias_wander.h) tell a
+// new offset per pose from a drift in time?
+void Wander(int seeds) {
+  struct Kind {
+    const char* name;
+    double shift, walk;
+  };
+  const Kind kinds[] = {{"new offset at each move, 0.04 deg/s", 0.04 * kDegS, 0},
+                        {"drift in time, K 0.02 deg/s/sqrt(s)", 0, 0.02 * kDegS}};
+  const SimEffect gsens = kEffectCases[4].effects.front();  // GyroGSensitivity
+  std::printf(
+      "\nwandering gyro bias, no temperature channel (%d seeds): effects found without a "
+      "simulated effect; the g-sensitivity (gyro y~ax 0.05 deg/s/g) found; the wander's models "
+      "per axis (shift, walk, both, none over all axes); within-pose ratio and held-out static "
+      "rate before -> after (medians)\n",
+      seeds);
+  for (const Kind& k : kinds) {
+    for (bool with_effect : {false, true}) {
+      int alarms = 0, found = 0, applied = 0, counts[4] = {0, 0, 0, 0};
+      std::vector<double> within, before, after;
+      std::string which;  // the other effects of the first few captures that had any
+      for (int seed = 1; seed <= seeds; ++seed) {
+        std::vector<SimEffect> effects;
+        if (with_effect) effects.push_back(gsens);
+        SimOptions o = EffectScenario(static_cast<uint64_t>(seed) + 2000, effects, false);
+        o.gyro_bias_shift_rad_s = k.shift;
+        o.gyro_bias_walk = k.walk;
+        absl::StatusOr<SimResult> sim = Simulate(o);
+        if (!sim.ok()) std::exit(1);
+        const Run run = CalibrateTimed(sim->capture, true, false);
+        const ParamSet& p = run.report.params;
+        bool got = false;
+        for (const Effect& e : p.effects) got |= with_effect && Same(e, gsens);
+        found += got;
+        const bool alarm = static_cast<int>(p.effects.size()) > (got ? 1 : 0);
+        alarms += alarm;
+        bool any_applied = false;
+        for (const Effect& e : p.effects)
+          any_applied |= e.applied && !(with_effect && Same(e, gsens));
+        applied += any_applied;
+        if (alarm && alarms <= 3) {
+          which += absl::StrFormat(" [seed %d:", seed + 2000);
+          for (const Effect& e : p.effects)
+            if (!(with_effect && Same(e, gsens)))
+              which +=
+                  absl::StrFormat(" %s %c~%s%s", e.sensor == Sensor::kAccel ? "accel" : "gyro",
+                                  "xyz"[e.axis], e.regressor, e.applied ? "" : " (not applied)");
+          which += "]";
+        }
+        const BiasWander& w = run.report.gyro_wander;
+        for (const AxisWander& a : w.axes) {
+          ++counts[a.model == WanderModel::kShift          ? 0
+                   : a.model == WanderModel::kWalk         ? 1
+                   : a.model == WanderModel::kShiftAndWalk ? 2
+                                                           : 3];
+        }
+        within.push_back(w.within_pose_ratio);
+        before.push_back(w.heldout_before_rad_s / kDegS);
+        after.push_back(w.heldout_after_rad_s / kDegS);
+      }
+      std::printf(
+          "  %-38s %-10s other effects %2d/%d (applied %2d)  %s  models %d/%d/%d/%d  within %.2f  "
+          "held out %.4f -> %.4f deg/s\n   %s\n",
+          k.name, with_effect ? "+ g-sens." : "no effect", alarms, seeds, applied,
+          with_effect ? absl::StrFormat("found %2d/%d", found, seeds).c_str() : "            ",
+          counts[0], counts[1], counts[2], counts[3], Median(within), Median(before), Median(after),
+          which.c_str());
+    }
+  }
+}
+
 int Main(int seeds, const Only& only) {
+  if (only.name == "Wander") {  // the wandering bias's rows alone
+    Wander(seeds);
+    return 0;
+  }
   std::printf(
       "effects_bench: %d seeds per row; six-face + 24 extra poses, 200 Hz, 2 mg noise, "
       "8 degC warm-up\n\n",
@@ -243,6 +321,7 @@ int Main(int seeds, const Only& only) {
   std::printf(
       "\ncalibrate median %.1f ms with the effect search, %.1f ms without (clean captures)\n",
       Median(search_ms), Median(base_ms));
+  Wander(clean);
   return 0;
 }
 

@@ -45,7 +45,7 @@ uint64_t SplitMix64(uint64_t x) {
   return x ^ (x >> 31);
 }
 
-enum class Stream : uint64_t { kGeometry = 1, kNoise = 2, kTruth = 3 };
+enum class Stream : uint64_t { kGeometry = 1, kNoise = 2, kTruth = 3, kWander = 4 };
 
 uint64_t StreamSeed(uint64_t seed, Stream stream) {
   return SplitMix64(SplitMix64(seed) ^ static_cast<uint64_t>(stream));
@@ -196,6 +196,13 @@ absl::Status NoiseOptionsAreValid(const SimOptions& options) {
     return s;
   }
   if (absl::Status s = CheckNonNegative("accel_step", options.accel_step); !s.ok()) return s;
+  if (absl::Status s = CheckNonNegative("gyro_bias_shift_rad_s", options.gyro_bias_shift_rad_s);
+      !s.ok()) {
+    return s;
+  }
+  if (absl::Status s = CheckNonNegative("gyro_bias_walk", options.gyro_bias_walk); !s.ok()) {
+    return s;
+  }
   return CheckNonNegative("gyro_step", options.gyro_step);
 }
 
@@ -675,12 +682,24 @@ absl::StatusOr<SimResult> Simulate(const SimOptions& options, const SimTruth& tr
   const double gyro_step =
       QuantisationStep(options.gyro_step, options.gyro_unit == GyroUnit::kCounts);
   Rng noise(StreamSeed(options.seed, Stream::kNoise));
+  // The wandering bias (SimOptions::gyro_bias_shift_rad_s, gyro_bias_walk), in SI on the
+  // calibrated rate. A move's shift is drawn once, when its middle is passed.
+  Rng wander_rng(StreamSeed(options.seed, Stream::kWander));
+  Eigen::Vector3d walk = Eigen::Vector3d::Zero(), shift = Eigen::Vector3d::Zero();
+  const double walk_step = options.gyro_bias_walk * std::sqrt(1.0 / options.rate_hz);
+  size_t shifted_move = segments.size();  // the last move whose shift was drawn
 
   size_t segment = 0;
   for (size_t k = 0; k < n; ++k) {
     const double t_s = static_cast<double>(k) / options.rate_hz;
     while (segment + 1 < segments.size() && t_s >= segments[segment].t_end_s) ++segment;
     const Segment& seg = segments[segment];
+    if (options.gyro_bias_walk > 0.0 && k > 0) walk += wander_rng.Normal3(walk_step);
+    if (options.gyro_bias_shift_rad_s > 0.0 && seg.is_move && shifted_move != segment &&
+        t_s >= 0.5 * (seg.t_start_s + seg.t_end_s)) {
+      shift = wander_rng.Normal3(options.gyro_bias_shift_rad_s);
+      shifted_move = segment;
+    }
     const auto [theta, theta_rate] = seg.Angle(t_s);
     const Eigen::Matrix3d R = seg.R_start * ExpSo3<double>(theta * seg.axis_body);
     const Eigen::Vector3d f_true = R.transpose() * up_world;
@@ -695,6 +714,7 @@ absl::StatusOr<SimResult> Simulate(const SimOptions& options, const SimTruth& tr
       Eigen::Vector3d& out = effect.sensor == Sensor::kAccel ? f_out : w_out;
       out(effect.axis) += effect.coefficient * effect.regressor.Evaluate(signals);
     }
+    w_out += walk + shift;
 
     Eigen::Vector3d accel_raw = truth.accel.Invert(f_out);
     AddNoiseAndQuantise(accel_sigma, accel_step, noise, accel_raw);

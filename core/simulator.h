@@ -108,6 +108,16 @@ struct SimOptions {
   // then not perfectly static; SimPose::R_world_body is the nominal orientation.
   bool hand_tremor = false;
   double tremor_rms_deg = 0.1;
+  // A gyro bias that wanders (added to the calibrated rate, like an effect; its own random
+  // stream, so turning it on moves neither the poses nor the noise):
+  //   gyro_bias_shift_rad_s  a new offset per axis, N(0, shift^2), drawn at the middle of every
+  //                          move: the bias moves when the unit is moved and holds while it
+  //                          rests (what the imutk-ros2-repeat captures show, README "Effects
+  //                          found in the real captures");
+  //   gyro_bias_walk         a rate random walk K [rad/s/sqrt(s)] through the whole capture
+  //                          (Allan deviation K sqrt(tau / 3)), per sample K sqrt(1 / rate_hz).
+  double gyro_bias_shift_rad_s = 0.0;
+  double gyro_bias_walk = 0.0;
 };
 
 // One static pose (hold) of the simulated capture.

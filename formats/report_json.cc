@@ -39,6 +39,36 @@ json PoseJson(const core::PoseReport& p) {
 
 // What the effect search examined, and per used pose the signals and the residuals without and
 // with the effects (the data of the plots).
+// The gyroscope's bias between poses (core/bias_wander.h), rad/s.
+json WanderJson(const core::BiasWander& w) {
+  json j;
+  j["poses"] = w.poses;
+  j["static_rms"] = w.static_rms_rad_s;
+  j["noise_floor"] = w.noise_floor_rad_s;
+  j["heldout_before"] = w.heldout_before_rad_s;
+  j["heldout_after"] = w.heldout_after_rad_s;
+  j["step_rms"] = w.step_rms_rad_s;
+  j["median_dt_s"] = w.median_dt_s;
+  j["allan_step"] = Num(w.allan_step_rad_s);
+  j["allan_is_bound"] = w.allan_is_bound;
+  j["within_pose_ratio"] = Num(w.within_pose_ratio);
+  j["drift_within_pose_ratio"] = Num(w.drift_within_pose_ratio);
+  j["axes"] = json::array();
+  for (const core::AxisWander& a : w.axes) {
+    j["axes"].push_back({{"model", core::WanderModelName(a.model)},
+                         {"shift", a.shift_rad_s},
+                         {"walk", a.walk_rad_s},
+                         {"bic", a.bic},
+                         {"heldout_before", a.heldout_before_rad_s},
+                         {"heldout_after", a.heldout_after_rad_s}});
+  }
+  j["smoothed"] = json::array();  // per used pose: the persistent bias c + x_k
+  for (const auto& v : w.smoothed_rad_s) j["smoothed"].push_back(Vec(v));
+  j["units"] = "rad/s (walk: the step per move); bic per model none, shift, walk, shift+walk";
+  j["note"] = w.note;
+  return j;
+}
+
 json DiagnosticsJson(const core::EffectDiagnostics& d) {
   json j;
   j["ran"] = d.ran;
@@ -189,6 +219,7 @@ std::string ReportToJson(const core::CalibrationReport& r) {
     j["effects"][k]["human"] = core::HumanCoefficient(r.params.effects[k]);
   if (r.effect_diagnostics.ran || !r.effect_diagnostics.notes.empty())
     j["effect_diagnostics"] = DiagnosticsJson(r.effect_diagnostics);
+  if (r.gyro_wander.ran) j["gyro_wander"] = WanderJson(r.gyro_wander);
   // A refused capture has no parameters to apply: the report says why, not a confident number.
   if (r.verdict != core::Verdict::kRefused) j["parameters"] = std::move(params);
   j["verdict"] = std::string(core::VerdictName(r.verdict));

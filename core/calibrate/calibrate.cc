@@ -191,6 +191,9 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     rep.params.noise = std::move(noise->figures);
     rep.allan = std::move(noise->curves);
   }
+  // -> the gyroscope's bias between poses: what the static residual is made of
+  rep.gyro_wander = GyroWanderOf(cap, intervals, accel->used, rep.params);
+  if (rep.gyro_wander.ran) rep.effect_diagnostics.notes.push_back(rep.gyro_wander.note);
   timer.Mark("final");
 
   // -> verdict. Undetermined first-order parameters make it warn at best; undetermined

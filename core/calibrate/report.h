@@ -13,6 +13,7 @@
 #include "Eigen/Core"
 #include "core/accel_solver.h"
 #include "core/allan.h"
+#include "core/bias_wander.h"
 #include "core/calibrate/verdict.h"
 #include "core/effects.h"
 #include "core/params.h"
@@ -111,6 +112,10 @@ struct CalibrationReport {
   // Allan deviation curves of the interval params.noise was measured on (core/allan.h), for the
   // plot; empty when no used interval was long enough.
   AllanCurves allan;
+  // The gyroscope's static rate as a sequence over the poses, with the final parameter set
+  // (core/bias_wander.h): how its bias moves between poses. Not run when the gyroscope's output
+  // is not in rad/s or the capture has fewer than 6 used poses.
+  BiasWander gyro_wander;
   double total_ms = 0;
   // Wall time of each phase of the pipeline, in order: {"static", ms}, {"gyro_rough", ms}, ...
   std::vector<std::pair<std::string, double>> phase_ms;

@@ -276,4 +276,43 @@ std::vector<FaceResidual> FaceResiduals(const Capture& cap, const std::vector<St
   return out;
 }
 
+BiasWander GyroWanderOf(const Capture& cap, const std::vector<StaticInterval>& ivs,
+                        const std::vector<int>& used, const ParamSet& ps) {
+  if (!ps.gyro_calibrated && std::isnan(NominalGyroToSi(cap.gyro_unit))) return {};
+  if (cap.t_s.empty()) return {};
+  const SampleCorrection correct(ps, cap.t_s.front());
+  std::vector<WanderPose> poses;
+  for (int i : used) {
+    const StaticInterval& s = ivs[static_cast<size_t>(i)];
+    if (s.end <= s.begin + 3 || s.end > cap.size()) continue;
+    const size_t n = s.end - s.begin, mid = s.begin + n / 2;
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero(), sq = Eigen::Vector3d::Zero();
+    Eigen::Vector3d first = Eigen::Vector3d::Zero();
+    for (size_t k = s.begin; k < s.end; ++k) {
+      const Eigen::Vector3d w =
+          correct.Apply(cap.accel[k], cap.gyro[k], cap.has_temp() ? cap.temp[k] : kNaN, cap.t_s[k])
+              .gyro_rad_s;
+      sum += w;
+      sq += w.cwiseAbs2();
+      if (k < mid) first += w;
+    }
+    const double dn = static_cast<double>(n), n1 = static_cast<double>(mid - s.begin);
+    const double n2 = dn - n1;
+    const Eigen::Vector3d mean = sum / dn;
+    const Eigen::Vector3d sd =
+        ((sq - dn * mean.cwiseAbs2()) / (dn - 1)).cwiseMax(0.0).cwiseSqrt();
+    WanderPose p;
+    p.t_s = 0.5 * (s.t_start_s + s.t_end_s) - cap.t_s.front();
+    p.duration_s = s.t_end_s - s.t_start_s;
+    p.rate_rad_s = mean;
+    p.sigma_rad_s = sd / std::sqrt(dn);
+    p.half_diff_rad_s = (sum - first) / n2 - first / n1;
+    p.half_diff_sigma_rad_s = sd * std::sqrt(1 / n1 + 1 / n2);
+    poses.push_back(p);
+  }
+  const Eigen::Vector3d none = Eigen::Vector3d::Constant(kNaN);
+  return AnalyseBiasWander(poses, ps.noise ? ps.noise->gyro.random_walk : none,
+                           ps.noise ? ps.noise->gyro.random_walk_bound : none);
+}
+
 }  // namespace imucal::core::pipeline

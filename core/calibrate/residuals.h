@@ -18,6 +18,7 @@
 #include "core/calibrate/gyro_stage.h"
 #include "core/calibrate/report.h"
 #include "core/calibrate/verdict.h"
+#include "core/bias_wander.h"
 #include "core/capture.h"
 #include "core/params.h"
 
@@ -92,6 +93,14 @@ std::vector<FaceResidual> FaceResiduals(const Capture& capture,
                                         const std::vector<StaticInterval>& intervals,
                                         const std::vector<PairCheck>& pairs,
                                         const ParamSet& params);
+
+// The gyroscope's bias between poses (core/bias_wander.h), from each used pose's samples
+// corrected with `params` as the SDK applies them: the mean rate and its white-noise standard
+// deviation, and the difference of the pose's two halves. The rest's Allan rate random walk
+// (params.noise) is what it is compared with. Not run (ran false) when the gyroscope's output is
+// not in rad/s.
+BiasWander GyroWanderOf(const Capture& capture, const std::vector<StaticInterval>& intervals,
+                        const std::vector<int>& used, const ParamSet& params);
 
 }  // namespace imucal::core::pipeline
 

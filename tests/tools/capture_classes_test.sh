@@ -4,7 +4,8 @@
 # nothing from imucal): quantised sensors, no noise at all, turns about the vertical at a steady
 # rate, six faces held once in six files, a duplicated face, a rest noisier than the others,
 # stops shorter than the 1 s hold, a commented header, a NUL byte in a field, and temperature
-# quadratics with a turnover, validated on a second capture with another temperature history.
+# quadratics with a turnover, validated on a second capture with another temperature history,
+# and a gyro bias that moves each time the unit is moved.
 # Asserts only what the README ("Offline CLI": exit 0 pass/warn, 2 bad input, 3 refused, 4 fail)
 # and ../shared/spec/report.md promise: exit codes, the report's verdict and poses (file and
 # lines for a capture from several files; a refusal still writes the report), the number of
@@ -273,6 +274,48 @@ p["effects"]=[]; p.pop("effect_reference",None); json.dump(p,open(sys.argv[2],"w
     --applied-without "$dir/t2.without.csv" --ratio 3
 }
 
+# A gyro bias that moves each time the unit is moved and holds while it rests (what the
+# imutk-ros2-repeat captures show): the report's gyro_wander must name a new offset per pose on
+# every axis, of the size the writer drew (the realised offsets' scatter, within 15%), say that
+# the bias holds within the poses, and predict nothing from the neighbouring poses; the same
+# capture without the offsets must leave no wander on at least two axes.
+case_gyro_bias_shift() {
+  local shape=(--format imucal --protocol random --poses 40 --gyro-noise 5e-4)
+  write s1 --seed 31 "${shape[@]}" --gyro-bias-shift 7e-4 || return 1
+  write s0 --seed 31 "${shape[@]}" || return 1
+  run s1 "$(files s1)"
+  want_rc s1 0 || return 1
+  run s0 "$(files s0)"
+  want_rc s0 0 || return 1
+  python3 - "$dir/s1.json" "$dir/s1/truth.json" "$dir/s0.json" <<'PY'
+import json, math, sys
+r, t, r0 = (json.load(open(p)) for p in sys.argv[1:4])
+w, w0 = r["gyro_wander"], r0["gyro_wander"]
+holds = t["gyro_bias_shift"]["per_hold_rad_s"]
+bad = []
+for a in range(3):
+    vals = [h[a] for h in holds]
+    m = sum(vals) / len(vals)
+    sd = math.sqrt(sum((v - m) ** 2 for v in vals) / (len(vals) - 1))
+    ax = w["axes"][a]
+    if ax["model"] not in ("shift", "shift+walk"):
+        bad.append(f"axis {a}: model {ax['model']}, want shift")
+    if abs(ax["shift"] / sd - 1) > 0.15:
+        bad.append(f"axis {a}: shift {ax['shift']:.3g} rad/s, the offsets drawn scatter {sd:.3g}")
+if not w["within_pose_ratio"] < 1.3:
+    bad.append(f"within-pose ratio {w['within_pose_ratio']:.2f}, want < 1.3")
+if not w["drift_within_pose_ratio"] > 2:
+    bad.append(f"a drift would give {w['drift_within_pose_ratio']:.2f}, want > 2")
+if not w["heldout_after"] > 0.9 * w["heldout_before"]:
+    bad.append(f"held out {w['heldout_before']:.3g} -> {w['heldout_after']:.3g}: predicted?")
+if sum(a["model"] == "none" for a in w0["axes"]) < 2:
+    bad.append("without the offsets: " + ", ".join(a["model"] for a in w0["axes"]))
+for b in bad:
+    print("  " + b)
+sys.exit(1 if bad else 0)
+PY
+}
+
 # The report's figures are the final parameter set's, as a robot applies it: the gravity
 # direction after the moves, recomputed by capture_checks.py from `imucal apply`'s samples alone.
 # On a simulated capture with steady turns, and on a real one (Xsens, whose gyroscope's
@@ -298,7 +341,7 @@ case_final_figures() {
 cases=(quantised_si quantised_counts quantised_faces noise_free low_noise steady_turns faces_files
   faces_files_imucal faces_once duplicate_face noisy_rest_hand noisy_rest_motor
   noisy_rest_settling short_stops short_stops_all commented_header nul_byte final_figures
-  temperature_turnover)
+  temperature_turnover gyro_bias_shift)
 (($# > 0)) && cases=("$@")
 failed=()
 for c in "${cases[@]}"; do

@@ -55,6 +55,12 @@ Classes of capture (each off by default; the default output is the same as befor
       turned --duplicate-angle-deg (default 0.005) about one of OTHER's horizontal body axes:
       e.g. Z+=Z- leaves no pose with +Z up. The truth keeps the face each pose was meant for.
 
+  --gyro-bias-shift SIGMA  the gyroscope's bias moves each time the unit is moved: at the middle
+      of every move each axis draws a new offset, Gaussian with standard deviation SIGMA rad/s
+      (its own generator), added to the true rate from then on (through the next hold). The
+      offset of each hold is in the truth (gyro_bias_shift.per_hold_rad_s); the first hold has
+      none.
+
 Temperature (off by default; then no sample has one and nothing depends on it):
   --temp-history KIND:ARGS  the temperature T(t), t from the first sample, in degC:
         warmup:T0,T1,TAU  T0 + (T1 - T0) (1 - exp(-t / TAU))
@@ -253,6 +259,8 @@ def add_arguments(parser):
     parser.add_argument("--duplicate-face", type=_parse_duplicate, default=None,
                         metavar="FACE=OTHER", help="faces-once: FACE's pose holds OTHER's")
     parser.add_argument("--duplicate-angle-deg", type=float, default=0.005)
+    parser.add_argument("--gyro-bias-shift", type=float, default=0.0, metavar="SIGMA",
+                        help="a new gyro offset per axis (rad/s, Gaussian) at every move's middle")
     parser.add_argument("--temp-history", type=_parse_history, default=None, metavar="KIND:ARGS",
                         help="warmup:T0,T1,TAU, ramp:T0,T1 or plateau:T (degC, s)")
     parser.add_argument("--gyro-temp-quad", type=_parse_quad, action="append", default=[],
@@ -468,6 +476,11 @@ def simulate(args):
         raise ValueError("--gyro-temp-quad and --accel-temp-quad need --temp-history")
     total = sum(int(round(seg[1] * args.rate_hz)) for seg in segments)
     duration = (total - 1) * dt
+    # The bias that moves with the unit: its own generator, so the noise stream is unchanged.
+    shift_sigma = getattr(args, "gyro_bias_shift", 0.0)
+    shift_rng = random.Random(args.seed * 1000003 + 71)
+    shift = [0.0, 0.0, 0.0]
+    hold_shifts = []
 
     # Sample the segments. Rotations restart from the pose at the segment start, so the
     # orientation is exact (no integration drift), and the body rate is axis * dtheta/dt.
@@ -480,6 +493,7 @@ def simulate(args):
         if seg[0] == "hold":
             poses[seg[2]]["t_start_s"] = k * dt
             poses[seg[2]]["t_end_s"] = (k + n - 1) * dt
+            hold_shifts.append(list(shift))
         else:
             _, dur, axis, angle, profile = seg
             moves.append({"t_start_s": k * dt, "t_end_s": (k + n - 1) * dt,
@@ -497,6 +511,10 @@ def simulate(args):
                 theta, rate = _move_angle_rate(profile, angle, dur, (j + 0.5) * dt)
                 rot = _matmul(r, _axis_angle(axis, theta))
                 w_body = [a * rate for a in axis]
+            if shift_sigma > 0 and seg[0] == "move" and j == n // 2:
+                shift = [shift_rng.gauss(0.0, shift_sigma) for _ in range(3)]
+            if shift_sigma > 0:
+                w_body = [w_body[i] + shift[i] for i in range(3)]
             f_body = _transpose_times(rot, g_world)
             temp = _temperature(history, k * dt, duration) if history else None
             if history:
@@ -543,6 +561,10 @@ def simulate(args):
         "model": "u = y / scale + bias + noise per axis (inverse of y = scale (u - bias)), "
                  "no misalignment; accel in m/s^2, gyro in rad/s",
     }
+    if shift_sigma > 0:
+        truth["gyro_bias_shift"] = {
+            "sigma_rad_s": shift_sigma, "per_hold_rad_s": hold_shifts,
+            "model": "a new offset per axis at each move's middle, added to the true rate"}
     if history:
         truth["temperature"] = {
             "history": {"kind": history[0], "values": history[1]},
