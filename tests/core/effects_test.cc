@@ -492,8 +492,11 @@ TEST_P(TimeEffect, ReportedButAppliedOnlyOnOptIn) {
       noted |= n.starts_with("ambiguous: ") && n.find("gyro x ~ (time-") != std::string::npos &&
                n.find("a capture at a steady temperature") != std::string::npos;
     EXPECT_TRUE(noted) << "the time drift gave way without a note naming it";
-    for (const Effect& e : off.params.effects)
-      if (e.regressor.find("time") != std::string::npos) EXPECT_FALSE(e.applied) << e.regressor;
+    for (const Effect& e : off.params.effects) {
+      if (e.regressor.find("time") != std::string::npos) {
+        EXPECT_FALSE(e.applied) << e.regressor;
+      }
+    }
     return;
   }
   ASSERT_EQ(off.params.effects.size(), 1u);
