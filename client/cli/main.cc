@@ -80,8 +80,11 @@ int Dispatch(const std::string& command, std::vector<std::string> args) {
   }
   if (command == "completion") {
     const bool help = args.size() == 1 && (args[0] == "-h" || args[0] == "--help");
-    if (args.size() == 1 && args[0] == "bash") return std::fputs(BashCompletion().c_str(), stdout), 0;
-    if (args.size() == 1 && args[0] == "zsh") return std::fputs(ZshCompletion().c_str(), stdout), 0;
+    const std::string shell = args.size() == 1 ? args[0] : "";
+    if (shell == "bash" || shell == "zsh") {
+      std::fputs((shell == "bash" ? BashCompletion() : ZshCompletion()).c_str(), stdout);
+      return imucal::cli::kExitOk;
+    }
     std::fputs("usage: imucal completion bash|zsh   (a completion script, on stdout)\n",
                help ? stdout : stderr);
     return help ? imucal::cli::kExitOk : imucal::cli::kExitUsage;
