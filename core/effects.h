@@ -99,6 +99,7 @@
 #include "Eigen/Core"
 #include "absl/status/statusor.h"
 #include "core/accel_solver.h"
+#include "core/move_effects.h"
 #include "core/params.h"
 #include "core/regressor.h"
 
@@ -211,6 +212,8 @@ struct EffectDiagnostics {
   std::vector<EffectPoseRow> rows;
   std::vector<FaceResidual> faces;     // six-face only, filled by the pipeline
   std::vector<MoveTrend> move_trends;  // every signal tested on the moves (6 moves or more)
+  // The rate-dependent gyroscope terms tested on the moves (core/move_effects.h).
+  MoveEffectDiagnostics move_search;
   std::vector<std::string> notes;      // ambiguities, what was not testable, residual vs floor
 };
 
