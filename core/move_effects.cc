@@ -1,6 +1,8 @@
 #include "core/move_effects.h"
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <cmath>
 #include <limits>
 #include <optional>
@@ -404,9 +406,10 @@ MoveModelFit Analyse(const Model& model, const std::vector<Prepared>& moves,
     const auto k = static_cast<Eigen::Index>(9 + t);
     fit.term_std_error.push_back(std::sqrt(std::max(0.0, fit.covariance(k, k))));
   }
-  for (size_t i = 0; i < moves.size(); ++i)
-    fit.move_error_rad.push_back(
-        AngleError(lin.r.segment<3>(static_cast<Eigen::Index>(3 * i)), moves[i]));
+  for (size_t i = 0; i < moves.size(); ++i) {
+    fit.move_residual.push_back(lin.r.segment<3>(static_cast<Eigen::Index>(3 * i)));
+    fit.move_error_rad.push_back(AngleError(fit.move_residual.back(), moves[i]));
+  }
   fit.heldout_error_rad = HeldOut(model, lin, moves, Eigen::VectorXd(), nullptr);
   for (const Prepared& t : turns) {
     double angle = 0;
@@ -466,6 +469,21 @@ std::string HumanMoveCoefficient(const MoveTerm& t, double se) {
     return absl::StrFormat("%.3g +- %.2g %% of |rate|", t.coefficient * 100, se * 100);
   const double k = kRadToDeg * std::pow(100 / kRadToDeg, 2);  // deg/s per (100 deg/s)^2
   return absl::StrFormat("%.3g +- %.2g deg/s per (100 deg/s)^2", t.coefficient * k, se * k);
+}
+
+// The moves whose held-out gain is left out of condition 4: a term must improve more moves than
+// a knock or a slip in the hand spoils.
+constexpr size_t kTrimmedMoves = 2;
+
+// The held-out gain sum_i (before_i^2 - after_i^2) without the kTrimmedMoves moves that gain most.
+double TrimmedGain(const std::vector<double>& before, const std::vector<double>& after) {
+  std::vector<double> gain;
+  for (size_t i = 0; i < before.size() && i < after.size(); ++i)
+    gain.push_back(before[i] * before[i] - after[i] * after[i]);
+  std::sort(gain.begin(), gain.end());
+  double sum = 0;
+  for (size_t i = 0; i + kTrimmedMoves < gain.size(); ++i) sum += gain[i];
+  return sum;
 }
 
 struct Candidate {
@@ -636,8 +654,9 @@ absl::StatusOr<MoveSearchResult> SearchMoveEffects(const MoveSearchInput& in,
         s.f = drss / s2;
         s.delta_bic = n_obs * std::log(rss1 / rss0) + std::log(static_cast<double>(n_obs));
         s.coefficient = -proj / c.perp.squaredNorm();
-        const double press1 = SumSquares(HeldOut(model, lin, moves, col, &c.term));
-        s.press_gain = (press0 - press1) / s2;
+        const std::vector<double> held = HeldOut(model, lin, moves, col, &c.term);
+        s.press_gain = (press0 - SumSquares(held)) / s2;
+        s.trimmed_gain = TrimmedGain(press0_moves, held) / s2;
         cands.push_back(std::move(c));
       }
     }
@@ -653,9 +672,26 @@ absl::StatusOr<MoveSearchResult> SearchMoveEffects(const MoveSearchInput& in,
     for (size_t c = 0; c < cands.size(); ++c) {
       MoveCandidateScore& s = cands[c].score;
       s.f_threshold = threshold;
-      s.passed = s.f > threshold && s.delta_bic < 0 && s.press_gain > threshold;
+      s.passed = s.f > threshold && s.delta_bic < 0 && s.press_gain > threshold &&
+                 s.trimmed_gain > threshold;
       if (s.passed && (best < 0 || s.delta_bic < cands[static_cast<size_t>(best)].score.delta_bic))
         best = static_cast<int>(c);
+    }
+    if (std::getenv("IMUCAL_DEBUG_EFFECTS") != nullptr) {  // each round's best, to look at
+      std::vector<const Candidate*> by_bic;
+      for (const Candidate& c : cands) by_bic.push_back(&c);
+      std::sort(by_bic.begin(), by_bic.end(), [](const Candidate* a, const Candidate* b) {
+        return a->score.delta_bic < b->score.delta_bic;
+      });
+      for (size_t k = 0; k < by_bic.size() && k < 5; ++k) {
+        const MoveCandidateScore& sc = by_bic[k]->score;
+        std::fprintf(stderr,
+                     "moves round %d: gyro %c ~ %-8s F %6.1f (%5.1f) BIC %+7.1f held-out %+7.1f "
+                     "without the best %d moves %+7.1f%s\n",
+                     round, kAxes[sc.axis], sc.regressor.c_str(), sc.f, sc.f_threshold,
+                     sc.delta_bic, sc.press_gain, static_cast<int>(kTrimmedMoves),
+                     sc.trimmed_gain, sc.passed ? " passed" : "");
+      }
     }
     if (round == 0) {
       std::vector<const Candidate*> by_f;
@@ -696,12 +732,14 @@ absl::StatusOr<MoveSearchResult> SearchMoveEffects(const MoveSearchInput& in,
     for (const std::string& r : rivals) rival_text += (rival_text.empty() ? "" : ", ") + r;
     e.evidence = absl::StrFormat(
         "{\"what\": \"rotations between poses: %s, F %.1f > %.1f (1%% over %d candidates), "
-        "BIC %+.1f; the gravity-direction error after the moves, held out by move, %.4f -> "
-        "%.4f deg RMS%s\", \"moves\": %d, \"moves_heldout_before_rad\": %.6g, "
+        "BIC %+.1f, held-out gain %.1f (%.1f without the %d moves that gain most; both over "
+        "%.1f, in units of s^2); the gravity-direction error after the moves, held out by move, "
+        "%.4f -> %.4f deg RMS%s\", \"moves\": %d, \"moves_heldout_before_rad\": %.6g, "
         "\"moves_heldout_after_rad\": %.6g, \"f\": %.4g, \"f_threshold\": %.4g, "
         "\"delta_bic\": %.4g}",
         Meaning(t.axis, t.regressor), chosen.score.f, threshold, tests, chosen.score.delta_bic,
-        current.RmsHeldOut() * kRadToDeg, fit.RmsHeldOut() * kRadToDeg,
+        chosen.score.press_gain, chosen.score.trimmed_gain, static_cast<int>(kTrimmedMoves),
+        threshold, current.RmsHeldOut() * kRadToDeg, fit.RmsHeldOut() * kRadToDeg,
         rivals.empty() ? "" : absl::StrCat("; not told apart from ", rival_text),
         static_cast<int>(moves.size()), current.RmsHeldOut(), fit.RmsHeldOut(), chosen.score.f,
         threshold, chosen.score.delta_bic);

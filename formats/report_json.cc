@@ -123,6 +123,7 @@ json DiagnosticsJson(const core::EffectDiagnostics& d) {
                                     {"f_threshold", Num(c.f_threshold)},
                                     {"delta_bic", Num(c.delta_bic)},
                                     {"heldout_gain", Num(c.press_gain)},
+                                    {"heldout_gain_without_best_2", Num(c.trimmed_gain)},
                                     {"coefficient", Num(c.coefficient)},
                                     {"passed", c.passed}});
   }

@@ -28,7 +28,8 @@ std::string NotSearchedNote(size_t poses) {
 // examination of the rotation residuals (core/effects.h ExamineMoveResiduals).
 std::vector<EffectMoveResidual> MoveResiduals(const Capture& cap,
                                               const std::vector<StaticInterval>& ivs,
-                                              const std::vector<MoveReport>& moves) {
+                                              const std::vector<MoveReport>& moves,
+                                              const std::vector<PoseReport>& poses) {
   const double t0 = cap.t_s.empty() ? 0.0 : cap.t_s.front();
   std::vector<EffectMoveResidual> out;
   for (const MoveReport& m : moves) {
@@ -40,6 +41,13 @@ std::vector<EffectMoveResidual> MoveResiduals(const Capture& cap,
     mr.rotation_rad = m.rotation_deg / kRadToDeg;
     mr.time_s = 0.5 * (a.t_end_s + b.t_start_s) - t0;
     mr.temp_c = 0.5 * (a.temp_mean + b.temp_mean);
+    const auto up = [&](int pose) -> Eigen::Vector3d {
+      for (const PoseReport& p : poses)
+        if (p.index == pose) return p.up;
+      return Eigen::Vector3d::Zero();
+    };
+    const Eigen::Vector3d ua = up(m.from_pose), ub = up(m.to_pose);
+    if (ua.norm() > 0 && ub.norm() > 0) mr.tilt_rad = std::atan2(ua.cross(ub).norm(), ua.dot(ub));
     out.push_back(mr);
   }
   return out;
@@ -84,7 +92,7 @@ absl::StatusOr<EffectSearchInput> SearchInput(const Capture& cap, const EffectsS
     p.time_s = 0.5 * (s.t_start_s + s.t_end_s) - t0;
     out.poses.push_back(p);
   }
-  out.moves = MoveResiduals(cap, ivs, rep.moves);
+  out.moves = MoveResiduals(cap, ivs, rep.moves, rep.poses);
   if (!gyro.calibrated || planned.size() < 3) return out;
   std::vector<std::pair<size_t, size_t>> ends;  // per planned move: its poses' index in `used`
   for (const PlannedMove& m : planned) {
@@ -200,7 +208,7 @@ void RefitToCorrectedDirections(const Capture& cap, const EffectsStageInput& in,
   }
   // The rotation residuals' trends as the refitted model leaves them: what the effect
   // explained no longer shows as a trend.
-  ExamineMoveResiduals(MoveResiduals(cap, ivs, rep->moves), &rep->effect_diagnostics);
+  ExamineMoveResiduals(MoveResiduals(cap, ivs, rep->moves, rep->poses), &rep->effect_diagnostics);
 }
 
 // True when the regressor reads a rate (gx, gy, gz): a term only the moves can test.
@@ -286,7 +294,7 @@ absl::Status SearchMoves(const Capture& cap, const CalibrateOptions& opt,
   for (size_t k = 0; k < rep->turns.size() && k < in.rough.turns.size(); ++k)
     rep->turns[k].angle_deg = fit.turn_angle_rad[k] * kRadToDeg;
   // What the terms explained no longer shows as a trend.
-  ExamineMoveResiduals(MoveResiduals(cap, ivs, rep->moves), &diag);
+  ExamineMoveResiduals(MoveResiduals(cap, ivs, rep->moves, rep->poses), &diag);
   return absl::OkStatus();
 }
 

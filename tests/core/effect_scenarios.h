@@ -241,8 +241,9 @@ enum class History { kRamp, kCoolDown, kPlateau };
 inline const char* HistoryName(History h) {
   return h == History::kRamp ? "ramp" : h == History::kCoolDown ? "cool-down" : "plateau";
 }
-inline SimOptions HistoryScenario(uint64_t seed, std::vector<SimEffect> effects, History h) {
-  SimOptions o = EffectScenario(seed, std::move(effects));
+inline SimOptions HistoryScenario(uint64_t seed, std::vector<SimEffect> effects, History h,
+                                  double move_s = 2.5) {
+  SimOptions o = EffectScenario(seed, std::move(effects), /*temperature=*/true, move_s);
   switch (h) {
     case History::kRamp:  // 25 -> 33 degC nearly linearly over the ~240 s capture
       o.temp_tau_s = 2400;
@@ -258,6 +259,32 @@ inline SimOptions HistoryScenario(uint64_t seed, std::vector<SimEffect> effects,
       break;
   }
   return o;
+}
+
+// True when the regressor reads a rate (gx, gy, gz, |gx|, ...): a term only the moves show.
+inline bool ReadsRate(const std::string& regressor) {
+  const std::optional<Regressor> r = ParseRegressor(regressor);
+  if (!r) return false;
+  for (int i = 0; i < r->num_factors; ++i)
+    if (r->factors[static_cast<size_t>(i)] >= static_cast<int>(Signal::kGx)) return true;
+  return false;
+}
+
+// Rate-dependent gyroscope terms, run by bench/effects_bench (and tests/core/move_effects_test):
+// a scale 0.1 % higher per 100 deg/s of rate on z. Simulated with moves at a hand's pace
+// (CaseMoveSeconds): the simulator's default 2.5 s moves stay under 135 deg/s. On a +-2000
+// deg/s gyroscope this is about 0.3 % of full scale from the best straight line (the form's
+// largest deviation is 0.17 s FS^2 for s per rad/s), beside datasheets' 0.1-0.2 % FS.
+inline const EffectCase kRateCases[] = {
+    {"GyroRateScale", {Fx(Sensor::kGyro, 2, "gz*|gz|", 0.001 / (100 * kDegS))}},
+};
+
+// The moves' duration a case is simulated with: 1 s (a hand's pace, up to 340 deg/s) when an
+// effect reads a rate, else the scenarios' 2.5 s.
+inline double CaseMoveSeconds(const EffectCase& c) {
+  for (const SimEffect& e : c.effects)
+    if (ReadsRate(e.regressor)) return 1.0;
+  return 2.5;
 }
 
 // True when some effect of the case reads `temperature` (it needs a temperature channel).
