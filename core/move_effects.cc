@@ -34,7 +34,10 @@ constexpr double kNullEigenvalueRatio = 1e-14;
 constexpr int kMinMoves = 6;
 constexpr int kTopCandidates = 5;
 
-using Mat3X = Eigen::Matrix<double, 3, Eigen::Dynamic>;
+// At most this many parameters (vec(M) and the terms): fixed-capacity matrices keep the
+// per-sample Jacobian off the heap.
+constexpr int kMaxParams = 32;
+using Mat3X = Eigen::Matrix<double, 3, Eigen::Dynamic, 0, 3, kMaxParams>;
 
 // One move or turn, ready to integrate: the debiased raw samples u_k and the steps dt_k.
 struct Prepared {
@@ -213,16 +216,18 @@ Eigen::Vector3d MoveResidual(const Model& model, const Prepared& mv, Mat3X* jaco
     return q.normalized().toRotationMatrix().transpose() * mv.up_before - mv.up_after;
   }
   const int p = model.Params();
-  Eigen::Matrix3d r = Eigen::Matrix3d::Identity(), jr;
-  Mat3X b = Mat3X::Zero(3, p), dw0, dw1;
+  Eigen::Matrix3d r = Eigen::Matrix3d::Identity(), jr, g;
+  Mat3X b = Mat3X::Zero(3, p), dw0, dw1, dphi(3, p);
   Eigen::Vector3d w0 = Rate(model, mv.u[0], &dw0);
   for (size_t k = 0; k + 1 < n; ++k) {
     const Eigen::Vector3d w1 = Rate(model, mv.u[k + 1], &dw1);
     const Eigen::Vector3d phi = 0.5 * (w0 + w1) * mv.dt[k];
     r = r * ExpAndRightJacobian(phi, &jr);
-    b.noalias() += (r * jr) * ((0.5 * mv.dt[k]) * (dw0 + dw1));
+    g.noalias() = r * jr;
+    dphi = (0.5 * mv.dt[k]) * (dw0 + dw1);
+    b.noalias() += g * dphi;
     w0 = w1;
-    dw0.swap(dw1);
+    std::swap(dw0, dw1);
   }
   const Eigen::Vector3d predicted = r.transpose() * mv.up_before;
   *jacobian = Skew(predicted) * r.transpose() * b;
@@ -244,7 +249,7 @@ Eigen::Vector3d TurnResidual(const Model& model, const Prepared& turn, Mat3X* ja
     sum += 0.5 * (w0 + w1) * turn.dt[k];
     if (jacobian != nullptr) {
       dsum += (0.5 * turn.dt[k]) * (dw0 + dw1);
-      dw0.swap(dw1);
+      std::swap(dw0, dw1);
     }
     w0 = w1;
   }
@@ -425,16 +430,95 @@ double FThreshold(double alpha, int tests, int dof) {
   return boost::math::quantile(boost::math::complement(f, alpha / tests));
 }
 
-// The Jacobian column of a candidate term at `model` (coefficient 0): the model with the term
-// appended, its last column.
-Eigen::VectorXd CandidateColumn(const Model& model, const MoveTerm& term,
-                                const std::vector<Prepared>& moves,
-                                const std::vector<Prepared>& turns) {
-  Model with = model;
-  MoveTerm t = term;
-  t.coefficient = 0;
-  with.terms.push_back(t);
-  return Linearise(with, moves, turns).j.rightCols<1>();
+// The Jacobian columns of candidate terms at `model` (each at coefficient 0), all in one pass:
+// a candidate changes phi_k by dphi_k/dc = -(x(v_k) + x(v_{k+1})) / 2 dt_k e_axis, and the
+// rest of the chain rule (MoveResidual's) is the same for every candidate.
+Eigen::MatrixXd CandidateColumns(const Model& model, const std::vector<MoveTerm>& cands,
+                                 const std::vector<Prepared>& moves,
+                                 const std::vector<Prepared>& turns) {
+  const auto nc = static_cast<Eigen::Index>(cands.size());
+  Eigen::MatrixXd out(static_cast<Eigen::Index>(3 * (moves.size() + turns.size())), nc);
+  Eigen::VectorXd x0(nc), x1(nc);
+  const auto regressors = [&](const Eigen::Vector3d& u, Eigen::VectorXd* x) {
+    const SignalArray s = RateSignals(model.m * u);
+    for (Eigen::Index c = 0; c < nc; ++c)
+      (*x)(c) = cands[static_cast<size_t>(c)].regressor.Evaluate(s);
+  };
+  Eigen::Index row = 0;
+  Eigen::Matrix3Xd b(3, nc);
+  for (const Prepared& mv : moves) {
+    b.setZero();
+    Eigen::Matrix3d r = Eigen::Matrix3d::Identity(), jr, g;
+    Eigen::Vector3d w0 = Rate(model, mv.u[0], nullptr);
+    regressors(mv.u[0], &x0);
+    for (size_t k = 0; k + 1 < mv.u.size(); ++k) {
+      const Eigen::Vector3d w1 = Rate(model, mv.u[k + 1], nullptr);
+      regressors(mv.u[k + 1], &x1);
+      r = r * ExpAndRightJacobian(0.5 * (w0 + w1) * mv.dt[k], &jr);
+      g.noalias() = r * jr;
+      const double h = -0.5 * mv.dt[k];
+      for (Eigen::Index c = 0; c < nc; ++c)
+        b.col(c) += g.col(cands[static_cast<size_t>(c)].axis) * (h * (x0(c) + x1(c)));
+      w0 = w1;
+      x0.swap(x1);
+    }
+    const Eigen::Vector3d predicted = r.transpose() * mv.up_before;
+    out.middleRows<3>(row) = Skew(predicted) * r.transpose() * b;
+    row += 3;
+  }
+  for (const Prepared& t : turns) {
+    b.setZero();
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3d w0 = Rate(model, t.u[0], nullptr);
+    regressors(t.u[0], &x0);
+    for (size_t k = 0; k + 1 < t.u.size(); ++k) {
+      const Eigen::Vector3d w1 = Rate(model, t.u[k + 1], nullptr);
+      regressors(t.u[k + 1], &x1);
+      sum += 0.5 * (w0 + w1) * t.dt[k];
+      const double h = -0.5 * t.dt[k];
+      for (Eigen::Index c = 0; c < nc; ++c)
+        b(cands[static_cast<size_t>(c)].axis, c) += h * (x0(c) + x1(c));
+      w0 = w1;
+      x0.swap(x1);
+    }
+    if (t.axis.squaredNorm() > 0) {
+      out.middleRows<3>(row) = b;
+    } else {
+      out.middleRows<3>(row).setZero();
+      if (sum.norm() > 0) out.row(row) = (sum / sum.norm()).transpose() * b;
+    }
+    row += 3;
+  }
+  return out;
+}
+
+// Linearised leave-one-move-out for scoring: for each move, one Gauss-Newton step without it
+// (H - J_i^T J_i)^-1 (g - J_i^T r_i) by the Woodbury identity from H^-1 (a pseudo-inverse where
+// the move alone determines a direction), and its residual predicted linearly, r_i + J_i step.
+// Returns the predicted held-out errors |r_i + J_i step| (rad).
+std::vector<double> LinearHeldOut(const Eigen::MatrixXd& j, const Eigen::VectorXd& r,
+                                  size_t moves) {
+  const Eigen::MatrixXd h = j.transpose() * j;
+  const Eigen::VectorXd g = j.transpose() * r;
+  const Eigen::MatrixXd h_inv = PseudoInverse(h);
+  std::vector<double> out;
+  for (size_t i = 0; i < moves; ++i) {
+    const auto row = static_cast<Eigen::Index>(3 * i);
+    const Eigen::MatrixXd ji = j.middleRows<3>(row);
+    const Eigen::Vector3d ri = r.segment<3>(row);
+    const Eigen::VectorXd gi = g - ji.transpose() * ri;
+    const Eigen::MatrixXd hj = h_inv * ji.transpose();  // P x 3
+    const Eigen::Matrix3d s = Eigen::Matrix3d::Identity() - ji * hj;
+    Eigen::VectorXd step;
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> se(0.5 * (s + s.transpose()));
+    if (se.eigenvalues().minCoeff() > 1e-8) {
+      step = -(h_inv * gi + hj * s.inverse() * (hj.transpose() * gi));
+    } else {  // the move alone determines a direction: drop it there
+      step = -PseudoInverse(h - ji.transpose() * ji) * gi;
+    }
+    out.push_back((ri + ji * step).norm());
+  }
+  return out;
 }
 
 std::string Describe(int axis, const Regressor& r) {
@@ -626,39 +710,46 @@ absl::StatusOr<MoveSearchResult> SearchMoveEffects(const MoveSearchInput& in,
     Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(lin.j);
     const Eigen::MatrixXd q =
         Eigen::MatrixXd(qr.householderQ()).leftCols(static_cast<Eigen::Index>(qr.rank()));
-    const std::vector<double> press0_moves = HeldOut(model, lin, moves, Eigen::VectorXd(), nullptr);
+    const std::vector<double> press0_moves = LinearHeldOut(lin.j, lin.r, moves.size());
     const double press0 = SumSquares(press0_moves);
-    std::vector<Candidate> cands;
-    int not_excited = 0;
+    std::vector<MoveTerm> terms;
     for (int axis = 0; axis < 3; ++axis) {
       for (const Regressor& r : dictionary) {
         bool present = false;
         for (const MoveTerm& t : model.terms) present |= t.axis == axis && t.regressor == r;
-        if (present) continue;
-        Candidate c;
-        c.term = {axis, r, 0.0};
-        const Eigen::VectorXd col = CandidateColumn(model, c.term, moves, turns);
-        c.perp = col - q * (q.transpose() * col);
-        if (!col.allFinite() || col.norm() == 0 ||
-            c.perp.norm() <= kAbsorbedFraction * col.norm()) {
-          ++not_excited;
-          continue;
-        }
-        const double proj = c.perp.dot(lin.r);
-        const double drss = proj * proj / c.perp.squaredNorm();
-        const double rss1 = std::max(rss0 - drss, 1e-300);
-        const double s2 = std::max(rss1 / dof1, floor_var);
-        MoveCandidateScore& s = c.score;
-        s.axis = axis;
-        s.regressor = r.Name();
-        s.f = drss / s2;
-        s.delta_bic = n_obs * std::log(rss1 / rss0) + std::log(static_cast<double>(n_obs));
-        s.coefficient = -proj / c.perp.squaredNorm();
-        const std::vector<double> held = HeldOut(model, lin, moves, col, &c.term);
-        s.press_gain = (press0 - SumSquares(held)) / s2;
-        s.trimmed_gain = TrimmedGain(press0_moves, held) / s2;
-        cands.push_back(std::move(c));
+        if (!present) terms.push_back({axis, r, 0.0});
       }
+    }
+    const Eigen::MatrixXd columns = CandidateColumns(model, terms, moves, turns);
+    std::vector<Candidate> cands;
+    int not_excited = 0;
+    Eigen::MatrixXd j_ext(lin.j.rows(), lin.j.cols() + 1);
+    j_ext.leftCols(lin.j.cols()) = lin.j;
+    for (size_t k = 0; k < terms.size(); ++k) {
+      Candidate c;
+      c.term = terms[k];
+      const Eigen::VectorXd col = columns.col(static_cast<Eigen::Index>(k));
+      c.perp = col - q * (q.transpose() * col);
+      if (!col.allFinite() || col.norm() == 0 ||
+          c.perp.norm() <= kAbsorbedFraction * col.norm()) {
+        ++not_excited;
+        continue;
+      }
+      const double proj = c.perp.dot(lin.r);
+      const double drss = proj * proj / c.perp.squaredNorm();
+      const double rss1 = std::max(rss0 - drss, 1e-300);
+      const double s2 = std::max(rss1 / dof1, floor_var);
+      MoveCandidateScore& s = c.score;
+      s.axis = c.term.axis;
+      s.regressor = c.term.regressor.Name();
+      s.f = drss / s2;
+      s.delta_bic = n_obs * std::log(rss1 / rss0) + std::log(static_cast<double>(n_obs));
+      s.coefficient = -proj / c.perp.squaredNorm();
+      j_ext.rightCols<1>() = col;
+      const std::vector<double> held = LinearHeldOut(j_ext, lin.r, moves.size());
+      s.press_gain = (press0 - SumSquares(held)) / s2;
+      s.trimmed_gain = TrimmedGain(press0_moves, held) / s2;
+      cands.push_back(std::move(c));
     }
     const int tests = static_cast<int>(cands.size());
     if (round == 0) {

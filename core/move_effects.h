@@ -42,7 +42,9 @@
 //   2. BIC falls: N ln(RSS_after / RSS_before) + ln N < 0;
 //   3. the held-out sum of squares, each move predicted by a fit without it, falls by more than
 //      F* s^2 (leave-one-move-out, first order: one Gauss-Newton step from the full fit without
-//      the move, the move then integrated exactly, as GyroSolveResult::heldout_error_rad);
+//      the move, by the Woodbury identity, and the move's residual predicted linearly; the
+//      figures reported, MoveModelFit::heldout_error_rad, integrate each held-out move exactly
+//      as GyroSolveResult::heldout_error_rad does);
 //   4. the gain is the moves', not one or two moves': the held-out gain without the 2 moves
 //      that gain most still exceeds F* s^2. Conditions 1-3 sum over the moves, where a move that
 //      went wrong (a knock, a slip in the hand) weighs as much as ten good ones; a rate term
