@@ -268,6 +268,38 @@ TEST(RealEffectsTest, FerrarisExampleMovesTraced) {
     EXPECT_NEAR(RmsDeg(*f), RmsDeg(*base), 0.02);
   }
 
+  //    the rate: among the moves that tilt gravity, the error does not follow the peak rate
+  //    (F(1, 6) under the 1% quantile, 13.7)
+  {
+    std::vector<double> peak, err;
+    for (size_t k = 0; k < rm.input.moves.size(); ++k) {
+      const GyroMove& m = rm.input.moves[k];
+      if (std::acos(std::clamp(m.up_before.dot(m.up_after), -1.0, 1.0)) < 5 * kDegS) continue;
+      double p = 0;
+      for (size_t i = m.begin; i <= m.end; ++i)
+        p = std::max(p, (base->matrix * (cap->gyro[i] - rm.input.bias)).norm());
+      peak.push_back(p / kDegS);
+      err.push_back(base->move_error_rad[k] / kDegS);
+    }
+    ASSERT_EQ(peak.size(), 8u);
+    const auto n = static_cast<double>(peak.size());
+    double mx = 0, my = 0;
+    for (size_t k = 0; k < peak.size(); ++k) mx += peak[k] / n, my += err[k] / n;
+    double sxx = 0, sxy = 0, syy = 0;
+    for (size_t k = 0; k < peak.size(); ++k) {
+      sxx += (peak[k] - mx) * (peak[k] - mx);
+      sxy += (peak[k] - mx) * (err[k] - my);
+      syy += (err[k] - my) * (err[k] - my);
+    }
+    const double rss1 = syy - sxy * sxy / sxx;
+    const double f = (syy - rss1) / (rss1 / (n - 2));
+    std::printf("ferraris example: tilting moves' error against their peak rate (%.0f-%.0f deg/s): "
+                "%+.3f deg per 100 deg/s, F(1, 6) %.2f\n",
+                *std::min_element(peak.begin(), peak.end()),
+                *std::max_element(peak.begin(), peak.end()), 100 * sxy / sxx, f);
+    EXPECT_LT(f, 13.7);
+  }
+
   // 4. The turns against the moves: fitted to the moves alone, the y turn reads 355 degrees.
   ASSERT_EQ(ms.turn_angle_moves_only_rad.size(), 3u);
   EXPECT_NEAR(ms.turn_angle_moves_only_rad[1] / kDegS, 355.24, 0.3);
