@@ -592,6 +592,8 @@ MoveEffectDiagnostics MoveSearchResult::Diagnostics() const {
   d.in_sample_before_rad = before.RmsMoveError();
   d.in_sample_after_rad = after.RmsMoveError();
   d.noise_floor_rad = noise_floor_rad;
+  d.heldout_before_per_move_rad = before.heldout_error_rad;
+  d.heldout_after_per_move_rad = after.heldout_error_rad;
   d.top = top;
   d.turn_angle_moves_only_rad = turn_angle_moves_only_rad;
   return d;

@@ -146,6 +146,9 @@ struct MoveEffectDiagnostics {
   double heldout_before_rad = 0, heldout_after_rad = 0;
   double in_sample_before_rad = 0, in_sample_after_rad = 0;
   double noise_floor_rad = 0;
+  // Per move (in the order of CalibrationReport::moves), held out by move: without and with the
+  // terms found (rad).
+  std::vector<double> heldout_before_per_move_rad, heldout_after_per_move_rad;
   std::vector<MoveCandidateScore> top;
   std::vector<double> turn_angle_moves_only_rad;  // see MoveSearchResult
 };

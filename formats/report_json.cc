@@ -114,6 +114,10 @@ json DiagnosticsJson(const core::EffectDiagnostics& d) {
   ms["in_sample_before"] = Num(m.in_sample_before_rad);
   ms["in_sample_after"] = Num(m.in_sample_after_rad);
   ms["noise_floor"] = Num(m.noise_floor_rad);
+  ms["heldout_before_per_move"] = json::array();
+  for (double e : m.heldout_before_per_move_rad) ms["heldout_before_per_move"].push_back(Num(e));
+  ms["heldout_after_per_move"] = json::array();
+  for (double e : m.heldout_after_per_move_rad) ms["heldout_after_per_move"].push_back(Num(e));
   ms["top_candidates"] = json::array();
   for (const core::MoveCandidateScore& c : m.top) {
     ms["top_candidates"].push_back({{"sensor", "gyro"},
