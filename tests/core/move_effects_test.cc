@@ -127,6 +127,30 @@ TEST(MoveEffectsTest, FindsARateDependentScale) {
   EXPECT_GE(within, 3);
 }
 
+// A misalignment that grows with the rate (x reads 0.52 % of the z rate per 100 deg/s of it),
+// with the scenarios' default 2.5 s moves: found on x as gz*|gz|, within 3 standard errors.
+TEST(MoveEffectsTest, FindsAMisalignmentThatGrowsWithTheRate) {
+  constexpr double kTruth = 0.003;  // per rad/s
+  for (uint64_t seed = 1; seed <= 2; ++seed) {
+    const absl::StatusOr<SimResult> sim =
+        Simulate(EffectScenario(seed, {{Sensor::kGyro, 0, "gz*|gz|", kTruth}}));
+    ASSERT_TRUE(sim.ok()) << sim.status();
+    const CalibrationReport rep = MustCalibrate(sim->capture);
+    SCOPED_TRACE(absl::StrFormat("seed %d\n%s", seed, Notes(rep)));
+    const Effect* got = nullptr;
+    int rate_terms = 0;
+    for (const Effect& e : rep.params.effects) {
+      if (e.sensor != Sensor::kGyro || e.regressor.find('g') == std::string::npos) continue;
+      ++rate_terms;
+      if (e.axis == 0 && e.regressor == "gz*|gz|") got = &e;
+    }
+    ASSERT_NE(got, nullptr);
+    EXPECT_EQ(rate_terms, 1);
+    EXPECT_LT(std::abs(got->coefficient - kTruth), 3 * got->std_error)
+        << got->coefficient << " +- " << got->std_error;
+  }
+}
+
 // Clean captures: nothing found on the moves.
 TEST(MoveEffectsTest, CleanCapturesStayClean) {
   int alarms = 0;
