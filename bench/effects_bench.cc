@@ -11,6 +11,10 @@
 //     (its coefficient fitted with the model, nothing searched), both in units of the truth's
 //     floor on the sensor(s) the truth acts on, median over seeds and histories; `ratio` is
 //     found / reference (aim: at most 1.3);
+//   - for a rate-dependent gyroscope term (kRateCases, simulated with hand-paced moves), the
+//     validation is the gravity-direction error after the fresh capture's moves through the
+//     SDK (MoveErrorOn; the holds cannot show a rate term), and the other histories are scored
+//     on their moves too;
 //   - the time the effect search adds to Calibrate.
 // Scenarios and magnitudes: tests/core/effect_scenarios.h (six-face + 24 extra poses, 200 Hz,
 // 2 mg noise, an 8 degC warm-up). Time effects are applied (opt-in) for the validation.
@@ -170,37 +174,45 @@ int Main(int seeds, const Only& only) {
       "effects_bench: %d seeds per row; six-face + 24 extra poses, 200 Hz, 2 mg noise, "
       "8 degC warm-up\n\n",
       seeds);
-  std::printf("%-30s %9s %9s %9s | %-25s | %-27s | %s\n", "effect (truth)", "found", "within3se",
-              "other", "validation accel mg", "validation gyro deg/s",
-              "other histories: found / reference");
-  std::printf("%-30s %9s %9s %9s | %7s %7s %7s   | %8s %8s %8s   | %7s %7s %6s\n", "", "", "", "",
-              "before", "after", "floor", "before", "after", "floor", "found", "ref", "ratio");
+  std::printf("%-30s %9s %9s %9s | %-25s | %-27s | %-23s | %s\n", "effect (truth)", "found",
+              "within3se", "other", "validation accel mg", "validation gyro deg/s",
+              "validation moves deg", "other histories: found / reference");
+  std::printf("%-30s %9s %9s %9s | %7s %7s %7s   | %8s %8s %8s   | %7s %7s %7s | %7s %7s %6s\n",
+              "", "", "", "", "before", "after", "floor", "before", "after", "floor", "before",
+              "after", "floor", "found", "ref", "ratio");
   std::vector<double> search_ms, base_ms;
   std::string misses, matrix_rows;
   std::vector<EffectCase> cases(std::begin(kEffectCases), std::end(kEffectCases));
   cases.insert(cases.end(), std::begin(kHarderCases), std::end(kHarderCases));
+  cases.insert(cases.end(), std::begin(kRateCases), std::end(kRateCases));
   std::string history_rows;
   for (const EffectCase& c : cases) {
     if (!only.name.empty() && c.name != only.name) continue;
     if (only.no_temperature && UsesTemperature(c)) continue;  // needs the channel
     const bool temperature = !only.no_temperature;
     int found = 0, within = 0, other = 0;
-    std::vector<double> ab, aa, af, gb, ga, gf, mb, ma;
+    std::vector<double> ab, aa, af, gb, ga, gf, mb, ma, vb, va, vf;
     // Per seed and other history: the found model's and the reference fit's validation error on
     // the sensor(s) the truth acts on, each in units of that sensor's floor (so sensors add).
     std::vector<double> hist_found, hist_ref;
-    bool on_accel = false, on_gyro = false;
-    for (const SimEffect& e : c.effects) (e.sensor == Sensor::kAccel ? on_accel : on_gyro) = true;
+    // The sensor(s) the truth acts on; a rate term shows on the moves, not the holds.
+    bool on_accel = false, on_gyro = false, on_moves = false;
+    for (const SimEffect& e : c.effects)
+      (e.sensor == Sensor::kAccel ? on_accel : ReadsRate(e.regressor) ? on_moves : on_gyro) = true;
+    const double move_s = CaseMoveSeconds(c);
     for (int seed = 1; seed <= seeds; ++seed) {
       if (only.seed > 0 && seed != only.seed) continue;
       const std::vector<SimEffect> effects = EffectsFor(c, static_cast<uint64_t>(seed));
       absl::StatusOr<SimResult> sim =
-          Simulate(EffectScenario(static_cast<uint64_t>(seed), effects, temperature));
+          Simulate(EffectScenario(static_cast<uint64_t>(seed), effects, temperature, move_s));
       if (!sim.ok()) return 1;
       bool time = false;
       for (const SimEffect& e : c.effects) time |= e.regressor.find("time") != std::string::npos;
       const Run run = CalibrateTimed(sim->capture, true, time);
       search_ms.push_back(run.ms);
+      if (only.seed > 0)  // one capture looked at: what the search said
+        for (const std::string& n : run.report.effect_diagnostics.notes)
+          std::printf("  note: %s\n", n.c_str());
       bool all = true, all3 = true;
       for (const SimEffect& want : effects) {
         const Effect* got = nullptr;
@@ -228,25 +240,29 @@ int Main(int seeds, const Only& only) {
         misses +=
             absl::StrFormat("  %s seed %d:%s\n", c.name, seed, got.empty() ? " nothing" : got);
       }
-      absl::StatusOr<SimResult> val = Simulate(
-          EffectScenario(static_cast<uint64_t>(seed) + 500, effects, temperature), sim->truth);
+      absl::StatusOr<SimResult> val =
+          Simulate(EffectScenario(static_cast<uint64_t>(seed) + 500, effects, temperature, move_s),
+                   sim->truth);
       if (!val.ok()) return 1;
       if (temperature) {
         const Run reference = CalibrateTimed(sim->capture, true, time, &effects);
         for (History h : {History::kRamp, History::kCoolDown, History::kPlateau}) {
-          absl::StatusOr<SimResult> history =
-              Simulate(HistoryScenario(static_cast<uint64_t>(seed) + 700, effects, h), sim->truth);
+          absl::StatusOr<SimResult> history = Simulate(
+              HistoryScenario(static_cast<uint64_t>(seed) + 700, effects, h, move_s), sim->truth);
           if (!history.ok()) return 1;
           const HoldError fo = ErrorOn(*history, run.report.params),
                           re = ErrorOn(*history, reference.report.params),
                           fl = ErrorOn(*history, TruthParams(*history));
+          const double mo = on_moves ? MoveErrorOn(*history, run.report.params) : 0,
+                       mr = on_moves ? MoveErrorOn(*history, reference.report.params) : 0,
+                       mf = on_moves ? MoveErrorOn(*history, TruthParams(*history)) : 1;
           // Relative to the floor, so a two-sensor case sums like with like.
-          const auto rel = [&](const HoldError& e) {
+          const auto rel = [&](const HoldError& e, double moves) {
             return (on_accel ? e.accel_m_s2 / fl.accel_m_s2 : 0.0) +
-                   (on_gyro ? e.gyro_rad_s / fl.gyro_rad_s : 0.0);
+                   (on_gyro ? e.gyro_rad_s / fl.gyro_rad_s : 0.0) + (on_moves ? moves / mf : 0.0);
           };
-          hist_found.push_back(rel(fo));
-          hist_ref.push_back(rel(re));
+          hist_found.push_back(rel(fo, mo));
+          hist_ref.push_back(rel(re, mr));
           if (only.seed > 0)
             std::printf(
                 "  %s seed %d %s: accel %.3f / %.3f mg, gyro %.4f / %.4f deg/s (found / "
@@ -267,6 +283,9 @@ int Main(int seeds, const Only& only) {
           af.push_back(f.accel_m_s2 / kMg);
       gb.push_back(b.gyro_rad_s / kDegS), ga.push_back(a.gyro_rad_s / kDegS),
           gf.push_back(f.gyro_rad_s / kDegS);
+      vb.push_back(MoveErrorOn(*val, without) / kDegS);
+      va.push_back(MoveErrorOn(*val, run.report.params) / kDegS);
+      vf.push_back(MoveErrorOn(*val, TruthParams(*val)) / kDegS);
     }
     std::string truth;
     for (const SimEffect& e : EffectsFor(c, 1))
@@ -275,12 +294,13 @@ int Main(int seeds, const Only& only) {
                                e.regressor);
     if (c.name.find("Turnover") != std::string::npos) truth += " (T0 per seed)";
     const int runs = only.seed > 0 ? 1 : seeds;
+    if (move_s != 2.5) truth += absl::StrFormat(" (%.0f s moves)", move_s);
     std::printf(
-        "%-30s %4d/%-4d %4d/%-4d %4d/%-4d | %7.3f %7.3f %7.3f   | %8.4f %8.4f %8.4f   | %7.2f "
-        "%7.2f %6.2f\n",
+        "%-30s %4d/%-4d %4d/%-4d %4d/%-4d | %7.3f %7.3f %7.3f   | %8.4f %8.4f %8.4f   | %7.4f "
+        "%7.4f %7.4f | %7.2f %7.2f %6.2f\n",
         truth.c_str(), found, runs, within, runs, other, runs, Median(ab), Median(aa), Median(af),
-        Median(gb), Median(ga), Median(gf), Median(hist_found), Median(hist_ref),
-        Median(hist_found) / Median(hist_ref));
+        Median(gb), Median(ga), Median(gf), Median(vb), Median(va), Median(vf),
+        Median(hist_found), Median(hist_ref), Median(hist_found) / Median(hist_ref));
     matrix_rows += absl::StrFormat("%-30s %8.0f %8.0f\n", truth, Median(mb), Median(ma));
   }
   std::printf(
@@ -295,12 +315,22 @@ int Main(int seeds, const Only& only) {
   if (!only.name.empty() || only.seed > 0 || only.no_temperature) return 0;
   std::printf("\nclean captures (no effect simulated): captures with any effect added\n");
   const int clean = only.clean_seeds > 0 ? only.clean_seeds : seeds;
-  for (bool temperature : {true, false}) {
+  // With and without a temperature channel, and (with one) moves at a hand's pace, where a
+  // rate-dependent gyroscope term would show.
+  struct Clean {
+    bool temperature;
+    double move_s;
+    const char* label;
+  };
+  for (const Clean& row : {Clean{true, 2.5, "with temperature:"},
+                           Clean{false, 2.5, "without temperature:"},
+                           Clean{true, 1.0, "1 s moves:"}}) {
+    const bool temperature = row.temperature;
     int alarms = 0;
     std::string which;
     for (int seed = 1; seed <= clean; ++seed) {
-      absl::StatusOr<SimResult> sim =
-          Simulate(EffectScenario(static_cast<uint64_t>(seed) + 1000, {}, temperature));
+      absl::StatusOr<SimResult> sim = Simulate(
+          EffectScenario(static_cast<uint64_t>(seed) + 1000, {}, temperature, row.move_s));
       if (!sim.ok()) return 1;
       const Run with = CalibrateTimed(sim->capture, true, false);
       const Run without = CalibrateTimed(sim->capture, false, false);
@@ -314,8 +344,7 @@ int Main(int seeds, const Only& only) {
                                    e.regressor);
       }
     }
-    std::printf("  %-22s %d/%d false alarms (%.0f%% clean)%s\n",
-                temperature ? "with temperature:" : "without temperature:", alarms, clean,
+    std::printf("  %-22s %d/%d false alarms (%.0f%% clean)%s\n", row.label, alarms, clean,
                 100.0 * (clean - alarms) / clean, which.c_str());
   }
   std::printf(

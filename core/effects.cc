@@ -1561,11 +1561,22 @@ std::string HumanCoefficient(const Effect& e) {
 // The rotation residuals: regress the gravity-direction error after each move on each of its
 // signals (with an intercept); a slope significant at 1% over the signals (Bonferroni) is
 // reported with its size.
-void ExamineMoveResiduals(const std::vector<EffectMoveResidual>& m, EffectDiagnostics* diag) {
+void ExamineMoveResiduals(const std::vector<EffectMoveResidual>& all, EffectDiagnostics* diag) {
   constexpr std::string_view kNote = "rotation residuals: ";
+  // A move whose gravity direction turned less than this is blind to the gyroscope's error.
+  constexpr double kBlindTiltRad = 5.0 / kRadToDeg;
   std::vector<MoveTrend>& trends = diag->move_trends;
   trends.clear();
   std::erase_if(diag->notes, [&](const std::string& note) { return note.starts_with(kNote); });
+  std::vector<EffectMoveResidual> m;
+  for (const EffectMoveResidual& r : all)
+    if (!(r.tilt_rad < kBlindTiltRad)) m.push_back(r);
+  const int blind = static_cast<int>(all.size() - m.size());
+  const std::string left_out =
+      blind == 0 ? ""
+                 : absl::StrFormat("; %d that turned about the vertical left out: gravity stays "
+                                   "where it was whatever the gyroscope reads",
+                                   blind);
   if (m.size() < 6) return;
   struct MoveSignal {
     const char* name;
@@ -1623,18 +1634,19 @@ void ExamineMoveResiduals(const std::vector<EffectMoveResidual>& m, EffectDiagno
   const double rms_deg = std::sqrt(ss / static_cast<double>(m.size())) * kRadToDeg;
   if (found.empty()) {
     diag->notes.push_back(
-        Cat(kNote, absl::StrFormat("the gravity-direction error after the %d moves (%.3f deg RMS) "
-                                   "shows no trend with the rotation angle, time or temperature",
-                                   static_cast<int>(m.size()), rms_deg)));
+        Cat(kNote, absl::StrFormat("the gravity-direction error after the %d moves (%.3f deg "
+                                   "RMS%s) shows no trend with the rotation angle, time or "
+                                   "temperature",
+                                   static_cast<int>(m.size()), rms_deg, left_out)));
   } else {
     std::string list;
     for (const auto& f : found) list += (list.empty() ? "" : "; ") + f;
     diag->notes.push_back(Cat(
-        kNote, absl::StrFormat("the gravity-direction error after the %d moves (%.3f deg RMS) "
+        kNote, absl::StrFormat("the gravity-direction error after the %d moves (%.3f deg RMS%s) "
                                "grows with %s: a rate-dependent gyroscope effect (scale "
                                "nonlinearity, or a drift during moves) that static poses cannot "
                                "test; moves of different sizes and speeds would locate it",
-                               static_cast<int>(m.size()), rms_deg, list)));
+                               static_cast<int>(m.size()), rms_deg, left_out, list)));
   }
 }
 

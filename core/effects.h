@@ -99,6 +99,7 @@
 #include "Eigen/Core"
 #include "absl/status/statusor.h"
 #include "core/accel_solver.h"
+#include "core/move_effects.h"
 #include "core/params.h"
 #include "core/regressor.h"
 
@@ -121,6 +122,10 @@ struct EffectMoveResidual {
   double rotation_rad = 0;  // total rotation of the move
   double time_s = 0;        // the move's middle, s from capture start
   double temp_c = std::numeric_limits<double>::quiet_NaN();
+  // The angle between the gravity directions before and after it (NaN: not known). A move that
+  // turned about the vertical (a full turn on a table, a face placed again) leaves gravity where
+  // it was: its gravity-direction error is near zero whatever the gyroscope does.
+  double tilt_rad = std::numeric_limits<double>::quiet_NaN();
 };
 
 // The gyroscope refitted to a set of pose directions: the gravity-direction error after each
@@ -211,6 +216,8 @@ struct EffectDiagnostics {
   std::vector<EffectPoseRow> rows;
   std::vector<FaceResidual> faces;     // six-face only, filled by the pipeline
   std::vector<MoveTrend> move_trends;  // every signal tested on the moves (6 moves or more)
+  // The rate-dependent gyroscope terms tested on the moves (core/move_effects.h).
+  MoveEffectDiagnostics move_search;
   std::vector<std::string> notes;      // ambiguities, what was not testable, residual vs floor
 };
 
@@ -257,7 +264,10 @@ absl::StatusOr<EffectSearchResult> FindEffects(const EffectSearchInput& input,
 // The rotation residuals examined for structure (EffectSearchInput::moves): fills
 // diag->move_trends and adds the "rotation residuals: ..." note, replacing what an earlier
 // examination put there (the pipeline examines the moves again after it refits the gyroscope to
-// the directions an applied accelerometer effect corrects). Fewer than 6 moves: nothing.
+// the directions an applied accelerometer effect corrects). Moves whose gravity direction turned
+// less than 5 degrees (tilt_rad) are left out and counted in the note: their error is blind to
+// the gyroscope, and their near-zero errors at near-zero net rotation would read as a trend with
+// the angle. Fewer than 6 moves left: nothing.
 void ExamineMoveResiduals(const std::vector<EffectMoveResidual>& moves, EffectDiagnostics* diag);
 
 // The effect's coefficient in the units an engineer uses: mg/degC, deg/s per g, ppm/degC, ...,

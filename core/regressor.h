@@ -4,8 +4,9 @@
 // Grammar (case-sensitive; spaces and tabs around a term are ignored):
 //   regressor = term ('*' term)*        at most kMaxRegressorFactors factors in all
 //   term      = base | base '^2'
-//   base      = signal | '(' centred ('-' | '+') number ')'
-//   signal    = temperature | time | ax | ay | az | gx | gy | gz
+//   base      = signal | '(' centred ('-' | '+') number ')' | '|' sensor '|'
+//   signal    = temperature | time | sensor
+//   sensor    = ax | ay | az | gx | gy | gz
 //   centred   = temperature | time
 // A centred factor `(temperature-31.2)` is the signal minus its reference (report.md,
 // "effect_reference"): degC and time since power-on have no physical zero, so a polynomial in
@@ -14,12 +15,18 @@
 // turnover wherever the two put it). One reference per signal within a regressor. The number is
 // written in the shortest form that reads back to the same double, so a name evaluates exactly
 // what was fitted.
+// An absolute value `|gx|` reads the magnitude of a sensor signal: `|gx|*gx` is a rate-dependent
+// scale (the reading's gain grows with the rate's size, whatever its sign), `|gx|` alone a
+// scale that differs between the two directions of rotation (scale-factor asymmetry). Only
+// sensor signals take it: temperature and time are centred instead. Names without `|` mean what
+// they always meant; a reader older than the absolute value refuses a name that has one.
 // Units: temperature degC; time s from capture start; ax..az specific force m/s^2; gx..gz rate
 // rad/s (calibrated values in a solve, true values in the simulator).
 //
-// The parsed form is the multiset of factors, sorted in signal order, so `az*ax` and `ax*az` are
-// the same regressor and Name() gives the canonical spelling: factors in signal order, each
-// repeated pair written `s^2` (`ax*temperature*ax` -> `temperature*ax^2`).
+// The parsed form is the multiset of factors, sorted in signal order (a plain factor before the
+// absolute value of the same signal), so `az*ax` and `ax*az` are the same regressor and Name()
+// gives the canonical spelling: factors in signal order, each repeated pair written `s^2`
+// (`ax*temperature*ax` -> `temperature*ax^2`, `|gx|*gx` -> `gx*|gx|`).
 //
 // Header-only, standard library only: the robot SDK evaluates effects per sample with it.
 // Evaluate() neither allocates nor throws.
@@ -60,6 +67,9 @@ struct Regressor {
   // Signal indices (see Signal), sorted ascending; entries at and beyond num_factors are 0 so
   // that the defaulted == compares the factor multiset only.
   std::array<int, kMaxRegressorFactors> factors = {};
+  // Per factor: its absolute value `|gx|` (sensor signals only). Sorted with `factors`: among
+  // factors of one signal, plain ones first. Entries at and beyond num_factors are false.
+  std::array<bool, kMaxRegressorFactors> absolute = {};
   int num_factors = 0;  // 0: the constant 1 (never produced by ParseRegressor; Name() is "")
   // Per signal, the reference its factors are centred on (0: not centred). Only temperature and
   // time are ever centred; entries of signals the regressor does not use stay 0.
@@ -70,7 +80,8 @@ struct Regressor {
     double value = 1.0;
     for (int i = 0; i < num_factors; ++i) {
       const auto s = static_cast<size_t>(factors[i]);
-      value *= signals[s] - centre[s];
+      const double v = signals[s] - centre[s];
+      value *= absolute[i] && v < 0 ? -v : v;
     }
     return value;
   }
@@ -92,17 +103,26 @@ struct Regressor {
            signal == static_cast<int>(Signal::kTime);
   }
 
+  // True when some factor is an absolute value.
+  bool HasAbsolute() const {
+    for (int i = 0; i < num_factors; ++i)
+      if (absolute[i]) return true;
+    return false;
+  }
+
   // The canonical name; ParseRegressor(Name()) == *this.
   std::string Name() const {
     std::string name;
     int i = 0;
     while (i < num_factors) {
       const int signal = factors[i];
+      const bool abs = absolute[i];
       int run = 1;
-      while (i + run < num_factors && factors[i + run] == signal) ++run;
+      while (i + run < num_factors && factors[i + run] == signal && absolute[i + run] == abs) ++run;
       for (int k = 0; k < run; k += 2) {
         if (!name.empty()) name += '*';
-        name += FactorName(signal);
+        name += abs ? "|" + std::string(kSignalNames[static_cast<size_t>(signal)]) + "|"
+                    : FactorName(signal);
         if (k + 1 < run) name += "^2";
       }
       i += run;
@@ -167,7 +187,7 @@ inline std::optional<std::pair<int, double>> CentredFactor(std::string_view term
 // Parses a regressor name (grammar above). nullopt for anything else: an unknown signal, an
 // empty term (`ax**az`, `ax*`), another power (`ax^3`), more than kMaxRegressorFactors factors,
 // a centred sensor signal (`(ax-1)`), one signal with two references
-// (`temperature*(temperature-30)`).
+// (`temperature*(temperature-30)`), the absolute value of temperature or time (`|time|`).
 inline std::optional<Regressor> ParseRegressor(std::string_view text) {
   Regressor regressor;
   std::array<bool, kNumSignals> seen{};
@@ -181,7 +201,12 @@ inline std::optional<Regressor> ParseRegressor(std::string_view text) {
     }
     std::optional<int> signal = regressor_internal::SignalIndex(term);
     double centre = 0.0;
-    if (!signal.has_value()) {
+    bool absolute = false;
+    if (!signal.has_value() && term.size() >= 3 && term.front() == '|' && term.back() == '|') {
+      signal = regressor_internal::SignalIndex(term.substr(1, term.size() - 2));
+      if (signal.has_value() && Regressor::IsCentrable(*signal)) return std::nullopt;
+      absolute = true;
+    } else if (!signal.has_value()) {
       const auto centred = regressor_internal::CentredFactor(term);
       if (centred.has_value()) signal = centred->first, centre = centred->second;
     }
@@ -192,14 +217,24 @@ inline std::optional<Regressor> ParseRegressor(std::string_view text) {
     if (seen[s] && regressor.centre[s] != centre) return std::nullopt;
     seen[s] = true;
     regressor.centre[s] = centre;
-    for (int k = 0; k < power; ++k) regressor.factors[regressor.num_factors++] = *signal;
+    for (int k = 0; k < power; ++k) {
+      regressor.absolute[static_cast<size_t>(regressor.num_factors)] = absolute;
+      regressor.factors[static_cast<size_t>(regressor.num_factors++)] = *signal;
+    }
     if (star == std::string_view::npos) break;
     text.remove_prefix(star + 1);
   }
-  // Insertion sort of at most four entries (std::sort trips GCC 12's -Warray-bounds here).
+  // Insertion sort of at most four entries (std::sort trips GCC 12's -Warray-bounds here), by
+  // signal, then plain before absolute.
+  const auto after = [&](int a, int b) {
+    return regressor.factors[a] > regressor.factors[b] ||
+           (regressor.factors[a] == regressor.factors[b] && regressor.absolute[a] &&
+            !regressor.absolute[b]);
+  };
   for (int i = 1; i < regressor.num_factors; ++i) {
-    for (int j = i; j > 0 && regressor.factors[j - 1] > regressor.factors[j]; --j) {
+    for (int j = i; j > 0 && after(j - 1, j); --j) {
       std::swap(regressor.factors[j - 1], regressor.factors[j]);
+      std::swap(regressor.absolute[j - 1], regressor.absolute[j]);
     }
   }
   return regressor;

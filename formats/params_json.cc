@@ -345,7 +345,7 @@ absl::Status ReadRegressor(const Json& j, const std::string& path, std::string* 
   if (!core::ParseRegressor(*out).has_value()) {
     return PathError(path, "unknown regressor \"" + *out +
                                "\" (signals temperature, time, ax, ay, az, gx, gy, gz joined by "
-                               "'*', each optionally '^2')");
+                               "'*', each optionally '^2'; a sensor signal's magnitude as |gx|)");
   }
   return absl::OkStatus();
 }

@@ -478,6 +478,41 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
       return absl::InvalidArgumentError(field + ": sensor, axis or regressor malformed");
     }
     const bool is_accel = sensor == "accel";
+    std::string safe;  // the file name: `*` as x, `^` as p, `|gz|` as absgz
+    bool open_bar = false;
+    for (const char ch : name) {
+      if (ch == '|') {
+        if (!open_bar) safe += "abs";
+        open_bar = !open_bar;
+        continue;
+      }
+      safe += ch == '*' ? 'x' : ch == '^' ? 'p' : ch;
+    }
+    const std::string file =
+        absl::StrFormat("effect_%d_%s_%s_%s.svg", static_cast<int>(k) + 1, sensor, axis, safe);
+    bool rate = false;
+    for (int f = 0; f < reg->num_factors; ++f)
+      rate |= reg->factors[static_cast<size_t>(f)] >= static_cast<int>(core::Signal::kGx);
+    if (!is_accel && rate) {
+      // A rate term does nothing at rest: its figure is the moves'. Each move's gravity-
+      // direction error held out by move, without and with the rate terms found.
+      const json ms = Get(diag, "move_search");
+      const json hb = Get(ms, "heldout_before_per_move"), ha = Get(ms, "heldout_after_per_move");
+      PlotSeries mb{"without the rate terms", {}, {}, "#d62728", false, true},
+          ma{"with them", {}, {}, "#1f77b4"};
+      for (size_t i = 0; hb.is_array() && ha.is_array() && i < hb.size() && i < ha.size(); ++i) {
+        mb.x.push_back(static_cast<double>(i + 1)), mb.y.push_back(Num(hb[i]) * kRadToDeg);
+        ma.x.push_back(static_cast<double>(i + 1)), ma.y.push_back(Num(ha[i]) * kRadToDeg);
+      }
+      Plot p{absl::StrFormat("%s %s ~ %s (on the moves)", sensor, axis, name), "move number",
+             "gravity-direction error after the move, held out [deg]", {ma, mb}};
+      if (const double floor = Num(Get(ms, "noise_floor")); floor > 0)
+        p.ref_lines.push_back(
+            {floor * kRadToDeg, absl::StrFormat("noise %.2g deg", floor * kRadToDeg)});
+      p.caption = "Good: the filled points (with the rate terms) down near the noise line";
+      if (absl::Status s = write(file, p); !s.ok()) return s;
+      continue;
+    }
     const double c = Num(Get(e, "coefficient"));
     const bool applied = !Get(e, "applied").is_boolean() || Get(e, "applied").get<bool>();
     const double unit = is_accel ? kMg : 1.0 / kRadToDeg;  // plotted in mg or deg/s
@@ -507,12 +542,6 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
       line.x = {*lo, *hi};
       line.y = {c * *lo / unit, c * *hi / unit};
     }
-    std::string safe = name;
-    for (char& ch : safe)
-      if (ch == '*')
-        ch = 'x';
-      else if (ch == '^')
-        ch = 'p';
     const std::string unit_x = RegressorUnit(*reg);
     Plot p{absl::StrFormat("%s %s ~ %s%s", sensor, axis, name,
                            applied ? "" : " (reported, not applied)"),
@@ -523,8 +552,6 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
     p.caption =
         "Good: the filled points (with the effect) flat around 0; the hollow ones on the "
         "fitted line";
-    const std::string file =
-        absl::StrFormat("effect_%d_%s_%s_%s.svg", static_cast<int>(k) + 1, sensor, axis, safe);
     if (absl::Status s = write(file, p); !s.ok()) return s;
   }
   return written;

@@ -128,6 +128,42 @@ json DiagnosticsJson(const core::EffectDiagnostics& d) {
                                 {"f_threshold", Num(t.f_threshold)},
                                 {"significant", t.significant}});
   }
+  // The rate-dependent gyroscope terms tested on the moves (core/move_effects.h).
+  const core::MoveEffectDiagnostics& m = d.move_search;
+  json ms;
+  ms["ran"] = m.ran;
+  ms["units"] =
+      "gravity-direction error after the moves, RMS over them, rad; coefficients rad/s per "
+      "regressor unit";
+  ms["moves"] = m.moves;
+  ms["candidates"] = m.candidates;
+  ms["not_excited"] = m.not_excited;
+  ms["rounds"] = m.rounds;
+  ms["heldout_before"] = Num(m.heldout_before_rad);
+  ms["heldout_after"] = Num(m.heldout_after_rad);
+  ms["in_sample_before"] = Num(m.in_sample_before_rad);
+  ms["in_sample_after"] = Num(m.in_sample_after_rad);
+  ms["noise_floor"] = Num(m.noise_floor_rad);
+  ms["heldout_before_per_move"] = json::array();
+  for (double e : m.heldout_before_per_move_rad) ms["heldout_before_per_move"].push_back(Num(e));
+  ms["heldout_after_per_move"] = json::array();
+  for (double e : m.heldout_after_per_move_rad) ms["heldout_after_per_move"].push_back(Num(e));
+  ms["top_candidates"] = json::array();
+  for (const core::MoveCandidateScore& c : m.top) {
+    ms["top_candidates"].push_back({{"sensor", "gyro"},
+                                    {"axis", std::string(1, "xyz"[c.axis])},
+                                    {"regressor", c.regressor},
+                                    {"f", Num(c.f)},
+                                    {"f_threshold", Num(c.f_threshold)},
+                                    {"delta_bic", Num(c.delta_bic)},
+                                    {"heldout_gain", Num(c.press_gain)},
+                                    {"heldout_gain_without_best_2", Num(c.trimmed_gain)},
+                                    {"coefficient", Num(c.coefficient)},
+                                    {"passed", c.passed}});
+  }
+  ms["turn_angles_moves_only"] = json::array();
+  for (double a : m.turn_angle_moves_only_rad) ms["turn_angles_moves_only"].push_back(Num(a));
+  j["move_search"] = std::move(ms);
   j["notes"] = d.notes;
   return j;
 }

@@ -635,11 +635,18 @@ std::string FormatReportSummary(const json& r) {
       absl::StrAppendFormat(&out, "gyro bias   %s\n", Vec(p["gyro"]["bias"], "%+.6f").c_str());
   }
   if (r.contains("effects")) {
-    for (const auto& e : r["effects"])
-      absl::StrAppendFormat(&out, "effect      %s %s ~ %s: %.3g (%s; held-out rms %.3g -> %.3g)\n",
+    for (const auto& e : r["effects"]) {
+      // A rate term has no static figure (null): its held-out figures are the moves'.
+      const double before = Num(e, "error_before"), after = Num(e, "error_after");
+      const std::string held =
+          std::isnan(before)
+              ? std::string("held out on the moves: see effect_diagnostics.move_search")
+              : absl::StrFormat("held-out rms %.3g -> %.3g", before, after);
+      absl::StrAppendFormat(&out, "effect      %s %s ~ %s: %.3g (%s; %s)\n",
                             Str(e, "sensor").c_str(), Str(e, "axis").c_str(),
                             Str(e, "regressor").c_str(), Num(e, "coefficient"),
-                            Str(e, "human").c_str(), Num(e, "error_before"), Num(e, "error_after"));
+                            Str(e, "human").c_str(), held);
+    }
   }
   if (r.contains("warnings")) {
     for (const auto& w : r["warnings"])

@@ -155,10 +155,21 @@ std::string FormatSummary(const core::CalibrationReport& r) {
     absl::StrAppendFormat(
         &s,
         "effects     %d found among %d candidates (%d are the model's own terms, %d not "
-        "testable at rest)\n",
-        static_cast<int>(p.effects.size()), d.candidates, d.absorbed, d.not_excited);
+        "testable at rest%s)\n",
+        static_cast<int>(p.effects.size()), d.candidates, d.absorbed, d.not_excited,
+        d.move_search.ran ? absl::StrFormat("; %d rate terms tested on the %d moves",
+                                            d.move_search.candidates, d.move_search.moves)
+                          : "");
     for (const core::Effect& e : p.effects) {
       const bool accel = e.sensor == core::Sensor::kAccel;
+      if (!accel && std::isnan(e.error_before)) {  // a rate term: the moves are its figure
+        absl::StrAppendFormat(
+            &s, "  gyro  %c ~ %-16s %s; held out by move, gravity direction %.3f -> %.3f deg\n",
+            "xyz"[e.axis], e.regressor, core::HumanCoefficient(e),
+            d.move_search.heldout_before_rad * kRadToDeg,
+            d.move_search.heldout_after_rad * kRadToDeg);
+        continue;
+      }
       absl::StrAppendFormat(&s, "  %s %c ~ %-16s %s; held-out %s %s -> %s%s\n",
                             accel ? "accel" : "gyro ", "xyz"[e.axis], e.regressor,
                             core::HumanCoefficient(e), accel ? "|a|-g" : "rate",

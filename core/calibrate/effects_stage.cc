@@ -9,6 +9,7 @@
 #include "absl/strings/str_format.h"
 #include "core/calibrate/residuals.h"
 #include "core/effects.h"
+#include "core/move_effects.h"
 
 namespace imucal::core::pipeline {
 namespace {
@@ -27,7 +28,8 @@ std::string NotSearchedNote(size_t poses) {
 // examination of the rotation residuals (core/effects.h ExamineMoveResiduals).
 std::vector<EffectMoveResidual> MoveResiduals(const Capture& cap,
                                               const std::vector<StaticInterval>& ivs,
-                                              const std::vector<MoveReport>& moves) {
+                                              const std::vector<MoveReport>& moves,
+                                              const std::vector<PoseReport>& poses) {
   const double t0 = cap.t_s.empty() ? 0.0 : cap.t_s.front();
   std::vector<EffectMoveResidual> out;
   for (const MoveReport& m : moves) {
@@ -39,6 +41,13 @@ std::vector<EffectMoveResidual> MoveResiduals(const Capture& cap,
     mr.rotation_rad = m.rotation_deg / kRadToDeg;
     mr.time_s = 0.5 * (a.t_end_s + b.t_start_s) - t0;
     mr.temp_c = 0.5 * (a.temp_mean + b.temp_mean);
+    const auto up = [&](int pose) -> Eigen::Vector3d {
+      for (const PoseReport& p : poses)
+        if (p.index == pose) return p.up;
+      return Eigen::Vector3d::Zero();
+    };
+    const Eigen::Vector3d ua = up(m.from_pose), ub = up(m.to_pose);
+    if (ua.norm() > 0 && ub.norm() > 0) mr.tilt_rad = std::atan2(ua.cross(ub).norm(), ua.dot(ub));
     out.push_back(mr);
   }
   return out;
@@ -83,7 +92,7 @@ absl::StatusOr<EffectSearchInput> SearchInput(const Capture& cap, const EffectsS
     p.time_s = 0.5 * (s.t_start_s + s.t_end_s) - t0;
     out.poses.push_back(p);
   }
-  out.moves = MoveResiduals(cap, ivs, rep.moves);
+  out.moves = MoveResiduals(cap, ivs, rep.moves, rep.poses);
   if (!gyro.calibrated || planned.size() < 3) return out;
   std::vector<std::pair<size_t, size_t>> ends;  // per planned move: its poses' index in `used`
   for (const PlannedMove& m : planned) {
@@ -199,7 +208,94 @@ void RefitToCorrectedDirections(const Capture& cap, const EffectsStageInput& in,
   }
   // The rotation residuals' trends as the refitted model leaves them: what the effect
   // explained no longer shows as a trend.
-  ExamineMoveResiduals(MoveResiduals(cap, ivs, rep->moves), &rep->effect_diagnostics);
+  ExamineMoveResiduals(MoveResiduals(cap, ivs, rep->moves, rep->poses), &rep->effect_diagnostics);
+}
+
+// True when the regressor reads a rate (gx, gy, gz): a term only the moves can test.
+bool ReadsRate(const std::string& regressor) {
+  const std::optional<Regressor> r = ParseRegressor(regressor);
+  if (!r) return false;
+  for (int i = 0; i < r->num_factors; ++i)
+    if (r->factors[static_cast<size_t>(i)] >= static_cast<int>(Signal::kGx)) return true;
+  return false;
+}
+
+// The rates' terms the rotations between poses can show (core/move_effects.h), on the final
+// model: its gyroscope and the pose directions of the stored accelerometer (its applied effects
+// included). What it finds joins the parameter set, the gyroscope matrix refitted with it, and
+// the report's moves become the joint fit's.
+absl::Status SearchMoves(const Capture& cap, const CalibrateOptions& opt,
+                         const EffectsStageInput& in, CalibrationReport* rep) {
+  EffectDiagnostics& diag = rep->effect_diagnostics;
+  if (!rep->params.gyro_calibrated) return absl::OkStatus();
+  const std::vector<StaticInterval>& ivs = in.checks.intervals;
+  const double t0_s = cap.t_s.front();
+  std::vector<PlannedMove> planned = in.gyro.planned;
+  for (PlannedMove& m : planned) {
+    m.move.up_before = CorrectedSpecificForce(rep->params.accel, rep->params.effects,
+                                              ivs[static_cast<size_t>(m.from_pose)], t0_s)
+                           .normalized();
+    m.move.up_after = CorrectedSpecificForce(rep->params.accel, rep->params.effects,
+                                             ivs[static_cast<size_t>(m.to_pose)], t0_s)
+                          .normalized();
+  }
+  MoveSearchInput mi;
+  mi.t_s = &cap.t_s;
+  mi.gyro_raw = &cap.gyro;
+  mi.moves = OnlyMoves(planned);
+  for (const TurnCandidate& c : in.rough.turns) mi.turns.push_back(c.turn);
+  mi.matrix = rep->params.gyro.matrix;
+  mi.bias = rep->params.gyro.bias;
+  mi.interpolate_bias = true;
+  // The noise floor: the rest's per-sample noise through the model, and each used pose's
+  // direction from its mean specific force.
+  const Eigen::Vector3d gyro_noise =
+      (rep->params.gyro.matrix * rep->noise.gyro_std.asDiagonal()).rowwise().norm();
+  mi.gyro_noise_rad_s = gyro_noise.norm() / std::sqrt(3.0);
+  double up_var = 0;
+  int poses = 0;
+  for (const StaticInterval& s : ivs) {
+    if (!s.used || s.samples() == 0) continue;
+    const Eigen::Vector3d a = rep->params.accel.scale.cwiseProduct(s.accel_std);
+    up_var += a.squaredNorm() / 3 / (cap.gravity_m_s2 * cap.gravity_m_s2) /
+              static_cast<double>(s.samples());
+    ++poses;
+  }
+  mi.up_noise_rad = poses > 0 ? std::sqrt(up_var / poses) : 0.0;
+  MoveSearchOptions mo;
+  mo.family_alpha = opt.effects.family_alpha;
+  for (const GivenEffect& g : opt.effects.given)
+    if (g.sensor == Sensor::kGyro && ReadsRate(g.regressor)) mo.given.push_back({g.axis, g.regressor});
+  if (opt.effects.max_effects <= 0) mo.max_terms = 0;
+  absl::StatusOr<MoveSearchResult> res = SearchMoveEffects(mi, mo);
+  if (!res.ok()) return res.status();
+  diag.move_search = res->Diagnostics();
+  diag.notes.insert(diag.notes.end(), res->notes.begin(), res->notes.end());
+  if (res->effects.empty()) return absl::OkStatus();
+  ParamSet& ps = rep->params;
+  ps.effects.insert(ps.effects.end(), res->effects.begin(), res->effects.end());
+  const MoveModelFit& fit = res->after;
+  ps.gyro.matrix = fit.matrix;
+  for (int c = 0; c < 9; ++c)
+    ps.stderrs.gyro_matrix(c % 3, c / 3) = std::sqrt(std::max(0.0, fit.covariance(c, c)));
+  // The report's moves as the joint fit leaves them (ReportFinalFigures then puts in the
+  // in-sample figures of the parameter set as the SDK applies it).
+  for (size_t k = 0; k < planned.size() && k < fit.move_error_rad.size(); ++k) {
+    for (MoveReport& r : rep->moves) {
+      if (r.from_pose != planned[k].from_pose || r.to_pose != planned[k].to_pose) continue;
+      r.error_deg = fit.move_error_rad[k] * kRadToDeg;
+      r.heldout_error_deg = fit.heldout_error_rad[k] * kRadToDeg;
+    }
+  }
+  rep->residual.move_rms_deg = rep->residual.move_fit_rms_deg = fit.RmsMoveError() * kRadToDeg;
+  rep->residual.move_max_deg = MaxAbsFinite(fit.move_error_rad) * kRadToDeg;
+  rep->residual.move_heldout_rms_deg = fit.RmsHeldOut() * kRadToDeg;
+  rep->residual.move_heldout_max_deg = MaxAbsFinite(fit.heldout_error_rad) * kRadToDeg;
+  for (size_t k = 0; k < rep->turns.size() && k < in.rough.turns.size(); ++k)
+    rep->turns[k].angle_deg = fit.turn_angle_rad[k] * kRadToDeg;
+  // What the terms explained no longer shows as a trend.
+  ExamineMoveResiduals(MoveResiduals(cap, ivs, rep->moves, rep->poses), &diag);
+  return absl::OkStatus();
 }
 
 }  // namespace
@@ -212,7 +308,10 @@ absl::Status RunEffectsStage(const Capture& cap, const CalibrateOptions& opt,
   }
   absl::StatusOr<EffectSearchInput> search = SearchInput(cap, in, *rep);
   if (!search.ok()) return search.status();
-  absl::StatusOr<EffectSearchResult> res = FindEffects(*search, opt.effects);
+  // Terms in the rates are the moves' to fit (SearchMoves); the static search sees the rest.
+  EffectSearchOptions static_options = opt.effects;
+  std::erase_if(static_options.given, [](const GivenEffect& g) { return ReadsRate(g.regressor); });
+  absl::StatusOr<EffectSearchResult> res = FindEffects(*search, static_options);
   if (!res.ok()) return res.status();
   TakeSearchResult(*std::move(res), search->accel_free, in.accel.free, rep);
 
@@ -230,7 +329,7 @@ absl::Status RunEffectsStage(const Capture& cap, const CalibrateOptions& opt,
     }
   }
   rep->effect_diagnostics.faces = FaceResiduals(cap, in.checks.intervals, rep->pairs, rep->params);
-  return absl::OkStatus();
+  return SearchMoves(cap, opt, in, rep);
 }
 
 }  // namespace imucal::core::pipeline

@@ -24,10 +24,13 @@ namespace imucal::core {
 constexpr double kMg = 1e-3 * kStandardGravity;  // m/s^2
 constexpr double kDegS = M_PI / 180.0;           // rad/s
 
-// Six-face + 24 extra poses at 200 Hz, 2 mg accel noise, a warm-up of 8 degC.
+// Six-face + 24 extra poses at 200 Hz, 2 mg accel noise, a warm-up of 8 degC. `move_s`: each
+// move's duration (the simulator's 2.5 s by default: up to 135 deg/s; 1 s is a hand's pace, up
+// to 340 deg/s, what a rate-dependent term needs to show).
 inline SimOptions EffectScenario(uint64_t seed, std::vector<SimEffect> effects,
-                                 bool temperature = true) {
+                                 bool temperature = true, double move_s = 2.5) {
   SimOptions o;
+  o.move_s = move_s;
   o.protocol = SimProtocol::kSixFace;
   o.seed = seed;
   o.extra_poses = 24;
@@ -70,6 +73,49 @@ inline HoldError ErrorOn(const SimResult& sim, const ParamSet& params) {
   return {std::sqrt(sa / holds), std::sqrt(sg / holds)};
 }
 
+// The gravity-direction error after the moves of a capture, through the SDK's Corrector (what a
+// rate-dependent gyroscope term changes; the holds cannot show it): each move's corrected rates
+// integrated with the midpoint rule from the last sample of one hold to the first of the next,
+// the true up direction before it carried over and compared with the true one after it. RMS
+// over the moves, rad.
+inline double MoveErrorOn(const SimResult& sim, const ParamSet& params) {
+  absl::StatusOr<sdk::Corrector> c = sdk::Corrector::Create(params, sim.capture.t_s.front());
+  if (!c.ok()) return NAN;
+  const Capture& cap = sim.capture;
+  const auto rate = [&](size_t k) {
+    sdk::RawSample in;
+    in.t_s = cap.t_s[k];
+    for (int j = 0; j < 3; ++j) in.accel[j] = cap.accel[k](j), in.gyro[j] = cap.gyro[k](j);
+    if (cap.has_temp()) in.temp_c = cap.temp[k];
+    sdk::CalibratedSample out;
+    c->Apply(in, &out);
+    return Eigen::Vector3d(out.gyro_rad_s[0], out.gyro_rad_s[1], out.gyro_rad_s[2]);
+  };
+  double ss = 0;
+  int moves = 0;
+  for (size_t i = 0; i + 1 < sim.poses.size(); ++i) {
+    size_t k0 = 0, k1 = 0;
+    while (k0 + 1 < cap.size() && cap.t_s[k0 + 1] <= sim.poses[i].t_end_s) ++k0;
+    k1 = k0;
+    while (k1 + 1 < cap.size() && cap.t_s[k1] < sim.poses[i + 1].t_start_s) ++k1;
+    Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
+    Eigen::Vector3d w0 = rate(k0);
+    for (size_t k = k0; k < k1; ++k) {
+      const Eigen::Vector3d w1 = rate(k + 1);
+      r = r * ExpSo3<double>(0.5 * (w0 + w1) * (cap.t_s[k + 1] - cap.t_s[k]));
+      w0 = w1;
+    }
+    const Eigen::Vector3d up0 = sim.poses[i].R_world_body.transpose() * Eigen::Vector3d::UnitZ();
+    const Eigen::Vector3d up1 =
+        sim.poses[i + 1].R_world_body.transpose() * Eigen::Vector3d::UnitZ();
+    const Eigen::Vector3d predicted = r.transpose() * up0;
+    const double e = std::atan2(predicted.cross(up1).norm(), predicted.dot(up1));
+    ss += e * e;
+    ++moves;
+  }
+  return moves > 0 ? std::sqrt(ss / moves) : NAN;
+}
+
 // The oracle: the simulated truth with its effects, the validation capture's noise floor.
 inline ParamSet TruthParams(const SimResult& sim) {
   ParamSet p;
@@ -103,7 +149,8 @@ inline ParamSet TruthParams(const SimResult& sim) {
 inline bool SameForm(const std::string& a, const std::string& b) {
   const std::optional<Regressor> x = ParseRegressor(a);
   const std::optional<Regressor> y = ParseRegressor(b);
-  return x && y && x->factors == y->factors && x->num_factors == y->num_factors;
+  return x && y && x->factors == y->factors && x->absolute == y->absolute &&
+         x->num_factors == y->num_factors;
 }
 
 // True when `e` is a lower power that entered with a higher one in `all` (the search adds
@@ -194,8 +241,9 @@ enum class History { kRamp, kCoolDown, kPlateau };
 inline const char* HistoryName(History h) {
   return h == History::kRamp ? "ramp" : h == History::kCoolDown ? "cool-down" : "plateau";
 }
-inline SimOptions HistoryScenario(uint64_t seed, std::vector<SimEffect> effects, History h) {
-  SimOptions o = EffectScenario(seed, std::move(effects));
+inline SimOptions HistoryScenario(uint64_t seed, std::vector<SimEffect> effects, History h,
+                                  double move_s = 2.5) {
+  SimOptions o = EffectScenario(seed, std::move(effects), /*temperature=*/true, move_s);
   switch (h) {
     case History::kRamp:  // 25 -> 33 degC nearly linearly over the ~240 s capture
       o.temp_tau_s = 2400;
@@ -211,6 +259,32 @@ inline SimOptions HistoryScenario(uint64_t seed, std::vector<SimEffect> effects,
       break;
   }
   return o;
+}
+
+// True when the regressor reads a rate (gx, gy, gz, |gx|, ...): a term only the moves show.
+inline bool ReadsRate(const std::string& regressor) {
+  const std::optional<Regressor> r = ParseRegressor(regressor);
+  if (!r) return false;
+  for (int i = 0; i < r->num_factors; ++i)
+    if (r->factors[static_cast<size_t>(i)] >= static_cast<int>(Signal::kGx)) return true;
+  return false;
+}
+
+// Rate-dependent gyroscope terms, run by bench/effects_bench (and tests/core/move_effects_test):
+// a scale 0.1 % higher per 100 deg/s of rate on z. Simulated with moves at a hand's pace
+// (CaseMoveSeconds): the simulator's default 2.5 s moves stay under 135 deg/s. On a +-2000
+// deg/s gyroscope this is about 0.3 % of full scale from the best straight line (the form's
+// largest deviation is 0.17 s FS^2 for s per rad/s), beside datasheets' 0.1-0.2 % FS.
+inline const EffectCase kRateCases[] = {
+    {"GyroRateScale", {Fx(Sensor::kGyro, 2, "gz*|gz|", 0.001 / (100 * kDegS))}},
+};
+
+// The moves' duration a case is simulated with: 1 s (a hand's pace, up to 340 deg/s) when an
+// effect reads a rate, else the scenarios' 2.5 s.
+inline double CaseMoveSeconds(const EffectCase& c) {
+  for (const SimEffect& e : c.effects)
+    if (ReadsRate(e.regressor)) return 1.0;
+  return 2.5;
 }
 
 // True when some effect of the case reads `temperature` (it needs a temperature channel).

@@ -137,6 +137,33 @@ TEST(RegressorTest, EvaluatesProductOfSignals) {
   EXPECT_DOUBLE_EQ(ParseRegressor("(temperature-25)*(time-1)")->Evaluate(signals), 5.0);
 }
 
+// The magnitude of a sensor signal, `|gx|`: a rate-dependent gyroscope term's factor.
+TEST(RegressorTest, AbsoluteValueOfASensorSignal) {
+  for (const auto& [text, name] :
+       {std::pair{"|gx|*gx", "gx*|gx|"}, std::pair{"gx*|gx|", "gx*|gx|"},
+        std::pair{"|gz|", "|gz|"}, std::pair{"|gy|^2", "|gy|^2"},
+        std::pair{"|ax|*temperature", "temperature*|ax|"}, std::pair{" |gz| * gx ", "gx*|gz|"}}) {
+    SCOPED_TRACE(text);
+    const std::optional<Regressor> r = ParseRegressor(text);
+    ASSERT_TRUE(r.has_value());
+    EXPECT_EQ(r->Name(), name);
+    EXPECT_EQ(ParseRegressor(r->Name()), r);
+    EXPECT_TRUE(r->HasAbsolute());
+  }
+  EXPECT_NE(ParseRegressor("gx*|gx|"), ParseRegressor("gx^2"));
+  EXPECT_FALSE(ParseRegressor("gx^2")->HasAbsolute());
+  for (const char* bad : {"|temperature|", "|time|", "|gx", "gx|", "||", "|gq|", "|(time-3)|"}) {
+    SCOPED_TRACE(bad);
+    EXPECT_FALSE(ParseRegressor(bad).has_value());
+  }
+  SignalArray s{};
+  s[static_cast<size_t>(Signal::kGx)] = -2.0;
+  s[static_cast<size_t>(Signal::kGz)] = 3.0;
+  EXPECT_DOUBLE_EQ(ParseRegressor("gx*|gx|")->Evaluate(s), -4.0);
+  EXPECT_DOUBLE_EQ(ParseRegressor("|gx|")->Evaluate(s), 2.0);
+  EXPECT_DOUBLE_EQ(ParseRegressor("gz*|gx|")->Evaluate(s), 6.0);
+}
+
 TEST(RegressorTest, CentredNamesRoundTripExactly) {
   // The reference is written in the shortest form that reads back to the same double, so the
   // SDK evaluates exactly what the search fitted, whatever the reference.

@@ -142,6 +142,14 @@ core::ParamSet FullParamSet(uint64_t seed) {
   e.regressor = "(time-118)";
   e.applied = false;
   p.effects.push_back(e);
+  // A rate term found on the moves (core/move_effects.h): the magnitude form `|gz|`, no static
+  // figures (null), the moves' in the evidence.
+  e.axis = 2;
+  e.regressor = "gz*|gz|";
+  e.applied = true;
+  e.error_before = e.error_after = kNan;
+  e.evidence = R"({"what":"rotations between poses","moves_heldout_before_rad":0.0019})";
+  p.effects.push_back(e);
   p.quality_accel_rms_m_s2 = 0.0004;
   p.quality_gyro_static_rms_rad_s = 2e-5;
   p.source_session = "session-17";

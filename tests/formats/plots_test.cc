@@ -141,6 +141,32 @@ TEST(PlotsTest, OneSvgPerEffectAndPerPoseResiduals) {
   }
 }
 
+// A rate term (found on the moves, core/move_effects.h) does nothing at rest: its plot is each
+// move's held-out gravity-direction error without and with it, and its file name spells `|gz|`
+// as `absgz`.
+TEST(PlotsTest, RateTermIsPlottedOnTheMoves) {
+  const nlohmann::json report = {
+      {"effect_diagnostics",
+       {{"poses", nlohmann::json::array()},
+        {"move_search",
+         {{"noise_floor", 0.0007},
+          {"heldout_before_per_move", {0.002, 0.0031, 0.0009}},
+          {"heldout_after_per_move", {0.0008, 0.0009, 0.0008}}}}}},
+      {"effects",
+       {{{"sensor", "gyro"}, {"axis", "z"}, {"regressor", "gz*|gz|"}, {"coefficient", 5.7e-4},
+         {"error_before", nullptr}, {"error_after", nullptr}}}}};
+  const std::string dir = testing::TempDir() + "/plots_test_rate";
+  std::filesystem::remove_all(dir);
+  const absl::StatusOr<std::vector<std::string>> files = WriteReportPlots(report, dir);
+  ASSERT_TRUE(files.ok()) << files.status();
+  const std::string path = dir + "/effect_1_gyro_z_gzxabsgz.svg";
+  ASSERT_TRUE(std::filesystem::exists(path));
+  const std::string svg = Slurp(path);
+  EXPECT_NE(svg.find("on the moves"), std::string::npos);
+  EXPECT_NE(svg.find("move number"), std::string::npos);
+  EXPECT_EQ(Count(svg, "<circle"), 6) << svg;  // 3 moves, without and with
+}
+
 TEST(PlotsTest, NoDiagnosticsNoPlotsAndMalformedEffectIsNamed) {
   const std::string dir = testing::TempDir() + "/plots_test_bad";
   auto none = WriteReportPlots(nlohmann::json::object(), dir);

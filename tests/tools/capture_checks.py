@@ -376,6 +376,93 @@ def check_effects(c, report, truth, args):
     return found, floor, without
 
 
+def move_errors(truth, rows):
+    """Per simulated move (between consecutive holds of `truth`), the gravity-direction error in
+    rad: the rates of `rows` ((t, a, w) per sample, t from the first sample) integrated with the
+    midpoint rule from the last sample of one hold to the first of the next, the true up before
+    it carried over and compared with the true up after it."""
+    t = [r[0] - rows[0][0] for r in rows]
+    out = []
+    poses = truth["poses"]
+    for a, b in zip(poses, poses[1:]):
+        first = bisect.bisect_right(t, a["t_end_s"] + 1e-9) - 1
+        last = bisect.bisect_left(t, b["t_start_s"] - 1e-9)
+        q = (1.0, 0.0, 0.0, 0.0)
+        for i in range(first, last):
+            dt = t[i + 1] - t[i]
+            phi = [0.5 * (rows[i][2][k] + rows[i + 1][2][k]) * dt for k in range(3)]
+            th = math.sqrt(sum(x * x for x in phi))
+            sc = 0.5 - th * th / 48 if th < 1e-4 else math.sin(th / 2) / th
+            q = qmul(q, (math.cos(th / 2), sc * phi[0], sc * phi[1], sc * phi[2]))
+        pred, after = rotate_back(q, unit(a["up_body"])), unit(b["up_body"])
+        cross = [pred[1] * after[2] - pred[2] * after[1], pred[2] * after[0] - pred[0] * after[2],
+                 pred[0] * after[1] - pred[1] * after[0]]
+        out.append(math.atan2(math.sqrt(sum(x * x for x in cross)),
+                              sum(p * q for p, q in zip(pred, after))))
+    return out
+
+
+def truth_rates(truth, names, rows):
+    """The raw capture calibrated with the simulated truth, its rate-dependent scale taken off
+    (y - S |y| y, the inverse of imu_sim's y = w + S |w| w to second order in S): (t, a, w)."""
+    col = {n: i for i, n in enumerate(names)}
+    terms = truth.get("gyro_rate_scale", {}).get("terms", [])
+    out = []
+    for r in rows:
+        a = [s * (r[col[k]] - b) for s, k, b in zip(truth["accel_scale"], ("ax", "ay", "az"),
+                                                    truth["accel_bias_m_s2"])]
+        w = [s * (r[col[k]] - b) for s, k, b in zip(truth["gyro_scale"], ("gx", "gy", "gz"),
+                                                    truth["gyro_bias_rad_s"])]
+        for term in terms:
+            i = "xyz".index(term["axis"])
+            w[i] -= term["s_per_rad_s"] * abs(w[i]) * w[i]
+        out.append((r[col["t"]], a, w))
+    return out
+
+
+def check_rates(c, report, truth, args):
+    """The simulated rate-dependent gyroscope scale found as `gz*|gz|`-style terms on the right
+    axis (gyro, AXIS ~ gAXIS*|gAXIS|), the coefficient within 3 standard errors of S, applied,
+    and no other rate term; on a capture without one (--clean) no rate term at all; then on the
+    validation capture (the same sensor, other moves) the gravity-direction error after its
+    moves from `imucal apply`'s samples within --ratio of what the truth leaves, and under half
+    of what the parameters without the term leave."""
+    rate_terms = [e for e in report.get("effects", []) if re.search(r"g[xyz]", e["regressor"])]
+    wanted = truth["gyro_rate_scale"]["terms"]
+    for term in wanted:
+        ax = term["axis"]
+        name = f"g{ax}*|g{ax}|"
+        got = [e for e in rate_terms if e["sensor"] == "gyro" and e["axis"] == ax and
+               e["regressor"] == name]
+        c.check(f"gyro {ax} ~ {name} found among "
+                f"{[(e['axis'], e['regressor']) for e in rate_terms]}", len(got) == 1)
+        if got:
+            e = got[0]
+            se = e.get("stderr") or 0
+            c.check(f"gyro {ax} ~ {name}: coefficient {e['coefficient']:.4g} +- {se:.2g}, truth "
+                    f"{term['s_per_rad_s']:.4g}: within 3 standard errors",
+                    abs(e["coefficient"] - term["s_per_rad_s"]) <= 3 * se)
+            c.check(f"gyro {ax} ~ {name}: applied", e.get("applied", True))
+    c.check(f"no other rate term: {[(e['axis'], e['regressor']) for e in rate_terms]}",
+            len(rate_terms) == len(wanted))
+    if args.clean:
+        clean = load(args.clean)
+        extra = [(e["sensor"], e["axis"], e["regressor"]) for e in clean.get("effects", [])
+                 if re.search(r"g[xyz]", e["regressor"])]
+        c.check(f"the capture without a rate term: none found ({extra})", not extra)
+    val_truth = load(args.val_truth)
+    names, rows = read_csv(args.val_raw)
+    rms = lambda v: math.sqrt(sum(x * x for x in v) / len(v))  # noqa: E731
+    floor = rms(move_errors(val_truth, truth_rates(val_truth, names, rows)))
+    found = rms(move_errors(val_truth, read_applied(args.applied)))
+    without = rms(move_errors(val_truth, read_applied(args.applied_without)))
+    c.check(f"validation moves: {math.degrees(found):.4f} deg with the term, within {args.ratio} "
+            f"x the truth's {math.degrees(floor):.4f} deg", found <= args.ratio * floor)
+    c.check(f"validation moves: {math.degrees(found):.4f} deg with the term, below half of "
+            f"{math.degrees(without):.4f} deg without it", found < 0.5 * without)
+    return found, floor, without
+
+
 def read_applied(path):
     """`imucal apply`'s output (capture-format.md: '#' metadata, a header, then rows): time (s),
     accel (m/s^2), gyro (rad/s) per row."""
@@ -452,7 +539,7 @@ def final_moves(report, rows):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("check", choices=["params", "files", "steady", "noisy", "refused",
-                                          "names", "effects", "final"])
+                                          "names", "effects", "final", "rates"])
     parser.add_argument("report")
     parser.add_argument("truth", nargs="?")
     parser.add_argument("--verdict", default="pass,warn", help="allowed verdicts")
@@ -471,6 +558,7 @@ def main():
                         help="final: `imucal apply`'s output for the capture; effects: for the "
                              "validation capture")
     parser.add_argument("--applied-without", help="effects: the same without the effects")
+    parser.add_argument("--clean", help="rates: the report of a capture without a rate term")
     parser.add_argument("--ratio", type=float, default=1.3,
                         help="effects: validation error allowed, times the truth's")
     args = parser.parse_args()
@@ -488,6 +576,11 @@ def main():
                    found[0] * 1e3 / 9.80665, floor[0] * 1e3 / 9.80665,
                    without[0] * 1e3 / 9.80665, math.degrees(found[1]), math.degrees(floor[1]),
                    math.degrees(without[1])))
+    elif args.check == "rates":
+        found, floor, without = check_rates(c, report, truth, args)
+        c.done("validation: the gravity direction after the moves %.4f deg RMS with the term "
+               "(truth %.4f, without it %.4f)" % (math.degrees(found), math.degrees(floor),
+                                                   math.degrees(without)))
     elif args.check == "params":
         pairs = match_poses(c, report, truth, args.multi_file)
         check_directions(c, pairs, truth)

@@ -72,6 +72,12 @@ Temperature (off by default; then no sample has one and nothing depends on it):
       (x, y or z) before the sensor's scale and bias, so the calibrated value carries it with
       coefficient C. Repeatable.
 
+Rate-dependent gyroscope scale (off by default):
+  --gyro-rate-scale AXIS,S  a scale that grows with the rate's size: S |w| w (S per rad/s, w the
+      TRUE rate on AXIS in rad/s) added to the true rate on AXIS before the sensor's scale and
+      bias, so the calibrated rate carries it (the reading's gain is 1 + S |w|). Repeatable. The
+      holds show nothing (w = 0 there); only the moves do.
+
 The truth (JSON-ready dict) says what was used. When any option above is not at its default
 (or a writer sets args.full_truth), it also holds each pose's time range and each move's time
 range, axis, angle and profile; times are the sample times t = k / rate_hz of the capture's
@@ -203,6 +209,13 @@ def _parse_quad(text):
     return ("xyz".index(parts[0]), float(parts[1]), float(parts[2]))
 
 
+def _parse_rate_scale(text):
+    parts = text.split(",")
+    if len(parts) != 2 or parts[0] not in ("x", "y", "z"):
+        raise ValueError(f"expected AXIS,S with AXIS x, y or z, got {text!r}")
+    return ("xyz".index(parts[0]), float(parts[1]))
+
+
 def _temperature(history, t, duration):
     kind, v = history
     if kind == "warmup":
@@ -268,6 +281,9 @@ def add_arguments(parser):
     parser.add_argument("--accel-temp-quad", type=_parse_quad, action="append", default=[],
                         metavar="AXIS,C,TREF",
                         help="C (T - TREF)^2 m/s^2 on the true specific force")
+    parser.add_argument("--gyro-rate-scale", type=_parse_rate_scale, action="append",
+                        default=[], metavar="AXIS,S",
+                        help="S |w| w rad/s on the true rate of AXIS (S per rad/s)")
 
 
 def _extended(args):
@@ -276,7 +292,8 @@ def _extended(args):
     return (getattr(args, "full_truth", False) or args.protocol != "six-face" or
             args.accel_step is not None or args.gyro_step is not None or
             args.turn_profile != "smooth" or args.noisy_rest is not None or
-            args.hold_range_s is not None or args.duplicate_face is not None)
+            args.hold_range_s is not None or args.duplicate_face is not None or
+            bool(getattr(args, "gyro_rate_scale", [])))
 
 
 def _tilt_to_face(r, face, g_world):
@@ -511,12 +528,19 @@ def simulate(args):
                 theta, rate = _move_angle_rate(profile, angle, dur, (j + 0.5) * dt)
                 rot = _matmul(r, _axis_angle(axis, theta))
                 w_body = [a * rate for a in axis]
+            f_body = _transpose_times(rot, g_world)
+            temp = _temperature(history, k * dt, duration) if history else None
+            # The rate scale acts on the turn itself; the bias shift is added after it.
+            rate_scales = getattr(args, "gyro_rate_scale", [])
+            if rate_scales:
+                w_true = list(w_body)
+                w_body = list(w_body)
+                for axis_i, scale_s in rate_scales:
+                    w_body[axis_i] += scale_s * abs(w_true[axis_i]) * w_true[axis_i]
             if shift_sigma > 0 and seg[0] == "move" and j == n // 2:
                 shift = [shift_rng.gauss(0.0, shift_sigma) for _ in range(3)]
             if shift_sigma > 0:
                 w_body = [w_body[i] + shift[i] for i in range(3)]
-            f_body = _transpose_times(rot, g_world)
-            temp = _temperature(history, k * dt, duration) if history else None
             if history:
                 w_body = list(w_body)
                 f_body = list(f_body)
@@ -565,6 +589,10 @@ def simulate(args):
         truth["gyro_bias_shift"] = {
             "sigma_rad_s": shift_sigma, "per_hold_rad_s": hold_shifts,
             "model": "a new offset per axis at each move's middle, added to the true rate"}
+    if getattr(args, "gyro_rate_scale", []):
+        truth["gyro_rate_scale"] = {
+            "terms": [{"axis": "xyz"[a], "s_per_rad_s": sc} for a, sc in args.gyro_rate_scale],
+            "model": "S |w| w added to the true rate w (rad/s) on AXIS before scale and bias"}
     if history:
         truth["temperature"] = {
             "history": {"kind": history[0], "values": history[1]},
