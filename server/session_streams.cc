@@ -363,13 +363,15 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     FinishLocked(status);
   }
 
-  // The slot is free before the status leaves: a robot that sees its stream end may open the
-  // next one at once.
+  // The slots are free before the status leaves: a robot that sees its stream end may open the
+  // next one at once, within the device's and the server's caps (the registry's Remove is a
+  // no-op for a stream that never registered, and OnDone's is then one too).
   void FinishLocked(const grpc::Status& status) {
     if (finished_) return;
     finished_ = true;
     SetDeadline(absl::InfiniteFuture());
     ReleaseSlot();
+    env_.registry->Remove(this);
     Finish(status);
   }
 
