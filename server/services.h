@@ -247,9 +247,6 @@ class SessionServiceImpl final : public SessionServiceBase {
   std::map<std::string, v1::SolveJob> jobs_;  // guarded by jobs_mu_
   // Finished jobs in jobs_, oldest first, with when they finished; guarded by jobs_mu_.
   std::deque<std::pair<std::string, absl::Time>> finished_jobs_;
-  // Serialises "predict the next version number, store the version": the params JSON carries
-  // its version, so the number must be known before the version is stored.
-  std::mutex version_mu_;
   StreamRegistry registry_;  // every open StreamSamples, WatchSession and ReadSamples
   StreamEnv env_;
   SolvePool pool_;     // its workers use the members above

@@ -474,22 +474,13 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
       }
     } else if (report.ok()) {
       for (std::string& w : load_warnings) report->warnings.push_back(std::move(w));
-      std::lock_guard lock(version_mu_);
-      absl::StatusOr<std::vector<storage::ParamVersion>> versions =
-          store_->ListVersions((*live)->device.id);
-      int next = 1;
-      if (versions.ok())
-        for (const storage::ParamVersion& v : *versions) next = std::max(next, v.version + 1);
       report->device = (*live)->device.id;
       report->params.device = (*live)->device.id;
-      report->params.version = next;
       report->params.source_session = task.session_id;
       report->params.software = "imucald " IMUCAL_VERSION;
       storage::ParamVersion version;
       version.device_id = (*live)->device.id;
       version.session_id = task.session_id;
-      version.params_json = formats::ParamSetToJson(report->params);
-      version.report_json = formats::ReportToJson(*report);
       version.verdict = ToStorage(report->verdict);
       version.accel_rms = report->residual.accel_rms_m_s2;
       // The quality gate: only a passing solve becomes active on its own.
@@ -497,8 +488,16 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
                                                               : storage::VersionState::kCandidate;
       version.provenance = absl::StrFormat("imucald %s; protocol %s; seed %d", IMUCAL_VERSION,
                                            core::ProtocolKindName(options.protocol), options.seed);
-      absl::StatusOr<storage::ParamVersion> stored =
-          store_->FinishSolve(task.solve_id, version, task.actor);
+      // The number is the store's, assigned in the transaction that writes the version: the
+      // documents are written there, so another server on the same database cannot take it.
+      absl::StatusOr<storage::ParamVersion> stored = store_->FinishSolve(
+          task.solve_id, version, task.actor,
+          [&](int number, std::string* params_json, std::string* report_json) {
+            report->params.version = number;
+            *params_json = formats::ParamSetToJson(report->params);
+            *report_json = formats::ReportToJson(*report);
+            return absl::OkStatus();
+          });
       if (stored.ok()) {
         job.set_state(v1::JOB_STATE_DONE);
         job.set_version(stored->version);

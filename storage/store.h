@@ -178,7 +178,8 @@ class Store {
   // Setting a solving session's state by hand (SetSessionState) fails its running solve.
   absl::StatusOr<Solve> StartSolve(std::string_view session_id, std::string_view actor);
   absl::StatusOr<ParamVersion> FinishSolve(int64_t solve_id, const ParamVersion& version,
-                                           std::string_view actor);
+                                           std::string_view actor,
+                                           const RenderVersion& render = nullptr);
   absl::StatusOr<Solve> FailSolve(int64_t solve_id, std::string_view error,
                                   std::string_view report_json, std::string_view actor,
                                   SessionState next = SessionState::kFailed);
@@ -193,7 +194,9 @@ class Store {
   // device_id, session_id (optional; must be that device's), params_json, report_json,
   // verdict, accel_rms, provenance and state: kCandidate, or kActive when it passed the quality
   // gates (it becomes active at once and the previous active version is superseded).
-  absl::StatusOr<ParamVersion> AddVersion(const ParamVersion& version, std::string_view actor);
+  // `render`, when given, writes the documents once the number is known (RenderVersion).
+  absl::StatusOr<ParamVersion> AddVersion(const ParamVersion& version, std::string_view actor,
+                                          const RenderVersion& render = nullptr);
   // Candidate -> active; the previous active version becomes superseded. Promoting the active
   // version is a no-op; any other state is FailedPrecondition (use Rollback for older ones).
   absl::StatusOr<ParamVersion> Promote(std::string_view device_id, int version,

@@ -92,9 +92,11 @@ absl::Status ChangeSessionState(Connection& conn, const Session& session, Sessio
 absl::Status AbandonRunningSolve(Connection& conn, std::string_view session_id, absl::Time now,
                                  std::string_view error);
 
-// store_versions.cc. AddVersion's checks and insert (activating it if v.state is kActive).
+// store_versions.cc. AddVersion's checks and insert (activating it if v.state is kActive),
+// the documents written by `render` (if given) once the number is assigned.
 absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion& v,
-                                           std::string_view actor, absl::Time now);
+                                           std::string_view actor, absl::Time now,
+                                           const RenderVersion& render);
 
 // store_audit.cc. One audit_log row.
 absl::Status InsertAudit(Connection& conn, absl::Time time, std::string_view actor,

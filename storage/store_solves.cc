@@ -95,7 +95,8 @@ absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string
 }
 
 absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVersion& version,
-                                                std::string_view actor) {
+                                                std::string_view actor,
+                                                const RenderVersion& render) {
   constexpr std::string_view kOp = "FinishSolve";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
@@ -112,7 +113,7 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
                                                 v.session_id, "' of '", v.device_id, "'"));
         }
         const absl::Time now = Now();
-        STORAGE_ASSIGN_OR_RETURN(ParamVersion added, InsertVersion(conn, v, actor, now));
+        STORAGE_ASSIGN_OR_RETURN(ParamVersion added, InsertVersion(conn, v, actor, now, render));
         // The report is the version's.
         STORAGE_RETURN_IF_ERROR(
             FinishSolveRow(conn, solve_id, SolveState::kSucceeded, now, added.version, "", ""));

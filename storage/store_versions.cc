@@ -83,9 +83,11 @@ absl::StatusOr<ParamVersion> LoadVersion(Connection& conn, std::string_view devi
   return *std::move(v);
 }
 
-absl::Status ValidateNewVersion(const ParamVersion& v) {
+// `documents`: whether params_json is checked (a version whose renderer writes it is checked
+// again once rendered).
+absl::Status ValidateNewVersion(const ParamVersion& v, bool documents) {
   STORAGE_RETURN_IF_ERROR(NonEmpty(v.device_id, "device_id"));
-  STORAGE_RETURN_IF_ERROR(NonEmpty(v.params_json, "params_json"));
+  if (documents) STORAGE_RETURN_IF_ERROR(NonEmpty(v.params_json, "params_json"));
   if (v.state != VersionState::kCandidate && v.state != VersionState::kActive) {
     return absl::InvalidArgumentError(
         Cat("a new version is a candidate or active, not ", VersionStateName(v.state)));
@@ -132,9 +134,11 @@ absl::StatusOr<ParamVersion> ActivateAudited(Connection& conn, std::string_view 
 
 }  // namespace
 
-absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion& v,
-                                           std::string_view actor, absl::Time now) {
-  STORAGE_RETURN_IF_ERROR(ValidateNewVersion(v));
+absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion& given,
+                                           std::string_view actor, absl::Time now,
+                                           const RenderVersion& render) {
+  ParamVersion v = given;
+  STORAGE_RETURN_IF_ERROR(ValidateNewVersion(v, /*documents=*/!render));
   STORAGE_RETURN_IF_ERROR(LoadDevice(conn, v.device_id).status());
   if (!v.session_id.empty()) {
     STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, v.session_id));
@@ -148,6 +152,12 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
                            ReadRow(conn, kSelectNextVersion, FirstColumnInt64, v.device_id));
   if (!next) return absl::InternalError("no next version");
   const int number = static_cast<int>(*next);
+  if (render) {
+    v.params_json.clear();
+    v.report_json.clear();
+    STORAGE_RETURN_IF_ERROR(render(number, &v.params_json, &v.report_json));
+    STORAGE_RETURN_IF_ERROR(ValidateNewVersion(v, /*documents=*/true));
+  }
   STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertVersion, v.device_id, number, Micros(now),
                                        NullIfEmpty(v.session_id), VerdictName(v.verdict),
                                        v.accel_rms, VersionStateName(VersionState::kCandidate),
@@ -165,12 +175,13 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
 }
 
 absl::StatusOr<ParamVersion> Store::AddVersion(const ParamVersion& version,
-                                               std::string_view actor) {
+                                               std::string_view actor,
+                                               const RenderVersion& render) {
   constexpr std::string_view kOp = "AddVersion";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(InTransaction(
-      kOp, *writer_, [&](Connection& conn) { return InsertVersion(conn, version, actor, Now()); }));
+      kOp, *writer_, [&](Connection& conn) { return InsertVersion(conn, version, actor, Now(), render); }));
 }
 
 absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int version,

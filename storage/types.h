@@ -7,6 +7,7 @@
 #define IMUCAL_STORAGE_TYPES_H_
 
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <optional>
 #include <string>
@@ -135,6 +136,13 @@ struct ParamVersion {
   VersionState state = VersionState::kCandidate;
   std::string provenance;  // software version, solver settings, inputs: opaque text
 };
+
+// Writes a new version's documents, which carry its number, once the store has assigned that
+// number: AddVersion and FinishSolve call it inside the transaction that assigns it, so the
+// number inside the documents is the row's whichever process (another server sharing the
+// database) adds a version meanwhile. An error aborts the add; nothing is written.
+using RenderVersion = std::function<absl::Status(int version, std::string* params_json,
+                                                 std::string* report_json)>;
 
 // Who did what. Targets name the object: "device:<id>" (devices and their versions) or
 // "session:<id>" (sessions, poses, solves).

@@ -4,9 +4,11 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <string>
 #include <thread>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "storage/store.h"
@@ -163,6 +165,66 @@ TEST_F(StoreTest, VersionsAreNumberedWithoutGapsUnderConcurrency) {
   ASSERT_OK_AND_ASSIGN(std::vector<ParamVersion> other_device, store_->ListVersions("robot-2"));
   ASSERT_EQ(other_device.size(), static_cast<size_t>(kPerThread));
   EXPECT_EQ(other_device.back().version, kPerThread);
+}
+
+// The documents of a version carry its number (the parameter set's "version"), and only the
+// store knows it: two servers on one database, each writing versions through a renderer that
+// is called with the number the store assigned, must never store a document whose number is
+// another row's. A renderer's error leaves nothing behind, and uses no number.
+TEST_F(StoreTest, RenderedDocumentsCarryTheRowsNumberAcrossStores) {
+  ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
+  ASSERT_OK_AND_ASSIGN(std::unique_ptr<Store> other, Store::Open(path_));
+  const auto render = [](int number, std::string* params, std::string* report) {
+    *params = absl::StrCat("{\"version\": ", number, "}");
+    *report = absl::StrCat("{\"parameters\": {\"version\": ", number, "}}");
+    return absl::OkStatus();
+  };
+  constexpr int kThreads = 4;
+  constexpr int kPerThread = 20;
+  std::atomic<int> failures{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < kThreads; ++t) {
+    threads.emplace_back([&, t] {
+      Store* store = (t % 2 == 0) ? store_.get() : other.get();
+      for (int i = 0; i < kPerThread; ++i) {
+        ParamVersion v = MakeVersion("robot-1", Verdict::kPass, VersionState::kActive);
+        v.params_json.clear();  // the renderer writes it
+        absl::StatusOr<ParamVersion> added = store->AddVersion(v, "server", render);
+        if (!added.ok() ||
+            added->params_json != absl::StrCat("{\"version\": ", added->version, "}")) {
+          ++failures;
+          ADD_FAILURE() << (added.ok() ? added->params_json : added.status().ToString());
+        }
+      }
+    });
+  }
+  for (std::thread& t : threads) t.join();
+  ASSERT_EQ(failures.load(), 0);
+  ASSERT_OK_AND_ASSIGN(std::vector<ParamVersion> listed, store_->ListVersions("robot-1"));
+  ASSERT_EQ(listed.size(), static_cast<size_t>(kThreads * kPerThread));
+  for (const ParamVersion& v : listed) {
+    ASSERT_OK_AND_ASSIGN(ParamVersion full, other->GetVersion("robot-1", v.version));
+    EXPECT_EQ(full.params_json, absl::StrCat("{\"version\": ", v.version, "}"));
+    EXPECT_EQ(full.report_json, absl::StrCat("{\"parameters\": {\"version\": ", v.version, "}}"));
+  }
+  ASSERT_OK_AND_ASSIGN(ParamVersion active, other->GetActive("robot-1"));
+  EXPECT_EQ(active.version, kThreads * kPerThread);
+
+  // A renderer that fails: no row, no audit, no number used; one that writes no parameters is
+  // refused like a version without them.
+  const size_t audit = AuditCount();
+  const auto failing = [](int, std::string*, std::string*) {
+    return absl::InternalError("the report could not be written");
+  };
+  EXPECT_EQ(store_->AddVersion(MakeVersion("robot-1"), "server", failing).status().code(),
+            absl::StatusCode::kInternal);
+  const auto empty = [](int, std::string*, std::string*) { return absl::OkStatus(); };
+  EXPECT_EQ(store_->AddVersion(MakeVersion("robot-1"), "server", empty).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(AuditCount(), audit);
+  ASSERT_OK_AND_ASSIGN(ParamVersion next, store_->AddVersion(MakeVersion("robot-1"), "server",
+                                                             render));
+  EXPECT_EQ(next.version, kThreads * kPerThread + 1);
 }
 
 TEST_F(StoreTest, ReadersAlwaysSeeExactlyOneActiveVersion) {
