@@ -73,6 +73,7 @@ struct Flags {
   bool warm = false;
   int server_cpu = -1;
   int client_cpu = -1;
+  bool metrics = false;
 };
 
 Flags ParseFlags(int argc, char** argv) {
@@ -96,6 +97,8 @@ Flags ParseFlags(int argc, char** argv) {
   app.add_flag("--warm", f.warm, "fetch every device once before the rows (a warm cache)");
   app.add_option("--server-cpu", f.server_cpu, "pin the server to this core (-1: no pinning)");
   app.add_option("--client-cpu", f.client_cpu, "pin this client to this core (-1: no pinning)");
+  app.add_flag("--metrics", f.metrics,
+               "the server keeps Prometheus metrics (every call intercepted and counted)");
   imucal::bench::ParseBenchFlags(app, argc, argv);
   f.channels = std::max(1, f.channels);
   return f;
@@ -307,7 +310,7 @@ int main(int argc, char** argv) {
   // The active version per device (the last one added): for the if_not_version rows.
   std::vector<int> active(static_cast<size_t>(flags.devices), flags.versions);
 
-  Child child = ForkServer(db, flags.server_cpu);
+  Child child = ForkServer(db, flags.server_cpu, flags.metrics ? "127.0.0.1:0" : "");
   PinToCpu(flags.client_cpu);  // after the fork: the server keeps its own core
   {
     std::vector<std::unique_ptr<v1::ParameterService::Stub>> stubs;

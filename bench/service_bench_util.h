@@ -119,7 +119,9 @@ struct Child {
   int stop_fd = -1;  // closing it tells the child to shut down
 };
 
-inline Child ForkServer(const std::string& db_path, int cpu = -1) {
+// `metrics_listen`: ServerOptions::metrics_listen (empty: no metrics kept).
+inline Child ForkServer(const std::string& db_path, int cpu = -1,
+                        const std::string& metrics_listen = "") {
   int port_pipe[2], stop_pipe[2];
   if (pipe(port_pipe) != 0 || pipe(stop_pipe) != 0) {
     std::perror("pipe");
@@ -139,6 +141,7 @@ inline Child ForkServer(const std::string& db_path, int cpu = -1) {
     options.security.insecure = true;  // plaintext on loopback, no tokens
     options.db_path = db_path;
     options.drain_deadline = absl::Seconds(5);
+    options.metrics_listen = metrics_listen;
     absl::StatusOr<std::unique_ptr<server::Server>> server = server::Server::Start(options);
     const int port = server.ok() ? (*server)->port() : 0;
     if (!server.ok())

@@ -157,6 +157,10 @@ std::vector<ConfigOption> BuildOptions() {
       StringOption("listen", "IMUCALD_LISTEN", "HOST:PORT",
                    "address to serve gRPC on; port 0 picks a free one (default 127.0.0.1:50051)",
                    [](DaemonConfig& c) -> std::string& { return c.server.listen; }),
+      StringOption("metrics_listen", "IMUCALD_METRICS_LISTEN", "HOST:PORT",
+                   "address to serve Prometheus metrics on, http://HOST:PORT/metrics; port 0 "
+                   "picks a free one (default: none)",
+                   [](DaemonConfig& c) -> std::string& { return c.server.metrics_listen; }),
       StringOption("db", "IMUCALD_DB", "PATH",
                    "SQLite database file, created and migrated on start (default imucal.db)",
                    [](DaemonConfig& c) -> std::string& { return c.server.db_path; }),

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
 #include "absl/synchronization/mutex.h"
 #include "server/config.h"
 #include "server/daemon_commands.h"
@@ -60,6 +61,11 @@ int Serve(const imucal::server::DaemonConfig& config) {
        {"schema_version", schema_version},
        {"migrations_applied", before.ok() ? schema_version - *before : -1},
        {"solve_threads", config.server.sessions.solve_threads},
+       {"metrics", (*server)->metrics_port() == 0
+                       ? std::string("off")
+                       : absl::StrCat("http://", (*server)->address().substr(
+                                                     0, (*server)->address().rfind(':')),
+                                      ":", (*server)->metrics_port(), "/metrics")},
        {"startup_ms", absl::ToDoubleMilliseconds(absl::Now() - start)}});
   WaitForStopSignal();
   Log(LogLevel::kInfo, "shutdown_begin",

@@ -99,11 +99,22 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   // The fetch cache hears of every change of a device's active version from the store itself,
   // whichever service made it.
   auto cache = std::make_shared<ActiveParamCache>();
+  std::unique_ptr<Metrics> metrics;
+  if (!options.metrics_listen.empty()) {
+    absl::StatusOr<std::unique_ptr<Metrics>> started = Metrics::Start(options.metrics_listen);
+    if (!started.ok()) return started.status();
+    metrics = *std::move(started);
+  }
   storage::StoreOptions store_options;
   store_options.durability = options.durability;
   store_options.on_active_change = [cache](std::string_view device_id) {
     cache->Invalidate(device_id);
   };
+  if (metrics != nullptr) {
+    store_options.on_transaction = [m = metrics.get()](std::string_view op, absl::Duration took) {
+      m->ObserveDbTransaction(op, took);
+    };
+  }
   absl::StatusOr<std::unique_ptr<storage::Store>> store =
       storage::Store::Open(options.db_path, store_options);
   if (!store.ok()) return store.status();
@@ -128,6 +139,7 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   std::unique_ptr<Server> s(new Server());
   s->host_ = options.listen.substr(0, colon);
   s->drain_deadline_ = options.drain_deadline;
+  s->metrics_ = std::move(metrics);
   s->active_cache_ = std::move(cache);
   s->store_ = *std::move(store);
   // Who may do what (server/auth.h). Insecure mode checks nothing: it is loopback-only.
@@ -153,6 +165,7 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->devices_ = std::make_unique<DeviceServiceImpl>(s->store_.get(), s->auth_.get());
   s->sessions_ =
       std::make_unique<SessionServiceImpl>(s->store_.get(), options.sessions, s->auth_.get());
+  if (s->metrics_ != nullptr) s->sessions_->SetMetrics(s->metrics_.get());
   // A revoked token's open streams and watches end at once, not at their next message.
   s->auth_->SetRevocationListener(
       [sessions = s->sessions_.get()](int64_t id, const std::string& why) {
@@ -179,11 +192,10 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   builder.RegisterService(s->sessions_.get());
   builder.RegisterService(s->parameters_.get());
   builder.RegisterService(s->admin_.get());
-  if (options.log_rpcs) {
-    std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> creators;
-    creators.push_back(NewRpcLogInterceptorFactory());
-    builder.experimental().SetInterceptorCreators(std::move(creators));
-  }
+  std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> creators;
+  if (options.log_rpcs) creators.push_back(NewRpcLogInterceptorFactory());
+  if (s->metrics_ != nullptr) creators.push_back(s->metrics_->NewInterceptorFactory());
+  if (!creators.empty()) builder.experimental().SetInterceptorCreators(std::move(creators));
   s->server_ = builder.BuildAndStart();
   if (s->server_ == nullptr || s->port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));

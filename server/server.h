@@ -12,6 +12,7 @@
 #include "grpcpp/grpcpp.h"
 #include "server/admin_service.h"
 #include "server/auth.h"
+#include "server/metrics.h"
 #include "server/services.h"
 #include "server/tls.h"
 #include "storage/store.h"
@@ -43,6 +44,9 @@ struct ServerOptions {
   // token and writes its secret to this file (mode 0600); empty: "<db_path>.admin-token".
   std::string admin_token_file;
   DenialAuditLimits deny_audit;  // how many audit rows refused calls may write (server/auth.h)
+  // "HOST:PORT" to serve Prometheus metrics on (http://HOST:PORT/metrics, server/metrics.h);
+  // port 0 picks a free one; empty: no metrics kept.
+  std::string metrics_listen;
 };
 
 class Server {
@@ -63,6 +67,9 @@ class Server {
   size_t open_streams() const;
   // Solve jobs GetSolveJob answers from memory (bounded: SessionServiceOptions).
   size_t solve_jobs_in_memory() const;
+  // The metrics endpoint's port (0 without one), and the metrics themselves (null without).
+  int metrics_port() const { return metrics_ == nullptr ? 0 : metrics_->port(); }
+  Metrics* metrics() const { return metrics_.get(); }
 
  private:
   Server() = default;
@@ -70,6 +77,7 @@ class Server {
   std::string host_;
   int port_ = 0;
   absl::Duration drain_deadline_;
+  std::unique_ptr<Metrics> metrics_;  // before store_ and the services: they report to it
   std::shared_ptr<ActiveParamCache> active_cache_;  // before store_: it outlives the store
   std::unique_ptr<storage::Store> store_;
   std::unique_ptr<storage::TokenStore> tokens_;

@@ -18,6 +18,7 @@
 #include "server/active_cache.h"
 #include "server/auth.h"
 #include "server/convert.h"
+#include "server/metrics.h"
 #include "server/session_hub.h"
 #include "server/solve_pool.h"
 #include "server/stream_registry.h"
@@ -143,6 +144,7 @@ struct StreamEnv {
   std::function<bool(std::function<void()> work)> defer;
   // The session as GetSession answers it, without loading it (SessionServiceImpl).
   std::function<absl::StatusOr<v1::Session>(const std::string& session_id)> session_proto;
+  Metrics* metrics = nullptr;  // null: none kept
 };
 
 // StreamSamples is a raw method (ByteBuffers in and out): a batch that is not a SampleBatch
@@ -168,6 +170,9 @@ class SessionServiceImpl final : public SessionServiceBase {
   size_t live_sessions() { return hub_.LiveSessions(); }  // SessionHub::LiveSessions
   size_t open_streams() { return registry_.size(); }      // the streaming calls
   size_t solve_jobs_in_memory();
+  // Counts samples and solves into `metrics` (which must outlive the service) and gives it
+  // the sessions', streams' and queue's gauges. Called before serving.
+  void SetMetrics(Metrics* metrics);
   // Ends the open streams and watches of a token that was just revoked (Authorizer::RevokeToken
   // calls it), and refuses the token's streams from now on.
   void RevokeStreams(int64_t token_id, const std::string& why);

@@ -437,7 +437,27 @@ void SessionServiceImpl::UpdateJob(const v1::SolveJob& job) {
   hub_.Publish(*live, e);
 }
 
+void SessionServiceImpl::SetMetrics(Metrics* metrics) {
+  env_.metrics = metrics;
+  metrics->SetGauge("imucal_sessions_in_memory",
+                    "sessions whose live state (segmentation, pairs) this server holds",
+                    [this] { return static_cast<double>(hub_.LiveSessions()); });
+  metrics->SetGauge("imucal_streams_open",
+                    "StreamSamples, WatchSession and ReadSamples calls open (max_streams)",
+                    [this] { return static_cast<double>(registry_.size()); });
+  metrics->SetGauge("imucal_sample_streams_open", "StreamSamples calls holding a device's slot",
+                    [this] { return static_cast<double>(stream_slots_.Total()); });
+  metrics->SetGauge("imucal_watchers_open", "WatchSession calls holding a session's slot",
+                    [this] { return static_cast<double>(watcher_slots_.Total()); });
+  metrics->SetGauge("imucal_solve_queue_depth", "solves waiting for a solve thread",
+                    [this] { return static_cast<double>(pool_.queued()); });
+  metrics->SetGauge("imucal_session_loads_queued",
+                    "sessions waiting to be loaded (their stored batches replayed)",
+                    [this] { return static_cast<double>(loaders_.queued()); });
+}
+
 void SessionServiceImpl::RunSolve(const SolveTask& task) {
+  const absl::Time started = absl::Now();
   v1::SolveJob job;
   job.set_id(task.job_id);
   job.set_session_id(task.session_id);
@@ -517,6 +537,13 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
     store_->FailSolve(task.solve_id, job.error(), /*report_json=*/"", task.actor).IgnoreError();
   }
   UpdateJob(job);
+  if (env_.metrics != nullptr) {
+    env_.metrics->ObserveSolve(job.state() == v1::JOB_STATE_DONE ? "done"
+                               : job.verdict() == core::VerdictName(core::Verdict::kRefused)
+                                   ? "refused"
+                                   : "failed",
+                               absl::Now() - started);
+  }
   if (!live.ok()) return;
   if (absl::StatusOr<v1::Session> s = SessionProto(task.session_id); s.ok()) {
     v1::SessionEvent e = Stamped();

@@ -318,6 +318,8 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     }
     if (!prepared.ok()) return prepared.status();
     prepared_ = *std::move(prepared);
+    if (env_.metrics != nullptr)
+      env_.metrics->CountSamplesReceived(static_cast<int64_t>(prepared_.samples.size()));
     env_.store->AppendBatchAsync(
         session_id_, prepared_.seq, std::move(prepared_.payload),
         [this](absl::StatusOr<storage::BatchAck> ack) { OnStored(std::move(ack)); });
@@ -332,10 +334,15 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
       return;
     }
     IngestResult result;
+    int64_t new_samples = 0;
     {
       std::lock_guard lock(live_->mu);
+      const int64_t before = live_->samples;
       result = CompleteBatch(*env_.store, *live_, prepared_, *stored);
+      new_samples = live_->samples - before;
     }
+    if (env_.metrics != nullptr && new_samples > 0)
+      env_.metrics->CountSamplesAcknowledged(new_samples);
     prepared_ = PreparedBatch();
     for (const v1::SessionEvent& e : result.events) env_.hub->Publish(*live_, e);
     bool own_buffer = false;

@@ -17,6 +17,11 @@ bool SolvePool::Reserve() {
   return true;
 }
 
+size_t SolvePool::queued() {
+  std::lock_guard lock(mu_);
+  return queue_.size();
+}
+
 void SolvePool::Release() {
   std::lock_guard lock(mu_);
   --reserved_;

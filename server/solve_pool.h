@@ -28,6 +28,8 @@ class SolvePool {
 
   void Shutdown();
 
+  size_t queued();  // jobs waiting for a worker (not those running)
+
  private:
   void Work();
 

@@ -35,6 +35,13 @@ class StreamSlots {
     if (--it->second <= 0) held_.erase(it);
   }
 
+  int Total() {  // slots held over every key
+    std::lock_guard lock(mu_);
+    int total = 0;
+    for (const auto& [key, held] : held_) total += held;
+    return total;
+  }
+
   int Held(std::string_view key) {
     std::lock_guard lock(mu_);
     auto it = held_.find(key);

@@ -141,6 +141,10 @@ class Connection {
 
   sqlite3* db() const { return db_; }
 
+  // Told of each transaction run on this connection (InTransaction, store_internal.h): its
+  // operation and duration. Empty: nobody is.
+  std::function<void(std::string_view op, absl::Duration took)> on_transaction;
+
  private:
   explicit Connection(sqlite3* db) : db_(db) {}
 

@@ -21,6 +21,7 @@ Store::Store(StoreOptions options, std::unique_ptr<Connection> writer,
       checkpointer_(std::move(checkpointer)),
       readers_(std::move(readers)) {
   for (const auto& r : readers_) free_readers_.push_back(r.get());
+  writer_->on_transaction = options_.on_transaction;
 }
 
 Store::~Store() {

@@ -69,6 +69,10 @@ struct StoreOptions {
   // or FinishSolve, Promote, Rollback), with the device id, on the committing thread; must be
   // quick and must not call back into the store. For caches of the active version.
   std::function<void(std::string_view device_id)> on_active_change{};
+  // Called after every write transaction (committed or not) with its operation ("AppendBatch",
+  // "FinishSolve", ...) and how long it took from BEGIN, the wait for the write lock included;
+  // on the writing thread; must be quick and must not call back into the store. For metrics.
+  std::function<void(std::string_view op, absl::Duration took)> on_transaction{};
 };
 
 // Paging is by key: pass the last item of a page to get the next one. Every member has a

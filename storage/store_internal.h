@@ -18,6 +18,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "absl/time/clock.h"
 #include "absl/time/time.h"
 #include "storage/sample_codec.h"
 #include "storage/sqlite_db.h"
@@ -64,15 +65,21 @@ const absl::Status& StatusOf(const absl::StatusOr<T>& s) {
 // Runs `body(conn)` in one BEGIN IMMEDIATE transaction, committing only if it succeeds.
 // `body` returns absl::Status or absl::StatusOr<T>; errors are prefixed with `op`
 // (WithContext, status_macros.h).
+// The connection's on_transaction hears of it, committed or not.
 template <typename F>
 std::invoke_result_t<F, Connection&> InTransaction(std::string_view op, Connection& conn,
                                                    F&& body) {
+  const absl::Time start = conn.on_transaction ? absl::Now() : absl::InfinitePast();
+  const auto told = [&](auto result) {
+    if (conn.on_transaction) conn.on_transaction(op, absl::Now() - start);
+    return result;
+  };
   absl::StatusOr<Transaction> txn = Transaction::Begin(conn);
-  if (!txn.ok()) return WithContext(op, txn.status());
+  if (!txn.ok()) return told(WithContext(op, txn.status()));
   auto result = body(conn);
-  if (!result.ok()) return WithContext(op, StatusOf(result));
-  if (absl::Status s = txn->Commit(); !s.ok()) return WithContext(op, s);
-  return result;
+  if (!result.ok()) return told(WithContext(op, StatusOf(result)));
+  if (absl::Status s = txn->Commit(); !s.ok()) return told(WithContext(op, s));
+  return told(std::move(result));
 }
 
 // ---- Shared lookups and writes, inside the caller's transaction or read lease ----------------

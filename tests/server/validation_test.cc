@@ -12,6 +12,11 @@
 #include <thread>
 #include <vector>
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
 #include "client/sdk/uploader.h"
 #include "gmock/gmock.h"
 #include "grpcpp/generic/generic_stub.h"
@@ -922,6 +927,132 @@ TEST_F(ValidationTest, UploaderStreamsHaveADeadline) {
   sdk::Uploader uploader(channel_, o);
   const absl::Status st = uploader.Upload(s, cols).status();
   EXPECT_TRUE(absl::IsDeadlineExceeded(st)) << st;
+}
+
+// ---- Prometheus metrics (server/metrics.h), scraped over HTTP as Prometheus would.
+
+// GET http://127.0.0.1:port/metrics (HTTP/1.0: the server closes when done); the body.
+std::string Scrape(int port) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  if (fd < 0) return "socket failed";
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(static_cast<uint16_t>(port));
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  std::string reply;
+  if (::connect(fd, reinterpret_cast<const sockaddr*>(&addr), sizeof(addr)) == 0) {
+    const std::string request = "GET /metrics HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n";
+    if (::send(fd, request.data(), request.size(), 0) == static_cast<ssize_t>(request.size())) {
+      char buf[4096];
+      for (ssize_t n; (n = ::recv(fd, buf, sizeof(buf), 0)) > 0;)
+        reply.append(buf, static_cast<size_t>(n));
+    }
+  }
+  ::close(fd);
+  const size_t body = reply.find("\r\n\r\n");
+  return body == std::string::npos ? "no HTTP reply: " + reply : reply.substr(body + 4);
+}
+
+// The value of the sample line `series` ("name{labels}" as exposed), NaN when absent.
+double Sample(const std::string& text, const std::string& series) {
+  size_t at = 0;
+  while ((at = text.find(series + " ", at)) != std::string::npos) {
+    if (at == 0 || text[at - 1] == '\n') return std::stod(text.substr(at + series.size() + 1));
+    at += series.size();
+  }
+  return std::numeric_limits<double>::quiet_NaN();
+}
+
+class MetricsTest : public ValidationTest {
+ protected:
+  void SetUp() override {
+    ValidationTest::SetUp();
+    options_.metrics_listen = "127.0.0.1:0";
+  }
+};
+
+// What a replica did shows in its scrape: calls by method and code, the samples received and
+// acknowledged (a retransmission acknowledged again but stored once), the write transactions,
+// the open watchers, and a solve by its outcome once it has run.
+TEST_F(MetricsTest, AScrapeCountsCallsSamplesTransactionsWatchersAndSolves) {
+  StartServer();
+  ASSERT_GT(server_->metrics_port(), 0);
+  const std::string s = NewSession("robot-metrics");
+  std::vector<v1::SampleBatch> batches = {RestBatch(s, 1), RestBatch(s, 2), RestBatch(s, 3)};
+  ASSERT_TRUE(Stream(batches).ok());
+  ASSERT_TRUE(Stream({RestBatch(s, 3)}).ok());  // a retransmission: acknowledged, not stored
+  v1::GetSessionRequest missing;
+  missing.set_session_id("s-none");
+  v1::Session out;
+  EXPECT_FALSE(sessions_->GetSession(Ctx().get(), missing, &out).ok());
+  v1::WatchSessionRequest watch;
+  watch.set_session_id(s);
+  auto watch_ctx = Ctx();
+  auto watcher = sessions_->WatchSession(watch_ctx.get(), watch);
+  v1::SessionEvent snapshot;
+  ASSERT_TRUE(watcher->Read(&snapshot));  // the watcher holds its slot now
+
+  std::string text = Scrape(server_->metrics_port());
+  ASSERT_THAT(text, HasSubstr("# TYPE imucal_rpc_total counter"));
+  EXPECT_EQ(Sample(text, "imucal_rpc_total{code=\"OK\",method=\"/imucal.v1.DeviceService/"
+                         "RegisterDevice\"}"),
+            1);
+  EXPECT_EQ(Sample(text, "imucal_rpc_total{code=\"NOT_FOUND\",method=\"/imucal.v1.SessionService/"
+                         "GetSession\"}"),
+            1);
+  EXPECT_EQ(Sample(text, "imucal_rpc_total{code=\"OK\",method=\"/imucal.v1.SessionService/"
+                         "StreamSamples\"}"),
+            2);
+  EXPECT_EQ(Sample(text, "imucal_rpc_duration_seconds_count{method=\"/imucal.v1.SessionService/"
+                         "CreateSession\"}"),
+            1);
+  EXPECT_EQ(Sample(text, "imucal_samples_received_total"), 4 * kBatch);
+  EXPECT_EQ(Sample(text, "imucal_samples_acknowledged_total"), 3 * kBatch);
+  EXPECT_EQ(Sample(server_->metrics()->Text(), "imucal_samples_acknowledged_total"), 3 * kBatch);
+  EXPECT_GE(Sample(text, "imucal_db_transaction_duration_seconds_count{op=\"AppendBatch\"}"), 1);
+  EXPECT_EQ(Sample(text, "imucal_watchers_open"), 1);
+  EXPECT_EQ(Sample(text, "imucal_sample_streams_open"), 0);
+  EXPECT_EQ(Sample(text, "imucal_sessions_in_memory"), 1);
+  EXPECT_EQ(Sample(text, "imucal_solve_queue_depth"), 0);
+  watch_ctx->TryCancel();
+  watcher->Finish();
+
+  // A rest alone cannot be solved: the solve runs and is refused. Shutdown lets it finish; the
+  // endpoint serves until the server object goes.
+  v1::SolveSessionRequest solve;
+  solve.set_session_id(s);
+  v1::SolveJob job;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), solve, &job).ok());
+  server_->Shutdown();
+  text = Scrape(server_->metrics_port());
+  EXPECT_EQ(Sample(text, "imucal_solve_duration_seconds_count{outcome=\"refused\"}"), 1) << text;
+  EXPECT_GE(Sample(text, "imucal_db_transaction_duration_seconds_count{op=\"FailSolve\"}"), 1);
+}
+
+// Solves waiting for a thread are the queue's depth (no solve threads: they stay queued).
+TEST_F(MetricsTest, QueuedSolvesAreTheQueueDepth) {
+  options_.sessions.solve_threads = 0;
+  StartServer();
+  for (int i = 0; i < 2; ++i) {
+    const std::string s = NewSession("robot-queued-" + std::to_string(i));
+    ASSERT_TRUE(Stream({RestBatch(s, 1)}).ok());
+    v1::SolveSessionRequest req;
+    req.set_session_id(s);
+    v1::SolveJob job;
+    ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+  }
+  EXPECT_EQ(Sample(Scrape(server_->metrics_port()), "imucal_solve_queue_depth"), 2);
+}
+
+// An address it cannot serve metrics on is refused at start, naming the option.
+TEST_F(MetricsTest, AMetricsAddressInUseIsRefusedAtStart) {
+  StartServer();
+  ServerOptions second = options_;
+  second.db_path = dir_.File("other.db");
+  second.metrics_listen = "127.0.0.1:" + std::to_string(server_->metrics_port());
+  absl::StatusOr<std::unique_ptr<Server>> other = Server::Start(second);
+  ASSERT_FALSE(other.ok());
+  EXPECT_THAT(std::string(other.status().message()), HasSubstr("metrics_listen"));
 }
 
 }  // namespace

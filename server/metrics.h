@@ -1,0 +1,80 @@
+// Prometheus metrics of one imucald (one replica of a fleet's servers), through prometheus-cpp
+// (Debian's prometheus-cpp-dev). Served in the text exposition format at
+// http://<metrics_listen>/metrics when ServerOptions::metrics_listen is set; scraped per replica.
+//
+// What is measured (names are the exported ones; units are in the names):
+//   imucal_rpc_total{method,code}                    calls completed, by gRPC status code
+//   imucal_rpc_duration_seconds{method}              histogram, call start to status sent
+//                                                    (a stream's whole life for streams)
+//   imucal_samples_received_total                    samples in batches read off streams
+//   imucal_samples_acknowledged_total                samples made durable and acknowledged
+//                                                    (a retransmitted batch counts once)
+//   imucal_solve_duration_seconds{outcome}           histogram, a solve's run (not its wait)
+//   imucal_db_transaction_duration_seconds{op}       histogram, a write transaction from BEGIN
+//                                                    (its wait for the write lock included)
+//   gauges read at each scrape (SetGauge): open sessions, open streams, watchers, queued solves.
+//
+// Thread-safe: every method may be called from any thread.
+#ifndef IMUCAL_SERVER_METRICS_H_
+#define IMUCAL_SERVER_METRICS_H_
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <string_view>
+
+#include "absl/status/statusor.h"
+#include "absl/time/time.h"
+#include "grpcpp/support/server_interceptor.h"
+#include "grpcpp/support/status.h"
+
+namespace prometheus {
+class Exposer;
+class Registry;
+}  // namespace prometheus
+
+namespace imucal::server {
+
+class Metrics {
+ public:
+  // `listen` "HOST:PORT" (port 0 picks a free one) serves /metrics over HTTP; empty: no
+  // endpoint (Text() still gives what a scrape would). Unavailable when it cannot listen.
+  static absl::StatusOr<std::unique_ptr<Metrics>> Start(const std::string& listen);
+  ~Metrics();
+  Metrics(const Metrics&) = delete;
+  Metrics& operator=(const Metrics&) = delete;
+
+  int port() const { return port_; }  // the endpoint's port; 0 without one
+
+  void ObserveRpc(std::string_view method, grpc::StatusCode code, absl::Duration duration);
+  void CountSamplesReceived(int64_t samples);
+  void CountSamplesAcknowledged(int64_t samples);
+  // outcome: "done" (a version stored), "refused" (the capture cannot be solved), "failed".
+  void ObserveSolve(std::string_view outcome, absl::Duration duration);
+  void ObserveDbTransaction(std::string_view op, absl::Duration duration);
+  // A gauge whose value `read` gives at each scrape (quick, any thread, no blocking calls).
+  void SetGauge(const std::string& name, const std::string& help, std::function<double()> read);
+
+  // The text a scrape returns now.
+  std::string Text() const;
+
+  // Counts every call's completion (ObserveRpc); for grpc::ServerBuilder.
+  std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>
+  NewInterceptorFactory();
+
+ private:
+  struct Families;
+  class Gauges;
+  Metrics();
+
+  std::shared_ptr<prometheus::Registry> registry_;
+  std::unique_ptr<Families> families_;
+  std::shared_ptr<Gauges> gauges_;
+  std::unique_ptr<prometheus::Exposer> exposer_;  // last: stops serving before the rest goes
+  int port_ = 0;
+};
+
+}  // namespace imucal::server
+
+#endif  // IMUCAL_SERVER_METRICS_H_
