@@ -179,6 +179,17 @@ std::vector<ConfigOption> BuildOptions() {
           "(default 16)",
           1, 100000,
           [](DaemonConfig& c) -> size_t& { return c.server.sessions.solve_queue_limit; }),
+      StringOption("replica_id", "IMUCALD_REPLICA_ID", "ID",
+                   "this server's name to others sharing its database, for the solves it claims "
+                   "(default: host name/listen address)",
+                   [](DaemonConfig& c) -> std::string& { return c.server.sessions.replica_id; }),
+      DurationOption("solve_lease", "IMUCALD_SOLVE_LEASE",
+                     "how long a solve's claim holds without renewal (renewed every third of "
+                     "it); a lapsed one is failed by any server sharing the database (default "
+                     "30s)",
+                     [](DaemonConfig& c) -> absl::Duration& {
+                       return c.server.sessions.solve_lease;
+                     }),
       DurationOption("drain_deadline", "IMUCALD_DRAIN_DEADLINE",
                      "on SIGTERM, how long in-flight calls may run before they are cancelled "
                      "(default 30s); queued solves then finish",

@@ -8,6 +8,8 @@
 #include <chrono>
 #include <cstring>
 #include <optional>
+#include <string_view>
+#include <thread>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -22,6 +24,38 @@ namespace {
 constexpr char kOrphanedSolveError[] =
     "the server stopped during this solve; solve the session again";
 constexpr char kStartupActor[] = "imucald";
+
+// Fails the solves nobody is running (Store::ListOrphanedSolves: lapsed leases, and with
+// `restarted` this server's previous life's) and reopens their sessions, so that the technician
+// can solve again; nothing would finish them, and their sessions would stay `solving` for ever.
+// A session whose device has opened its next session meanwhile cannot reopen (one open session
+// per device): it is left failed, from where it can be solved again too. Returns how many.
+absl::StatusOr<int> FailOrphanedSolves(storage::Store& store, std::string_view restarted) {
+  absl::StatusOr<std::vector<storage::Solve>> orphans =
+      store.ListOrphanedSolves(absl::Now(), restarted);
+  if (!orphans.ok()) return orphans.status();
+  int failed_count = 0;
+  for (const storage::Solve& solve : *orphans) {
+    absl::StatusOr<storage::Solve> failed =
+        store.FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
+                        storage::SessionState::kOpen);
+    if (absl::IsFailedPrecondition(failed.status())) {
+      failed = store.FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
+                               storage::SessionState::kFailed);
+    }
+    // Another server may have ended it meanwhile (it is no longer running): not an error.
+    if (!failed.ok() && !absl::IsFailedPrecondition(failed.status())) return failed.status();
+    if (failed.ok()) ++failed_count;
+  }
+  return failed_count;
+}
+
+// Who this server is to the others sharing its database: the host and the listen address.
+std::string DefaultReplicaId(const std::string& listen) {
+  char host[256] = {};
+  if (::gethostname(host, sizeof(host) - 1) != 0) host[0] = '\0';
+  return absl::StrCat(host[0] != '\0' ? host : "localhost", "/", listen);
+}
 
 // Writes the first admin token's secret to `path`, readable by its owner only (0600 even if
 // the file existed with other permissions), and synced: the operator's only copy.
@@ -118,23 +152,14 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   absl::StatusOr<std::unique_ptr<storage::Store>> store =
       storage::Store::Open(options.db_path, store_options);
   if (!store.ok()) return store.status();
-  // Solves still running were orphaned by a server that stopped (killed, crashed) mid-solve:
-  // nothing will finish them, and their sessions would stay `solving` for ever. Fail them and
-  // reopen their sessions so that the technician can solve again. A session whose device has
-  // opened its next session meanwhile cannot reopen (one open session per device): it is
-  // left failed instead, from where it can be solved again too.
-  absl::StatusOr<std::vector<storage::Solve>> orphans = (*store)->ListRunningSolves();
-  if (!orphans.ok()) return orphans.status();
-  for (const storage::Solve& solve : *orphans) {
-    absl::StatusOr<storage::Solve> failed =
-        (*store)->FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
-                            storage::SessionState::kOpen);
-    if (absl::IsFailedPrecondition(failed.status())) {
-      failed = (*store)->FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
-                                   storage::SessionState::kFailed);
-    }
-    if (!failed.ok()) return failed.status();
-  }
+  // Solves this server was running when it stopped (killed, crashed), and those of servers
+  // sharing the database whose claim has lapsed, are failed now.
+  SessionServiceOptions sessions = options.sessions;
+  if (sessions.replica_id.empty()) sessions.replica_id = DefaultReplicaId(options.listen);
+  if (sessions.solve_lease <= absl::ZeroDuration())
+    return absl::InvalidArgumentError("solve_lease: must be positive");
+  if (absl::StatusOr<int> failed = FailOrphanedSolves(**store, sessions.replica_id); !failed.ok())
+    return failed.status();
 
   std::unique_ptr<Server> s(new Server());
   s->host_ = options.listen.substr(0, colon);
@@ -164,7 +189,7 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->admin_ = std::make_unique<AdminServiceImpl>(s->auth_.get());
   s->devices_ = std::make_unique<DeviceServiceImpl>(s->store_.get(), s->auth_.get());
   s->sessions_ =
-      std::make_unique<SessionServiceImpl>(s->store_.get(), options.sessions, s->auth_.get());
+      std::make_unique<SessionServiceImpl>(s->store_.get(), sessions, s->auth_.get());
   if (s->metrics_ != nullptr) s->sessions_->SetMetrics(s->metrics_.get());
   // A revoked token's open streams and watches end at once, not at their next message.
   s->auth_->SetRevocationListener(
@@ -200,7 +225,31 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   if (s->server_ == nullptr || s->port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
   }
+  s->lease_thread_ = std::thread([server = s.get(), id = sessions.replica_id,
+                                  lease = sessions.solve_lease] { server->KeepLeases(id, lease); });
   return s;
+}
+
+void Server::KeepLeases(const std::string& replica_id, absl::Duration lease) {
+  std::unique_lock lock(lease_mu_);
+  while (!lease_stop_) {
+    lease_cv_.wait_for(lock, absl::ToChronoNanoseconds(lease / 3), [this] { return lease_stop_; });
+    if (lease_stop_) break;
+    lock.unlock();
+    // Ours first: a slow sweep must not let our own claims lapse.
+    absl::Status renewed =
+        store_->RenewSolveLeases(replica_id, absl::Now() + lease).status();
+    absl::StatusOr<int> failed = FailOrphanedSolves(*store_, /*restarted=*/"");
+    if (!renewed.ok() || !failed.ok()) {
+      Log(LogLevel::kWarning, "solve_leases",
+          {{"replica_id", replica_id},
+           {"error", std::string(!renewed.ok() ? renewed.message() : failed.status().message())}});
+    } else if (*failed > 0) {
+      Log(LogLevel::kInfo, "orphaned_solves_failed",
+          {{"replica_id", replica_id}, {"solves", *failed}});
+    }
+    lock.lock();
+  }
 }
 
 Server::~Server() { Shutdown(); }
@@ -219,6 +268,12 @@ void Server::Shutdown() {
   server_->Shutdown(std::chrono::system_clock::now() + absl::ToChronoMilliseconds(drain_deadline_));
   server_->Wait();
   sessions_->DrainSolves();  // queued solves finish and store their results
+  {
+    std::lock_guard lock(lease_mu_);
+    lease_stop_ = true;
+  }
+  lease_cv_.notify_all();
+  if (lease_thread_.joinable()) lease_thread_.join();
 }
 
 }  // namespace imucal::server

@@ -4,8 +4,11 @@
 #ifndef IMUCAL_SERVER_SERVER_H_
 #define IMUCAL_SERVER_SERVER_H_
 
+#include <condition_variable>
 #include <memory>
+#include <mutex>
 #include <string>
+#include <thread>
 
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
@@ -73,6 +76,9 @@ class Server {
 
  private:
   Server() = default;
+  // Renews this server's solve claims every lease / 3 and fails others' lapsed ones, until
+  // Shutdown (on lease_thread_).
+  void KeepLeases(const std::string& replica_id, absl::Duration lease);
 
   std::string host_;
   int port_ = 0;
@@ -89,6 +95,10 @@ class Server {
   std::unique_ptr<ParameterServiceImpl> parameters_;
   std::unique_ptr<grpc::Server> server_;
   bool shut_down_ = false;
+  std::mutex lease_mu_;
+  std::condition_variable lease_cv_;
+  bool lease_stop_ = false;  // guarded by lease_mu_
+  std::thread lease_thread_;
 };
 
 }  // namespace imucal::server

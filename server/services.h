@@ -100,6 +100,12 @@ class ParameterServiceImpl final : public ParameterServiceBase {
 };
 
 struct SessionServiceOptions {
+  // Several servers may share one database: each claims the solves it runs as `replica_id`
+  // (Server::Start fills it in when empty: the host name and the listen address) and renews
+  // the claim every solve_lease / 3; a solve whose claim lapses is an orphan that any of them
+  // ends (storage/store.h "Solves"). Servers sharing a database need distinct ids.
+  std::string replica_id;
+  absl::Duration solve_lease = absl::Seconds(30);
   int solve_threads = 2;
   size_t solve_queue_limit = 16;  // solves waiting for a worker; RESOURCE_EXHAUSTED beyond
   IngestLimits ingest;            // samples per batch and per session (server/validate.h)

@@ -377,7 +377,8 @@ absl::Status SessionServiceImpl::DoSolve(const std::string& actor,
   std::vector<LiveEvent> last_pose;
   {
     std::lock_guard lock(live->mu);  // no batch lands after the solve has started
-    solve = store_->StartSolve(request.session_id(), actor);
+    solve = store_->StartSolve(request.session_id(), actor,
+                               {options_.replica_id, absl::Now() + options_.solve_lease});
     if (solve.ok()) {
       FlushSegment(*live, &last_pose);  // the final hold is a pose
       std::vector<storage::Pose> poses;

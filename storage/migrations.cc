@@ -156,11 +156,21 @@ ALTER TABLE sessions ADD COLUMN source TEXT NOT NULL DEFAULT '';
 PRAGMA user_version = 4;
 )sql";
 
+// Version 5: who runs a solve, and until when it has said so. Several servers may share one
+// database; a solve whose server stopped renewing its lease is an orphan any of them may end,
+// while another server's live solve is left alone (store.h "Solves").
+constexpr char kSchemaV5[] = R"sql(
+ALTER TABLE solves ADD COLUMN owner TEXT NOT NULL DEFAULT '';
+ALTER TABLE solves ADD COLUMN lease_until_us INTEGER NOT NULL DEFAULT 0;
+PRAGMA user_version = 5;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, kSchemaV1},
     {2, kSchemaV2},
     {3, kSchemaV3},
     {4, kSchemaV4},
+    {5, kSchemaV5},
 };
 
 absl::Status ApplyOne(Connection& conn, const Migration& m) {

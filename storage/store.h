@@ -180,7 +180,17 @@ class Store {
   // calibration; a poor calibration is a version with verdict fail, not a failed solve) and
   // moves the session to `next` (failed, or open to collect more poses).
   // Setting a solving session's state by hand (SetSessionState) fails its running solve.
-  absl::StatusOr<Solve> StartSolve(std::string_view session_id, std::string_view actor);
+  // `claim`: the server that runs it and its lease (types.h SolveClaim).
+  absl::StatusOr<Solve> StartSolve(std::string_view session_id, std::string_view actor,
+                                   const SolveClaim& claim = {});
+  // Extends the lease of every running solve `owner` claimed to `until`; how many it extended.
+  absl::StatusOr<int> RenewSolveLeases(std::string_view owner, absl::Time until);
+  // Running solves nobody is running: those whose lease ended before `now` (their server stopped
+  // renewing it), and those claimed by `restarted` when not empty (a server that has just
+  // started asks for its previous life's: they cannot be running). Another live server's
+  // solves are not listed.
+  absl::StatusOr<std::vector<Solve>> ListOrphanedSolves(absl::Time now,
+                                                        std::string_view restarted = "");
   absl::StatusOr<ParamVersion> FinishSolve(int64_t solve_id, const ParamVersion& version,
                                            std::string_view actor,
                                            const RenderVersion& render = nullptr);

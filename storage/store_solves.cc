@@ -17,21 +17,39 @@ namespace {
 // The columns ReadSolve maps.
 #define IMUCAL_SELECT_SOLVE_COLUMNS                                                      \
   "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, " \
-  "report_json "
+  "report_json, owner, lease_until_us "
 constexpr char kSelectSolve[] = IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE id = ?1";
 constexpr char kSelectSolvesOfSession[] =
     IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE session_id = ?1 ORDER BY id";
 constexpr char kSelectRunningSolves[] =
     IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE state = 'running' ORDER BY id";
+constexpr char kSelectOrphanedSolves[] = IMUCAL_SELECT_SOLVE_COLUMNS
+    "FROM solves WHERE state = 'running' AND ((owner = ?1 AND ?1 <> '') OR lease_until_us < ?2) "
+    "ORDER BY id";
 #undef IMUCAL_SELECT_SOLVE_COLUMNS
 constexpr char kInsertSolve[] =
-    "INSERT INTO solves (session_id, state, actor, started_at_us) VALUES (?1, 'running', ?2, ?3)";
+    "INSERT INTO solves (session_id, state, actor, started_at_us, owner, lease_until_us) "
+    "VALUES (?1, 'running', ?2, ?3, ?4, ?5)";
+constexpr char kRenewLeases[] =
+    "UPDATE solves SET lease_until_us = ?2 WHERE state = 'running' AND owner = ?1";
 constexpr char kFinishSolve[] =
     "UPDATE solves SET state = ?2, finished_at_us = ?3, version = ?4, error = ?5, "
     "report_json = ?6 WHERE id = ?1";
 constexpr char kAbandonRunningSolves[] =
     "UPDATE solves SET state = 'failed', finished_at_us = ?2, error = ?3 "
     "WHERE session_id = ?1 AND state = 'running'";
+
+// Leases that never end or have always ended are stored as the largest and smallest times.
+int64_t LeaseMicros(absl::Time until) {
+  if (until == absl::InfiniteFuture()) return INT64_MAX;
+  if (until == absl::InfinitePast()) return INT64_MIN;
+  return Micros(until);
+}
+absl::Time LeaseFromMicros(int64_t us) {
+  if (us == INT64_MAX) return absl::InfiniteFuture();
+  if (us == INT64_MIN) return absl::InfinitePast();
+  return FromMicros(us);
+}
 
 // Columns as in kSelectSolve.
 absl::StatusOr<Solve> ReadSolve(const Statement& st) {
@@ -45,6 +63,8 @@ absl::StatusOr<Solve> ReadSolve(const Statement& st) {
   s.version = static_cast<int>(st.ColumnInt64(6));
   s.error = st.ColumnText(7);
   s.report_json = st.ColumnText(8);
+  s.owner = st.ColumnText(9);
+  s.lease_until = LeaseFromMicros(st.ColumnInt64(10));
   return s;
 }
 
@@ -78,7 +98,8 @@ absl::Status AbandonRunningSolve(Connection& conn, std::string_view session_id, 
   return RunStatement(conn, kAbandonRunningSolves, session_id, Micros(now), error);
 }
 
-absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string_view actor) {
+absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string_view actor,
+                                        const SolveClaim& claim) {
   constexpr std::string_view kOp = "StartSolve";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
@@ -86,7 +107,8 @@ absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string
     STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, session_id));
     const absl::Time now = Now();
     STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, SessionState::kSolving, actor, now));
-    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertSolve, session_id, actor, Micros(now)));
+    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertSolve, session_id, actor, Micros(now),
+                                         claim.owner, LeaseMicros(claim.lease_until)));
     const int64_t id = sqlite3_last_insert_rowid(conn.db());
     STORAGE_RETURN_IF_ERROR(
         InsertAudit(conn, now, actor, "solve.start", SessionTarget(session_id), Cat("solve ", id)));
@@ -161,6 +183,23 @@ absl::StatusOr<std::vector<Solve>> Store::ListSolves(std::string_view session_id
     return ReadRows(lease.conn(), kSelectSolvesOfSession, ReadSolve, session_id);
   };
   return Annotate("ListSolves", list());
+}
+
+absl::StatusOr<int> Store::RenewSolveLeases(std::string_view owner, absl::Time until) {
+  constexpr std::string_view kOp = "RenewSolveLeases";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(owner, "owner")));
+  std::lock_guard lock(write_mu_);
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int> {
+    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kRenewLeases, owner, LeaseMicros(until)));
+    return sqlite3_changes(conn.db());
+  });
+}
+
+absl::StatusOr<std::vector<Solve>> Store::ListOrphanedSolves(absl::Time now,
+                                                             std::string_view restarted) {
+  ReadLease lease = AcquireReader();
+  return Annotate("ListOrphanedSolves",
+                  ReadRows(lease.conn(), kSelectOrphanedSolves, ReadSolve, restarted, Micros(now)));
 }
 
 absl::StatusOr<std::vector<Solve>> Store::ListRunningSolves() {

@@ -108,6 +108,17 @@ struct Solve {
   int version = 0;          // the parameter version it created; 0 = none
   std::string error;        // why it failed
   std::string report_json;  // a failed solve's report; a successful one's is its version's
+  std::string owner;        // the server running it (SolveClaim); empty: none said
+  absl::Time lease_until;   // it is that server's until then (renewed while it runs)
+};
+
+// Who runs a solve and for how long it may go without saying so again (Store::StartSolve,
+// RenewSolveLeases): a server sharing the database with others claims the solves it runs.
+// Unclaimed (the default), a running solve is an orphan to any server that looks, as are the
+// solves of databases older than claims.
+struct SolveClaim {
+  std::string owner;                              // e.g. "host/127.0.0.1:50051"
+  absl::Time lease_until = absl::InfinitePast();  // the default: lapsed already
 };
 
 enum class Verdict { kPass, kWarn, kFail };

@@ -257,6 +257,53 @@ TEST_F(ServerTest, StartFailsSolvesOrphanedByAStoppedServer) {
   EXPECT_TRUE(again.ok()) << again.status();
 }
 
+// Two servers on one database: a server that starts must not fail the solves another live
+// server is running (it claimed them, with a lease it renews), only those whose claim lapsed;
+// and a server's own solves keep their claim while they wait for a solve thread.
+TEST_F(ServerTest, AStartingServerLeavesAnotherServersLiveSolvesAlone) {
+  options_.sessions.replica_id = "replica-a";
+  options_.sessions.solve_threads = 0;  // A's solve stays queued, so running in storage
+  options_.sessions.solve_lease = absl::Seconds(60);
+  StartServer();
+  Register("robot-1");
+  Register("robot-2");
+  auto store = storage::Store::Open(options_.db_path);
+  ASSERT_TRUE(store.ok()) << store.status();
+  storage::Session wanted;
+  wanted.device_id = "robot-1";
+  wanted.protocol = "six-face";
+  auto live = (*store)->CreateSession(wanted, "test");
+  ASSERT_TRUE(live.ok()) << live.status();
+  v1::SolveSessionRequest req;
+  req.set_session_id(live->id);
+  v1::SolveJob job;
+  const grpc::Status solved = sessions_->SolveSession(Ctx().get(), req, &job);
+  ASSERT_TRUE(solved.ok()) << solved.error_message();
+  // A dead replica's solve, its claim lapsed a second ago.
+  wanted.device_id = "robot-2";
+  auto dead = (*store)->CreateSession(wanted, "test");
+  ASSERT_TRUE(dead.ok()) << dead.status();
+  auto lapsed =
+      (*store)->StartSolve(dead->id, "test", {"replica-dead", absl::Now() - absl::Seconds(1)});
+  ASSERT_TRUE(lapsed.ok()) << lapsed.status();
+
+  ServerOptions b = options_;
+  b.sessions.replica_id = "replica-b";
+  b.sessions.solve_threads = 2;
+  absl::StatusOr<std::unique_ptr<Server>> other = Server::Start(b);
+  ASSERT_TRUE(other.ok()) << other.status();
+
+  auto solves = (*store)->ListSolves(live->id);
+  ASSERT_TRUE(solves.ok() && solves->size() == 1) << solves.status();
+  EXPECT_EQ(solves->at(0).state, storage::SolveState::kRunning);
+  EXPECT_EQ(solves->at(0).owner, "replica-a");
+  EXPECT_GT(solves->at(0).lease_until, absl::Now() + absl::Seconds(30));
+  auto ended = (*store)->GetSolve(lapsed->id);
+  ASSERT_TRUE(ended.ok()) << ended.status();
+  EXPECT_EQ(ended->state, storage::SolveState::kFailed);
+  EXPECT_EQ(GetSession(dead->id).state(), v1::SESSION_STATE_OPEN);
+}
+
 TEST(ParamCrcCacheTest, ComputesOncePerVersion) {
   storage::ParamVersion v;
   v.device_id = "robot-1";

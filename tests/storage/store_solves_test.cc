@@ -1,4 +1,5 @@
 // Store: solves (storage/store_solves.cc).
+#include <string>
 #include <vector>
 
 #include "gmock/gmock.h"
@@ -82,6 +83,52 @@ TEST_F(BatchTest, AFailedSolveCanReopenTheSessionForMorePoses) {
   EXPECT_EQ(store_->FinishSolve(second.id, MakeVersion(""), "server").status().code(),
             absl::StatusCode::kFailedPrecondition);
   EXPECT_THAT(store_->ListVersions("robot-1").value(), IsEmpty());
+}
+
+// Servers sharing one database claim the solves they run (SolveClaim): a solve is an orphan
+// when its claim has lapsed, or when the server that claimed it asks after a restart; another
+// server's live solve is never listed, and renewing a claim keeps it live.
+TEST_F(StoreTest, SolveClaimsDecideWhichRunningSolvesAreOrphans) {
+  const absl::Time t0 = absl::FromUnixSeconds(1'800'000'000);
+  ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
+  std::vector<Solve> solves;
+  const std::vector<SolveClaim> claims = {
+      {"replica-a", t0 + absl::Seconds(30)},  // live
+      {"replica-b", t0 - absl::Seconds(1)},   // its server stopped renewing it
+      {"replica-b", t0 + absl::Seconds(30)},  // live, then renewed
+      {},                                     // unclaimed: lapsed already
+  };
+  for (size_t i = 0; i < claims.size(); ++i) {
+    const std::string device = "robot-" + std::to_string(i + 10);
+    const std::string session = "S" + std::to_string(i + 10);
+    ASSERT_OK(store_->CreateDevice(MakeDevice(device), kActor).status());
+    ASSERT_OK(store_->CreateSession(MakeSession(device, session), kActor).status());
+    ASSERT_OK_AND_ASSIGN(Solve solve, store_->StartSolve(session, "server", claims[i]));
+    EXPECT_EQ(solve.owner, claims[i].owner);
+    EXPECT_EQ(solve.lease_until, claims[i].lease_until);
+    solves.push_back(solve);
+  }
+  const auto ids = [](const std::vector<Solve>& listed) {
+    std::vector<int64_t> out;
+    for (const Solve& s : listed) out.push_back(s.id);
+    return out;
+  };
+  ASSERT_OK_AND_ASSIGN(std::vector<Solve> orphans, store_->ListOrphanedSolves(t0));
+  EXPECT_THAT(ids(orphans), ::testing::ElementsAre(solves[1].id, solves[3].id));
+  // replica-a restarted: its own solve cannot be running any more.
+  ASSERT_OK_AND_ASSIGN(orphans, store_->ListOrphanedSolves(t0, "replica-a"));
+  EXPECT_THAT(ids(orphans), ::testing::ElementsAre(solves[0].id, solves[1].id, solves[3].id));
+  // 40 s later every lease has lapsed, unless renewed: replica-b renews (its lapsed one too,
+  // which it is still running after all) and only replica-a's and the unclaimed are orphans.
+  ASSERT_OK_AND_ASSIGN(int renewed, store_->RenewSolveLeases("replica-b", t0 + absl::Seconds(70)));
+  EXPECT_EQ(renewed, 2);
+  ASSERT_OK_AND_ASSIGN(orphans, store_->ListOrphanedSolves(t0 + absl::Seconds(40)));
+  EXPECT_THAT(ids(orphans), ::testing::ElementsAre(solves[0].id, solves[3].id));
+  // A finished solve is nobody's orphan and is not renewed.
+  ASSERT_OK(store_->FailSolve(solves[3].id, "gone", "", "server").status());
+  ASSERT_OK_AND_ASSIGN(orphans, store_->ListOrphanedSolves(t0 + absl::Seconds(40)));
+  EXPECT_THAT(ids(orphans), ::testing::ElementsAre(solves[0].id));
+  EXPECT_EQ(store_->RenewSolveLeases("", t0).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
 }  // namespace
