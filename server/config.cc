@@ -190,6 +190,13 @@ std::vector<ConfigOption> BuildOptions() {
                      [](DaemonConfig& c) -> absl::Duration& {
                        return c.server.sessions.solve_lease;
                      }),
+      DurationOption("active_cache_sync", "IMUCALD_ACTIVE_CACHE_SYNC",
+                     "how often the database is read for other servers' promotes and rollbacks "
+                     "(the bound on a stale fetch from this server); 0s: never, when it is "
+                     "alone on its database (default 250ms)",
+                     [](DaemonConfig& c) -> absl::Duration& {
+                       return c.server.active_cache_sync;
+                     }),
       DurationOption("drain_deadline", "IMUCALD_DRAIN_DEADLINE",
                      "on SIGTERM, how long in-flight calls may run before they are cancelled "
                      "(default 30s); queued solves then finish",

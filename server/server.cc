@@ -7,6 +7,7 @@
 #include <cerrno>
 #include <chrono>
 #include <cstring>
+#include <algorithm>
 #include <optional>
 #include <string_view>
 #include <thread>
@@ -225,30 +226,63 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   if (s->server_ == nullptr || s->port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
   }
-  s->lease_thread_ = std::thread([server = s.get(), id = sessions.replica_id,
-                                  lease = sessions.solve_lease] { server->KeepLeases(id, lease); });
+  // Other servers' changes from now on (what is in the database now was read fresh).
+  absl::StatusOr<storage::Store::ActiveChanges> start = s->store_->ActiveChangesSince(-1);
+  if (!start.ok()) return start.status();
+  s->synced_audit_id_ = start->last_id;
+  s->background_ = std::thread([server = s.get(), id = sessions.replica_id,
+                                lease = sessions.solve_lease, sync = options.active_cache_sync] {
+    server->Background(id, lease, sync);
+  });
   return s;
 }
 
-void Server::KeepLeases(const std::string& replica_id, absl::Duration lease) {
-  std::unique_lock lock(lease_mu_);
-  while (!lease_stop_) {
-    lease_cv_.wait_for(lock, absl::ToChronoNanoseconds(lease / 3), [this] { return lease_stop_; });
-    if (lease_stop_) break;
+void Server::Background(const std::string& replica_id, absl::Duration lease,
+                        absl::Duration sync) {
+  absl::Time next_lease = absl::Now() + lease / 3;
+  absl::Time next_sync = sync > absl::ZeroDuration() ? absl::Now() + sync : absl::InfiniteFuture();
+  std::unique_lock lock(background_mu_);
+  while (!background_stop_) {
+    background_cv_.wait_until(lock, absl::ToChronoTime(std::min(next_lease, next_sync)),
+                              [this] { return background_stop_; });
+    if (background_stop_) break;
     lock.unlock();
-    // Ours first: a slow sweep must not let our own claims lapse.
-    absl::Status renewed =
-        store_->RenewSolveLeases(replica_id, absl::Now() + lease).status();
-    absl::StatusOr<int> failed = FailOrphanedSolves(*store_, /*restarted=*/"");
-    if (!renewed.ok() || !failed.ok()) {
-      Log(LogLevel::kWarning, "solve_leases",
-          {{"replica_id", replica_id},
-           {"error", std::string(!renewed.ok() ? renewed.message() : failed.status().message())}});
-    } else if (*failed > 0) {
-      Log(LogLevel::kInfo, "orphaned_solves_failed",
-          {{"replica_id", replica_id}, {"solves", *failed}});
+    const absl::Time now = absl::Now();
+    if (now >= next_sync) {
+      SyncActiveCache();
+      next_sync = now + sync;
+    }
+    if (now >= next_lease) {
+      RenewLeases(replica_id, lease);
+      next_lease = now + lease / 3;
     }
     lock.lock();
+  }
+}
+
+void Server::SyncActiveCache() {
+  std::lock_guard lock(sync_mu_);
+  absl::StatusOr<storage::Store::ActiveChanges> changes =
+      store_->ActiveChangesSince(synced_audit_id_);
+  if (!changes.ok()) {
+    Log(LogLevel::kWarning, "active_cache_sync",
+        {{"error", std::string(changes.status().message())}});
+    return;
+  }
+  for (const std::string& device : changes->devices) active_cache_->Invalidate(device);
+  synced_audit_id_ = changes->last_id;
+}
+
+void Server::RenewLeases(const std::string& replica_id, absl::Duration lease) {
+  // Ours first: a slow sweep must not let our own claims lapse.
+  absl::Status renewed = store_->RenewSolveLeases(replica_id, absl::Now() + lease).status();
+  absl::StatusOr<int> failed = FailOrphanedSolves(*store_, /*restarted=*/"");
+  if (!renewed.ok() || !failed.ok()) {
+    Log(LogLevel::kWarning, "solve_leases",
+        {{"replica_id", replica_id},
+         {"error", std::string(!renewed.ok() ? renewed.message() : failed.status().message())}});
+  } else if (*failed > 0) {
+    Log(LogLevel::kInfo, "orphaned_solves_failed", {{"replica_id", replica_id}, {"solves", *failed}});
   }
 }
 
@@ -269,11 +303,11 @@ void Server::Shutdown() {
   server_->Wait();
   sessions_->DrainSolves();  // queued solves finish and store their results
   {
-    std::lock_guard lock(lease_mu_);
-    lease_stop_ = true;
+    std::lock_guard lock(background_mu_);
+    background_stop_ = true;
   }
-  lease_cv_.notify_all();
-  if (lease_thread_.joinable()) lease_thread_.join();
+  background_cv_.notify_all();
+  if (background_.joinable()) background_.join();
 }
 
 }  // namespace imucal::server

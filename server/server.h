@@ -47,6 +47,11 @@ struct ServerOptions {
   // token and writes its secret to this file (mode 0600); empty: "<db_path>.admin-token".
   std::string admin_token_file;
   DenialAuditLimits deny_audit;  // how many audit rows refused calls may write (server/auth.h)
+  // How often the server reads the database for active-version changes other servers sharing
+  // it made (Store::ActiveChangesSince), dropping those devices from its fetch cache: a promote
+  // or rollback through one server is answered by every other within about this long. Zero:
+  // never (one server alone on its database; its own changes are seen at once regardless).
+  absl::Duration active_cache_sync = absl::Milliseconds(250);
   // "HOST:PORT" to serve Prometheus metrics on (http://HOST:PORT/metrics, server/metrics.h);
   // port 0 picks a free one; empty: no metrics kept.
   std::string metrics_listen;
@@ -76,9 +81,18 @@ class Server {
 
  private:
   Server() = default;
-  // Renews this server's solve claims every lease / 3 and fails others' lapsed ones, until
-  // Shutdown (on lease_thread_).
-  void KeepLeases(const std::string& replica_id, absl::Duration lease);
+  // Until Shutdown, on background_: renews this server's solve claims every lease / 3 and fails
+  // others' lapsed ones; every `sync` (if positive), SyncActiveCache.
+  void Background(const std::string& replica_id, absl::Duration lease, absl::Duration sync);
+  void RenewLeases(const std::string& replica_id, absl::Duration lease);
+
+ public:
+  // Drops from the fetch cache the devices whose active version changed in the database since
+  // the last call (another server's promote, rollback or solve). Runs every active_cache_sync;
+  // public so that a test can run it at a known moment.
+  void SyncActiveCache();
+
+ private:
 
   std::string host_;
   int port_ = 0;
@@ -95,10 +109,12 @@ class Server {
   std::unique_ptr<ParameterServiceImpl> parameters_;
   std::unique_ptr<grpc::Server> server_;
   bool shut_down_ = false;
-  std::mutex lease_mu_;
-  std::condition_variable lease_cv_;
-  bool lease_stop_ = false;  // guarded by lease_mu_
-  std::thread lease_thread_;
+  std::mutex background_mu_;
+  std::condition_variable background_cv_;
+  bool background_stop_ = false;  // guarded by background_mu_
+  std::mutex sync_mu_;            // one SyncActiveCache at a time
+  int64_t synced_audit_id_ = 0;   // guarded by sync_mu_: the last audit entry read
+  std::thread background_;
 };
 
 }  // namespace imucal::server

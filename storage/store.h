@@ -236,6 +236,16 @@ class Store {
   // parameters); `id` and `time` are assigned. ListAudit is in id (= time) order.
   absl::StatusOr<AuditEntry> AppendAudit(const AuditEntry& entry);
   absl::StatusOr<std::vector<AuditEntry>> ListAudit(const AuditQuery& query = {});
+  // The devices whose active version may have changed (a version added, promoted or rolled
+  // back) in the commits after audit entry `after_id`, by any process sharing the database,
+  // and the last entry read: pass it as after_id next time (at most 1000 entries are read per
+  // call; the rest next time). after_id < 0: no devices, only the current last entry. For the
+  // caches of another server (a server's own commits reach it through on_active_change).
+  struct ActiveChanges {
+    std::vector<std::string> devices;
+    int64_t last_id = 0;
+  };
+  absl::StatusOr<ActiveChanges> ActiveChangesSince(int64_t after_id);
 
  private:
   class ReadLease;

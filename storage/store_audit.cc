@@ -1,6 +1,8 @@
 // Store: the audit log (store.h "Audit log"). Storage's own actions write their entries with
 // InsertAudit inside their transaction; AppendAudit is for actions outside storage.
 #include <cstdint>
+#include <optional>
+#include <string>
 #include <vector>
 
 #include "storage/sqlite_db.h"
@@ -20,6 +22,9 @@ constexpr char kSelectAudit[] =
 constexpr char kSelectAuditOfTarget[] =
     "SELECT id, time_us, actor, action, target, detail FROM audit_log "
     "WHERE target = ?3 AND id > ?1 ORDER BY id LIMIT ?2";
+constexpr char kSelectLastAuditId[] = "SELECT COALESCE(MAX(id), 0) FROM audit_log";
+constexpr char kSelectAuditActions[] =
+    "SELECT id, action, target FROM audit_log WHERE id > ?1 ORDER BY id LIMIT 1000";
 
 // Columns as in kSelectAudit.
 AuditEntry ReadAudit(const Statement& st) {
@@ -53,6 +58,40 @@ absl::StatusOr<AuditEntry> Store::AppendAudit(const AuditEntry& entry) {
     e.id = sqlite3_last_insert_rowid(conn.db());
     return e;
   });
+}
+
+absl::StatusOr<Store::ActiveChanges> Store::ActiveChangesSince(int64_t after_id) {
+  constexpr std::string_view kOp = "ActiveChangesSince";
+  ReadLease lease = AcquireReader();
+  ActiveChanges out;
+  out.last_id = after_id;
+  if (after_id < 0) {
+    STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> last,
+                             Annotate(kOp, ReadRow(lease.conn(), kSelectLastAuditId,
+                                                   FirstColumnInt64)));
+    out.last_id = last.value_or(0);
+    return out;
+  }
+  struct Row {
+    int64_t id;
+    std::string action, target;
+  };
+  STORAGE_ASSIGN_OR_RETURN(
+      std::vector<Row> rows,
+      Annotate(kOp, ReadRows(lease.conn(), kSelectAuditActions,
+                             [](const Statement& st) {
+                               return Row{st.ColumnInt64(0), st.ColumnText(1), st.ColumnText(2)};
+                             },
+                             after_id)));
+  constexpr std::string_view kDevice = "device:";
+  for (const Row& r : rows) {
+    out.last_id = r.id;
+    if (r.action != "version.add" && r.action != "version.promote" &&
+        r.action != "version.rollback")
+      continue;
+    if (r.target.starts_with(kDevice)) out.devices.push_back(r.target.substr(kDevice.size()));
+  }
+  return out;
 }
 
 absl::StatusOr<std::vector<AuditEntry>> Store::ListAudit(const AuditQuery& query) {

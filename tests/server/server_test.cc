@@ -304,6 +304,61 @@ TEST_F(ServerTest, AStartingServerLeavesAnotherServersLiveSolvesAlone) {
   EXPECT_EQ(GetSession(dead->id).state(), v1::SESSION_STATE_OPEN);
 }
 
+// Two servers on one database: a promote or rollback through one is answered by the other's
+// fetch once the other has synced its cache with the database (every active_cache_sync, 250 ms
+// by default; here by hand, at known moments): before that it answers from its cache.
+TEST_F(ServerTest, AnotherServersPromoteAndRollbackReachThisServersFetchAtTheNextSync) {
+  StartServer();  // server A
+  Register("robot-1");
+  {
+    auto store = storage::Store::Open(options_.db_path);
+    ASSERT_TRUE(store.ok()) << store.status();
+    for (int i = 1; i <= 2; ++i) {
+      storage::ParamVersion v;
+      v.device_id = "robot-1";
+      v.params_json = "{\"format\": \"imucal-params\", \"n\": " + std::to_string(i) + "}";
+      v.verdict = storage::Verdict::kPass;
+      v.accel_rms = 0.01;
+      v.state = i == 1 ? storage::VersionState::kActive : storage::VersionState::kCandidate;
+      ASSERT_TRUE((*store)->AddVersion(v, "test").ok());
+    }
+  }
+  ServerOptions b_options = options_;
+  b_options.sessions.replica_id = "replica-b";
+  b_options.active_cache_sync = absl::ZeroDuration();  // synced by hand below
+  absl::StatusOr<std::unique_ptr<Server>> b = Server::Start(b_options);
+  ASSERT_TRUE(b.ok()) << b.status();
+  auto b_params = v1::ParameterService::NewStub(
+      grpc::CreateChannel((*b)->address(), grpc::InsecureChannelCredentials()));
+  const auto fetch_on_b = [&] {
+    v1::GetActiveParametersRequest req;
+    req.set_device_id("robot-1");
+    v1::ParameterSet out;
+    const grpc::Status st = b_params->GetActiveParameters(Ctx().get(), req, &out);
+    EXPECT_TRUE(st.ok()) << st.error_message();
+    return out.version();
+  };
+  EXPECT_EQ(fetch_on_b(), 1);  // now in B's cache
+
+  v1::PromoteRequest promote;
+  promote.set_device_id("robot-1");
+  promote.set_version(2);
+  v1::ParameterSet set;
+  ASSERT_TRUE(params_->Promote(Ctx().get(), promote, &set).ok());
+  EXPECT_EQ(fetch_on_b(), 1);  // B has not looked yet
+  (*b)->SyncActiveCache();
+  EXPECT_EQ(fetch_on_b(), 2);
+
+  v1::RollbackRequest rollback;
+  rollback.set_device_id("robot-1");
+  rollback.set_to_version(1);
+  ASSERT_TRUE(params_->Rollback(Ctx().get(), rollback, &set).ok());
+  (*b)->SyncActiveCache();
+  EXPECT_EQ(fetch_on_b(), 1);
+  (*b)->SyncActiveCache();  // nothing new: the cache stays
+  EXPECT_EQ(fetch_on_b(), 1);
+}
+
 TEST(ParamCrcCacheTest, ComputesOncePerVersion) {
   storage::ParamVersion v;
   v.device_id = "robot-1";
