@@ -15,6 +15,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "boost/math/distributions/fisher_f.hpp"
+#include "core/so3.h"
 
 namespace imucal::core {
 namespace {
@@ -93,32 +94,6 @@ std::vector<Prepared> PrepareTurns(const MoveSearchInput& in) {
     out.push_back(std::move(p));
   }
   return out;
-}
-
-Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
-  Eigen::Matrix3d k;
-  k << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
-  return k;
-}
-
-// Exp(phi) and the right Jacobian Jr(phi) (core/gyro_solver.cc's, with the same Taylor series).
-Eigen::Matrix3d ExpAndRightJacobian(const Eigen::Vector3d& phi, Eigen::Matrix3d* jr) {
-  const double t2 = phi.squaredNorm();
-  double a, b, c;  // sin t / t, (1 - cos t) / t^2, (t - sin t) / t^3
-  if (t2 < 1e-4) {
-    a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0;
-    b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0;
-    c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0;
-  } else {
-    const double t = std::sqrt(t2);
-    a = std::sin(t) / t;
-    b = (1.0 - std::cos(t)) / t2;
-    c = (t - std::sin(t)) / (t2 * t);
-  }
-  const Eigen::Matrix3d k = Skew(phi);
-  const Eigen::Matrix3d k2 = phi * phi.transpose() - t2 * Eigen::Matrix3d::Identity();
-  if (jr != nullptr) *jr = Eigen::Matrix3d::Identity() - b * k + c * k2;
-  return Eigen::Matrix3d::Identity() + a * k + b * k2;
 }
 
 Eigen::Quaterniond ExpQ(const Eigen::Vector3d& phi) {
