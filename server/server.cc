@@ -4,10 +4,10 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
-#include <algorithm>
 #include <optional>
 #include <string_view>
 #include <thread>
@@ -168,6 +168,11 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->metrics_ = std::move(metrics);
   s->active_cache_ = std::move(cache);
   s->store_ = *std::move(store);
+  // Other servers' changes from now on: read before anything can be fetched into the cache, so
+  // that a change committed between a fill and the first sync is not missed.
+  absl::StatusOr<storage::Store::ActiveChanges> synced = s->store_->ActiveChangesSince(-1);
+  if (!synced.ok()) return synced.status();
+  s->synced_audit_id_ = synced->last_id;
   // Who may do what (server/auth.h). Insecure mode checks nothing: it is loopback-only.
   AuthorizerOptions auth_options;
   auth_options.enforce = !options.security.insecure;
@@ -226,10 +231,6 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   if (s->server_ == nullptr || s->port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
   }
-  // Other servers' changes from now on (what is in the database now was read fresh).
-  absl::StatusOr<storage::Store::ActiveChanges> start = s->store_->ActiveChangesSince(-1);
-  if (!start.ok()) return start.status();
-  s->synced_audit_id_ = start->last_id;
   s->background_ = std::thread([server = s.get(), id = sessions.replica_id,
                                 lease = sessions.solve_lease, sync = options.active_cache_sync] {
     server->Background(id, lease, sync);
