@@ -17,6 +17,7 @@ packages=(
   libzstd-dev liblz4-dev zlib1g-dev  # MCAP chunks (zstd, LZ4 frame) and their CRC-32
   zstd lz4  # tests/tools/write_mcap.py compresses its chunks with the command-line tools
   librsvg2-bin  # tests: the SVG plots rendered to PNG (rsvg-convert)
+  postgresql  # deploy/pg-throwaway.sh: the throwaway cluster the PostgreSQL tests run against
   prometheus-cpp-dev  # imucald's Prometheus metrics (server/metrics.h)
   libssl-dev openssl  # TLS and token hashing (libcrypto); the openssl CLI makes deploy/demo.sh's certificates
 )
