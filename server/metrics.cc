@@ -22,9 +22,13 @@ namespace imucal::server {
 namespace {
 
 // Seconds, from a fetch answered from memory (~50 us) to a solve of a long capture (minutes).
-prometheus::Histogram::BucketBoundaries LatencyBuckets() {
-  return {0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05,
-          0.1,    0.25,    0.5,    1,     2.5,    5,     10,   30,    60,   300};
+// Built once: every call's observation passes them (Family::Add uses them only for a new label
+// set), and the fetch hot path should not build a vector per call.
+const prometheus::Histogram::BucketBoundaries& LatencyBuckets() {
+  static const prometheus::Histogram::BucketBoundaries kBuckets = {
+      0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1,
+      0.25,   0.5,     1,      2.5,   5,      10,    30,   60,    300};
+  return kBuckets;
 }
 
 }  // namespace
