@@ -28,6 +28,7 @@ namespace {
 
 // storage/sqlite_db.h: the RAII layer over the SQLite C API.
 using storage::Connection;
+using storage::SqliteConnection;
 using storage::ConnectionOptions;
 using storage::ScopedStatement;
 
@@ -107,14 +108,14 @@ absl::StatusOr<BagFileList> BagFiles(const std::string& path) {
   return list;
 }
 
-absl::StatusOr<std::unique_ptr<Connection>> OpenBagFile(const std::string& file) {
+absl::StatusOr<std::unique_ptr<SqliteConnection>> OpenBagFile(const std::string& file) {
   struct stat info;
   if (::stat(file.c_str(), &info) != 0) {
     return absl::ErrnoToStatus(errno, Cat(file, ": cannot open"));
   }
   ConnectionOptions options;
   options.read_only = true;
-  absl::StatusOr<std::unique_ptr<Connection>> connection = Connection::Open(file, options);
+  absl::StatusOr<std::unique_ptr<SqliteConnection>> connection = SqliteConnection::Open(file, options);
   if (!connection.ok()) {
     return absl::Status(connection.status().code(), Cat(file, ": ", connection.status().message()));
   }
@@ -171,7 +172,7 @@ absl::StatusOr<core::Capture> ReadSqliteBag(const std::string& path,
   std::string topic_name = options.topic;
   ImuMessages messages;
   for (const std::string& file : files) {
-    absl::StatusOr<std::unique_ptr<Connection>> db = OpenBagFile(file);
+    absl::StatusOr<std::unique_ptr<SqliteConnection>> db = OpenBagFile(file);
     if (!db.ok()) return db.status();
     absl::StatusOr<std::vector<Topic>> topics = ReadTopics(**db, file);
     if (!topics.ok()) return topics.status();

@@ -162,7 +162,8 @@ std::vector<ConfigOption> BuildOptions() {
                    "picks a free one (default: none)",
                    [](DaemonConfig& c) -> std::string& { return c.server.metrics_listen; }),
       StringOption("db", "IMUCALD_DB", "PATH",
-                   "SQLite database file, created and migrated on start (default imucal.db)",
+                   "SQLite database file, or a postgresql:// URL shared by several servers; created "
+                   "(a file) and migrated on start (default imucal.db)",
                    [](DaemonConfig& c) -> std::string& { return c.server.db_path; }),
       ChoiceOption<storage::Durability>(
           "durability", "IMUCALD_DURABILITY", "full|normal",

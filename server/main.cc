@@ -49,13 +49,13 @@ int Serve(const imucal::server::DaemonConfig& config) {
   auto server = imucal::server::Server::Start(config.server);
   if (!server.ok()) {
     Log(LogLevel::kError, "server_start_failed",
-        {{"db", config.server.db_path}, {"error", server.status().message()}});
+        {{"db", imucal::storage::RedactedLocation(config.server.db_path)}, {"error", server.status().message()}});
     return 1;
   }
   const int schema_version = imucal::storage::LatestSchemaVersion();
   Log(LogLevel::kInfo, "server_start",
       {{"address", (*server)->address()},
-       {"db", config.server.db_path},
+       {"db", imucal::storage::RedactedLocation(config.server.db_path)},
        {"config", config.config_path},
        {"version", IMUCAL_VERSION},
        {"schema_version", schema_version},

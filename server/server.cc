@@ -85,6 +85,17 @@ absl::Status WriteSecretFile(const std::string& path, const std::string& secret)
 // revoked again.
 absl::StatusOr<std::string> BootstrapAdminToken(storage::TokenStore& tokens,
                                                 const ServerOptions& options) {
+  if (options.admin_token_file.empty() && storage::IsPostgresUrl(options.db_path)) {
+    // No file beside a PostgreSQL database: unless an admin token exists, the operator names
+    // one (several replicas share the database; the first to start writes the token).
+    absl::StatusOr<std::vector<storage::Token>> valid = tokens.List(/*include_revoked=*/false);
+    if (!valid.ok()) return valid.status();
+    for (const storage::Token& t : *valid)
+      if (t.role == storage::Role::kAdmin) return std::string();
+    return absl::FailedPreconditionError(
+        "admin_token_file: a PostgreSQL database has no file beside it to hold the first admin "
+        "token; name one (--admin-token-file)");
+  }
   absl::StatusOr<std::optional<storage::NewToken>> first =
       tokens.CreateFirstAdmin("bootstrap", kStartupActor);
   if (!first.ok()) return first.status();

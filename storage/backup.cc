@@ -13,12 +13,20 @@
 #include <vector>
 
 #include "storage/migrations.h"
+#include "storage/pg_db.h"
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
 namespace {
+
+absl::Status NotForPostgres(std::string_view what, std::string_view tool) {
+  return absl::FailedPreconditionError(
+      Cat(what, " copies SQLite files; a PostgreSQL database is backed up and restored with ",
+          "PostgreSQL's own tools (", tool, ")"));
+}
+
 
 // The tables every imucal schema since version 1 has: a file without them is not imucal's.
 constexpr const char* kRequiredTables[] = {"devices", "sessions", "sample_batches",
@@ -88,7 +96,7 @@ absl::Status CheckExists(const std::string& path) {
 }
 
 // Copies every page of `src` into `dest` in one step (one read transaction on `src`).
-absl::Status CopyPages(Connection& src, Connection& dest, std::string_view what) {
+absl::Status CopyPages(SqliteConnection& src, SqliteConnection& dest, std::string_view what) {
   sqlite3_backup* backup = sqlite3_backup_init(dest.db(), "main", src.db(), "main");
   if (backup == nullptr) {
     return SqliteStatus(sqlite3_extended_errcode(dest.db()), what, dest.db());
@@ -133,13 +141,13 @@ absl::Status CheckDirectoryOf(const std::string& path) {
 
 // Makes a standalone copy of `src` at `path` (replacing it), in rollback-journal mode so that
 // it is one file; verifies it and makes it durable.
-absl::Status WriteStandaloneCopy(Connection& src, const std::string& path) {
+absl::Status WriteStandaloneCopy(SqliteConnection& src, const std::string& path) {
   const std::string tmp = Cat(path, ".tmp");
   std::error_code ec;
   std::filesystem::remove(tmp, ec);
   {
-    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> dest,
-                             Connection::Open(tmp, ConnectionOptions{}));
+    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> dest,
+                             SqliteConnection::Open(tmp, ConnectionOptions{}));
     STORAGE_RETURN_IF_ERROR(CopyPages(src, *dest, Cat("copy to ", tmp)));
     // The pages came from a WAL database and say so in their header: make the copy a plain
     // rollback-journal database, so that it is complete without a -wal beside it.
@@ -150,8 +158,8 @@ absl::Status WriteStandaloneCopy(Connection& src, const std::string& path) {
     }
   }
   {
-    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> check,
-                             Connection::Open(tmp, ConnectionOptions{.read_only = true}));
+    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> check,
+                             SqliteConnection::Open(tmp, ConnectionOptions{.read_only = true}));
     STORAGE_RETURN_IF_ERROR(Annotate(tmp, Inspect(*check, /*check_integrity=*/true).status()));
   }
   STORAGE_RETURN_IF_ERROR(FsyncPath(tmp, /*directory=*/false));
@@ -164,8 +172,8 @@ absl::Status WriteStandaloneCopy(Connection& src, const std::string& path) {
 
 absl::StatusOr<DatabaseInfo> InspectDatabase(const std::string& path, bool check_integrity) {
   STORAGE_RETURN_IF_ERROR(CheckExists(path));
-  absl::StatusOr<std::unique_ptr<Connection>> conn =
-      Connection::Open(path, ConnectionOptions{.read_only = true});
+  absl::StatusOr<std::unique_ptr<SqliteConnection>> conn =
+      SqliteConnection::Open(path, ConnectionOptions{.read_only = true});
   if (!conn.ok()) return Annotate(path, conn.status());
   absl::StatusOr<DatabaseInfo> info = Inspect(**conn, check_integrity);
   if (!info.ok()) return Annotate(path, info.status());
@@ -173,10 +181,16 @@ absl::StatusOr<DatabaseInfo> InspectDatabase(const std::string& path, bool check
 }
 
 absl::StatusOr<int> SchemaVersionOf(const std::string& path) {
+  if (IsPostgresUrl(path)) {
+    absl::StatusOr<std::unique_ptr<PgConnection>> pg =
+        PgConnection::Open(path, ConnectionOptions{.read_only = true});
+    if (!pg.ok()) return pg.status();
+    return SchemaVersion(**pg);
+  }
   std::error_code ec;
   if (!std::filesystem::exists(path, ec)) return 0;
-  absl::StatusOr<std::unique_ptr<Connection>> conn =
-      Connection::Open(path, ConnectionOptions{.read_only = true});
+  absl::StatusOr<std::unique_ptr<SqliteConnection>> conn =
+      SqliteConnection::Open(path, ConnectionOptions{.read_only = true});
   if (!conn.ok()) return Annotate(path, conn.status());
   absl::StatusOr<int> version = SchemaVersion(**conn);
   if (!version.ok()) return Annotate(path, version.status());
@@ -185,12 +199,13 @@ absl::StatusOr<int> SchemaVersionOf(const std::string& path) {
 
 absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path,
                                             const std::string& out_path) {
+  if (IsPostgresUrl(db_path)) return NotForPostgres("backup", "pg_dump --format=custom");
   if (out_path.empty()) return absl::InvalidArgumentError("backup: empty output path");
   STORAGE_RETURN_IF_ERROR(CheckExists(db_path));
   STORAGE_RETURN_IF_ERROR(CheckDirectoryOf(out_path));
   // Read-only: the backup never writes the live database (nor checkpoints its WAL).
-  absl::StatusOr<std::unique_ptr<Connection>> src =
-      Connection::Open(db_path, ConnectionOptions{.read_only = true});
+  absl::StatusOr<std::unique_ptr<SqliteConnection>> src =
+      SqliteConnection::Open(db_path, ConnectionOptions{.read_only = true});
   if (!src.ok()) return Annotate(db_path, src.status());
   if (absl::Status s = Annotate(db_path, Inspect(**src, false).status()); !s.ok()) return s;
   STORAGE_RETURN_IF_ERROR(WriteStandaloneCopy(**src, out_path));
@@ -199,6 +214,7 @@ absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path,
 
 absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
                                              const std::string& db_path) {
+  if (IsPostgresUrl(db_path)) return NotForPostgres("restore", "pg_restore");
   absl::StatusOr<DatabaseInfo> source = InspectDatabase(backup_path, /*check_integrity=*/true);
   if (!source.ok()) {
     return absl::Status(source.status().code(),
@@ -214,7 +230,7 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
     // (busy timeout 0): restore never changes a database under a live server.
     ConnectionOptions options;
     options.busy_timeout = absl::ZeroDuration();
-    absl::StatusOr<std::unique_ptr<Connection>> dest = Connection::Open(db_path, options);
+    absl::StatusOr<std::unique_ptr<SqliteConnection>> dest = SqliteConnection::Open(db_path, options);
     if (!dest.ok()) return Annotate(db_path, dest.status());
     STORAGE_RETURN_IF_ERROR((*dest)->Exec("PRAGMA locking_mode = EXCLUSIVE"));
     if (absl::Status s = (*dest)->Exec("BEGIN EXCLUSIVE; COMMIT"); !s.ok()) {
@@ -228,8 +244,8 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
       // Keep what was there: a restore of the wrong file can itself be undone.
       STORAGE_RETURN_IF_ERROR(WriteStandaloneCopy(**dest, Cat(db_path, ".pre-restore")));
     }
-    absl::StatusOr<std::unique_ptr<Connection>> src =
-        Connection::Open(backup_path, ConnectionOptions{.read_only = true});
+    absl::StatusOr<std::unique_ptr<SqliteConnection>> src =
+        SqliteConnection::Open(backup_path, ConnectionOptions{.read_only = true});
     if (!src.ok()) return Annotate(backup_path, src.status());
     STORAGE_RETURN_IF_ERROR(CopyPages(**src, **dest, Cat("restore into ", db_path)));
   }

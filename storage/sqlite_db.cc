@@ -54,7 +54,8 @@ absl::Status SqliteStatus(int extended_code, std::string_view context, sqlite3* 
 
 // ---- Statement -------------------------------------------------------------------------------
 
-absl::StatusOr<Statement> Statement::Prepare(sqlite3* db, std::string_view sql) {
+absl::StatusOr<std::unique_ptr<SqliteStatement>> SqliteStatement::Prepare(sqlite3* db,
+                                                                         std::string_view sql) {
   if (sql.size() > static_cast<size_t>(std::numeric_limits<int>::max())) {
     return absl::InvalidArgumentError("SQL text too long");
   }
@@ -67,21 +68,21 @@ absl::StatusOr<Statement> Statement::Prepare(sqlite3* db, std::string_view sql) 
     return SqliteStatus(rc, "prepare", db);
   }
   if (raw == nullptr) return absl::InternalError("prepare: empty SQL");
-  Statement stmt;
-  stmt.stmt_.reset(raw);
-  stmt.db_ = db;
+  std::unique_ptr<SqliteStatement> stmt(new SqliteStatement());
+  stmt->stmt_.reset(raw);
+  stmt->db_ = db;
   return stmt;
 }
 
-void Statement::NoteBind(int rc) {
+void SqliteStatement::NoteBind(int rc) {
   if (rc != SQLITE_OK && bind_error_ == SQLITE_OK) bind_error_ = rc;
 }
 
-void Statement::BindInt64(int index, int64_t value) {
+void SqliteStatement::BindInt64(int index, int64_t value) {
   NoteBind(sqlite3_bind_int64(stmt_.get(), index, value));
 }
 
-void Statement::BindDouble(int index, double value) {
+void SqliteStatement::BindDouble(int index, double value) {
   if (std::isnan(value)) {
     BindNull(index);
     return;
@@ -89,21 +90,21 @@ void Statement::BindDouble(int index, double value) {
   NoteBind(sqlite3_bind_double(stmt_.get(), index, value));
 }
 
-void Statement::BindText(int index, std::string_view value) {
+void SqliteStatement::BindText(int index, std::string_view value) {
   NoteBind(sqlite3_bind_text64(stmt_.get(), index, value.data(), value.size(), SQLITE_TRANSIENT,
                                SQLITE_UTF8));
 }
 
-void Statement::BindBlob(int index, std::string_view value) {
+void SqliteStatement::BindBlob(int index, std::string_view value) {
   // A zero-length blob needs a non-null pointer, or SQLite binds NULL.
   static constexpr char kEmpty = 0;
   const char* data = value.empty() ? &kEmpty : value.data();
   NoteBind(sqlite3_bind_blob64(stmt_.get(), index, data, value.size(), SQLITE_TRANSIENT));
 }
 
-void Statement::BindNull(int index) { NoteBind(sqlite3_bind_null(stmt_.get(), index)); }
+void SqliteStatement::BindNull(int index) { NoteBind(sqlite3_bind_null(stmt_.get(), index)); }
 
-absl::StatusOr<bool> Statement::Step() {
+absl::StatusOr<bool> SqliteStatement::Step() {
   if (bind_error_ != SQLITE_OK) return SqliteStatus(bind_error_, "bind", nullptr);
   const int rc = sqlite3_step(stmt_.get());
   if (rc == SQLITE_ROW) return true;
@@ -111,58 +112,43 @@ absl::StatusOr<bool> Statement::Step() {
   return SqliteStatus(rc, "step", db_);
 }
 
-absl::Status Statement::Run() {
-  for (;;) {
-    absl::StatusOr<bool> row = Step();
-    if (!row.ok()) return row.status();
-    if (!*row) return absl::OkStatus();
-  }
-}
-
-int64_t Statement::ColumnInt64(int column) const {
+int64_t SqliteStatement::ColumnInt64(int column) const {
   return sqlite3_column_int64(stmt_.get(), column);
 }
 
-double Statement::ColumnDouble(int column) const {
+double SqliteStatement::ColumnDouble(int column) const {
   if (ColumnIsNull(column)) return std::numeric_limits<double>::quiet_NaN();
   return sqlite3_column_double(stmt_.get(), column);
 }
 
-std::string Statement::ColumnText(int column) const {
+std::string SqliteStatement::ColumnText(int column) const {
   const unsigned char* text = sqlite3_column_text(stmt_.get(), column);
   if (text == nullptr) return std::string();
   return std::string(reinterpret_cast<const char*>(text),
                      static_cast<size_t>(sqlite3_column_bytes(stmt_.get(), column)));
 }
 
-std::string Statement::ColumnBlob(int column) const { return std::string(ColumnBlobView(column)); }
-
-std::string_view Statement::ColumnBlobView(int column) const {
+std::string_view SqliteStatement::ColumnBlobView(int column) const {
   const void* data = sqlite3_column_blob(stmt_.get(), column);
   if (data == nullptr) return std::string_view();
   return std::string_view(static_cast<const char*>(data),
                           static_cast<size_t>(sqlite3_column_bytes(stmt_.get(), column)));
 }
 
-bool Statement::ColumnIsNull(int column) const {
+bool SqliteStatement::ColumnIsNull(int column) const {
   return sqlite3_column_type(stmt_.get(), column) == SQLITE_NULL;
 }
 
-void Statement::Reset() {
+void SqliteStatement::Reset() {
   sqlite3_reset(stmt_.get());
   sqlite3_clear_bindings(stmt_.get());
   bind_error_ = SQLITE_OK;
 }
 
-ScopedStatement::~ScopedStatement() {
-  if (stmt_ != nullptr) stmt_->Reset();
-  if (in_use_ != nullptr) *in_use_ = false;
-}
-
 // ---- Connection ------------------------------------------------------------------------------
 
-absl::StatusOr<std::unique_ptr<Connection>> Connection::Open(const std::string& path,
-                                                             const ConnectionOptions& options) {
+absl::StatusOr<std::unique_ptr<SqliteConnection>> SqliteConnection::Open(
+    const std::string& path, const ConnectionOptions& options) {
   if (sqlite3_threadsafe() == 0) {
     return absl::FailedPreconditionError("SQLite was built without thread support");
   }
@@ -179,7 +165,7 @@ absl::StatusOr<std::unique_ptr<Connection>> Connection::Open(const std::string& 
     return status;
   }
   sqlite3_extended_result_codes(db, 1);
-  std::unique_ptr<Connection> conn(new Connection(db));
+  std::unique_ptr<SqliteConnection> conn(new SqliteConnection(db));
   const auto timeout_ms = absl::ToInt64Milliseconds(options.busy_timeout);
   sqlite3_busy_timeout(db, static_cast<int>(std::min<int64_t>(timeout_ms, 1 << 30)));
   if (absl::Status s = conn->Exec("PRAGMA foreign_keys = ON"); !s.ok()) return s;
@@ -189,25 +175,18 @@ absl::StatusOr<std::unique_ptr<Connection>> Connection::Open(const std::string& 
   return conn;
 }
 
-Connection::~Connection() {
-  cache_.clear();  // finalise every statement before closing
+SqliteConnection::~SqliteConnection() {
+  ForgetStatements();  // finalise every statement before closing
   sqlite3_close_v2(db_);
 }
 
-absl::StatusOr<ScopedStatement> Connection::Prepare(std::string_view sql) {
-  auto it = cache_.find(sql);
-  if (it == cache_.end()) {
-    absl::StatusOr<Statement> stmt = Statement::Prepare(db_, sql);
-    if (!stmt.ok()) return stmt.status();
-    it = cache_.emplace(std::string(sql), Cached{std::move(*stmt), false}).first;
-  }
-  Cached& cached = it->second;
-  if (cached.in_use) return absl::InternalError("statement already in use on this connection");
-  cached.in_use = true;
-  return ScopedStatement(&cached.stmt, &cached.in_use);
+absl::StatusOr<std::unique_ptr<Statement>> SqliteConnection::NewStatement(std::string_view sql) {
+  absl::StatusOr<std::unique_ptr<SqliteStatement>> stmt = SqliteStatement::Prepare(db_, sql);
+  if (!stmt.ok()) return stmt.status();
+  return std::unique_ptr<Statement>(*std::move(stmt));
 }
 
-absl::Status Connection::Exec(const char* sql) {
+absl::Status SqliteConnection::Exec(const char* sql) {
   char* message = nullptr;
   const int rc = sqlite3_exec(db_, sql, nullptr, nullptr, &message);
   if (rc == SQLITE_OK) return absl::OkStatus();
@@ -216,37 +195,6 @@ absl::Status Connection::Exec(const char* sql) {
                    Cat("exec: ", message != nullptr ? message : sqlite3_errstr(rc)));
   sqlite3_free(message);
   return status;
-}
-
-// ---- Transaction -----------------------------------------------------------------------------
-
-absl::StatusOr<Transaction> Transaction::Begin(Connection& conn) {
-  absl::StatusOr<ScopedStatement> begin = conn.Prepare("BEGIN IMMEDIATE");
-  if (!begin.ok()) return begin.status();
-  if (absl::Status s = (*begin)->Run(); !s.ok()) return s;
-  return Transaction(&conn);
-}
-
-absl::Status Transaction::Commit() {
-  if (conn_ == nullptr) return absl::InternalError("transaction already finished");
-  {
-    absl::StatusOr<ScopedStatement> commit = conn_->Prepare("COMMIT");
-    if (!commit.ok()) return commit.status();
-    // On failure the transaction stays open and the destructor rolls it back.
-    if (absl::Status s = (*commit)->Run(); !s.ok()) return s;
-  }
-  conn_ = nullptr;
-  return absl::OkStatus();
-}
-
-Transaction::~Transaction() {
-  // SQLite may already have rolled back by itself (after FULL, IOERR, NOMEM...).
-  if (conn_ == nullptr || sqlite3_get_autocommit(conn_->db()) != 0) return;
-  if (absl::StatusOr<ScopedStatement> rollback = conn_->Prepare("ROLLBACK"); rollback.ok()) {
-    (void)(*rollback)->Run();
-  } else {
-    (void)conn_->Exec("ROLLBACK");
-  }
 }
 
 }  // namespace imucal::storage

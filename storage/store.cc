@@ -2,10 +2,15 @@
 // checkpointer) and the background WAL checkpoints. Each table's calls are in store_<table>.cc.
 #include "storage/store.h"
 
+#include <algorithm>
 #include <chrono>
+#include <random>
+#include <thread>
 #include <utility>
 
 #include "storage/migrations.h"
+#include "storage/db.h"
+#include "storage/pg_db.h"
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "storage/store_internal.h"
@@ -14,7 +19,7 @@
 namespace imucal::storage {
 
 Store::Store(StoreOptions options, std::unique_ptr<Connection> writer,
-             std::unique_ptr<Connection> checkpointer,
+             std::unique_ptr<SqliteConnection> checkpointer,
              std::vector<std::unique_ptr<Connection>> readers)
     : options_(std::move(options)),
       writer_(std::move(writer)),
@@ -43,12 +48,13 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
   if (options.read_connections < 1) {
     return absl::InvalidArgumentError("StoreOptions::read_connections must be at least 1");
   }
+  if (IsPostgresUrl(path)) return OpenPostgres(path, std::move(options));
   const std::string op = Cat("open ", path);
   ConnectionOptions conn_options;
   conn_options.synchronous_full = options.durability == Durability::kFull;
   conn_options.busy_timeout = options.busy_timeout;
   STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> writer,
-                           Annotate(op, Connection::Open(path, conn_options)));
+                           Annotate(op, SqliteConnection::Open(path, conn_options)));
   {
     // WAL is a property of the file: set once, kept by every later open.
     STORAGE_ASSIGN_OR_RETURN(
@@ -63,17 +69,47 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
   // ingest burst grew it to.
   STORAGE_RETURN_IF_ERROR(Annotate(op, writer->Exec("PRAGMA journal_size_limit = 67108864")));
   STORAGE_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
-  STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> checkpointer,
-                           Annotate(op, Connection::Open(path, conn_options)));
+  STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> checkpointer,
+                           Annotate(op, SqliteConnection::Open(path, conn_options)));
   std::vector<std::unique_ptr<Connection>> readers;
   conn_options.read_only = true;
   for (int i = 0; i < options.read_connections; ++i) {
     STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> reader,
-                             Annotate(op, Connection::Open(path, conn_options)));
+                             Annotate(op, SqliteConnection::Open(path, conn_options)));
     readers.push_back(std::move(reader));
   }
   return std::unique_ptr<Store>(new Store(std::move(options), std::move(writer),
                                           std::move(checkpointer), std::move(readers)));
+}
+
+absl::StatusOr<std::unique_ptr<Store>> Store::OpenPostgres(const std::string& url,
+                                                           StoreOptions options) {
+  // PostgreSQL keeps its own write-ahead log and checkpoints: no checkpointer. Commits are
+  // synchronous whatever options.durability says (pg_db.h).
+  const std::string op = Cat("open ", RedactedLocation(url));
+  ConnectionOptions conn_options;
+  conn_options.busy_timeout = options.busy_timeout;
+  STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> writer,
+                           Annotate(op, PgConnection::Open(url, conn_options)));
+  STORAGE_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
+  std::vector<std::unique_ptr<Connection>> readers;
+  conn_options.read_only = true;
+  for (int i = 0; i < options.read_connections; ++i) {
+    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> reader,
+                             Annotate(op, PgConnection::Open(url, conn_options)));
+    readers.push_back(std::move(reader));
+  }
+  return std::unique_ptr<Store>(
+      new Store(std::move(options), std::move(writer), nullptr, std::move(readers)));
+}
+
+Dialect Store::dialect() const { return writer_->dialect(); }
+
+void PauseBeforeRetry(int attempt) {
+  thread_local std::mt19937_64 rng{std::random_device{}()};
+  const int64_t max_us = int64_t{1000} << std::min(attempt, 8);
+  std::this_thread::sleep_for(std::chrono::microseconds(
+      std::uniform_int_distribution<int64_t>(max_us / 4, max_us)(rng)));
 }
 
 absl::StatusOr<ParamVersion> Store::NotifyIfActive(absl::StatusOr<ParamVersion> version) {
@@ -108,12 +144,14 @@ void Store::ReleaseReader(Connection* conn) {
 // ---- Background threads: the committer (CommitLoop, store_samples.cc) and checkpoints ------
 
 void Store::StartBackgroundThreads() {
+  committer_ = std::thread([this] { CommitLoop(); });
+  if (checkpointer_ == nullptr) return;  // PostgreSQL checkpoints by itself
   {
     // From now on the writer's commits no longer checkpoint (SQLite's automatic checkpoint is
     // this hook): count the WAL's pages and let CheckpointLoop do it.
     std::lock_guard lock(write_mu_);
     sqlite3_wal_hook(
-        writer_->db(),
+        static_cast<SqliteConnection&>(*writer_).db(),
         [](void* arg, sqlite3*, const char*, int pages) {
           Store* store = static_cast<Store*>(arg);
           store->wal_pages_.store(pages, std::memory_order_relaxed);
@@ -122,7 +160,6 @@ void Store::StartBackgroundThreads() {
         },
         this);
   }
-  committer_ = std::thread([this] { CommitLoop(); });
   checkpoint_thread_ = std::thread([this] { CheckpointLoop(); });
 }
 

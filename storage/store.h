@@ -1,5 +1,11 @@
 // imucal's durable state: devices, sessions and their raw sample batches, poses, solves,
-// parameter versions and the audit log, in one SQLite file (schema: migrations.cc).
+// parameter versions and the audit log, in one SQLite file (schema: migrations.cc), or in a
+// PostgreSQL database that several servers share.
+//
+// Backends (db.h): Store::Open takes a file path (SQLite, the embedded default) or a
+// postgresql:// URL. Both run the same SQL with the same semantics: durable acks, one open
+// session per device, one active version per device, immutable versions numbered in storage,
+// audit in the same transaction. What differs is said below as "SQLite:" and "PostgreSQL:".
 //
 // Durability: the file is in WAL mode with synchronous=FULL by default. A commit appends its
 // pages to the -wal file and, under FULL, fsyncs it before COMMIT returns; only then is a batch
@@ -13,6 +19,8 @@
 // fsync to each ack's latency, not a limit on throughput (README "Durability and load" has the
 // figures). Durability::kNormal remains for stores whose last commits a power cut may take
 // (benchmarks of the CPU path, scratch files).
+// PostgreSQL: a commit returns once PostgreSQL has flushed it to its write-ahead log
+// (synchronous_commit = on), whatever Durability says.
 //
 // Threads: a Store is safe to share. Writes go through one connection, serialised by a mutex,
 // each call in one BEGIN IMMEDIATE transaction (which also serialises writers in other
@@ -23,6 +31,10 @@
 // stream's ack waits for one. Reads use a small pool of read-only connections: WAL lets them
 // run concurrently with each other and with the writer, each seeing the latest committed state
 // when its statement starts, so GetActive never waits behind an ingest commit.
+// PostgreSQL: the same writer connection and read pool, but write transactions are SERIALIZABLE
+// and those of other servers run side by side; one that conflicts with another is run again
+// (InTransaction, store_internal.h). The version number is still assigned inside the
+// transaction that inserts it, so two servers never hand out the same one.
 //
 // Errors: NotFound for a missing device/session/version; InvalidArgument for malformed input;
 // FailedPrecondition for a call the current state does not allow (the message says why and
@@ -51,11 +63,13 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
+#include "storage/db.h"
 #include "storage/types.h"
 
 namespace imucal::storage {
 
-class Connection;  // sqlite_db.h: SQLite stays out of this header
+class Connection;        // db.h
+class SqliteConnection;  // sqlite_db.h: SQLite stays out of this header
 
 // PRAGMA synchronous in WAL mode: see the header comment.
 enum class Durability { kNormal, kFull };
@@ -99,10 +113,12 @@ struct AuditQuery {
 class Store {
  public:
   // Opens `path` (a file: ":memory:" cannot be shared by the pool), creating it if needed,
-  // switches it to WAL and applies pending migrations.
+  // switches it to WAL and applies pending migrations. A postgresql:// URL opens that
+  // database instead (it must exist; the tables are created by the migrations).
   static absl::StatusOr<std::unique_ptr<Store>> Open(const std::string& path,
                                                      StoreOptions options = {});
   ~Store();
+  Dialect dialect() const;  // which backend
   Store(const Store&) = delete;
   Store& operator=(const Store&) = delete;
 
@@ -250,7 +266,10 @@ class Store {
  private:
   class ReadLease;
   Store(StoreOptions options, std::unique_ptr<Connection> writer,
-        std::unique_ptr<Connection> checkpointer, std::vector<std::unique_ptr<Connection>> readers);
+        std::unique_ptr<SqliteConnection> checkpointer,
+        std::vector<std::unique_ptr<Connection>> readers);
+  static absl::StatusOr<std::unique_ptr<Store>> OpenPostgres(const std::string& url,
+                                                             StoreOptions options);
 
   absl::Time Now() const;
   absl::StatusOr<ParamVersion> NotifyIfActive(absl::StatusOr<ParamVersion> version);
@@ -278,7 +297,8 @@ class Store {
   std::atomic<int> wal_pages_{0};       // WAL pages written since the last checkpoint
   std::thread committer_;
   std::thread checkpoint_thread_;
-  std::unique_ptr<Connection> checkpointer_;  // its own connection: never waits for writes
+  // Its own connection: never waits for writes. Null on PostgreSQL.
+  std::unique_ptr<SqliteConnection> checkpointer_;
 
   // Declared after writer_ so they close first (the writer, last out, checkpoints the WAL).
   std::vector<std::unique_ptr<Connection>> readers_;

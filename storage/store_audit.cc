@@ -5,7 +5,7 @@
 #include <string>
 #include <vector>
 
-#include "storage/sqlite_db.h"
+#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
@@ -15,7 +15,7 @@ namespace {
 
 constexpr char kInsertAudit[] =
     "INSERT INTO audit_log (time_us, actor, action, target, detail) "
-    "VALUES (?1, ?2, ?3, ?4, ?5)";
+    "VALUES (?1, ?2, ?3, ?4, ?5) RETURNING id";
 constexpr char kSelectAudit[] =
     "SELECT id, time_us, actor, action, target, detail FROM audit_log "
     "WHERE id > ?1 ORDER BY id LIMIT ?2";
@@ -54,8 +54,11 @@ absl::StatusOr<AuditEntry> Store::AppendAudit(const AuditEntry& entry) {
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<AuditEntry> {
     AuditEntry e = entry;
     e.time = Now();
-    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, e.time, e.actor, e.action, e.target, e.detail));
-    e.id = sqlite3_last_insert_rowid(conn.db());
+    STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> id,
+                             ReadRow(conn, kInsertAudit, FirstColumnInt64, Micros(e.time), e.actor,
+                                     e.action, e.target, e.detail));
+    if (!id) return absl::InternalError("INSERT ... RETURNING id returned no row");
+    e.id = *id;
     return e;
   });
 }

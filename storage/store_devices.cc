@@ -4,7 +4,7 @@
 #include <optional>
 #include <utility>
 
-#include "storage/sqlite_db.h"
+#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"

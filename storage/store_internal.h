@@ -11,6 +11,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -21,7 +22,7 @@
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
 #include "storage/sample_codec.h"
-#include "storage/sqlite_db.h"
+#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/types.h"
@@ -35,8 +36,10 @@ namespace imucal::storage {
 inline int64_t Micros(absl::Time t) { return absl::ToUnixMicros(t); }
 inline absl::Time FromMicros(int64_t us) { return absl::FromUnixMicros(us); }
 
-// SQLite's LIMIT -1 is "no limit"; the API's is 0.
-inline int64_t SqlLimit(int limit) { return limit > 0 ? limit : -1; }
+// The API's "no limit" is 0; SQL's, on both backends, a LIMIT no table reaches.
+inline int64_t SqlLimit(int limit) {
+  return limit > 0 ? limit : std::numeric_limits<int64_t>::max();
+}
 
 // An optional text column: NULL when empty.
 inline std::optional<std::string_view> NullIfEmpty(std::string_view value) {
@@ -62,10 +65,22 @@ const absl::Status& StatusOf(const absl::StatusOr<T>& s) {
   return s.status();
 }
 
-// Runs `body(conn)` in one BEGIN IMMEDIATE transaction, committing only if it succeeds.
-// `body` returns absl::Status or absl::StatusOr<T>; errors are prefixed with `op`
+// How often InTransaction runs a transaction that a concurrent one aborted.
+inline constexpr int kTransactionAttempts = 12;
+
+// Before attempt `attempt` + 1: a random pause of up to 2^attempt ms (at most 256 ms), so that
+// the transactions that collided do not collide again.
+void PauseBeforeRetry(int attempt);
+
+// Runs `body(conn)` in one write transaction (Transaction, db.h), committing only if it
+// succeeds. `body` returns absl::Status or absl::StatusOr<T>; errors are prefixed with `op`
 // (WithContext, status_macros.h).
-// The connection's on_transaction hears of it, committed or not.
+// A transaction that the backend aborts because it conflicted with a concurrent one (Aborted:
+// PostgreSQL's serialization failures and deadlocks, when several servers share the database)
+// runs again from the start, up to kTransactionAttempts times; so `body` must be safe to run
+// again: it reads and writes through `conn` and returns what it found, and anything it collects
+// outside is reset at its start.
+// The connection's on_transaction hears of it once, committed or not, the retries included.
 template <typename F>
 std::invoke_result_t<F, Connection&> InTransaction(std::string_view op, Connection& conn,
                                                    F&& body) {
@@ -74,12 +89,24 @@ std::invoke_result_t<F, Connection&> InTransaction(std::string_view op, Connecti
     if (conn.on_transaction) conn.on_transaction(op, absl::Now() - start);
     return result;
   };
-  absl::StatusOr<Transaction> txn = Transaction::Begin(conn);
-  if (!txn.ok()) return told(WithContext(op, txn.status()));
-  auto result = body(conn);
-  if (!result.ok()) return told(WithContext(op, StatusOf(result)));
-  if (absl::Status s = txn->Commit(); !s.ok()) return told(WithContext(op, s));
-  return told(std::move(result));
+  for (int attempt = 1;; ++attempt) {
+    absl::Status failed;
+    {
+      absl::StatusOr<Transaction> txn = Transaction::Begin(conn);
+      if (!txn.ok()) return told(WithContext(op, txn.status()));
+      auto result = body(conn);
+      if (result.ok()) {
+        failed = txn->Commit();
+        if (failed.ok()) return told(std::move(result));
+      } else {
+        failed = StatusOf(result);
+      }
+    }  // rolled back here unless committed
+    if (!absl::IsAborted(failed) || attempt >= kTransactionAttempts) {
+      return told(WithContext(op, failed));
+    }
+    PauseBeforeRetry(attempt);
+  }
 }
 
 // ---- Shared lookups and writes, inside the caller's transaction or read lease ----------------

@@ -4,7 +4,7 @@
 #include <string>
 #include <vector>
 
-#include "storage/sqlite_db.h"
+#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
@@ -18,11 +18,15 @@ constexpr char kInsertPose[] =
     "INSERT INTO poses (session_id, pose_index, t_start_s, t_end_s, used, reason, detail_json, "
     "face) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)";
 constexpr char kUpsertPose[] =
-    "INSERT OR REPLACE INTO poses (session_id, pose_index, t_start_s, t_end_s, used, reason, "
-    "detail_json, face) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)";
+    "INSERT INTO poses (session_id, pose_index, t_start_s, t_end_s, used, reason, detail_json, "
+    "face) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8) ON CONFLICT (session_id, pose_index) DO UPDATE "
+    "SET t_start_s = excluded.t_start_s, t_end_s = excluded.t_end_s, used = excluded.used, "
+    "reason = excluded.reason, detail_json = excluded.detail_json, face = excluded.face";
 constexpr char kUpsertPair[] =
-    "INSERT OR REPLACE INTO pose_pairs (session_id, pose_a, pose_b, ok, face, rotation_deg, "
-    "tilt_deg, reason) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)";
+    "INSERT INTO pose_pairs (session_id, pose_a, pose_b, ok, face, rotation_deg, tilt_deg, "
+    "reason) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8) ON CONFLICT (session_id, pose_a, pose_b) DO "
+    "UPDATE SET ok = excluded.ok, face = excluded.face, rotation_deg = excluded.rotation_deg, "
+    "tilt_deg = excluded.tilt_deg, reason = excluded.reason";
 constexpr char kSelectPairs[] =
     "SELECT pose_a, pose_b, ok, face, rotation_deg, tilt_deg, reason FROM pose_pairs "
     "WHERE session_id = ?1 ORDER BY pose_a, pose_b";

@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "storage/sample_codec.h"
-#include "storage/sqlite_db.h"
+#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
@@ -181,6 +181,7 @@ void Store::CommitLoop() {
     {
       std::lock_guard lock(write_mu_);
       absl::Status status = InTransaction("AppendBatch", *writer_, [&](Connection& conn) {
+        results.clear();  // a conflict runs the whole group again
         for (const PendingAppend& p : group) {
           absl::StatusOr<BatchAck> r = AppendOne(conn, p.session_id, p.seq, p.payload, p.info);
           results.push_back(r.ok() ? r : WithContext("AppendBatch", r.status()));

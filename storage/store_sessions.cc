@@ -9,7 +9,7 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
-#include "storage/sqlite_db.h"
+#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
@@ -34,11 +34,11 @@ namespace {
 constexpr char kSelectSession[] = IMUCAL_SELECT_SESSION_COLUMNS "FROM sessions s WHERE s.id = ?1";
 // Lists page by rowid (creation order): ?3 is the rowid of the previous page's last session.
 constexpr char kSelectSessionsOfDevice[] = IMUCAL_SELECT_SESSION_COLUMNS
-    "FROM sessions s WHERE s.device_id = ?1 AND (?2 IS NULL OR s.state = ?2) AND s.rowid > ?3 "
+    "FROM sessions s WHERE s.device_id = ?1 AND (CAST(?2 AS TEXT) IS NULL OR s.state = ?2) AND s.rowid > ?3 "
     "ORDER BY s.rowid LIMIT ?4";
 // ?1 is unused (bound to the empty device id): the same parameters as kSelectSessionsOfDevice.
 constexpr char kSelectSessionsAll[] = IMUCAL_SELECT_SESSION_COLUMNS
-    "FROM sessions s WHERE (?2 IS NULL OR s.state = ?2) AND s.rowid > ?3 "
+    "FROM sessions s WHERE (CAST(?2 AS TEXT) IS NULL OR s.state = ?2) AND s.rowid > ?3 "
     "ORDER BY s.rowid LIMIT ?4";
 #undef IMUCAL_SELECT_SESSION_COLUMNS
 constexpr char kSelectSessionRowid[] = "SELECT rowid FROM sessions WHERE id = ?1";

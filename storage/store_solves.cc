@@ -5,7 +5,7 @@
 #include <utility>
 #include <vector>
 
-#include "storage/sqlite_db.h"
+#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
@@ -29,9 +29,9 @@ constexpr char kSelectOrphanedSolves[] = IMUCAL_SELECT_SOLVE_COLUMNS
 #undef IMUCAL_SELECT_SOLVE_COLUMNS
 constexpr char kInsertSolve[] =
     "INSERT INTO solves (session_id, state, actor, started_at_us, owner, lease_until_us) "
-    "VALUES (?1, 'running', ?2, ?3, ?4, ?5)";
+    "VALUES (?1, 'running', ?2, ?3, ?4, ?5) RETURNING id";
 constexpr char kRenewLeases[] =
-    "UPDATE solves SET lease_until_us = ?2 WHERE state = 'running' AND owner = ?1";
+    "UPDATE solves SET lease_until_us = ?2 WHERE state = 'running' AND owner = ?1 RETURNING id";
 constexpr char kFinishSolve[] =
     "UPDATE solves SET state = ?2, finished_at_us = ?3, version = ?4, error = ?5, "
     "report_json = ?6 WHERE id = ?1";
@@ -107,9 +107,11 @@ absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string
     STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, session_id));
     const absl::Time now = Now();
     STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, SessionState::kSolving, actor, now));
-    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertSolve, session_id, actor, Micros(now),
-                                         claim.owner, LeaseMicros(claim.lease_until)));
-    const int64_t id = sqlite3_last_insert_rowid(conn.db());
+    STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> inserted,
+                             ReadRow(conn, kInsertSolve, FirstColumnInt64, session_id, actor,
+                                     Micros(now), claim.owner, LeaseMicros(claim.lease_until)));
+    if (!inserted) return absl::InternalError("INSERT ... RETURNING id returned no row");
+    const int64_t id = *inserted;
     STORAGE_RETURN_IF_ERROR(
         InsertAudit(conn, now, actor, "solve.start", SessionTarget(session_id), Cat("solve ", id)));
     return LoadSolve(conn, id);
@@ -190,8 +192,10 @@ absl::StatusOr<int> Store::RenewSolveLeases(std::string_view owner, absl::Time u
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(owner, "owner")));
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int> {
-    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kRenewLeases, owner, LeaseMicros(until)));
-    return sqlite3_changes(conn.db());
+    STORAGE_ASSIGN_OR_RETURN(std::vector<int64_t> renewed,
+                             ReadRows(conn, kRenewLeases, FirstColumnInt64, owner,
+                                      LeaseMicros(until)));
+    return static_cast<int>(renewed.size());
   });
 }
 

@@ -6,7 +6,7 @@
 #include <utility>
 #include <vector>
 
-#include "storage/sqlite_db.h"
+#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"

@@ -7,6 +7,7 @@
 #include <utility>
 
 #include "storage/migrations.h"
+#include "storage/pg_db.h"
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "storage/store_internal.h"
@@ -22,7 +23,7 @@ constexpr size_t kMaxLabel = 256;
 
 constexpr char kInsertToken[] =
     "INSERT INTO tokens (secret_sha256, role, device_id, label, created_at_us) "
-    "VALUES (?1, ?2, ?3, ?4, ?5)";
+    "VALUES (?1, ?2, ?3, ?4, ?5) RETURNING id";
 constexpr char kSelectTokenById[] =
     "SELECT id, role, device_id, label, created_at_us, revoked_at_us FROM tokens WHERE id = ?1";
 constexpr char kSelectTokenByHash[] =
@@ -30,7 +31,7 @@ constexpr char kSelectTokenByHash[] =
     "WHERE secret_sha256 = ?1";
 constexpr char kSelectTokens[] =
     "SELECT id, role, device_id, label, created_at_us, revoked_at_us FROM tokens "
-    "WHERE ?1 OR revoked_at_us IS NULL ORDER BY id";
+    "WHERE ?1 <> 0 OR revoked_at_us IS NULL ORDER BY id";
 constexpr char kCountValidAdmins[] =
     "SELECT COUNT(*) FROM tokens WHERE role = 'admin' AND revoked_at_us IS NULL";
 constexpr char kRevokeToken[] =
@@ -139,13 +140,22 @@ absl::StatusOr<std::unique_ptr<TokenStore>> TokenStore::Open(const std::string& 
                                                              absl::Duration busy_timeout) {
   ConnectionOptions options;
   options.busy_timeout = busy_timeout;
-  absl::StatusOr<std::unique_ptr<Connection>> conn = Connection::Open(path, options);
-  if (!conn.ok()) return Annotate(Cat("open tokens of ", path), conn.status());
-  // WAL, as Store::Open sets it (a property of the file), so that readers never block a write.
-  if (absl::Status s = (*conn)->Exec("PRAGMA journal_mode = WAL"); !s.ok())
-    return Annotate(Cat("open tokens of ", path), s);
-  if (absl::Status s = Migrate(**conn); !s.ok()) return Annotate(Cat("open tokens of ", path), s);
-  return std::unique_ptr<TokenStore>(new TokenStore(*std::move(conn)));
+  const std::string op = Cat("open tokens of ", RedactedLocation(path));
+  std::unique_ptr<Connection> conn;
+  if (IsPostgresUrl(path)) {
+    absl::StatusOr<std::unique_ptr<PgConnection>> pg = PgConnection::Open(path, options);
+    if (!pg.ok()) return Annotate(op, pg.status());
+    conn = *std::move(pg);
+  } else {
+    absl::StatusOr<std::unique_ptr<SqliteConnection>> lite = SqliteConnection::Open(path, options);
+    if (!lite.ok()) return Annotate(op, lite.status());
+    // WAL, as Store::Open sets it (a property of the file), so that readers never block a write.
+    if (absl::Status s = (*lite)->Exec("PRAGMA journal_mode = WAL"); !s.ok())
+      return Annotate(op, s);
+    conn = *std::move(lite);
+  }
+  if (absl::Status s = Migrate(*conn); !s.ok()) return Annotate(op, s);
+  return std::unique_ptr<TokenStore>(new TokenStore(std::move(conn)));
 }
 
 absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view device_id,
@@ -159,10 +169,12 @@ absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view de
   out.token.created_at = Now();
   std::optional<std::string_view> bound_device;  // NULL for the roles bound to no device
   if (role == Role::kRobot) bound_device = device_id;
-  STORAGE_RETURN_IF_ERROR(RunStatement(*conn_, kInsertToken,
-                                       SqlBlob{HashView(HashTokenSecret(secret))}, RoleName(role),
-                                       bound_device, label, Micros(out.token.created_at)));
-  out.token.id = sqlite3_last_insert_rowid(conn_->db());
+  STORAGE_ASSIGN_OR_RETURN(
+      std::optional<int64_t> id,
+      ReadRow(*conn_, kInsertToken, FirstColumnInt64, SqlBlob{HashView(HashTokenSecret(secret))},
+              RoleName(role), bound_device, label, Micros(out.token.created_at)));
+  if (!id) return absl::InternalError("INSERT ... RETURNING id returned no row");
+  out.token.id = *id;
   std::string detail = Cat("role ", RoleName(role));
   if (role == Role::kRobot) AppendTo(&detail, ", device ", device_id);
   if (!label.empty()) AppendTo(&detail, ", label '", label, "'");

@@ -33,7 +33,7 @@
 
 namespace imucal::storage {
 
-class Connection;  // sqlite_db.h
+class Connection;  // db.h
 
 enum class Role { kRobot, kTechnician, kAdmin };
 std::string_view RoleName(Role role);  // "robot", "technician", "admin"

@@ -3,12 +3,16 @@
 #include <fstream>
 #include <memory>
 #include <string>
+#include <thread>
+#include <utility>
 #include <vector>
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
+#include "storage/pg_db.h"
 #include "storage/sqlite_db.h"
 #include "storage/store.h"
+#include "tests/pg_test_cluster.h"
 #include "tests/storage/test_util.h"
 
 namespace imucal::storage {
@@ -16,8 +20,8 @@ namespace {
 
 using ::testing::HasSubstr;
 
-absl::StatusOr<std::unique_ptr<Connection>> OpenRaw(const std::string& path) {
-  return Connection::Open(path, ConnectionOptions{});
+absl::StatusOr<std::unique_ptr<SqliteConnection>> OpenRaw(const std::string& path) {
+  return SqliteConnection::Open(path, ConnectionOptions{});
 }
 
 // One text value of a one-row query.
@@ -169,7 +173,7 @@ TEST(MigrationsTest, AFailedMigrationLeavesTheWholePreviousVersion) {
   forgetful.push_back({kNext, "CREATE TABLE half_done (x INTEGER);"});
   absl::Status status = Migrate(*conn, forgetful);
   EXPECT_EQ(status.code(), absl::StatusCode::kInternal) << status;
-  EXPECT_THAT(status.message(), HasSubstr("did not set user_version"));
+  EXPECT_THAT(status.message(), HasSubstr("did not set the schema version"));
   EXPECT_EQ(CountTables(*conn), tables);
 }
 
@@ -265,6 +269,90 @@ TEST(MigrationsTest, ActiveVersionLookupUsesThePartialIndex) {
     plan += st->ColumnText(3) + "\n";
   }
   EXPECT_THAT(plan, HasSubstr("USING INDEX param_versions_active")) << plan;
+}
+
+// ---- PostgreSQL: the same versions, on a real server (tests/pg_test_cluster.h) ---------------
+
+// table -> its columns in order, as one text: "devices(id,sensor_model,...) sessions(...)".
+std::string Columns(Connection& conn) {
+  const char* sql =
+      conn.dialect() == Dialect::kPostgres
+          ? "SELECT table_name, column_name FROM information_schema.columns WHERE table_schema = "
+            "'public' AND table_name <> 'imucal_schema' AND NOT (table_name = 'sessions' AND "
+            "column_name = 'rowid') ORDER BY table_name, ordinal_position"
+          : "SELECT m.name, p.name FROM sqlite_master m, pragma_table_info(m.name) p WHERE "
+            "m.type = 'table' ORDER BY m.name, p.cid";
+  auto rows = ReadRows(conn, sql, [](const Statement& st) {
+    return std::pair(st.ColumnText(0), st.ColumnText(1));
+  });
+  if (!rows.ok()) return rows.status().ToString();
+  std::string out, table;
+  for (const auto& [t, column] : *rows) {
+    if (t != table) {
+      out += (table.empty() ? "" : ") ") + t + "(";
+      table = t;
+    } else {
+      out += ",";
+    }
+    out += column;
+  }
+  return out + ")";
+}
+
+TEST(PgMigrationsTest, EveryVersionHasSQLitesTablesAndColumns) {
+  const auto pg_list = Migrations(Dialect::kPostgres);
+  ASSERT_EQ(pg_list.size(), Migrations().size());
+  for (size_t v = 1; v <= pg_list.size(); ++v) {
+    EXPECT_EQ(pg_list[v - 1].version, static_cast<int>(v));
+    EXPECT_THAT(pg_list[v - 1].sql,
+                HasSubstr("UPDATE imucal_schema SET version = " + std::to_string(v) + ";"));
+    ASSERT_OK_AND_ASSIGN(auto db, testing_util::PgTestDatabase::Create());
+    ASSERT_OK_AND_ASSIGN(auto pg, PgConnection::Open(db->url(), {}));
+    ASSERT_OK_AND_ASSIGN(int before, SchemaVersion(*pg));
+    EXPECT_EQ(before, 0);
+    ASSERT_OK(Migrate(*pg, pg_list.first(v)));
+    ASSERT_OK_AND_ASSIGN(int after, SchemaVersion(*pg));
+    EXPECT_EQ(after, static_cast<int>(v));
+
+    ASSERT_OK_AND_ASSIGN(auto lite, OpenRaw(TempDbPath("v" + std::to_string(v))));
+    ASSERT_OK(Migrate(*lite, Migrations().first(v)));
+    EXPECT_EQ(Columns(*pg), Columns(*lite)) << "schema version " << v;
+  }
+}
+
+// Replicas start together: the migrations run once (under an advisory lock) and both serve.
+TEST(PgMigrationsTest, StoresOpeningAFreshDatabaseTogetherMigrateItOnce) {
+  ASSERT_OK_AND_ASSIGN(auto db, testing_util::PgTestDatabase::Create());
+  std::vector<std::thread> openers;
+  std::vector<absl::StatusOr<std::unique_ptr<Store>>> stores(4);
+  for (int i = 0; i < 4; ++i)
+    openers.emplace_back([&, i] { stores[i] = Store::Open(db->url()); });
+  for (auto& t : openers) t.join();
+  for (auto& s : stores) ASSERT_OK(s.status());
+  ASSERT_OK(stores[0].value()->CreateDevice(MakeDevice("robot-1"), "test").status());
+  ASSERT_OK(stores[3].value()->GetDevice("robot-1").status());
+  ASSERT_OK_AND_ASSIGN(auto pg, PgConnection::Open(db->url(), {}));
+  ASSERT_OK_AND_ASSIGN(int version, SchemaVersion(*pg));
+  EXPECT_EQ(version, LatestSchemaVersion());
+}
+
+TEST(PgMigrationsTest, ANewerDatabaseIsRefused) {
+  ASSERT_OK_AND_ASSIGN(auto db, testing_util::PgTestDatabase::Create());
+  ASSERT_OK(Store::Open(db->url()).status());
+  {
+    ASSERT_OK_AND_ASSIGN(auto pg, PgConnection::Open(db->url(), {}));
+    ASSERT_OK(pg->Exec("UPDATE imucal_schema SET version = 99"));
+  }
+  absl::Status s = Store::Open(db->url()).status();
+  EXPECT_EQ(s.code(), absl::StatusCode::kFailedPrecondition) << s;
+  EXPECT_THAT(s.message(), HasSubstr("upgrade the program"));
+}
+
+TEST(PgMigrationsTest, AnUnreachableServerIsUnavailableAndNamesItWithoutThePassword) {
+  absl::Status s = Store::Open("postgresql://imucal:secret@127.0.0.1:1/imucal").status();
+  EXPECT_EQ(s.code(), absl::StatusCode::kUnavailable) << s;
+  EXPECT_THAT(s.message(), HasSubstr("127.0.0.1:1"));
+  EXPECT_THAT(std::string(s.message()), ::testing::Not(HasSubstr("secret")));
 }
 
 }  // namespace

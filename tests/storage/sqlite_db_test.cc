@@ -21,7 +21,7 @@ class SqliteDbTest : public ::testing::Test {
  protected:
   void SetUp() override {
     path_ = TempDbPath("db");
-    auto conn = Connection::Open(path_, ConnectionOptions{});
+    auto conn = SqliteConnection::Open(path_, ConnectionOptions{});
     ASSERT_TRUE(conn.ok()) << conn.status();
     conn_ = *std::move(conn);
     ASSERT_OK(conn_->Exec("PRAGMA journal_mode = WAL"));
@@ -46,17 +46,17 @@ class SqliteDbTest : public ::testing::Test {
   }
 
   std::string path_;
-  std::unique_ptr<Connection> conn_;
+  std::unique_ptr<SqliteConnection> conn_;
 };
 
 TEST_F(SqliteDbTest, StatementsArePreparedOncePerConnection) {
   sqlite3_stmt* first = nullptr;
   {
     ASSERT_OK_AND_ASSIGN(ScopedStatement st, conn_->Prepare("SELECT 1"));
-    first = st->get();
+    first = static_cast<SqliteStatement&>(*st).get();
   }
   ASSERT_OK_AND_ASSIGN(ScopedStatement st, conn_->Prepare("SELECT 1"));
-  EXPECT_EQ(st->get(), first);
+  EXPECT_EQ(static_cast<SqliteStatement&>(*st).get(), first);
   // Lent out already: a nested use would clobber its bindings and cursor.
   EXPECT_EQ(conn_->Prepare("SELECT 1").status().code(), absl::StatusCode::kInternal);
 }
@@ -111,7 +111,7 @@ TEST_F(SqliteDbTest, ConstraintCodesMapToStatuses) {
 TEST_F(SqliteDbTest, LockedDatabaseIsUnavailable) {
   ConnectionOptions impatient;
   impatient.busy_timeout = absl::ZeroDuration();
-  ASSERT_OK_AND_ASSIGN(auto other, Connection::Open(path_, impatient));
+  ASSERT_OK_AND_ASSIGN(auto other, SqliteConnection::Open(path_, impatient));
   ASSERT_OK_AND_ASSIGN(Transaction holding, Transaction::Begin(*conn_));
   absl::StatusOr<Transaction> blocked = Transaction::Begin(*other);
   EXPECT_EQ(blocked.status().code(), absl::StatusCode::kUnavailable) << blocked.status();
@@ -193,7 +193,7 @@ TEST_F(SqliteDbTest, ReadRowIsTheFirstRowOrNothing) {
   EXPECT_EQ(first->k, 1);
   // Stopped half-way, yet returned and reset: no read transaction stays open behind it.
   ASSERT_OK_AND_ASSIGN(ScopedStatement st, conn_->Prepare(kSelectRows));
-  EXPECT_FALSE(sqlite3_stmt_busy(st->get()));
+  EXPECT_FALSE(sqlite3_stmt_busy(static_cast<SqliteStatement&>(*st).get()));
 }
 
 TEST_F(SqliteDbTest, WholeStatementsReturnSqliteErrorsAsStatuses) {

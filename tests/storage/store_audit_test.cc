@@ -13,7 +13,7 @@ namespace {
 using ::testing::ElementsAre;
 using ::testing::HasSubstr;
 
-TEST_F(StoreTest, EveryMutationIsAuditedInItsTransaction) {
+TEST_P(StoreTest, EveryMutationIsAuditedInItsTransaction) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateSession(MakeSession("robot-1", "S1"), "robot-1").status());
   ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(1)).status());  // data: not audited

@@ -12,7 +12,7 @@ namespace {
 
 using ::testing::HasSubstr;
 
-TEST_F(StoreTest, DevicesAreCreatedReadAndListed) {
+TEST_P(StoreTest, DevicesAreCreatedReadAndListed) {
   ASSERT_OK_AND_ASSIGN(Device b, store_->CreateDevice(MakeDevice("robot-b"), kActor));
   ASSERT_OK_AND_ASSIGN(Device a, store_->CreateDevice(MakeDevice("robot-a"), kActor));
   EXPECT_EQ(a.sensor_model, "ICM-20948");
@@ -33,7 +33,7 @@ TEST_F(StoreTest, DevicesAreCreatedReadAndListed) {
   EXPECT_EQ(store_->GetDevice("robot-z").status().code(), absl::StatusCode::kNotFound);
 }
 
-TEST_F(StoreTest, RegisteringAgainIsANoOpUnlessTheMetadataDiffers) {
+TEST_P(StoreTest, RegisteringAgainIsANoOpUnlessTheMetadataDiffers) {
   ASSERT_OK_AND_ASSIGN(Device first, store_->CreateDevice(MakeDevice("robot-1"), kActor));
   // Robots register at every boot.
   ASSERT_OK_AND_ASSIGN(Device again, store_->CreateDevice(MakeDevice("robot-1"), "robot-1"));
@@ -47,7 +47,7 @@ TEST_F(StoreTest, RegisteringAgainIsANoOpUnlessTheMetadataDiffers) {
   EXPECT_THAT(taken.message(), HasSubstr("gyro_unit rad/s, not deg/s"));
 }
 
-TEST_F(StoreTest, DevicesPageByIdAndShowTheirActiveVersion) {
+TEST_P(StoreTest, DevicesPageByIdAndShowTheirActiveVersion) {
   for (const char* id : {"robot-c", "robot-a", "robot-d", "robot-b"}) {
     ASSERT_OK(store_->CreateDevice(MakeDevice(id), kActor).status());
   }

@@ -8,7 +8,7 @@
 namespace imucal::storage {
 namespace {
 
-TEST_F(BatchTest, PosesAreReplacedAsAWhole) {
+TEST_P(BatchTest, PosesAreReplacedAsAWhole) {
   std::vector<Pose> poses(3);
   for (int i = 0; i < 3; ++i) {
     poses[i].index = i;
@@ -38,7 +38,7 @@ TEST_F(BatchTest, PosesAreReplacedAsAWhole) {
   EXPECT_EQ(store_->ListPoses("S1").value().size(), 2u);
 }
 
-TEST_F(BatchTest, SavePosesUpsertsPosesAndPairs) {
+TEST_P(BatchTest, SavePosesUpsertsPosesAndPairs) {
   Pose a, b;
   a.index = 0, a.t_start_s = 1, a.t_end_s = 2, a.face = "Z+";
   b.index = 1, b.t_start_s = 4, b.t_end_s = 5, b.face = "Z+", b.used = false, b.reason = "moved";

@@ -19,7 +19,7 @@ namespace {
 
 using ::testing::HasSubstr;
 
-TEST_F(BatchTest, BatchesAreAcknowledgedInOrder) {
+TEST_P(BatchTest, BatchesAreAcknowledgedInOrder) {
   for (int64_t seq = 1; seq <= 3; ++seq) {
     ASSERT_OK_AND_ASSIGN(BatchAck ack, store_->AppendBatch("S1", seq, BatchPayload(seq)));
     EXPECT_EQ(ack.last_acked_seq, seq);
@@ -43,7 +43,7 @@ TEST_F(BatchTest, BatchesAreAcknowledgedInOrder) {
 
 // Pages of a session's batches: in order, none twice or left out, bounded by batch count and
 // by samples (the first batch of a page whole, however large), empty after the last.
-TEST_F(BatchTest, BatchPagesCoverTheSessionInOrder) {
+TEST_P(BatchTest, BatchPagesCoverTheSessionInOrder) {
   // Batches of 50, 50, 200, 50, 50, 50 samples.
   const std::vector<int> sizes = {50, 50, 200, 50, 50, 50};
   for (size_t i = 0; i < sizes.size(); ++i) {
@@ -80,7 +80,7 @@ TEST_F(BatchTest, BatchPagesCoverTheSessionInOrder) {
 
 // Group commit: many sessions' batches submitted at once share commits; each answer is the one
 // AppendBatch would give, a bad batch fails alone, and every acknowledged batch is stored.
-TEST_F(BatchTest, AsyncAppendsShareCommitsAndAnswerEachBatch) {
+TEST_P(BatchTest, AsyncAppendsShareCommitsAndAnswerEachBatch) {
   constexpr int kSessions = 8, kBatches = 30;
   for (int i = 0; i < kSessions; ++i) {
     const std::string device = "robot-g" + std::to_string(i);
@@ -143,7 +143,7 @@ TEST_F(BatchTest, AsyncAppendsShareCommitsAndAnswerEachBatch) {
   EXPECT_EQ(store_->GetSession("G7").value().last_acked_seq, kBatches);
 }
 
-TEST_F(BatchTest, ARepeatedBatchIsANoOp) {
+TEST_P(BatchTest, ARepeatedBatchIsANoOp) {
   ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(1)).status());
   ASSERT_OK(store_->AppendBatch("S1", 2, BatchPayload(2)).status());
   // The robot missed the ack of 1 and 2 and sends them again: acknowledged again, nothing new.
@@ -159,7 +159,7 @@ TEST_F(BatchTest, ARepeatedBatchIsANoOp) {
   EXPECT_EQ(ack.last_acked_seq, 2);
 }
 
-TEST_F(BatchTest, ARepeatedSeqWithOtherContentIsInvalid) {
+TEST_P(BatchTest, ARepeatedSeqWithOtherContentIsInvalid) {
   ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(1)).status());
   absl::StatusOr<BatchAck> conflict = store_->AppendBatch("S1", 1, BatchPayload(7));
   EXPECT_EQ(conflict.status().code(), absl::StatusCode::kInvalidArgument);
@@ -167,7 +167,7 @@ TEST_F(BatchTest, ARepeatedSeqWithOtherContentIsInvalid) {
   EXPECT_EQ(store_->ReadBatches("S1").value()[0].payload, BatchPayload(1));
 }
 
-TEST_F(BatchTest, AGapNamesTheExpectedSeq) {
+TEST_P(BatchTest, AGapNamesTheExpectedSeq) {
   ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(1)).status());
   absl::StatusOr<BatchAck> gap = store_->AppendBatch("S1", 3, BatchPayload(3));
   EXPECT_EQ(gap.status().code(), absl::StatusCode::kFailedPrecondition);
@@ -175,7 +175,7 @@ TEST_F(BatchTest, AGapNamesTheExpectedSeq) {
   EXPECT_EQ(store_->GetSession("S1").value().last_acked_seq, 1);
 }
 
-TEST_F(BatchTest, TimeIncreasesAcrossBatches) {
+TEST_P(BatchTest, TimeIncreasesAcrossBatches) {
   ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(5)).status());  // t in [5, 5.245]
   absl::StatusOr<BatchAck> overlap = store_->AppendBatch("S1", 2, BatchPayload(5));
   EXPECT_EQ(overlap.status().code(), absl::StatusCode::kInvalidArgument);
@@ -186,7 +186,7 @@ TEST_F(BatchTest, TimeIncreasesAcrossBatches) {
   EXPECT_DOUBLE_EQ(batches[0].last_t_s, 5.245);
 }
 
-TEST_F(BatchTest, BadInputIsRefusedBeforeItIsStored) {
+TEST_P(BatchTest, BadInputIsRefusedBeforeItIsStored) {
   EXPECT_EQ(store_->AppendBatch("S1", 0, BatchPayload(0)).status().code(),
             absl::StatusCode::kInvalidArgument);
   std::string garbage = BatchPayload(1);
@@ -201,7 +201,7 @@ TEST_F(BatchTest, BadInputIsRefusedBeforeItIsStored) {
   EXPECT_EQ(store_->GetSession("S1").value().last_acked_seq, 0);
 }
 
-TEST_F(BatchTest, OnlyAnOpenSessionTakesNewBatches) {
+TEST_P(BatchTest, OnlyAnOpenSessionTakesNewBatches) {
   ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(1)).status());
   ASSERT_OK(store_->SetSessionState("S1", SessionState::kCancelled, kActor).status());
   absl::StatusOr<BatchAck> late = store_->AppendBatch("S1", 2, BatchPayload(2));
@@ -209,7 +209,7 @@ TEST_F(BatchTest, OnlyAnOpenSessionTakesNewBatches) {
   EXPECT_THAT(late.status().message(), HasSubstr("cancelled"));
 }
 
-TEST_F(BatchTest, ParallelStreamsKeepTheirOwnSequences) {
+TEST_P(BatchTest, ParallelStreamsKeepTheirOwnSequences) {
   constexpr int kStreams = 6;
   constexpr int kBatches = 40;
   std::vector<std::string> sessions;

@@ -11,7 +11,7 @@ namespace {
 
 using ::testing::HasSubstr;
 
-TEST_F(StoreTest, OneOpenSessionPerDevice) {
+TEST_P(StoreTest, OneOpenSessionPerDevice) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-2"), kActor).status());
   ASSERT_OK_AND_ASSIGN(Session first, store_->CreateSession(MakeSession("robot-1"), kActor));
@@ -38,7 +38,7 @@ TEST_F(StoreTest, OneOpenSessionPerDevice) {
             absl::StatusCode::kNotFound);
 }
 
-TEST_F(StoreTest, SessionIdsCanBeChosenButNotReused) {
+TEST_P(StoreTest, SessionIdsCanBeChosenButNotReused) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-2"), kActor).status());
   ASSERT_OK_AND_ASSIGN(Session s, store_->CreateSession(MakeSession("robot-1", "S1"), kActor));
@@ -52,7 +52,7 @@ TEST_F(StoreTest, SessionIdsCanBeChosenButNotReused) {
   EXPECT_EQ(store_->GetSession("S404").status().code(), absl::StatusCode::kNotFound);
 }
 
-TEST_F(StoreTest, SessionStateFollowsTheTransitionTable) {
+TEST_P(StoreTest, SessionStateFollowsTheTransitionTable) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK_AND_ASSIGN(Session s, store_->CreateSession(MakeSession("robot-1", "S1"), kActor));
   auto set = [&](SessionState to) { return store_->SetSessionState("S1", to, kActor).status(); };
@@ -74,7 +74,7 @@ TEST_F(StoreTest, SessionStateFollowsTheTransitionTable) {
   EXPECT_GE(got.updated_at, s.created_at);
 }
 
-TEST_F(StoreTest, SessionsPageAcrossDevicesInCreationOrder) {
+TEST_P(StoreTest, SessionsPageAcrossDevicesInCreationOrder) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-2"), kActor).status());
   for (const char* id : {"Sz", "Sa", "Sm"}) {
@@ -99,7 +99,7 @@ TEST_F(StoreTest, SessionsPageAcrossDevicesInCreationOrder) {
             absl::StatusCode::kInvalidArgument);
 }
 
-TEST_F(StoreTest, ListSessionsFiltersByState) {
+TEST_P(StoreTest, ListSessionsFiltersByState) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateSession(MakeSession("robot-1", "S1"), kActor).status());
   ASSERT_OK(store_->SetSessionState("S1", SessionState::kCancelled, kActor).status());

@@ -12,7 +12,7 @@ namespace {
 
 using ::testing::IsEmpty;
 
-TEST_F(BatchTest, ASolveTurnsASessionIntoAVersionAndCanBeRepeated) {
+TEST_P(BatchTest, ASolveTurnsASessionIntoAVersionAndCanBeRepeated) {
   ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(1)).status());
   ASSERT_OK(store_->AppendBatch("S1", 2, BatchPayload(2)).status());
   std::vector<Pose> poses(3);
@@ -64,7 +64,7 @@ TEST_F(BatchTest, ASolveTurnsASessionIntoAVersionAndCanBeRepeated) {
   EXPECT_EQ(solves[1].actor, "tech:bob");
 }
 
-TEST_F(BatchTest, AFailedSolveCanReopenTheSessionForMorePoses) {
+TEST_P(BatchTest, AFailedSolveCanReopenTheSessionForMorePoses) {
   ASSERT_OK(store_->AppendBatch("S1", 1, BatchPayload(1)).status());
   ASSERT_OK_AND_ASSIGN(Solve solve, store_->StartSolve("S1", "server"));
   ASSERT_OK_AND_ASSIGN(Solve failed,
@@ -88,7 +88,7 @@ TEST_F(BatchTest, AFailedSolveCanReopenTheSessionForMorePoses) {
 // Servers sharing one database claim the solves they run (SolveClaim): a solve is an orphan
 // when its claim has lapsed, or when the server that claimed it asks after a restart; another
 // server's live solve is never listed, and renewing a claim keeps it live.
-TEST_F(StoreTest, SolveClaimsDecideWhichRunningSolvesAreOrphans) {
+TEST_P(StoreTest, SolveClaimsDecideWhichRunningSolvesAreOrphans) {
   const absl::Time t0 = absl::FromUnixSeconds(1'800'000'000);
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   std::vector<Solve> solves;

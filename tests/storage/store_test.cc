@@ -19,7 +19,7 @@
 namespace imucal::storage {
 namespace {
 
-TEST_F(StoreTest, TimesComeFromTheInjectedClock) {
+TEST_P(StoreTest, TimesComeFromTheInjectedClock) {
   store_.reset();
   StoreOptions options;
   const absl::Time t0 = absl::FromUnixSeconds(1'800'000'000);
@@ -32,7 +32,7 @@ TEST_F(StoreTest, TimesComeFromTheInjectedClock) {
   EXPECT_EQ(audit[0].time, t0);
 }
 
-TEST_F(StoreTest, ReopeningTheFileKeepsEverything) {
+TEST_P(StoreTest, ReopeningTheFileKeepsEverything) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateSession(MakeSession("robot-1", "S1"), kActor).status());
   for (int64_t seq = 1; seq <= 5; ++seq) {
@@ -104,7 +104,7 @@ bool ReadAck(int fd, int64_t* seq) {
   }
 }
 
-TEST_F(StoreTest, AcknowledgedBatchesSurviveSigkill) {
+TEST_P(StoreTest, AcknowledgedBatchesSurviveSigkill) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateSession(MakeSession("robot-1", "S1"), kActor).status());
   store_.reset();  // no SQLite connection may cross fork()
@@ -164,4 +164,10 @@ TEST_F(StoreTest, AcknowledgedBatchesSurviveSigkill) {
 }
 
 }  // namespace
+// Every Store test runs on SQLite and on PostgreSQL (store_test_util.h).
+INSTANTIATE_TEST_SUITE_P(Backends, StoreTest,
+                         ::testing::Values(Backend::kSqlite, Backend::kPostgres), BackendName);
+INSTANTIATE_TEST_SUITE_P(Backends, BatchTest,
+                         ::testing::Values(Backend::kSqlite, Backend::kPostgres), BackendName);
+
 }  // namespace imucal::storage

@@ -1,5 +1,8 @@
 // The fixtures of the Store's tests (store_test.cc and store_<table>_test.cc, which mirror the
-// store's files): a fresh database file per test, and one with a device and an open session.
+// store's files): a fresh database per test, and one with a device and an open session.
+//
+// Every test runs on both backends, unchanged: a SQLite file, and a database of its own on a
+// real PostgreSQL (tests/pg_test_cluster.h). `path_` is the file's path or the database's URL.
 #ifndef IMUCAL_TESTS_STORAGE_STORE_TEST_UTIL_H_
 #define IMUCAL_TESTS_STORAGE_STORE_TEST_UTIL_H_
 
@@ -12,18 +15,33 @@
 #include "gtest/gtest.h"
 #include "storage/store.h"
 #include "storage/types.h"
+#include "tests/pg_test_cluster.h"
 #include "tests/storage/test_util.h"
 
 namespace imucal::storage {
 
 inline constexpr char kActor[] = "tech:alice";
 
-class StoreTest : public ::testing::Test {
+enum class Backend { kSqlite, kPostgres };
+
+inline std::string BackendName(const ::testing::TestParamInfo<Backend>& info) {
+  return info.param == Backend::kSqlite ? "Sqlite" : "Postgres";
+}
+
+class StoreTest : public ::testing::TestWithParam<Backend> {
  protected:
   void SetUp() override {
-    path_ = TempDbPath("db");
+    if (GetParam() == Backend::kPostgres) {
+      auto db = testing_util::PgTestDatabase::Create();
+      ASSERT_TRUE(db.ok()) << db.status();
+      pg_ = *std::move(db);
+      path_ = pg_->url();
+    } else {
+      path_ = TempDbPath("db");
+    }
     Reopen();
   }
+  void TearDown() override { store_.reset(); }
 
   void Reopen() {
     store_.reset();
@@ -46,6 +64,7 @@ class StoreTest : public ::testing::Test {
 
   size_t AuditCount() { return store_->ListAudit().value().size(); }
 
+  std::unique_ptr<testing_util::PgTestDatabase> pg_;  // declared first: dropped last
   std::string path_;
   std::unique_ptr<Store> store_;
 };

@@ -20,7 +20,7 @@ namespace {
 using ::testing::HasSubstr;
 using ::testing::IsEmpty;
 
-TEST_F(StoreTest, VersionPolicyPromoteRollbackReject) {
+TEST_P(StoreTest, VersionPolicyPromoteRollbackReject) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   EXPECT_EQ(store_->GetActive("robot-1").status().code(), absl::StatusCode::kNotFound);
   EXPECT_EQ(store_->GetActive("robot-404").status().code(), absl::StatusCode::kNotFound);
@@ -96,7 +96,7 @@ TEST_F(StoreTest, VersionPolicyPromoteRollbackReject) {
   EXPECT_EQ(all[0].accel_rms, 0.0004);
 }
 
-TEST_F(StoreTest, ANewVersionIsCheckedAgainstItsDeviceAndSession) {
+TEST_P(StoreTest, ANewVersionIsCheckedAgainstItsDeviceAndSession) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-2"), kActor).status());
   ASSERT_OK(store_->CreateSession(MakeSession("robot-2", "S2"), kActor).status());
@@ -118,7 +118,7 @@ TEST_F(StoreTest, ANewVersionIsCheckedAgainstItsDeviceAndSession) {
   EXPECT_TRUE(std::isnan(stored.accel_rms));
 }
 
-TEST_F(StoreTest, VersionsAreNumberedWithoutGapsUnderConcurrency) {
+TEST_P(StoreTest, VersionsAreNumberedWithoutGapsUnderConcurrency) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-2"), kActor).status());
   // Two Stores on the same file: the numbering must hold across connections, not just
@@ -171,7 +171,7 @@ TEST_F(StoreTest, VersionsAreNumberedWithoutGapsUnderConcurrency) {
 // store knows it: two servers on one database, each writing versions through a renderer that
 // is called with the number the store assigned, must never store a document whose number is
 // another row's. A renderer's error leaves nothing behind, and uses no number.
-TEST_F(StoreTest, RenderedDocumentsCarryTheRowsNumberAcrossStores) {
+TEST_P(StoreTest, RenderedDocumentsCarryTheRowsNumberAcrossStores) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK_AND_ASSIGN(std::unique_ptr<Store> other, Store::Open(path_));
   const auto render = [](int number, std::string* params, std::string* report) {
@@ -227,7 +227,7 @@ TEST_F(StoreTest, RenderedDocumentsCarryTheRowsNumberAcrossStores) {
   EXPECT_EQ(next.version, kThreads * kPerThread + 1);
 }
 
-TEST_F(StoreTest, ReadersAlwaysSeeExactlyOneActiveVersion) {
+TEST_P(StoreTest, ReadersAlwaysSeeExactlyOneActiveVersion) {
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(
       store_->AddVersion(MakeVersion("robot-1", Verdict::kPass, VersionState::kActive), "server")

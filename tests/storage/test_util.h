@@ -42,8 +42,11 @@ namespace imucal::storage {
 // A fresh path for a database file in the test's temporary directory (old files removed).
 inline std::string TempDbPath(const std::string& name) {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const std::string path = ::testing::TempDir() + "imucal_" + info->test_suite_name() + "_" +
-                           info->name() + "_" + name + "_" + std::to_string(::getpid()) + ".db";
+  std::string test = std::string(info->test_suite_name()) + "_" + info->name();
+  for (char& c : test)
+    if (c == '/') c = '_';  // parameterised tests are named "Suite/Name/Param"
+  const std::string path = ::testing::TempDir() + "imucal_" + test + "_" + name + "_" +
+                           std::to_string(::getpid()) + ".db";
   for (const char* suffix : {"", "-wal", "-shm"}) std::filesystem::remove(path + suffix);
   return path;
 }

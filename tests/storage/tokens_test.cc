@@ -28,7 +28,7 @@ TEST(TokensTest, CreateStoresOnlyTheHashAndLookupFindsIt) {
   EXPECT_FALSE(found.revoked());
   EXPECT_TRUE(absl::IsNotFound(tokens->Lookup(HashTokenSecret(robot.secret + "x")).status()));
   // Nothing in the file holds the secret: the column is its 32-byte SHA-256.
-  ASSERT_OK_AND_ASSIGN(auto conn, Connection::Open(path, ConnectionOptions{}));
+  ASSERT_OK_AND_ASSIGN(auto conn, SqliteConnection::Open(path, ConnectionOptions{}));
   {
     ASSERT_OK_AND_ASSIGN(ScopedStatement st,
                          conn->Prepare("SELECT secret_sha256, length(secret_sha256) FROM tokens"));
