@@ -42,6 +42,14 @@ void ActiveParamCache::Invalidate(std::string_view device_id) {
   entries_.erase(it);
 }
 
+void ActiveParamCache::Clear() {
+  std::lock_guard lock(mu_);
+  ++generation_;
+  entries_.clear();
+  order_.clear();
+  bytes_ = 0;
+}
+
 void ActiveParamCache::EvictLocked() {
   // Over budget: drop the oldest entries (a key re-inserted after an invalidation may be found
   // by its older place in the queue: approximately oldest first).

@@ -44,6 +44,8 @@ class ActiveParamCache {
   // Caches `entry` unless an invalidation happened since `generation` was read.
   void Insert(std::string_view device_id, std::shared_ptr<const Entry> entry, uint64_t generation);
   void Invalidate(std::string_view device_id);
+  // Every device: when changes may have been missed (Store::ListenForActiveChanges's gap).
+  void Clear();
 
   size_t size() const;
   size_t bytes() const;

@@ -179,11 +179,28 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->metrics_ = std::move(metrics);
   s->active_cache_ = std::move(cache);
   s->store_ = *std::move(store);
-  // Other servers' changes from now on: read before anything can be fetched into the cache, so
-  // that a change committed between a fill and the first sync is not missed.
-  absl::StatusOr<storage::Store::ActiveChanges> synced = s->store_->ActiveChangesSince(-1);
-  if (!synced.ok()) return synced.status();
-  s->synced_audit_id_ = synced->last_id;
+  // Other servers' changes from now on, heard before anything can be fetched into the cache, so
+  // that a change committed between a fill and the first sync is not missed. PostgreSQL tells
+  // every server of each commit as it happens (LISTEN/NOTIFY); on SQLite each server reads the
+  // audit log every active_cache_sync (SQLite's commits are serial, so its ids follow commit
+  // order; PostgreSQL's do not, which is why it is not polled).
+  absl::Duration cache_sync = options.active_cache_sync;
+  if (s->store_->dialect() == storage::Dialect::kPostgres) {
+    ActiveParamCache* c = s->active_cache_.get();
+    absl::Status listening = s->store_->ListenForActiveChanges(
+        [c](std::string_view device_id) { c->Invalidate(device_id); },
+        [c] {
+          c->Clear();
+          Log(LogLevel::kWarning, "active_cache_gap",
+              {{"note", "the database's change notifications were interrupted: cache emptied"}});
+        });
+    if (!listening.ok()) return listening;
+    cache_sync = absl::ZeroDuration();
+  } else {
+    absl::StatusOr<storage::Store::ActiveChanges> synced = s->store_->ActiveChangesSince(-1);
+    if (!synced.ok()) return synced.status();
+    s->synced_audit_id_ = synced->last_id;
+  }
   // Who may do what (server/auth.h). Insecure mode checks nothing: it is loopback-only.
   AuthorizerOptions auth_options;
   auth_options.enforce = !options.security.insecure;
@@ -243,7 +260,7 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
   }
   s->background_ = std::thread([server = s.get(), id = sessions.replica_id,
-                                lease = sessions.solve_lease, sync = options.active_cache_sync] {
+                                lease = sessions.solve_lease, sync = cache_sync] {
     server->Background(id, lease, sync);
   });
   return s;

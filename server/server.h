@@ -51,6 +51,8 @@ struct ServerOptions {
   // it made (Store::ActiveChangesSince), dropping those devices from its fetch cache: a promote
   // or rollback through one server is answered by every other within about this long. Zero:
   // never (one server alone on its database; its own changes are seen at once regardless).
+  // SQLite only: on PostgreSQL every server hears of each change as it commits (LISTEN/NOTIFY,
+  // Store::ListenForActiveChanges), and this is not used.
   absl::Duration active_cache_sync = absl::Milliseconds(250);
   // "HOST:PORT" to serve Prometheus metrics on (http://HOST:PORT/metrics, server/metrics.h);
   // port 0 picks a free one; empty: no metrics kept.

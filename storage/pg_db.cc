@@ -1,9 +1,13 @@
 #include "storage/pg_db.h"
 
 #include <libpq-fe.h>
+#include <poll.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
 
 #include <bit>
 #include <charconv>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -376,6 +380,82 @@ absl::StatusOr<std::unique_ptr<Statement>> PgConnection::NewStatement(std::strin
   absl::StatusOr<std::string> pg_sql = DollarParameters(sql);
   if (!pg_sql.ok()) return pg_sql.status();
   return std::unique_ptr<Statement>(new PgStatement(this, *std::move(pg_sql), KindOf(sql)));
+}
+
+// ---- PgListener ------------------------------------------------------------------------------
+
+absl::StatusOr<std::unique_ptr<PgListener>> PgListener::Start(
+    const std::string& url, const std::string& channel,
+    std::function<void(std::string_view payload)> on_notify, std::function<void()> on_gap) {
+  std::unique_ptr<PgListener> l(new PgListener());
+  l->url_ = url;
+  l->channel_ = channel;
+  l->on_notify_ = std::move(on_notify);
+  l->on_gap_ = std::move(on_gap);
+  l->wake_fd_ = ::eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+  if (l->wake_fd_ < 0) return absl::InternalError(Cat("eventfd: ", std::strerror(errno)));
+  if (absl::Status s = l->Connect(); !s.ok()) return s;  // the first time, the caller hears
+  l->thread_ = std::thread([p = l.get()] { p->Run(); });
+  return l;
+}
+
+PgListener::~PgListener() {
+  stop_.store(true);
+  if (wake_fd_ >= 0) {
+    const uint64_t one = 1;
+    (void)!::write(wake_fd_, &one, sizeof one);
+  }
+  if (thread_.joinable()) thread_.join();
+  if (conn_ != nullptr) PQfinish(conn_);
+  if (wake_fd_ >= 0) ::close(wake_fd_);
+}
+
+absl::Status PgListener::Connect() {
+  if (conn_ != nullptr) PQfinish(conn_);
+  const char* keywords[] = {"connect_timeout", "application_name", "dbname", nullptr};
+  const char* values[] = {"10", "imucald-listener", url_.c_str(), nullptr};
+  conn_ = PQconnectdbParams(keywords, values, /*expand_dbname=*/1);
+  if (conn_ == nullptr || PQstatus(conn_) != CONNECTION_OK) {
+    return absl::UnavailableError(Cat("listen: cannot connect to ", RedactedLocation(url_), ": ",
+                                      StripTrailingNewline(conn_ ? PQerrorMessage(conn_) : "")));
+  }
+  char* quoted = PQescapeIdentifier(conn_, channel_.c_str(), channel_.size());
+  if (quoted == nullptr) return absl::InternalError("listen: cannot quote the channel name");
+  const std::string sql = Cat("LISTEN ", quoted);
+  PQfreemem(quoted);
+  Result r(PQexec(conn_, sql.c_str()));
+  if (r == nullptr || PQresultStatus(r.get()) != PGRES_COMMAND_OK) {
+    return absl::UnavailableError(
+        Cat("listen: ", StripTrailingNewline(PQerrorMessage(conn_))));
+  }
+  return absl::OkStatus();
+}
+
+void PgListener::Run() {
+  bool listening = true;
+  while (!stop_.load()) {
+    if (!listening) {
+      // Every second until the server answers again; then whatever was missed is a gap.
+      pollfd wake{wake_fd_, POLLIN, 0};
+      if (::poll(&wake, 1, 1000) > 0 || stop_.load()) return;
+      if (!Connect().ok()) continue;
+      listening = true;
+      on_gap_();
+      continue;
+    }
+    pollfd fds[2] = {{PQsocket(conn_), POLLIN, 0}, {wake_fd_, POLLIN, 0}};
+    if (::poll(fds, 2, 1000) < 0 && errno != EINTR) continue;
+    if (stop_.load() || (fds[1].revents & POLLIN) != 0) return;
+    if (PQconsumeInput(conn_) == 0 || PQstatus(conn_) != CONNECTION_OK) {
+      listening = false;
+      on_gap_();
+      continue;
+    }
+    while (PGnotify* n = PQnotifies(conn_)) {
+      on_notify_(n->extra != nullptr ? std::string_view(n->extra) : std::string_view());
+      PQfreemem(n);
+    }
+  }
 }
 
 }  // namespace imucal::storage

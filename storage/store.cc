@@ -30,6 +30,7 @@ Store::Store(StoreOptions options, std::unique_ptr<Connection> writer,
 }
 
 Store::~Store() {
+  listener_.reset();  // no more callbacks into the caller
   {
     std::lock_guard lock(commit_mu_);
     stopping_ = true;
@@ -78,8 +79,10 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
                              Annotate(op, SqliteConnection::Open(path, conn_options)));
     readers.push_back(std::move(reader));
   }
-  return std::unique_ptr<Store>(new Store(std::move(options), std::move(writer),
-                                          std::move(checkpointer), std::move(readers)));
+  std::unique_ptr<Store> store(new Store(std::move(options), std::move(writer),
+                                        std::move(checkpointer), std::move(readers)));
+  store->location_ = path;
+  return store;
 }
 
 absl::StatusOr<std::unique_ptr<Store>> Store::OpenPostgres(const std::string& url,
@@ -99,8 +102,26 @@ absl::StatusOr<std::unique_ptr<Store>> Store::OpenPostgres(const std::string& ur
                              Annotate(op, PgConnection::Open(url, conn_options)));
     readers.push_back(std::move(reader));
   }
-  return std::unique_ptr<Store>(
+  std::unique_ptr<Store> store(
       new Store(std::move(options), std::move(writer), nullptr, std::move(readers)));
+  store->location_ = url;
+  return store;
+}
+
+absl::Status Store::ListenForActiveChanges(std::function<void(std::string_view)> on_change,
+                                           std::function<void()> on_gap) {
+  if (dialect() != Dialect::kPostgres) {
+    return absl::FailedPreconditionError(
+        "ListenForActiveChanges: only on PostgreSQL (SQLite: ActiveChangesSince)");
+  }
+  if (listener_ != nullptr) {
+    return absl::FailedPreconditionError("ListenForActiveChanges: already listening");
+  }
+  absl::StatusOr<std::unique_ptr<PgListener>> listener =
+      PgListener::Start(location_, "imucal_active", std::move(on_change), std::move(on_gap));
+  if (!listener.ok()) return listener.status();
+  listener_ = *std::move(listener);
+  return absl::OkStatus();
 }
 
 Dialect Store::dialect() const { return writer_->dialect(); }

@@ -70,6 +70,7 @@ namespace imucal::storage {
 
 class Connection;        // db.h
 class SqliteConnection;  // sqlite_db.h: SQLite stays out of this header
+class PgListener;        // pg_db.h
 
 // PRAGMA synchronous in WAL mode: see the header comment.
 enum class Durability { kNormal, kFull };
@@ -262,6 +263,14 @@ class Store {
     int64_t last_id = 0;
   };
   absl::StatusOr<ActiveChanges> ActiveChangesSince(int64_t after_id);
+  // PostgreSQL only: tells `on_change` of every commit, by any server sharing the database
+  // (this one included), that changes a device's active version, as it commits (LISTEN/NOTIFY
+  // on channel imucal_active, on a connection of its own). `on_gap` runs when some may have
+  // been missed (the listening connection broke: once when it does, once when listening
+  // resumes); drop everything cached then. Both run on the listener's thread and must be quick.
+  // Once per store; FailedPrecondition on SQLite (use ActiveChangesSince there).
+  absl::Status ListenForActiveChanges(std::function<void(std::string_view device_id)> on_change,
+                                      std::function<void()> on_gap);
 
  private:
   class ReadLease;
@@ -305,6 +314,10 @@ class Store {
   std::mutex readers_mu_;
   std::condition_variable reader_free_;
   std::vector<Connection*> free_readers_;  // guarded by readers_mu_
+
+  std::string location_;  // the file or URL it was opened on
+  // Declared last: stops (and stops calling back) before anything else goes.
+  std::unique_ptr<PgListener> listener_;
 };
 
 }  // namespace imucal::storage

@@ -31,6 +31,7 @@ constexpr char kSelectVersionsOfDevice[] = IMUCAL_SELECT_VERSION_HEADER
 constexpr char kSelectVersionHeadersOfDevice[] = IMUCAL_SELECT_VERSION_HEADER
     " FROM param_versions WHERE device_id = ?1 AND version > ?2 ORDER BY version LIMIT ?3";
 #undef IMUCAL_SELECT_VERSION_HEADER
+constexpr char kAnnounceActive[] = "SELECT pg_notify('imucal_active', ?1)";
 constexpr char kSelectNextVersion[] =
     "SELECT COALESCE(MAX(version), 0) + 1 FROM param_versions WHERE device_id = ?1";
 constexpr char kInsertVersion[] =
@@ -105,10 +106,15 @@ absl::Status SetVersionState(Connection& conn, std::string_view device_id, int v
 }
 
 // Makes `version` the device's active one; returns the version it displaced (0 if none).
+// PostgreSQL: every server listening (Store::ListenForActiveChanges) hears of it when the
+// transaction commits, and not at all if it does not.
 absl::StatusOr<int> Activate(Connection& conn, std::string_view device_id, int version) {
   STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
   STORAGE_RETURN_IF_ERROR(RunStatement(conn, kSupersedeActive, device_id));
   STORAGE_RETURN_IF_ERROR(SetVersionState(conn, device_id, version, VersionState::kActive));
+  if (conn.dialect() == Dialect::kPostgres) {
+    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kAnnounceActive, device_id));
+  }
   return active ? active->version : 0;
 }
 
@@ -147,7 +153,9 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
                                             session.device_id, "', not '", v.device_id, "'"));
     }
   }
-  // The write lock is held (BEGIN IMMEDIATE), so MAX + 1 cannot race another writer.
+  // SQLite: the write lock is held (BEGIN IMMEDIATE), so MAX + 1 cannot race another writer.
+  // PostgreSQL: a concurrent transaction that takes the same number conflicts with this one
+  // (SERIALIZABLE, and UNIQUE (device_id, version)); one of them is aborted and runs again.
   STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> next,
                            ReadRow(conn, kSelectNextVersion, FirstColumnInt64, v.device_id));
   if (!next) return absl::InternalError("no next version");
