@@ -3,10 +3,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <future>
 #include <map>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <system_error>
@@ -18,6 +21,8 @@
 #include "grpcpp/security/credentials.h"
 #include "server/config.h"
 #include "storage/backup.h"
+#include "storage/copy.h"
+#include "storage/db.h"
 #include "util/flags.h"
 #include "util/str_util.h"
 
@@ -33,6 +38,9 @@ const std::set<std::string> kHealthCheckValued = {"config", "ca-cert", "ca", "se
 const std::set<std::string> kHealthCheckSwitches = {"insecure"};
 const std::set<std::string> kBackupValued = {"db", "config", "out", "out-dir", "keep"};
 const std::set<std::string> kRestoreValued = {"from", "db", "config"};
+const std::set<std::string> kMigrateValued = {"from", "to"};
+
+constexpr char kSqliteScheme[] = "sqlite:";
 
 // A subcommand's flags (util/flags.h): `valued` take a value, `switches` do not; -h/--help too.
 absl::StatusOr<flags::Args> ParseFlags(std::span<const std::string> args,
@@ -281,6 +289,101 @@ int RunRestoreCommand(std::span<const std::string> args) {
   return 0;
 }
 
+// Prints what a copy is doing to stderr, at most every 2 seconds (a site of gigabytes takes
+// minutes): the table, the phase and how far it is.
+class MigrateProgress {
+ public:
+  void operator()(const storage::CopyProgress& p) {
+    const absl::Time now = absl::Now();
+    if (now - last_ < absl::Seconds(2)) return;
+    last_ = now;
+    std::fprintf(stderr, "migrate: %s %.*s: %lld of %lld rows\n", std::string(p.phase).c_str(),
+                 static_cast<int>(p.table.size()), p.table.data(),
+                 static_cast<long long>(p.rows_done), static_cast<long long>(p.rows_total));
+  }
+
+ private:
+  absl::Time last_ = absl::Now();
+};
+
+void PrintCopyReport(const storage::CopyReport& report) {
+  std::printf("  %-16s %12s %16s  %s\n", "table", "rows", "bytes", "sha256 (first 16)");
+  for (const storage::TableCopyReport& t : report.tables) {
+    std::printf("  %-16s %12lld %16lld  %s\n", t.table.c_str(), static_cast<long long>(t.rows),
+                static_cast<long long>(t.bytes), t.sha256_hex.substr(0, 16).c_str());
+  }
+  std::printf("  %-16s %12lld %16lld\n", "total", static_cast<long long>(report.rows()),
+              static_cast<long long>(report.bytes()));
+}
+
+struct MigrateArgs {
+  std::string sqlite_path;
+  std::string pg_url;
+};
+
+// --from sqlite:PATH (sqlite:///ABSOLUTE too, as in URLs) and --to postgresql://...;
+// InvalidArgument naming the flag, the URL's password never repeated.
+absl::StatusOr<MigrateArgs> MigrateArgsOf(const flags::Args& flags) {
+  if (!flags.positional().empty()) {
+    return absl::InvalidArgumentError(
+        Cat("unexpected '", storage::RedactedLocation(flags.positional()[0]), "'"));
+  }
+  const std::optional<std::string> from = flags.Get("from");
+  if (!from) return absl::InvalidArgumentError("--from sqlite:PATH is required (the file to copy)");
+  MigrateArgs args;
+  if (from->starts_with(kSqliteScheme)) args.sqlite_path = from->substr(std::strlen(kSqliteScheme));
+  // "sqlite://name" would be a host, not a file: only sqlite:///absolute/path is a URL form.
+  if (args.sqlite_path.starts_with("///")) args.sqlite_path.erase(0, 2);
+  if (args.sqlite_path.empty() || args.sqlite_path.starts_with("//")) {
+    return absl::InvalidArgumentError(
+        Cat("--from: expected sqlite:PATH (the SQLite file to copy, e.g. "
+            "sqlite:/var/lib/imucal/imucal.db), got '",
+            storage::RedactedLocation(*from), "'"));
+  }
+  const std::optional<std::string> to = flags.Get("to");
+  if (!to) {
+    return absl::InvalidArgumentError(
+        "--to postgresql://... is required (the database to copy into)");
+  }
+  if (!storage::IsPostgresUrl(*to)) {
+    return absl::InvalidArgumentError(
+        Cat("--to: expected a postgresql:// URL (the database to copy into), got '",
+            storage::RedactedLocation(*to), "'"));
+  }
+  args.pg_url = *to;
+  return args;
+}
+
+int RunMigrateCommand(std::span<const std::string> args) {
+  constexpr char kUsage[] =
+      "imucald migrate --from sqlite:PATH --to postgresql://USER[:PASSWORD]@HOST[:PORT]/DB";
+  absl::StatusOr<flags::Args> flags = ParseFlags(args, kMigrateValued);
+  if (!flags.ok()) return UsageError("migrate", flags.status(), kUsage);
+  if (flags->Has("help")) return Help(kUsage);
+  absl::StatusOr<MigrateArgs> migrate = MigrateArgsOf(*flags);
+  if (!migrate.ok()) return UsageError("migrate", migrate.status(), kUsage);
+  const std::string dest = storage::RedactedLocation(migrate->pg_url);
+  std::printf(
+      "migrate: sqlite:%s -> %s\n"
+      "migrate: the copy is one consistent snapshot (one read transaction on the file): what "
+      "imucald writes after it begins is not copied, so stop imucald before moving a site\n",
+      migrate->sqlite_path.c_str(), dest.c_str());
+  std::fflush(stdout);
+  MigrateProgress progress;
+  absl::StatusOr<storage::CopyReport> report =
+      storage::CopySqliteToPostgres(migrate->sqlite_path, migrate->pg_url, std::ref(progress));
+  if (!report.ok()) return Fail("migrate", report.status());
+  PrintCopyReport(*report);
+  const double seconds = absl::ToDoubleSeconds(report->took);
+  const double mb = static_cast<double>(report->bytes()) / 1e6;
+  std::printf(
+      "migrate: done in %.1f s (%.1f MB, %.1f MB/s); every table read back from PostgreSQL has "
+      "the snapshot's row count and SHA-256\n"
+      "migrate: next: serve from it (db = \"%s\"); the SQLite file is unchanged\n",
+      seconds, mb, seconds > 0 ? mb / seconds : 0.0, dest.c_str());
+  return 0;
+}
+
 std::string DaemonCompletion(std::string_view shell) {
   // What each word offers: the serve options (config.h's table) at the top, each command's own
   // flags after it; every flag but the switches takes a file-like value.
@@ -307,6 +410,7 @@ std::string DaemonCompletion(std::string_view shell) {
       {"--health-check", health, dashed(kHealthCheckValued)},
       {"backup", dashed(kBackupValued), dashed(kBackupValued)},
       {"restore", dashed(kRestoreValued), dashed(kRestoreValued)},
+      {"migrate", dashed(kMigrateValued), dashed(kMigrateValued)},
   };
   // One `case` line a word: the lists in the shell's syntax, "..." for bash, (...) for zsh.
   const auto cases = [&](std::string_view open, std::string_view close) {
@@ -333,7 +437,7 @@ std::string DaemonCompletion(std::string_view shell) {
         "  if [[ \" $valued \" == *\" $prev \"* ]]; then\n"
         "    COMPREPLY=($(compgen -f -- \"$cur\"))\n"
         "  elif [[ $COMP_CWORD -eq 1 && $cur != -* ]]; then\n"
-        "    COMPREPLY=($(compgen -W \"backup restore completion\" -- \"$cur\"))\n"
+        "    COMPREPLY=($(compgen -W \"backup restore migrate completion\" -- \"$cur\"))\n"
         "  elif [[ ${COMP_WORDS[1]} == completion ]]; then\n"
         "    COMPREPLY=($(compgen -W \"bash zsh\" -- \"$cur\"))\n"
         "  else\n"
@@ -358,7 +462,7 @@ std::string DaemonCompletion(std::string_view shell) {
         "  if (( ${valued[(Ie)$words[CURRENT-1]]} )); then\n"
         "    _files\n"
         "  elif (( CURRENT == 2 )) && [[ $PREFIX != -* ]]; then\n"
-        "    compadd -- backup restore completion\n"
+        "    compadd -- backup restore migrate completion\n"
         "  elif [[ $words[2] == completion ]]; then\n"
         "    compadd -- bash zsh\n"
         "  else\n"

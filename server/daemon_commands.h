@@ -14,6 +14,9 @@
 //       DIR/imucal-<UTC time>.db and keeps the newest N (default 7) of those.
 //   imucald restore --from FILE [--db PATH | --config FILE]
 //       checks FILE and restores it over the database; imucald must be stopped.
+//   imucald migrate --from sqlite:PATH --to postgresql://USER[:PASSWORD]@HOST[:PORT]/DB
+//       copies every row of the SQLite file into the empty PostgreSQL database, verified, in
+//       one transaction (storage/copy.h); prints each table's rows, bytes and SHA-256.
 //
 // Without --db, the database is the one imucald would use: --config FILE, else $IMUCALD_CONFIG,
 // then $IMUCALD_DB (config.h's precedence).
@@ -50,6 +53,7 @@ int RunBackupCommand(std::span<const std::string> args);
 // and the commands' flags; empty for another shell.
 std::string DaemonCompletion(std::string_view shell);
 int RunRestoreCommand(std::span<const std::string> args);
+int RunMigrateCommand(std::span<const std::string> args);
 
 // Deletes the oldest `imucal-*.db` backups in `dir` beyond the newest `keep`; returns how many.
 absl::StatusOr<int> PruneBackups(const std::string& dir, int keep);

@@ -1,7 +1,7 @@
 // imucald: the imucal calibration service. Reads its configuration (server/config.h), serves
 // until SIGTERM or SIGINT, then shuts down gracefully (in-flight calls and queued solves
 // finish) and exits 0. `imucald --help` lists the options; server/daemon_commands.h has the
-// health-check, backup and restore commands.
+// health-check, backup, restore and migrate commands.
 #include <semaphore.h>
 #include <sys/stat.h>
 
@@ -94,6 +94,7 @@ int main(int argc, char** argv) {
   const std::span<const std::string> rest = std::span(args).subspan(args.empty() ? 0 : 1);
   if (!args.empty() && args[0] == "backup") return imucal::server::RunBackupCommand(rest);
   if (!args.empty() && args[0] == "restore") return imucal::server::RunRestoreCommand(rest);
+  if (!args.empty() && args[0] == "migrate") return imucal::server::RunMigrateCommand(rest);
   if (!args.empty() && args[0] == "completion") {
     const std::string script = rest.size() == 1 ? imucal::server::DaemonCompletion(rest[0]) : "";
     if (script.empty()) {

@@ -166,7 +166,7 @@ namespace {
 TEST(DaemonCommandLineTest, VersionHelpUnknownFlagsAndCompletion) {
   const std::string imucald = IMUCALD_PATH;
   EXPECT_EQ(Shell(imucald + " --version"), "imucald " IMUCAL_VERSION "\n");
-  for (const std::string command : {"", "backup", "restore", "--health-check"}) {
+  for (const std::string command : {"", "backup", "restore", "migrate", "--health-check"}) {
     const std::string out = Shell(imucald + " " + command + " -h; echo rc=$?");
     EXPECT_NE(out.find("usage"), std::string::npos) << command << ": " << out;
     EXPECT_NE(out.find("rc=0"), std::string::npos) << command << ": " << out;
@@ -182,6 +182,8 @@ TEST(DaemonCommandLineTest, VersionHelpUnknownFlagsAndCompletion) {
   EXPECT_EQ(bash("imucald --insec"), "--insecure\n");
   EXPECT_EQ(bash("imucald back"), "backup\n");
   EXPECT_EQ(bash("imucald backup --out"), "--out --out-dir\n");
+  EXPECT_EQ(bash("imucald mig"), "migrate\n");
+  EXPECT_EQ(bash("imucald migrate --t"), "--to\n");
   EXPECT_EQ(bash("imucald --health-check --in"), "--insecure\n");
   EXPECT_EQ(Shell(imucald + " completion zsh | zsh -n && echo ok"), "ok\n");
   EXPECT_NE(Shell(imucald + " completion fish 2>&1; echo rc=$?").find("rc=2"), std::string::npos);
