@@ -231,7 +231,8 @@ class Robot final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAc
       if (!status.ok()) {
         ++shared_->failed;
         if (shared_->first_error.empty())
-          shared_->first_error = absl::StrCat(session_id_, ": ", status.error_message());
+          shared_->first_error = absl::StrCat(session_id_, ": gRPC code ", status.error_code(),
+                                              ": ", status.error_message());
       }
       shared_->latencies_us.insert(shared_->latencies_us.end(), latencies_us_.begin(),
                                    latencies_us_.end());
