@@ -1,20 +1,37 @@
 // Active-parameters fetch (the robot-startup hot path): ParameterService.GetActiveParameters for
-// random devices against a fleet-sized SQLite store.
+// random devices against a fleet-sized store (SQLite, or PostgreSQL with one or more servers).
 //
 //   ninja -C build-perf fetch_bench
 //   build-perf/bench/fetch_bench [--devices=10000] [--versions=10] [--seconds=3]
 //                                [--callers=1,64] [--channels=1]
-//                                [--db=PATH (populated there if missing, reused if present)]
-//                                [--keep]
+//                                [--db=PATH|postgresql://... (populated if it holds no fleet,
+//                                 reused if it holds this one)]
+//                                [--replicas=1] [--keep]
 //                                [--warm] [--server-cpu=N] [--client-cpu=N]
 //
 // --warm fetches every device once before the rows (a fleet whose robots have all booted since
 // the server started: the server's response cache holds every device); without it the first
-// row also measures the cache's misses. --server-cpu / --client-cpu pin the forked server and
+// row also measures the cache's misses. --server-cpu / --client-cpu pin the forked server(s) and
 // this load client to one core each (sched_setaffinity), so that on a 2-core machine they do
 // not compete for the same core.
 //
-// 1. Populates a fresh SQLite file through storage::Store (no direct SQL): `devices` devices,
+// --db=postgresql://... keeps the fleet in that PostgreSQL database (deploy/pg-throwaway.sh
+// start prints one), and --replicas=R forks R servers on it (replica_id bench-1..R, README
+// "Several servers on one database"). --channels is then per server: connection k goes to
+// server k % R, caller i uses connection i % (R * channels), so the callers are spread evenly
+// and each server has its own fetch cache to fill (--warm warms every server's). db_cpu is the
+// PostgreSQL cluster's CPU (its postmaster and every process under it); "-" for SQLite, whose
+// reads are in the server's CPU.
+//
+// Reuse: a SQLite --db PATH is reused if the file exists. A PostgreSQL database is reused if it
+// holds this fleet (the last device, with version `versions` active), populated if it holds no
+// device, and refused otherwise. Population is one transaction per Store call, 110,000 of them
+// for 10,000 devices x 10 versions: on this 2-core machine 1.8 min on SQLite (devices 36 s at
+// 275/s, each commit fsynced; versions 74 s) and 1.8 min on a throwaway PostgreSQL at fsync=off
+// (devices 4 s, versions 103 s at 970/s: a SERIALIZABLE transaction of several round trips
+// each); a PostgreSQL that fsyncs would be slower. Populate once and pass the same --db again.
+//
+// 1. Populates the store through storage::Store (no direct SQL): `devices` devices,
 //    `versions` parameter versions each (the last one active, the others superseded). Each
 //    version carries a ~2 KB "imucal-params v1" document (formats::ParamSetToJson of a
 //    realistic, per-version random parameter set with stderrs and effects) and an ~8 KB report_json
@@ -25,7 +42,8 @@
 //    `seconds`, each for a uniformly random device; the latency of every call is recorded.
 //    Rows: C = each of --callers, full fetch, and the same with if_not_version = the active
 //    version (the robot's "unchanged?" check: header only).
-// 3. Store::GetActive in-process (no gRPC), one thread: the SQLite part of the latency.
+// 3. Store::GetActive in-process (no gRPC), one thread: the database's part of the latency
+//    (SQLite in this process; PostgreSQL: a round trip to its backend on loopback).
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -74,13 +92,14 @@ struct Flags {
   int server_cpu = -1;
   int client_cpu = -1;
   bool metrics = false;
+  int replicas = 1;  // servers on the database
 };
 
 Flags ParseFlags(int argc, char** argv) {
   Flags f;
   CLI::App app{
       "Active-parameters fetch (GetActiveParameters) for random devices against a fleet-sized "
-      "SQLite store, from a forked server.",
+      "store (SQLite or PostgreSQL), from one or more forked servers.",
       "fetch_bench"};
   app.add_option("--devices", f.devices, "devices in the store");
   app.add_option("--versions", f.versions, "parameter versions per device (the last active)");
@@ -89,10 +108,14 @@ Flags ParseFlags(int argc, char** argv) {
       ->delimiter(',')
       ->check(CLI::Range(1, std::numeric_limits<int>::max()).description("POSITIVE"));
   app.add_option("--channels", f.channels,
-                 "HTTP/2 connections the callers are spread over (at least 1)");
+                 "HTTP/2 connections per server the callers are spread over (at least 1)");
   app.add_option("--db", f.db,
-                 "the store: populated there if missing, reused if present "
-                 "(default: a fresh one in a temp directory)");
+                 "the store, a SQLite file or a postgresql:// URL: populated if it holds no "
+                 "fleet, reused if it holds this one (default: a fresh SQLite file in a temp "
+                 "directory)");
+  app.add_option("--replicas", f.replicas,
+                 "servers forked on the database, callers spread over them")
+      ->check(CLI::Range(1, 64));
   app.add_flag("--keep", f.keep, "keep the temp directory");
   app.add_flag("--warm", f.warm, "fetch every device once before the rows (a warm cache)");
   app.add_option("--server-cpu", f.server_cpu, "pin the server to this core (-1: no pinning)");
@@ -152,13 +175,34 @@ imucal::core::ParamSet RandomParams(std::mt19937_64& rng, const std::string& dev
   return p;
 }
 
-void Populate(const Flags& flags, const std::string& path) {
-  absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store =
-      imucal::storage::Store::Open(path);
+std::unique_ptr<imucal::storage::Store> OpenStore(const std::string& db) {
+  absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store = imucal::storage::Store::Open(db);
   if (!store.ok()) {
-    std::fprintf(stderr, "open: %s\n", std::string(store.status().message()).c_str());
+    std::fprintf(stderr, "open %s: %s\n", imucal::storage::RedactedLocation(db).c_str(),
+                 std::string(store.status().message()).c_str());
     std::exit(1);
   }
+  return *std::move(store);
+}
+
+// Whether the PostgreSQL database at `url` must be populated: false if it holds this fleet,
+// true if it holds no device; exits if it holds something else.
+bool PostgresNeedsFleet(const Flags& flags, const std::string& url) {
+  std::unique_ptr<imucal::storage::Store> store = OpenStore(url);
+  absl::StatusOr<imucal::storage::Device> last = store->GetDevice(DeviceId(flags.devices - 1));
+  if (last.ok() && last->active_version == flags.versions) return false;
+  absl::StatusOr<std::vector<imucal::storage::Device>> any = store->ListDevices("", 1);
+  if (!last.ok() && absl::IsNotFound(last.status()) && any.ok() && any->empty()) return true;
+  std::fprintf(stderr,
+               "%s holds devices, but not this fleet (%s with version %d active): use an empty "
+               "database, or the --devices and --versions it was populated with\n",
+               imucal::storage::RedactedLocation(url).c_str(), DeviceId(flags.devices - 1).c_str(),
+               flags.versions);
+  std::exit(1);
+}
+
+void Populate(const Flags& flags, const std::string& path) {
+  std::unique_ptr<imucal::storage::Store> store = OpenStore(path);
   std::mt19937_64 rng(1);
   // A stand-in for the version's "imucal-report v1" document (same row, not read by GetActive).
   const std::string report_json =
@@ -172,7 +216,7 @@ void Populate(const Flags& flags, const std::string& path) {
     d.nominal_rate_hz = 200;
     d.accel_unit = "m/s^2";
     d.gyro_unit = "rad/s";
-    if (absl::StatusOr<imucal::storage::Device> s = (*store)->CreateDevice(d, "bench"); !s.ok()) {
+    if (absl::StatusOr<imucal::storage::Device> s = store->CreateDevice(d, "bench"); !s.ok()) {
       std::fprintf(stderr, "CreateDevice: %s\n", std::string(s.status().message()).c_str());
       std::exit(1);
     }
@@ -190,7 +234,7 @@ void Populate(const Flags& flags, const std::string& path) {
       pv.accel_rms = 0.004;
       pv.state = imucal::storage::VersionState::kActive;
       pv.provenance = "imucal 0.1.0; bsas seed 1; six-face";
-      if (absl::StatusOr<imucal::storage::ParamVersion> s = (*store)->AddVersion(pv, "bench");
+      if (absl::StatusOr<imucal::storage::ParamVersion> s = store->AddVersion(pv, "bench");
           !s.ok()) {
         std::fprintf(stderr, "AddVersion: %s\n", std::string(s.status().message()).c_str());
         std::exit(1);
@@ -233,9 +277,9 @@ class Chain {
   void Next() {
     context_ = std::make_unique<grpc::ClientContext>();
     context_->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
-    const int d = static_cast<int>(rng_() % static_cast<uint64_t>(run_->devices));
-    request_.set_device_id(DeviceId(d));
-    request_.set_if_not_version(run_->if_not_version ? run_->active_version[d] : 0);
+    device_ = static_cast<int>(rng_() % static_cast<uint64_t>(run_->devices));
+    request_.set_device_id(DeviceId(device_));
+    request_.set_if_not_version(run_->if_not_version ? run_->active_version[device_] : 0);
     start_ = Clock::now();
     stub_->async()->GetActiveParameters(context_.get(), &request_, &response_,
                                         [this](grpc::Status s) { Done(std::move(s)); });
@@ -248,6 +292,14 @@ class Chain {
     if (!status.ok()) {
       ++errors_;
       if (first_error_.empty()) first_error_ = status.error_message();
+    } else if (response_.device_id() != request_.device_id() ||
+               response_.version() != run_->active_version[device_]) {
+      // An answer for another device or version (a stale cache): counted as an error.
+      ++errors_;
+      if (first_error_.empty())
+        first_error_ = absl::StrCat("asked for ", request_.device_id(), " (active version ",
+                                    run_->active_version[device_], "), got ", response_.device_id(),
+                                    " version ", response_.version());
     }
     bytes_ += static_cast<int64_t>(response_.json().size());
     if (now < run_->deadline) {
@@ -266,6 +318,7 @@ class Chain {
   v1::ParameterService::Stub* stub_;
   std::mt19937_64 rng_;
   std::unique_ptr<grpc::ClientContext> context_;
+  int device_ = 0;  // of the call in flight
   v1::GetActiveParametersRequest request_;
   v1::ParameterSet response_;
   Clock::time_point start_;
@@ -275,16 +328,26 @@ class Chain {
   int64_t bytes_ = 0;
 };
 
+// One row; db_cpu < 0: not measured ("-"). `split`: each server's CPU, printed below the row
+// when there are several.
 void PrintRow(const char* what, int callers, std::vector<double>& lat, double wall_s,
-              int64_t errors, double cli_cpu, double srv_cpu, const std::string& load) {
+              int64_t errors, double cli_cpu, double srv_cpu, double db_cpu,
+              const std::string& load, const std::vector<double>& split = {}) {
   const double mx = lat.empty() ? 0 : *std::max_element(lat.begin(), lat.end());
   const size_t n = lat.size();
   const double p50 = Percentile(lat, 0.5), p99 = Percentile(lat, 0.99),
                p999 = Percentile(lat, 0.999);
-  std::printf("%-22s %7d %9zu %10.0f %8.3f %8.3f %8.3f %8.2f %6lld %7.0f%% %7.0f%%  %s\n", what,
+  const std::string db = db_cpu < 0 ? "-" : absl::StrFormat("%.0f%%", 100 * db_cpu / wall_s);
+  std::printf("%-25s %7d %9zu %10.0f %8.3f %8.3f %8.3f %8.2f %6lld %7.0f%% %7.0f%% %7s  %s\n", what,
               callers, n, static_cast<double>(n) / wall_s, p50 / 1e3, p99 / 1e3, p999 / 1e3,
               mx / 1e3, static_cast<long long>(errors), 100 * cli_cpu / wall_s,
-              100 * srv_cpu / wall_s, load.c_str());
+              100 * srv_cpu / wall_s, db.c_str(), load.c_str());
+  if (split.size() > 1) {
+    std::string line;
+    for (double cpu : split)
+      absl::StrAppend(&line, " ", absl::StrFormat("%.0f%%", 100 * cpu / wall_s));
+    std::printf("%-25s srv_cpu per server:%s\n", "", line.c_str());
+  }
   std::fflush(stdout);
 }
 
@@ -294,57 +357,74 @@ int main(int argc, char** argv) {
   const Flags flags = ParseFlags(argc, argv);
   std::string dir;
   std::string db = flags.db;
-  if (db.empty() || !std::filesystem::exists(db)) {
-    char tmpl[] = "/tmp/imucal-fetch-bench-XXXXXX";
-    if (mkdtemp(tmpl) == nullptr) return 1;
-    dir = tmpl;
-    if (db.empty()) db = dir + "/fetch.db";
-    std::printf("populating %s (load %s)\n", db.c_str(), LoadAvg().c_str());
+  const bool pg = imucal::storage::IsPostgresUrl(db);
+  const bool populate =
+      pg ? PostgresNeedsFleet(flags, db) : db.empty() || !std::filesystem::exists(db);
+  if (populate) {
+    if (db.empty()) {
+      char tmpl[] = "/tmp/imucal-fetch-bench-XXXXXX";
+      if (mkdtemp(tmpl) == nullptr) return 1;
+      dir = tmpl;
+      db = dir + "/fetch.db";
+    }
+    std::printf("populating %s (load %s)\n", DescribeDb(db).c_str(), LoadAvg().c_str());
+    std::fflush(stdout);  // before Populate's progress lines on stderr
     Populate(flags, db);
   } else {
-    std::printf("reusing %s\n", db.c_str());
+    std::printf("reusing %s\n", DescribeDb(db).c_str());
   }
   std::error_code ec;
-  std::printf("db size %.1f MB\n\n", static_cast<double>(std::filesystem::file_size(db, ec)) / 1e6);
+  if (!pg)
+    std::printf("db size %.1f MB\n", static_cast<double>(std::filesystem::file_size(db, ec)) / 1e6);
+  std::printf("\n");
 
-  // The active version per device (the last one added): for the if_not_version rows.
+  // The active version per device (the last one added): what every answer must carry, and the
+  // if_not_version of the "unchanged" rows.
   std::vector<int> active(static_cast<size_t>(flags.devices), flags.versions);
 
-  Child child = ForkServer(db, flags.server_cpu, flags.metrics ? "127.0.0.1:0" : "");
-  PinToCpu(flags.client_cpu);  // after the fork: the server keeps its own core
+  std::vector<Child> servers =
+      ForkServers(db, flags.replicas, flags.server_cpu, flags.metrics ? "127.0.0.1:0" : "");
+  PinToCpu(flags.client_cpu);  // after the fork: the servers keep their own core
+  const std::optional<PostgresCpu> pg_cpu = pg ? PostgresCpu::Find(db) : std::nullopt;
+  auto db_cpu_s = [&] { return pg_cpu ? pg_cpu->CpuS() : 0.0; };
+  int64_t errors = 0;  // failed calls and wrong answers, over the rows
   {
+    const std::vector<std::shared_ptr<grpc::Channel>> channels =
+        RoundRobinChannels(servers, flags.channels);
     std::vector<std::unique_ptr<v1::ParameterService::Stub>> stubs;
-    for (int i = 0; i < flags.channels; ++i) {
-      grpc::ChannelArguments args;
-      args.SetInt("imucal.bench.channel", i);  // distinct args: a connection per channel
-      args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-      stubs.push_back(v1::ParameterService::NewStub(grpc::CreateCustomChannel(
-          absl::StrCat("127.0.0.1:", child.port), grpc::InsecureChannelCredentials(), args)));
-    }
-    v1::ParameterService::Stub* stub = stubs[0].get();
-    // Warm-up: connect, and one call per 10th device (touches a share of the pages), or every
-    // device with --warm.
-    for (int i = 0; i < flags.devices; i += flags.warm ? 1 : 10) {
-      v1::GetActiveParametersRequest req;
-      req.set_device_id(DeviceId(i));
-      v1::ParameterSet out;
-      grpc::ClientContext c;
-      grpc::Status s = stub->GetActiveParameters(&c, req, &out);
-      if (!s.ok()) {
-        std::fprintf(stderr, "warm-up %s: %s\n", req.device_id().c_str(),
-                     s.error_message().c_str());
-        return 1;
+    for (const auto& channel : channels) stubs.push_back(v1::ParameterService::NewStub(channel));
+    // Warm-up, each server's cache (channel s goes to server s): connect, and one call per 10th
+    // device (touches a share of the pages), or every device with --warm.
+    for (size_t server = 0; server < servers.size(); ++server) {
+      for (int i = 0; i < flags.devices; i += flags.warm ? 1 : 10) {
+        v1::GetActiveParametersRequest req;
+        req.set_device_id(DeviceId(i));
+        v1::ParameterSet out;
+        grpc::ClientContext c;
+        grpc::Status s = stubs[server]->GetActiveParameters(&c, req, &out);
+        if (!s.ok()) {
+          std::fprintf(stderr, "warm-up %s on server %zu: %s\n", req.device_id().c_str(),
+                       server + 1, s.error_message().c_str());
+          StopServers(servers);
+          return 1;
+        }
       }
     }
+    std::string pids;
+    for (const Child& child : servers) absl::StrAppend(&pids, pids.empty() ? "" : ",", child.pid);
     std::printf(
-        "GetActiveParameters, random device of %d, %.1f s per row, %d channel(s), "
-        "server pid %d, %s, server cpu %d, client cpu %d (-1: any):\n",
-        flags.devices, flags.seconds, flags.channels, static_cast<int>(child.pid),
+        "GetActiveParameters, random device of %d, %.1f s per row, %d server(s) (pid %s) on %s, "
+        "%d channel(s) per server, %s, server cpu %d, client cpu %d (-1: any)%s:\n",
+        flags.devices, flags.seconds, static_cast<int>(servers.size()), pids.c_str(),
+        DescribeDb(db).c_str(), flags.channels,
         flags.warm ? "every device fetched once before" : "a tenth fetched before",
-        flags.server_cpu, flags.client_cpu);
-    std::printf("%-22s %7s %9s %10s %8s %8s %8s %8s %6s %8s %8s  %s\n", "call", "callers", "calls",
-                "calls/s", "p50_ms", "p99_ms", "p999_ms", "max_ms", "errors", "cli_cpu", "srv_cpu",
-                "loadavg(before)");
+        flags.server_cpu, flags.client_cpu,
+        !pg      ? ""
+        : pg_cpu ? "; db_cpu = the PostgreSQL cluster's"
+                 : "; PostgreSQL not local: no db_cpu");
+    std::printf("%-25s %7s %9s %10s %8s %8s %8s %8s %6s %8s %8s %7s  %s\n", "call", "callers",
+                "calls", "calls/s", "p50_ms", "p99_ms", "p999_ms", "max_ms", "errors", "cli_cpu",
+                "srv_cpu", "db_cpu", "loadavg(before)");
     for (int if_not : {0, 1}) {
       for (int c : flags.callers) {
         Run run;
@@ -358,7 +438,8 @@ int main(int argc, char** argv) {
               &run, 1000 + i, stubs[static_cast<size_t>(i) % stubs.size()].get()));
         }
         const std::string load = LoadAvg();
-        const double cli0 = SelfCpuS(), srv0 = ProcCpuS(child.pid);
+        const double cli0 = SelfCpuS(), db0 = db_cpu_s();
+        const std::vector<double> srv0 = ServersCpuS(servers);
         const Clock::time_point t0 = Clock::now();
         run.deadline = t0 + std::chrono::microseconds(static_cast<int64_t>(flags.seconds * 1e6));
         for (auto& chain : chains) chain->Next();
@@ -367,15 +448,22 @@ int main(int argc, char** argv) {
           run.cv.wait(lock, [&] { return run.running == 0; });
         }
         const double wall = Seconds(Clock::now() - t0);
+        std::vector<double> srv = ServersCpuS(servers);
+        for (size_t i = 0; i < srv.size(); ++i) srv[i] -= srv0[i];
         PrintRow(if_not ? "GetActive (unchanged)" : "GetActive (full)", c, run.latencies_us, wall,
-                 run.errors, SelfCpuS() - cli0, ProcCpuS(child.pid) - srv0, load);
+                 run.errors, SelfCpuS() - cli0, Sum(srv), pg_cpu ? db_cpu_s() - db0 : -1, load,
+                 srv);
         if (run.errors > 0) std::fprintf(stderr, "  first error: %s\n", run.first_error.c_str());
+        errors += run.errors;
       }
     }
+    if (errors > 0)
+      std::printf("errors: %lld (first errors on stderr)\n", static_cast<long long>(errors));
   }
-  StopServer(child);
+  StopServers(servers);
 
-  // The SQLite part alone: Store::GetActive in this process, one thread.
+  // The database's part alone: Store::GetActive in this process, one thread (SQLite in this
+  // process; PostgreSQL a round trip to its backend).
   {
     absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store =
         imucal::storage::Store::Open(db);
@@ -383,7 +471,7 @@ int main(int argc, char** argv) {
       std::mt19937_64 rng(5);
       std::vector<double> lat;
       const std::string load = LoadAvg();
-      const double cli0 = SelfCpuS();
+      const double cli0 = SelfCpuS(), db0 = db_cpu_s();
       const Clock::time_point t0 = Clock::now();
       while (Seconds(Clock::now() - t0) < flags.seconds) {
         const std::string id = DeviceId(static_cast<int>(rng() % flags.devices));
@@ -396,12 +484,13 @@ int main(int argc, char** argv) {
         }
       }
       const double wall = Seconds(Clock::now() - t0);
-      PrintRow("Store::GetActive (no rpc)", 1, lat, wall, 0, SelfCpuS() - cli0, 0, load);
+      PrintRow("Store::GetActive (no rpc)", 1, lat, wall, 0, SelfCpuS() - cli0, 0,
+               pg_cpu ? db_cpu_s() - db0 : -1, load);
     }
   }
   if (!dir.empty() && !flags.keep)
     std::filesystem::remove_all(dir, ec);
   else if (!dir.empty())
     std::printf("kept %s\n", dir.c_str());
-  return 0;
+  return errors == 0 ? 0 : 1;
 }

@@ -1,21 +1,38 @@
 // Durable ingest throughput: N simulated robots, each with its own device and session, stream
 // SessionService.StreamSamples batches (packed columns, seq 1, 2, ...) to a real imucald server
-// over loopback and count what the server acknowledges (acks come after the SQLite commit).
+// over loopback and count what the server acknowledges (acks come after the commit).
 //
 //   ninja -C build-perf ingest_bench
 //   build-perf/bench/ingest_bench [--n=1,100,1000] [--seconds=5] [--batch=200] [--window=1]
 //                                 [--channels=4] [--breakdown=1] [--keep]
+//                                 [--db=postgresql://...] [--replicas=1]
 //                                 [--server-cpu=N] [--client-cpu=N]
-// (--server-cpu / --client-cpu pin the forked server and this client to one core each.)
+// (--server-cpu / --client-cpu pin the forked server(s) and this client to one core each.)
 //
 // The server runs in a forked child process (imucal::server::Server on 127.0.0.1:0 with a
-// SQLite file in a fresh temp dir), so the client's and the server's CPU are measured apart:
-// client = getrusage(self), server = /proc/<child>/stat. The client is the gRPC callback API:
-// one ClientBidiReactor per robot, no thread per stream (gRPC's own few threads drive them all),
-// streams spread over --channels HTTP/2 connections. Each robot keeps up to --window batches
-// unacknowledged (the server handles one batch of a stream at a time). Each round sends for
-// --seconds, then half-closes every stream and waits for the remaining acks: the wall time
-// includes that drain. Ack latency is StartWrite of batch seq -> the ack covering seq.
+// SQLite file in a fresh temp dir, or the database --db names), so the client's and the
+// server's CPU are measured apart: client = getrusage(self), server = /proc/<child>/stat. The
+// client is the gRPC callback API: one ClientBidiReactor per robot, no thread per stream (gRPC's
+// own few threads drive them all), streams spread over --channels HTTP/2 connections per
+// server. Each robot keeps up to --window batches unacknowledged (the server handles one batch
+// of a stream at a time). Each round sends for --seconds, then half-closes every stream and
+// waits for the remaining acks: the wall time includes that drain. Ack latency is StartWrite of
+// batch seq -> the ack covering seq.
+//
+// --db=postgresql://... puts the store in that PostgreSQL database (deploy/pg-throwaway.sh start
+// prints one) and --replicas=R forks R servers on the same database, replica_id bench-1..R
+// (README "Several servers on one database"); connection k goes to server k % R, and robot i
+// registers its device, opens its session and streams on connection i % (R * channels), so each
+// robot's stream goes to one server and the robots are spread evenly. The device ids carry the
+// run's start time, so a database can be used again. db_cpu is the PostgreSQL cluster's CPU
+// (its postmaster and every process under it, found through the backend of a connection; "-"
+// for SQLite, whose work is in the server's CPU, or a cluster on another machine).
+//
+// After each round every robot's session is read back through the store (not through a server):
+// its stored batches and samples must equal what it had acknowledged (batches 1..last acked seq,
+// --batch samples each, which the last ack's sample count must equal too). "lost" counts
+// sessions holding fewer or whose ack miscounted (a bug), "extra" those holding more (a batch
+// stored whose ack never arrived: only if a stream failed); both are printed per round.
 //
 // The samples are a simulated six-face capture (200 Hz, temperature on), cut into batches and
 // replayed with a time shift per lap, so the server's online segmenter sees realistic motion.
@@ -45,6 +62,7 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "bench/bench_flags.h"
 #include "bench/service_bench_util.h"
 #include "core/simulator.h"
@@ -71,6 +89,8 @@ struct Flags {
   bool keep = false;
   int server_cpu = -1;
   int client_cpu = -1;
+  std::string db;    // empty: a SQLite file in the temp directory
+  int replicas = 1;  // servers on the database
 };
 
 Flags ParseFlags(int argc, char** argv) {
@@ -86,12 +106,18 @@ Flags ParseFlags(int argc, char** argv) {
   app.add_option("--batch", f.batch, "samples per batch");
   app.add_option("--window", f.window, "unacknowledged batches per stream (at least 1)");
   app.add_option("--channels", f.channels,
-                 "HTTP/2 connections the streams are spread over (at least 1)");
+                 "HTTP/2 connections per server the streams are spread over (at least 1)");
   app.add_option("--breakdown", f.breakdown,
                  "then one batch's cost piece by piece, in process (0: skip it)");
   app.add_flag("--keep", f.keep, "keep the temp directory");
   app.add_option("--server-cpu", f.server_cpu, "pin the server to this core (-1: no pinning)");
   app.add_option("--client-cpu", f.client_cpu, "pin this client to this core (-1: no pinning)");
+  app.add_option("--db", f.db,
+                 "the database: a postgresql:// URL or a SQLite file (default: a fresh SQLite "
+                 "file in the temp directory)");
+  app.add_option("--replicas", f.replicas,
+                 "servers forked on the database, robots spread over them")
+      ->check(CLI::Range(1, 64));
   imucal::bench::ParseBenchFlags(app, argc, argv);
   f.window = std::max(1, f.window);
   f.channels = std::max(1, f.channels);
@@ -194,13 +220,19 @@ class Robot final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAc
     StartRead(&ack_);
   }
 
+  // What its last ack counted; read once OnDone ran.
+  const std::string& session_id() const { return session_id_; }
+  int64_t acked_seq() const { return acked_seq_; }
+  int64_t acked_samples() const { return acked_samples_; }
+
   void OnDone(const grpc::Status& status) override {
     {
       std::lock_guard lock(shared_->mu);
       if (!status.ok()) {
         ++shared_->failed;
         if (shared_->first_error.empty())
-          shared_->first_error = absl::StrCat(session_id_, ": ", status.error_message());
+          shared_->first_error = absl::StrCat(session_id_, ": gRPC code ", status.error_code(),
+                                              ": ", status.error_message());
       }
       shared_->latencies_us.insert(shared_->latencies_us.end(), latencies_us_.begin(),
                                    latencies_us_.end());
@@ -255,29 +287,80 @@ class Robot final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAc
   std::vector<double> latencies_us_;
 };
 
+// The run's start time (ms, hex): in every device id, so that a database (PostgreSQL, a kept
+// SQLite file) can hold several runs.
+const std::string& RunTag() {
+  static const std::string tag = absl::StrFormat("%x", absl::ToUnixMillis(absl::Now()));
+  return tag;
+}
+
+// Every robot's session as stored against its last ack (see the header comment).
+struct StoredCheck {
+  int sessions = 0, lost = 0, extra = 0;
+  std::string first_problem;
+};
+
+StoredCheck CheckStored(imucal::storage::Store& store,
+                        const std::vector<std::unique_ptr<Robot>>& robots, int batch) {
+  StoredCheck check;
+  for (const auto& robot : robots) {
+    ++check.sessions;
+    // What the robot had acknowledged: batches 1..acked_seq of `batch` samples each, which is
+    // also what the server's last ack must have counted.
+    const int64_t acked = robot->acked_seq() * batch;
+    absl::StatusOr<imucal::storage::Session> stored = store.GetSession(robot->session_id());
+    const int64_t seq = stored.ok() ? stored->last_acked_seq : -1;
+    const int64_t samples = stored.ok() ? stored->samples : -1;
+    if (seq == robot->acked_seq() && samples == acked && robot->acked_samples() == acked) continue;
+    if (seq < robot->acked_seq() || samples < acked || robot->acked_samples() != acked)
+      ++check.lost;
+    else
+      ++check.extra;
+    if (check.first_problem.empty()) {
+      check.first_problem =
+          absl::StrCat(robot->session_id(), ": acknowledged batch ", robot->acked_seq(), " (",
+                       acked, " samples; the ack said ", robot->acked_samples(), "), stored ",
+                       stored.ok() ? absl::StrCat("batch ", seq, " (", samples, " samples)")
+                                   : std::string(stored.status().message()));
+    }
+  }
+  return check;
+}
+
 struct RoundResult {
   int n = 0;
   double wall_s = 0, samples_per_s = 0, batches_per_s = 0;
   int64_t samples = 0, batches = 0;
   double p50_us = 0, p99_us = 0, max_us = 0;
-  double client_cpu_s = 0, server_cpu_s = 0;
+  double client_cpu_s = 0, server_cpu_s = 0, db_cpu_s = -1;  // -1: not measured
+  std::vector<double> replica_cpu_s;                         // per server
   int failed = 0;
+  StoredCheck check;
   std::string load;
 };
 
-RoundResult RunRound(const Flags& flags, const Columns& col, Child& child,
+RoundResult RunRound(const Flags& flags, const Columns& col, const std::vector<Child>& servers,
+                     const std::optional<PostgresCpu>& pg_cpu, imucal::storage::Store& store,
                      std::vector<std::shared_ptr<grpc::Channel>>& channels, int n, int round) {
   RoundResult r;
   r.n = n;
-  // Setup (not timed): a device and an open session per robot.
+  // Setup (not timed): a device and an open session per robot, through the server (channel)
+  // its stream will go to.
   std::vector<std::string> sessions;
   {
-    auto devices = v1::DeviceService::NewStub(channels[0]);
-    auto session_stub = v1::SessionService::NewStub(channels[0]);
+    std::vector<std::unique_ptr<v1::DeviceService::Stub>> device_stubs;
+    std::vector<std::unique_ptr<v1::SessionService::Stub>> session_stubs;
+    for (auto& ch : channels) {
+      device_stubs.push_back(v1::DeviceService::NewStub(ch));
+      session_stubs.push_back(v1::SessionService::NewStub(ch));
+    }
     for (int i = 0; i < n; ++i) {
+      const size_t k = static_cast<size_t>(i) % channels.size();
+      auto& devices = device_stubs[k];
+      auto& session_stub = session_stubs[k];
       v1::RegisterDeviceRequest req;
       v1::Device* d = req.mutable_device();
-      d->set_id(absl::StrCat("bench-r", round, "-n", n, "-", i));
+      d->set_id(absl::StrCat("bench-", RunTag(), "-r", round, "-n", n, "-", i));
       d->set_sensor_model("MPU-6050");
       d->set_nominal_rate_hz(200);
       d->set_accel_unit("m/s^2");
@@ -312,7 +395,9 @@ RoundResult RunRound(const Flags& flags, const Columns& col, Child& child,
         &shared, stubs[static_cast<size_t>(i) % stubs.size()].get(), sessions[i]));
   }
   r.load = LoadAvg();
-  const double client_cpu0 = SelfCpuS(), server_cpu0 = ProcCpuS(child.pid);
+  const double client_cpu0 = SelfCpuS();
+  const std::vector<double> server_cpu0 = ServersCpuS(servers);
+  const double db_cpu0 = pg_cpu ? pg_cpu->CpuS() : 0;
   const Clock::time_point start = Clock::now();
   shared.deadline = start + std::chrono::microseconds(static_cast<int64_t>(flags.seconds * 1e6));
   for (auto& robot : robots) robot->Start();
@@ -322,7 +407,10 @@ RoundResult RunRound(const Flags& flags, const Columns& col, Child& child,
   }
   const Clock::time_point end = Clock::now();
   r.client_cpu_s = SelfCpuS() - client_cpu0;
-  r.server_cpu_s = ProcCpuS(child.pid) - server_cpu0;
+  if (pg_cpu) r.db_cpu_s = pg_cpu->CpuS() - db_cpu0;
+  r.replica_cpu_s = ServersCpuS(servers);
+  for (size_t i = 0; i < servers.size(); ++i) r.replica_cpu_s[i] -= server_cpu0[i];
+  r.server_cpu_s = Sum(r.replica_cpu_s);
   r.wall_s = Seconds(end - start);
   r.samples = shared.acked_samples;
   r.batches = shared.acked_batches;
@@ -338,6 +426,12 @@ RoundResult RunRound(const Flags& flags, const Columns& col, Child& child,
     std::fprintf(stderr, "N=%d: %d streams failed, first: %s\n", n, shared.failed,
                  shared.first_error.c_str());
   }
+  r.check = CheckStored(store, robots, flags.batch);
+  if (!r.check.first_problem.empty()) {
+    std::fprintf(stderr,
+                 "N=%d: %d sessions hold fewer samples than acknowledged, %d more; first: %s\n", n,
+                 r.check.lost, r.check.extra, r.check.first_problem.c_str());
+  }
   return r;
 }
 
@@ -348,7 +442,7 @@ double ThreadCpuS() {
 }
 
 // ---- Breakdown: the pieces of one batch, single-threaded, no gRPC.
-void Breakdown(const Flags& flags, const Columns& col, const std::string& dir) {
+void Breakdown(const Flags& flags, const Columns& col, const std::string& db) {
   std::printf("\nBreakdown (one thread, no gRPC), batch = %d samples:\n", flags.batch);
   const int per = flags.batch;
   auto report = [&](const char* what, int64_t batches, double s) {
@@ -375,7 +469,6 @@ void Breakdown(const Flags& flags, const Columns& col, const std::string& dir) {
     std::printf("  (wire size %zu bytes per batch, %.1f bytes/sample)\n", wire.size(),
                 static_cast<double>(wire.size()) / per);
   }
-  const std::string db = dir + "/breakdown.db";
   absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store = imucal::storage::Store::Open(db);
   if (!store.ok()) {
     std::fprintf(stderr, "breakdown store: %s\n", std::string(store.status().message()).c_str());
@@ -396,7 +489,7 @@ void Breakdown(const Flags& flags, const Columns& col, const std::string& dir) {
   };
   // IngestBatch: the server's whole per-batch work bar gRPC (validate, encode, commit, segment).
   {
-    const std::string sid = new_session("breakdown-ingest");
+    const std::string sid = new_session(absl::StrCat("breakdown-", RunTag(), "-ingest"));
     imucal::server::SessionHub hub(store->get());
     std::shared_ptr<imucal::server::LiveSession> live = *hub.Get(sid);
     v1::SampleBatch b;
@@ -457,7 +550,7 @@ void Breakdown(const Flags& flags, const Columns& col, const std::string& dir) {
     report("  of which online segmenter", k, Seconds(Clock::now() - t0));
   }
   {
-    const std::string sid = new_session("breakdown-append");
+    const std::string sid = new_session(absl::StrCat("breakdown-", RunTag(), "-append"));
     std::vector<std::string> payloads;
     v1::SampleBatch b;
     const int64_t k_max = 200000;
@@ -508,47 +601,77 @@ int main(int argc, char** argv) {
     return 1;
   }
   const std::string dir = tmpl;
+  const std::string db = flags.db.empty() ? dir + "/ingest.db" : flags.db;
+  const bool sqlite_file = !imucal::storage::IsPostgresUrl(db);
   const Columns col = SixFaceColumns();
 
   // Fork before any gRPC object exists in this process.
-  Child child = ForkServer(dir + "/ingest.db", flags.server_cpu);
-  PinToCpu(flags.client_cpu);  // after the fork: the server keeps its own core
-  std::printf(
-      "imucal ingest bench: server pid %d on 127.0.0.1:%d, db %s/ingest.db "
-      "(WAL, synchronous=FULL: the Store default)\n",
-      static_cast<int>(child.pid), child.port, dir.c_str());
+  std::vector<Child> servers = ForkServers(db, flags.replicas, flags.server_cpu);
+  PinToCpu(flags.client_cpu);  // after the fork: the servers keep their own core
+  const std::optional<PostgresCpu> pg_cpu = sqlite_file ? std::nullopt : PostgresCpu::Find(db);
+  // For the check after each round: the database read directly, not through a server.
+  absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store = imucal::storage::Store::Open(db);
+  if (!store.ok()) {
+    std::fprintf(stderr, "open %s: %s\n", imucal::storage::RedactedLocation(db).c_str(),
+                 std::string(store.status().message()).c_str());
+    StopServers(servers);
+    return 1;
+  }
+  std::printf("imucal ingest bench: %d server(s) on %s (%s)\n", static_cast<int>(servers.size()),
+              DescribeDb(db).c_str(),
+              sqlite_file ? "WAL, synchronous=FULL: the Store default"
+                          : "synchronous_commit=on: the server's own fsync setting applies");
+  for (const Child& child : servers)
+    std::printf("  server pid %d on 127.0.0.1:%d\n", static_cast<int>(child.pid), child.port);
+  if (!sqlite_file) {
+    if (pg_cpu)
+      std::printf("  PostgreSQL postmaster pid %d (db_cpu: it and every process under it)\n",
+                  static_cast<int>(pg_cpu->postmaster()));
+    else
+      std::printf("  PostgreSQL not on this machine (or unreachable): db_cpu not measured\n");
+  }
   std::printf(
       "batch %d samples (t, accel[3], gyro[3], temp per sample), window %d batch(es) "
-      "per stream, %d channel(s), %.1f s per round, %ld cores\n\n",
+      "per stream, %d channel(s) per server, %.1f s per round, %ld cores\n\n",
       flags.batch, flags.window, flags.channels, flags.seconds, sysconf(_SC_NPROCESSORS_ONLN));
 
-  std::vector<std::shared_ptr<grpc::Channel>> channels;
-  for (int i = 0; i < flags.channels; ++i) {
-    grpc::ChannelArguments args;
-    args.SetInt("imucal.bench.channel", i);  // distinct args: a connection per channel
-    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-    channels.push_back(grpc::CreateCustomChannel(absl::StrCat("127.0.0.1:", child.port),
-                                                 grpc::InsecureChannelCredentials(), args));
-  }
+  std::vector<std::shared_ptr<grpc::Channel>> channels =
+      RoundRobinChannels(servers, flags.channels);
 
-  std::printf("%6s %8s %11s %12s %10s %9s %9s %9s %8s %8s %6s  %s\n", "N", "wall_s", "samples",
-              "samples/s", "batches/s", "p50_ms", "p99_ms", "max_ms", "cli_cpu", "srv_cpu",
-              "failed", "loadavg(before)");
+  std::printf("%6s %8s %11s %12s %10s %9s %9s %9s %8s %8s %8s %6s %5s %5s  %s\n", "N", "wall_s",
+              "samples", "samples/s", "batches/s", "p50_ms", "p99_ms", "max_ms", "cli_cpu",
+              "srv_cpu", "db_cpu", "failed", "lost", "extra", "loadavg(before)");
   int round = 0;
+  int problems = 0;
   for (int n : flags.ns) {
-    RoundResult r = RunRound(flags, col, child, channels, n, round++);
-    std::printf("%6d %8.2f %11lld %12.0f %10.0f %9.2f %9.2f %9.2f %7.0f%% %7.0f%% %6d  %s\n", r.n,
-                r.wall_s, static_cast<long long>(r.samples), r.samples_per_s, r.batches_per_s,
-                r.p50_us / 1e3, r.p99_us / 1e3, r.max_us / 1e3, 100 * r.client_cpu_s / r.wall_s,
-                100 * r.server_cpu_s / r.wall_s, r.failed, r.load.c_str());
+    RoundResult r = RunRound(flags, col, servers, pg_cpu, **store, channels, n, round++);
+    const std::string db_cpu =
+        r.db_cpu_s < 0 ? "-" : absl::StrFormat("%.0f%%", 100 * r.db_cpu_s / r.wall_s);
+    std::printf(
+        "%6d %8.2f %11lld %12.0f %10.0f %9.2f %9.2f %9.2f %7.0f%% %7.0f%% %8s %6d %5d %5d  %s\n",
+        r.n, r.wall_s, static_cast<long long>(r.samples), r.samples_per_s, r.batches_per_s,
+        r.p50_us / 1e3, r.p99_us / 1e3, r.max_us / 1e3, 100 * r.client_cpu_s / r.wall_s,
+        100 * r.server_cpu_s / r.wall_s, db_cpu.c_str(), r.failed, r.check.lost, r.check.extra,
+        r.load.c_str());
+    if (servers.size() > 1) {
+      std::string split;
+      for (double cpu : r.replica_cpu_s)
+        absl::StrAppend(&split, " ", absl::StrFormat("%.0f%%", 100 * cpu / r.wall_s));
+      std::printf("%6s srv_cpu per server:%s\n", "", split.c_str());
+    }
     std::fflush(stdout);
+    problems += r.failed + r.check.lost + r.check.extra;
   }
   channels.clear();
-  StopServer(child);
+  store->reset();
+  StopServers(servers);
   std::error_code ec;
-  std::printf("\ndb size after the rounds: %.1f MB (+ WAL)\n",
-              static_cast<double>(std::filesystem::file_size(dir + "/ingest.db", ec)) / 1e6);
-  if (flags.breakdown) Breakdown(flags, col, dir);
+  if (sqlite_file) {
+    std::printf("\ndb size after the rounds: %.1f MB (+ WAL)\n",
+                static_cast<double>(std::filesystem::file_size(db, ec)) / 1e6);
+  }
+  // The breakdown's store is the bench's database (a SQLite file of its own by default).
+  if (flags.breakdown) Breakdown(flags, col, flags.db.empty() ? dir + "/breakdown.db" : db);
   if (!flags.keep) std::filesystem::remove_all(dir, ec);
-  return 0;
+  return problems == 0 ? 0 : 1;
 }

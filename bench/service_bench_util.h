@@ -1,7 +1,7 @@
 // What the service benchmarks share: a real imucald server in a forked child (ingest_bench,
-// fetch_bench) or the imucald binary in a process of its own (load_bench, misuse_bench,
-// outage_bench), so client and server CPU and memory are measured apart; CPU and load
-// accounting, percentiles.
+// fetch_bench; several of them on one database with --replicas) or the imucald binary in a
+// process of its own (load_bench, misuse_bench, outage_bench), so client and server CPU and
+// memory are measured apart; CPU and load accounting (a local PostgreSQL's too), percentiles.
 #ifndef IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
 #define IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
 
@@ -15,19 +15,26 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
 #include "absl/time/time.h"
 #include "core/simulator.h"
+#include "grpcpp/grpcpp.h"
 #include "server/server.h"
+#include "storage/db.h"
+#include "storage/pg_db.h"
 
 namespace imucal::bench {
 
@@ -71,17 +78,27 @@ inline double SelfCpuS() {
   return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
 }
 
-// CPU seconds (utime + stime, fields 14 and 15 of /proc/PID/stat) of another process.
-inline double ProcCpuS(pid_t pid) {
+// Fields 3.. of /proc/PID/stat (after "pid (comm) "): [0] is field 3 (state), [1] field 4
+// (ppid), [11]/[12] fields 14/15 (utime/stime), [13]/[14] fields 16/17 (cutime/cstime, the
+// reaped children's). Empty if the process is gone.
+inline std::vector<std::string> ProcStatFields(pid_t pid) {
   std::ifstream f("/proc/" + std::to_string(pid) + "/stat");
   std::string s((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
   const size_t close_paren = s.rfind(')');
-  if (close_paren == std::string::npos) return 0;
+  if (close_paren == std::string::npos || close_paren + 2 > s.size()) return {};
   std::istringstream rest(s.substr(close_paren + 2));
-  std::string field;
-  double ticks = 0;
-  for (int i = 3; i <= 15 && rest >> field; ++i)
-    if (i == 14 || i == 15) ticks += std::atof(field.c_str());
+  std::vector<std::string> fields;
+  for (std::string field; fields.size() < 15 && rest >> field;) fields.push_back(field);
+  return fields;
+}
+
+// CPU seconds (utime + stime, fields 14 and 15 of /proc/PID/stat) of another process; with
+// `reaped_children`, also those of its children it has waited for (cutime + cstime).
+inline double ProcCpuS(pid_t pid, bool reaped_children = false) {
+  const std::vector<std::string> f = ProcStatFields(pid);
+  if (f.size() < 15) return 0;
+  double ticks = std::atof(f[11].c_str()) + std::atof(f[12].c_str());
+  if (reaped_children) ticks += std::atof(f[13].c_str()) + std::atof(f[14].c_str());
   return ticks / static_cast<double>(sysconf(_SC_CLK_TCK));
 }
 
@@ -111,17 +128,21 @@ inline void PinToCpu(int cpu) {
   if (sched_setaffinity(0, sizeof set, &set) != 0) std::perror("sched_setaffinity");
 }
 
-// imucald (server::Server) on 127.0.0.1:0 with its database at db_path, in a child process
-// (pinned to `cpu` when >= 0).
+// imucald (server::Server) on 127.0.0.1:0 with its database at db_path (a SQLite file or a
+// postgresql:// URL), in a child process (pinned to `cpu` when >= 0).
 struct Child {
   pid_t pid = -1;
   int port = 0;
   int stop_fd = -1;  // closing it tells the child to shut down
 };
 
-// `metrics_listen`: ServerOptions::metrics_listen (empty: no metrics kept).
+// `metrics_listen`: ServerOptions::metrics_listen (empty: no metrics kept). `replica_id`: the
+// server's name to the others on its database (empty: its default). `siblings`: servers forked
+// before this one, whose stop pipes the child must not hold open (else closing one's stop_fd
+// would not reach it).
 inline Child ForkServer(const std::string& db_path, int cpu = -1,
-                        const std::string& metrics_listen = "") {
+                        const std::string& metrics_listen = "", const std::string& replica_id = "",
+                        const std::vector<Child>& siblings = {}) {
   int port_pipe[2], stop_pipe[2];
   if (pipe(port_pipe) != 0 || pipe(stop_pipe) != 0) {
     std::perror("pipe");
@@ -135,6 +156,7 @@ inline Child ForkServer(const std::string& db_path, int cpu = -1,
   if (pid == 0) {
     close(port_pipe[0]);
     close(stop_pipe[1]);
+    for (const Child& sibling : siblings) close(sibling.stop_fd);
     PinToCpu(cpu);
     server::ServerOptions options;
     options.listen = "127.0.0.1:0";
@@ -142,6 +164,7 @@ inline Child ForkServer(const std::string& db_path, int cpu = -1,
     options.db_path = db_path;
     options.drain_deadline = absl::Seconds(5);
     options.metrics_listen = metrics_listen;
+    options.sessions.replica_id = replica_id;
     absl::StatusOr<std::unique_ptr<server::Server>> server = server::Server::Start(options);
     const int port = server.ok() ? (*server)->port() : 0;
     if (!server.ok())
@@ -171,6 +194,108 @@ inline void StopServer(Child& child) {
   close(child.stop_fd);
   waitpid(child.pid, nullptr, 0);
 }
+
+// ---- Several servers on one database (--replicas; README "Several servers on one database").
+
+// `replicas` servers (at least 1) on the database `db` (a SQLite file or a postgresql:// URL),
+// forked one after another (the first applies the migrations), named "bench-1", "bench-2", ...
+// as their replica_id, all pinned to `cpu` when >= 0. Fork them before any gRPC object exists
+// in this process.
+inline std::vector<Child> ForkServers(const std::string& db, int replicas, int cpu = -1,
+                                      const std::string& metrics_listen = "") {
+  std::vector<Child> servers;
+  for (int i = 1; i <= std::max(1, replicas); ++i) {
+    servers.push_back(ForkServer(db, cpu, metrics_listen, absl::StrCat("bench-", i), servers));
+  }
+  return servers;
+}
+
+// Stops them all at once (each drains meanwhile), then waits for each.
+inline void StopServers(std::vector<Child>& servers) {
+  for (Child& child : servers) close(child.stop_fd);
+  for (Child& child : servers) waitpid(child.pid, nullptr, 0);
+}
+
+// Their CPU seconds, one entry per server.
+inline std::vector<double> ServersCpuS(const std::vector<Child>& servers) {
+  std::vector<double> cpu;
+  for (const Child& child : servers) cpu.push_back(ProcCpuS(child.pid));
+  return cpu;
+}
+
+inline double Sum(const std::vector<double>& v) {
+  double sum = 0;
+  for (double x : v) sum += x;
+  return sum;
+}
+
+// `per_server` HTTP/2 connections (at least 1) to each of `servers` on loopback, round robin:
+// connection k goes to server k % servers.size(), so a client that spreads its calls or streams
+// over the connections in turn spreads them evenly over the servers.
+inline std::vector<std::shared_ptr<grpc::Channel>> RoundRobinChannels(
+    const std::vector<Child>& servers, int per_server) {
+  std::vector<std::shared_ptr<grpc::Channel>> channels;
+  const int total = std::max(1, per_server) * static_cast<int>(servers.size());
+  for (int k = 0; k < total; ++k) {
+    grpc::ChannelArguments args;
+    args.SetInt("imucal.bench.channel", k);  // distinct args: a connection per channel
+    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+    channels.push_back(grpc::CreateCustomChannel(
+        absl::StrCat("127.0.0.1:", servers[static_cast<size_t>(k) % servers.size()].port),
+        grpc::InsecureChannelCredentials(), args));
+  }
+  return channels;
+}
+
+// "SQLite file PATH" or "PostgreSQL URL" (without its password), for the bench's header line.
+inline std::string DescribeDb(const std::string& db) {
+  return storage::IsPostgresUrl(db) ? "PostgreSQL " + storage::RedactedLocation(db)
+                                    : "SQLite file " + db;
+}
+
+// The CPU of a PostgreSQL cluster on this machine, for the database's share of a run: its
+// postmaster is the parent of the backend that serves a connection to the URL; its CPU is the
+// postmaster's own, that of its live children (the backends serving the servers, the WAL
+// writer, the checkpointer, ...) and that of the children it has reaped (cutime, cstime: a
+// backend that exited counts there). nullopt when the cluster is not on this machine or cannot
+// be reached.
+class PostgresCpu {
+ public:
+  static std::optional<PostgresCpu> Find(const std::string& url) {
+    absl::StatusOr<std::unique_ptr<storage::PgConnection>> conn =
+        storage::PgConnection::Open(url, {});
+    if (!conn.ok()) return std::nullopt;
+    absl::StatusOr<std::optional<int64_t>> backend = storage::ReadRow(
+        **conn, "SELECT CAST(pg_backend_pid() AS BIGINT)", storage::FirstColumnInt64);
+    if (!backend.ok() || !backend->has_value()) return std::nullopt;
+    const std::vector<std::string> f = ProcStatFields(static_cast<pid_t>(**backend));
+    if (f.size() < 2) return std::nullopt;  // not a process of this machine
+    const pid_t postmaster = static_cast<pid_t>(std::atoll(f[1].c_str()));
+    std::ifstream comm("/proc/" + std::to_string(postmaster) + "/comm");
+    std::string name;
+    if (!std::getline(comm, name) || name != "postgres") return std::nullopt;
+    return PostgresCpu(postmaster);
+  }
+
+  pid_t postmaster() const { return postmaster_; }
+
+  double CpuS() const {
+    double cpu = ProcCpuS(postmaster_, /*reaped_children=*/true);
+    std::error_code ec;
+    for (const auto& entry : std::filesystem::directory_iterator("/proc", ec)) {
+      const std::string name = entry.path().filename().string();
+      if (name.empty() || !std::isdigit(static_cast<unsigned char>(name[0]))) continue;
+      const pid_t pid = static_cast<pid_t>(std::atoll(name.c_str()));
+      const std::vector<std::string> f = ProcStatFields(pid);
+      if (f.size() >= 2 && std::atoll(f[1].c_str()) == postmaster_) cpu += ProcCpuS(pid);
+    }
+    return cpu;
+  }
+
+ private:
+  explicit PostgresCpu(pid_t postmaster) : postmaster_(postmaster) {}
+  pid_t postmaster_;
+};
 
 // ---- The real imucald binary in a process of its own (load_bench, misuse_bench,
 // outage_bench): its CPU and memory are its own, and it can be killed and started again.

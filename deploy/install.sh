@@ -59,7 +59,7 @@ say "completion in $bashdir and $zshdir"
 # 3. systemd units, pointed at this prefix.
 unitdir="$destdir/etc/systemd/system"
 install -d "$unitdir"
-for unit in imucald.service imucald-backup.service imucald-backup.timer; do
+for unit in imucald.service imucald@.service imucald-backup.service imucald-backup.timer; do
   sed -e "s|/usr/local/bin/imucald|$prefix/bin/imucald|g" \
       -e "s|/usr/local/share/doc/imucald|$prefix/share/doc/imucald|g" \
       "deploy/$unit" > "$unitdir/$unit.tmp"
@@ -78,6 +78,9 @@ else
   install -m 0644 deploy/imucald.toml "$confdir/imucald.toml"
   say "wrote $confdir/imucald.toml"
 fi
+# Replicas on PostgreSQL (imucald@NAME.service): the example each /etc/imucald/imucald-NAME.toml
+# starts from; the shared IMUCALD_DB goes in /etc/default/imucald.
+install -m 0644 deploy/imucald-replica.toml "$confdir/imucald-replica.toml.example"
 
 # 5. A self-signed certificate if there is none (the key readable by root only: systemd hands
 #    it to the service as a credential).
