@@ -56,8 +56,8 @@ bool Connection::ForgetStatements() {
 
 // ---- Transaction -----------------------------------------------------------------------------
 
-absl::StatusOr<Transaction> Transaction::Begin(Connection& conn) {
-  absl::StatusOr<ScopedStatement> begin = conn.Prepare(conn.BeginSql());
+absl::StatusOr<Transaction> Transaction::Begin(Connection& conn, Isolation isolation) {
+  absl::StatusOr<ScopedStatement> begin = conn.Prepare(conn.BeginSql(isolation));
   if (!begin.ok()) return begin.status();
   if (absl::Status s = (*begin)->Run(); !s.ok()) return s;
   return Transaction(&conn);

@@ -51,6 +51,13 @@ namespace imucal::storage {
 
 enum class Dialect { kSqlite, kPostgres };
 
+// A write transaction's isolation. SQLite's is always serial (one writer at a time).
+// PostgreSQL: kSerializable by default; kReadCommitted for a transaction that takes the row
+// locks it needs itself (SELECT ... FOR NO KEY UPDATE) and so must not be aborted for the
+// predicate conflicts SERIALIZABLE would see between unrelated rows (sample appends of many
+// streams through several servers).
+enum class Isolation { kSerializable, kReadCommitted };
+
 // "postgresql://..." or "postgres://..." (libpq's URL forms): the PostgreSQL backend.
 // Anything else is a SQLite file path.
 bool IsPostgresUrl(std::string_view location);
@@ -137,8 +144,8 @@ class Connection {
   // Runs a constant script of one or more statements without parameters (schema, settings).
   virtual absl::Status Exec(const char* sql) = 0;
 
-  // The backend's side of Transaction (see above).
-  virtual const char* BeginSql() const = 0;
+  // The backend's side of Transaction (see above): the statement that begins one.
+  virtual const char* BeginSql(Isolation isolation) const = 0;
   // Whether a transaction is open on the connection (the backend may have rolled it back).
   virtual bool InOpenTransaction() const = 0;
   // Before COMMIT: the error that already doomed the open transaction, if any (PostgreSQL turns
@@ -178,7 +185,8 @@ class Transaction {
   // takes the write lock now (waiting up to busy_timeout), so a transaction never fails
   // half-way because another connection wrote first; PostgreSQL's SERIALIZABLE transactions run
   // side by side and one that conflicts fails with Aborted.
-  static absl::StatusOr<Transaction> Begin(Connection& conn);
+  static absl::StatusOr<Transaction> Begin(Connection& conn,
+                                           Isolation isolation = Isolation::kSerializable);
 
   Transaction(Transaction&& other) noexcept : conn_(std::exchange(other.conn_, nullptr)) {}
   Transaction& operator=(Transaction&&) = delete;

@@ -257,9 +257,9 @@ class PgStatement final : public Statement {
     const ExecStatusType st = r == nullptr ? PGRES_FATAL_ERROR : PQresultStatus(r);
     if (st == PGRES_COMMAND_OK || st == PGRES_TUPLES_OK) return absl::OkStatus();
     const char* sqlstate = r == nullptr ? nullptr : PQresultErrorField(r, PG_DIAG_SQLSTATE);
-    const char* message =
-        r != nullptr && *PQresultErrorMessage(r) != 0 ? PQresultErrorMessage(r)
-                                                      : PQerrorMessage(conn_->conn());
+    // The primary message only: DETAIL and HINT speak of PostgreSQL's internals.
+    const char* primary = r == nullptr ? nullptr : PQresultErrorField(r, PG_DIAG_MESSAGE_PRIMARY);
+    const char* message = primary != nullptr ? primary : PQerrorMessage(conn_->conn());
     return conn_->StatementError(what, sqlstate, message);
   }
 

@@ -49,7 +49,10 @@ class PgConnection final : public Connection {
 
   Dialect dialect() const override { return Dialect::kPostgres; }
   absl::Status Exec(const char* sql) override;
-  const char* BeginSql() const override { return "BEGIN ISOLATION LEVEL SERIALIZABLE"; }
+  const char* BeginSql(Isolation isolation) const override {
+    return isolation == Isolation::kReadCommitted ? "BEGIN ISOLATION LEVEL READ COMMITTED"
+                                                  : "BEGIN ISOLATION LEVEL SERIALIZABLE";
+  }
   bool InOpenTransaction() const override;
   absl::Status CommitBlocker() const override;
 

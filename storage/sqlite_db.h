@@ -71,7 +71,7 @@ class SqliteConnection final : public Connection {
 
   Dialect dialect() const override { return Dialect::kSqlite; }
   absl::Status Exec(const char* sql) override;
-  const char* BeginSql() const override { return "BEGIN IMMEDIATE"; }
+  const char* BeginSql(Isolation) const override { return "BEGIN IMMEDIATE"; }
   bool InOpenTransaction() const override { return sqlite3_get_autocommit(db_) == 0; }
 
   sqlite3* db() const { return db_; }

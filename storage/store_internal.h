@@ -82,8 +82,9 @@ void PauseBeforeRetry(int attempt);
 // outside is reset at its start.
 // The connection's on_transaction hears of it once, committed or not, the retries included.
 template <typename F>
-std::invoke_result_t<F, Connection&> InTransaction(std::string_view op, Connection& conn,
-                                                   F&& body) {
+std::invoke_result_t<F, Connection&> InTransaction(
+    std::string_view op, Connection& conn, F&& body,
+    Isolation isolation = Isolation::kSerializable) {
   const absl::Time start = conn.on_transaction ? absl::Now() : absl::InfinitePast();
   const auto told = [&](auto result) {
     if (conn.on_transaction) conn.on_transaction(op, absl::Now() - start);
@@ -92,7 +93,7 @@ std::invoke_result_t<F, Connection&> InTransaction(std::string_view op, Connecti
   for (int attempt = 1;; ++attempt) {
     absl::Status failed;
     {
-      absl::StatusOr<Transaction> txn = Transaction::Begin(conn);
+      absl::StatusOr<Transaction> txn = Transaction::Begin(conn, isolation);
       if (!txn.ok()) return told(WithContext(op, txn.status()));
       auto result = body(conn);
       if (result.ok()) {

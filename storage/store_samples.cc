@@ -16,7 +16,12 @@
 namespace imucal::storage {
 namespace {
 
+// Appends run at READ COMMITTED on PostgreSQL, and lock the session's row first: the appends to
+// one session, and its state changes, then take turns whichever server makes them, and every
+// check below reads what the previous turn committed. (SQLite: the write lock does the same.)
 constexpr char kSelectSessionStateForAppend[] = "SELECT state FROM sessions WHERE id = ?1";
+constexpr char kLockSessionStateForAppend[] =
+    "SELECT state FROM sessions WHERE id = ?1 FOR NO KEY UPDATE";
 constexpr char kSelectLastBatch[] =
     "SELECT seq, last_t_s, end_sample FROM sample_batches WHERE session_id = ?1 "
     "ORDER BY seq DESC LIMIT 1";
@@ -86,7 +91,10 @@ absl::StatusOr<BatchAck> AppendOne(Connection& conn, std::string_view session_id
                                    std::string_view payload, const EncodedBatchInfo& info) {
   STORAGE_ASSIGN_OR_RETURN(
       std::optional<SessionState> state,
-      ReadRow(conn, kSelectSessionStateForAppend, ReadSessionState, session_id));
+      ReadRow(conn,
+              conn.dialect() == Dialect::kPostgres ? kLockSessionStateForAppend
+                                                   : kSelectSessionStateForAppend,
+              ReadSessionState, session_id));
   if (!state) return absl::NotFoundError(Cat("no session '", session_id, "'"));
   STORAGE_ASSIGN_OR_RETURN(const LastBatch last, FindLastBatch(conn, session_id));
   if (seq <= last.seq) {
@@ -145,9 +153,10 @@ absl::StatusOr<BatchAck> Store::AppendBatch(std::string_view session_id, int64_t
   absl::StatusOr<EncodedBatchInfo> info = CheckBatch(seq, payload);
   if (!info.ok()) return info.status();
   std::lock_guard lock(write_mu_);
-  return InTransaction("AppendBatch", *writer_, [&](Connection& conn) {
-    return AppendOne(conn, session_id, seq, payload, *info);
-  });
+  return InTransaction(
+      "AppendBatch", *writer_,
+      [&](Connection& conn) { return AppendOne(conn, session_id, seq, payload, *info); },
+      Isolation::kReadCommitted);
 }
 
 void Store::AppendBatchAsync(std::string session_id, int64_t seq, std::string payload,
@@ -184,10 +193,13 @@ void Store::CommitLoop() {
         results.clear();  // a conflict runs the whole group again
         for (const PendingAppend& p : group) {
           absl::StatusOr<BatchAck> r = AppendOne(conn, p.session_id, p.seq, p.payload, p.info);
+          // A database error (not a batch's own) ends the transaction (PostgreSQL will not run
+          // another statement in it): the whole group fails, or runs again if it conflicted.
+          if (absl::Status doomed = conn.CommitBlocker(); !doomed.ok()) return doomed;
           results.push_back(r.ok() ? r : WithContext("AppendBatch", r.status()));
         }
         return absl::OkStatus();  // a batch's own error fails that batch only
-      });
+      }, Isolation::kReadCommitted);
       // No commit: nothing of the group is stored (each batch's own error stays its own).
       if (!status.ok()) {
         results.resize(group.size(), status);  // BEGIN failed: no batch got its own answer
