@@ -189,6 +189,37 @@ int SessionHub::PeekPosesAccepted(std::string_view session_id) {
   return s->segmenter->poses_accepted();
 }
 
+absl::Status SessionHub::Replay(LiveSession& live, const std::vector<storage::SampleBatch>& batches,
+                                std::vector<LiveEvent>* events) {
+  std::vector<storage::ImuSample> samples;
+  // Only the last proofs are kept: hashing every batch of a long session would be wasted.
+  const size_t first_proof = batches.size() > LiveSession::kProofHistory
+                                 ? batches.size() - LiveSession::kProofHistory
+                                 : 0;
+  for (size_t k = 0; k < batches.size(); ++k) {
+    const storage::SampleBatch& b = batches[k];
+    samples.clear();
+    if (absl::Status s = storage::DecodeSamplesInto(b.payload, &samples); !s.ok()) return s;
+    live.digest.AddRecords(std::string_view(b.payload).substr(storage::kSampleHeaderBytes));
+    Segment(live, samples, events);
+    if (!samples.empty()) live.last_t_s = samples.back().t_s;
+    live.samples += static_cast<int64_t>(samples.size());
+    live.last_acked_seq = b.seq;
+    if (k >= first_proof) RecordProof(live, b.seq, live.samples);
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::vector<v1::SessionEvent>> SessionHub::CatchUpLocked(LiveSession& live) {
+  absl::StatusOr<std::vector<storage::SampleBatch>> later =
+      store_->ReadBatches(live.id, live.last_acked_seq);
+  if (!later.ok()) return later.status();
+  if (later->empty()) return std::vector<v1::SessionEvent>();
+  std::vector<LiveEvent> events;
+  if (absl::Status s = Replay(live, *later, &events); !s.ok()) return s;
+  return ToEvents(events);
+}
+
 absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Load(std::string_view session_id) {
   absl::StatusOr<storage::Session> session = store_->GetSession(session_id);
   if (!session.ok()) return session.status();
@@ -207,25 +238,10 @@ absl::StatusOr<std::shared_ptr<LiveSession>> SessionHub::Load(std::string_view s
   absl::StatusOr<std::vector<storage::SampleBatch>> batches = store_->ReadBatches(session_id);
   if (!batches.ok()) return batches.status();
   std::vector<LiveEvent> events;
+  if (absl::Status s = Replay(*live, *batches, &events); !s.ok()) return s;
   std::vector<storage::Pose> poses;
   std::vector<storage::PosePair> pairs;
-  std::vector<storage::ImuSample> samples;
-  const size_t first_proof = batches->size() > LiveSession::kProofHistory
-                                 ? batches->size() - LiveSession::kProofHistory
-                                 : 0;
-  for (size_t k = 0; k < batches->size(); ++k) {
-    const storage::SampleBatch& b = (*batches)[k];
-    samples.clear();
-    if (absl::Status s = storage::DecodeSamplesInto(b.payload, &samples); !s.ok()) return s;
-    live->digest.AddRecords(std::string_view(b.payload).substr(storage::kSampleHeaderBytes));
-    Segment(*live, samples, &events);
-    ToRows(events, &poses, &pairs);
-    events.clear();
-    if (!samples.empty()) live->last_t_s = samples.back().t_s;
-    live->samples += static_cast<int64_t>(samples.size());
-    live->last_acked_seq = b.seq;
-    if (k >= first_proof) RecordProof(*live, b.seq, live->samples);
-  }
+  ToRows(events, &poses, &pairs);
   // A server killed between a batch's commit and its poses' leaves them missing: the replay
   // found them again (the segmentation is deterministic); store what is not there yet.
   absl::StatusOr<std::vector<storage::Pose>> stored = store_->ListPoses(session_id);

@@ -127,6 +127,12 @@ class SessionHub {
   // being solved. Closed sessions are forgotten when they close and are never loaded to be read.
   size_t LiveSessions();
 
+  // Brings `live` (its mu held) up to the batches stored since it was last fed: another server
+  // sharing the database took the session's stream meanwhile (its robot was sent there) and
+  // stored them. Returns their events (the same as that server's), to publish once mu is
+  // released. Nothing to do, and no events, when this server stored every batch.
+  absl::StatusOr<std::vector<v1::SessionEvent>> CatchUpLocked(LiveSession& live);
+
   void Publish(LiveSession& session, const v1::SessionEvent& event);
   void AddWatcher(LiveSession& session, Watcher* watcher);
   void RemoveWatcher(LiveSession& session, Watcher* watcher);
@@ -144,6 +150,9 @@ class SessionHub {
 
  private:
   absl::StatusOr<std::shared_ptr<LiveSession>> Load(std::string_view session_id);
+  // Feeds stored batches to `live`: segmentation, digest, counts, proofs.
+  static absl::Status Replay(LiveSession& live, const std::vector<storage::SampleBatch>& batches,
+                             std::vector<LiveEvent>* events);
 
   using Loaded = absl::StatusOr<std::shared_ptr<LiveSession>>;
 

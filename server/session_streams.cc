@@ -261,10 +261,17 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     live_ = std::move(live);
     if (absl::Status s = AcquireSlot(); !s.ok()) return s;
     if (absl::Status s = ValidateSource(batch_.source()); !s.ok()) return s;
+    std::vector<v1::SessionEvent> caught_up;
     {
       std::lock_guard lock(live_->mu);
+      // The robot may have streamed through another server since this one last saw the
+      // session (several servers share the database): what that server stored comes first.
+      absl::StatusOr<std::vector<v1::SessionEvent>> events = env_.hub->CatchUpLocked(*live_);
+      if (!events.ok()) return events.status();
+      caught_up = *std::move(events);
       if (absl::Status s = CheckContinuationLocked(); !s.ok()) return s;
     }
+    for (const v1::SessionEvent& e : caught_up) env_.hub->Publish(*live_, e);
     return Store();
   }
 

@@ -63,6 +63,17 @@ class ImucaldProcess {
     if (absl::Status s = p->Launch(); !s.ok()) return s;
     return p;
   }
+  // As Start, on an existing database: a file path or a postgresql:// URL (several processes
+  // may share one: replicas).
+  static absl::StatusOr<std::unique_ptr<ImucaldProcess>> StartOnDatabase(
+      const std::string& db, std::vector<std::string> extra_args = {}) {
+    auto p = std::unique_ptr<ImucaldProcess>(new ImucaldProcess);
+    p->db_path_ = db;
+    p->extra_args_ = std::move(extra_args);
+    p->port_ = FreeLoopbackPort();
+    if (absl::Status s = p->Launch(); !s.ok()) return s;
+    return p;
+  }
   ~ImucaldProcess() { Stop(SIGTERM); }
 
   std::string address() const { return absl::StrCat("127.0.0.1:", port_); }

@@ -125,11 +125,14 @@ class ServerTest : public testing::Test {
   // that continues a session proves it continues the stored capture (SampleBatch.
   // resume_sha256): the batches this test had acknowledged give the proof
   // (tests/server/resume_proofs.h; validation_test checks the proof itself).
-  grpc::Status Stream(std::vector<v1::SampleBatch> batches, std::vector<v1::SampleAck>* acks) {
-    proofs_.Prove(&batches, sessions_.get());
+  // `through`: another server's stub (default: this test's server).
+  grpc::Status Stream(std::vector<v1::SampleBatch> batches, std::vector<v1::SampleAck>* acks,
+                      v1::SessionService::Stub* through = nullptr) {
+    if (through == nullptr) through = sessions_.get();
+    proofs_.Prove(&batches, through);
     std::vector<v1::SampleAck> got;
     auto ctx = Ctx();
-    auto stream = sessions_->StreamSamples(ctx.get());
+    auto stream = through->StreamSamples(ctx.get());
     for (const v1::SampleBatch& b : batches) {
       if (!stream->Write(b)) break;
       v1::SampleAck ack;
@@ -357,6 +360,51 @@ TEST_F(ServerTest, AnotherServersPromoteAndRollbackReachThisServersFetchAtTheNex
   EXPECT_EQ(fetch_on_b(), 1);
   (*b)->SyncActiveCache();  // nothing new: the cache stays
   EXPECT_EQ(fetch_on_b(), 1);
+}
+
+// A robot sent to another server and back (several servers on one database): the server it
+// returns to holds the session's live state from before, and catches it up with what the other
+// stored, so the stream continues, the counts and poses are the whole capture's, and the solve
+// sees every sample.
+TEST_F(ServerTest, ASessionStreamedThroughAnotherServerAndBackContinuesWhole) {
+  StartServer();  // server A
+  Register("robot-1");
+  grpc::Status status;
+  const v1::Session session = Create("robot-1", v1::PROTOCOL_SIX_FACE, &status);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  const core::SimResult sim = Sim();
+  const std::vector<v1::SampleBatch> all = Batches(sim.capture, session.id());
+  const size_t third = all.size() / 3;
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream({all.begin(), all.begin() + third}, &acks).ok());
+  ASSERT_GT(GetSession(session.id()).samples(), 0);  // A's live state holds the first third
+
+  ServerOptions b_options = options_;
+  b_options.sessions.replica_id = "replica-b";
+  absl::StatusOr<std::unique_ptr<Server>> b = Server::Start(b_options);
+  ASSERT_TRUE(b.ok()) << b.status();
+  auto b_sessions = v1::SessionService::NewStub(
+      grpc::CreateChannel((*b)->address(), grpc::InsecureChannelCredentials()));
+  grpc::Status on_b =
+      Stream({all.begin() + third, all.begin() + 2 * third}, &acks, b_sessions.get());
+  ASSERT_TRUE(on_b.ok()) << on_b.error_message();
+
+  grpc::Status back = Stream({all.begin() + 2 * third, all.end()}, &acks);
+  ASSERT_TRUE(back.ok()) << back.error_message();
+  const v1::Session whole = GetSession(session.id());
+  EXPECT_EQ(whole.samples(), static_cast<int64_t>(sim.capture.size()));
+  EXPECT_EQ(whole.last_acked_seq(), static_cast<int64_t>(all.size()));
+
+  v1::SolveSessionRequest solve;
+  solve.set_session_id(session.id());
+  v1::SolveJob job;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), solve, &job).ok());
+  ASSERT_TRUE(testing_util::FollowToEnd(sessions_.get(), session.id(), seconds(120)).ok());
+  v1::GetSolveJobRequest get;
+  get.set_job_id(job.id());
+  ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
+  EXPECT_EQ(job.state(), v1::JOB_STATE_DONE) << job.error();
+  EXPECT_TRUE(job.activated()) << "verdict " << job.verdict();
 }
 
 TEST(ParamCrcCacheTest, ComputesOncePerVersion) {

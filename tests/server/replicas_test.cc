@@ -1,0 +1,277 @@
+// Three imucald replicas on one real PostgreSQL (tests/pg_test_cluster.h), each a process on a
+// loopback port. Per seed:
+//   1. two robots stream their captures through the SDK's Uploader on a channel given replica 1
+//      then replica 2 (gRPC's pick_first over the address list: nothing home-made);
+//   2. replica 1 is SIGKILLed after a random number of acknowledgements, mid-stream;
+//   3. the robots resume on replica 2 from their last durable ack and finish: every sample
+//      acknowledged before the kill is stored, and each session holds its whole capture once, in
+//      order, byte for byte (batches 1..n without a gap or a repeat);
+//   4. the sessions are solved on replica 3 (twice: versions 1 and 2, both active in turn);
+//   5. replica 1 is started again; a rollback to version 1 through it is seen by replica 3's
+//      fetch (whose cache held version 2) through PostgreSQL's notifications.
+// The seed comes from the instance (IMUCAL_CRASH_SEED overrides it); the kill point from it.
+#include <signal.h>
+
+#include <algorithm>
+#include <chrono>
+#include <condition_variable>
+#include <cstdio>
+#include <cstdlib>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "client/sdk/uploader.h"
+#include "core/simulator.h"
+#include "grpcpp/grpcpp.h"
+#include "gtest/gtest.h"
+#include "imucal/v1/imucal.grpc.pb.h"
+#include "storage/sample_codec.h"
+#include "storage/store.h"
+#include "tests/client/imucald_process.h"
+#include "tests/pg_test_cluster.h"
+#include "tests/server/stored_samples.h"
+#include "tests/server/watch.h"
+
+namespace imucal::server {
+namespace {
+
+namespace pb = ::imucal::v1;
+using testing_util::ImucaldProcess;
+using testing_util::SameBytes;
+
+constexpr int kRobots = 2;
+constexpr int kBatchSamples = 200;
+
+uint64_t SeedOr(uint64_t fallback) {
+  uint64_t seed = fallback;
+  if (const char* env = std::getenv("IMUCAL_CRASH_SEED"); env != nullptr) {
+    EXPECT_TRUE(absl::SimpleAtoi(env, &seed)) << "IMUCAL_CRASH_SEED=" << env;
+  }
+  std::printf("[ seed     ] %llu (IMUCAL_CRASH_SEED=%llu replays this kill point)\n",
+              static_cast<unsigned long long>(seed), static_cast<unsigned long long>(seed));
+  return seed;
+}
+
+// One channel over several replicas: gRPC's pick_first takes the first that answers and moves
+// on when it dies.
+std::shared_ptr<grpc::Channel> ChannelTo(const std::vector<const ImucaldProcess*>& replicas) {
+  std::string target = "ipv4:";
+  for (size_t i = 0; i < replicas.size(); ++i)
+    target += (i == 0 ? "" : ",") + replicas[i]->address();
+  grpc::ChannelArguments args;
+  args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 100);
+  args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 500);
+  return grpc::CreateCustomChannel(target, grpc::InsecureChannelCredentials(), args);
+}
+
+grpc::Status Call(const std::function<grpc::Status(grpc::ClientContext*)>& call) {
+  grpc::ClientContext context;
+  context.set_wait_for_ready(true);
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+  return call(&context);
+}
+
+class ReplicasTest : public ::testing::TestWithParam<uint64_t> {
+ protected:
+  void SetUp() override {
+    if (!testing_util::kHaveImucald) GTEST_SKIP() << "imucald is not built yet";
+    auto db = testing_util::PgTestDatabase::Create();
+    ASSERT_TRUE(db.ok()) << db.status();
+    db_ = *std::move(db);
+    for (int r = 1; r <= 3; ++r) {
+      auto replica = ImucaldProcess::StartOnDatabase(
+          db_->url(), {"--replica-id", absl::StrCat("r", r), "--log-level", "warning"});
+      ASSERT_TRUE(replica.ok()) << "replica " << r << ": " << replica.status();
+      replicas_.push_back(*std::move(replica));
+    }
+  }
+  void TearDown() override {
+    replicas_.clear();  // before the database is dropped
+    db_.reset();
+  }
+
+  std::string OpenSession(const std::string& device) {
+    auto channel = replicas_[0]->NewChannel();
+    pb::RegisterDeviceRequest reg;
+    reg.mutable_device()->set_id(device);
+    reg.mutable_device()->set_sensor_model("sim");
+    reg.mutable_device()->set_nominal_rate_hz(200);
+    reg.mutable_device()->set_accel_unit("m/s^2");
+    reg.mutable_device()->set_gyro_unit("rad/s");
+    pb::Device d;
+    grpc::Status s = Call([&](grpc::ClientContext* c) {
+      return pb::DeviceService::NewStub(channel)->RegisterDevice(c, reg, &d);
+    });
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    pb::CreateSessionRequest create;
+    create.set_device_id(device);
+    create.set_protocol(pb::PROTOCOL_SIX_FACE);
+    pb::Session session;
+    s = Call([&](grpc::ClientContext* c) {
+      return pb::SessionService::NewStub(channel)->CreateSession(c, create, &session);
+    });
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return session.id();
+  }
+
+  // Solves `session` through `replica` and waits for the job; the version it made.
+  pb::SolveJob Solve(const ImucaldProcess& replica, const std::string& session) {
+    auto stub = pb::SessionService::NewStub(replica.NewChannel());
+    pb::SolveSessionRequest req;
+    req.set_session_id(session);
+    pb::SolveJob job;
+    grpc::Status s = Call([&](grpc::ClientContext* c) { return stub->SolveSession(c, req, &job); });
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    // WatchSession ends when the session closes (at once if the solve has finished).
+    EXPECT_TRUE(testing_util::FollowToEnd(stub.get(), session, std::chrono::seconds(120)).ok());
+    pb::GetSolveJobRequest get;
+    get.set_job_id(job.id());
+    s = Call([&](grpc::ClientContext* c) { return stub->GetSolveJob(c, get, &job); });
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return job;
+  }
+
+  int FetchedVersion(const ImucaldProcess& replica, const std::string& device) {
+    auto stub = pb::ParameterService::NewStub(replica.NewChannel());
+    pb::GetActiveParametersRequest req;
+    req.set_device_id(device);
+    pb::ParameterSet set;
+    grpc::Status s =
+        Call([&](grpc::ClientContext* c) { return stub->GetActiveParameters(c, req, &set); });
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return set.version();
+  }
+
+  std::unique_ptr<testing_util::PgTestDatabase> db_;
+  std::vector<std::unique_ptr<ImucaldProcess>> replicas_;
+};
+
+TEST_P(ReplicasTest, AReplicaKilledMidStreamLosesNoAckedSampleAndTheOthersCarryOn) {
+  const uint64_t seed = SeedOr(GetParam());
+  SCOPED_TRACE(absl::StrCat("seed ", seed));
+  std::mt19937_64 rng(seed);
+  core::SimOptions sim;
+  sim.seed = seed;
+  absl::StatusOr<core::SimResult> simulated = core::Simulate(sim);
+  ASSERT_TRUE(simulated.ok()) << simulated.status();
+  const core::Capture& capture = simulated->capture;
+  const int64_t batches_each =
+      (static_cast<int64_t>(capture.size()) + kBatchSamples - 1) / kBatchSamples;
+
+  std::vector<std::string> sessions, devices;
+  for (int r = 0; r < kRobots; ++r) {
+    devices.push_back(absl::StrCat("robot-", r));
+    sessions.push_back(OpenSession(devices.back()));
+    ASSERT_FALSE(sessions.back().empty());
+  }
+
+  // 1-3. Stream through replica 1, kill it after `kill_after` acks, finish on replica 2.
+  std::mutex mu;
+  std::condition_variable cv;
+  std::map<std::string, int64_t> acked;  // guarded by mu: the most samples seen acknowledged
+  int64_t acks = 0;                      // guarded by mu
+  const int64_t kill_after =
+      std::uniform_int_distribution<int64_t>(1, kRobots * batches_each - 2)(rng);
+  auto channel = ChannelTo({replicas_[0].get(), replicas_[1].get()});
+  std::vector<absl::StatusOr<sdk::UploadResult>> results(kRobots, absl::UnknownError("not run"));
+  std::vector<std::thread> robots;
+  for (int r = 0; r < kRobots; ++r) {
+    robots.emplace_back([&, r] {
+      sdk::UploadOptions o;
+      o.batch_samples = kBatchSamples;
+      o.max_in_flight = 4;
+      o.initial_backoff = absl::Milliseconds(20);
+      o.max_backoff = absl::Milliseconds(200);
+      o.progress = [&, id = sessions[r]](int64_t samples, int64_t) {
+        std::lock_guard lock(mu);
+        if (samples < acked[id]) ADD_FAILURE() << id << ": acknowledged samples went back";
+        acked[id] = std::max(acked[id], samples);
+        ++acks;
+        cv.notify_all();
+      };
+      sdk::Uploader uploader(channel, o);
+      results[r] = uploader.Upload(sessions[r], capture);
+    });
+  }
+  std::map<std::string, int64_t> acked_at_kill;
+  {
+    std::unique_lock lock(mu);
+    ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(120), [&] { return acks >= kill_after; }))
+        << "the robots stopped acknowledging before the kill";
+    acked_at_kill = acked;
+  }
+  replicas_[0]->Stop(SIGKILL);
+  for (std::thread& t : robots) t.join();
+  int reconnects = 0;
+  for (int r = 0; r < kRobots; ++r) {
+    ASSERT_TRUE(results[r].ok()) << sessions[r] << ": " << results[r].status();
+    reconnects += results[r]->reconnects;
+  }
+
+  {
+    absl::StatusOr<std::unique_ptr<storage::Store>> store = storage::Store::Open(db_->url());
+    ASSERT_TRUE(store.ok()) << store.status();
+    for (const std::string& id : sessions) {
+      absl::StatusOr<std::vector<storage::SampleBatch>> batches = (*store)->ReadBatches(id);
+      ASSERT_TRUE(batches.ok()) << batches.status();
+      std::vector<storage::ImuSample> stored;
+      int64_t seq = 0;
+      for (const storage::SampleBatch& b : *batches) {
+        ASSERT_EQ(b.seq, ++seq) << id << ": batches 1, 2, 3, ... without a gap or a repeat";
+        ASSERT_TRUE(storage::DecodeSamplesInto(b.payload, &stored).ok());
+      }
+      EXPECT_GE(static_cast<int64_t>(stored.size()), acked_at_kill[id]) << id;
+      ASSERT_EQ(stored.size(), capture.size()) << id << ": the whole capture, once";
+      for (size_t i = 0; i < stored.size(); ++i)
+        ASSERT_TRUE(SameBytes(stored[i], capture, i)) << id << " sample " << i;
+    }
+  }
+
+  // 4. Solved on replica 3, twice: versions 1 then 2, each active (the capture passes).
+  for (int expected = 1; expected <= 2; ++expected) {
+    const pb::SolveJob job = Solve(*replicas_[2], sessions[0]);
+    ASSERT_EQ(job.state(), pb::JOB_STATE_DONE) << job.error();
+    EXPECT_EQ(job.version(), expected);
+    ASSERT_TRUE(job.activated()) << "verdict " << job.verdict();
+  }
+  ASSERT_EQ(FetchedVersion(*replicas_[2], devices[0]), 2);  // now in replica 3's cache
+
+  // 5. Replica 1 again: its rollback reaches replica 3's fetch.
+  ASSERT_TRUE(replicas_[0]->Relaunch().ok());
+  {
+    auto stub = pb::ParameterService::NewStub(replicas_[0]->NewChannel());
+    pb::RollbackRequest req;
+    req.set_device_id(devices[0]);
+    req.set_to_version(1);
+    req.set_reason("replicas test");
+    pb::ParameterSet out;
+    grpc::Status s = Call([&](grpc::ClientContext* c) { return stub->Rollback(c, req, &out); });
+    ASSERT_TRUE(s.ok()) << s.error_message();
+  }
+  const auto rolled_back = std::chrono::steady_clock::now();
+  int seen = 0;
+  // Fetched until it changes, for at most 10 s (the notification takes milliseconds).
+  while (seen != 1 && std::chrono::steady_clock::now() - rolled_back < std::chrono::seconds(10))
+    seen = FetchedVersion(*replicas_[2], devices[0]);
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
+                                                              rolled_back)
+                        .count();
+  EXPECT_EQ(seen, 1) << "replica 3 still serves version " << seen << " after the rollback";
+  std::printf("[ replicas ] kill after %lld of %lld acks, %d reconnects, rollback on replica 1 "
+              "seen by replica 3 after %.1f ms\n",
+              static_cast<long long>(kill_after), static_cast<long long>(kRobots * batches_each),
+              reconnects, ms);
+}
+
+// 50 kill points, one ctest entry each.
+INSTANTIATE_TEST_SUITE_P(Seeds, ReplicasTest, ::testing::Range(uint64_t{1}, uint64_t{51}));
+
+}  // namespace
+}  // namespace imucal::server
