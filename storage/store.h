@@ -208,12 +208,23 @@ class Store {
   // solves are not listed.
   absl::StatusOr<std::vector<Solve>> ListOrphanedSolves(absl::Time now,
                                                         std::string_view restarted = "");
+  // Takes over a running solve whose lease ended before `now` (its server stopped renewing it):
+  // the oldest such, now claimed for `claim`, or nullopt when there is none. Each lapsed solve
+  // goes to exactly one claimer, however many servers ask at once (PostgreSQL: SELECT ... FOR
+  // UPDATE SKIP LOCKED; SQLite: the write lock). Audited as solve.claim. The claimer runs the
+  // solve again from the session's stored samples.
+  absl::StatusOr<std::optional<Solve>> ClaimLapsedSolve(absl::Time now, const SolveClaim& claim);
+  // `owner`, when given, must still hold the solve's claim (FailedPrecondition naming the holder
+  // otherwise): a server whose lease lapsed while it solved cannot end a solve another has
+  // claimed since, so the version is written once.
   absl::StatusOr<ParamVersion> FinishSolve(int64_t solve_id, const ParamVersion& version,
                                            std::string_view actor,
-                                           const RenderVersion& render = nullptr);
+                                           const RenderVersion& render = nullptr,
+                                           std::string_view owner = {});
   absl::StatusOr<Solve> FailSolve(int64_t solve_id, std::string_view error,
                                   std::string_view report_json, std::string_view actor,
-                                  SessionState next = SessionState::kFailed);
+                                  SessionState next = SessionState::kFailed,
+                                  std::string_view owner = {});
   absl::StatusOr<Solve> GetSolve(int64_t solve_id);
   absl::StatusOr<std::vector<Solve>> ListSolves(std::string_view session_id);  // oldest first
   // Every solve still running: after a restart these are orphans that the server re-runs or

@@ -27,6 +27,15 @@ constexpr char kSelectOrphanedSolves[] = IMUCAL_SELECT_SOLVE_COLUMNS
     "FROM solves WHERE state = 'running' AND ((owner = ?1 AND ?1 <> '') OR lease_until_us < ?2) "
     "ORDER BY id";
 #undef IMUCAL_SELECT_SOLVE_COLUMNS
+// The oldest running solve whose lease has ended. PostgreSQL: locked for this transaction, and
+// one another server's transaction has locked is skipped, so that concurrent claimers each get
+// a different one (or none); SQLite's write lock lets one claimer in at a time anyway.
+constexpr char kSelectLapsedSolvePg[] =
+    "SELECT id FROM solves WHERE state = 'running' AND lease_until_us < ?1 ORDER BY id LIMIT 1 "
+    "FOR UPDATE SKIP LOCKED";
+constexpr char kSelectLapsedSolveSqlite[] =
+    "SELECT id FROM solves WHERE state = 'running' AND lease_until_us < ?1 ORDER BY id LIMIT 1";
+constexpr char kClaimSolve[] = "UPDATE solves SET owner = ?2, lease_until_us = ?3 WHERE id = ?1";
 constexpr char kInsertSolve[] =
     "INSERT INTO solves (session_id, state, actor, started_at_us, owner, lease_until_us) "
     "VALUES (?1, 'running', ?2, ?3, ?4, ?5) RETURNING id";
@@ -74,12 +83,19 @@ absl::StatusOr<Solve> LoadSolve(Connection& conn, int64_t id) {
   return *std::move(s);
 }
 
-// The running solve `solve_id`: FailedPrecondition once it has finished.
-absl::StatusOr<Solve> LoadRunningSolve(Connection& conn, int64_t solve_id) {
+// The running solve `solve_id`: FailedPrecondition once it has finished, or when `owner` (if
+// given) no longer holds its claim (another server claimed it after the lease lapsed: only the
+// claim's holder may end it, so a version is written once).
+absl::StatusOr<Solve> LoadRunningSolve(Connection& conn, int64_t solve_id,
+                                       std::string_view owner = {}) {
   STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
   if (solve.state != SolveState::kRunning) {
     return absl::FailedPreconditionError(
         Cat("solve ", solve_id, " is ", SolveStateName(solve.state), ", not running"));
+  }
+  if (!owner.empty() && solve.owner != owner) {
+    return absl::FailedPreconditionError(Cat("solve ", solve_id, " is claimed by '", solve.owner,
+                                             "' now, not '", owner, "' (its lease lapsed)"));
   }
   return solve;
 }
@@ -120,13 +136,14 @@ absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string
 
 absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVersion& version,
                                                 std::string_view actor,
-                                                const RenderVersion& render) {
+                                                const RenderVersion& render,
+                                                std::string_view owner) {
   constexpr std::string_view kOp = "FinishSolve";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(
       InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
-        STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id));
+        STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id, owner));
         STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
         ParamVersion v = version;
         if (v.device_id.empty()) v.device_id = session.device_id;
@@ -152,7 +169,7 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
 
 absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
                                        std::string_view report_json, std::string_view actor,
-                                       SessionState next) {
+                                       SessionState next, std::string_view owner) {
   constexpr std::string_view kOp = "FailSolve";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   if (next != SessionState::kFailed && next != SessionState::kOpen) {
@@ -161,7 +178,7 @@ absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
   }
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Solve> {
-    STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id));
+    STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id, owner));
     STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
     const absl::Time now = Now();
     STORAGE_RETURN_IF_ERROR(
@@ -204,6 +221,31 @@ absl::StatusOr<std::vector<Solve>> Store::ListOrphanedSolves(absl::Time now,
   ReadLease lease = AcquireReader();
   return Annotate("ListOrphanedSolves",
                   ReadRows(lease.conn(), kSelectOrphanedSolves, ReadSolve, restarted, Micros(now)));
+}
+
+absl::StatusOr<std::optional<Solve>> Store::ClaimLapsedSolve(absl::Time now,
+                                                              const SolveClaim& claim) {
+  constexpr std::string_view kOp = "ClaimLapsedSolve";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(claim.owner, "owner")));
+  std::lock_guard lock(write_mu_);
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<std::optional<Solve>> {
+    STORAGE_ASSIGN_OR_RETURN(
+        std::optional<int64_t> id,
+        ReadRow(conn,
+                conn.dialect() == Dialect::kPostgres ? kSelectLapsedSolvePg
+                                                     : kSelectLapsedSolveSqlite,
+                FirstColumnInt64, Micros(now)));
+    if (!id) return std::nullopt;
+    STORAGE_ASSIGN_OR_RETURN(Solve before, LoadSolve(conn, *id));
+    STORAGE_RETURN_IF_ERROR(
+        RunStatement(conn, kClaimSolve, *id, claim.owner, LeaseMicros(claim.lease_until)));
+    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, Now(), claim.owner, "solve.claim",
+                                        SessionTarget(before.session_id),
+                                        Cat("solve ", *id, " from '", before.owner,
+                                            "', whose lease lapsed")));
+    STORAGE_ASSIGN_OR_RETURN(Solve claimed, LoadSolve(conn, *id));
+    return std::optional<Solve>(std::move(claimed));
+  });
 }
 
 absl::StatusOr<std::vector<Solve>> Store::ListRunningSolves() {

@@ -1,5 +1,6 @@
 // Store: solves (storage/store_solves.cc).
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "gmock/gmock.h"
@@ -129,6 +130,44 @@ TEST_P(StoreTest, SolveClaimsDecideWhichRunningSolvesAreOrphans) {
   ASSERT_OK_AND_ASSIGN(orphans, store_->ListOrphanedSolves(t0 + absl::Seconds(40)));
   EXPECT_THAT(ids(orphans), ::testing::ElementsAre(solves[0].id));
   EXPECT_EQ(store_->RenewSolveLeases("", t0).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+// A lapsed solve goes to exactly one of several stores claiming at once (two connections to one
+// database: FOR UPDATE SKIP LOCKED on PostgreSQL), and only its new holder can end it.
+TEST_P(StoreTest, ALapsedSolveIsClaimedOnceAndOnlyItsHolderEndsIt) {
+  const absl::Time t0 = absl::FromUnixSeconds(1'800'000'000);
+  ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
+  ASSERT_OK(store_->CreateSession(MakeSession("robot-1", "S1"), kActor).status());
+  ASSERT_OK_AND_ASSIGN(Solve dead, store_->StartSolve("S1", "server", {"dead", t0}));
+  ASSERT_OK_AND_ASSIGN(std::unique_ptr<Store> other, Store::Open(path_));
+  std::optional<Solve> got_a, got_b;
+  std::thread a([&] {
+    auto r = store_->ClaimLapsedSolve(t0 + absl::Seconds(1), {"a", t0 + absl::Seconds(31)});
+    ASSERT_TRUE(r.ok()) << r.status();
+    got_a = *r;
+  });
+  std::thread b([&] {
+    auto r = other->ClaimLapsedSolve(t0 + absl::Seconds(1), {"b", t0 + absl::Seconds(31)});
+    ASSERT_TRUE(r.ok()) << r.status();
+    got_b = *r;
+  });
+  a.join();
+  b.join();
+  ASSERT_NE(got_a.has_value(), got_b.has_value()) << "exactly one claimer gets it";
+  const Solve& claimed = got_a ? *got_a : *got_b;
+  EXPECT_EQ(claimed.id, dead.id);
+  const std::string holder = got_a ? "a" : "b";
+  EXPECT_EQ(claimed.owner, holder);
+  // Nothing else has lapsed; the old owner cannot end it; the holder can.
+  ASSERT_OK_AND_ASSIGN(std::optional<Solve> none,
+                       store_->ClaimLapsedSolve(t0 + absl::Seconds(1), {"c", t0}));
+  EXPECT_FALSE(none.has_value());
+  EXPECT_EQ(store_->FailSolve(dead.id, "late", "", "server", SessionState::kOpen, "dead")
+                .status()
+                .code(),
+            absl::StatusCode::kFailedPrecondition);
+  ASSERT_OK(
+      store_->FailSolve(dead.id, "done", "", "server", SessionState::kOpen, holder).status());
 }
 
 }  // namespace
