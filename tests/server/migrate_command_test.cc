@@ -51,10 +51,11 @@ std::string Quoted(const std::string& word) {
   return q + "'";
 }
 
-// Runs `imucald migrate args...`, its output captured.
+// Runs `imucald migrate args...`, its output captured in files named for the running test and
+// process: ctest runs this binary's tests side by side, so a shared name would mix their output.
 CommandResult Migrate(const std::vector<std::string>& args) {
-  const std::string out = ::testing::TempDir() + "migrate.out";
-  const std::string err = ::testing::TempDir() + "migrate.err";
+  const std::string out = TempDbPath("migrate") + ".out";
+  const std::string err = TempDbPath("migrate") + ".err";
   std::string command = Quoted(IMUCAL_IMUCALD_PATH) + " migrate";
   for (const std::string& arg : args) command += " " + Quoted(arg);
   command += " >" + Quoted(out) + " 2>" + Quoted(err);
