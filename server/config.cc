@@ -186,11 +186,17 @@ std::vector<ConfigOption> BuildOptions() {
                    [](DaemonConfig& c) -> std::string& { return c.server.sessions.replica_id; }),
       DurationOption("solve_lease", "IMUCALD_SOLVE_LEASE",
                      "how long a solve's claim holds without renewal (renewed every third of "
-                     "it); a lapsed one is failed by any server sharing the database (default "
-                     "30s)",
+                     "it); a lapsed one is claimed and run again by a server sharing the "
+                     "database (default 30s)",
                      [](DaemonConfig& c) -> absl::Duration& {
                        return c.server.sessions.solve_lease;
                      }),
+      IntegerOption<int>(
+          "max_solve_attempts", "IMUCALD_MAX_SOLVE_ATTEMPTS",
+          "servers that may start one solve: one whose server stops (killed, crashed) is run "
+          "again by another, or by the same one restarted, until this many have; then it is "
+          "failed and its session reopened (default 3)",
+          1, 100, [](DaemonConfig& c) -> int& { return c.server.sessions.max_solve_attempts; }),
       DurationOption("active_cache_sync", "IMUCALD_ACTIVE_CACHE_SYNC",
                      "how often the database is read for other servers' promotes and rollbacks "
                      "(the bound on a stale fetch from this server); 0s: never, when it is "

@@ -22,34 +22,7 @@
 namespace imucal::server {
 namespace {
 
-constexpr char kOrphanedSolveError[] =
-    "the server stopped during this solve; solve the session again";
 constexpr char kStartupActor[] = "imucald";
-
-// Fails the solves nobody is running (Store::ListOrphanedSolves: lapsed leases, and with
-// `restarted` this server's previous life's) and reopens their sessions, so that the technician
-// can solve again; nothing would finish them, and their sessions would stay `solving` for ever.
-// A session whose device has opened its next session meanwhile cannot reopen (one open session
-// per device): it is left failed, from where it can be solved again too. Returns how many.
-absl::StatusOr<int> FailOrphanedSolves(storage::Store& store, std::string_view restarted) {
-  absl::StatusOr<std::vector<storage::Solve>> orphans =
-      store.ListOrphanedSolves(absl::Now(), restarted);
-  if (!orphans.ok()) return orphans.status();
-  int failed_count = 0;
-  for (const storage::Solve& solve : *orphans) {
-    absl::StatusOr<storage::Solve> failed =
-        store.FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
-                        storage::SessionState::kOpen);
-    if (absl::IsFailedPrecondition(failed.status())) {
-      failed = store.FailSolve(solve.id, kOrphanedSolveError, /*report_json=*/"", kStartupActor,
-                               storage::SessionState::kFailed);
-    }
-    // Another server may have ended it meanwhile (it is no longer running): not an error.
-    if (!failed.ok() && !absl::IsFailedPrecondition(failed.status())) return failed.status();
-    if (failed.ok()) ++failed_count;
-  }
-  return failed_count;
-}
 
 // Who this server is to the others sharing its database: the host and the listen address.
 std::string DefaultReplicaId(const std::string& listen) {
@@ -164,14 +137,12 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   absl::StatusOr<std::unique_ptr<storage::Store>> store =
       storage::Store::Open(options.db_path, store_options);
   if (!store.ok()) return store.status();
-  // Solves this server was running when it stopped (killed, crashed), and those of servers
-  // sharing the database whose claim has lapsed, are failed now.
   SessionServiceOptions sessions = options.sessions;
   if (sessions.replica_id.empty()) sessions.replica_id = DefaultReplicaId(options.listen);
   if (sessions.solve_lease <= absl::ZeroDuration())
     return absl::InvalidArgumentError("solve_lease: must be positive");
-  if (absl::StatusOr<int> failed = FailOrphanedSolves(**store, sessions.replica_id); !failed.ok())
-    return failed.status();
+  if (sessions.max_solve_attempts < 1)
+    return absl::InvalidArgumentError("max_solve_attempts: must be at least 1");
 
   std::unique_ptr<Server> s(new Server());
   s->host_ = options.listen.substr(0, colon);
@@ -259,6 +230,12 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   if (s->server_ == nullptr || s->port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
   }
+  // Solves this server was running when it stopped (killed, crashed), and those of servers
+  // sharing the database whose claim has lapsed, are run again now.
+  absl::StatusOr<int> resumed = s->sessions_->ResumeLapsedSolves(sessions.replica_id);
+  if (!resumed.ok()) return resumed.status();
+  if (*resumed > 0)
+    Log(LogLevel::kInfo, "solves_resumed", {{"replica_id", sessions.replica_id}, {"solves", *resumed}});
   s->background_ = std::thread([server = s.get(), id = sessions.replica_id,
                                 lease = sessions.solve_lease, sync = cache_sync] {
     server->Background(id, lease, sync);
@@ -305,13 +282,13 @@ void Server::SyncActiveCache() {
 void Server::RenewLeases(const std::string& replica_id, absl::Duration lease) {
   // Ours first: a slow sweep must not let our own claims lapse.
   absl::Status renewed = store_->RenewSolveLeases(replica_id, absl::Now() + lease).status();
-  absl::StatusOr<int> failed = FailOrphanedSolves(*store_, /*restarted=*/"");
-  if (!renewed.ok() || !failed.ok()) {
+  absl::StatusOr<int> resumed = sessions_->ResumeLapsedSolves();
+  if (!renewed.ok() || !resumed.ok()) {
     Log(LogLevel::kWarning, "solve_leases",
         {{"replica_id", replica_id},
-         {"error", std::string(!renewed.ok() ? renewed.message() : failed.status().message())}});
-  } else if (*failed > 0) {
-    Log(LogLevel::kInfo, "orphaned_solves_failed", {{"replica_id", replica_id}, {"solves", *failed}});
+         {"error", std::string(!renewed.ok() ? renewed.message() : resumed.status().message())}});
+  } else if (*resumed > 0) {
+    Log(LogLevel::kInfo, "solves_resumed", {{"replica_id", replica_id}, {"solves", *resumed}});
   }
 }
 

@@ -104,8 +104,13 @@ struct SessionServiceOptions {
   // (Server::Start fills it in when empty: the host name and the listen address) and renews
   // the claim every solve_lease / 3; a solve whose claim lapses is an orphan that any of them
   // ends (storage/store.h "Solves"). Servers sharing a database need distinct ids.
+  // A solve whose server stopped is claimed and run again by another (or by the same server
+  // once restarted), with its seed, up to max_solve_attempts starts in all; then it is failed
+  // and its session reopened, so that a solve that stops every server that runs it is not
+  // passed on for ever (ResumeLapsedSolves).
   std::string replica_id;
   absl::Duration solve_lease = absl::Seconds(30);
+  int max_solve_attempts = 3;
   int solve_threads = 2;
   size_t solve_queue_limit = 16;  // solves waiting for a worker; RESOURCE_EXHAUSTED beyond
   IngestLimits ingest;            // samples per batch and per session (server/validate.h)
@@ -215,6 +220,12 @@ class SessionServiceImpl final : public SessionServiceBase {
   grpc::ServerWriteReactor<v1::SampleBatch>* ReadSamples(
       grpc::CallbackServerContext* context, const v1::ReadSamplesRequest* request) override;
 
+  // Claims the solves whose server stopped (their lease lapsed; with `restarted`, this server's
+  // previous life's too) and queues them to run again, while the solve queue has room; fails
+  // one started max_solve_attempts times already. Returns how many it queued. The server calls
+  // it at start and with every lease renewal.
+  absl::StatusOr<int> ResumeLapsedSolves(std::string_view restarted = "");
+
   // Stops taking solves and finishes the queued ones (graceful shutdown, after the server's).
   void DrainSolves() {
     loaders_.Shutdown();
@@ -243,7 +254,13 @@ class SessionServiceImpl final : public SessionServiceBase {
   absl::Status DoGetSolveJob(const v1::GetSolveJobRequest& request, v1::SolveJob* response);
   absl::Status DoGetReport(const v1::GetReportRequest& request, v1::Report* response);
   absl::Status DoListPoses(const v1::ListPosesRequest& request, v1::ListPosesResponse* response);
+  // Announces the job queued (to GetSolveJob and the session's watchers) and submits it on a
+  // reservation of pool_.
+  v1::SolveJob Queue(const SolveTask& task, LiveSession& live);
   void RunSolve(const SolveTask& task);
+  // Fails a solve this server has claimed and reopens its session (failed, when the device has
+  // another open session).
+  absl::Status FailAndReopen(int64_t solve_id, const std::string& error);
   // Records a job's new state and tells the session's watchers.
   void UpdateJob(const v1::SolveJob& job);
   absl::StatusOr<v1::Session> SessionProto(const std::string& session_id);

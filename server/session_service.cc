@@ -1,5 +1,6 @@
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -14,6 +15,7 @@
 #include "formats/params_json.h"
 #include "formats/report_json.h"
 #include "server/convert.h"
+#include "server/log.h"
 #include "server/services.h"
 #include "server/unary.h"
 #include "storage/sample_codec.h"
@@ -23,6 +25,7 @@ namespace imucal::server {
 namespace {
 
 constexpr char kJobPrefix[] = "solve-";
+constexpr char kServerActor[] = "imucald";  // the audit's actor for what the server does itself
 
 // Sessions are loaded (every stored batch decoded and replayed) on threads of their own, off
 // gRPC's: two, as many as this machine's cores, since a load is CPU work. Waiting loads are
@@ -378,7 +381,8 @@ absl::Status SessionServiceImpl::DoSolve(const std::string& actor,
   {
     std::lock_guard lock(live->mu);  // no batch lands after the solve has started
     solve = store_->StartSolve(request.session_id(), actor,
-                               {options_.replica_id, absl::Now() + options_.solve_lease});
+                               {options_.replica_id, absl::Now() + options_.solve_lease},
+                               request.seed() == 0 ? 1 : request.seed());
     if (solve.ok()) {
       FlushSegment(*live, &last_pose);  // the final hold is a pose
       std::vector<storage::Pose> poses;
@@ -397,8 +401,13 @@ absl::Status SessionServiceImpl::DoSolve(const std::string& actor,
   task.solve_id = solve->id;
   task.job_id = absl::StrCat(kJobPrefix, solve->id);
   task.session_id = request.session_id();
-  task.seed = request.seed() == 0 ? 1 : request.seed();
+  task.seed = solve->seed;
   task.actor = actor;
+  *response = Queue(task, *live);
+  return absl::OkStatus();
+}
+
+v1::SolveJob SessionServiceImpl::Queue(const SolveTask& task, LiveSession& live) {
   v1::SolveJob job;
   job.set_id(task.job_id);
   job.set_session_id(task.session_id);
@@ -407,11 +416,67 @@ absl::Status SessionServiceImpl::DoSolve(const std::string& actor,
   if (absl::StatusOr<v1::Session> s = SessionProto(task.session_id); s.ok()) {
     v1::SessionEvent e = Stamped();
     *e.mutable_session() = *std::move(s);
-    hub_.Publish(*live, e);
+    hub_.Publish(live, e);
   }
   pool_.Submit([this, task] { RunSolve(task); });
-  *response = job;
-  return absl::OkStatus();
+  return job;
+}
+
+absl::StatusOr<int> SessionServiceImpl::ResumeLapsedSolves(std::string_view restarted) {
+  if (!restarted.empty()) {
+    if (absl::Status s = store_->ReleaseSolveClaims(restarted).status(); !s.ok()) return s;
+  }
+  int resumed = 0;
+  while (pool_.Reserve()) {
+    const absl::Time now = absl::Now();
+    absl::StatusOr<std::optional<storage::Solve>> claimed =
+        store_->ClaimLapsedSolve(now, {options_.replica_id, now + options_.solve_lease});
+    if (!claimed.ok() || !claimed->has_value()) {
+      pool_.Release();
+      if (!claimed.ok()) return claimed.status();
+      return resumed;
+    }
+    const storage::Solve& solve = **claimed;
+    absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(solve.session_id);
+    if (solve.attempts > options_.max_solve_attempts || !live.ok()) {
+      pool_.Release();
+      const std::string error =
+          live.ok() ? Cat("the solve was started ", solve.attempts - 1,
+                          " times and each time its server stopped before it ended; solve the "
+                          "session again (the server's log may say why)")
+                    : Cat("the session cannot be loaded to solve it again: ",
+                          live.status().message());
+      if (absl::Status s = FailAndReopen(solve.id, error); !s.ok()) return s;
+      if (live.ok()) hub_.CloseSession(**live);
+      continue;
+    }
+    Log(LogLevel::kInfo, "solve_resumed",
+        {{"solve", solve.id}, {"session", solve.session_id}, {"attempt", solve.attempts}});
+    hub_.Reopen(*live);
+    SolveTask task;
+    task.solve_id = solve.id;
+    task.job_id = absl::StrCat(kJobPrefix, solve.id);
+    task.session_id = solve.session_id;
+    task.seed = solve.seed;
+    task.actor = solve.actor;
+    Queue(task, **live);
+    ++resumed;
+  }
+  return resumed;
+}
+
+absl::Status SessionServiceImpl::FailAndReopen(int64_t solve_id, const std::string& error) {
+  // Open again, so that the technician can solve it again; a session whose device has opened
+  // its next session meanwhile cannot reopen (one open session per device): it is left failed,
+  // from where it can be solved again too.
+  absl::StatusOr<storage::Solve> failed =
+      store_->FailSolve(solve_id, error, /*report_json=*/"", kServerActor,
+                        storage::SessionState::kOpen, options_.replica_id);
+  if (absl::IsFailedPrecondition(failed.status())) {
+    failed = store_->FailSolve(solve_id, error, /*report_json=*/"", kServerActor,
+                               storage::SessionState::kFailed, options_.replica_id);
+  }
+  return failed.status();
 }
 
 void SessionServiceImpl::UpdateJob(const v1::SolveJob& job) {
@@ -485,7 +550,7 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
       const std::string error = RefusalMessage(*report);
       absl::StatusOr<storage::Solve> failed =
           store_->FailSolve(task.solve_id, error, formats::ReportToJson(*report), task.actor,
-                            storage::SessionState::kOpen);
+                            storage::SessionState::kOpen, options_.replica_id);
       if (failed.ok()) {
         job.set_state(v1::JOB_STATE_FAILED);
         job.set_error(ScrubMessage(error));
@@ -518,7 +583,8 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
             *params_json = formats::ParamSetToJson(report->params);
             *report_json = formats::ReportToJson(*report);
             return absl::OkStatus();
-          });
+          },
+          options_.replica_id);
       if (stored.ok()) {
         job.set_state(v1::JOB_STATE_DONE);
         job.set_version(stored->version);
@@ -535,7 +601,9 @@ void SessionServiceImpl::RunSolve(const SolveTask& task) {
     if (failure.ok()) failure = absl::InternalError("solve ended without a result");
     job.set_state(v1::JOB_STATE_FAILED);
     job.set_error(ClientMessage(failure));
-    store_->FailSolve(task.solve_id, job.error(), /*report_json=*/"", task.actor).IgnoreError();
+    store_->FailSolve(task.solve_id, job.error(), /*report_json=*/"", task.actor,
+                      storage::SessionState::kFailed, options_.replica_id)
+        .IgnoreError();
   }
   UpdateJob(job);
   if (env_.metrics != nullptr) {

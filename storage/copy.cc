@@ -68,6 +68,8 @@ constexpr CopyColumn kSolveColumns[] = {
     {"report_json", T::kText},
     {"owner", T::kText},
     {"lease_until_us", T::kInteger},
+    {"seed", T::kInteger},
+    {"attempts", T::kInteger},
 };
 constexpr CopyColumn kVersionColumns[] = {
     {"device_id", T::kText},   {"version", T::kInteger}, {"created_at_us", T::kInteger},
@@ -127,10 +129,11 @@ constexpr CopyTable kTables[] = {
      "SELECT count(*) FROM pose_pairs", nullptr, nullptr},
     {"solves", kSolveColumns, 1,
      "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, "
-     "report_json, owner, lease_until_us FROM solves WHERE id > ?1 ORDER BY id LIMIT ?2",
+     "report_json, owner, lease_until_us, seed, attempts FROM solves WHERE id > ?1 ORDER BY id "
+     "LIMIT ?2",
      "INSERT INTO solves (id, session_id, state, actor, started_at_us, finished_at_us, version, "
-     "error, report_json, owner, lease_until_us) "
-     "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
+     "error, report_json, owner, lease_until_us, seed, attempts) "
+     "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13)",
      "SELECT count(*) FROM solves",
      "SELECT setval(pg_get_serial_sequence('solves', 'id'), max(id)) FROM solves", nullptr},
     {"param_versions", kVersionColumns, 2,

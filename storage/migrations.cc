@@ -165,12 +165,23 @@ ALTER TABLE solves ADD COLUMN lease_until_us INTEGER NOT NULL DEFAULT 0;
 PRAGMA user_version = 5;
 )sql";
 
+// Version 6: what a server needs to run a solve again when the server that started it stopped
+// (Store::ClaimLapsedSolve): the seed it was asked for, so that the result is the one the request
+// would have had, and how many servers have started it, so that a solve that stops every server
+// that runs it is failed rather than passed on for ever.
+constexpr char kSchemaV6[] = R"sql(
+ALTER TABLE solves ADD COLUMN seed INTEGER NOT NULL DEFAULT 1;
+ALTER TABLE solves ADD COLUMN attempts INTEGER NOT NULL DEFAULT 1 CHECK (attempts >= 1);
+PRAGMA user_version = 6;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, kSchemaV1},
     {2, kSchemaV2},
     {3, kSchemaV3},
     {4, kSchemaV4},
     {5, kSchemaV5},
+    {6, kSchemaV6},
 };
 
 // ---- PostgreSQL: the same schema, version for version ------------------------------------------
@@ -312,12 +323,19 @@ ALTER TABLE solves ADD COLUMN lease_until_us BIGINT NOT NULL DEFAULT 0;
 UPDATE imucal_schema SET version = 5;
 )sql";
 
+constexpr char kPgSchemaV6[] = R"sql(
+ALTER TABLE solves ADD COLUMN seed BIGINT NOT NULL DEFAULT 1;
+ALTER TABLE solves ADD COLUMN attempts BIGINT NOT NULL DEFAULT 1 CHECK (attempts >= 1);
+UPDATE imucal_schema SET version = 6;
+)sql";
+
 constexpr Migration kPgMigrations[] = {
     {1, kPgSchemaV1},
     {2, kPgSchemaV2},
     {3, kPgSchemaV3},
     {4, kPgSchemaV4},
     {5, kPgSchemaV5},
+    {6, kPgSchemaV6},
 };
 
 // Held for the whole of Migrate on PostgreSQL (a session-level advisory lock), so that replicas

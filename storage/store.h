@@ -198,8 +198,10 @@ class Store {
   // moves the session to `next` (failed, or open to collect more poses).
   // Setting a solving session's state by hand (SetSessionState) fails its running solve.
   // `claim`: the server that runs it and its lease (types.h SolveClaim).
+  // `seed`: the calibration's (Solve::seed), kept so that a server that runs it again after its
+  // first server stopped gets the same result.
   absl::StatusOr<Solve> StartSolve(std::string_view session_id, std::string_view actor,
-                                   const SolveClaim& claim = {});
+                                   const SolveClaim& claim = {}, uint64_t seed = 1);
   // Extends the lease of every running solve `owner` claimed to `until`; how many it extended.
   absl::StatusOr<int> RenewSolveLeases(std::string_view owner, absl::Time until);
   // Running solves nobody is running: those whose lease ended before `now` (their server stopped
@@ -209,11 +211,15 @@ class Store {
   absl::StatusOr<std::vector<Solve>> ListOrphanedSolves(absl::Time now,
                                                         std::string_view restarted = "");
   // Takes over a running solve whose lease ended before `now` (its server stopped renewing it):
-  // the oldest such, now claimed for `claim`, or nullopt when there is none. Each lapsed solve
-  // goes to exactly one claimer, however many servers ask at once (PostgreSQL: SELECT ... FOR
-  // UPDATE SKIP LOCKED; SQLite: the write lock). Audited as solve.claim. The claimer runs the
-  // solve again from the session's stored samples.
+  // the oldest such, now claimed for `claim` with its attempts counted up, or nullopt when there
+  // is none. Each goes to exactly one claimer, however many servers ask at once (PostgreSQL:
+  // SELECT ... FOR UPDATE SKIP LOCKED; SQLite: the write lock). Audited as solve.claim. The
+  // claimer runs the solve again from the session's stored samples, with its seed.
   absl::StatusOr<std::optional<Solve>> ClaimLapsedSolve(absl::Time now, const SolveClaim& claim);
+  // Ends the leases of the running solves `owner` claimed, at once: a server that has just
+  // started gives up its previous life's claims (that life cannot be running them), so that
+  // they are claimed again without waiting for their leases. Audited as solve.release; how many.
+  absl::StatusOr<int> ReleaseSolveClaims(std::string_view owner);
   // `owner`, when given, must still hold the solve's claim (FailedPrecondition naming the holder
   // otherwise): a server whose lease lapsed while it solved cannot end a solve another has
   // claimed since, so the version is written once.

@@ -17,7 +17,7 @@ namespace {
 // The columns ReadSolve maps.
 #define IMUCAL_SELECT_SOLVE_COLUMNS                                                      \
   "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, " \
-  "report_json, owner, lease_until_us "
+  "report_json, owner, lease_until_us, seed, attempts "
 constexpr char kSelectSolve[] = IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE id = ?1";
 constexpr char kSelectSolvesOfSession[] =
     IMUCAL_SELECT_SOLVE_COLUMNS "FROM solves WHERE session_id = ?1 ORDER BY id";
@@ -30,15 +30,19 @@ constexpr char kSelectOrphanedSolves[] = IMUCAL_SELECT_SOLVE_COLUMNS
 // The oldest running solve whose lease has ended. PostgreSQL: locked for this transaction, and
 // one another server's transaction has locked is skipped, so that concurrent claimers each get
 // a different one (or none); SQLite's write lock lets one claimer in at a time anyway.
-constexpr char kSelectLapsedSolvePg[] =
-    "SELECT id FROM solves WHERE state = 'running' AND lease_until_us < ?1 ORDER BY id LIMIT 1 "
-    "FOR UPDATE SKIP LOCKED";
-constexpr char kSelectLapsedSolveSqlite[] =
-    "SELECT id FROM solves WHERE state = 'running' AND lease_until_us < ?1 ORDER BY id LIMIT 1";
-constexpr char kClaimSolve[] = "UPDATE solves SET owner = ?2, lease_until_us = ?3 WHERE id = ?1";
+#define IMUCAL_SELECT_LAPSED_SOLVE \
+  "SELECT id FROM solves WHERE state = 'running' AND lease_until_us < ?1 ORDER BY id LIMIT 1"
+constexpr char kSelectLapsedSolvePg[] = IMUCAL_SELECT_LAPSED_SOLVE " FOR UPDATE SKIP LOCKED";
+constexpr char kSelectLapsedSolveSqlite[] = IMUCAL_SELECT_LAPSED_SOLVE;
+#undef IMUCAL_SELECT_LAPSED_SOLVE
+// Ends the leases of the running solves ?1 claimed (?2: LeaseMicros(InfinitePast())).
+constexpr char kReleaseClaims[] =
+    "UPDATE solves SET lease_until_us = ?2 WHERE state = 'running' AND owner = ?1 RETURNING id";
+constexpr char kClaimSolve[] =
+    "UPDATE solves SET owner = ?2, lease_until_us = ?3, attempts = attempts + 1 WHERE id = ?1";
 constexpr char kInsertSolve[] =
-    "INSERT INTO solves (session_id, state, actor, started_at_us, owner, lease_until_us) "
-    "VALUES (?1, 'running', ?2, ?3, ?4, ?5) RETURNING id";
+    "INSERT INTO solves (session_id, state, actor, started_at_us, owner, lease_until_us, seed) "
+    "VALUES (?1, 'running', ?2, ?3, ?4, ?5, ?6) RETURNING id";
 constexpr char kRenewLeases[] =
     "UPDATE solves SET lease_until_us = ?2 WHERE state = 'running' AND owner = ?1 RETURNING id";
 constexpr char kFinishSolve[] =
@@ -74,6 +78,8 @@ absl::StatusOr<Solve> ReadSolve(const Statement& st) {
   s.report_json = st.ColumnText(8);
   s.owner = st.ColumnText(9);
   s.lease_until = LeaseFromMicros(st.ColumnInt64(10));
+  s.seed = static_cast<uint64_t>(st.ColumnInt64(11));  // stored as its 64 bits, signed
+  s.attempts = static_cast<int>(st.ColumnInt64(12));
   return s;
 }
 
@@ -115,7 +121,7 @@ absl::Status AbandonRunningSolve(Connection& conn, std::string_view session_id, 
 }
 
 absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string_view actor,
-                                        const SolveClaim& claim) {
+                                        const SolveClaim& claim, uint64_t seed) {
   constexpr std::string_view kOp = "StartSolve";
   STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
@@ -125,7 +131,8 @@ absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string
     STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, SessionState::kSolving, actor, now));
     STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> inserted,
                              ReadRow(conn, kInsertSolve, FirstColumnInt64, session_id, actor,
-                                     Micros(now), claim.owner, LeaseMicros(claim.lease_until)));
+                                     Micros(now), claim.owner, LeaseMicros(claim.lease_until),
+                                     static_cast<int64_t>(seed)));
     if (!inserted) return absl::InternalError("INSERT ... RETURNING id returned no row");
     const int64_t id = *inserted;
     STORAGE_RETURN_IF_ERROR(
@@ -221,6 +228,24 @@ absl::StatusOr<std::vector<Solve>> Store::ListOrphanedSolves(absl::Time now,
   ReadLease lease = AcquireReader();
   return Annotate("ListOrphanedSolves",
                   ReadRows(lease.conn(), kSelectOrphanedSolves, ReadSolve, restarted, Micros(now)));
+}
+
+absl::StatusOr<int> Store::ReleaseSolveClaims(std::string_view owner) {
+  constexpr std::string_view kOp = "ReleaseSolveClaims";
+  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(owner, "owner")));
+  std::lock_guard lock(write_mu_);
+  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int> {
+    STORAGE_ASSIGN_OR_RETURN(std::vector<int64_t> ids,
+                             ReadRows(conn, kReleaseClaims, FirstColumnInt64, owner,
+                                      LeaseMicros(absl::InfinitePast())));
+    for (int64_t id : ids) {
+      STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, id));
+      STORAGE_RETURN_IF_ERROR(InsertAudit(conn, Now(), owner, "solve.release",
+                                          SessionTarget(solve.session_id),
+                                          Cat("solve ", id, ": its server restarted")));
+    }
+    return static_cast<int>(ids.size());
+  });
 }
 
 absl::StatusOr<std::optional<Solve>> Store::ClaimLapsedSolve(absl::Time now,

@@ -110,6 +110,8 @@ struct Solve {
   std::string report_json;  // a failed solve's report; a successful one's is its version's
   std::string owner;        // the server running it (SolveClaim); empty: none said
   absl::Time lease_until;   // it is that server's until then (renewed while it runs)
+  uint64_t seed = 1;        // the calibration's seed, as the request gave it (core::CalibrateOptions)
+  int attempts = 1;         // servers that have started it: 1, plus one per ClaimLapsedSolve
 };
 
 // Who runs a solve and for how long it may go without saying so again (Store::StartSolve,

@@ -27,6 +27,7 @@
 #include <cstring>
 #include <functional>
 #include <map>
+#include <optional>
 #include <memory>
 #include <mutex>
 #include <random>
@@ -42,6 +43,7 @@
 #include "formats/crc32c.h"
 #include "formats/params_json.h"
 #include "grpcpp/grpcpp.h"
+#include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "storage/sample_codec.h"
@@ -57,8 +59,6 @@ namespace pb = ::imucal::v1;
 using Clock = std::chrono::steady_clock;
 
 constexpr int kBatchSamples = 200;  // 1 s at 200 Hz per batch
-constexpr char kOrphanedSolveError[] =
-    "the server stopped during this solve; solve the session again";
 
 // The test's seed, or IMUCAL_CRASH_SEED when set (to replay a failing run's kill points).
 uint64_t SeedOr(uint64_t fallback) {
@@ -537,25 +537,33 @@ class CrashSolveTest : public CrashTest, public testing::WithParamInterface<uint
     EXPECT_EQ(d.active_version(), out.active) << device;
   }
 
+  // A restarted server runs again the solves its kill interrupted (Store::ClaimLapsedSolve):
+  // waits, by following the session's events, until the session is no longer solving.
+  void WaitWhileSolving(const std::string& session) {
+    auto stub = pb::SessionService::NewStub(server_->NewChannel());
+    EXPECT_TRUE(testing_util::FollowWhileSolving(stub.get(), session, std::chrono::seconds(120)));
+    EXPECT_NE(GetSession(session).state(), pb::SESSION_STATE_SOLVING) << session;
+  }
+
   // Every version was made by a succeeded solve of the session (FinishSolve is one
-  // transaction), no solve is left running (the restart failed the orphans), and the session
-  // is solved if its last solve succeeded, else open again (it can be re-solved). Returns the
-  // number of solves the kills orphaned.
+  // transaction), and once, however many servers started it; no solve is left running or
+  // failed (the restart ran the interrupted ones again), and the session is solved if its last
+  // solve succeeded, else open again (it can be re-solved). Returns the number of solves a kill
+  // interrupted and the restart finished.
   int CheckSolves(storage::Store& store, const std::string& session, int versions,
                   int64_t samples) {
     absl::StatusOr<std::vector<storage::Solve>> solves = store.ListSolves(session);
     EXPECT_TRUE(solves.ok()) << solves.status();
     if (!solves.ok() || solves->empty()) return 0;
     std::set<int> made;
-    int orphaned = 0;
+    int resumed = 0;
     for (const storage::Solve& s : *solves) {
-      EXPECT_NE(s.state, storage::SolveState::kRunning) << "solve " << s.id << " still running";
+      EXPECT_EQ(s.state, storage::SolveState::kSucceeded)
+          << "solve " << s.id << " " << storage::SolveStateName(s.state) << ": " << s.error;
       if (s.state == storage::SolveState::kSucceeded) {
         EXPECT_TRUE(made.insert(s.version).second) << "two solves made version " << s.version;
-      } else if (s.state == storage::SolveState::kFailed) {
-        EXPECT_EQ(s.error, kOrphanedSolveError) << "solve " << s.id;
-        ++orphaned;
       }
+      resumed += s.attempts > 1;
     }
     std::set<int> all;
     for (int v = 1; v <= versions; ++v) all.insert(v);
@@ -565,7 +573,7 @@ class CrashSolveTest : public CrashTest, public testing::WithParamInterface<uint
     EXPECT_EQ(s.state(), last_succeeded ? pb::SESSION_STATE_SOLVED : pb::SESSION_STATE_OPEN)
         << session;
     EXPECT_EQ(s.samples(), samples) << session << ": the capture changed";
-    return orphaned;
+    return resumed;
   }
 
   std::string pass_session_, warn_session_;
@@ -718,7 +726,7 @@ TEST_P(CrashSolveTest, SigkillDuringSolvePromoteRollbackLeavesOnlyWholeVersions)
   ASSERT_EQ(pass.active, 1);
   ASSERT_EQ(warn.active, 1);
 
-  int orphaned = 0, acked_ops = 0, in_flight_applied = 0, in_flight_lost = 0;
+  int resumed = 0, acked_ops = 0, in_flight_applied = 0, in_flight_lost = 0;
   for (int kill = 0; kill < kKills; ++kill) {
     SCOPED_TRACE(absl::StrCat("kill ", kill));
     const Versions pass_before = pass, warn_before = warn;
@@ -733,13 +741,15 @@ TEST_P(CrashSolveTest, SigkillDuringSolvePromoteRollbackLeavesOnlyWholeVersions)
     tech.Join();
     for (const std::string& e : tech.errors()) ADD_FAILURE() << e;
     ASSERT_TRUE(server_->Restart().ok());
+    WaitWhileSolving(pass_session_);
+    WaitWhileSolving(warn_session_);
 
     store = OpenStore();
     ASSERT_NE(store, nullptr);
     pass = CheckVersions(*store, kPass, pass_session_);
     warn = CheckVersions(*store, kWarn, warn_session_);
-    orphaned = CheckSolves(*store, pass_session_, pass.count, pass_samples_) +
-               CheckSolves(*store, warn_session_, warn.count, warn_samples_);
+    resumed = CheckSolves(*store, pass_session_, pass.count, pass_samples_) +
+              CheckSolves(*store, warn_session_, warn.count, warn_samples_);
     store.reset();
     ASSERT_FALSE(HasFailure());
 
@@ -784,19 +794,20 @@ TEST_P(CrashSolveTest, SigkillDuringSolvePromoteRollbackLeavesOnlyWholeVersions)
   CheckSolves(*store, warn_session_, warn.count + 1, warn_samples_);
   std::printf(
       "[ crash    ] solve/promote: %d kills survived (solve time %.0f ms); %d solves "
-      "orphaned by a kill and failed at restart, %d + %d versions whole, %d promotes/"
+      "interrupted by a kill and finished by the restart, %d + %d versions whole, %d promotes/"
       "rollbacks acknowledged, in flight at a kill: %d applied, %d not\n",
-      kKills, 1e3 * std::chrono::duration<double>(solve_time).count(), orphaned, pass.count,
+      kKills, 1e3 * std::chrono::duration<double>(solve_time).count(), resumed, pass.count,
       warn.count, acked_ops, in_flight_applied, in_flight_lost);
 }
 
 INSTANTIATE_TEST_SUITE_P(Seeds, CrashSolveTest, testing::Values(uint64_t{303}, uint64_t{404}));
 
-// A kill mid-solve while the device has already opened its next session (CreateSession allows
-// that: a solving session is not open). The restart must still serve: the orphaned solve fails,
-// and its session, which cannot reopen beside the open one, is left failed, from where it can
-// be solved again; the new session takes samples.
-TEST_F(CrashTest, AnOrphanedSolveBesideTheDevicesNextOpenSessionDoesNotStopTheRestart) {
+// A kill mid-solve, for the third time for this solve, while the device has already opened its
+// next session (CreateSession allows that: a solving session is not open). The restart must
+// still serve: the solve has had its max_solve_attempts (3) and is failed rather than run a
+// fourth time, and its session, which cannot reopen beside the open one, is left failed, from
+// where it can be solved again; the new session takes samples.
+TEST_F(CrashTest, ASolveThatStoppedItsServerThreeTimesFailsAndTheRestartServes) {
   const core::Capture capture = Simulate(11, /*extra_poses=*/8);
   absl::StatusOr<std::string> first = OpenSession("robot-busy", pb::PROTOCOL_SIX_FACE);
   ASSERT_TRUE(first.ok()) << first.status();
@@ -807,6 +818,11 @@ TEST_F(CrashTest, AnOrphanedSolveBesideTheDevicesNextOpenSessionDoesNotStopTheRe
   ASSERT_NE(store, nullptr);
   absl::StatusOr<storage::Solve> solve = store->StartSolve(*first, "technician");
   ASSERT_TRUE(solve.ok()) << solve.status();
+  for (int restarted = 0; restarted < 2; ++restarted) {  // two earlier lives of a server ran it
+    absl::StatusOr<std::optional<storage::Solve>> claimed =
+        store->ClaimLapsedSolve(absl::Now(), {"crashed-server", absl::InfinitePast()});
+    ASSERT_TRUE(claimed.ok() && claimed->has_value()) << claimed.status();
+  }
   store.reset();
   absl::StatusOr<std::string> next = OpenSession("robot-busy", pb::PROTOCOL_SIX_FACE);
   ASSERT_TRUE(next.ok()) << next.status();
@@ -820,7 +836,8 @@ TEST_F(CrashTest, AnOrphanedSolveBesideTheDevicesNextOpenSessionDoesNotStopTheRe
   absl::StatusOr<storage::Solve> failed = store->GetSolve(solve->id);
   ASSERT_TRUE(failed.ok()) << failed.status();
   EXPECT_EQ(failed->state, storage::SolveState::kFailed);
-  EXPECT_EQ(failed->error, kOrphanedSolveError);
+  EXPECT_THAT(failed->error, testing::HasSubstr("started 3 times and each time its server stopped"));
+  EXPECT_EQ(failed->attempts, 4);  // the restart's claim counted, and it ran nothing
   store.reset();
   EXPECT_EQ(GetSession(*first).state(), pb::SESSION_STATE_FAILED);
   EXPECT_EQ(GetSession(*next).state(), pb::SESSION_STATE_OPEN);

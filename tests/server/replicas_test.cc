@@ -6,8 +6,13 @@
 //   3. the robots resume on replica 2 from their last durable ack and finish: every sample
 //      acknowledged before the kill is stored, and each session holds its whole capture once, in
 //      order, byte for byte (batches 1..n without a gap or a repeat);
-//   4. the sessions are solved on replica 3 (twice: versions 1 and 2, both active in turn);
-//   5. replica 1 is started again; a rollback to version 1 through it is seen by replica 3's
+//   4. robot 1's session is solved on replica 3, which is SIGKILLed a random moment after it
+//      took the solve: replica 2 claims the solve once its lease (1 s) lapses and runs it again,
+//      and exactly one version is written (when the kill came after the version, there is
+//      nothing to run again: the same checks hold);
+//   5. replica 3 is started again; robot 0's session is solved on it twice: versions 1 and 2,
+//      both active in turn;
+//   6. replica 1 is started again; a rollback to version 1 through it is seen by replica 3's
 //      fetch (whose cache held version 2) through PostgreSQL's notifications.
 // The seed comes from the instance (IMUCAL_CRASH_SEED overrides it); the kill point from it.
 #include <signal.h>
@@ -87,7 +92,8 @@ class ReplicasTest : public ::testing::TestWithParam<uint64_t> {
     db_ = *std::move(db);
     for (int r = 1; r <= 3; ++r) {
       auto replica = ImucaldProcess::StartOnDatabase(
-          db_->url(), {"--replica-id", absl::StrCat("r", r), "--log-level", "warning"});
+          db_->url(), {"--replica-id", absl::StrCat("r", r), "--log-level", "warning",
+                       "--solve-lease", "1s"});
       ASSERT_TRUE(replica.ok()) << "replica " << r << ": " << replica.status();
       replicas_.push_back(*std::move(replica));
     }
@@ -234,7 +240,46 @@ TEST_P(ReplicasTest, AReplicaKilledMidStreamLosesNoAckedSampleAndTheOthersCarryO
     }
   }
 
-  // 4. Solved on replica 3, twice: versions 1 then 2, each active (the capture passes).
+  // 4. Replica 3 takes robot 1's solve and is killed within about one solve's time; replica 2,
+  // the one left, runs it again once the claim lapses.
+  bool solve_run_again = false;
+  {
+    auto stub = pb::SessionService::NewStub(replicas_[2]->NewChannel());
+    pb::SolveSessionRequest req;
+    req.set_session_id(sessions[1]);
+    req.set_seed(seed);
+    pb::SolveJob job;
+    grpc::Status s = Call([&](grpc::ClientContext* c) { return stub->SolveSession(c, req, &job); });
+    ASSERT_TRUE(s.ok()) << s.error_message();
+    std::this_thread::sleep_for(  // the random kill point itself, not a wait for anything
+        std::chrono::microseconds(std::uniform_int_distribution<int>(0, 100'000)(rng)));
+    replicas_[2]->Stop(SIGKILL);
+    auto survivor = pb::SessionService::NewStub(replicas_[1]->NewChannel());
+    ASSERT_TRUE(
+        testing_util::FollowWhileSolving(survivor.get(), sessions[1], std::chrono::seconds(60)))
+        << "the killed replica's solve was not finished by the other";
+    absl::StatusOr<std::unique_ptr<storage::Store>> store = storage::Store::Open(db_->url());
+    ASSERT_TRUE(store.ok()) << store.status();
+    absl::StatusOr<std::vector<storage::Solve>> solves = (*store)->ListSolves(sessions[1]);
+    ASSERT_TRUE(solves.ok()) << solves.status();
+    ASSERT_EQ(solves->size(), 1u);
+    const storage::Solve& solve = solves->front();
+    EXPECT_EQ(absl::StrCat("solve-", solve.id), job.id());
+    ASSERT_EQ(solve.state, storage::SolveState::kSucceeded) << solve.error;
+    EXPECT_EQ(solve.version, 1);
+    EXPECT_EQ(solve.seed, seed);
+    solve_run_again = solve.attempts > 1;
+    EXPECT_EQ(solve.owner, solve_run_again ? "r2" : "r3");
+    EXPECT_EQ(solve.attempts, solve_run_again ? 2 : 1);
+    absl::StatusOr<std::vector<storage::ParamVersion>> versions =
+        (*store)->ListVersions(devices[1]);
+    ASSERT_TRUE(versions.ok()) << versions.status();
+    ASSERT_EQ(versions->size(), 1u) << "the version is written once";
+    EXPECT_EQ(versions->front().session_id, sessions[1]);
+  }
+  ASSERT_TRUE(replicas_[2]->Relaunch().ok());
+
+  // 5. Solved on replica 3, twice: versions 1 then 2, each active (the capture passes).
   for (int expected = 1; expected <= 2; ++expected) {
     const pb::SolveJob job = Solve(*replicas_[2], sessions[0]);
     ASSERT_EQ(job.state(), pb::JOB_STATE_DONE) << job.error();
@@ -243,7 +288,7 @@ TEST_P(ReplicasTest, AReplicaKilledMidStreamLosesNoAckedSampleAndTheOthersCarryO
   }
   ASSERT_EQ(FetchedVersion(*replicas_[2], devices[0]), 2);  // now in replica 3's cache
 
-  // 5. Replica 1 again: its rollback reaches replica 3's fetch.
+  // 6. Replica 1 again: its rollback reaches replica 3's fetch.
   ASSERT_TRUE(replicas_[0]->Relaunch().ok());
   {
     auto stub = pb::ParameterService::NewStub(replicas_[0]->NewChannel());
@@ -264,10 +309,13 @@ TEST_P(ReplicasTest, AReplicaKilledMidStreamLosesNoAckedSampleAndTheOthersCarryO
                                                               rolled_back)
                         .count();
   EXPECT_EQ(seen, 1) << "replica 3 still serves version " << seen << " after the rollback";
-  std::printf("[ replicas ] kill after %lld of %lld acks, %d reconnects, rollback on replica 1 "
-              "seen by replica 3 after %.1f ms\n",
+  std::printf("[ replicas ] kill after %lld of %lld acks, %d reconnects; solve %s; rollback on "
+              "replica 1 seen by replica 3 after %.1f ms\n",
               static_cast<long long>(kill_after), static_cast<long long>(kRobots * batches_each),
-              reconnects, ms);
+              reconnects,
+              solve_run_again ? "killed on replica 3, run again on replica 2"
+                              : "ended on replica 3 before its kill",
+              ms);
 }
 
 // 50 kill points, one ctest entry each.

@@ -23,6 +23,7 @@
 #include "formats/params_json.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "grpcpp/grpcpp.h"
+#include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "server/active_cache.h"
@@ -230,39 +231,55 @@ int OkPairs(const std::vector<v1::SessionEvent>& events) {
   return n;
 }
 
-// A solve left running by a server that was killed: the next server start fails it and
-// reopens its session, so that it can be solved again.
-TEST_F(ServerTest, StartFailsSolvesOrphanedByAStoppedServer) {
+// A solve left running by a server that was killed: the server, started again, runs it again
+// from the stored samples with the seed the request gave (Store::ClaimLapsedSolve), although
+// the lease its previous life took has not lapsed: that life cannot be running it.
+TEST_F(ServerTest, AStartedServerRunsAgainTheSolveItsPreviousLifeLeft) {
+  options_.sessions.replica_id = "replica-a";
+  StartServer();
   Register("robot-1");
+  grpc::Status created;
+  const v1::Session session = Create("robot-1", v1::PROTOCOL_SIX_FACE, &created);
+  ASSERT_TRUE(created.ok()) << created.error_message();
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream(Batches(Sim().capture, session.id()), &acks).ok());
+  server_.reset();  // the kill, as far as storage can tell: the solve below never ends
   auto store = storage::Store::Open(options_.db_path);
   ASSERT_TRUE(store.ok()) << store.status();
-  storage::Session wanted;
-  wanted.device_id = "robot-1";
-  wanted.protocol = "six-face";
-  auto session = (*store)->CreateSession(wanted, "test");
-  ASSERT_TRUE(session.ok()) << session.status();
-  auto solve = (*store)->StartSolve(session->id, "test");
+  auto solve = (*store)->StartSolve(session.id(), "technician",
+                                    {"replica-a", absl::Now() + absl::Hours(1)}, /*seed=*/7);
   ASSERT_TRUE(solve.ok()) << solve.status();
-  ASSERT_EQ(solve->state, storage::SolveState::kRunning);
 
   StartServer();  // the restart, on the same file
+  ASSERT_TRUE(testing_util::FollowWhileSolving(sessions_.get(), session.id(), seconds(60)));
 
   auto after = (*store)->GetSolve(solve->id);
   ASSERT_TRUE(after.ok()) << after.status();
-  EXPECT_EQ(after->state, storage::SolveState::kFailed);
-  EXPECT_EQ(after->error, "the server stopped during this solve; solve the session again");
+  EXPECT_EQ(after->state, storage::SolveState::kSucceeded) << after->error;
+  EXPECT_EQ(after->owner, "replica-a");
+  EXPECT_EQ(after->attempts, 2);
+  EXPECT_EQ(after->version, 1);
+  auto version = (*store)->GetVersion("robot-1", 1);
+  ASSERT_TRUE(version.ok()) << version.status();
+  EXPECT_THAT(version->provenance, testing::HasSubstr("seed 7"));
+  EXPECT_EQ(version->session_id, session.id());
+  EXPECT_EQ(GetSession(session.id()).state(), v1::SESSION_STATE_SOLVED);
   auto running = (*store)->ListRunningSolves();
   ASSERT_TRUE(running.ok()) << running.status();
   EXPECT_TRUE(running->empty());
-  EXPECT_EQ(GetSession(session->id).state(), v1::SESSION_STATE_OPEN);
-  // Open again: it can be solved again (the store accepts a new solve).
-  auto again = (*store)->StartSolve(session->id, "test");
-  EXPECT_TRUE(again.ok()) << again.status();
+  // GetSolveJob knows the job by the id the technician was given.
+  v1::GetSolveJobRequest get;
+  get.set_job_id(absl::StrCat("solve-", solve->id));
+  v1::SolveJob job;
+  ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
+  EXPECT_EQ(job.state(), v1::JOB_STATE_DONE);
+  EXPECT_EQ(job.version(), 1);
 }
 
-// Two servers on one database: a server that starts must not fail the solves another live
-// server is running (it claimed them, with a lease it renews), only those whose claim lapsed;
-// and a server's own solves keep their claim while they wait for a solve thread.
+// Two servers on one database: a server that starts must not take the solves another live
+// server is running (it claimed them, with a lease it renews), only those whose claim lapsed,
+// which it runs again; and a server's own solves keep their claim while they wait for a solve
+// thread.
 TEST_F(ServerTest, AStartingServerLeavesAnotherServersLiveSolvesAlone) {
   options_.sessions.replica_id = "replica-a";
   options_.sessions.solve_threads = 0;  // A's solve stays queued, so running in storage
@@ -301,9 +318,17 @@ TEST_F(ServerTest, AStartingServerLeavesAnotherServersLiveSolvesAlone) {
   EXPECT_EQ(solves->at(0).state, storage::SolveState::kRunning);
   EXPECT_EQ(solves->at(0).owner, "replica-a");
   EXPECT_GT(solves->at(0).lease_until, absl::Now() + absl::Seconds(30));
+  // The dead replica's solve is B's now; its session holds no samples, so B's run of it is
+  // refused and the session reopened to take them.
+  auto b_sessions = v1::SessionService::NewStub(
+      grpc::CreateChannel((*other)->address(), grpc::InsecureChannelCredentials()));
+  ASSERT_TRUE(testing_util::FollowWhileSolving(b_sessions.get(), dead->id, seconds(60)));
   auto ended = (*store)->GetSolve(lapsed->id);
   ASSERT_TRUE(ended.ok()) << ended.status();
+  EXPECT_EQ(ended->owner, "replica-b");
+  EXPECT_EQ(ended->attempts, 2);
   EXPECT_EQ(ended->state, storage::SolveState::kFailed);
+  EXPECT_THAT(ended->error, testing::HasSubstr("cannot support a calibration")) << ended->error;
   EXPECT_EQ(GetSession(dead->id).state(), v1::SESSION_STATE_OPEN);
 }
 

@@ -83,6 +83,23 @@ inline grpc::Status FollowToEnd(v1::SessionService::Stub* stub, const std::strin
   return reader->Finish();
 }
 
+// Follows the session's events until it is no longer solving (a solve another server, or this
+// one after its restart, runs on its own: Store::ClaimLapsedSolve) or the server ends the
+// watch; false when `timeout` passes first. The watch's first event is the session as it is,
+// so a solve that ended before the watch began is seen too, whatever the session's state after.
+inline bool FollowWhileSolving(v1::SessionService::Stub* stub, const std::string& session_id,
+                               std::chrono::seconds timeout) {
+  Watch watch(stub, session_id);
+  return watch.WaitFor(
+      [](const std::vector<v1::SessionEvent>& events, bool ended) {
+        if (ended) return true;
+        for (const v1::SessionEvent& e : events)
+          if (e.has_session() && e.session().state() != v1::SESSION_STATE_SOLVING) return true;
+        return false;
+      },
+      timeout);
+}
+
 inline int AcceptedPoses(const std::vector<v1::SessionEvent>& events) {
   int n = 0;
   for (const auto& e : events) n += e.has_pose() && e.pose().accepted();

@@ -186,8 +186,10 @@ TEST_F(CopyTest, EveryRowArrivesBitForBitAndTheSiteReadsTheSame) {
   }
   ASSERT_OK_AND_ASSIGN(std::vector<Solve> running, b->ListRunningSolves());
   ASSERT_EQ(running.size(), 1u);
-  EXPECT_EQ(running[0].owner, "host-a/10.0.0.1:50051");
+  EXPECT_EQ(running[0].owner, "host-b/10.0.0.2:50051");
   EXPECT_EQ(running[0].lease_until, absl::FromUnixMicros(1800000000000000));
+  EXPECT_EQ(running[0].seed, 0xFEDCBA9876543210ull);
+  EXPECT_EQ(running[0].attempts, 2);
   ASSERT_OK_AND_ASSIGN(std::vector<AuditEntry> audit_a, a->ListAudit());
   ASSERT_OK_AND_ASSIGN(std::vector<AuditEntry> audit_b, b->ListAudit());
   ASSERT_EQ(audit_b.size(), audit_a.size());

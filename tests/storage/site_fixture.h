@@ -12,6 +12,7 @@
 #include <memory>
 #include <ostream>
 #include <set>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -126,9 +127,11 @@ inline const std::vector<DumpTableSpec>& DumpSpecs() {
         {"error", 'T'},
         {"report_json", 'T'},
         {"owner", 'T'},
-        {"lease_until_us", 'I'}},
+        {"lease_until_us", 'I'},
+        {"seed", 'I'},
+        {"attempts", 'I'}},
        "SELECT id, session_id, state, actor, started_at_us, finished_at_us, version, error, "
-       "report_json, owner, lease_until_us FROM solves ORDER BY id"},
+       "report_json, owner, lease_until_us, seed, attempts FROM solves ORDER BY id"},
       {"param_versions",
        {{"device_id", 'T'},
         {"version", 'I'},
@@ -314,10 +317,17 @@ inline absl::StatusOr<Site> PopulateSite(const std::string& path) {
                   .status());
     } else if (id == "S-mid") {  // cancelled
       SITE_OK(store.SetSessionState(id, SessionState::kCancelled, "tech:bob").status());
-    } else if (id == "S-beta") {  // solving: a running solve claimed by a server, leased
-      SolveClaim claim{.owner = "host-a/10.0.0.1:50051",
-                       .lease_until = absl::FromUnixMicros(1800000000000000)};
-      SITE_OK(store.StartSolve(id, "server", claim).status());
+    } else if (id == "S-beta") {  // solving: a running solve, a seed of 64 bits, claimed by a
+                                  // second server after the first one's lease lapsed
+      SolveClaim first{.owner = "host-a/10.0.0.1:50051",
+                       .lease_until = absl::FromUnixMicros(1700000000000000)};
+      SITE_OK(store.StartSolve(id, "server", first, /*seed=*/0xFEDCBA9876543210ull).status());
+      SolveClaim second{.owner = "host-b/10.0.0.2:50051",
+                        .lease_until = absl::FromUnixMicros(1800000000000000)};
+      absl::StatusOr<std::optional<Solve>> claimed =
+          store.ClaimLapsedSolve(absl::FromUnixMicros(1700000000000001), second);
+      if (!claimed.ok()) return claimed.status();
+      if (!claimed->has_value()) return absl::InternalError("S-beta's solve was not claimed");
     }
   }
   // robot-1: v2 candidate, v3 active (supersedes v1), v4 rejected, v5 candidate with no

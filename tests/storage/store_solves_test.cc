@@ -138,7 +138,11 @@ TEST_P(StoreTest, ALapsedSolveIsClaimedOnceAndOnlyItsHolderEndsIt) {
   const absl::Time t0 = absl::FromUnixSeconds(1'800'000'000);
   ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
   ASSERT_OK(store_->CreateSession(MakeSession("robot-1", "S1"), kActor).status());
-  ASSERT_OK_AND_ASSIGN(Solve dead, store_->StartSolve("S1", "server", {"dead", t0}));
+  // A seed of 64 bits: stored as its bits in a signed column, read back whole.
+  constexpr uint64_t kSeed = 0x8000000000000001ull;
+  ASSERT_OK_AND_ASSIGN(Solve dead, store_->StartSolve("S1", "server", {"dead", t0}, kSeed));
+  EXPECT_EQ(dead.seed, kSeed);
+  EXPECT_EQ(dead.attempts, 1);
   ASSERT_OK_AND_ASSIGN(std::unique_ptr<Store> other, Store::Open(path_));
   std::optional<Solve> got_a, got_b;
   std::thread a([&] {
@@ -158,6 +162,9 @@ TEST_P(StoreTest, ALapsedSolveIsClaimedOnceAndOnlyItsHolderEndsIt) {
   EXPECT_EQ(claimed.id, dead.id);
   const std::string holder = got_a ? "a" : "b";
   EXPECT_EQ(claimed.owner, holder);
+  EXPECT_EQ(claimed.attempts, 2);
+  EXPECT_EQ(claimed.seed, kSeed);
+  EXPECT_EQ(claimed.lease_until, t0 + absl::Seconds(31));
   // Nothing else has lapsed; the old owner cannot end it; the holder can.
   ASSERT_OK_AND_ASSIGN(std::optional<Solve> none,
                        store_->ClaimLapsedSolve(t0 + absl::Seconds(1), {"c", t0}));
@@ -168,6 +175,39 @@ TEST_P(StoreTest, ALapsedSolveIsClaimedOnceAndOnlyItsHolderEndsIt) {
             absl::StatusCode::kFailedPrecondition);
   ASSERT_OK(
       store_->FailSolve(dead.id, "done", "", "server", SessionState::kOpen, holder).status());
+}
+
+// A server that starts again gives up the claims of its previous life at once (that life cannot
+// be running them), so they are claimed again without waiting for their leases; another
+// server's live claims are not touched, nor finished solves.
+TEST_P(StoreTest, ARestartedServerReleasesOnlyItsOwnRunningClaims) {
+  const absl::Time t0 = absl::FromUnixSeconds(1'800'000'000);
+  const absl::Time far = t0 + absl::Hours(1);
+  ASSERT_OK(store_->CreateDevice(MakeDevice("robot-1"), kActor).status());
+  ASSERT_OK(store_->CreateDevice(MakeDevice("robot-2"), kActor).status());
+  ASSERT_OK(store_->CreateDevice(MakeDevice("robot-3"), kActor).status());
+  ASSERT_OK(store_->CreateSession(MakeSession("robot-1", "S1"), kActor).status());
+  ASSERT_OK(store_->CreateSession(MakeSession("robot-2", "S2"), kActor).status());
+  ASSERT_OK(store_->CreateSession(MakeSession("robot-3", "S3"), kActor).status());
+  ASSERT_OK_AND_ASSIGN(Solve mine, store_->StartSolve("S1", "server", {"me", far}));
+  ASSERT_OK_AND_ASSIGN(Solve theirs, store_->StartSolve("S2", "server", {"them", far}));
+  ASSERT_OK_AND_ASSIGN(Solve ended, store_->StartSolve("S3", "server", {"me", far}));
+  ASSERT_OK(store_->FailSolve(ended.id, "x", "", "server", SessionState::kOpen, "me").status());
+
+  ASSERT_OK_AND_ASSIGN(int released, store_->ReleaseSolveClaims("me"));
+  EXPECT_EQ(released, 1);
+  ASSERT_OK_AND_ASSIGN(std::optional<Solve> claimed,
+                       store_->ClaimLapsedSolve(t0, {"me", t0 + absl::Seconds(30)}));
+  ASSERT_TRUE(claimed.has_value());
+  EXPECT_EQ(claimed->id, mine.id);
+  EXPECT_EQ(claimed->attempts, 2);
+  ASSERT_OK_AND_ASSIGN(std::optional<Solve> none,
+                       store_->ClaimLapsedSolve(t0, {"me", t0 + absl::Seconds(30)}));
+  EXPECT_FALSE(none.has_value()) << "solve " << none->id << " of " << none->owner;
+  ASSERT_OK_AND_ASSIGN(Solve still, store_->GetSolve(theirs.id));
+  EXPECT_EQ(still.owner, "them");
+  EXPECT_EQ(still.lease_until, far);
+  EXPECT_EQ(store_->ReleaseSolveClaims("").status().code(), absl::StatusCode::kInvalidArgument);
 }
 
 }  // namespace
