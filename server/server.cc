@@ -155,17 +155,10 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   // every server of each commit as it happens (LISTEN/NOTIFY); on SQLite each server reads the
   // audit log every active_cache_sync (SQLite's commits are serial, so its ids follow commit
   // order; PostgreSQL's do not, which is why it is not polled).
+  // (PostgreSQL: the listener starts below, once the session service that it also tells exists,
+  // still before the server takes its first call.)
   absl::Duration cache_sync = options.active_cache_sync;
   if (s->store_->dialect() == storage::Dialect::kPostgres) {
-    ActiveParamCache* c = s->active_cache_.get();
-    absl::Status listening = s->store_->ListenForActiveChanges(
-        [c](std::string_view device_id) { c->Invalidate(device_id); },
-        [c] {
-          c->Clear();
-          Log(LogLevel::kWarning, "active_cache_gap",
-              {{"note", "the database's change notifications were interrupted: cache emptied"}});
-        });
-    if (!listening.ok()) return listening;
     cache_sync = absl::ZeroDuration();
   } else {
     absl::StatusOr<storage::Store::ActiveChanges> synced = s->store_->ActiveChangesSince(-1);
@@ -196,6 +189,27 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->sessions_ =
       std::make_unique<SessionServiceImpl>(s->store_.get(), sessions, s->auth_.get());
   if (s->metrics_ != nullptr) s->sessions_->SetMetrics(s->metrics_.get());
+  if (s->store_->dialect() == storage::Dialect::kPostgres) {
+    // Other replicas' commits: promotes and rollbacks empty the fetch cache's entry; a batch or
+    // a state change of a session that someone watches here is told to its watchers.
+    ActiveParamCache* c = s->active_cache_.get();
+    SessionServiceImpl* live = s->sessions_.get();
+    storage::Store::ChangeHandlers handlers;
+    handlers.on_active = [c](std::string_view device_id) { c->Invalidate(device_id); };
+    handlers.on_session = [live](std::string_view session_id) {
+      live->SessionChangedElsewhere(session_id);
+    };
+    handlers.on_gap = [c, live] {
+      c->Clear();
+      live->RefreshWatchedSessions();
+      Log(LogLevel::kWarning, "change_notifications_gap",
+          {{"note", "the database's change notifications were interrupted: fetch cache emptied, "
+                    "watched sessions read again"}});
+    };
+    if (absl::Status listening = s->store_->ListenForChanges(std::move(handlers));
+        !listening.ok())
+      return listening;
+  }
   // A revoked token's open streams and watches end at once, not at their next message.
   s->auth_->SetRevocationListener(
       [sessions = s->sessions_.get()](int64_t id, const std::string& why) {
@@ -292,7 +306,11 @@ void Server::RenewLeases(const std::string& replica_id, absl::Duration lease) {
   }
 }
 
-Server::~Server() { Shutdown(); }
+Server::~Server() {
+  // Before anything the notifications reach (the session service) goes.
+  if (store_ != nullptr) store_->StopListening();
+  Shutdown();
+}
 
 size_t Server::live_sessions() const { return sessions_->live_sessions(); }
 size_t Server::open_streams() const { return sessions_->open_streams(); }

@@ -226,6 +226,16 @@ class SessionServiceImpl final : public SessionServiceBase {
   // it at start and with every lease renewal.
   absl::StatusOr<int> ResumeLapsedSolves(std::string_view restarted = "");
 
+  // Another server sharing the database stored a batch of the session or changed its state
+  // (Store::ListenForChanges; called on the listener's thread, so quick). When the session is
+  // watched here, it is read again off that thread, and its watchers get what changed: the
+  // poses and pairs of the new batches, the session's new state and its solve's job, and the
+  // end of the watch when the session closed. Watchers on any replica follow a session whose
+  // robot streams, or whose solve runs, on another.
+  void SessionChangedElsewhere(std::string_view session_id);
+  // Every watched session, read again: change notifications may have been missed.
+  void RefreshWatchedSessions();
+
   // Stops taking solves and finishes the queued ones (graceful shutdown, after the server's).
   void DrainSolves() {
     loaders_.Shutdown();
@@ -252,6 +262,9 @@ class SessionServiceImpl final : public SessionServiceBase {
   absl::Status DoCancel(const std::string& actor, const std::shared_ptr<LiveSession>& live,
                         v1::Session* response);
   absl::Status DoGetSolveJob(const v1::GetSolveJobRequest& request, v1::SolveJob* response);
+  // A solve as GetSolveJob reports it, from storage.
+  absl::Status JobFromStore(const storage::Solve& solve, v1::SolveJob* job);
+  void Refresh(const std::shared_ptr<LiveSession>& live);  // SessionChangedElsewhere's work
   absl::Status DoGetReport(const v1::GetReportRequest& request, v1::Report* response);
   absl::Status DoListPoses(const v1::ListPosesRequest& request, v1::ListPosesResponse* response);
   // Announces the job queued (to GetSolveJob and the session's watchers) and submits it on a

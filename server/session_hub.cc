@@ -275,6 +275,21 @@ void SessionHub::RemoveWatcher(LiveSession& session, Watcher* watcher) {
   std::erase(session.watchers, watcher);
 }
 
+std::vector<std::shared_ptr<LiveSession>> SessionHub::WatchedSessions() {
+  std::vector<std::shared_ptr<LiveSession>> all;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& [id, live] : sessions_) all.push_back(live);
+  }
+  std::erase_if(all, [](const std::shared_ptr<LiveSession>& live) { return !Watched(*live); });
+  return all;
+}
+
+bool SessionHub::Watched(LiveSession& session) {
+  std::lock_guard lock(session.watchers_mu);
+  return !session.watchers.empty();
+}
+
 void SessionHub::CloseSession(LiveSession& session) {
   // Forgotten before the watchers' streams end: a client that sees its watch end finds the
   // session no longer live (a read then answers from storage, which the caller has already

@@ -16,6 +16,7 @@
 #define IMUCAL_SERVER_SESSION_HUB_H_
 
 #include <cstdint>
+#include <atomic>
 #include <deque>
 #include <future>
 #include <limits>
@@ -73,6 +74,12 @@ struct LiveSession {
   static constexpr size_t kProofHistory = 64;  // far more than a client keeps in flight (8)
   std::deque<Proof> proofs;
 
+  // What watchers here were last told of the session's state by a refresh after another
+  // server's change (SessionServiceImpl::Refresh; 0: nothing yet).
+  int refreshed_state = 0;
+  // A refresh is queued and has not begun: more notifications need no other.
+  std::atomic<bool> refresh_pending{false};
+
   std::mutex watchers_mu;
   std::vector<Watcher*> watchers;  // guarded by watchers_mu
   bool closed = false;             // guarded by watchers_mu: watchers added now end at once
@@ -126,6 +133,9 @@ class SessionHub {
   // Sessions whose live state is in memory: the open ones touched since the start, and those
   // being solved. Closed sessions are forgotten when they close and are never loaded to be read.
   size_t LiveSessions();
+  // Live sessions with at least one watcher.
+  std::vector<std::shared_ptr<LiveSession>> WatchedSessions();
+  static bool Watched(LiveSession& session);
 
   // Brings `live` (its mu held) up to the batches stored since it was last fed: another server
   // sharing the database took the session's stream meanwhile (its robot was sent there) and

@@ -663,27 +663,84 @@ absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& req
       return absl::OkStatus();
     }
   }
-  // A job of an earlier server run: from storage.
+  // A job of an earlier server run, or of another server's: from storage.
   absl::StatusOr<storage::Solve> solve = store_->GetSolve(solve_id);
   if (!solve.ok()) return solve.status();
-  response->set_id(request.job_id());
-  response->set_session_id(solve->session_id);
-  response->set_state(ToJobState(solve->state));
-  response->set_error(ScrubMessage(solve->error));
-  response->set_version(solve->version);
-  if (solve->version > 0) {
-    absl::StatusOr<storage::Session> session = store_->GetSession(solve->session_id);
+  return JobFromStore(*solve, response);
+}
+
+absl::Status SessionServiceImpl::JobFromStore(const storage::Solve& solve, v1::SolveJob* job) {
+  job->set_id(absl::StrCat(kJobPrefix, solve.id));
+  job->set_session_id(solve.session_id);
+  job->set_state(ToJobState(solve.state));
+  job->set_error(ScrubMessage(solve.error));
+  job->set_version(solve.version);
+  if (solve.version > 0) {
+    absl::StatusOr<storage::Session> session = store_->GetSession(solve.session_id);
     if (!session.ok()) return session.status();
-    absl::StatusOr<storage::ParamVersion> v =
-        store_->GetVersion(session->device_id, solve->version);
+    absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, solve.version);
     if (!v.ok()) return v.status();
-    response->set_verdict(std::string(storage::VerdictName(v->verdict)));
-    response->set_activated(v->state != storage::VersionState::kCandidate);
-  } else if (solve->state == storage::SolveState::kFailed && !solve->report_json.empty()) {
+    job->set_verdict(std::string(storage::VerdictName(v->verdict)));
+    job->set_activated(v->state != storage::VersionState::kCandidate);
+  } else if (solve.state == storage::SolveState::kFailed && !solve.report_json.empty()) {
     // Only a refusal keeps a report with a failed solve (RunSolve).
-    response->set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
+    job->set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
   }
   return absl::OkStatus();
+}
+
+void SessionServiceImpl::SessionChangedElsewhere(std::string_view session_id) {
+  std::shared_ptr<LiveSession> live = hub_.Find(session_id);
+  if (live == nullptr || !SessionHub::Watched(*live)) return;  // nobody here to tell
+  if (live->refresh_pending.exchange(true)) return;              // one is queued already
+  if (!Defer([this, live] { Refresh(live); })) {
+    live->refresh_pending = false;
+    Log(LogLevel::kWarning, "session_refresh_dropped",
+        {{"session", live->id}, {"note", "the session loaders are full"}});
+  }
+}
+
+void SessionServiceImpl::RefreshWatchedSessions() {
+  for (const std::shared_ptr<LiveSession>& live : hub_.WatchedSessions())
+    SessionChangedElsewhere(live->id);
+}
+
+void SessionServiceImpl::Refresh(const std::shared_ptr<LiveSession>& live) {
+  live->refresh_pending = false;  // a change from now on queues another refresh
+  std::vector<v1::SessionEvent> events;
+  {
+    std::lock_guard lock(live->mu);
+    absl::StatusOr<std::vector<v1::SessionEvent>> caught_up = hub_.CatchUpLocked(*live);
+    if (!caught_up.ok()) {
+      Log(LogLevel::kWarning, "session_refresh",
+          {{"session", live->id}, {"error", std::string(caught_up.status().message())}});
+      return;
+    }
+    events = *std::move(caught_up);
+  }
+  for (const v1::SessionEvent& e : events) hub_.Publish(*live, e);
+  absl::StatusOr<v1::Session> session = SessionProto(live->id);
+  if (!session.ok()) return;
+  const v1::SessionState state = session->state();
+  {
+    std::lock_guard lock(live->mu);
+    if (live->refreshed_state == state) return;
+    live->refreshed_state = state;
+  }
+  if (state != v1::SESSION_STATE_OPEN) {  // a solve began or ended there: its job
+    absl::StatusOr<std::vector<storage::Solve>> solves = store_->ListSolves(live->id);
+    v1::SolveJob job;
+    if (solves.ok() && !solves->empty() && JobFromStore(solves->back(), &job).ok()) {
+      v1::SessionEvent e = Stamped();
+      *e.mutable_solve() = job;
+      hub_.Publish(*live, e);
+    }
+  }
+  v1::SessionEvent e = Stamped();
+  *e.mutable_session() = *std::move(session);
+  hub_.Publish(*live, e);
+  if (state != v1::SESSION_STATE_OPEN && state != v1::SESSION_STATE_SOLVING)
+    hub_.CloseSession(*live);  // solved, failed or cancelled there: the watch ends, as here
 }
 
 grpc::ServerUnaryReactor* SessionServiceImpl::GetSolveJob(grpc::CallbackServerContext* context,

@@ -127,6 +127,10 @@ struct ConnectionOptions {
   // How long a statement waits for another writer's lock before Unavailable (SQLite
   // busy_timeout, PostgreSQL lock_timeout).
   absl::Duration busy_timeout = absl::Seconds(5);
+  // PostgreSQL: the name of the Store that owns the connection, set as imucal.origin and sent
+  // with the session notifications it commits (store.h ListenForChanges), so that a listener
+  // can tell its own from other servers'. Letters and digits only.
+  std::string origin;
 };
 
 class Connection {

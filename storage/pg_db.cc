@@ -14,6 +14,7 @@
 #include <cstring>
 #include <limits>
 #include <type_traits>
+#include <cctype>
 #include <vector>
 
 #include "util/str_util.h"
@@ -308,6 +309,15 @@ absl::StatusOr<std::unique_ptr<PgConnection>> PgConnection::Open(
       "SET lock_timeout = '", absl::ToInt64Milliseconds(options.busy_timeout),
       "ms'; SET synchronous_commit = on; SET client_min_messages = warning; SET TIME ZONE 'UTC';");
   if (options.read_only) settings += " SET default_transaction_read_only = on;";
+  if (!options.origin.empty()) {
+    for (char c : options.origin) {
+      if (!std::isalnum(static_cast<unsigned char>(c))) {
+        PQfinish(pg);
+        return absl::InvalidArgumentError("origin: letters and digits only");
+      }
+    }
+    settings += Cat(" SET imucal.origin = '", options.origin, "';");
+  }
   std::unique_ptr<PgConnection> conn(new PgConnection(pg, std::move(settings)));
   if (absl::Status s = conn->ApplySettings(); !s.ok()) return s;
   return conn;
@@ -384,12 +394,13 @@ absl::StatusOr<std::unique_ptr<Statement>> PgConnection::NewStatement(std::strin
 
 // ---- PgListener ------------------------------------------------------------------------------
 
-absl::StatusOr<std::unique_ptr<PgListener>> PgListener::Start(
-    const std::string& url, const std::string& channel,
-    std::function<void(std::string_view payload)> on_notify, std::function<void()> on_gap) {
+absl::StatusOr<std::unique_ptr<PgListener>> PgListener::Start(const std::string& url,
+                                                             std::vector<std::string> channels,
+                                                             OnNotify on_notify,
+                                                             std::function<void()> on_gap) {
   std::unique_ptr<PgListener> l(new PgListener());
   l->url_ = url;
-  l->channel_ = channel;
+  l->channels_ = std::move(channels);
   l->on_notify_ = std::move(on_notify);
   l->on_gap_ = std::move(on_gap);
   l->wake_fd_ = ::eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
@@ -419,10 +430,13 @@ absl::Status PgListener::Connect() {
     return absl::UnavailableError(Cat("listen: cannot connect to ", RedactedLocation(url_), ": ",
                                       StripTrailingNewline(conn_ ? PQerrorMessage(conn_) : "")));
   }
-  char* quoted = PQescapeIdentifier(conn_, channel_.c_str(), channel_.size());
-  if (quoted == nullptr) return absl::InternalError("listen: cannot quote the channel name");
-  const std::string sql = Cat("LISTEN ", quoted);
-  PQfreemem(quoted);
+  std::string sql;
+  for (const std::string& channel : channels_) {
+    char* quoted = PQescapeIdentifier(conn_, channel.c_str(), channel.size());
+    if (quoted == nullptr) return absl::InternalError("listen: cannot quote the channel name");
+    sql += Cat("LISTEN ", quoted, ";");
+    PQfreemem(quoted);
+  }
   Result r(PQexec(conn_, sql.c_str()));
   if (r == nullptr || PQresultStatus(r.get()) != PGRES_COMMAND_OK) {
     return absl::UnavailableError(
@@ -452,7 +466,8 @@ void PgListener::Run() {
       continue;
     }
     while (PGnotify* n = PQnotifies(conn_)) {
-      on_notify_(n->extra != nullptr ? std::string_view(n->extra) : std::string_view());
+      on_notify_(n->relname != nullptr ? std::string_view(n->relname) : std::string_view(),
+                 n->extra != nullptr ? std::string_view(n->extra) : std::string_view());
       PQfreemem(n);
     }
   }

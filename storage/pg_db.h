@@ -27,6 +27,7 @@
 #include <string>
 #include <string_view>
 #include <thread>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -89,16 +90,19 @@ class PgConnection final : public Connection {
   int next_statement_ = 0;
 };
 
-// LISTEN on one channel, on a connection of its own, in a thread of its own. `on_notify` gets
-// each notification's payload as it arrives (PostgreSQL delivers a NOTIFY when its transaction
-// commits, to every listening session, in commit order). `on_gap` is called when notifications
-// may have been missed: when the connection breaks, and again once listening has resumed (it
-// reconnects every second until it can). Both run on the listener's thread and must be quick.
+// LISTEN on some channels, on a connection of its own, in a thread of its own. `on_notify` gets
+// each notification's channel and payload as it arrives (PostgreSQL delivers a NOTIFY when its
+// transaction commits, to every listening session, in commit order). `on_gap` is called when
+// notifications may have been missed: when the connection breaks, and again once listening has
+// resumed (it reconnects every second until it can). Both run on the listener's thread and must
+// be quick.
 class PgListener {
  public:
-  static absl::StatusOr<std::unique_ptr<PgListener>> Start(
-      const std::string& url, const std::string& channel,
-      std::function<void(std::string_view payload)> on_notify, std::function<void()> on_gap);
+  using OnNotify = std::function<void(std::string_view channel, std::string_view payload)>;
+  static absl::StatusOr<std::unique_ptr<PgListener>> Start(const std::string& url,
+                                                           std::vector<std::string> channels,
+                                                           OnNotify on_notify,
+                                                           std::function<void()> on_gap);
   ~PgListener();  // stops listening; joins the thread
   PgListener(const PgListener&) = delete;
   PgListener& operator=(const PgListener&) = delete;
@@ -108,8 +112,9 @@ class PgListener {
   void Run();
   absl::Status Connect();
 
-  std::string url_, channel_;
-  std::function<void(std::string_view)> on_notify_;
+  std::string url_;
+  std::vector<std::string> channels_;
+  OnNotify on_notify_;
   std::function<void()> on_gap_;
   PGconn* conn_ = nullptr;  // the listener thread's once started
   int wake_fd_ = -1;        // an eventfd: the destructor's "stop now"

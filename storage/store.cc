@@ -8,6 +8,7 @@
 #include <thread>
 #include <utility>
 
+#include "absl/strings/str_cat.h"
 #include "storage/migrations.h"
 #include "storage/db.h"
 #include "storage/pg_db.h"
@@ -85,44 +86,73 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
   return store;
 }
 
+namespace {
+
+// A store's name in the session notifications it sends: random, so that two stores (two
+// servers, or a server and a tool) never share one.
+std::string RandomOrigin() {
+  std::random_device device;
+  std::mt19937_64 rng((uint64_t{device()} << 32) ^ device());
+  return absl::StrCat("s", absl::Hex(rng(), absl::kZeroPad16));
+}
+
+}  // namespace
+
 absl::StatusOr<std::unique_ptr<Store>> Store::OpenPostgres(const std::string& url,
                                                            StoreOptions options) {
   // PostgreSQL keeps its own write-ahead log and checkpoints: no checkpointer. Commits are
   // synchronous whatever options.durability says (pg_db.h).
+  // A connection's error names the URL already ("cannot connect to URL: ..."): "open" only.
   const std::string op = Cat("open ", RedactedLocation(url));
   ConnectionOptions conn_options;
   conn_options.busy_timeout = options.busy_timeout;
+  conn_options.origin = RandomOrigin();
   STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> writer,
-                           Annotate(op, PgConnection::Open(url, conn_options)));
+                           Annotate("open", PgConnection::Open(url, conn_options)));
   STORAGE_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
   std::vector<std::unique_ptr<Connection>> readers;
   conn_options.read_only = true;
   for (int i = 0; i < options.read_connections; ++i) {
     STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> reader,
-                             Annotate(op, PgConnection::Open(url, conn_options)));
+                             Annotate("open", PgConnection::Open(url, conn_options)));
     readers.push_back(std::move(reader));
   }
   std::unique_ptr<Store> store(
       new Store(std::move(options), std::move(writer), nullptr, std::move(readers)));
   store->location_ = url;
+  store->origin_ = conn_options.origin;
   return store;
 }
 
-absl::Status Store::ListenForActiveChanges(std::function<void(std::string_view)> on_change,
-                                           std::function<void()> on_gap) {
+absl::Status Store::ListenForChanges(ChangeHandlers handlers) {
   if (dialect() != Dialect::kPostgres) {
     return absl::FailedPreconditionError(
-        "ListenForActiveChanges: only on PostgreSQL (SQLite: ActiveChangesSince)");
+        "ListenForChanges: only on PostgreSQL (SQLite: ActiveChangesSince)");
   }
   if (listener_ != nullptr) {
-    return absl::FailedPreconditionError("ListenForActiveChanges: already listening");
+    return absl::FailedPreconditionError("ListenForChanges: already listening");
   }
-  absl::StatusOr<std::unique_ptr<PgListener>> listener =
-      PgListener::Start(location_, "imucal_active", std::move(on_change), std::move(on_gap));
+  absl::StatusOr<std::unique_ptr<PgListener>> listener = PgListener::Start(
+      location_, {kActiveChannel, kSessionChannel},
+      [h = handlers, origin = origin_](std::string_view channel, std::string_view payload) {
+        if (channel == kActiveChannel) {
+          if (h.on_active) h.on_active(payload);
+          return;
+        }
+        // "<origin> <session id>": this store's own commits are not news to it.
+        const size_t space = payload.find(' ');
+        if (space == std::string_view::npos || payload.substr(0, space) == origin) return;
+        if (h.on_session) h.on_session(payload.substr(space + 1));
+      },
+      [h = handlers] {
+        if (h.on_gap) h.on_gap();
+      });
   if (!listener.ok()) return listener.status();
   listener_ = *std::move(listener);
   return absl::OkStatus();
 }
+
+void Store::StopListening() { listener_.reset(); }
 
 Dialect Store::dialect() const { return writer_->dialect(); }
 

@@ -280,14 +280,23 @@ class Store {
     int64_t last_id = 0;
   };
   absl::StatusOr<ActiveChanges> ActiveChangesSince(int64_t after_id);
-  // PostgreSQL only: tells `on_change` of every commit, by any server sharing the database
-  // (this one included), that changes a device's active version, as it commits (LISTEN/NOTIFY
-  // on channel imucal_active, on a connection of its own). `on_gap` runs when some may have
-  // been missed (the listening connection broke: once when it does, once when listening
-  // resumes); drop everything cached then. Both run on the listener's thread and must be quick.
-  // Once per store; FailedPrecondition on SQLite (use ActiveChangesSince there).
-  absl::Status ListenForActiveChanges(std::function<void(std::string_view device_id)> on_change,
-                                      std::function<void()> on_gap);
+  // PostgreSQL only: what other servers sharing the database commit, as it commits
+  // (LISTEN/NOTIFY, on a connection of its own):
+  //   on_active: a device's active version changed (any store's commit, this one's included;
+  //     channel imucal_active, payload the device id);
+  //   on_session: another store stored a batch of a session or changed its state (channel
+  //     imucal_session, payload "<origin> <session id>"; this store's own are left out);
+  //   on_gap: some may have been missed (the listening connection broke: once when it does,
+  //     once when listening resumes); drop everything cached then.
+  // All run on the listener's thread and must be quick. Once per store; FailedPrecondition on
+  // SQLite (use ActiveChangesSince there).
+  struct ChangeHandlers {
+    std::function<void(std::string_view device_id)> on_active;
+    std::function<void(std::string_view session_id)> on_session;
+    std::function<void()> on_gap;
+  };
+  absl::Status ListenForChanges(ChangeHandlers handlers);
+  void StopListening();  // no handler runs once it returns
 
  private:
   class ReadLease;
@@ -333,6 +342,7 @@ class Store {
   std::vector<Connection*> free_readers_;  // guarded by readers_mu_
 
   std::string location_;  // the file or URL it was opened on
+  std::string origin_;    // PostgreSQL: its name in the notifications it sends (ConnectionOptions)
   // Declared last: stops (and stops calling back) before anything else goes.
   std::unique_ptr<PgListener> listener_;
 };

@@ -115,6 +115,14 @@ std::invoke_result_t<F, Connection&> InTransaction(
 // store_devices.cc. NotFound naming the device.
 absl::StatusOr<Device> LoadDevice(Connection& conn, std::string_view id);
 
+// PostgreSQL's notification channels (Store::ListenForChanges).
+inline constexpr char kActiveChannel[] = "imucal_active";
+inline constexpr char kSessionChannel[] = "imucal_session";
+// PostgreSQL: tells the other servers' listeners that the session changed, when (and if) the
+// transaction commits; payload "<origin> <session id>" (ConnectionOptions::origin). Nothing on
+// SQLite. Several in one transaction arrive as one.
+absl::Status AnnounceSession(Connection& conn, std::string_view session_id);
+
 // store_sessions.cc. NotFound naming the session.
 absl::StatusOr<Session> LoadSession(Connection& conn, std::string_view id);
 absl::Status CheckSessionExists(Connection& conn, std::string_view id);

@@ -30,6 +30,12 @@ constexpr char kSelectBatchPayload[] =
 constexpr char kInsertBatch[] =
     "INSERT INTO sample_batches (session_id, seq, first_t_s, last_t_s, count, end_sample, "
     "payload) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)";
+// PostgreSQL: the same, announcing the session to the other servers (AnnounceSession) in the
+// same round trip; every batch is one, and ingest is bound by round trips there.
+constexpr char kInsertBatchAnnounced[] =
+    "INSERT INTO sample_batches (session_id, seq, first_t_s, last_t_s, count, end_sample, "
+    "payload) SELECT ?1, ?2, ?3, ?4, ?5, ?6, ?7 FROM (SELECT pg_notify('imucal_session', "
+    "current_setting('imucal.origin', true) || ' ' || ?1)) AS announced";
 constexpr char kSelectBatches[] =
     "SELECT seq, first_t_s, last_t_s, count, payload FROM sample_batches "
     "WHERE session_id = ?1 AND seq > ?2 ORDER BY seq";
@@ -123,8 +129,9 @@ absl::StatusOr<BatchAck> AppendOne(Connection& conn, std::string_view session_id
             ", not after the last sample of batch ", last.seq, " (t_s ", last.last_t_s, ")"));
   }
   const BatchAck ack{seq, last.end_sample + info.count};
-  STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertBatch, session_id, seq, info.first_t_s,
-                                       info.last_t_s, info.count, ack.samples, SqlBlob{payload}));
+  STORAGE_RETURN_IF_ERROR(RunStatement(
+      conn, conn.dialect() == Dialect::kPostgres ? kInsertBatchAnnounced : kInsertBatch, session_id,
+      seq, info.first_t_s, info.last_t_s, info.count, ack.samples, SqlBlob{payload}));
   return ack;
 }
 

@@ -31,6 +31,8 @@ namespace {
   "(SELECT COUNT(*) FROM poses p WHERE p.session_id = s.id AND p.used = 1), "        \
   "COALESCE((SELECT v.version FROM solves v WHERE v.session_id = s.id "              \
   "AND v.state = 'succeeded' ORDER BY v.id DESC LIMIT 1), 0), s.source "
+constexpr char kAnnounceSession[] =
+    "SELECT pg_notify('imucal_session', current_setting('imucal.origin', true) || ' ' || ?1)";
 constexpr char kSelectSession[] = IMUCAL_SELECT_SESSION_COLUMNS "FROM sessions s WHERE s.id = ?1";
 // Lists page by rowid (creation order): ?3 is the rowid of the previous page's last session.
 constexpr char kSelectSessionsOfDevice[] = IMUCAL_SELECT_SESSION_COLUMNS
@@ -132,6 +134,11 @@ absl::Status CheckSessionExists(Connection& conn, std::string_view id) {
   return absl::OkStatus();
 }
 
+absl::Status AnnounceSession(Connection& conn, std::string_view session_id) {
+  if (conn.dialect() != Dialect::kPostgres) return absl::OkStatus();
+  return RunStatement(conn, kAnnounceSession, session_id);
+}
+
 absl::Status ChangeSessionState(Connection& conn, const Session& session, SessionState to,
                                 std::string_view actor, absl::Time now) {
   if (!TransitionAllowed(session.state, to)) {
@@ -149,6 +156,7 @@ absl::Status ChangeSessionState(Connection& conn, const Session& session, Sessio
   }
   STORAGE_RETURN_IF_ERROR(
       RunStatement(conn, kUpdateSessionState, session.id, SessionStateName(to), Micros(now)));
+  STORAGE_RETURN_IF_ERROR(AnnounceSession(conn, session.id));
   return InsertAudit(conn, now, actor, "session.state", SessionTarget(session.id),
                      Cat(SessionStateName(session.state), " -> ", SessionStateName(to)));
 }

@@ -321,5 +321,56 @@ TEST_P(ReplicasTest, AReplicaKilledMidStreamLosesNoAckedSampleAndTheOthersCarryO
 // 50 kill points, one ctest entry each.
 INSTANTIATE_TEST_SUITE_P(Seeds, ReplicasTest, ::testing::Range(uint64_t{1}, uint64_t{51}));
 
+// A technician's watch on one replica while the robot streams through another and the solve
+// runs on a third: the watch gets the poses as the other replica stores them, then the solve's
+// job and the solved session, and ends as a watch on the solving replica would.
+using WatchAcrossReplicasTest = ReplicasTest;
+
+TEST_P(WatchAcrossReplicasTest, AWatchFollowsAStreamAndASolveThatRunElsewhere) {
+  core::SimOptions sim;
+  sim.seed = GetParam();
+  absl::StatusOr<core::SimResult> simulated = core::Simulate(sim);
+  ASSERT_TRUE(simulated.ok()) << simulated.status();
+  const std::string session = OpenSession("robot-0");
+  auto streaming = pb::SessionService::NewStub(replicas_[0]->NewChannel());
+  auto watching = pb::SessionService::NewStub(replicas_[1]->NewChannel());
+  testing_util::Watch local(streaming.get(), session);  // where the robot streams
+  testing_util::Watch remote(watching.get(), session);  // another replica
+  // Both watches have begun (their first event is the session as it is) before any sample.
+  auto began = [](const std::vector<pb::SessionEvent>& events, bool ended) {
+    return ended || !events.empty();
+  };
+  ASSERT_TRUE(local.WaitFor(began));
+  ASSERT_TRUE(remote.WaitFor(began));
+
+  sdk::UploadOptions o;
+  o.batch_samples = kBatchSamples;
+  ASSERT_TRUE(sdk::Uploader(replicas_[0]->NewChannel(), o).Upload(session, simulated->capture).ok());
+  const int poses = testing_util::AcceptedPoses(local.events());
+  ASSERT_GE(poses, 6) << "the capture's poses, as the streaming replica saw them";
+  EXPECT_TRUE(remote.WaitFor([&](const std::vector<pb::SessionEvent>& events, bool) {
+    return testing_util::AcceptedPoses(events) >= poses;
+  })) << "the other replica's watch saw " << testing_util::AcceptedPoses(remote.events())
+      << " of " << poses << " poses";
+  EXPECT_EQ(testing_util::AcceptedPoses(remote.events()), poses) << "each pose once";
+
+  const pb::SolveJob job = Solve(*replicas_[2], session);
+  ASSERT_EQ(job.state(), pb::JOB_STATE_DONE) << job.error();
+  ASSERT_TRUE(remote.WaitFor([](const std::vector<pb::SessionEvent>&, bool ended) {
+    return ended;
+  })) << "the watch did not end when the session was solved elsewhere";
+  EXPECT_TRUE(remote.status().ok()) << remote.status().error_message();
+  bool saw_done = false, saw_solved = false;
+  for (const pb::SessionEvent& e : remote.events()) {
+    saw_done |= e.has_solve() && e.solve().id() == job.id() &&
+                e.solve().state() == pb::JOB_STATE_DONE && e.solve().version() == job.version();
+    saw_solved |= e.has_session() && e.session().state() == pb::SESSION_STATE_SOLVED;
+  }
+  EXPECT_TRUE(saw_done) << "the solve's job, done, with its version";
+  EXPECT_TRUE(saw_solved) << "the session, solved";
+}
+
+INSTANTIATE_TEST_SUITE_P(Seed, WatchAcrossReplicasTest, ::testing::Values(uint64_t{7}));
+
 }  // namespace
 }  // namespace imucal::server
