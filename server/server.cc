@@ -218,6 +218,14 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->parameters_ = std::make_unique<ParameterServiceImpl>(s->store_.get(), s->active_cache_.get(),
                                                           s->auth_.get());
 
+  // Solves this server was running when it stopped (killed, crashed), and those of servers
+  // sharing the database whose claim has lapsed, are queued to run again before the first call
+  // is taken: a client that finds the server up finds them claimed (or, out of attempts, failed).
+  absl::StatusOr<int> resumed = s->sessions_->ResumeLapsedSolves(sessions.replica_id);
+  if (!resumed.ok()) return resumed.status();
+  if (*resumed > 0)
+    Log(LogLevel::kInfo, "solves_resumed", {{"replica_id", sessions.replica_id}, {"solves", *resumed}});
+
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
@@ -244,12 +252,6 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   if (s->server_ == nullptr || s->port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
   }
-  // Solves this server was running when it stopped (killed, crashed), and those of servers
-  // sharing the database whose claim has lapsed, are run again now.
-  absl::StatusOr<int> resumed = s->sessions_->ResumeLapsedSolves(sessions.replica_id);
-  if (!resumed.ok()) return resumed.status();
-  if (*resumed > 0)
-    Log(LogLevel::kInfo, "solves_resumed", {{"replica_id", sessions.replica_id}, {"solves", *resumed}});
   s->background_ = std::thread([server = s.get(), id = sessions.replica_id,
                                 lease = sessions.solve_lease, sync = cache_sync] {
     server->Background(id, lease, sync);

@@ -475,7 +475,10 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SessionEvent>,
       End(ToGrpcStatus(snapshot.status()));
       return;
     }
-    if (snapshot->state() != v1::SESSION_STATE_OPEN) {  // closed: what it was, then the end
+    // Closed: what it was, then the end. A solving session is followed to its solve's end,
+    // wherever that runs (this server, or another one sharing the database: ListenForChanges).
+    if (snapshot->state() != v1::SESSION_STATE_OPEN &&
+        snapshot->state() != v1::SESSION_STATE_SOLVING) {
       std::lock_guard lock(mu_);
       queue_.push_back(SnapshotEvent(*std::move(snapshot)));
       closing_ = true;

@@ -36,7 +36,6 @@
 #include <thread>
 #include <vector>
 
-#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "client/sdk/uploader.h"
 #include "core/simulator.h"
@@ -49,6 +48,7 @@
 #include "storage/sample_codec.h"
 #include "storage/store.h"
 #include "tests/client/imucald_process.h"
+#include "tests/server/daemon_clients.h"
 #include "tests/server/stored_samples.h"
 #include "tests/server/watch.h"
 
@@ -60,17 +60,7 @@ using Clock = std::chrono::steady_clock;
 
 constexpr int kBatchSamples = 200;  // 1 s at 200 Hz per batch
 
-// The test's seed, or IMUCAL_CRASH_SEED when set (to replay a failing run's kill points).
-uint64_t SeedOr(uint64_t fallback) {
-  uint64_t seed = fallback;
-  if (const char* env = std::getenv("IMUCAL_CRASH_SEED"); env != nullptr) {
-    EXPECT_TRUE(absl::SimpleAtoi(env, &seed)) << "IMUCAL_CRASH_SEED=" << env;
-  }
-  std::printf("[ seed     ] %llu (IMUCAL_CRASH_SEED=%llu replays these kill points)\n",
-              static_cast<unsigned long long>(seed), static_cast<unsigned long long>(seed));
-  std::fflush(stdout);
-  return seed;
-}
+using testing_util::SeedOr;
 
 bool IsConnectionLoss(grpc::StatusCode code) {
   return code == grpc::StatusCode::UNAVAILABLE || code == grpc::StatusCode::DEADLINE_EXCEEDED ||
@@ -115,12 +105,7 @@ class CrashTest : public testing_util::ImucaldTest {
   grpc::Status Register(const std::shared_ptr<grpc::Channel>& channel, const std::string& device,
                         const std::function<bool()>& give_up = nullptr) {
     auto stub = pb::DeviceService::NewStub(channel);
-    pb::RegisterDeviceRequest req;
-    req.mutable_device()->set_id(device);
-    req.mutable_device()->set_sensor_model("sim");
-    req.mutable_device()->set_nominal_rate_hz(200);
-    req.mutable_device()->set_accel_unit("m/s^2");
-    req.mutable_device()->set_gyro_unit("rad/s");
+    const pb::RegisterDeviceRequest req = testing_util::SimDeviceRequest(device);
     pb::Device out;
     return Retrying([&](grpc::ClientContext* c) { return stub->RegisterDevice(c, req, &out); },
                     give_up);

@@ -42,6 +42,7 @@
 #include "storage/sample_codec.h"
 #include "storage/store.h"
 #include "tests/client/imucald_process.h"
+#include "tests/server/daemon_clients.h"
 #include "tests/server/stored_samples.h"
 #include "tests/server/watch.h"
 
@@ -147,12 +148,7 @@ class DaemonTest : public testing_util::ImucaldTest {
   std::string OpenSession(const ImucaldProcess& server, const std::string& device) {
     auto channel = server.NewChannel();
     auto devices = pb::DeviceService::NewStub(channel);
-    pb::RegisterDeviceRequest reg;
-    reg.mutable_device()->set_id(device);
-    reg.mutable_device()->set_sensor_model("sim");
-    reg.mutable_device()->set_nominal_rate_hz(200);
-    reg.mutable_device()->set_accel_unit("m/s^2");
-    reg.mutable_device()->set_gyro_unit("rad/s");
+    const pb::RegisterDeviceRequest reg = testing_util::SimDeviceRequest(device);
     pb::Device d;
     grpc::Status s =
         Retrying([&](grpc::ClientContext* c) { return devices->RegisterDevice(c, reg, &d); });

@@ -30,7 +30,6 @@
 #include <thread>
 #include <vector>
 
-#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "client/sdk/uploader.h"
 #include "core/simulator.h"
@@ -41,6 +40,7 @@
 #include "storage/store.h"
 #include "tests/client/imucald_process.h"
 #include "tests/pg_test_cluster.h"
+#include "tests/server/daemon_clients.h"
 #include "tests/server/stored_samples.h"
 #include "tests/server/watch.h"
 
@@ -54,15 +54,7 @@ using testing_util::SameBytes;
 constexpr int kRobots = 2;
 constexpr int kBatchSamples = 200;
 
-uint64_t SeedOr(uint64_t fallback) {
-  uint64_t seed = fallback;
-  if (const char* env = std::getenv("IMUCAL_CRASH_SEED"); env != nullptr) {
-    EXPECT_TRUE(absl::SimpleAtoi(env, &seed)) << "IMUCAL_CRASH_SEED=" << env;
-  }
-  std::printf("[ seed     ] %llu (IMUCAL_CRASH_SEED=%llu replays this kill point)\n",
-              static_cast<unsigned long long>(seed), static_cast<unsigned long long>(seed));
-  return seed;
-}
+using testing_util::SeedOr;
 
 // One channel over several replicas: gRPC's pick_first takes the first that answers and moves
 // on when it dies.
@@ -105,12 +97,7 @@ class ReplicasTest : public ::testing::TestWithParam<uint64_t> {
 
   std::string OpenSession(const std::string& device) {
     auto channel = replicas_[0]->NewChannel();
-    pb::RegisterDeviceRequest reg;
-    reg.mutable_device()->set_id(device);
-    reg.mutable_device()->set_sensor_model("sim");
-    reg.mutable_device()->set_nominal_rate_hz(200);
-    reg.mutable_device()->set_accel_unit("m/s^2");
-    reg.mutable_device()->set_gyro_unit("rad/s");
+    const pb::RegisterDeviceRequest reg = testing_util::SimDeviceRequest(device);
     pb::Device d;
     grpc::Status s = Call([&](grpc::ClientContext* c) {
       return pb::DeviceService::NewStub(channel)->RegisterDevice(c, reg, &d);
