@@ -57,6 +57,12 @@ struct Metrics::Families {
                           .Name("imucal_solve_duration_seconds")
                           .Help("a solve's run (its wait in the queue excluded), by outcome")
                           .Register(r)),
+        solves_taken_over(prometheus::BuildCounter()
+                              .Name("imucal_solves_taken_over_total")
+                              .Help("solves whose server stopped, claimed by this one: run "
+                                    "again (rerun), or failed after max_solve_attempts "
+                                    "(given_up)")
+                              .Register(r)),
         db_seconds(prometheus::BuildHistogram()
                        .Name("imucal_db_transaction_duration_seconds")
                        .Help("write transactions from BEGIN to COMMIT (the wait for the write "
@@ -68,6 +74,7 @@ struct Metrics::Families {
   prometheus::Counter& samples;
   prometheus::Counter& acked;
   prometheus::Family<prometheus::Histogram>& solve_seconds;
+  prometheus::Family<prometheus::Counter>& solves_taken_over;
   prometheus::Family<prometheus::Histogram>& db_seconds;
 };
 
@@ -155,6 +162,10 @@ void Metrics::CountSamplesAcknowledged(int64_t samples) {
 void Metrics::ObserveSolve(std::string_view outcome, absl::Duration duration) {
   families_->solve_seconds.Add({{"outcome", std::string(outcome)}}, LatencyBuckets())
       .Observe(absl::ToDoubleSeconds(duration));
+}
+
+void Metrics::CountSolveTakenOver(std::string_view outcome) {
+  families_->solves_taken_over.Add({{"outcome", std::string(outcome)}}).Increment();
 }
 
 void Metrics::ObserveDbTransaction(std::string_view op, absl::Duration duration) {

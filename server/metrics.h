@@ -52,6 +52,9 @@ class Metrics {
   void CountSamplesAcknowledged(int64_t samples);
   // outcome: "done" (a version stored), "refused" (the capture cannot be solved), "failed".
   void ObserveSolve(std::string_view outcome, absl::Duration duration);
+  // outcome: "rerun" (claimed from a server that stopped, queued to run again), "given_up"
+  // (claimed after max_solve_attempts starts, and failed).
+  void CountSolveTakenOver(std::string_view outcome);
   void ObserveDbTransaction(std::string_view op, absl::Duration duration);
   // A gauge whose value `read` gives at each scrape (quick, any thread, no blocking calls).
   void SetGauge(const std::string& name, const std::string& help, std::function<double()> read);

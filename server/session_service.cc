@@ -448,6 +448,7 @@ absl::StatusOr<int> SessionServiceImpl::ResumeLapsedSolves(std::string_view rest
                           live.status().message());
       if (absl::Status s = FailAndReopen(solve.id, error); !s.ok()) return s;
       if (live.ok()) hub_.CloseSession(**live);
+      if (env_.metrics != nullptr) env_.metrics->CountSolveTakenOver("given_up");
       continue;
     }
     Log(LogLevel::kInfo, "solve_resumed",
@@ -460,6 +461,7 @@ absl::StatusOr<int> SessionServiceImpl::ResumeLapsedSolves(std::string_view rest
     task.seed = solve.seed;
     task.actor = solve.actor;
     Queue(task, **live);
+    if (env_.metrics != nullptr) env_.metrics->CountSolveTakenOver("rerun");
     ++resumed;
   }
   return resumed;

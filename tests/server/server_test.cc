@@ -32,6 +32,7 @@
 #include "server/stream_registry.h"
 #include "storage/store.h"
 #include "tests/server/resume_proofs.h"
+#include "tests/pg_test_cluster.h"
 #include "tests/server/watch.h"
 #include "tests/test_dir.h"
 
@@ -250,8 +251,11 @@ TEST_F(ServerTest, AStartedServerRunsAgainTheSolveItsPreviousLifeLeft) {
                                     {"replica-a", absl::Now() + absl::Hours(1)}, /*seed=*/7);
   ASSERT_TRUE(solve.ok()) << solve.status();
 
+  options_.metrics_listen = "127.0.0.1:0";
   StartServer();  // the restart, on the same file
   ASSERT_TRUE(testing_util::FollowWhileSolving(sessions_.get(), session.id(), seconds(60)));
+  EXPECT_THAT(server_->metrics()->Text(),
+              testing::HasSubstr("imucal_solves_taken_over_total{outcome=\"rerun\"} 1"));
 
   auto after = (*store)->GetSolve(solve->id);
   ASSERT_TRUE(after.ok()) << after.status();
@@ -385,6 +389,59 @@ TEST_F(ServerTest, AnotherServersPromoteAndRollbackReachThisServersFetchAtTheNex
   EXPECT_EQ(fetch_on_b(), 1);
   (*b)->SyncActiveCache();  // nothing new: the cache stays
   EXPECT_EQ(fetch_on_b(), 1);
+}
+
+// Two servers on one PostgreSQL database, in one process (so that the ThreadSanitizer build
+// runs the listener's thread against the streams and the solve): a watch on B follows a session
+// whose robot streams through A and whose solve runs on A, from the notifications A's commits
+// send, and ends when the session is solved there.
+TEST_F(ServerTest, OnPostgresAWatchOnAnotherServerFollowsTheStreamAndTheSolve) {
+  absl::StatusOr<std::unique_ptr<testing_util::PgTestDatabase>> db =
+      testing_util::PgTestDatabase::Create();
+  ASSERT_TRUE(db.ok()) << db.status();
+  options_.db_path = (*db)->url();
+  options_.sessions.replica_id = "replica-a";
+  StartServer();
+  ServerOptions b_options = options_;
+  b_options.sessions.replica_id = "replica-b";
+  absl::StatusOr<std::unique_ptr<Server>> b = Server::Start(b_options);
+  ASSERT_TRUE(b.ok()) << b.status();
+  auto b_sessions = v1::SessionService::NewStub(
+      grpc::CreateChannel((*b)->address(), grpc::InsecureChannelCredentials()));
+  Register("robot-1");
+  grpc::Status status;
+  const v1::Session session = Create("robot-1", v1::PROTOCOL_SIX_FACE, &status);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  Watch on_a(sessions_.get(), session.id());
+  Watch on_b(b_sessions.get(), session.id());
+  auto began = [](const std::vector<v1::SessionEvent>& events, bool ended) {
+    return ended || !events.empty();
+  };
+  ASSERT_TRUE(on_a.WaitFor(began));
+  ASSERT_TRUE(on_b.WaitFor(began));
+
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream(Batches(Sim().capture, session.id()), &acks).ok());
+  const int poses = AcceptedPoses(on_a.events());
+  ASSERT_GE(poses, 6);
+  EXPECT_TRUE(on_b.WaitFor([&](const std::vector<v1::SessionEvent>& events, bool) {
+    return AcceptedPoses(events) >= poses;
+  })) << "B's watch saw " << AcceptedPoses(on_b.events()) << " of " << poses << " poses";
+
+  v1::SolveSessionRequest req;
+  req.set_session_id(session.id());
+  v1::SolveJob job;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), req, &job).ok());
+  ASSERT_TRUE(on_b.WaitFor([](const std::vector<v1::SessionEvent>&, bool ended) { return ended; }))
+      << "B's watch did not end when A solved the session";
+  bool saw_done = false;
+  for (const v1::SessionEvent& e : on_b.events())
+    saw_done |= e.has_solve() && e.solve().id() == job.id() &&
+                e.solve().state() == v1::JOB_STATE_DONE && e.solve().version() == 1;
+  EXPECT_TRUE(saw_done);
+  EXPECT_EQ(AcceptedPoses(on_b.events()), poses) << "each pose once";
+  b->reset();  // before the database is dropped
+  server_.reset();
 }
 
 // A robot sent to another server and back (several servers on one database): the server it
