@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/time/clock.h"
 #include "prometheus/collectable.h"
@@ -128,12 +129,23 @@ Metrics::~Metrics() = default;
 absl::StatusOr<std::unique_ptr<Metrics>> Metrics::Start(const std::string& listen) {
   std::unique_ptr<Metrics> m(new Metrics());
   if (listen.empty()) return m;
+  // HOST:PORT, checked here: the HTTP server's own error does not say what is wrong.
+  const size_t colon = listen.rfind(':');
+  int port = -1;
+  if (colon == std::string::npos || colon == 0 ||
+      !absl::SimpleAtoi(listen.substr(colon + 1), &port) || port < 0 ||
+      port > 65535) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "metrics_listen: expected HOST:PORT with a port from 0 to 65535 (e.g. 127.0.0.1:9464), "
+        "got '", listen, "'"));
+  }
   try {
     // One thread serves scrapes: a replica is scraped every few seconds, by one Prometheus.
     m->exposer_ = std::make_unique<prometheus::Exposer>(listen, /*num_threads=*/1);
-  } catch (const std::exception& e) {
+  } catch (const std::exception&) {
     return absl::UnavailableError(
-        absl::StrCat("metrics_listen: cannot serve metrics on ", listen, ": ", e.what()));
+        absl::StrCat("metrics_listen: cannot listen on ", listen,
+                     ": the port is in use, or the host is not an address of this machine"));
   }
   m->exposer_->RegisterCollectable(m->registry_);
   m->exposer_->RegisterCollectable(m->gauges_);

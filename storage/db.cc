@@ -1,5 +1,8 @@
 #include "storage/db.h"
 
+#include <algorithm>
+#include <cctype>
+
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -9,14 +12,53 @@ bool IsPostgresUrl(std::string_view location) {
 }
 
 std::string RedactedLocation(std::string_view location) {
-  if (!IsPostgresUrl(location)) return std::string(location);
-  // scheme://user:password@host... -> scheme://user:***@host...
-  const size_t scheme_end = location.find("://") + 3;
-  const size_t at = location.find('@', scheme_end);
-  if (at == std::string_view::npos) return std::string(location);
-  const size_t colon = location.find(':', scheme_end);
-  if (colon == std::string_view::npos || colon > at) return std::string(location);
-  return Cat(location.substr(0, colon + 1), "***", location.substr(at));
+  std::string out(location);
+  // scheme://user:password@host... -> scheme://user:***@host... (any scheme: a mistyped one is
+  // reported too, and must not show the password either)
+  // (Also "scheme:user:password@host", the "//" forgotten.)
+  size_t start = std::string::npos;
+  if (const size_t scheme = out.find("://"); scheme != std::string::npos) {
+    start = scheme + 3;
+  } else if (const size_t colon = out.find(':'); colon != std::string::npos && colon > 0 &&
+             std::all_of(out.begin(), out.begin() + colon,
+                         [](char c) { return std::isalnum(static_cast<unsigned char>(c)); })) {
+    start = out.find_first_not_of('/', colon + 1);
+  }
+  if (start != std::string::npos) {
+    const size_t at = out.find('@', start);
+    const size_t slash = out.find('/', start);
+    const size_t colon = out.find(':', start);
+    if (at != std::string::npos && (slash == std::string::npos || at < slash) &&
+        colon != std::string::npos && colon < at) {
+      out.replace(colon + 1, at - colon - 1, "***");
+    }
+  }
+  // password=secret, in a URL's query (?password=...&...) or a key=value connection string.
+  constexpr std::string_view kKey = "password=";
+  for (size_t p = 0;;) {
+    std::string lower = out;
+    for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    p = lower.find(kKey, p);
+    if (p == std::string::npos) break;
+    const size_t value = p + kKey.size();
+    size_t end = out.find_first_of("& ", value);
+    if (end == std::string::npos) end = out.size();
+    out.replace(value, end - value, "***");
+    p = value + 3;
+  }
+  return out;
+}
+
+absl::Status CheckLocation(std::string_view location) {
+  if (IsPostgresUrl(location)) return absl::OkStatus();
+  std::string lower(location.substr(0, std::min<size_t>(location.size(), 16)));
+  for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  if (location.find("://") == std::string_view::npos && !lower.starts_with("postgres"))
+    return absl::OkStatus();
+  return absl::InvalidArgumentError(
+      Cat("'", RedactedLocation(location),
+          "' is neither a SQLite file path nor a PostgreSQL URL "
+          "(postgresql://USER[:PASSWORD]@HOST[:PORT]/DB)"));
 }
 
 absl::Status Statement::Run() {

@@ -65,6 +65,11 @@ bool IsPostgresUrl(std::string_view location);
 // `location` without the password of a PostgreSQL URL, for logs and errors.
 std::string RedactedLocation(std::string_view location);
 
+// InvalidArgument when `location` looks like a URL (it has "scheme://", or begins "postgres")
+// but is not one IsPostgresUrl takes: a mistyped URL would otherwise be a new SQLite file named
+// after it. The message shows it without its password and says what is expected.
+absl::Status CheckLocation(std::string_view location);
+
 class Statement {
  public:
   virtual ~Statement() = default;

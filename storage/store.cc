@@ -50,6 +50,7 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
   if (options.read_connections < 1) {
     return absl::InvalidArgumentError("StoreOptions::read_connections must be at least 1");
   }
+  if (absl::Status s = CheckLocation(path); !s.ok()) return s;
   if (IsPostgresUrl(path)) return OpenPostgres(path, std::move(options));
   const std::string op = Cat("open ", path);
   ConnectionOptions conn_options;

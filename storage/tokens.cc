@@ -141,6 +141,7 @@ absl::StatusOr<std::unique_ptr<TokenStore>> TokenStore::Open(const std::string& 
   ConnectionOptions options;
   options.busy_timeout = busy_timeout;
   const std::string op = Cat("open tokens of ", RedactedLocation(path));
+  if (absl::Status s = CheckLocation(path); !s.ok()) return s;
   std::unique_ptr<Connection> conn;
   if (IsPostgresUrl(path)) {
     absl::StatusOr<std::unique_ptr<PgConnection>> pg = PgConnection::Open(path, options);

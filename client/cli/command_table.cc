@@ -154,7 +154,8 @@ std::map<std::string_view, WordFlags> ByWord() {
 }
 
 // The flags that take a value before the command word (imucal --server ADDR COMMAND ...).
-constexpr std::string_view kGlobalValued = "--server --token --token-file --ca-cert";
+constexpr std::string_view kGlobalValued =
+    "--server --token --token-file --ca-cert --tls-server-name";
 
 }  // namespace
 

@@ -34,8 +34,11 @@ namespace pb = imucal::v1;
 using nlohmann::json;
 
 constexpr char kServerFlagHelp[] =
-    "  --server ADDR     the calibration service (default $IMUCAL_SERVER, else 127.0.0.1:50051)\n"
+    "  --server ADDR     the calibration service (default $IMUCAL_SERVER, else 127.0.0.1:50051);\n"
+    "                    replicas: ipv4:IP:PORT,IP:PORT or dns:///NAME:PORT (calls spread\n"
+    "                    round-robin over those that answer)\n"
     "  --ca-cert PEM     CA of the server's TLS certificate (default $IMUCAL_CA_CERT)\n"
+    "  --tls-server-name N   the name the certificate holds (default: the host dialled)\n"
     "  --token-file F | --token T   bearer token (default $IMUCAL_TOKEN_FILE, $IMUCAL_TOKEN)\n"
     "exit codes: 0 ok, 1 usage, 2 bad input or unknown id, 3 the state forbids it (e.g. not\n"
     "            enough poses yet), 4 verdict fail, 5 internal, 6 server unreachable,\n"
@@ -290,6 +293,7 @@ int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t
       std::chrono::steady_clock::now() + std::chrono::milliseconds(int64_t(timeout_s * 1000));
   // A poll with a growing interval: solves take from a fraction of a second to minutes.
   auto interval = std::chrono::milliseconds(50);
+  bool lost_server = false;
   while (wait && (job.state() == pb::JOB_STATE_QUEUED || job.state() == pb::JOB_STATE_RUNNING ||
                   job.state() == pb::JOB_STATE_UNSPECIFIED)) {
     if (std::chrono::steady_clock::now() > deadline) {
@@ -302,8 +306,23 @@ int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t
     pb::GetSolveJobRequest get;
     get.set_job_id(job.id());
     auto ctx = CallContext();
-    if (grpc::Status s = server.sessions->GetSolveJob(ctx.get(), get, &job); !s.ok())
-      return RpcError(server, s);
+    ctx->set_wait_for_ready(true);  // through a restart, or on to another replica
+    pb::SolveJob now;
+    if (grpc::Status s = server.sessions->GetSolveJob(ctx.get(), get, &now); !s.ok()) {
+      // The server that runs the job stopped: the job lives on in storage, and another replica
+      // (or the same one, restarted) runs it again (README "Scaling out"). Ask until the
+      // timeout.
+      if (s.error_code() != grpc::StatusCode::UNAVAILABLE &&
+          s.error_code() != grpc::StatusCode::DEADLINE_EXCEEDED)
+        return RpcError(server, s);
+      if (!lost_server) {
+        std::fprintf(stderr, "imucal: lost %s (%s); still waiting for job %s\n",
+                     server.address.c_str(), s.error_message().c_str(), job.id().c_str());
+        lost_server = true;
+      }
+      continue;
+    }
+    job = std::move(now);
   }
   if (as_json) {
     std::printf("%s\n", ProtoJson(job).c_str());

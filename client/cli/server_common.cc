@@ -55,12 +55,13 @@ std::string Env(const char* name) {
 }  // namespace
 
 absl::Status TakeConnectionFlags(std::vector<std::string>* argv) {
-  std::string token, token_file, ca_cert;
+  std::string token, token_file, ca_cert, tls_name;
   std::vector<std::string> kept;
   for (size_t i = 0; i < argv->size(); ++i) {
     bool taken = false;
     for (auto [name, out] : {std::pair{"--token", &token}, std::pair{"--token-file", &token_file},
-                             std::pair{"--ca-cert", &ca_cert}}) {
+                             std::pair{"--ca-cert", &ca_cert},
+                             std::pair{"--tls-server-name", &tls_name}}) {
       absl::StatusOr<std::optional<std::string>> value = FlagValue(*argv, &i, name);
       if (!value.ok()) return value.status();
       if (!value->has_value()) continue;
@@ -79,9 +80,13 @@ absl::Status TakeConnectionFlags(std::vector<std::string>* argv) {
     if (token.empty()) token_file = Env("IMUCAL_TOKEN_FILE");
   }
   if (ca_cert.empty()) ca_cert = Env("IMUCAL_CA_CERT");
+  if (tls_name.empty()) tls_name = Env("IMUCAL_TLS_SERVER_NAME");
   absl::StatusOr<sdk::ClientOptions> options = sdk::ClientOptionsFromFiles(ca_cert, token_file);
   if (!options.ok()) return options.status();
   if (!token.empty()) options->bearer_token = token;
+  if (!tls_name.empty() && options->ca_cert_pem.empty())
+    return absl::InvalidArgumentError("--tls-server-name: only with TLS (--ca-cert)");
+  options->tls_server_name = tls_name;
   if (absl::Status s = sdk::ValidateClientOptions(*options); !s.ok()) {
     return absl::InvalidArgumentError(absl::StrCat(
         s.message(), " (--ca-cert PEM or $IMUCAL_CA_CERT, with --token-file / --token)"));

@@ -73,6 +73,18 @@ absl::Status ValidateClientOptions(const ClientOptions& options) {
   return absl::OkStatus();
 }
 
+std::string FirstListedHost(std::string_view target) {
+  for (std::string_view scheme : {"ipv4:", "ipv6:"}) {
+    if (!target.starts_with(scheme)) continue;
+    const std::string_view list = target.substr(scheme.size());
+    if (list.find(',') == std::string_view::npos) return "";  // one address: gRPC's own
+    const std::string_view first = list.substr(0, list.find(','));
+    if (first.starts_with('[')) return std::string(first.substr(1, first.find(']') - 1));
+    return std::string(first.substr(0, first.rfind(':')));
+  }
+  return "";
+}
+
 std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target,
                                            const ClientOptions& options) {
   // gRPC's own reconnect backoff (1 s, x1.6 per attempt, up to 120 s) would leave a robot
@@ -85,12 +97,24 @@ std::shared_ptr<grpc::Channel> MakeChannel(const std::string& target,
   const int max_ms = static_cast<int>(absl::ToInt64Milliseconds(options.max_reconnect_backoff));
   args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, std::min(max_ms, 250));
   args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, max_ms);
+  // Several replicas behind the target (an address list, or a name that resolves to several):
+  // gRPC's round_robin spreads the calls over those that answer and leaves out one that dies;
+  // a call that was on it fails UNAVAILABLE and its retry goes to another. One address: the
+  // same as pick_first.
+  args.SetLoadBalancingPolicyName("round_robin");
   auto channel = [&](const std::shared_ptr<grpc::ChannelCredentials>& credentials) {
     return grpc::CreateCustomChannel(target, credentials, args);
   };
   if (options.credentials) return channel(options.credentials);
   if (options.ca_cert_pem.empty() || !ValidateClientOptions(options).ok())
     return channel(grpc::InsecureChannelCredentials());
+  // gRPC checks the certificate against the target's authority, which for an address list is
+  // the whole list: name one host instead.
+  if (const std::string name = options.tls_server_name.empty() ? FirstListedHost(target)
+                                                               : options.tls_server_name;
+      !name.empty()) {
+    args.SetSslTargetNameOverride(name);
+  }
   grpc::SslCredentialsOptions tls;
   tls.pem_root_certs = options.ca_cert_pem;
   tls.pem_cert_chain = options.client_cert_pem;

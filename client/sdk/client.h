@@ -13,6 +13,7 @@
 
 #include <memory>
 #include <string>
+#include <string_view>
 
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
@@ -38,6 +39,10 @@ struct ClientOptions {
   // Sent as "authorization: Bearer <token>" on every call of the channel (gRPC call
   // credentials, which gRPC sends only over TLS: a token needs ca_cert_pem).
   std::string bearer_token;
+  // The name the server's certificate must hold. Empty: the host of the address dialled, or,
+  // for a list of replicas ("ipv4:10.0.0.1:50051,10.0.0.2:50051"), of its first address (the
+  // replicas share one certificate, README "Scaling out").
+  std::string tls_server_name;
   // Overrides all of the above when set (e.g. credentials a test builds).
   std::shared_ptr<grpc::ChannelCredentials> credentials;
   // The longest the channel waits between attempts to (re)connect (gRPC's default is 120 s;
@@ -46,6 +51,10 @@ struct ClientOptions {
   // this often. The Uploader's retry policy (uploader.h) counts on it.
   absl::Duration max_reconnect_backoff = absl::Seconds(2);
 };
+
+// The host of the first address of an "ipv4:" or "ipv6:" list of several ("10.0.0.1" of
+// "ipv4:10.0.0.1:50051,10.0.0.2:50051"); empty for any other target.
+std::string FirstListedHost(std::string_view target);
 
 // Reads the PEM files and the token (a file holding the secret; surrounding whitespace is
 // dropped). Empty paths are left out. InvalidArgument naming the file that cannot be read.

@@ -787,6 +787,48 @@ TEST_F(AuthTest, APlaintextClientCannotTalkToTheTlsServer) {
       sdk::ParamClient::Create(server_->address(), plaintext_token).status()));
 }
 
+// Replicas share one certificate; a client given all their addresses checks it against the
+// first address's host (gRPC would check it against the whole list), or against the name it is
+// told. Calls go round-robin to those that answer, and on to the other when one stops.
+TEST_F(AuthTest, AClientGivenSeveralTlsReplicasReachesThemAndMovesOnWhenOneStops) {
+  StartServer();
+  const std::string admin = AdminSecret();
+  ServerOptions b_options = options_;
+  b_options.sessions.replica_id = "replica-b";
+  absl::StatusOr<std::unique_ptr<Server>> b = Server::Start(b_options);
+  ASSERT_TRUE(b.ok()) << b.status();
+  const std::string target = absl::StrCat("ipv4:", server_->address(), ",", (*b)->address());
+  EXPECT_EQ(sdk::FirstListedHost(target), "127.0.0.1");
+  EXPECT_EQ(sdk::FirstListedHost("ipv6:[::1]:50051,[::1]:50052"), "::1");
+  EXPECT_EQ(sdk::FirstListedHost("ipv4:10.0.0.1:50051"), "");
+  EXPECT_EQ(sdk::FirstListedHost("dns:///imucal.internal:50051"), "");
+  auto list_devices = [&](const sdk::ClientOptions& o) {
+    auto stub = v1::DeviceService::NewStub(sdk::MakeChannel(target, o));
+    v1::ListDevicesResponse out;
+    return stub->ListDevices(Ctx().get(), v1::ListDevicesRequest(), &out);
+  };
+  sdk::ClientOptions o;
+  o.ca_cert_pem = Pem("ca");
+  o.bearer_token = admin;
+  grpc::Status s = list_devices(o);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+  o.tls_server_name = "localhost";  // the certificate's DNS name
+  s = list_devices(o);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+  o.tls_server_name = "elsewhere.example";  // not the certificate's
+  EXPECT_EQ(list_devices(o).error_code(), StatusCode::UNAVAILABLE);
+
+  o.tls_server_name.clear();
+  auto stub = v1::DeviceService::NewStub(sdk::MakeChannel(target, o));
+  v1::ListDevicesResponse out;
+  for (int i = 0; i < 4; ++i) ASSERT_TRUE(stub->ListDevices(Ctx().get(), {}, &out).ok());
+  server_.reset();  // the first replica stops; the channel's next calls find the other
+  auto ctx = Ctx();
+  ctx->set_wait_for_ready(true);
+  s = stub->ListDevices(ctx.get(), {}, &out);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+}
+
 TEST_F(AuthTest, TheSdkFetchesItsDeviceParametersWithARobotToken) {
   MakeFleet(options_.db_path);
   StartServer();

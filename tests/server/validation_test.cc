@@ -1053,6 +1053,17 @@ TEST_F(MetricsTest, AMetricsAddressInUseIsRefusedAtStart) {
   absl::StatusOr<std::unique_ptr<Server>> other = Server::Start(second);
   ASSERT_FALSE(other.ok());
   EXPECT_THAT(std::string(other.status().message()), HasSubstr("metrics_listen"));
+  EXPECT_THAT(std::string(other.status().message()), HasSubstr("the port is in use"));
+  // An address that is not HOST:PORT is named as such, whatever the HTTP server would say.
+  for (const std::string bad : {"nonsense", "127.0.0.1:99999", ":9464", "127.0.0.1:port"}) {
+    second.metrics_listen = bad;
+    other = Server::Start(second);
+    ASSERT_FALSE(other.ok()) << bad;
+    EXPECT_EQ(other.status().code(), absl::StatusCode::kInvalidArgument) << other.status();
+    EXPECT_THAT(std::string(other.status().message()),
+                HasSubstr("expected HOST:PORT with a port from 0 to 65535"));
+    EXPECT_THAT(std::string(other.status().message()), HasSubstr("'" + bad + "'"));
+  }
 }
 
 }  // namespace

@@ -1,5 +1,6 @@
 #include "storage/migrations.h"
 
+#include <filesystem>
 #include <fstream>
 #include <memory>
 #include <string>
@@ -12,6 +13,7 @@
 #include "storage/pg_db.h"
 #include "storage/sqlite_db.h"
 #include "storage/store.h"
+#include "storage/tokens.h"
 #include "tests/pg_test_cluster.h"
 #include "tests/storage/test_util.h"
 
@@ -353,6 +355,33 @@ TEST(PgMigrationsTest, AnUnreachableServerIsUnavailableAndNamesItWithoutThePassw
   EXPECT_EQ(s.code(), absl::StatusCode::kUnavailable) << s;
   EXPECT_THAT(s.message(), HasSubstr("127.0.0.1:1"));
   EXPECT_THAT(std::string(s.message()), ::testing::Not(HasSubstr("secret")));
+  // Named once: "cannot connect to URL", not "open URL: cannot connect to URL".
+  const std::string message(s.message());
+  EXPECT_EQ(message.find("127.0.0.1:1"), message.rfind("127.0.0.1:1")) << message;
+  // A password given as a URL parameter is hidden too.
+  s = Store::Open("postgresql://imucal@127.0.0.1:1/imucal?password=secret&sslmode=disable")
+          .status();
+  EXPECT_EQ(s.code(), absl::StatusCode::kUnavailable) << s;
+  EXPECT_THAT(std::string(s.message()), ::testing::Not(HasSubstr("secret")));
+}
+
+// A mistyped URL is refused, naming what is expected, instead of becoming a SQLite file named
+// after it; its password is not shown.
+TEST(PgMigrationsTest, AMistypedUrlIsRefusedAndNoFileIsMade) {
+  for (const std::string url :
+       {"postgresql:imucal:secret@127.0.0.1:5432/imucal", "postgres:/imucal:secret@host/db",
+        "mysql://imucal:secret@127.0.0.1/imucal", "PostgreSQL://imucal:secret@host/db"}) {
+    absl::Status s = Store::Open(url).status();
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << url << ": " << s;
+    EXPECT_THAT(std::string(s.message()), HasSubstr("postgresql://USER[:PASSWORD]@HOST")) << s;
+    EXPECT_THAT(std::string(s.message()), ::testing::Not(HasSubstr("secret"))) << s;
+    EXPECT_FALSE(std::filesystem::exists(url)) << url;
+    EXPECT_FALSE(TokenStore::Open(url).ok()) << url;
+  }
+  EXPECT_EQ(RedactedLocation("postgresql://u:pw@h/db?password=pw2&x=1"),
+            "postgresql://u:***@h/db?password=***&x=1");
+  EXPECT_EQ(RedactedLocation("host=h Password=pw dbname=d"), "host=h Password=*** dbname=d");
+  EXPECT_EQ(RedactedLocation("/var/lib/imucald/imucal.db"), "/var/lib/imucald/imucal.db");
 }
 
 }  // namespace
