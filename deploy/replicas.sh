@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Several imucald replicas on one throwaway PostgreSQL, on this machine, without Docker: to try
-# what README "Several servers on one database" describes (shared versions, solve claims, fetch
+# what README "Scaling out: replicas on PostgreSQL" describes (shared versions, solve claims, fetch
 # caches that follow each other's promotes) and to watch it (each replica's /metrics).
 #
 #   deploy/replicas.sh start N [DIR]   starts a throwaway cluster (deploy/pg-throwaway.sh) in

@@ -198,9 +198,10 @@ std::vector<ConfigOption> BuildOptions() {
           "failed and its session reopened (default 3)",
           1, 100, [](DaemonConfig& c) -> int& { return c.server.sessions.max_solve_attempts; }),
       DurationOption("active_cache_sync", "IMUCALD_ACTIVE_CACHE_SYNC",
-                     "how often the database is read for other servers' promotes and rollbacks "
-                     "(the bound on a stale fetch from this server); 0s: never, when it is "
-                     "alone on its database (default 250ms)",
+                     "SQLite shared by several servers: how often the database is read for the "
+                     "others' promotes and rollbacks (the bound on a stale fetch from this "
+                     "server); 0s: never, when it is alone on its database (default 250ms). "
+                     "PostgreSQL: not used (changes are heard as they commit)",
                      [](DaemonConfig& c) -> absl::Duration& {
                        return c.server.active_cache_sync;
                      }),
@@ -468,7 +469,8 @@ absl::StatusOr<LoadedConfig> LoadConfig(std::span<const std::string> args, const
 
 std::string HelpText() {
   std::string text =
-      "imucald: the imucal calibration service (gRPC; state in one SQLite file)\n"
+      "imucald: the imucal calibration service (gRPC; state in one SQLite file, or in a\n"
+      "PostgreSQL database that several replicas share)\n"
       "\n"
       "usage:\n"
       "  imucald [--config FILE] [OPTIONS]       serve until SIGTERM/SIGINT, then drain and exit "

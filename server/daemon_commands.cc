@@ -337,7 +337,7 @@ absl::StatusOr<MigrateArgs> MigrateArgsOf(const flags::Args& flags) {
   if (args.sqlite_path.empty() || args.sqlite_path.starts_with("//")) {
     return absl::InvalidArgumentError(
         Cat("--from: expected sqlite:PATH (the SQLite file to copy, e.g. "
-            "sqlite:/var/lib/imucal/imucal.db), got '",
+            "sqlite:/var/lib/imucald/imucal.db), got '",
             storage::RedactedLocation(*from), "'"));
   }
   const std::optional<std::string> to = flags.Get("to");

@@ -277,6 +277,7 @@ class SessionServiceImpl final : public SessionServiceBase {
   // Records a job's new state and tells the session's watchers.
   void UpdateJob(const v1::SolveJob& job);
   absl::StatusOr<v1::Session> SessionProto(const std::string& session_id);
+  absl::StatusOr<v1::Session> SessionProtoWithoutJob(const std::string& session_id);
 
   storage::Store* store_;
   Authorizer* auth_;

@@ -182,6 +182,18 @@ grpc::ServerUnaryReactor* SessionServiceImpl::WithLiveSession(
 }
 
 absl::StatusOr<v1::Session> SessionServiceImpl::SessionProto(const std::string& session_id) {
+  absl::StatusOr<v1::Session> out = SessionProtoWithoutJob(session_id);
+  if (!out.ok() || out->state() != v1::SESSION_STATE_SOLVING) return out;
+  absl::StatusOr<std::vector<storage::Solve>> solves = store_->ListSolves(session_id);
+  if (!solves.ok()) return solves.status();
+  for (const storage::Solve& solve : *solves)
+    if (solve.state == storage::SolveState::kRunning)
+      out->set_solve_job_id(absl::StrCat(kJobPrefix, solve.id));
+  return out;
+}
+
+absl::StatusOr<v1::Session> SessionServiceImpl::SessionProtoWithoutJob(
+    const std::string& session_id) {
   absl::StatusOr<storage::Session> session = store_->GetSession(session_id);
   if (!session.ok()) return session.status();
   // A session in memory gives its live count (and, open, the digest of its samples). One that
@@ -642,7 +654,8 @@ grpc::ServerUnaryReactor* SessionServiceImpl::SolveSession(grpc::CallbackServerC
                      std::string(storage::SessionStateName(stored->state)), ": ",
                      stored->state == storage::SessionState::kCancelled
                          ? "a cancelled session cannot be solved"
-                         : "a solve is already running (GetSolveJob or WatchSession follow it)")));
+                         : "a solve is already running (Session.solve_job_id names its job; "
+                           "GetSolveJob or WatchSession follow it)")));
   }
   const std::string actor = (*who)->actor;
   return WithLiveSession(

@@ -286,8 +286,25 @@ int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t
   pb::SolveJob job;
   {
     auto ctx = CallContext();
-    if (grpc::Status s = server.sessions->SolveSession(ctx.get(), req, &job); !s.ok())
-      return RpcError(server, s);
+    grpc::Status s = server.sessions->SolveSession(ctx.get(), req, &job);
+    // Already solving (this command ran before, and lost its server or was stopped): with
+    // --wait, follow the running job rather than fail.
+    pb::Session now;
+    if (!s.ok() && s.error_code() == grpc::StatusCode::FAILED_PRECONDITION && wait) {
+      pb::GetSessionRequest get;
+      get.set_session_id(session);
+      auto again = CallContext();
+      if (server.sessions->GetSession(again.get(), get, &now).ok() &&
+          now.state() == pb::SESSION_STATE_SOLVING && !now.solve_job_id().empty()) {
+        std::fprintf(stderr, "imucal: session %s is already being solved: waiting for job %s\n",
+                     session.c_str(), now.solve_job_id().c_str());
+        job.set_id(now.solve_job_id());
+        job.set_session_id(session);
+        job.set_state(pb::JOB_STATE_RUNNING);
+        s = grpc::Status::OK;
+      }
+    }
+    if (!s.ok()) return RpcError(server, s);
   }
   const auto deadline =
       std::chrono::steady_clock::now() + std::chrono::milliseconds(int64_t(timeout_s * 1000));

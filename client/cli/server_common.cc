@@ -55,6 +55,22 @@ std::string Env(const char* name) {
 }  // namespace
 
 absl::Status TakeConnectionFlags(std::vector<std::string>* argv) {
+  // --server stays for the command; a target that gRPC would only log about (and then fail
+  // every call) is refused here, naming what is wrong.
+  bool server_given = false;
+  for (size_t i = 0; i < argv->size(); ++i) {
+    const std::string& arg = (*argv)[i];
+    std::optional<std::string> server;
+    if (arg == "--server" && i + 1 < argv->size()) server = (*argv)[i + 1];
+    if (arg.rfind("--server=", 0) == 0) server = arg.substr(9);
+    if (!server) continue;
+    server_given = true;
+    if (absl::Status s = sdk::CheckTarget(*server); !s.ok()) return s;
+  }
+  if (const std::string env = Env("IMUCAL_SERVER"); !server_given && !env.empty()) {
+    if (absl::Status s = sdk::CheckTarget(env); !s.ok())
+      return absl::InvalidArgumentError(absl::StrCat("$IMUCAL_SERVER: ", s.message()));
+  }
   std::string token, token_file, ca_cert, tls_name;
   std::vector<std::string> kept;
   for (size_t i = 0; i < argv->size(); ++i) {

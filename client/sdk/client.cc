@@ -1,5 +1,8 @@
 #include "client/sdk/client.h"
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+
 #include <algorithm>
 #include <fstream>
 #include <sstream>
@@ -7,7 +10,9 @@
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
 #include "client/sdk/grpc_status.h"
 #include "grpcpp/grpcpp.h"
 
@@ -70,6 +75,40 @@ absl::Status ValidateClientOptions(const ClientOptions& options) {
     return absl::InvalidArgumentError("a client certificate needs TLS: give the CA certificate");
   if (options.client_cert_pem.empty() != options.client_key_pem.empty())
     return absl::InvalidArgumentError("a client certificate and its key go together");
+  return absl::OkStatus();
+}
+
+absl::Status CheckTarget(std::string_view target_view) {
+  const std::string target(target_view);  // (this absl's string_view is not std's)
+  const auto bad = [&](const std::string& why) {
+    return absl::InvalidArgumentError(absl::StrCat("server address '", target, "': ", why));
+  };
+  if (target.empty()) return bad("empty");
+  if (target.find_first_of(" \t\n") != std::string_view::npos) return bad("contains a space");
+  for (const auto& [scheme, family] : {std::pair{std::string("ipv4:"), AF_INET},
+                                       std::pair{std::string("ipv6:"), AF_INET6}}) {
+    if (!target.starts_with(scheme)) continue;
+    const std::vector<std::string> items =
+        absl::StrSplit(target.substr(scheme.size()), ',', absl::AllowEmpty());
+    for (const std::string& item : items) {
+      const size_t colon = item.rfind(':');
+      std::string host(item.substr(0, colon == std::string::npos ? 0 : colon));
+      if (family == AF_INET6 && host.size() > 2 && host.front() == '[' && host.back() == ']')
+        host = host.substr(1, host.size() - 2);
+      int port = 0;
+      unsigned char address[sizeof(in6_addr)];
+      if (colon == std::string::npos ||
+          !absl::SimpleAtoi(item.substr(colon + 1), &port) || port < 1 || port > 65535 ||
+          ::inet_pton(family, host.c_str(), address) != 1) {
+        return bad(absl::StrCat(
+            "'", item, "' is not ", family == AF_INET ? "IPV4:PORT" : "[IPV6]:PORT",
+            " (an ", scheme.substr(0, 4), ": list takes IP addresses, e.g. ",
+            family == AF_INET ? "ipv4:10.0.0.1:50051,10.0.0.2:50051"
+                              : "ipv6:[fd00::1]:50051,[fd00::2]:50051",
+            "; a host name goes in dns:///NAME:PORT)"));
+      }
+    }
+  }
   return absl::OkStatus();
 }
 

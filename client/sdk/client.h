@@ -52,6 +52,11 @@ struct ClientOptions {
   absl::Duration max_reconnect_backoff = absl::Seconds(2);
 };
 
+// InvalidArgument naming what is wrong with a gRPC target that gRPC itself would only log about
+// (and then fail every call): a space, or an "ipv4:"/"ipv6:" list whose items are not IP:PORT
+// (host names go in "dns:///NAME:PORT"). Other targets are left to gRPC's resolver.
+absl::Status CheckTarget(std::string_view target);
+
 // The host of the first address of an "ipv4:" or "ipv6:" list of several ("10.0.0.1" of
 // "ipv4:10.0.0.1:50051,10.0.0.2:50051"); empty for any other target.
 std::string FirstListedHost(std::string_view target);

@@ -429,3 +429,37 @@ TEST(CliServerUnreachableTest, ExitCodeSix) {
 
 }  // namespace
 }  // namespace imucal::cli
+
+namespace imucal::cli {
+namespace {
+
+// A --server (or $IMUCAL_SERVER) that gRPC would only log about, and then fail every call with
+// "Failed to create secure client channel", is refused before any call, naming what is wrong.
+TEST(ServerAddressTest, ATargetGrpcCannotParseIsRefusedNamingWhatIsWrong) {
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {"ipv4:localhost:50051", "'localhost:50051' is not IPV4:PORT"},
+      {"ipv4:127.0.0.1:5, 127.0.0.1:6", "contains a space"},
+      {"ipv4:127.0.0.1:99999", "'127.0.0.1:99999' is not IPV4:PORT"},
+      {"ipv4:127.0.0.1:5,", "'' is not IPV4:PORT"},
+      {"ipv6:[::1]:50051,fe80::zz:1", "is not [IPV6]:PORT"},
+  };
+  for (const auto& [target, why] : bad) {
+    std::vector<std::string> argv = {"imucal", "--server", target, "devices"};
+    absl::Status s = TakeConnectionFlags(&argv);
+    EXPECT_TRUE(absl::IsInvalidArgument(s)) << target << ": " << s;
+    EXPECT_NE(s.message().find(why), std::string::npos) << s;
+    EXPECT_NE(s.message().find(target), std::string::npos) << s;
+    argv = {"imucal", "devices", "--server=" + target};
+    EXPECT_TRUE(absl::IsInvalidArgument(TakeConnectionFlags(&argv))) << target;
+  }
+  for (const std::string good :
+       {"127.0.0.1:50051", "localhost:50051", "dns:///imucal.internal:50051",
+        "ipv4:10.0.0.1:50051,10.0.0.2:50051", "ipv6:[::1]:50051,[fd00::2]:50052"}) {
+    std::vector<std::string> argv = {"imucal", "--server", good, "devices"};
+    EXPECT_TRUE(TakeConnectionFlags(&argv).ok()) << good;
+    EXPECT_EQ(argv.size(), 4u) << "--server stays for the command";
+  }
+}
+
+}  // namespace
+}  // namespace imucal::cli

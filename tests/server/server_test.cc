@@ -322,6 +322,12 @@ TEST_F(ServerTest, AStartingServerLeavesAnotherServersLiveSolvesAlone) {
   EXPECT_EQ(solves->at(0).state, storage::SolveState::kRunning);
   EXPECT_EQ(solves->at(0).owner, "replica-a");
   EXPECT_GT(solves->at(0).lease_until, absl::Now() + absl::Seconds(30));
+  // The session names its running job, for a client that lost SolveSession's reply.
+  EXPECT_EQ(GetSession(live->id).solve_job_id(), job.id());
+  v1::SolveJob again;
+  const grpc::Status twice = sessions_->SolveSession(Ctx().get(), req, &again);
+  EXPECT_EQ(twice.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_THAT(twice.error_message(), testing::HasSubstr("solve_job_id"));
   // The dead replica's solve is B's now; its session holds no samples, so B's run of it is
   // refused and the session reopened to take them.
   auto b_sessions = v1::SessionService::NewStub(
