@@ -216,7 +216,19 @@ class PgStatement final : public Statement {
     if (bind_error_.ok()) bind_error_ = std::move(s);
   }
 
+  // A server restart (or a failover) breaks every connection; the first statement after it
+  // finds out. When running it again is safe (PgConnection::MayRetryAfterReconnect), it runs
+  // once more on a new connection, so that the restart costs the caller nothing.
   absl::Status Execute() {
+    absl::Status s = ExecuteOnce();
+    if (!s.ok() && PQstatus(conn_->conn()) != CONNECTION_OK &&
+        conn_->MayRetryAfterReconnect(kind_ == Kind::kBegin)) {
+      s = ExecuteOnce();
+    }
+    return s;
+  }
+
+  absl::Status ExecuteOnce() {
     PGconn* pg = conn_->conn();
     if (kind_ == Kind::kRollback && PQstatus(pg) != CONNECTION_OK) {
       // The server rolled the transaction back when the connection broke.
@@ -287,6 +299,7 @@ absl::StatusCode PgCode(std::string_view sqlstate) {
   const std::string_view cls = sqlstate.substr(0, 2);
   if (cls == "23") return absl::StatusCode::kFailedPrecondition;
   if (cls == "08") return absl::StatusCode::kUnavailable;
+  if (cls == "57") return absl::StatusCode::kUnavailable;  // admin shutdown, crash, cannot connect now
   if (cls == "53") return absl::StatusCode::kResourceExhausted;
   if (cls == "22") return absl::StatusCode::kInvalidArgument;
   return absl::StatusCode::kInternal;
@@ -318,7 +331,7 @@ absl::StatusOr<std::unique_ptr<PgConnection>> PgConnection::Open(
     }
     settings += Cat(" SET imucal.origin = '", options.origin, "';");
   }
-  std::unique_ptr<PgConnection> conn(new PgConnection(pg, std::move(settings)));
+  std::unique_ptr<PgConnection> conn(new PgConnection(pg, std::move(settings), options.read_only));
   if (absl::Status s = conn->ApplySettings(); !s.ok()) return s;
   return conn;
 }

@@ -78,12 +78,21 @@ class PgConnection final : public Connection {
   absl::StatusOr<std::unique_ptr<Statement>> NewStatement(std::string_view sql) override;
 
  private:
-  PgConnection(PGconn* conn, std::string settings)
-      : conn_(conn), settings_(std::move(settings)) {}
+  PgConnection(PGconn* conn, std::string settings, bool read_only)
+      : conn_(conn), settings_(std::move(settings)), read_only_(read_only) {}
   absl::Status ApplySettings();
 
+ public:
+  // A statement that found the connection broken may run again on a new one: outside a
+  // transaction, a BEGIN (nothing has started) or any statement of a read-only connection.
+  bool MayRetryAfterReconnect(bool is_begin) const {
+    return !txn_open_ && (is_begin || read_only_);
+  }
+
+ private:
   PGconn* conn_;
   std::string settings_;  // the SET script run after every (re)connect
+  bool read_only_ = false;
   bool txn_open_ = false;
   absl::Status txn_error_;  // the open transaction's first error
   uint64_t generation_ = 0;

@@ -6,14 +6,13 @@
 //   3. the robots resume on replica 2 from their last durable ack and finish: every sample
 //      acknowledged before the kill is stored, and each session holds its whole capture once, in
 //      order, byte for byte (batches 1..n without a gap or a repeat);
-//   4. robot 1's session is solved on replica 3, which is SIGKILLed a random moment after it
-//      took the solve: replica 2 claims the solve once its lease (1 s) lapses and runs it again,
-//      and exactly one version is written (when the kill came after the version, there is
-//      nothing to run again: the same checks hold);
-//   5. replica 3 is started again; robot 0's session is solved on it twice: versions 1 and 2,
-//      both active in turn;
-//   6. replica 1 is started again; a rollback to version 1 through it is seen by replica 3's
-//      fetch (whose cache held version 2) through PostgreSQL's notifications.
+//   4. robot 0's session is solved on replica 3 twice: versions 1 and 2, both active in turn;
+//   5. replica 1 is started again; a rollback to version 1 through it is seen by replica 3's
+//      fetch (whose cache held version 2) through PostgreSQL's notifications;
+//   6. robot 1's session is solved on replica 3, which is SIGKILLed a random moment after it
+//      took the solve: replica 1 or 2 claims the solve once its lease (1 s) lapses and runs it
+//      again, and exactly one version is written (when the kill came after the version, there
+//      is nothing to run again: the same checks hold).
 // The seed comes from the instance (IMUCAL_CRASH_SEED overrides it); the kill point from it.
 #include <signal.h>
 
@@ -227,8 +226,39 @@ TEST_P(ReplicasTest, AReplicaKilledMidStreamLosesNoAckedSampleAndTheOthersCarryO
     }
   }
 
-  // 4. Replica 3 takes robot 1's solve and is killed within about one solve's time; replica 2,
-  // the one left, runs it again once the claim lapses.
+  // 4. Solved on replica 3, twice: versions 1 then 2, each active (the capture passes).
+  for (int expected = 1; expected <= 2; ++expected) {
+    const pb::SolveJob job = Solve(*replicas_[2], sessions[0]);
+    ASSERT_EQ(job.state(), pb::JOB_STATE_DONE) << job.error();
+    EXPECT_EQ(job.version(), expected);
+    ASSERT_TRUE(job.activated()) << "verdict " << job.verdict();
+  }
+  ASSERT_EQ(FetchedVersion(*replicas_[2], devices[0]), 2);  // now in replica 3's cache
+
+  // 5. Replica 1 again: its rollback reaches replica 3's fetch.
+  ASSERT_TRUE(replicas_[0]->Relaunch().ok());
+  {
+    auto stub = pb::ParameterService::NewStub(replicas_[0]->NewChannel());
+    pb::RollbackRequest req;
+    req.set_device_id(devices[0]);
+    req.set_to_version(1);
+    req.set_reason("replicas test");
+    pb::ParameterSet out;
+    grpc::Status s = Call([&](grpc::ClientContext* c) { return stub->Rollback(c, req, &out); });
+    ASSERT_TRUE(s.ok()) << s.error_message();
+  }
+  const auto rolled_back = std::chrono::steady_clock::now();
+  int seen = 0;
+  // Fetched until it changes, for at most 10 s (the notification takes milliseconds).
+  while (seen != 1 && std::chrono::steady_clock::now() - rolled_back < std::chrono::seconds(10))
+    seen = FetchedVersion(*replicas_[2], devices[0]);
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
+                                                              rolled_back)
+                        .count();
+  EXPECT_EQ(seen, 1) << "replica 3 still serves version " << seen << " after the rollback";
+
+  // 6. Replica 3 takes robot 1's solve and is killed within about one solve's time; replica 1
+  // or 2 runs it again once the claim lapses, and a watch on replica 2 sees it end either way.
   bool solve_run_again = false;
   {
     auto stub = pb::SessionService::NewStub(replicas_[2]->NewChannel());
@@ -256,7 +286,11 @@ TEST_P(ReplicasTest, AReplicaKilledMidStreamLosesNoAckedSampleAndTheOthersCarryO
     EXPECT_EQ(solve.version, 1);
     EXPECT_EQ(solve.seed, seed);
     solve_run_again = solve.attempts > 1;
-    EXPECT_EQ(solve.owner, solve_run_again ? "r2" : "r3");
+    if (solve_run_again) {
+      EXPECT_TRUE(solve.owner == "r1" || solve.owner == "r2") << solve.owner;
+    } else {
+      EXPECT_EQ(solve.owner, "r3");
+    }
     EXPECT_EQ(solve.attempts, solve_run_again ? 2 : 1);
     absl::StatusOr<std::vector<storage::ParamVersion>> versions =
         (*store)->ListVersions(devices[1]);
@@ -264,43 +298,11 @@ TEST_P(ReplicasTest, AReplicaKilledMidStreamLosesNoAckedSampleAndTheOthersCarryO
     ASSERT_EQ(versions->size(), 1u) << "the version is written once";
     EXPECT_EQ(versions->front().session_id, sessions[1]);
   }
-  ASSERT_TRUE(replicas_[2]->Relaunch().ok());
-
-  // 5. Solved on replica 3, twice: versions 1 then 2, each active (the capture passes).
-  for (int expected = 1; expected <= 2; ++expected) {
-    const pb::SolveJob job = Solve(*replicas_[2], sessions[0]);
-    ASSERT_EQ(job.state(), pb::JOB_STATE_DONE) << job.error();
-    EXPECT_EQ(job.version(), expected);
-    ASSERT_TRUE(job.activated()) << "verdict " << job.verdict();
-  }
-  ASSERT_EQ(FetchedVersion(*replicas_[2], devices[0]), 2);  // now in replica 3's cache
-
-  // 6. Replica 1 again: its rollback reaches replica 3's fetch.
-  ASSERT_TRUE(replicas_[0]->Relaunch().ok());
-  {
-    auto stub = pb::ParameterService::NewStub(replicas_[0]->NewChannel());
-    pb::RollbackRequest req;
-    req.set_device_id(devices[0]);
-    req.set_to_version(1);
-    req.set_reason("replicas test");
-    pb::ParameterSet out;
-    grpc::Status s = Call([&](grpc::ClientContext* c) { return stub->Rollback(c, req, &out); });
-    ASSERT_TRUE(s.ok()) << s.error_message();
-  }
-  const auto rolled_back = std::chrono::steady_clock::now();
-  int seen = 0;
-  // Fetched until it changes, for at most 10 s (the notification takes milliseconds).
-  while (seen != 1 && std::chrono::steady_clock::now() - rolled_back < std::chrono::seconds(10))
-    seen = FetchedVersion(*replicas_[2], devices[0]);
-  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
-                                                              rolled_back)
-                        .count();
-  EXPECT_EQ(seen, 1) << "replica 3 still serves version " << seen << " after the rollback";
   std::printf("[ replicas ] kill after %lld of %lld acks, %d reconnects; solve %s; rollback on "
               "replica 1 seen by replica 3 after %.1f ms\n",
               static_cast<long long>(kill_after), static_cast<long long>(kRobots * batches_each),
               reconnects,
-              solve_run_again ? "killed on replica 3, run again on replica 2"
+              solve_run_again ? "killed on replica 3, run again on another"
                               : "ended on replica 3 before its kill",
               ms);
 }

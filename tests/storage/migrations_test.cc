@@ -8,6 +8,7 @@
 #include <utility>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "storage/pg_db.h"
@@ -363,6 +364,32 @@ TEST(PgMigrationsTest, AnUnreachableServerIsUnavailableAndNamesItWithoutThePassw
           .status();
   EXPECT_EQ(s.code(), absl::StatusCode::kUnavailable) << s;
   EXPECT_THAT(std::string(s.message()), ::testing::Not(HasSubstr("secret")));
+}
+
+// PostgreSQL restarted (or failed over): every connection of the store is cut, and the store's
+// next reads and writes go through on new ones instead of failing once each.
+TEST(PgMigrationsTest, AStoreCarriesOnAfterTheServerCutsItsConnections) {
+  ASSERT_OK_AND_ASSIGN(auto db, testing_util::PgTestDatabase::Create());
+  StoreOptions options;
+  options.read_connections = 2;
+  ASSERT_OK_AND_ASSIGN(std::unique_ptr<Store> store, Store::Open(db->url(), options));
+  ASSERT_OK(store->CreateDevice(MakeDevice("robot-1"), "test").status());
+  ASSERT_OK(store->GetDevice("robot-1").status());
+  ASSERT_OK_AND_ASSIGN(auto admin, PgConnection::Open(db->url(), {}));
+  for (int round = 0; round < 2; ++round) {
+    // What a restart does to each of them: FATAL 57P01, "terminating connection due to
+    // administrator command".
+    ASSERT_OK(admin->Exec(
+        "SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = "
+        "current_database() AND pid <> pg_backend_pid() AND application_name = 'imucald'"));
+    for (int i = 0; i < 3; ++i) {  // more reads than connections: each one was cut
+      const absl::Status read = store->GetDevice("robot-1").status();
+      EXPECT_TRUE(read.ok()) << "read " << i << " of round " << round << ": " << read;
+    }
+    EXPECT_OK(store->CreateDevice(MakeDevice(absl::StrCat("robot-", round + 2)), "test").status());
+  }
+  ASSERT_OK_AND_ASSIGN(std::vector<Device> devices, store->ListDevices());
+  EXPECT_EQ(devices.size(), 3u);
 }
 
 // A mistyped URL is refused, naming what is expected, instead of becoming a SQLite file named
