@@ -65,6 +65,16 @@ class ServerTest : public testing::Test {
     params_ = v1::ParameterService::NewStub(channel_);
   }
 
+  // A second server on options_'s database, as replica "replica-b" (several servers sharing one
+  // database).
+  void StartReplicaB(std::unique_ptr<Server>* b) {
+    ServerOptions b_options = options_;
+    b_options.sessions.replica_id = "replica-b";
+    absl::StatusOr<std::unique_ptr<Server>> started = Server::Start(b_options);
+    ASSERT_TRUE(started.ok()) << started.status();
+    *b = *std::move(started);
+  }
+
   static std::unique_ptr<grpc::ClientContext> Ctx() {
     auto ctx = std::make_unique<grpc::ClientContext>();
     ctx->set_deadline(system_clock::now() + seconds(20));
@@ -408,12 +418,10 @@ TEST_F(ServerTest, OnPostgresAWatchOnAnotherServerFollowsTheStreamAndTheSolve) {
   options_.db_path = (*db)->url();
   options_.sessions.replica_id = "replica-a";
   StartServer();
-  ServerOptions b_options = options_;
-  b_options.sessions.replica_id = "replica-b";
-  absl::StatusOr<std::unique_ptr<Server>> b = Server::Start(b_options);
-  ASSERT_TRUE(b.ok()) << b.status();
+  std::unique_ptr<Server> b;
+  ASSERT_NO_FATAL_FAILURE(StartReplicaB(&b));
   auto b_sessions = v1::SessionService::NewStub(
-      grpc::CreateChannel((*b)->address(), grpc::InsecureChannelCredentials()));
+      grpc::CreateChannel(b->address(), grpc::InsecureChannelCredentials()));
   Register("robot-1");
   grpc::Status status;
   const v1::Session session = Create("robot-1", v1::PROTOCOL_SIX_FACE, &status);
@@ -446,7 +454,7 @@ TEST_F(ServerTest, OnPostgresAWatchOnAnotherServerFollowsTheStreamAndTheSolve) {
                 e.solve().state() == v1::JOB_STATE_DONE && e.solve().version() == 1;
   EXPECT_TRUE(saw_done);
   EXPECT_EQ(AcceptedPoses(on_b.events()), poses) << "each pose once";
-  b->reset();  // before the database is dropped
+  b.reset();  // before the database is dropped
   server_.reset();
 }
 
@@ -467,12 +475,10 @@ TEST_F(ServerTest, ASessionStreamedThroughAnotherServerAndBackContinuesWhole) {
   ASSERT_TRUE(Stream({all.begin(), all.begin() + third}, &acks).ok());
   ASSERT_GT(GetSession(session.id()).samples(), 0);  // A's live state holds the first third
 
-  ServerOptions b_options = options_;
-  b_options.sessions.replica_id = "replica-b";
-  absl::StatusOr<std::unique_ptr<Server>> b = Server::Start(b_options);
-  ASSERT_TRUE(b.ok()) << b.status();
+  std::unique_ptr<Server> b;
+  ASSERT_NO_FATAL_FAILURE(StartReplicaB(&b));
   auto b_sessions = v1::SessionService::NewStub(
-      grpc::CreateChannel((*b)->address(), grpc::InsecureChannelCredentials()));
+      grpc::CreateChannel(b->address(), grpc::InsecureChannelCredentials()));
   grpc::Status on_b =
       Stream({all.begin() + third, all.begin() + 2 * third}, &acks, b_sessions.get());
   ASSERT_TRUE(on_b.ok()) << on_b.error_message();
