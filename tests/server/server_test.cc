@@ -881,12 +881,9 @@ TEST_F(ServerTest, ReadSamplesGivesBackTheStoredSamplesInOrder) {
     auto ctx = Ctx();
     auto reader = sessions_->ReadSamples(ctx.get(), req);
     v1::SampleBatch b;
-    while (reader->Read(&b)) {
-      if (got->empty()) {
-        EXPECT_GE(server_->open_streams(), 1u);  // counted while it runs
-      }
-      got->push_back(b);
-    }
+    // (Not checked here that the call is counted while it runs: gRPC may have sent the whole
+    // response, and the server ended the call, before the client reads its first message.)
+    while (reader->Read(&b)) got->push_back(b);
     return reader->Finish();
   };
   // A call leaves the registry when gRPC is done with it, just after its client has finished.
