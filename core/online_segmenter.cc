@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 #include <optional>
 #include <string>
 #include <utility>
@@ -320,6 +321,8 @@ void OnlineSegmenter::Add(double t_s, const Eigen::Vector3d& accel, const Eigen:
   const Sample& centre = ring_[window_ / 2];
 
   if (!noise_learnt_) {
+    rest_rate_sum_ += centre.gyro;  // the learning rest's rate: the first rest rate
+    rest_rate_n_ += 1;
     learn_a_.push_back(var_a);
     learn_g_.push_back(var_g);
     if (centre.t_s - first_t_s_ >= options_.learn_s || learn_a_.size() >= kMaxLearnSamples)
@@ -371,6 +374,8 @@ void OnlineSegmenter::Classify(const Sample& s, const Eigen::Vector3d& accel_var
       run_var_n_ = 0;
       run_judged_at_hold_ = false;
       run_accepted_ = false;
+      run_rotation_.setZero();
+      run_excursion_ = 0;
     }
     run_var_a_ += accel_var;
     run_var_g_ += gyro_var;
@@ -409,7 +414,13 @@ void OnlineSegmenter::AddToRun(const Sample& s) {
   if (chunks_.empty()) {
     run_offset_a_ = x.accel;
     run_first_t_s_ = x.t_s;
+    run_prev_t_s_ = x.t_s;
   }
+  if (rest_rate_n_ > 0) {
+    run_rotation_ += (x.gyro - rest_rate_sum_ / rest_rate_n_) * (x.t_s - run_prev_t_s_);
+    run_excursion_ = std::max(run_excursion_, run_rotation_.norm());
+  }
+  run_prev_t_s_ = x.t_s;
   if (chunks_.empty() || chunks_.back().n >= chunk_n_) chunks_.emplace_back();
   Chunk& c = chunks_.back();
   ++c.n;
@@ -499,7 +510,20 @@ bool OnlineSegmenter::EvaluateRun(PoseUpdate* pose) const {
   pose->accepted = true;
   pose->reason.clear();
   const double duration = pose->t_end_s - pose->t_start_s;
-  if (duration < options_.min_static_s) {
+  const double rad = options_.gyro_unit == GyroUnit::kCounts ? 0.0
+                                                             : NominalGyroToSi(options_.gyro_unit);
+  const double turned = run_excursion_ * rad;
+  const double bound =
+      options_.rotation_sigmas * gyro_floor_.cwiseSqrt().norm() * rad * std::sqrt(n) *
+          (n > 1 ? duration / (n - 1) : 0.0) +
+      options_.rest_rate_bound_deg_s * std::numbers::pi / 180.0 * duration;
+  if (rad > 0 && rest_rate_n_ > 0 && turned > bound) {
+    pose->accepted = false;
+    pose->reason = absl::StrFormat(
+        "turning: the gyroscope turned %.1f deg over these %.1f s, more than a rest can (%.2f "
+        "deg); a rest is still, not a steady turn",
+        turned * 180.0 / std::numbers::pi, duration, bound * 180.0 / std::numbers::pi);
+  } else if (duration < options_.min_static_s) {
     pose->accepted = false;
     pose->reason = absl::StrFormat("too short: held %.1f s, needs %.1f s; hold the pose longer",
                                    duration, options_.min_static_s);
@@ -531,6 +555,9 @@ void OnlineSegmenter::AcceptPose(PoseUpdate pose, std::vector<SegmenterEvent>* e
   pose.face = FaceOf(pose.accel_mean);  // before this pose counts, as the offset estimate
   ++poses_accepted_;
   pose_mean_sum_ += pose.accel_mean;
+  // The rest rate follows the accepted poses (each as much as the learning rest).
+  rest_rate_sum_ += pose.gyro_mean * std::max(1.0, rest_rate_n_ / poses_accepted_);
+  rest_rate_n_ += std::max(1.0, rest_rate_n_ / poses_accepted_);
   if (accepted_means_.size() < kMaxGuidePoses) accepted_means_.push_back(pose.accel_mean);
   run_accepted_ = in_run_;
   run_accepted_mean_ = pose.accel_mean;

@@ -75,6 +75,15 @@ struct OnlineSegmenterOptions {
   double stillness_period_s = 0.25;  // sample time between two stillness updates
   GuidedProtocol protocol = GuidedProtocol::kAny;  // the guidance and progress to emit
   AccelUnit accel_unit = AccelUnit::kMetersPerSecond2;
+  // The physical bound on a pose, as StaticDetectorOptions: over a still run the gyroscope, the
+  // rest rate removed (the mean of the learning rest, then of the accepted poses), turns less
+  // than `rotation_sigmas` times its noise's random walk plus `rest_rate_bound_deg_s` times the
+  // run's duration, else the run is "turning" (a steady turn about the vertical has neither
+  // variance nor a change of the accelerometer). Not applied for a gyroscope in counts (no
+  // nominal scale).
+  GyroUnit gyro_unit = GyroUnit::kRadPerSecond;
+  double rotation_sigmas = 5.0;
+  double rest_rate_bound_deg_s = 0.5;
 };
 
 struct StillnessUpdate {
@@ -228,6 +237,13 @@ class OnlineSegmenter {
   bool run_judged_at_hold_ = false;  // the run reached the hold time and was judged then
   bool run_accepted_ = false;        // ... and accepted: its pose event has fired
   Eigen::Vector3d run_accepted_mean_ = Eigen::Vector3d::Zero();  // in pose_mean_sum_
+  // The rotation test: the rest rate (input units), the run's rotation so far and its largest
+  // excursion (input units x s).
+  Eigen::Vector3d rest_rate_sum_ = Eigen::Vector3d::Zero();
+  double rest_rate_n_ = 0;
+  Eigen::Vector3d run_rotation_ = Eigen::Vector3d::Zero();
+  double run_excursion_ = 0;
+  double run_prev_t_s_ = 0;
   PoseUpdate last_pose_;  // index -1 until the first pose (the constructor)
   double last_stillness_t_s_ = -1e300;
   // Poses and guidance.

@@ -3,8 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numbers>
+#include <utility>
 
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/rest_rotation.h"
 
 namespace imucal::core {
 namespace {
@@ -137,159 +141,230 @@ struct Run {
   size_t begin = 0, end = 0;
 };
 
-// The maximal runs of samples where `still(i)` holds.
+// The maximal runs of samples in [b, e) where `still(i)` holds.
 template <typename Still>
-std::vector<Run> RunsWhere(size_t n, Still still) {
+std::vector<Run> RunsWhere(size_t b, size_t e, Still still) {
   std::vector<Run> out;
-  for (size_t i = 0; i < n;) {
+  for (size_t i = b; i < e;) {
     if (!still(i)) {
       ++i;
       continue;
     }
     size_t j = i;
-    while (j < n && still(j)) ++j;
+    while (j < e && still(j)) ++j;
     out.push_back({i, j});
     i = j;
   }
   return out;
 }
 
-// Runs under both variance thresholds, and the steady runs (MotionSignal::mean_shift) that no
-// variance run touches: a rest too noisy for the variance test at any multiplier (a motor
-// running). A steady run beside a variance run is the same rest's edge, where a hand's slow
+// Runs of [b, e) under both variance thresholds, and the steady runs (MotionSignal::mean_shift)
+// that no variance run touches: a rest too noisy for the variance test at any multiplier (a
+// motor running). A steady run beside a variance run is the same rest's edge, where a hand's slow
 // start of the next move shifts the mean less than its noise: the variance test sees that start
 // earlier, so there it decides. A steady run loses half a window at each end for the same reason.
-std::vector<Run> StillRuns(const MotionSignal& motion, double acc_threshold, double gyr_threshold) {
-  const size_t n = motion.accel_var.size();
-  std::vector<Run> out = RunsWhere(n, [&](size_t i) {
+std::vector<Run> StillRuns(const MotionSignal& motion, size_t b, size_t e, double acc_threshold,
+                           double gyr_threshold) {
+  std::vector<Run> out = RunsWhere(b, e, [&](size_t i) {
     return motion.accel_var[i] <= acc_threshold && motion.gyro_var[i] <= gyr_threshold;
   });
   if (motion.mean_shift.empty()) return out;
   const size_t half = motion.window / 2;
-  std::vector<bool> in_variance_run(n, false);
+  std::vector<bool> in_variance_run(e - b, false);
   for (const Run& r : out)
-    for (size_t i = r.begin; i < r.end; ++i) in_variance_run[i] = true;
+    for (size_t i = r.begin; i < r.end; ++i) in_variance_run[i - b] = true;
   for (const Run& r :
-       RunsWhere(n, [&](size_t i) { return motion.mean_shift[i] <= kSteadyMeanShift; })) {
+       RunsWhere(b, e, [&](size_t i) { return motion.mean_shift[i] <= kSteadyMeanShift; })) {
     bool touches = false;
-    for (size_t i = r.begin; i < r.end && !touches; ++i) touches = in_variance_run[i];
+    for (size_t i = r.begin; i < r.end && !touches; ++i) touches = in_variance_run[i - b];
     if (touches || r.end - r.begin <= 2 * half) continue;
     out.push_back({r.begin + half, r.end - half});
   }
-  std::sort(out.begin(), out.end(), [](const Run& a, const Run& b) { return a.begin < b.begin; });
+  std::sort(out.begin(), out.end(), [](const Run& x, const Run& y) { return x.begin < y.begin; });
   return out;
 }
 
-// The gyroscope's rate at rest: the duration-weighted median over the intervals of each axis'
-// mean (a steady turn is a short minority of a capture), and how far a rest may read from it.
-struct RateReference {
-  Eigen::Vector3d bias = Eigen::Vector3d::Zero();
-  Eigen::Vector3d tolerance = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+// What the rotation test knows of one file: its noise, its rest rate (input units) and how far
+// a rest's rate may sit from it (rad/s).
+struct FileRest {
+  NoiseLevel::Segment noise;
+  std::vector<Run> runs;
+  Eigen::Vector3d rate = Eigen::Vector3d::Zero();
+  double bias_bound_rad_s = 0;
 };
 
-constexpr double kTurningNoiseStd = 5.0;
-constexpr double kTurningSpreads = 5.0;
+// The capture's rotation test: the gyroscope's integral, its unit in radians (0 when unknown:
+// raw counts with no move that tilts the unit, where no rotation is measured), and each file's
+// rest.
+struct RestContext {
+  GyroIntegral integral;
+  double rad_per_unit = 0;
+  std::vector<FileRest> files;
+  const StaticDetectorOptions* options = nullptr;
 
-double WeightedMedian(std::vector<std::pair<double, double>> value_weight) {
-  std::sort(value_weight.begin(), value_weight.end());
-  double total = 0;
-  for (const auto& [v, w] : value_weight) total += w;
-  double sum = 0;
-  for (const auto& [v, w] : value_weight) {
-    sum += w;
-    if (sum >= 0.5 * total) return v;
+  // The rotation of [b, e) in file `f` and the most a rest could turn, radians.
+  std::pair<double, double> Rotation(size_t f, size_t b, size_t e) const {
+    const FileRest& file = files[f];
+    const double turned = integral.Excursion(b, e, file.rate) * rad_per_unit;
+    const double bound = RestRotationBound(file.noise.gyro_std * rad_per_unit, e - b,
+                                           integral.median_dt_s, integral.Duration(b, e),
+                                           file.bias_bound_rad_s, options->rotation_sigmas);
+    return {turned, bound};
   }
-  return value_weight.empty() ? 0.0 : value_weight.back().first;
-}
+  bool Turns(size_t f, size_t b, size_t e) const {
+    if (!(rad_per_unit > 0)) return false;
+    const auto [turned, bound] = Rotation(f, b, e);
+    return turned > bound;
+  }
+};
 
-RateReference GyroRateReference(const Capture& capture, const std::vector<Run>& runs,
-                                const NoiseLevel& noise, const StaticDetectorOptions& options) {
-  RateReference out;
-  // The runs long enough to be poses, else all of them.
-  std::vector<StaticInterval> rests;
+constexpr double kDegPerRad = 180.0 / std::numbers::pi;
+
+// The runs long enough to be poses (else all of them) as rate samples.
+std::vector<RateSample> RateSamples(const Capture& capture, const std::vector<Run>& runs,
+                                    const StaticDetectorOptions& options) {
+  std::vector<RateSample> all, long_ones;
   for (const Run& r : runs) {
     if (r.end <= r.begin + 1) continue;
-    StaticInterval s = SummariseInterval(capture, r.begin, r.end);
-    if (s.t_end_s - s.t_start_s >= options.min_static_s) rests.push_back(s);
+    const StaticInterval s = SummariseInterval(capture, r.begin, r.end);
+    const RateSample sample{s.gyro_mean, static_cast<double>(s.samples())};
+    all.push_back(sample);
+    if (s.t_end_s - s.t_start_s >= options.min_static_s) long_ones.push_back(sample);
   }
-  if (rests.empty()) {
-    for (const Run& r : runs)
-      if (r.end > r.begin + 1) rests.push_back(SummariseInterval(capture, r.begin, r.end));
-  }
-  if (rests.empty()) return out;
-  for (int j = 0; j < 3; ++j) {
-    std::vector<std::pair<double, double>> mean_samples;
-    for (const StaticInterval& s : rests)
-      mean_samples.emplace_back(s.gyro_mean(j), static_cast<double>(s.samples()));
-    out.bias(j) = WeightedMedian(mean_samples);
-    std::vector<std::pair<double, double>> deviation;
-    for (const StaticInterval& s : rests)
-      deviation.emplace_back(std::abs(s.gyro_mean(j) - out.bias(j)), 1.0);
-    const double spread = 1.4826 * WeightedMedian(deviation);  // MAD, as a std
-    out.tolerance(j) = std::max(kTurningNoiseStd * noise.gyro_std(j), kTurningSpreads * spread);
-  }
-  return out;
+  return long_ones.empty() ? all : long_ones;
 }
 
-// True when the gyroscope's mean over `s` is off its rest by more than the tolerance; `axis`
-// and `rate` say where and how much.
-bool Turning(const StaticInterval& s, const RateReference& rate, int* axis, double* off) {
-  for (int j = 0; j < 3; ++j) {
-    *off = s.gyro_mean(j) - rate.bias(j);
-    if (std::abs(*off) > rate.tolerance(j)) {
-      *axis = j;
-      return true;
+// A gyroscope at rest reads its bias, and no MEMS gyroscope's bias is this large (the
+// MPU-6050's zero-rate output is specified within 20 deg/s, most are within a few): a run whose
+// mean rate is larger turned, whatever else it looks like. Nominal units only (raw counts
+// carry an offset).
+constexpr double kMostBiasDegS = 25.0;
+
+// The samples a rest rate may come from: all of them in counts, else those within kMostBiasDegS.
+std::vector<RateSample> PlausibleRests(std::vector<RateSample> runs, const Capture& capture) {
+  if (capture.gyro_unit == GyroUnit::kCounts) return runs;
+  const double most = kMostBiasDegS * std::numbers::pi / 180 / NominalGyroToSi(capture.gyro_unit);
+  std::erase_if(runs, [&](const RateSample& r) { return r.mean.norm() > most; });
+  return runs;
+}
+
+// Each file's rest rate: the densest cluster (by duration) of its own runs when it has two or
+// more; else (a file holding one pose) the densest cluster of all files' runs, with the power-up
+// bound. With no plausible rest at all (every run turned: a hand-held walk), the rest rate is
+// zero and the bound the largest bias a gyroscope has.
+void SetRestRates(const Capture& capture, const StaticDetectorOptions& options,
+                  RestContext* ctx) {
+  std::vector<RateSample> all;  // every run: the provisional rate for a gyroscope in counts
+  for (const FileRest& f : ctx->files) {
+    const std::vector<RateSample> s = RateSamples(capture, f.runs, options);
+    all.insert(all.end(), s.begin(), s.end());
+  }
+  std::vector<std::pair<size_t, size_t>> rests;
+  for (const FileRest& f : ctx->files)
+    for (const Run& r : f.runs) rests.emplace_back(r.begin, r.end);
+  const Eigen::Vector3d provisional = DenseRestRate(all, INFINITY);
+  ctx->rad_per_unit = RoughRadPerGyroUnit(capture, ctx->integral, rests, provisional);
+  if (!(ctx->rad_per_unit > 0)) return;
+  const double rest_bound = options.rest_rate_bound_deg_s / kDegPerRad;
+  const double power_up_bound = options.power_up_rate_bound_deg_s / kDegPerRad;
+  all = PlausibleRests(std::move(all), capture);
+  const Eigen::Vector3d across = DenseRestRate(all, power_up_bound / ctx->rad_per_unit);
+  for (FileRest& f : ctx->files) {
+    const std::vector<RateSample> own =
+        PlausibleRests(RateSamples(capture, f.runs, options), capture);
+    if (own.size() >= 2) {
+      f.rate = DenseRestRate(own, rest_bound / ctx->rad_per_unit);
+      f.bias_bound_rad_s = rest_bound;
+    } else if (!all.empty()) {
+      f.rate = across;
+      f.bias_bound_rad_s = power_up_bound;
+    } else {
+      f.rate.setZero();
+      f.bias_bound_rad_s = kMostBiasDegS * std::numbers::pi / 180;
     }
   }
-  return false;
+}
+
+// Cuts file `f`'s still runs where the gyroscope turns: a sample whose centred window's mean
+// rate is off the rest rate by more than `rotation_sigmas` noise std of a window mean plus the
+// bias bound. A hand-held capture's learnt threshold can take a slow turn and the rests on
+// either side as one run; the rotation test would then refuse the whole run, rests included.
+void SplitAtTurns(const MotionSignal& motion, RestContext* ctx, size_t f) {
+  if (!(ctx->rad_per_unit > 0)) return;
+  FileRest& file = ctx->files[f];
+  const GyroIntegral& g = ctx->integral;
+  const size_t h = motion.window / 2;
+  const size_t n = g.time_s.size() - 1;
+  const double limit =
+      ctx->options->rotation_sigmas * file.noise.gyro_std.norm() * ctx->rad_per_unit /
+          std::sqrt(static_cast<double>(2 * h + 1)) +
+      file.bias_bound_rad_s;
+  auto turning = [&](size_t i) {
+    const size_t b = i >= h ? i - h : 0, e = std::min(n, i + h + 1);
+    const double span = g.time_s[e] - g.time_s[b];
+    if (!(span > 0)) return false;
+    const Eigen::Vector3d mean = (g.angle[e] - g.angle[b]) / span;
+    return (mean - file.rate).norm() * ctx->rad_per_unit > limit;
+  };
+  std::vector<Run> out;
+  for (const Run& r : file.runs) {
+    for (const Run& piece : RunsWhere(r.begin, r.end, [&](size_t i) { return !turning(i); }))
+      out.push_back(piece);
+  }
+  file.runs = std::move(out);
 }
 
 // The "moved" test between two sets of samples of one pose: their accelerometer means differ by
 // more than the noise of the means AND by more than the per-sample noise (slow thermal drift of a
 // long rest stays below). Sets `axis` and `shift` (in noise std) when they do.
-bool MeansDiffer(const StaticInterval& a, const StaticInterval& b, const NoiseLevel& noise,
+bool MeansDiffer(const StaticInterval& a, const StaticInterval& b, const Eigen::Vector3d& noise,
                  const StaticDetectorOptions& options, int* axis, double* shift_std) {
   const Eigen::Vector3d shift = (b.accel_mean - a.accel_mean).cwiseAbs();
   const Eigen::Vector3d sigma_means =
-      noise.accel_std.cwiseMax(0.5 * (a.accel_std + b.accel_std)) *
+      noise.cwiseMax(0.5 * (a.accel_std + b.accel_std)) *
       std::sqrt(1.0 / static_cast<double>(a.samples()) + 1.0 / static_cast<double>(b.samples()));
   for (int k = 0; k < 3; ++k) {
-    if (shift(k) > options.moved_sigma * sigma_means(k) && shift(k) > 3 * noise.accel_std(k)) {
+    if (shift(k) > options.moved_sigma * sigma_means(k) && shift(k) > 3 * noise(k)) {
       *axis = k;
-      *shift_std = shift(k) / noise.accel_std(k);
+      *shift_std = shift(k) / noise(k);
       return true;
     }
   }
   return false;
 }
 
-// Joins neighbouring runs of one rest (see DetectStatic): two runs whose accelerometer means do
-// not differ, with the samples between them (no longer than the two runs together) reading the
-// same orientation, and the gyroscope at its rest there (mean rate within the tolerance of the
-// rest's reference). Runs of one or two samples are too short to judge.
-std::vector<Run> JoinRunsOfOneRest(const Capture& capture, const NoiseLevel& noise,
-                                   const StaticDetectorOptions& options, const RateReference& rate,
-                                   std::vector<Run> runs) {
+// A time gap (an interval over 3 median intervals) between samples `from` and `to`.
+bool GapBetween(const Capture& capture, size_t from, size_t to, double median_dt) {
+  for (size_t i = from + 1; i <= to && i < capture.size(); ++i)
+    if (capture.t_s[i] - capture.t_s[i - 1] > 3 * median_dt) return true;
+  return false;
+}
+
+// Joins neighbouring runs of one rest (see DetectStatic): no time gap between them, the
+// gyroscope not turning over the whole span, and the accelerometer's means agreeing before,
+// between and after. Runs of one or two samples are too short to judge.
+std::vector<Run> JoinRunsOfOneRest(const Capture& capture, const RestContext& ctx, size_t f,
+                                   const StaticDetectorOptions& options, std::vector<Run> runs) {
   if (runs.size() < 2) return runs;
+  const Eigen::Vector3d& noise = ctx.files[f].noise.accel_std;
   std::vector<Run> out;
   out.push_back(runs.front());
   for (size_t k = 1; k < runs.size(); ++k) {
     Run& last = out.back();
     const Run& next = runs[k];
-    const size_t gap = next.begin - last.end;
-    const size_t held = (last.end - last.begin) + (next.end - next.begin);
-    bool join = gap <= held && last.end - last.begin > 2 && next.end - next.begin > 2;
+    bool join = last.end - last.begin > 2 && next.end - next.begin > 2 &&
+                !GapBetween(capture, last.end - 1, next.begin, ctx.integral.median_dt_s) &&
+                ctx.rad_per_unit > 0 && !ctx.Turns(f, last.begin, next.end);
     if (join) {
       const StaticInterval a = SummariseInterval(capture, last.begin, last.end);
       const StaticInterval b = SummariseInterval(capture, next.begin, next.end);
       const StaticInterval between = SummariseInterval(capture, last.end, next.begin);
       int axis = 0;
-      double shift = 0, off = 0;
+      double shift = 0;
       join = !MeansDiffer(a, b, noise, options, &axis, &shift) &&
-             (gap < 2 || (!MeansDiffer(a, between, noise, options, &axis, &shift) &&
-                          !MeansDiffer(between, b, noise, options, &axis, &shift))) &&
-             !Turning(between, rate, &axis, &off) && !Turning(a, rate, &axis, &off) &&
-             !Turning(b, rate, &axis, &off);
+             (next.begin - last.end < 2 ||
+              (!MeansDiffer(a, between, noise, options, &axis, &shift) &&
+               !MeansDiffer(between, b, noise, options, &axis, &shift)));
     }
     if (join) {
       last.end = next.end;
@@ -300,9 +375,10 @@ std::vector<Run> JoinRunsOfOneRest(const Capture& capture, const NoiseLevel& noi
   return out;
 }
 
-// Sets used/issue/reason of `s`: turning, too short, saturated or moved.
+// Sets used/issue/reason of `s` (in file `f`): turning, too short, saturated or moved.
 void Classify(const Capture& capture, const MotionSignal& motion, const NoiseLevel& noise,
-              const StaticDetectorOptions& options, const RateReference& rate, StaticInterval* s) {
+              const RestContext& ctx, size_t f, StaticInterval* s) {
+  const StaticDetectorOptions& options = *ctx.options;
   const double duration = s->t_end_s - s->t_start_s;
   int axis = 0;
   double value = 0;
@@ -311,18 +387,26 @@ void Classify(const Capture& capture, const MotionSignal& motion, const NoiseLev
     s->issue = issue;
     s->reason = std::move(reason);
   };
-  if (Turning(*s, rate, &axis, &value)) {
+  if (ctx.rad_per_unit > 0) {
+    const auto [turned, bound] = ctx.Rotation(f, s->begin, s->end);
+    s->rotation_deg = turned * kDegPerRad;
+    s->rotation_bound_deg = bound * kDegPerRad;
+  }
+  if (s->rotation_deg > s->rotation_bound_deg) {
     reject(IntervalIssue::kTurning,
-           absl::StrFormat("turning: steady, but gyro %c reads %.3g (input units) off its rest "
-                           "(%.0f x the tolerance); a rest is still, not a steady turn",
-                           "xyz"[axis], value, std::abs(value) / rate.tolerance(axis)));
+           absl::StrFormat("turning: the gyroscope turned %.1f deg over these %.1f s (%.2g deg/s "
+                           "on average), more than a rest can (%.2f deg: its noise and a %.2g "
+                           "deg/s bound on its bias); a rest is still, not a steady turn",
+                           s->rotation_deg, duration,
+                           duration > 0 ? s->rotation_deg / duration : 0.0, s->rotation_bound_deg,
+                           ctx.files[f].bias_bound_rad_s * kDegPerRad));
   } else if (duration < options.min_static_s) {
     reject(IntervalIssue::kTooShort,
            absl::StrFormat("too short: held %.1f s, needs %.1f s; hold the pose longer", duration,
                            options.min_static_s));
-  } else if (PiledOnRail(motion.accel_at_rail, s->begin, s->end, noise.accel_std,
+  } else if (PiledOnRail(motion.accel_at_rail, s->begin, s->end, s->accel_noise_std,
                          noise.accel_floor, &axis) ||
-             PiledOnRail(motion.gyro_at_rail, s->begin, s->end, noise.gyro_std,
+             PiledOnRail(motion.gyro_at_rail, s->begin, s->end, s->gyro_noise_std,
                          noise.gyro_floor, &axis)) {
     reject(IntervalIssue::kSaturated,
            absl::StrFormat(
@@ -332,7 +416,7 @@ void Classify(const Capture& capture, const MotionSignal& motion, const NoiseLev
     const size_t mid = (s->begin + s->end) / 2;
     const StaticInterval h1 = SummariseInterval(capture, s->begin, mid);
     const StaticInterval h2 = SummariseInterval(capture, mid, s->end);
-    if (MeansDiffer(h1, h2, noise, options, &axis, &value)) {
+    if (MeansDiffer(h1, h2, s->accel_noise_std, options, &axis, &value)) {
       reject(IntervalIssue::kMoved,
              absl::StrFormat(
                  "moved during capture: axis %c shifted by %.1f noise std between the first and "
@@ -406,43 +490,90 @@ MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOpt
   return out;
 }
 
+namespace {
+
+// The noise std of samples [b, e): the 10th percentile of their window variances is rest (a
+// calibration capture is mostly at rest), and the longest run at (twice) that floor is the
+// cleanest rest, where the per-axis noise is measured.
+NoiseLevel::Segment SegmentNoise(const Capture& capture, const MotionSignal& motion, size_t b,
+                                 size_t e) {
+  NoiseLevel::Segment out;
+  out.begin = b;
+  out.end = e;
+  std::vector<double> acc_var, gyr_var;
+  for (size_t i = b; i < e; ++i) {
+    if (!std::isfinite(motion.accel_var[i]) || !std::isfinite(motion.gyro_var[i])) continue;
+    acc_var.push_back(motion.accel_var[i]);
+    gyr_var.push_back(motion.gyro_var[i]);
+  }
+  if (acc_var.empty()) return out;
+  const double acc_floor = Quantile(std::move(acc_var), 0.10);
+  const double gyr_floor = Quantile(std::move(gyr_var), 0.10);
+  size_t best_b = 0, best_e = 0;
+  auto quiet = [&](size_t i) {
+    return motion.accel_var[i] <= 2 * acc_floor && motion.gyro_var[i] <= 2 * gyr_floor;
+  };
+  for (size_t i = b; i < e;) {
+    if (!quiet(i)) {
+      ++i;
+      continue;
+    }
+    size_t j = i;
+    while (j < e && quiet(j)) ++j;
+    if (j - i > best_e - best_b) best_b = i, best_e = j;
+    i = j;
+  }
+  if (best_e - best_b >= motion.window) {
+    out.accel_std = RunStd(capture.accel, best_b, best_e);
+    out.gyro_std = RunStd(capture.gyro, best_b, best_e);
+    out.source = absl::StrFormat("rest at %.1f-%.1f s (the longest quiet run)",
+                                 capture.t_s[best_b], capture.t_s[best_e - 1]);
+  } else {
+    out.accel_std = Eigen::Vector3d::Constant(std::sqrt(acc_floor / 3));
+    out.gyro_std = Eigen::Vector3d::Constant(std::sqrt(gyr_floor / 3));
+    out.source = "10th percentile of window variances (no long rest found)";
+  }
+  return out;
+}
+
+}  // namespace
+
 NoiseLevel EstimateNoise(const Capture& capture, const MotionSignal& motion) {
   NoiseLevel noise;
   const size_t n = capture.size();
   if (n < motion.window) return noise;
-  // A calibration capture is mostly at rest: the 10th percentile of window variances is rest.
-  const double acc_floor = Quantile(motion.accel_var, 0.10);
-  const double gyr_floor = Quantile(motion.gyro_var, 0.10);
-  // The longest run at (twice) that floor is the cleanest rest: measure per-axis noise there.
-  size_t best_b = 0, best_e = 0;
-  for (size_t i = 0; i < n;) {
-    if (motion.accel_var[i] <= 2 * acc_floor && motion.gyro_var[i] <= 2 * gyr_floor) {
-      size_t j = i;
-      while (j < n && motion.accel_var[j] <= 2 * acc_floor && motion.gyro_var[j] <= 2 * gyr_floor)
-        ++j;
-      if (j - i > best_e - best_b) best_b = i, best_e = j;
-      i = j;
-    } else {
-      ++i;
-    }
-  }
-  if (best_e - best_b >= motion.window) {
-    noise.accel_std = RunStd(capture.accel, best_b, best_e);
-    noise.gyro_std = RunStd(capture.gyro, best_b, best_e);
-    noise.source = absl::StrFormat("rest at %.1f-%.1f s (the longest quiet run)",
-                                   capture.t_s[best_b], capture.t_s[best_e - 1]);
-  } else {
-    noise.accel_std = Eigen::Vector3d::Constant(std::sqrt(acc_floor / 3));
-    noise.gyro_std = Eigen::Vector3d::Constant(std::sqrt(gyr_floor / 3));
-    noise.source = "10th percentile of window variances (no long rest found)";
-  }
   // Quantised readings quieter than one step still carry a step's rounding noise.
   noise.accel_step = GridSteps(capture.accel);
   noise.gyro_step = GridSteps(capture.gyro);
   noise.accel_floor = NoiseFloor(capture.accel, noise.accel_step);
   noise.gyro_floor = NoiseFloor(capture.gyro, noise.gyro_step);
-  noise.accel_std = noise.accel_std.cwiseMax(noise.accel_floor);
-  noise.gyro_std = noise.gyro_std.cwiseMax(noise.gyro_floor);
+  const NoiseLevel::Segment all = SegmentNoise(capture, motion, 0, n);
+  noise.accel_std = all.accel_std.cwiseMax(noise.accel_floor);
+  noise.gyro_std = all.gyro_std.cwiseMax(noise.gyro_floor);
+  noise.source = all.source;
+  std::vector<size_t> bounds = {0};
+  for (size_t start : capture.FileStarts())
+    if (start > bounds.back() && start < n) bounds.push_back(start);
+  bounds.push_back(n);
+  for (size_t k = 0; k + 1 < bounds.size(); ++k) {
+    NoiseLevel::Segment seg = bounds.size() == 2
+                                  ? all
+                                  : SegmentNoise(capture, motion, bounds[k], bounds[k + 1]);
+    seg.begin = bounds[k];
+    seg.end = bounds[k + 1];
+    // A file too short to measure (under one window of finite variances) takes the capture's.
+    if (seg.source.empty()) {
+      seg.accel_std = noise.accel_std;
+      seg.gyro_std = noise.gyro_std;
+      seg.source = "the capture's (the file is too short to measure its own)";
+    }
+    seg.accel_std = seg.accel_std.cwiseMax(noise.accel_floor);
+    seg.gyro_std = seg.gyro_std.cwiseMax(noise.gyro_floor);
+    noise.segments.push_back(std::move(seg));
+  }
+  if (noise.segments.size() > 1) {
+    absl::StrAppend(&noise.source, "; the still thresholds are learnt per file");
+  }
   return noise;
 }
 
@@ -481,20 +612,39 @@ StaticInterval SummariseInterval(const Capture& capture, size_t begin, size_t en
 std::vector<StaticInterval> DetectStatic(const Capture& capture, const MotionSignal& motion,
                                          const NoiseLevel& noise, double multiplier,
                                          const StaticDetectorOptions& options) {
-  const double acc_threshold = multiplier * noise.accel_std.squaredNorm();
-  const double gyr_threshold = multiplier * noise.gyro_std.squaredNorm();
-  const double dt = capture.MedianDt();
+  RestContext ctx;
+  ctx.options = &options;
+  ctx.integral = GyroIntegral(capture);
+  std::vector<NoiseLevel::Segment> segments = noise.segments;
+  if (segments.empty()) {
+    segments.push_back({0, capture.size(), noise.accel_std, noise.gyro_std, noise.source});
+  }
+  for (const NoiseLevel::Segment& seg : segments) {
+    FileRest f;
+    f.noise = seg;
+    f.runs = StillRuns(motion, seg.begin, std::min(seg.end, capture.size()),
+                       multiplier * seg.accel_std.squaredNorm(),
+                       multiplier * seg.gyro_std.squaredNorm());
+    ctx.files.push_back(std::move(f));
+  }
+  SetRestRates(capture, options, &ctx);
+  // Cut the runs where the gyroscope turns, then learn the rest rates again from the pieces
+  // (the runs that held a turn no longer pull them).
+  for (size_t f = 0; f < ctx.files.size(); ++f) SplitAtTurns(motion, &ctx, f);
+  SetRestRates(capture, options, &ctx);
+  const double dt = ctx.integral.median_dt_s;
   const size_t trim = dt > 0 ? static_cast<size_t>(std::lround(options.trim_s / dt)) : 0;
-  const std::vector<Run> still = StillRuns(motion, acc_threshold, gyr_threshold);
-  const RateReference rate = GyroRateReference(capture, still, noise, options);
-  const std::vector<Run> runs = JoinRunsOfOneRest(capture, noise, options, rate, still);
   std::vector<StaticInterval> out;
-  for (const Run& run : runs) {
-    const size_t b = run.begin + trim, e = run.end > trim ? run.end - trim : 0;
-    if (e <= b + 1) continue;  // nothing left after trimming: a pause, not a pose
-    StaticInterval s = SummariseInterval(capture, b, e);
-    Classify(capture, motion, noise, options, rate, &s);
-    out.push_back(std::move(s));
+  for (size_t f = 0; f < ctx.files.size(); ++f) {
+    for (const Run& run : JoinRunsOfOneRest(capture, ctx, f, options, ctx.files[f].runs)) {
+      const size_t b = run.begin + trim, e = run.end > trim ? run.end - trim : 0;
+      if (e <= b + 1) continue;  // nothing left after trimming: a pause, not a pose
+      StaticInterval s = SummariseInterval(capture, b, e);
+      s.accel_noise_std = ctx.files[f].noise.accel_std;
+      s.gyro_noise_std = ctx.files[f].noise.gyro_std;
+      Classify(capture, motion, noise, ctx, f, &s);
+      out.push_back(std::move(s));
+    }
   }
   return out;
 }

@@ -1,12 +1,14 @@
-// Static-pose detection that learns the noise level from the capture itself.
+// Static-pose detection that learns the noise level from the capture itself, bounded by physics.
 //
-// A sample is static when the variance of the accelerometer AND of the gyroscope over a centred
+// A sample is still when the variance of the accelerometer AND of the gyroscope over a centred
 // window of `window_s` is below `multiplier` times the white-noise variance of that sensor. The
-// noise variance is learnt from the data: the low quantile of all window variances (a
-// calibration capture is mostly at rest), refined by the longest static interval (the initial
-// rest). The multiplier is not a constant to tune: core/calibrate/static_poses.cc sweeps it and
-// keeps the value whose calibration predicts held-out poses best (IMU-TK sweeps it on the in-sample
-// cost).
+// noise variance is learnt from the data, file by file: the low quantile of the file's window
+// variances (a calibration capture is mostly at rest), refined by its longest quiet run. The
+// multiplier is not a constant to tune: core/calibrate/static_poses.cc sweeps it and keeps the
+// value whose calibration predicts held-out poses best (IMU-TK sweeps it on the in-sample cost).
+// A learnt threshold can be loose (a hand-held capture shakes as much as it turns), so the
+// threshold only proposes: an interval is a rest only if the gyroscope did not turn over it
+// (core/rest_rotation.h).
 #ifndef IMUCAL_CORE_STATIC_DETECTOR_H_
 #define IMUCAL_CORE_STATIC_DETECTOR_H_
 
@@ -29,6 +31,16 @@ struct StaticDetectorOptions {
   // Relative tilt between the first and second half of an interval above which it "moved".
   // Compared against the noise of the two half means, so the test is scale free.
   double moved_sigma = 8.0;
+  // The physical bound on a rest (core/rest_rotation.h): over a still interval the gyroscope,
+  // its rest rate removed, turns less than `rotation_sigmas` times its noise's random walk plus
+  // the bias bound times the duration. The bias bound is how far a rest's rate may sit from the
+  // rest rate of its file (temperature, wander: a MEMS gyroscope moves a few hundredths of a
+  // deg/s between poses, so 0.5 is generous), or, for a file with a single rest, from the rest
+  // rate of the other files, which may come from another power-up (turn-on bias repeatability of
+  // low-cost MEMS is a few deg/s). A turn at 20 deg/s and more is far beyond either.
+  double rotation_sigmas = 5.0;
+  double rest_rate_bound_deg_s = 0.5;
+  double power_up_rate_bound_deg_s = 5.0;
 };
 
 // Per-sample white-noise standard deviation, in the capture's input units.
@@ -48,6 +60,16 @@ struct NoiseLevel {
   Eigen::Vector3d accel_floor = Eigen::Vector3d::Zero();
   Eigen::Vector3d gyro_floor = Eigen::Vector3d::Zero();
   std::string source;  // how it was measured, for the report
+  // The noise of each file of the capture (one entry per file, in order; one for the whole
+  // capture when it has no files): the still thresholds are learnt per file, never across files,
+  // since the files of one capture may be recorded with other settings or on a noisier support.
+  struct Segment {
+    size_t begin = 0, end = 0;  // samples [begin, end)
+    Eigen::Vector3d accel_std = Eigen::Vector3d::Zero();
+    Eigen::Vector3d gyro_std = Eigen::Vector3d::Zero();
+    std::string source;
+  };
+  std::vector<Segment> segments;
 };
 
 // Why a static interval is not used (StaticInterval::issue).
@@ -56,7 +78,7 @@ enum class IntervalIssue {
   kTooShort,   // held shorter than min_static_s: still, but too briefly to average
   kSaturated,  // an axis sits on the sensor's range limit
   kMoved,      // the orientation changed within it
-  kTurning,    // steady but not at rest: the rate is far from the gyroscope's bias (a steady
+  kTurning,    // steady but not at rest: the gyroscope turned more than a rest can (a steady
                // turn about the vertical leaves the accelerometer unchanged and has no variance)
   kDuplicate,  // the orientation of the previous pose, not re-placed (core/calibrate)
 };
@@ -73,6 +95,13 @@ struct StaticInterval {
   Eigen::Vector3d gyro_mean = Eigen::Vector3d::Zero();
   Eigen::Vector3d gyro_std = Eigen::Vector3d::Zero();
   double temp_mean = std::numeric_limits<double>::quiet_NaN();
+  // The noise of the interval's file (NoiseLevel::Segment), input units per sample.
+  Eigen::Vector3d accel_noise_std = Eigen::Vector3d::Zero();
+  Eigen::Vector3d gyro_noise_std = Eigen::Vector3d::Zero();
+  // The gyroscope's largest rotation over the interval, its rest rate removed, and the most a
+  // rest could turn (core/rest_rotation.h), degrees; NaN when the gyroscope's unit is unknown.
+  double rotation_deg = std::numeric_limits<double>::quiet_NaN();
+  double rotation_bound_deg = std::numeric_limits<double>::quiet_NaN();
   bool used = true;
   IntervalIssue issue = IntervalIssue::kNone;
   std::string reason;  // why not used, in a technician's words
@@ -102,22 +131,24 @@ struct MotionSignal {
 inline constexpr double kSteadyMeanShift = 4.0;
 
 MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOptions& options);
+// The capture's noise (the quietest rest over all files), and each file's (NoiseLevel::segments).
 NoiseLevel EstimateNoise(const Capture& capture, const MotionSignal& motion);
 
 // Static intervals at one threshold multiplier, with summary statistics and the checks that need
 // no calibration: too short, moved during capture, saturated, turning.
 //
-// A sample is still when both sensors' window variances are under their thresholds, or when the
-// means around it stay put (MotionSignal::mean_shift under kSteadyMeanShift): a rest much noisier
-// than the quietest (a motor running) never passes the variance test at any multiplier.
-// A rest is one interval while its orientation does not change. A rest noisier than the
-// quietest (a hand still on the unit, a motor running, a sensor settling) crosses the threshold
-// here and there; its still runs are joined, with the samples between them, when nothing moved
-// between them: the accelerometer's means agree (the "moved" test), the samples between them
-// read the same orientation, and the gyroscope reads its bias there. A steady rate is not a
-// rest: an interval whose mean rate is off the bias (the duration-weighted median of the
-// intervals' means) by more than 5 noise std and 5 robust spreads of those means is "turning",
-// never used and never a turn's anchor.
+// A sample is still when both sensors' window variances are under their file's thresholds
+// (the multiplier times the file's noise variance), or when the means around it stay put
+// (MotionSignal::mean_shift under kSteadyMeanShift): a rest much noisier than the quietest (a
+// motor running) never passes the variance test at any multiplier.
+// Whatever the threshold, a rest is still by physics: an interval over which the gyroscope turns
+// more than its noise and the bias bound allow (core/rest_rotation.h) is "turning", never used
+// and never a turn's anchor, however steady its rate.
+// One rest is one interval: still runs of one file with no time gap between them are joined,
+// with the samples between them, when the gyroscope does not turn over the whole span (the same
+// bound) and the accelerometer's means agree (the "moved" test) before, between and after. A
+// long rest on a vibrating support or under a hand is therefore one pose, not ten; a rest that
+// ends in one file and starts again in the next is two.
 std::vector<StaticInterval> DetectStatic(const Capture& capture, const MotionSignal& motion,
                                          const NoiseLevel& noise, double multiplier,
                                          const StaticDetectorOptions& options);

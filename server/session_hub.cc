@@ -39,6 +39,7 @@ core::OnlineSegmenterOptions SegmenterOptionsFor(const storage::Device& device,
       break;
   }
   if (auto unit = core::ParseAccelUnit(device.accel_unit); unit.ok()) opt.accel_unit = *unit;
+  if (auto unit = core::ParseGyroUnit(device.gyro_unit); unit.ok()) opt.gyro_unit = *unit;
   return opt;
 }
 

@@ -1,6 +1,7 @@
 #include "core/online_segmenter.h"
 
 #include <cmath>
+#include <numbers>
 #include <random>
 #include <string>
 #include <vector>
@@ -139,6 +140,46 @@ TEST(OnlineSegmenterTest, RejectsTooShortAndMovedPoses) {
   EXPECT_NE(poses[2].reason.find("moved"), std::string::npos) << poses[2].reason;
   EXPECT_TRUE(poses[3].accepted);
   EXPECT_EQ(seg.poses_accepted(), 2);
+}
+
+// A steady turn about the vertical (issue 24): the accelerometer does not change and the
+// gyroscope reads a constant rate, so neither variance sees it. The live guide must not count it
+// as a pose: the gyroscope turned through it.
+TEST(OnlineSegmenterTest, ASteadyTurnIsNotAPose) {
+  for (const double rate_deg_s : {20.0, 100.0}) {
+    SCOPED_TRACE(rate_deg_s);
+    std::mt19937_64 rng(5);
+    std::normal_distribution<double> noise(0.0, 0.01);
+    OnlineSegmenterOptions opt;
+    opt.rate_hz = 100;
+    OnlineSegmenter seg(opt);
+    std::vector<SegmenterEvent> events;
+    double t = 0;
+    auto run = [&](double seconds, const Eigen::Vector3d& rate) {
+      const int n = static_cast<int>(seconds * opt.rate_hz);
+      for (int i = 0; i < n; ++i, t += 0.01)
+        seg.Add(t, Eigen::Vector3d(noise(rng), noise(rng), 9.8 + noise(rng)),
+                rate + 0.1 * Eigen::Vector3d(noise(rng), noise(rng), noise(rng)), &events);
+    };
+    const Eigen::Vector3d none = Eigen::Vector3d::Zero();
+    run(5, none);
+    run(180.0 / rate_deg_s, Eigen::Vector3d(0, 0, rate_deg_s * std::numbers::pi / 180));
+    run(4, none);
+    seg.Flush(&events);
+    std::vector<PoseUpdate> poses;
+    for (const SegmenterEvent& e : events)
+      if (e.kind == SegmenterEvent::Kind::kPose) poses.push_back(e.pose);
+    for (const PoseUpdate& p : poses) {
+      const bool in_turn = p.t_start_s > 5.2 && p.t_end_s < 5 + 180.0 / rate_deg_s - 0.2;
+      if (in_turn) {
+        EXPECT_FALSE(p.accepted);
+        EXPECT_NE(p.reason.find("turning"), std::string::npos) << p.reason;
+      }
+      if (p.accepted) EXPECT_TRUE(p.t_end_s < 5.3 || p.t_start_s > 5 + 180.0 / rate_deg_s - 0.3)
+          << p.t_start_s << "-" << p.t_end_s;
+    }
+    EXPECT_EQ(seg.poses_accepted(), 2);
+  }
 }
 
 // The robot stops streaming while still after its last pose (no motion, no Flush): the pose

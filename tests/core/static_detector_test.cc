@@ -306,6 +306,135 @@ TEST(StaticDetectorTest, HoldOnTheRailIsSaturated) {
   EXPECT_TRUE(first->used) << first->reason;
 }
 
+// ---------------------------------------------------------------------------------------------
+// A rest is a rest (issue 24): physics bounds the threshold.
+
+// A turn about the vertical at a steady rate leaves the accelerometer unchanged and the
+// gyroscope constant: no variance at all. Whatever the threshold, it is not a rest.
+TEST(StaticDetectorTest, ASteadyTurnAtAnyRateIsNeverARest) {
+  const Eigen::Vector3d up(0.1, -0.2, 9.8), side(9.7, 0.3, 0.5);
+  for (const double rate_deg_s : {20.0, 50.0, 100.0, 200.0}) {
+    SCOPED_TRACE(absl::StrFormat("%.0f deg/s", rate_deg_s));
+    const Eigen::Vector3d rate(0, 0, rate_deg_s * kPi / 180);
+    CaptureBuilder b(200, 0.02, 0.002, 17);
+    b.Still(10, up).Move(2, side).Still(4, side);
+    const double turn_start = b.now();
+    b.Ramp(kPi / rate(2), side, side, rate);  // half a turn about the vertical
+    const double turn_end = b.now();
+    b.Still(4, side).Move(2, up).Still(5, up);
+    const Capture capture = b.Build();
+    // Loose thresholds too (a hand-held capture learns one): the turn has no variance at all.
+    for (const double multiplier : {8.0, 1e3}) {
+      const Detection d = Detect(capture, multiplier);
+      for (const StaticInterval& s : d.intervals) {
+        if (s.t_end_s <= turn_start + 0.3 || s.t_start_s >= turn_end - 0.3) continue;
+        EXPECT_FALSE(s.used) << Describe(d.intervals);
+        EXPECT_EQ(s.issue, IntervalIssue::kTurning) << s.reason;
+        EXPECT_GT(s.rotation_deg, 10 * s.rotation_bound_deg) << s.reason;
+      }
+      // The rests on either side are found, and not joined across the turn.
+      const StaticInterval* before = Overlapping(d.intervals, turn_start - 3, turn_start - 1);
+      const StaticInterval* after = Overlapping(d.intervals, turn_end + 1, turn_end + 3);
+      ASSERT_NE(before, nullptr) << Describe(d.intervals);
+      ASSERT_NE(after, nullptr) << Describe(d.intervals);
+      EXPECT_TRUE(before->used) << before->reason;
+      EXPECT_TRUE(after->used) << after->reason;
+      EXPECT_LT(before->t_end_s, turn_start + 0.3) << Describe(d.intervals);
+      EXPECT_GT(after->t_start_s, turn_end - 0.3) << Describe(d.intervals);
+    }
+  }
+}
+
+// A hand shakes the unit back and forth (the gyroscope swings by several deg/s, far above the
+// noise) but does not turn it: with a threshold loose enough to take the shaking, the rest is
+// one used pose.
+TEST(StaticDetectorTest, AShakingHandIsStillARest) {
+  const Eigen::Vector3d up(0.1, -0.2, 9.8), side(9.7, 0.3, 0.5);
+  CaptureBuilder b(200, 0.02, 0.002, 19);
+  b.Still(10, up).Move(2, side);
+  const double start = b.now();
+  for (int k = 0; k < 4 * 200; ++k) {  // 4 s of an 8 Hz wobble of 0.05 rad/s amplitude
+    const double w = 0.05 * std::sin(2 * kPi * 8 * k / 200.0);
+    b.Ramp(1.0 / 200, side, side, Eigen::Vector3d(w, -w, 0.5 * w));
+  }
+  const double end = b.now();
+  b.Move(2, up).Still(5, up);
+  const Detection d = Detect(b.Build(), 1e3);
+  const StaticInterval* s = Overlapping(d.intervals, start + 1, end - 1);
+  ASSERT_NE(s, nullptr) << Describe(d.intervals);
+  EXPECT_TRUE(s->used) << s->reason;
+  EXPECT_LT(s->rotation_deg, s->rotation_bound_deg);
+}
+
+// A rotation table's servo buzzes in bursts through a long rest: the variance test cuts the rest
+// at every burst, the gyroscope says nothing turned, so it is one pose.
+TEST(StaticDetectorTest, ALongRestCutByVibrationIsOnePose) {
+  const Eigen::Vector3d up(0.1, -0.2, 9.8), side(9.7, 0.3, 0.5);
+  CaptureBuilder b(200, 0.02, 0.002, 23);
+  b.Still(10, up).Move(2, side);
+  const double start = b.now();
+  for (int burst = 0; burst < 8; ++burst) {
+    b.Still(4, side);
+    for (int k = 0; k < 100; ++k) {  // 0.5 s at 37 Hz, 10x the noise on both sensors
+      const double v = std::sin(2 * kPi * 37 * k / 200.0);
+      b.Ramp(1.0 / 200, side + Eigen::Vector3d(0.3 * v, -0.3 * v, 0.2 * v), side,
+             Eigen::Vector3d(0.03 * v, 0.02 * v, -0.03 * v));
+    }
+  }
+  b.Still(4, side);
+  const double end = b.now();
+  b.Move(2, up).Still(5, up);
+  const Detection d = Detect(b.Build(), 8.0);
+  std::vector<const StaticInterval*> in_rest;
+  for (const StaticInterval& s : d.intervals)
+    if (s.t_end_s > start && s.t_start_s < end) in_rest.push_back(&s);
+  ASSERT_EQ(in_rest.size(), 1u) << Describe(d.intervals);
+  EXPECT_TRUE(in_rest[0]->used) << in_rest[0]->reason;
+  EXPECT_GT(in_rest[0]->t_end_s - in_rest[0]->t_start_s, 0.9 * (end - start));
+}
+
+// Two files: the first ends in a rest and the second starts in the same orientation (a per-face
+// file holding the wrong face). No interval crosses the file's start.
+TEST(StaticDetectorTest, NoRestCrossesAFileStart) {
+  const Eigen::Vector3d up(0.1, -0.2, 9.8), side(9.7, 0.3, 0.5);
+  CaptureBuilder b(200, 0.02, 0.002, 29);
+  b.Still(10, up).Move(2, side).Still(6, side);
+  const size_t second = b.Build().size();
+  b.Still(6, side).Move(2, up).Still(5, up);
+  Capture capture = b.Build();
+  capture.files = {{"a.csv", 0}, {"b.csv", second}};
+  const Detection d = Detect(capture, 8.0);
+  for (const StaticInterval& s : d.intervals)
+    EXPECT_FALSE(s.begin < second && s.end > second) << Describe(d.intervals);
+  EXPECT_NE(Overlapping(d.intervals, 13, 17), nullptr) << Describe(d.intervals);
+  EXPECT_NE(Overlapping(d.intervals, 19, 23), nullptr) << Describe(d.intervals);
+}
+
+// Per-file thresholds: the second file's noise is 5x the first's. Learnt across files, the
+// quiet file's floor would hide the noisy file's rests; learnt per file, both are found.
+TEST(StaticDetectorTest, EachFileLearnsItsOwnNoise) {
+  const Eigen::Vector3d up(0.1, -0.2, 9.8), side(9.7, 0.3, 0.5), down(-0.2, 0.1, -9.8);
+  CaptureBuilder quiet(200, 0.02, 0.002, 31), noisy(200, 0.1, 0.01, 37);
+  quiet.Still(20, up).Move(2, side).Still(8, side);
+  noisy.Still(8, down).Move(2, side).Still(8, side);
+  Capture capture = quiet.Build();
+  const Capture tail = noisy.Build();
+  const size_t second = capture.size();
+  const double t0 = capture.t_s.back() + 10;
+  for (size_t i = 0; i < tail.size(); ++i) {
+    capture.t_s.push_back(t0 + tail.t_s[i]);
+    capture.accel.push_back(tail.accel[i]);
+    capture.gyro.push_back(tail.gyro[i]);
+  }
+  capture.files = {{"quiet.csv", 0}, {"noisy.csv", second}};
+  const Detection d = Detect(capture, 8.0);
+  ASSERT_EQ(d.noise.segments.size(), 2u);
+  EXPECT_NEAR(d.noise.segments[1].accel_std(0) / d.noise.segments[0].accel_std(0), 5.0, 1.0);
+  int used_in_noisy = 0;
+  for (const StaticInterval& s : d.intervals) used_in_noisy += s.used && s.begin >= second;
+  EXPECT_EQ(used_in_noisy, 2) << Describe(d.intervals);
+}
+
 TEST(StaticDetectorTest, SummariseIntervalGivesMeansAndStd) {
   Capture c;
   for (int k = 0; k < 4; ++k) {

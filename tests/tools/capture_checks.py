@@ -86,6 +86,9 @@ def tolerances(truth, report, faces_once):
     sa, sg = noise_of(truth, "accel"), noise_of(truth, "gyro")
     noisy = truth.get("noisy_rest") or {}
     extra_a = 0.0
+    # Holds with more noise (--hold-noise-factors): the noisiest hold's mean decides.
+    factor = max(truth.get("hold_noise_factors") or [1.0])
+    sa, sg = factor * sa, factor * sg
     if noisy:
         # The noisy pose's mean: its noise is F times the others', over its own samples, plus
         # what the settling offset or the vibration leaves in it.
@@ -201,8 +204,11 @@ def check_directions(c, pairs, truth):
         norm = math.sqrt(sum(x * x for x in a))
         cos = sum(x / norm * w for x, w in zip(a, want["up_body"]))
         angle = math.acos(max(-1.0, min(1.0, cos)))
-        s = sa * (noisy["noise_factor"] if noisy and noisy["pose"] == truth["poses"].index(want)
-                  else 1.0)
+        k = truth["poses"].index(want)
+        s = sa * (noisy["noise_factor"] if noisy and noisy["pose"] == k else 1.0)
+        factors = truth.get("hold_noise_factors")
+        if factors:  # --hold-noise-factors: this hold's own noise
+            s *= factors[k % len(factors)]
         err = (6 * math.sqrt(s ** 2 + step ** 2 / 12) / math.sqrt(p["samples"]) +
                math.sqrt(3) * quantisation_bias(s, step) +
                (noisy.get("settle_mean_offset_m_s2", 0.0) * math.sqrt(3) if noisy else 0.0))
@@ -232,6 +238,40 @@ def check_files(c, report, truth):
             want = truth["poses"][files[name]["poses"][0]]["lines"]
             c.check(f"pose {p['index']} in {name}: lines {lines} miss the hold {want}",
                     lines[0] <= want[1] and want[0] <= lines[1])
+
+
+def check_rests(c, report, truth, args):
+    """A rest is a rest: every used pose lies inside one of the writer's holds (never in a move,
+    however steady or slow), and, with --one-per-hold, every long hold is one used pose over at
+    least 80% of it (a rest is not cut into pieces); with --per-file, each file's hold is."""
+    used = used_poses(report)
+    if args.per_file:
+        files = {f["name"]: f for f in truth["files"]}
+        for name, f in files.items():
+            mine = [p for p in used if os.path.basename(str(p.get("file"))) == name]
+            c.check(f"{name}: {len(mine)} used poses, want 1 (its hold, lines {f['lines']})",
+                    len(mine) == 1)
+        c.done(f"{len(files)} files, one used pose each")
+        return
+    holds = [(p["t_start_s"], p["t_end_s"]) for p in truth["poses"]]
+    slack = 0.15
+    for p in used:
+        inside = [h for h in holds if h[0] - slack <= p["t_start"] and p["t_end"] <= h[1] + slack]
+        c.check(f"used pose {p['index']} ({p['t_start']:.2f}-{p['t_end']:.2f} s) is not inside "
+                f"any hold: it takes a move for a rest", len(inside) == 1)
+    if args.one_per_hold is not None:
+        for lo, hi in holds:
+            if hi - lo < args.one_per_hold:
+                continue
+            hits = [p for p in report["poses"] if p["t_start"] < hi and lo < p["t_end"]]
+            desc = [(p["index"], round(p["t_start"], 2), round(p["t_end"], 2), p["used"])
+                    for p in hits]
+            c.check(f"the hold at {lo:.2f}-{hi:.2f} s is {desc}, want one used pose over "
+                    f">= 80% of it", len(hits) == 1 and hits[0]["used"] and
+                    hits[0]["t_end"] - hits[0]["t_start"] >= 0.8 * (hi - lo))
+    turns = truth.get("slow_turns") or []
+    c.done(f"{len(used)} used poses, each inside a hold; {len(turns)} slow turns not taken for "
+           f"rests")
 
 
 def check_reasons(c, report):
@@ -538,7 +578,7 @@ def final_moves(report, rows):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("check", choices=["params", "files", "steady", "noisy", "refused",
+    parser.add_argument("check", choices=["params", "files", "steady", "noisy", "refused", "rests",
                                           "names", "effects", "final", "rates"])
     parser.add_argument("report")
     parser.add_argument("truth", nargs="?")
@@ -559,6 +599,14 @@ def main():
                              "validation capture")
     parser.add_argument("--applied-without", help="effects: the same without the effects")
     parser.add_argument("--clean", help="rates: the report of a capture without a rate term")
+    parser.add_argument("--bias-aim-deg-s", type=float, default=None,
+                        help="steady: the gyro bias within this of the truth, every axis")
+    parser.add_argument("--gravity-aim-deg", type=float, default=None,
+                        help="steady: the gravity direction after the moves, RMS, at most")
+    parser.add_argument("--one-per-hold", type=float, default=None, metavar="MIN_S",
+                        help="rests: every hold of MIN_S or more is one used pose")
+    parser.add_argument("--per-file", action="store_true",
+                        help="rests: every file's hold is one used pose (a split capture)")
     parser.add_argument("--ratio", type=float, default=1.3,
                         help="effects: validation error allowed, times the truth's")
     args = parser.parse_args()
@@ -632,9 +680,21 @@ def main():
         lim = 3 * math.sqrt(3) * noise_of(truth, "gyro") / math.sqrt(n)
         c.check(f"residual.gyro_static_rms = {v} rad/s, want <= {lim:.3g}",
                 isinstance(v, (int, float)) and v <= lim)
+        # The issue's aims, absolute (issue 24: a steady turn must not harm the gyro's fit).
+        if args.bias_aim_deg_s is not None:
+            bias = ((report.get("parameters") or {}).get("gyro") or {}).get("bias") or [0] * 3
+            err = max(abs(math.degrees(b - t)) for b, t in zip(bias, truth["gyro_bias_rad_s"]))
+            c.check(f"gyro bias {bias} rad/s is {err:.4f} deg/s off the truth, aim "
+                    f"{args.bias_aim_deg_s}", err <= args.bias_aim_deg_s)
+        if args.gravity_aim_deg is not None:
+            v = res.get("gravity_direction_rms_deg")
+            c.check(f"gravity direction after the moves {v} deg RMS, aim {args.gravity_aim_deg}",
+                    isinstance(v, (int, float)) and v <= args.gravity_aim_deg)
         c.done(f"no pose mid-turn; gravity after the moves {res.get('gravity_direction_rms_deg')}"
                f" deg RMS (limit {3 * math.degrees(sigma):.3f}), static gyro "
                f"{res.get('gyro_static_rms')} rad/s (limit {lim:.3g})")
+    elif args.check == "rests":
+        check_rests(c, report, truth, args)
     elif args.check == "noisy":
         # The noisy rest stays one pose: one pose found across its hold, used, no fragments
         # beside it, covering at least 40% of it. A settling sensor's start may be left out:

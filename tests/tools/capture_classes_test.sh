@@ -109,15 +109,64 @@ case_low_noise() {
   want_rc l1 0 && checks params "$dir/l1.json" "$dir/l1/truth.json"
 }
 
-# Turns about the vertical at a steady 96 deg/s on a level floor (the accelerometer does not
-# change through a turn, the gyroscope is constant mid-turn), no effect simulated: must pass, no
-# pose inside a turn, the gravity direction after the moves and the static rate at the noise.
-case_steady_turns() {
-  write s1 --seed 15 --turn-profile steady --turn-rate-deg-s 96 --floor-tilt-deg 0 || return 1
-  run s1 "$(files s1)" --columns "$(columns s1)" --time-unit us
-  want_rc s1 0 &&
-    checks steady "$dir/s1.json" "$dir/s1/truth.json" --verdict pass &&
-    checks params "$dir/s1.json" "$dir/s1/truth.json" --verdict pass
+# Turns about the vertical at a steady rate on a level floor (the accelerometer does not change
+# through a turn, the gyroscope is constant mid-turn), no effect simulated, at 20, 50, 96, 100
+# and 200 deg/s (issue 24): must pass, no pose inside a turn (however slow: a 180-degree turn at
+# 20 deg/s is 9 s of steady rate), the gyroscope's fit unharmed: its bias within 0.02 deg/s of
+# the truth on every axis, and the noise-derived limits of `checks steady`. From 96 deg/s on,
+# also the gravity direction after the moves within 0.06 deg RMS (the issue's aim; a 9 s turn at
+# 20 deg/s integrates 0.07 deg of this gyroscope's noise on its own, so there the noise decides).
+steady_case() {
+  local name=$1 rate=$2 seed=$3
+  shift 3
+  write "$name" --seed "$seed" --turn-profile steady --turn-rate-deg-s "$rate" \
+    --floor-tilt-deg 0 || return 1
+  run "$name" "$(files "$name")" --columns "$(columns "$name")" --time-unit us
+  want_rc "$name" 0 &&
+    checks rests "$dir/$name.json" "$dir/$name/truth.json" &&
+    checks steady "$dir/$name.json" "$dir/$name/truth.json" --verdict pass \
+      --bias-aim-deg-s 0.02 "$@" &&
+    checks params "$dir/$name.json" "$dir/$name/truth.json" --verdict pass
+}
+case_steady_turns() { steady_case s1 96 15 --gravity-aim-deg 0.06; }
+case_steady_turns_20() { steady_case s20 20 40; }
+case_steady_turns_50() { steady_case s50 50 41; }
+case_steady_turns_100() { steady_case s100 100 42 --gravity-aim-deg 0.06; }
+case_steady_turns_200() { steady_case s200 200 45 --gravity-aim-deg 0.06; }
+
+# Held by hand (issue 24): a tremor on every hold and move (0.1 deg RMS per axis at 6-11 Hz:
+# the gyroscope shakes by about 6 deg/s RMS: the learnt threshold takes a slow turn), and after
+# every fifth pose a slow steady turn about the vertical at 24-41 deg/s, by 360 degrees (back to
+# the same orientation) or 49. No used pose may lie in a turn; the capture still calibrates.
+case_hand_held_turns() {
+  write hh --seed 44 --protocol random --poses 30 --hand-tremor-deg 0.1 --slow-turn-every 5 \
+    --slow-turn-angles-deg 360,360,49 || return 1
+  run hh "$(files hh)" --columns "$(columns hh)" --time-unit us
+  want_rc hh 0 4 && checks rests "$dir/hh.json" "$dir/hh/truth.json"
+}
+
+# A rotation table (issue 24): six-face pairs held 45 s each, the 180-degree turns at a steady
+# 20 deg/s, and the table's servo buzzing in bursts through every hold (10x the noise, 0.3-1.2 s
+# every 2-5 s). Each rest is one pose over most of it (never cut in pieces), every pair judged.
+case_table_rests() {
+  write tb --seed 45 --first-hold-s 45 --hold-s 45 --turn-profile steady --turn-rate-deg-s 20 \
+    --hold-bursts 10 || return 1
+  run tb "$(files tb)" --columns "$(columns tb)" --time-unit us
+  want_rc tb 0 && checks rests "$dir/tb.json" "$dir/tb/truth.json" --one-per-hold 30 &&
+    checks params "$dir/tb.json" "$dir/tb/truth.json"
+}
+
+# Per-file noise floors (issue 24): six files, one face each, the noise of every other file 5x
+# the others' (a noisier support, another range setting). The thresholds are learnt per file:
+# every file's rest is found and used.
+case_file_noise_floors() {
+  write nf --seed 46 --protocol faces-once --split pose --floor-tilt-deg 0 \
+    --hold-noise-factors 1,5 || return 1
+  mapfile -t f < <(files nf)
+  run nf "${f[@]}" --columns "$(columns nf)" --time-unit us
+  want_rc nf 0 && checks rests "$dir/nf.json" "$dir/nf/truth.json" --per-file &&
+    checks params "$dir/nf.json" "$dir/nf/truth.json" --verdict warn --faces-once --gyro bias \
+      --multi-file
 }
 
 # The hobbyist's capture: six files, one per face, each face once, given together; each file
@@ -367,7 +416,9 @@ case_final_figures() {
   checks final "$dir/x1.json" --applied "$dir/x1.applied.csv"
 }
 
-cases=(quantised_si quantised_counts quantised_faces noise_free low_noise steady_turns faces_files
+cases=(quantised_si quantised_counts quantised_faces noise_free low_noise steady_turns
+  steady_turns_20 steady_turns_50 steady_turns_100 steady_turns_200 hand_held_turns table_rests
+  file_noise_floors faces_files
   faces_files_imucal faces_once duplicate_face noisy_rest_hand noisy_rest_motor
   noisy_rest_settling short_stops short_stops_all commented_header nul_byte final_figures
   temperature_turnover gyro_bias_shift rate_scale)

@@ -78,6 +78,26 @@ Rate-dependent gyroscope scale (off by default):
       bias, so the calibrated rate carries it (the reading's gain is 1 + S |w|). Repeatable. The
       holds show nothing (w = 0 there); only the moves do.
 
+Rests that are hard to tell from turns (off by default):
+  --move-profile steady  (random, faces-once) every move at a steady rate (--turn-rate-deg-s,
+      ramps of --turn-ramp-s), as a rotation table turns.
+  --hand-tremor-deg A  a hand holds the unit: the orientation wobbles by a small rotation
+      d(t) (body frame) on each axis, two sinusoids at frequencies drawn in --hand-tremor-hz with
+      random phases, RMS A degrees per axis; the gyroscope reads d'(t) on top of the rate and the
+      accelerometer the specific force turned by d (to first order: f - d x f). Its own
+      generator.
+  --slow-turn-every K  (random) after every K-th hold a slow turn about the vertical (the
+      table's normal) at a steady rate drawn in --slow-turn-rate-range-deg-s, by the angles of
+      --slow-turn-angles-deg in turn (360: back to the same orientation); the next move follows
+      at once, with no hold. In the truth's "slow_turns" (time ranges, rate, angle).
+  --hold-bursts F  during every hold, bursts of vibration (0.3-1.2 s, every 2-5 s, at
+      --motor-hz) of F times the noise RMS on both sensors, as a rotation table's servo holds
+      its position: no net rotation, no change of orientation. Its own generator.
+  --hold-noise-factors F0,F1,...  hold k's noise is F[k mod n] times the default (moves keep
+      the default): with --split pose, per-file noise floors that differ.
+  --single-faces FACE,...  (six-face) these faces are held once: no 180-degree turn and no
+      second pose for them.
+
 The truth (JSON-ready dict) says what was used. When any option above is not at its default
 (or a writer sets args.full_truth), it also holds each pose's time range and each move's time
 range, axis, angle and profile; times are the sample times t = k / rate_hz of the capture's
@@ -284,6 +304,35 @@ def add_arguments(parser):
     parser.add_argument("--gyro-rate-scale", type=_parse_rate_scale, action="append",
                         default=[], metavar="AXIS,S",
                         help="S |w| w rad/s on the true rate of AXIS (S per rad/s)")
+    add_rest_arguments(parser)
+
+
+def _floats(text):
+    return [float(v) for v in text.split(",")]
+
+
+def add_rest_arguments(parser):
+    """What makes a rest hard to tell from a turn (see the module's docstring)."""
+    parser.add_argument("--move-profile", choices=["smooth", "steady"], default="smooth",
+                        help="random and faces-once: the rate profile of every move")
+    parser.add_argument("--hand-tremor-deg", type=float, default=0.0,
+                        help="a hand's tremor: the orientation's RMS wobble per axis, deg")
+    parser.add_argument("--hand-tremor-hz", type=_parse_range, default=(6.0, 11.0),
+                        metavar="LO,HI", help="the tremor's frequencies")
+    parser.add_argument("--slow-turn-every", type=int, default=0, metavar="K",
+                        help="random: a slow steady turn about the vertical after every K-th "
+                             "hold")
+    parser.add_argument("--slow-turn-rate-range-deg-s", type=_parse_range, default=(24.0, 41.0),
+                        metavar="LO,HI")
+    parser.add_argument("--slow-turn-angles-deg", type=_floats, default=[360.0],
+                        metavar="A1,A2,...", help="the slow turns' angles, in turn")
+    parser.add_argument("--hold-bursts", type=float, default=0.0, metavar="FACTOR",
+                        help="a rotation table's servo: vibration bursts during every hold, "
+                             "FACTOR times the noise RMS")
+    parser.add_argument("--hold-noise-factors", type=_floats, default=None, metavar="F0,F1,...",
+                        help="the noise of hold k is F[k mod n] times the default")
+    parser.add_argument("--single-faces", default="", metavar="FACE,...",
+                        help="six-face: these faces are held once (no turned pose)")
 
 
 def _extended(args):
@@ -293,7 +342,12 @@ def _extended(args):
             args.accel_step is not None or args.gyro_step is not None or
             args.turn_profile != "smooth" or args.noisy_rest is not None or
             args.hold_range_s is not None or args.duplicate_face is not None or
-            bool(getattr(args, "gyro_rate_scale", [])))
+            bool(getattr(args, "gyro_rate_scale", [])) or
+            getattr(args, "move_profile", "smooth") != "smooth" or
+            getattr(args, "hand_tremor_deg", 0.0) > 0 or getattr(args, "slow_turn_every", 0) > 0 or
+            getattr(args, "hold_bursts", 0.0) > 0 or
+            getattr(args, "hold_noise_factors", None) is not None or
+            bool(getattr(args, "single_faces", "")))
 
 
 def _tilt_to_face(r, face, g_world):
@@ -312,11 +366,12 @@ def _tilt_to_face(r, face, g_world):
     raise AssertionError(face)
 
 
-def _steady_turn(angle, args):
-    """Duration (a whole number of samples) and profile of a turn at a steady rate."""
+def _steady_turn(angle, args, rate_deg_s=None):
+    """Duration (a whole number of samples) and profile of a turn at a steady rate (at most
+    rate_deg_s, default --turn-rate-deg-s)."""
     dt = 1.0 / args.rate_hz
     n_ramp = max(1, int(round(args.turn_ramp_s * args.rate_hz)))
-    rate_max = math.radians(args.turn_rate_deg_s)
+    rate_max = math.radians(rate_deg_s if rate_deg_s is not None else args.turn_rate_deg_s)
     # The trapezoid's area is rate * (middle + ramp): the middle gets the fewest whole samples
     # that keep the rate at or below rate_max.
     n_mid = max(0, math.ceil(abs(angle) / rate_max / dt - n_ramp - 1e-9))
@@ -377,6 +432,8 @@ def _six_face(args, rng, g_world, hold_for):
             segments.append(("move", args.move_s, axis, angle, "smooth"))
         segments.append(("hold", hold_for(len(poses)), len(poses)))
         poses.append(_up_entry(face, r, g_world, args.gravity))
+        if face in [f for f in args.single_faces.split(",") if f]:
+            continue
         # The 180-degree turn about the vertical (the up body axis), with a hand's error.
         up_axis = _unit_of_face(face)
         turn_errors_deg.append(rng.gauss(0.0, args.turn_error_deg))
@@ -406,13 +463,31 @@ def _moves_through(orientations, args, g_world, hold_for, faces):
     capture starts in."""
     segments, poses = [], []
     r = orientations[0]
+    slow_rng = random.Random(args.seed * 1000003 + 83)
+    slow_count = 0
     for k, target in enumerate(orientations):
         if k > 0:
             axis, angle = _rotation_log(_matmul(_transpose(r), target))
-            segments.append(("move", args.move_s, axis, angle, "smooth"))
+            if args.move_profile == "steady":
+                dur, profile = _steady_turn(angle, args)
+            else:
+                dur, profile = args.move_s, "smooth"
+            segments.append(("move", dur, axis, angle, profile))
             r = _matmul(r, _axis_angle(axis, angle))
         segments.append(("hold", hold_for(k), k))
         poses.append(_up_entry(faces[k], r, g_world, args.gravity))
+        every = args.slow_turn_every
+        if every > 0 and (k + 1) % every == 0 and k + 1 < len(orientations):
+            # About the table's normal: body axis R^T z_world.
+            up = _transpose_times(r, [0.0, 0.0, 1.0])
+            angles = args.slow_turn_angles_deg
+            angle = math.radians(angles[slow_count % len(angles)])
+            slow_count += 1
+            dur, profile = _steady_turn(angle, args,
+                                        slow_rng.uniform(*args.slow_turn_rate_range_deg_s))
+            profile["slow"] = True
+            segments.append(("move", dur, up, angle, profile))
+            r = _matmul(r, _axis_angle(up, angle))
     return segments, poses, orientations[0]
 
 
@@ -486,6 +561,9 @@ def simulate(args):
     # The noisy rest's extra noise has its own generator: the other poses' noise is unchanged.
     extra_rng = random.Random(args.seed * 1000003 + 53)
     noisy = _NoisyRest(args, extra_rng) if args.noisy_rest is not None else None
+    tremor = _Tremor(args) if getattr(args, "hand_tremor_deg", 0.0) > 0 else None
+    bursts = _Bursts(args) if getattr(args, "hold_bursts", 0.0) > 0 else None
+    factors = getattr(args, "hold_noise_factors", None)
 
     history = getattr(args, "temp_history", None)
     quads = (getattr(args, "gyro_temp_quad", []), getattr(args, "accel_temp_quad", []))
@@ -518,7 +596,8 @@ def simulate(args):
                           "profile": "smooth" if profile == "smooth" else "steady"})
             if profile != "smooth":
                 moves[-1].update({"ramp_s": profile["ramp_s"], "middle_s": profile["middle_s"],
-                                  "rate_deg_s": math.degrees(profile["rate"])})
+                                  "rate_deg_s": math.degrees(profile["rate"]),
+                                  "slow_turn": bool(profile.get("slow"))})
         for j in range(n):
             if seg[0] == "hold":
                 rot, w_body = r, [0.0, 0.0, 0.0]
@@ -529,6 +608,11 @@ def simulate(args):
                 rot = _matmul(r, _axis_angle(axis, theta))
                 w_body = [a * rate for a in axis]
             f_body = _transpose_times(rot, g_world)
+            if tremor:
+                d, d_rate = tremor.at(k * dt)
+                f_body = [f_body[i] - (d[(i + 1) % 3] * f_body[(i + 2) % 3] -
+                                       d[(i + 2) % 3] * f_body[(i + 1) % 3]) for i in range(3)]
+                w_body = [w_body[i] + d_rate[i] for i in range(3)]
             temp = _temperature(history, k * dt, duration) if history else None
             # The rate scale acts on the turn itself; the bias shift is added after it.
             rate_scales = getattr(args, "gyro_rate_scale", [])
@@ -548,10 +632,15 @@ def simulate(args):
                     w_body[axis_i] += c * (temp - ref) ** 2
                 for axis_i, c, ref in quads[1]:
                     f_body[axis_i] += c * (temp - ref) ** 2
+            nf = factors[seg[2] % len(factors)] if factors and seg[0] == "hold" else 1.0
             accel = [f_body[i] / accel_scale[i] + accel_bias[i] +
-                     (rng.gauss(0.0, args.accel_noise) if args.noise else 0.0) for i in range(3)]
+                     (nf * rng.gauss(0.0, args.accel_noise) if args.noise else 0.0)
+                     for i in range(3)]
             gyro = [w_body[i] / gyro_scale[i] + gyro_bias[i] +
-                    (rng.gauss(0.0, args.gyro_noise) if args.noise else 0.0) for i in range(3)]
+                    (nf * rng.gauss(0.0, args.gyro_noise) if args.noise else 0.0)
+                    for i in range(3)]
+            if bursts and seg[0] == "hold":
+                bursts.add(accel, gyro, seg[2], j * dt, n * dt)
             if noisy and seg[0] == "hold" and seg[2] == args.noisy_rest:
                 noisy.add(accel, gyro, (j + 0.5) * dt, n * dt)
             if args.accel_step is not None:
@@ -611,6 +700,11 @@ def simulate(args):
             "turn_profile": args.turn_profile,
             "hold_range_s": args.hold_range_s,
             "moves": moves,
+            "slow_turns": [m for m in moves if m.get("slow_turn")],
+            "hand_tremor_deg": getattr(args, "hand_tremor_deg", 0.0),
+            "hold_bursts": bursts.truth() if bursts else None,
+            "hold_noise_factors": factors,
+            "single_faces": getattr(args, "single_faces", ""),
             "noisy_rest": noisy.truth() if noisy else None,
             "duplicate_face": ({"face": args.duplicate_face[0],
                                 "holds": args.duplicate_face[1],
@@ -681,3 +775,56 @@ class _NoisyRest:
                         "settle_mean_offset_m_s2": (sum(self.offsets) / len(self.offsets)
                                                     if self.offsets else 0.0)})
         return out
+
+
+class _Tremor:
+    """A hand's tremor (--hand-tremor-deg): a small body-frame rotation d(t) and its rate."""
+
+    def __init__(self, args):
+        rng = random.Random(args.seed * 1000003 + 97)
+        amp = math.radians(args.hand_tremor_deg)  # two sinusoids of amplitude amp: RMS amp
+        self.parts = [[(amp, 2 * math.pi * rng.uniform(*args.hand_tremor_hz),
+                        rng.uniform(0.0, 2 * math.pi)) for _ in range(2)] for _ in range(3)]
+
+    def at(self, t):
+        d = [sum(a * math.sin(w * t + p) for a, w, p in axis) for axis in self.parts]
+        rate = [sum(a * w * math.cos(w * t + p) for a, w, p in axis) for axis in self.parts]
+        return d, rate
+
+
+class _Bursts:
+    """A rotation table's servo (--hold-bursts): vibration bursts during each hold."""
+
+    def __init__(self, args):
+        self.args = args
+        self.rng = random.Random(args.seed * 1000003 + 101)
+        self.schedule = {}
+        self.count = 0
+
+    def _bursts(self, pose, hold_s):
+        if pose not in self.schedule:
+            out, t = [], self.rng.uniform(1.0, 4.0)
+            while t < hold_s:
+                d = self.rng.uniform(0.3, 1.2)
+                out.append((t, t + d, [self.rng.uniform(0.0, 2 * math.pi) for _ in range(6)]))
+                t += d + self.rng.uniform(2.0, 5.0)
+            self.schedule[pose] = out
+            self.count += len(out)
+        return self.schedule[pose]
+
+    def add(self, accel, gyro, pose, t, hold_s):
+        a = self.args
+        amp = (math.sqrt(2) * a.hold_bursts * a.accel_noise, math.sqrt(2) * a.hold_bursts *
+               a.gyro_noise)
+        for t0, t1, phases in self._bursts(pose, hold_s):
+            if t0 <= t < t1:
+                w = 2 * math.pi * a.motor_hz * t
+                for i in range(3):
+                    accel[i] += amp[0] * math.sin(w + phases[i])
+                    gyro[i] += amp[1] * math.sin(w + phases[3 + i])
+
+    def truth(self):
+        return {"factor": self.args.hold_bursts, "motor_hz": self.args.motor_hz,
+                "bursts": self.count,
+                "model": "sinusoids at motor_hz, amplitude sqrt(2) factor noise, in bursts of "
+                         "0.3-1.2 s every 2-5 s of each hold"}
