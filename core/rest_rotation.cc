@@ -53,8 +53,9 @@ double GyroIntegral::Excursion(size_t b, size_t e, const Eigen::Vector3d& rate) 
   return std::sqrt(worst);
 }
 
-Eigen::Vector3d DenseRestRate(const std::vector<RateSample>& runs, double bound) {
-  if (runs.empty()) return Eigen::Vector3d::Zero();
+RestRate DenseRestRate(const std::vector<RateSample>& runs, double bound) {
+  RestRate out;
+  if (runs.empty()) return out;
   size_t best = 0;
   double best_weight = -1;
   for (size_t i = 0; i < runs.size(); ++i) {
@@ -63,13 +64,13 @@ Eigen::Vector3d DenseRestRate(const std::vector<RateSample>& runs, double bound)
       if ((r.mean - runs[i].mean).cwiseAbs().maxCoeff() <= bound) w += r.weight;
     if (w > best_weight) best_weight = w, best = i;
   }
-  Eigen::Vector3d out;
   for (int j = 0; j < 3; ++j) {
     std::vector<std::pair<double, double>> vw;
     for (const RateSample& r : runs)
       if ((r.mean - runs[best].mean).cwiseAbs().maxCoeff() <= bound)
         vw.emplace_back(r.mean(j), r.weight);
-    out(j) = WeightedMedian(std::move(vw));
+    out.members = static_cast<int>(vw.size());
+    out.rate(j) = WeightedMedian(std::move(vw));
   }
   return out;
 }

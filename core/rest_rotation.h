@@ -45,8 +45,13 @@ struct RateSample {
 // The rest rate of a set of still runs: the runs' means cluster at the gyroscope's bias (within
 // its wander), a turn's mean lies anywhere. The densest cluster (the run with the most weight
 // within `bound` of its mean, on every axis) is the rest; its weighted median per axis is the
-// rate. Zero when there are no samples.
-Eigen::Vector3d DenseRestRate(const std::vector<RateSample>& runs, double bound);
+// rate, and `members` how many runs agree on it (a lone run can only vouch for itself). Zero
+// rate and members when there are no samples.
+struct RestRate {
+  Eigen::Vector3d rate = Eigen::Vector3d::Zero();
+  int members = 0;
+};
+RestRate DenseRestRate(const std::vector<RateSample>& runs, double bound);
 
 // Radians per input unit of the gyroscope: nominal for rad/s and deg/s. For raw counts, a rough
 // figure from the capture's moves: between two rests, the gravity direction turns by no more

@@ -220,20 +220,6 @@ struct RestContext {
 
 constexpr double kDegPerRad = 180.0 / std::numbers::pi;
 
-// The runs long enough to be poses (else all of them) as rate samples.
-std::vector<RateSample> RateSamples(const Capture& capture, const std::vector<Run>& runs,
-                                    const StaticDetectorOptions& options) {
-  std::vector<RateSample> all, long_ones;
-  for (const Run& r : runs) {
-    if (r.end <= r.begin + 1) continue;
-    const StaticInterval s = SummariseInterval(capture, r.begin, r.end);
-    const RateSample sample{s.gyro_mean, static_cast<double>(s.samples())};
-    all.push_back(sample);
-    if (s.t_end_s - s.t_start_s >= options.min_static_s) long_ones.push_back(sample);
-  }
-  return long_ones.empty() ? all : long_ones;
-}
-
 // A gyroscope at rest reads its bias, and no MEMS gyroscope's bias is this large (the
 // MPU-6050's zero-rate output is specified within 20 deg/s, most are within a few): a run whose
 // mean rate is larger turned, whatever else it looks like. Nominal units only (raw counts
@@ -248,46 +234,83 @@ std::vector<RateSample> PlausibleRests(std::vector<RateSample> runs, const Captu
   return runs;
 }
 
-// Each file's rest rate: the densest cluster (by duration) of its own runs when it has two or
-// more; else (a file holding one pose) the densest cluster of all files' runs, with the power-up
-// bound. With no plausible rest at all (every run turned: a hand-held walk), the rest rate is
-// zero and the bound the largest bias a gyroscope has.
+// The runs a rest rate may come from: the plausible ones (PlausibleRests), and of those the ones
+// long enough to be poses when there are any (`held`: a turn's piece between two bursts of
+// motion is short; a rest is held).
+struct RestCandidates {
+  std::vector<RateSample> runs;
+  bool held = false;
+};
+
+RestCandidates RateSamples(const Capture& capture, const std::vector<Run>& runs,
+                           const StaticDetectorOptions& options) {
+  std::vector<RateSample> all;
+  std::vector<bool> is_long;
+  for (const Run& r : runs) {
+    if (r.end <= r.begin + 1) continue;
+    const StaticInterval s = SummariseInterval(capture, r.begin, r.end);
+    all.push_back({s.gyro_mean, static_cast<double>(s.samples())});
+    is_long.push_back(s.t_end_s - s.t_start_s >= options.min_static_s);
+  }
+  RestCandidates out;
+  std::vector<RateSample> held;
+  for (size_t i = 0; i < all.size(); ++i)
+    if (is_long[i] && !PlausibleRests({all[i]}, capture).empty()) held.push_back(all[i]);
+  out.held = !held.empty();
+  out.runs = out.held ? std::move(held) : PlausibleRests(std::move(all), capture);
+  return out;
+}
+
+// With no rest to learn from, the rest rate is zero and a rest may read up to this: the turn-on
+// bias of most MEMS gyroscopes is within a few deg/s.
+constexpr double kUnknownBiasDegS = 5.0;
+
+// Each file's rest rate: the densest cluster (by duration) of its own runs, when two or more
+// agree on it (one run cannot vouch for itself: a slow steady turn reads like a bias). Else (a
+// file holding one pose) the densest cluster of all files' runs, when two or more agree, with the
+// power-up bound. Else (no two rests agree anywhere: a single rest, a hand-held walk) zero, with
+// kUnknownBiasDegS; raw counts have no zero, so there the provisional rate of all runs.
 void SetRestRates(const Capture& capture, const StaticDetectorOptions& options,
                   RestContext* ctx) {
-  std::vector<RateSample> all;  // every run: the provisional rate for a gyroscope in counts
-  for (const FileRest& f : ctx->files) {
-    const std::vector<RateSample> s = RateSamples(capture, f.runs, options);
-    all.insert(all.end(), s.begin(), s.end());
-  }
+  std::vector<RateSample> all;
   std::vector<std::pair<size_t, size_t>> rests;
-  for (const FileRest& f : ctx->files)
+  std::vector<RestCandidates> own;
+  for (const FileRest& f : ctx->files) {
+    own.push_back(RateSamples(capture, f.runs, options));
+    all.insert(all.end(), own.back().runs.begin(), own.back().runs.end());
     for (const Run& r : f.runs) rests.emplace_back(r.begin, r.end);
-  const Eigen::Vector3d provisional = DenseRestRate(all, INFINITY);
+  }
+  const Eigen::Vector3d provisional = DenseRestRate(all, INFINITY).rate;
   ctx->rad_per_unit = RoughRadPerGyroUnit(capture, ctx->integral, rests, provisional);
   if (!(ctx->rad_per_unit > 0)) return;
   const double rest_bound = options.rest_rate_bound_deg_s / kDegPerRad;
   const double power_up_bound = options.power_up_rate_bound_deg_s / kDegPerRad;
-  all = PlausibleRests(std::move(all), capture);
-  const Eigen::Vector3d across = DenseRestRate(all, power_up_bound / ctx->rad_per_unit);
-  for (FileRest& f : ctx->files) {
-    const std::vector<RateSample> own =
-        PlausibleRests(RateSamples(capture, f.runs, options), capture);
-    if (own.size() >= 2) {
-      f.rate = DenseRestRate(own, rest_bound / ctx->rad_per_unit);
+  const RestRate across = DenseRestRate(all, power_up_bound / ctx->rad_per_unit);
+  const bool counts = capture.gyro_unit == GyroUnit::kCounts;
+  for (size_t k = 0; k < ctx->files.size(); ++k) {
+    FileRest& f = ctx->files[k];
+    const RestRate mine = DenseRestRate(own[k].runs, rest_bound / ctx->rad_per_unit);
+    if (mine.members >= 2) {
+      f.rate = mine.rate;
       f.bias_bound_rad_s = rest_bound;
-    } else if (!all.empty()) {
-      f.rate = across;
+    } else if (across.members >= 2 || counts) {
+      f.rate = across.members >= 2 ? across.rate : provisional;
       f.bias_bound_rad_s = power_up_bound;
     } else {
       f.rate.setZero();
-      f.bias_bound_rad_s = kMostBiasDegS * std::numbers::pi / 180;
+      f.bias_bound_rad_s = kUnknownBiasDegS / kDegPerRad;
     }
   }
 }
 
+// A window whose mean rate is off the rest rate by this much turns: a hand drifts by a degree
+// or two per second while it holds a pose, a slow turn goes at tens. (Slower drifts are the
+// interval's rotation test's to judge, over the whole interval.)
+constexpr double kWindowTurnDegS = 5.0;
+
 // Cuts file `f`'s still runs where the gyroscope turns: a sample whose centred window's mean
-// rate is off the rest rate by more than `rotation_sigmas` noise std of a window mean plus the
-// bias bound. A hand-held capture's learnt threshold can take a slow turn and the rests on
+// rate is off the rest rate by more than `rotation_sigmas` noise std of a window mean plus
+// kWindowTurnDegS. A hand-held capture's learnt threshold can take a slow turn and the rests on
 // either side as one run; the rotation test would then refuse the whole run, rests included.
 void SplitAtTurns(const MotionSignal& motion, RestContext* ctx, size_t f) {
   if (!(ctx->rad_per_unit > 0)) return;
@@ -298,7 +321,7 @@ void SplitAtTurns(const MotionSignal& motion, RestContext* ctx, size_t f) {
   const double limit =
       ctx->options->rotation_sigmas * file.noise.gyro_std.norm() * ctx->rad_per_unit /
           std::sqrt(static_cast<double>(2 * h + 1)) +
-      file.bias_bound_rad_s;
+      std::max(file.bias_bound_rad_s, kWindowTurnDegS * std::numbers::pi / 180);
   auto turning = [&](size_t i) {
     const size_t b = i >= h ? i - h : 0, e = std::min(n, i + h + 1);
     const double span = g.time_s[e] - g.time_s[b];

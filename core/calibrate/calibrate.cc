@@ -62,6 +62,43 @@ CalibrationReport Refuse(const Capture& cap, CalibrationReport rep, Refusal refu
   return rep;
 }
 
+// The used poses that alone determine part of the model (VerdictInputs::lone_poses) and the
+// held-out figures with and without them. A least-squares fit's held-out residual is its
+// in-sample one over 1 - h (h the pose's leverage, PRESS): h near 1 means the fit bends to the
+// pose whatever it reads, and leaving it out leaves that part undetermined.
+void SetLonePoses(const std::vector<PoseReport>& poses, VerdictInputs* in) {
+  constexpr double kSelfDetermined = 0.95;  // leverage
+  double ss_all = 0, ss_lone = 0;
+  size_t n_all = 0, n_lone = 0;
+  for (const PoseReport& p : poses) {
+    if (!p.interval.used || !std::isfinite(p.heldout_m_s2)) continue;
+    const double r2 = p.heldout_m_s2 * p.heldout_m_s2;
+    ss_all += r2;
+    ++n_all;
+    const double leverage =
+        p.heldout_m_s2 != 0 && std::isfinite(p.residual_m_s2) ? 1 - p.residual_m_s2 / p.heldout_m_s2
+                                                              : 0.0;
+    if (leverage < kSelfDetermined) continue;
+    ss_lone += r2;
+    ++n_lone;
+    in->lone_poses.push_back(
+        p.face.empty() ? absl::StrFormat("pose %d (up %.2f %.2f %.2f)", p.index, p.up(0), p.up(1),
+                                         p.up(2))
+                       : absl::StrFormat("%s (pose %d)", p.face, p.index));
+  }
+  // With every pose self-determined (six faces once) there is nothing to compare: the capture's
+  // own warnings say so (the 12-parameter model), and the gate reads the figure as it is.
+  if (n_lone == 0 || n_lone == n_all || ss_all <= 0) {
+    in->lone_poses.clear();
+    return;
+  }
+  const double rms_all = std::sqrt(ss_all / static_cast<double>(n_all));
+  const double rms_checked = std::sqrt((ss_all - ss_lone) / static_cast<double>(n_all - n_lone));
+  in->accel_heldout_checked_rms_m_s2 = in->accel_heldout_rms_m_s2 * rms_checked / rms_all;
+  in->accel_heldout_lone_rms_m_s2 =
+      in->accel_heldout_rms_m_s2 * std::sqrt(ss_lone / static_cast<double>(n_lone)) / rms_all;
+}
+
 // What the verdict reads: the final figures, the parameters' spreads, what the model lacks.
 VerdictInputs VerdictInputsOf(const CalibrationReport& rep, const AccelStage& accel,
                               const GyroFit& gyro) {
@@ -76,6 +113,7 @@ VerdictInputs VerdictInputsOf(const CalibrationReport& rep, const AccelStage& ac
   in.move_fit_rms_deg = rep.residual.move_fit_rms_deg;
   in.move_heldout_rms_deg = rep.residual.move_heldout_rms_deg;
   in.parameters = ParameterSpreads(rep.params, accel.free);
+  SetLonePoses(rep.poses, &in);
   in.incomplete = accel.incomplete;
   if (!gyro.calibrated)
     in.incomplete.push_back("gyroscope: only the bias was calibrated (the warnings say why)");

@@ -119,7 +119,7 @@ std::string EscalationWarning(const StaticPoses& s, const CalibrateOptions& opt)
 // usual threshold (not the steady turns), and the distinct orientations among them.
 struct StopCount {
   std::vector<StaticInterval> intervals;
-  int stops = 0, too_short = 0, orientations = 0;
+  int stops = 0, too_short = 0, orientations = 0, turning = 0;
   double longest_s = 0, still_s = 0, span_s = 0;
   std::vector<std::string> repeated;  // orientations held twice, faces missing
 };
@@ -129,8 +129,10 @@ StopCount CountStops(const Capture& cap, const StaticPoses& s, const CalibrateOp
   const double m = opt.multipliers.empty() ? s.multiplier : opt.multipliers.back();
   out.intervals = DetectStatic(cap, s.motion, s.noise, m, opt.detector);
   std::vector<StaticInterval> stops;
-  for (const StaticInterval& iv : out.intervals)
+  for (const StaticInterval& iv : out.intervals) {
     if (iv.issue != IntervalIssue::kTurning) stops.push_back(iv);
+    out.turning += iv.issue == IntervalIssue::kTurning;
+  }
   out.stops = static_cast<int>(stops.size());
   out.span_s = cap.size() > 1 ? cap.t_s.back() - cap.t_s.front() : 0;
   for (const StaticInterval& iv : stops) {
@@ -144,39 +146,55 @@ StopCount CountStops(const Capture& cap, const StaticPoses& s, const CalibrateOp
   return out;
 }
 
-// What a refused capture holds, what the models need, and what to record instead.
+// What a refused capture holds, what the models need, and what to record instead. The first
+// sentence names the problem (a duplicated orientation, a missing face, stops too short, a rest,
+// turns taken for stops, too few orientations); what was found and what each model needs follow.
 Refusal DescribeRefusal(const StopCount& c, size_t most_used, const CalibrateOptions& opt) {
   Refusal out;
   const double hold_s = opt.detector.min_static_s;
-  std::string found = absl::StrFormat(
-      "too few static poses: found at most %d usable; the capture holds %d still stops (%.0f s "
-      "still of %.0f s, the longest %.1f s) in %d distinct orientations, counted from stops of "
-      "any length",
-      static_cast<int>(most_used), c.stops, c.still_s, c.span_s, c.longest_s, c.orientations);
-  if (!c.repeated.empty()) absl::StrAppend(&found, "; ", absl::StrJoin(c.repeated, "; "));
-  if (c.stops > 0 && 2 * c.too_short >= c.stops &&
-      c.orientations >= static_cast<int>(kBiasScaleNeeds.count)) {
+  const std::string found = absl::StrFormat(
+      "Found at most %d usable poses; the capture holds %d still stops (%.0f s still of %.0f s, "
+      "the longest %.1f s) in %d distinct orientations, counted from stops of any length%s",
+      static_cast<int>(most_used), c.stops, c.still_s, c.span_s, c.longest_s, c.orientations,
+      c.turning > 0 ? absl::StrFormat(", and %d steady turns that are not rests", c.turning)
+                    : "");
+  auto message = [&](const std::string& first) {
+    return absl::StrFormat("too few static poses: %s. %s. %s", first, found, RequirementsText());
+  };
+  if (!c.repeated.empty()) {
+    // The orientation held twice (or the face no stop has up) is the problem: say it first.
+    out.reason = RefusalReason::kTooFewOrientations;
+    out.message = message(absl::StrJoin(c.repeated, "; "));
+  } else if (c.stops > 0 && 2 * c.too_short >= c.stops &&
+             c.orientations >= static_cast<int>(kBiasScaleNeeds.count)) {
     out.reason = RefusalReason::kStopsTooShort;
-    out.message = absl::StrFormat(
-        "%s. %d of %d stops were too short, under the %.1f s hold: hold each pose %.0f s. %s",
-        found, c.too_short, c.stops, hold_s, 2 * std::ceil(hold_s), RequirementsText());
+    out.message = message(absl::StrFormat(
+        "%d of %d stops were too short, under the %.1f s hold: hold each pose %.0f s",
+        c.too_short, c.stops, hold_s, 2 * std::ceil(hold_s)));
   } else if (c.orientations == 1) {
     out.reason = RefusalReason::kRestOnly;
-    out.message = absl::StrFormat(
-        "%s: a rest recording. It cannot calibrate: the scales and cross-axis terms need the "
-        "sensor turned. A rest gives the noise (Allan deviation: white noise from seconds of rest, "
-        "bias instability from minutes; `imucal noise`) and the bias drift. %s",
-        found, RequirementsText());
+    out.message = message(
+        "a rest recording, in one orientation. It cannot calibrate: the scales and cross-axis "
+        "terms need the sensor turned. A rest gives the noise (Allan deviation: white noise "
+        "from seconds of rest, bias instability from minutes; `imucal noise`) and the bias drift");
   } else if (c.orientations > 1 && c.orientations <= 3) {
     out.reason = RefusalReason::kRestOnly;
-    out.message = absl::StrFormat(
-        "%s. A rest, a known move and a rest checks a calibration (the gyroscope's turn against "
-        "the change of the gravity direction), it cannot make one: calibrate a multi-pose capture "
-        "of the same unit, then apply its parameters to this one. %s",
-        found, RequirementsText());
+    out.message = message(absl::StrFormat(
+        "only %d orientations. A rest, a known move and a rest checks a calibration (the "
+        "gyroscope's turn against the change of the gravity direction), it cannot make one: "
+        "calibrate a multi-pose capture of the same unit, then apply its parameters to this one",
+        c.orientations));
+  } else if (c.turning > 0 && c.turning >= c.stops) {
+    out.reason = RefusalReason::kTooFewOrientations;
+    out.message = message(absl::StrFormat(
+        "%d of the still-looking stretches were steady turns (the gyroscope turned through "
+        "them), not rests: put the unit down and let go of it for each pose",
+        c.turning));
   } else {
     out.reason = RefusalReason::kTooFewOrientations;
-    out.message = absl::StrFormat("%s. %s", found, RequirementsText());
+    out.message = message(absl::StrFormat(
+        "only %d distinct orientations, the models need at least %d", c.orientations,
+        static_cast<int>(kBiasScaleNeeds.count)));
   }
   return out;
 }
@@ -242,8 +260,9 @@ std::vector<AccelPose> ToAccelPoses(const std::vector<StaticInterval>& ivs,
     const StaticInterval& s = ivs[static_cast<size_t>(i)];
     AccelPose p;
     p.mean = s.accel_mean;
-    p.mean_std =
-        s.accel_std.cwiseMax(noise.accel_std) / std::sqrt(static_cast<double>(s.samples()));
+    // Never below the noise of the pose's own file (its thresholds were learnt there).
+    const Eigen::Vector3d floor = s.accel_noise_std.isZero() ? noise.accel_std : s.accel_noise_std;
+    p.mean_std = s.accel_std.cwiseMax(floor) / std::sqrt(static_cast<double>(s.samples()));
     out.push_back(p);
   }
   return out;

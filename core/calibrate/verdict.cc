@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
 
 namespace imucal::core {
 
@@ -38,12 +39,32 @@ VerdictResult JudgeVerdict(const VerdictInputs& in) {
     warn.push_back(absl::StrFormat("accelerometer residual %.2f mg RMS is above %.1f mg",
                                    mg * in.accel_rms_m_s2, mg * kAccelPassRmsM_s2));
   }
-  const double heldout = in.accel_heldout_rms_m_s2;
+  // The held-out gate: fails when the held-out figure is far above what a sound fit leaves.
+  const double k = std::max(1.0, in.accel_heldout_inflation);
+  double expected = k * in.accel_rms_m_s2;
+  if (std::isfinite(in.accel_noise_floor_m_s2))
+    expected = std::max(expected, std::sqrt(k) * in.accel_noise_floor_m_s2);
+  auto heldout_fails = [&](double h) {
+    return std::isfinite(h) &&
+           (h / std::sqrt(k) > kAccelFailRmsM_s2 || h > kHeldOutFailRatio * expected);
+  };
+  double heldout = in.accel_heldout_rms_m_s2;
+  // Poses alone in their direction fail it whatever the fit: when they alone do, say so (warn).
+  if (heldout_fails(heldout) && !in.lone_poses.empty() &&
+      !heldout_fails(in.accel_heldout_checked_rms_m_s2)) {
+    const bool one = in.lone_poses.size() == 1;  // "the pose X+ (pose 2) is held once ..."
+    warn.push_back(absl::StrFormat(
+        "%s %s %s held once and alone determine%s part of the model: left out, nothing else fixes "
+        "it, so %s held-out residual (%.2f mg RMS) says nothing of the fit; the other poses "
+        "predict each other (held out %.2f mg RMS). Hold each face twice (the six-face protocol) "
+        "so that every pose is checked by another",
+        one ? "the pose" : "the poses", absl::StrJoin(in.lone_poses, ", "), one ? "is" : "are",
+        one ? "s" : "",
+        one ? "its" : "their", mg * in.accel_heldout_lone_rms_m_s2,
+        mg * in.accel_heldout_checked_rms_m_s2));
+    heldout = in.accel_heldout_checked_rms_m_s2;
+  }
   if (std::isfinite(heldout)) {
-    const double k = std::max(1.0, in.accel_heldout_inflation);
-    double expected = k * in.accel_rms_m_s2;
-    if (std::isfinite(in.accel_noise_floor_m_s2))
-      expected = std::max(expected, std::sqrt(k) * in.accel_noise_floor_m_s2);
     if (heldout / std::sqrt(k) > kAccelFailRmsM_s2) {
       fail.push_back(absl::StrFormat(
           "accelerometer held-out residual %.2f mg RMS is above the %.1f mg gate (%.2f mg after "

@@ -80,6 +80,14 @@ struct VerdictInputs {
   double move_fit_rms_deg = kNone;  // the fit's own in-sample figure, beside its held-out one
   double move_heldout_rms_deg = kNone;
   std::vector<ParameterSpread> parameters;
+  // Poses that alone determine part of the model (leverage 0.95 or more: a face held once), as
+  // "X+ (pose 4)". Left out, nothing else fixes that part, so their held-out residuals are large
+  // whatever the fit: they judge the capture, not the fit. When they alone fail the held-out
+  // gate, it reads the other poses' figure (the held-out RMS scaled by the ratio of the poses'
+  // own held-out RMS without and with the lone ones) and the verdict warns, naming them.
+  std::vector<std::string> lone_poses;
+  double accel_heldout_checked_rms_m_s2 = kNone;
+  double accel_heldout_lone_rms_m_s2 = kNone;
   // Why the model is incomplete or assumed (at best warn), in a technician's words.
   std::vector<std::string> incomplete;
 };

@@ -145,8 +145,10 @@ void PrintReport(const char* name, const CalibrationReport& r) {
 }
 
 // MPU-6050 (tomisuarez2/ImuCalibration): 10 hand-held poses after a 37 s rest on a table. The
-// poses shake (gyro std up to 11x the rest's), so the usual thresholds find only 7; the raised
-// threshold finds all 10 orientations that the repository's own detector found.
+// poses shake (gyro std up to 11x the rest's), so the variance test cuts some of them in pieces;
+// the pieces between which the gyroscope did not turn are one rest (issue 24), and all 10
+// orientations that the repository's own detector found are poses, at the usual thresholds or
+// at a raised one.
 TEST(RealDataTest, Mpu6050HandHeldPosesCalibrateAndAgreeWithTheRepository) {
   const importers::ImportOptions io = real_captures::Mpu6050Options();
   const std::string dir = kRealDir + "/mpu6050-tedaldi-raw";
@@ -162,10 +164,6 @@ TEST(RealDataTest, Mpu6050HandHeldPosesCalibrateAndAgreeWithTheRepository) {
   EXPECT_EQ(used, 10);
   EXPECT_EQ(r.verdict, Verdict::kWarn);  // hand-held: moves above a degree
   EXPECT_TRUE(r.params.gyro_calibrated);
-  bool raised = false;
-  for (const std::string& w : r.warnings)
-    raised |= w.find("threshold was raised") != std::string::npos;
-  EXPECT_TRUE(raised);
   // The repository's params_acc.csv: 3 misalignments, 3 scales [m/s^2 per LSB], 3 biases [LSB]
   // in its convention a = T K (u + b) (so its bias is minus ours); params_gyro.csv: 6
   // misalignments, 3 scales [rad/s per LSB], 3 biases. Its fit (IMU-TK's 9 parameters, its own

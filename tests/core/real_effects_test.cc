@@ -394,7 +394,7 @@ absl::StatusOr<RestNoise> RestOfMpu6050(const std::string& path) {
   if (r.ok()) {
     EXPECT_EQ(r->verdict, Verdict::kRefused);
     EXPECT_EQ(r->refusal->reason, RefusalReason::kRestOnly) << r->refusal->message;
-    EXPECT_TRUE(absl::StrContains(r->refusal->message, "found at most 1 usable"))
+    EXPECT_TRUE(absl::StrContains(r->refusal->message, "Found at most 1 usable"))
         << r->refusal->message;
   }
   AccelParams accel;

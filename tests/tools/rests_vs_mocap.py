@@ -9,8 +9,9 @@ time [s], translation x y z, rotation quaternion x y z w (TUM-VI's roomN_gt.csv 
 pose the report uses, and every one it lists without calling it turning, the reference's largest
 rotation from the pose's first reference orientation within the pose must stay under D degrees
 (default 3: a hand's tremor, not a turn) plus R deg/s times the pose's duration (--max-rate-deg-s,
-default 1: a hand drifting slower than a gyroscope's bias can wander is not a turn the gyroscope
-can tell from its bias without another rest; a turn taken for a rest turns tens of degrees).
+default 5: with no second rest to learn the gyroscope's bias from, a drift slower than a MEMS
+gyroscope's turn-on bias cannot be told from it, by imucal or anyone; a turn taken for a rest
+turns tens of degrees at tens of deg/s).
 Poses the reference does not cover (markers lost) are counted and skipped. Standard library only;
 nothing from imucal.
 """
@@ -47,7 +48,7 @@ def main():
     parser.add_argument("report")
     parser.add_argument("gt")
     parser.add_argument("--max-deg", type=float, default=3.0)
-    parser.add_argument("--max-rate-deg-s", type=float, default=1.0)
+    parser.add_argument("--max-rate-deg-s", type=float, default=5.0)
     args = parser.parse_args()
     with open(args.report) as f:
         report = json.load(f)

@@ -371,7 +371,7 @@ TEST(CalibrateTest, TooFewPosesIsRefusedSayingWhatToAdd) {
   ASSERT_TRUE(r.refusal.has_value());
   EXPECT_EQ(r.refusal->reason, RefusalReason::kTooFewOrientations);
   const std::string& message = r.refusal->message;
-  EXPECT_NE(message.find("found at most 5 usable"), std::string::npos) << message;
+  EXPECT_NE(message.find("Found at most 5 usable"), std::string::npos) << message;
   EXPECT_NE(message.find("in 5 distinct orientations"), std::string::npos) << message;
   // The minimum counts come from the one table.
   EXPECT_NE(message.find(absl::StrFormat("%d distinct orientations spread over the sphere",
