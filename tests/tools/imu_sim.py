@@ -78,6 +78,15 @@ Rate-dependent gyroscope scale (off by default):
       bias, so the calibrated rate carries it (the reading's gain is 1 + S |w|). Repeatable. The
       holds show nothing (w = 0 there); only the moves do.
 
+A unit drawn from wide priors (--unit-seed N; off by default): the accelerometer follows imucal's
+documented model in full (README "The model and its conventions", frame angles 0): raw
+u = y / scale + bias with z_i = y_i + q_i y_i^2 and a = L z, L unit lower-triangular with
+t_yx, t_zx, t_zy; so the sensor reads y = (sqrt(1 + 4 q z) - 1) / (2 q) of z = L^-1 a. Drawn
+with their own generator from N alone: bias uniform in +-0.3 m/s^2, scale 1 +- 3 %, angles
++-3 mrad, second-order terms log-uniform in 1e-5..3e-4 per m/s^2 with a random sign on every
+axis (ordinary for MEMS); gyro bias +-0.02 rad/s, scale 1 +- 3 %. In the truth's
+"accel_model" (scale in m/s^2 per input unit, as imucal stores it).
+
 Rests that are hard to tell from turns (off by default):
   --move-profile steady  (random, faces-once) every move at a steady rate (--turn-rate-deg-s,
       ramps of --turn-ramp-s), as a rotation table turns.
@@ -305,10 +314,17 @@ def add_arguments(parser):
                         default=[], metavar="AXIS,S",
                         help="S |w| w rad/s on the true rate of AXIS (S per rad/s)")
     add_rest_arguments(parser)
+    add_unit_arguments(parser)
 
 
 def _floats(text):
     return [float(v) for v in text.split(",")]
+
+
+def add_unit_arguments(parser):
+    parser.add_argument("--unit-seed", type=int, default=None,
+                        help="draw the unit from wide priors with this seed (the same seed, the "
+                             "same unit: a calibration and a validation capture of one sensor)")
 
 
 def add_rest_arguments(parser):
@@ -539,6 +555,10 @@ def simulate(args):
     accel_scale = [1.021, 0.984, 1.012]    # inverse model: y = scale (u - bias)
     gyro_bias = [0.012, -0.008, 0.005]     # rad/s
     gyro_scale = [1.03, 0.975, 1.015]
+    unit = _WideUnit(args.unit_seed) if getattr(args, "unit_seed", None) is not None else None
+    if unit:
+        accel_bias, accel_scale = unit.accel_bias, unit.accel_scale
+        gyro_bias, gyro_scale = unit.gyro_bias, unit.gyro_scale
     dt = 1.0 / args.rate_hz
     # Specific force at rest: up, magnitude g. The box rests on a table whose normal is world z
     # (the turns are about it); a tilted table leans the vertical away from that normal.
@@ -633,7 +653,8 @@ def simulate(args):
                 for axis_i, c, ref in quads[1]:
                     f_body[axis_i] += c * (temp - ref) ** 2
             nf = factors[seg[2] % len(factors)] if factors and seg[0] == "hold" else 1.0
-            accel = [f_body[i] / accel_scale[i] + accel_bias[i] +
+            y = unit.accel_y(f_body) if unit else [f_body[i] / accel_scale[i] for i in range(3)]
+            accel = [y[i] + accel_bias[i] +
                      (nf * rng.gauss(0.0, args.accel_noise) if args.noise else 0.0)
                      for i in range(3)]
             gyro = [w_body[i] / gyro_scale[i] + gyro_bias[i] +
@@ -674,6 +695,8 @@ def simulate(args):
         "model": "u = y / scale + bias + noise per axis (inverse of y = scale (u - bias)), "
                  "no misalignment; accel in m/s^2, gyro in rad/s",
     }
+    if unit:
+        truth["accel_model"] = unit.truth()
     if shift_sigma > 0:
         truth["gyro_bias_shift"] = {
             "sigma_rad_s": shift_sigma, "per_hold_rad_s": hold_shifts,
@@ -828,3 +851,36 @@ class _Bursts:
                 "bursts": self.count,
                 "model": "sinusoids at motor_hz, amplitude sqrt(2) factor noise, in bursts of "
                          "0.3-1.2 s every 2-5 s of each hold"}
+
+
+class _WideUnit:
+    """A unit drawn from wide priors (--unit-seed): the accelerometer's full model."""
+
+    def __init__(self, seed):
+        rng = random.Random(seed * 7919 + 3)
+        self.accel_bias = [rng.uniform(-0.3, 0.3) for _ in range(3)]
+        # imucal's scale is per input unit: y = scale (u - bias); the sensor's gain is 1 / scale.
+        self.accel_scale = [1.0 + rng.uniform(-0.03, 0.03) for _ in range(3)]
+        self.tri = [rng.uniform(-3e-3, 3e-3) for _ in range(3)]  # t_yx, t_zx, t_zy
+        self.quad = [rng.choice((-1.0, 1.0)) * math.exp(rng.uniform(math.log(1e-5),
+                                                                    math.log(3e-4)))
+                     for _ in range(3)]
+        self.gyro_bias = [rng.uniform(-0.02, 0.02) for _ in range(3)]
+        self.gyro_scale = [1.0 + rng.uniform(-0.03, 0.03) for _ in range(3)]
+
+    def accel_y(self, a):
+        """The sensor's y (m/s^2 before scale) for a true specific force a (body, m/s^2)."""
+        t_yx, t_zx, t_zy = self.tri
+        z0 = a[0]
+        z1 = a[1] - t_yx * z0
+        z2 = a[2] - t_zx * z0 - t_zy * z1
+        out = []
+        for z, q in zip((z0, z1, z2), self.quad):
+            y = z if q == 0 else (math.sqrt(1.0 + 4.0 * q * z) - 1.0) / (2.0 * q)
+            out.append(y)
+        return [out[i] / self.accel_scale[i] for i in range(3)]
+
+    def truth(self):
+        return {"bias": self.accel_bias, "scale": self.accel_scale, "tri_angles": self.tri,
+                "quadratic": self.quad,
+                "model": "imucal's: y = scale (u - bias), z = y + q y^2, a = L(tri) z"}
