@@ -21,6 +21,7 @@
 #include "client/cli/noise_source.h"
 #include "core/allan.h"
 #include "core/export.h"
+#include "core/noise_rest.h"
 #include "formats/params_json.h"
 #include "formats/plots.h"
 #include "importers/registry.h"
@@ -37,7 +38,9 @@ constexpr char kNoiseHelp[] =
     "  overlapping Allan deviation of each calibrated axis and, read off it, the white-noise\n"
     "  density N, the bias instability B and the rate random walk K, each with the cluster time\n"
     "  it was read at and its 95% confidence interval. A figure the record is too short to\n"
-    "  reach is an upper bound (a 95% upper limit), marked '<='. REST: any capture format\n"
+    "  reach is an upper bound (a 95% upper limit), marked '<='. The still detector checks the\n"
+    "  rest: a record with no still stretch of 10 s is refused; motion in it (a capture's moves,\n"
+    "  handling) is cut out, and the output says what was cut. REST: any capture format\n"
     "  calibrate reads. --session S: a robot's rest as the server stored it (its samples in the\n"
     "  device's registered units), with the same figures as the same samples in a file.\n"
     "options:\n"
@@ -54,8 +57,8 @@ constexpr char kNoiseHelp[] =
     "  --gravity G         local gravity, m/s^2, for a capture in g (default: the file's,\n"
     "                      else 9.80665)\n"
     "  --format F, --accel-unit U, --gyro-unit U, --device ID: files only, as for calibrate\n"
-    "exit codes: 0 ok, 1 usage, 2 bad input or unknown session, 3 the session holds no\n"
-    "            samples yet, 5 internal, 6 server unreachable, 7 the server refused the\n"
+    "exit codes: 0 ok, 1 usage, 2 bad input or unknown session, 3 the record is not at rest\n"
+    "            or the session holds no samples yet, 5 internal, 6 server unreachable, 7 the server refused the\n"
     "            token or its role\n";
 
 constexpr const char* kAxes[6] = {"accel x", "accel y", "accel z", "gyro x", "gyro y", "gyro z"};
@@ -148,7 +151,30 @@ std::string OpenVinsNoiseYaml(const core::NoiseAnalysis& na, const std::string& 
   return "%YAML:1.0\n---\n" + std::string(out.c_str()) + "\n";
 }
 
-nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const NoiseInput& input) {
+// What part of the record the figures are of: its still stretches and what was cut.
+nlohmann::json RestJson(const core::NoiseRest& rest, const core::Capture& capture) {
+  auto ranges = [&](const std::vector<core::SampleRange>& v) {
+    nlohmann::json out = nlohmann::json::array();
+    for (const core::SampleRange& r : v) {
+      out.push_back({{"t_start_s", capture.t_s[r.begin]},
+                     {"t_end_s", capture.t_s[r.end - 1]},
+                     {"samples", r.size()}});
+    }
+    return out;
+  };
+  return {{"whole", rest.whole},
+          {"record_s", rest.record_s},
+          {"rest_s", rest.rest_s},
+          {"cut_s", rest.cut_s},
+          {"segments", ranges(rest.segments)},
+          {"cut", ranges(rest.cut)},
+          {"method", rest.segments.size() > 1 ? "pooled: each difference inside one segment"
+                                              : "one segment"},
+          {"note", rest.note}};
+}
+
+nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const NoiseInput& input,
+                         const nlohmann::json& rest) {
   const importers::ImportReport& import = input.report;
   nlohmann::json axes = nlohmann::json::object();
   for (size_t k = 0; k < 6; ++k) {
@@ -171,6 +197,10 @@ nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const NoiseInput& input)
                             {"bias_instability", "rad/s"},
                             {"random_walk", "rad/s^2/sqrt(Hz)"}}}}},
                         {"axes", axes},
+                        {"rest", rest},
+                        {"input_units",
+                         {{"accel", core::AccelUnitName(input.capture.accel_unit)},
+                          {"gyro", core::GyroUnitName(input.capture.gyro_unit)}}},
                         {"notes", na.figures.notes}};
   if (input.session) {
     out["session"] = {{"id", input.session->id},
@@ -255,16 +285,21 @@ int RunNoiseWith(const std::vector<std::string>& argv, const NoiseSessionReader&
     accel.scale = Eigen::Vector3d::Constant(ka);
     gyro.matrix = kg * Eigen::Matrix3d::Identity();
   }
-  auto na = core::ComputeNoise(*capture, 0, capture->size(), accel, gyro);
+  // The rest: the still detector's stretches, motion cut out (core/noise_rest.h); a record with
+  // no rest long enough is refused (FailedPrecondition: exit 3).
+  auto rest = core::FindNoiseRest(*capture);
+  if (!rest.ok()) return ReportError(rest.status());
+  auto na = core::ComputeNoiseOfSegments(*capture, rest->segments,
+                                         core::SampleCorrection(accel, gyro, {}, 0.0));
   if (!na.ok()) return ReportError(na.status());
-  if (capture->files.size() > 1) {
-    // Joined files: the Allan deviation runs across the gaps between them.
+  if (!rest->whole) na->figures.notes.insert(na->figures.notes.begin(), rest->note);
+  if (rest->segments.size() > 1 && rest->whole) {
     na->figures.notes.push_back(
-        "several files were joined: the curve spans the gaps between them (a single "
-        "uninterrupted rest is what the figures assume)");
+        "several files were joined: the Allan variances of their rests are pooled, no "
+        "difference spans two files");
   }
 
-  const nlohmann::json json = NoiseJson(*na, input);
+  const nlohmann::json json = NoiseJson(*na, input, RestJson(*rest, *capture));
   if (auto dir = a->Get("out")) {
     std::error_code error;
     std::filesystem::create_directories(*dir, error);
@@ -303,6 +338,11 @@ int RunNoiseWith(const std::vector<std::string>& argv, const NoiseSessionReader&
               static_cast<long long>(na->figures.samples), na->figures.rate_hz,
               static_cast<double>(na->figures.samples) / na->figures.rate_hz);
   for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
+  std::printf("rest        %s\n",
+              rest->whole ? absl::StrFormat("the whole record (%.1f s still)", rest->rest_s).c_str()
+                          : absl::StrFormat("%.1f s used, %.1f s cut (see the first note)",
+                                            rest->rest_s, rest->cut_s)
+                                .c_str());
   std::printf(
       "figures     value [95%% interval] at the cluster time read; '<=' a 95%% upper bound\n"
       "            units: accel N m/s^2/sqrt(Hz), B m/s^2, K m/s^3/sqrt(Hz); gyro N "
