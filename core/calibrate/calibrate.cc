@@ -17,6 +17,7 @@
 #include "core/calibrate/protocol_checks.h"
 #include "core/calibrate/residuals.h"
 #include "core/calibrate/static_poses.h"
+#include "core/calibrate/unit_check.h"
 #include "core/calibrate/verdict.h"
 
 namespace imucal::core {
@@ -98,6 +99,8 @@ std::string_view RefusalReasonName(RefusalReason reason) {
       return "rest_only";
     case RefusalReason::kPosesTooAlike:
       return "poses_too_alike";
+    case RefusalReason::kUnitMismatch:
+      return "unit_mismatch";
   }
   return "too_few_orientations";
 }
@@ -108,6 +111,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   CalibrationReport rep;
   PhaseTimer timer(&rep);
   rep.device = cap.device;
+  rep.input_units = {cap.accel_unit, cap.gyro_unit, cap.accel_unit_source, cap.gyro_unit_source};
   rep.gravity_m_s2 = cap.gravity_m_s2;
   // The capture's units, for a report that ends before the parameter set (a refusal).
   rep.params.device = cap.device;
@@ -177,6 +181,15 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual);
   ReportGyroFit(cap, gyro.planned, rough.turns, gyro.fit, &rep);
   timer.Mark("report");
+  // A fitted scale far from its unit's: the unit is wrong, and nothing after this is meaningful.
+  std::vector<StaticInterval> used_poses;
+  for (int i : accel->used) used_poses.push_back(intervals[static_cast<size_t>(i)]);
+  if (std::optional<Refusal> wrong_unit = CheckFittedUnits(cap, rep.params, used_poses)) {
+    rep.verdict = Verdict::kRefused;
+    rep.verdict_reasons = {wrong_unit->message};
+    rep.refusal = std::move(wrong_unit);
+    return rep;
+  }
 
   // -> effects: close the loop
   if (opt.effects.enabled) {
