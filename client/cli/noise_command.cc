@@ -333,10 +333,9 @@ int RunNoiseWith(const std::vector<std::string>& argv, const NoiseSessionReader&
     std::puts(json.dump(1).c_str());
     return kExitOk;
   }
-  std::printf("input       %s (%s, %lld samples at %.6g Hz, %.0f s)\n",
-              absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(),
-              static_cast<long long>(na->figures.samples), na->figures.rate_hz,
-              static_cast<double>(na->figures.samples) / na->figures.rate_hz);
+  std::printf("input       %s (%s, %zu samples at %.6g Hz, %.0f s)\n",
+              absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(), capture->size(),
+              na->figures.rate_hz, rest->record_s);
   for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
   std::printf("rest        %s\n",
               rest->whole ? absl::StrFormat("the whole record (%.1f s still)", rest->rest_s).c_str()

@@ -131,11 +131,18 @@ std::string FormatSummary(const core::CalibrationReport& r) {
     absl::StrAppendFormat(
         &s,
         "            gravity direction after %d moves, final parameters as a robot applies them: "
-        "RMS %.3f deg, max %.3f deg\n"
-        "            the gyroscope fit's own (bias between poses): RMS %.3f deg; held out RMS "
-        "%.3f deg, max %.3f deg\n",
-        static_cast<int>(r.moves.size()), res.move_rms_deg, res.move_max_deg, res.move_fit_rms_deg,
-        res.move_heldout_rms_deg, res.move_heldout_max_deg);
+        "RMS %.3f deg, max %.3f deg\n",
+        static_cast<int>(r.moves.size()), res.move_rms_deg, res.move_max_deg);
+    // The gyroscope's own fit has no figure when only its bias was calibrated: say so, not nan.
+    if (std::isfinite(res.move_fit_rms_deg)) {
+      absl::StrAppendFormat(&s,
+                            "            the gyroscope fit's own (bias between poses): RMS %.3f "
+                            "deg; held out RMS %.3f deg, max %.3f deg\n",
+                            res.move_fit_rms_deg, res.move_heldout_rms_deg,
+                            res.move_heldout_max_deg);
+    } else {
+      s += "            the gyroscope fit's own: none (only its bias was calibrated)\n";
+    }
   }
   absl::StrAppendFormat(&s, "parameters  (inverse model raw -> SI; see `model` in the JSON)\n");
   absl::StrAppendFormat(&s, "  accel bias     %s %s\n", Vec(p.accel.bias, 6),

@@ -178,7 +178,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.residual.gyro_static_rms_rad_s = GyroStaticRms(intervals, accel->used, gyro.fit.params);
   rep.poses = MakePoseReports(intervals, accel->params, accel_residuals);
   AttachSources(cap, &rep.poses);
-  rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual);
+  rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual, rep.noise);
   ReportGyroFit(cap, gyro.planned, rough.turns, gyro.fit, &rep);
   timer.Mark("report");
   // A fitted scale far from its unit's: the unit is wrong, and nothing after this is meaningful.
@@ -205,7 +205,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     rep.allan = std::move(noise->curves);
   }
   // -> the gyroscope's bias between poses: what the static residual is made of
-  rep.gyro_wander = GyroWanderOf(cap, intervals, accel->used, rep.params);
+  rep.gyro_wander = GyroWanderOf(cap, intervals, accel->used, rep.params, rep.noise);
   if (rep.gyro_wander.ran) rep.effect_diagnostics.notes.push_back(rep.gyro_wander.note);
   timer.Mark("final");
 
