@@ -347,9 +347,10 @@ absl::Status CheckSegments(const Capture& capture, const std::vector<SampleRange
     longest = std::max(longest, r.size());
   }
   if (longest < kMinSamples) {
-    return absl::FailedPreconditionError(
-        Cat("noise interval of ", longest, " samples is too short for an Allan deviation (at "
-            "least ", kMinSamples, ")"));
+    return absl::FailedPreconditionError(Cat("noise interval of ", longest,
+                                             " samples is too short for an Allan deviation (at "
+                                             "least ",
+                                             kMinSamples, ")"));
   }
   return absl::OkStatus();
 }
@@ -414,8 +415,8 @@ absl::StatusOr<NoiseAnalysis> ComputeNoiseOfSegments(const Capture& capture,
   const double duration_s = static_cast<double>(n) / rate_hz;
   double tau_max_s = 0;
   for (int k = 0; k < 6; ++k) {
-    const std::vector<double> adev = PooledAxisDeviation(capture, segments, correction, k,
-                                                         rate_hz, m);
+    const std::vector<double> adev =
+        PooledAxisDeviation(capture, segments, correction, k, rate_hz, m);
     out.readings[static_cast<size_t>(k)] = ReadAllanFigures(c.tau_s, adev, n, rate_hz);
     for (size_t j = 0; j < m.size(); ++j) (k < 3 ? c.accel_m_s2 : c.gyro_rad_s)[j](k % 3) = adev[j];
     const AxisFigures f = FitAllanFigures(c.tau_s, adev, duration_s);

@@ -295,8 +295,9 @@ BiasWander AnalyseBiasWander(const std::vector<WanderPose>& poses, const Eigen::
   // of a random walk, and a ratio against it (1e25) would say something false.
   const bool allan_resolved = out.allan_step_rad_s > kAllanResolvable * out.noise_floor_rad_s;
   if (std::isfinite(out.allan_step_rad_s) && out.allan_step_rad_s > 0 && !allan_resolved) {
-    allan = "; the rest's readings do not change (quantised below a step, or noise-free), so "
-            "its Allan deviation cannot tell a random walk";
+    allan =
+        "; the rest's readings do not change (quantised below a step, or noise-free), so "
+        "its Allan deviation cannot tell a random walk";
   } else if (std::isfinite(out.allan_step_rad_s) && out.allan_step_rad_s > 0) {
     const double ratio = out.step_rms_rad_s / out.allan_step_rad_s;
     const std::string k =

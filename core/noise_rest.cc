@@ -78,13 +78,14 @@ std::string CutList(const Capture& capture, const std::vector<SampleRange>& cut,
   std::vector<std::string> parts;
   for (size_t i = 0; i < cut.size() && i < kListedCuts; ++i)
     parts.push_back(Span(capture, cut[i], dt));
-  if (cut.size() > kListedCuts) parts.push_back(absl::StrFormat("%d more", cut.size() - kListedCuts));
+  if (cut.size() > kListedCuts)
+    parts.push_back(absl::StrFormat("%d more", cut.size() - kListedCuts));
   return absl::StrFormat("%d stretch%s: %s", cut.size(), cut.size() == 1 ? "" : "es",
                          absl::StrJoin(parts, ", "));
 }
 
-std::string NotAtRest(const Capture& capture, const std::vector<SampleRange>& stretches,
-                      double dt, double record_s) {
+std::string NotAtRest(const Capture& capture, const std::vector<SampleRange>& stretches, double dt,
+                      double record_s) {
   const std::string needs = absl::StrFormat(
       "the noise figures need at least %.0f s untouched (the white-noise density; minutes for "
       "the bias instability, an hour or more for the random walk). Record the sensor at rest on "
@@ -111,8 +112,9 @@ absl::StatusOr<NoiseRest> FindNoiseRest(const Capture& capture) {
   NoiseRest out;
   const double dt = capture.MedianDt();
   if (capture.size() < 2 || !(dt > 0)) {
-    return absl::FailedPreconditionError("the record is not at rest: it holds fewer than two "
-                                         "samples in time order");
+    return absl::FailedPreconditionError(
+        "the record is not at rest: it holds fewer than two "
+        "samples in time order");
   }
   out.record_s = static_cast<double>(capture.size()) * dt;
   const std::vector<SampleRange> stretches = StillStretches(capture);
@@ -136,8 +138,8 @@ absl::StatusOr<NoiseRest> FindNoiseRest(const Capture& capture) {
         "motion cut out of the rest: %.1f s in %s. The figures pool the Allan variances of the "
         "%d still stretches (%.1f s of the %.1f s recorded), each difference taken inside one "
         "stretch, so a change of orientation between them does not enter",
-        out.cut_s, CutList(capture, out.cut, dt), static_cast<int>(out.segments.size()),
-        out.rest_s, out.record_s);
+        out.cut_s, CutList(capture, out.cut, dt), static_cast<int>(out.segments.size()), out.rest_s,
+        out.record_s);
   }
   return out;
 }

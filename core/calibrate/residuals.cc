@@ -292,8 +292,7 @@ std::vector<FaceResidual> FaceResiduals(const Capture& cap, const std::vector<St
 }
 
 BiasWander GyroWanderOf(const Capture& cap, const std::vector<StaticInterval>& ivs,
-                        const std::vector<int>& used, const ParamSet& ps,
-                        const NoiseLevel& noise) {
+                        const std::vector<int>& used, const ParamSet& ps, const NoiseLevel& noise) {
   if (!ps.gyro_calibrated && std::isnan(NominalGyroToSi(cap.gyro_unit))) return {};
   if (cap.t_s.empty()) return {};
   const SampleCorrection correct(ps, cap.t_s.front());

@@ -58,8 +58,8 @@ std::optional<Refusal> CheckSensor(std::string_view sensor, std::string_view fla
       "the %s reads %s what %s implies: %s. (The fit's scale is %.4g SI per input unit, %.4g "
       "times the unit's %.4g; a sensor's scale is within a few percent of its unit's, and a "
       "scale %.0f%% or more off is a wrong unit, not a calibration.)",
-      sensor, Times(1 / ratio), UnitPhrase(flag, unit, source), looks, fitted_si, ratio,
-      nominal_si, 100 * kUnitScaleTolerance));
+      sensor, Times(1 / ratio), UnitPhrase(flag, unit, source), looks, fitted_si, ratio, nominal_si,
+      100 * kUnitScaleTolerance));
 }
 
 // The gyroscope's moves against its declared or inferred unit (core/gyro_unit.h): a gyro fit on
@@ -77,8 +77,8 @@ std::optional<Refusal> CheckGyroMoves(const Capture& capture,
   return UnitRefusal(absl::StrFormat(
       "the gyroscope reads %s what %s implies: the data look like %s; give --gyro-unit %s. (%s.)",
       Times(1 / ratio),
-      UnitPhrase("gyro-unit", GyroUnitName(capture.gyro_unit), capture.gyro_unit_source),
-      likely, likely, evidence.Describe()));
+      UnitPhrase("gyro-unit", GyroUnitName(capture.gyro_unit), capture.gyro_unit_source), likely,
+      likely, evidence.Describe()));
 }
 
 }  // namespace
@@ -89,9 +89,8 @@ std::optional<Refusal> CheckFittedUnits(const Capture& capture, const ParamSet& 
   if (capture.accel_unit != AccelUnit::kCounts) {
     const double fitted = params.accel.scale.cwiseAbs().mean();
     if (auto r = CheckSensor("accelerometer", "accel-unit", AccelUnitName(capture.accel_unit),
-                             capture.accel_unit_source,
-                             NominalAccelToSi(capture.accel_unit, g), fitted,
-                             {{"m/s^2", 1.0}, {"g", g}}))
+                             capture.accel_unit_source, NominalAccelToSi(capture.accel_unit, g),
+                             fitted, {{"m/s^2", 1.0}, {"g", g}}))
       return r;
   }
   if (auto r = CheckGyroMoves(capture, rests)) return r;

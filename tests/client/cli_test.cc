@@ -392,7 +392,6 @@ TEST_F(CliTest, JsonReportHasTheDocumentedKeys) {
   for (const json& w : j["warnings"]) EXPECT_TRUE(w.is_string());
 }
 
-
 // ---------------------------------------------------------------------------------------------
 // `imucal noise` checks its rest (core/noise_rest.h).
 
@@ -461,9 +460,10 @@ TEST_F(CliTest, CalibrateJsonRecordsTheInputUnits) {
       << err_;
   ASSERT_EQ(Run(RunCalibrate, {capture, "--json", "--gyro-unit", "rad/s"}), kExitOk) << err_;
   const json r = json::parse(out_);
-  EXPECT_EQ(r["input_units"],
-            json({{"accel", "m/s^2"}, {"gyro", "rad/s"}, {"accel_source", "file"},
-                  {"gyro_source", "declared"}}));
+  EXPECT_EQ(r["input_units"], json({{"accel", "m/s^2"},
+                                    {"gyro", "rad/s"},
+                                    {"accel_source", "file"},
+                                    {"gyro_source", "declared"}}));
 }
 
 }  // namespace

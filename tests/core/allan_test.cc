@@ -552,7 +552,6 @@ TEST(ParamsJsonNoise, RoundTripAndOptional) {
   EXPECT_EQ(formats::ParamSetToJson(old).find("\"noise\""), std::string::npos);
 }
 
-
 // The rest with handling in it: the clean rest, then the same with 5 s of motion (a large
 // swing on every axis) 40% in, after which the unit reads 0.2 m/s^2 and 5e-4 rad/s off on x
 // (set down turned, a new bias): the step and the motion enter every Allan difference that

@@ -70,7 +70,6 @@ TEST(InferUnitTest, Gyroscope) {
             core::GyroUnit::kRadPerSecond);
 }
 
-
 // A capture in deg/s whose moves are under 1% of its samples (five-minute holds): the rates'
 // 99th percentile is a rest's, which read it as rad/s. The moves against the accelerometer's
 // turn of gravity say deg/s; the same capture in rad/s stays rad/s.
