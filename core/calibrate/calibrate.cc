@@ -63,6 +63,20 @@ CalibrationReport Refuse(const Capture& cap, CalibrationReport rep, Refusal refu
   return rep;
 }
 
+// A fitted scale far from its unit's (core/calibrate/unit_check.h): the unit is wrong, and
+// nothing after the fit is meaningful. Sets the refusal and returns true.
+bool RefuseWrongUnit(const Capture& cap, const std::vector<StaticInterval>& intervals,
+                     const std::vector<int>& used, CalibrationReport* rep) {
+  std::vector<StaticInterval> used_poses;
+  for (int i : used) used_poses.push_back(intervals[static_cast<size_t>(i)]);
+  std::optional<Refusal> wrong_unit = CheckFittedUnits(cap, rep->params, used_poses);
+  if (!wrong_unit) return false;
+  rep->verdict = Verdict::kRefused;
+  rep->verdict_reasons = {wrong_unit->message};
+  rep->refusal = std::move(wrong_unit);
+  return true;
+}
+
 // What the verdict reads: the final figures, the parameters' spreads, what the model lacks.
 VerdictInputs VerdictInputsOf(const CalibrationReport& rep, const AccelStage& accel,
                               const GyroFit& gyro) {
@@ -181,15 +195,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual, rep.noise);
   ReportGyroFit(cap, gyro.planned, rough.turns, gyro.fit, &rep);
   timer.Mark("report");
-  // A fitted scale far from its unit's: the unit is wrong, and nothing after this is meaningful.
-  std::vector<StaticInterval> used_poses;
-  for (int i : accel->used) used_poses.push_back(intervals[static_cast<size_t>(i)]);
-  if (std::optional<Refusal> wrong_unit = CheckFittedUnits(cap, rep.params, used_poses)) {
-    rep.verdict = Verdict::kRefused;
-    rep.verdict_reasons = {wrong_unit->message};
-    rep.refusal = std::move(wrong_unit);
-    return rep;
-  }
+  if (RefuseWrongUnit(cap, intervals, accel->used, &rep)) return rep;
 
   // -> effects: close the loop
   if (opt.effects.enabled) {
