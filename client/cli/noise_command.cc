@@ -151,6 +151,9 @@ std::string OpenVinsNoiseYaml(const core::NoiseAnalysis& na, const std::string& 
   return "%YAML:1.0\n---\n" + std::string(out.c_str()) + "\n";
 }
 
+// How a unit was decided, as the calibration report says it (formats/report_json.cc).
+std::string UnitSource(const std::string& source) { return source.empty() ? "unstated" : source; }
+
 // What part of the record the figures are of: its still stretches and what was cut.
 nlohmann::json RestJson(const core::NoiseRest& rest, const core::Capture& capture) {
   auto ranges = [&](const std::vector<core::SampleRange>& v) {
@@ -200,7 +203,9 @@ nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const NoiseInput& input,
                         {"rest", rest},
                         {"input_units",
                          {{"accel", core::AccelUnitName(input.capture.accel_unit)},
-                          {"gyro", core::GyroUnitName(input.capture.gyro_unit)}}},
+                          {"gyro", core::GyroUnitName(input.capture.gyro_unit)},
+                          {"accel_source", UnitSource(input.capture.accel_unit_source)},
+                          {"gyro_source", UnitSource(input.capture.gyro_unit_source)}}},
                         {"notes", na.figures.notes}};
   if (input.session) {
     out["session"] = {{"id", input.session->id},
