@@ -122,10 +122,14 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                           res.gyro_static_rms_rad_s * kRadToDeg);
   }
   for (const auto& t : r.turns) {
-    absl::StrAppendFormat(&s,
-                          "  turn      %6.1f-%6.1f s  %d x 360 deg about %s: measured %.2f deg, "
-                          "error %.2f deg\n",
-                          t.t_start_s, t.t_end_s, t.turns, t.axis, t.angle_deg, t.error_deg);
+    // A turn is measured with the calibrated gyroscope: without its scale (raw counts, only the
+    // bias calibrated) there is no angle to print, and "nan deg" said nothing true.
+    const std::string measured =
+        std::isfinite(t.angle_deg)
+            ? absl::StrFormat("measured %.2f deg, error %.2f deg", t.angle_deg, t.error_deg)
+            : std::string("not measured (the gyroscope's scale was not calibrated)");
+    absl::StrAppendFormat(&s, "  turn      %6.1f-%6.1f s  %d x 360 deg about %s: %s\n", t.t_start_s,
+                          t.t_end_s, t.turns, t.axis, measured);
   }
   if (std::isfinite(res.move_rms_deg)) {
     absl::StrAppendFormat(
