@@ -86,32 +86,48 @@ void AddNotes(const char* sensor, const SensorNoise& s, double tau_max_s,
 
 }  // namespace
 
-std::vector<double> OverlappingAllanDeviation(const std::vector<double>& x, double rate_hz,
-                                              const std::vector<size_t>& cluster_sizes) {
+namespace {
+
+// Adds, for each cluster size m (in samples), the sum of the squared second differences of the
+// series' integral over that cluster time to sums[j] and their count to terms[j] (nothing for a
+// cluster size the series is too short for). The mean is removed first so that theta stays
+// small and the second differences keep their digits.
+void AccumulateAllanSums(const std::vector<double>& x, double rate_hz,
+                         const std::vector<size_t>& cluster_sizes, std::vector<double>* sums,
+                         std::vector<double>* terms) {
   const size_t n = x.size();
   const double tau0 = 1.0 / rate_hz;
-  // theta: the integral of x (cumulative sum times the sample interval), n + 1 values. The mean
-  // is removed first so that theta stays small and the second differences keep their digits.
   double mean = 0;
   for (double v : x) mean += v;
   mean /= static_cast<double>(std::max<size_t>(n, 1));
+  // theta: the integral of x (cumulative sum times the sample interval), n + 1 values.
   std::vector<double> theta(n + 1, 0.0);
   for (size_t i = 0; i < n; ++i) theta[i + 1] = theta[i] + (x[i] - mean) * tau0;
-  std::vector<double> out;
-  out.reserve(cluster_sizes.size());
-  for (size_t m : cluster_sizes) {
-    if (m == 0 || 2 * m > n) {
-      out.push_back(kNaN);
-      continue;
-    }
-    const double tau = static_cast<double>(m) * tau0;
+  for (size_t j = 0; j < cluster_sizes.size(); ++j) {
+    const size_t m = cluster_sizes[j];
+    if (m == 0 || 2 * m > n) continue;
     double sum = 0;
-    const size_t terms = n - 2 * m + 1;
-    for (size_t k = 0; k < terms; ++k) {
+    const size_t count = n - 2 * m + 1;
+    for (size_t k = 0; k < count; ++k) {
       const double d = theta[k + 2 * m] - 2.0 * theta[k + m] + theta[k];
       sum += d * d;
     }
-    out.push_back(std::sqrt(sum / (2.0 * tau * tau * static_cast<double>(terms))));
+    (*sums)[j] += sum;
+    (*terms)[j] += static_cast<double>(count);
+  }
+}
+
+}  // namespace
+
+std::vector<double> OverlappingAllanDeviation(const std::vector<double>& x, double rate_hz,
+                                              const std::vector<size_t>& cluster_sizes) {
+  std::vector<double> sums(cluster_sizes.size(), 0.0), terms(cluster_sizes.size(), 0.0);
+  AccumulateAllanSums(x, rate_hz, cluster_sizes, &sums, &terms);
+  std::vector<double> out;
+  out.reserve(cluster_sizes.size());
+  for (size_t j = 0; j < cluster_sizes.size(); ++j) {
+    const double tau = static_cast<double>(cluster_sizes[j]) * (1.0 / rate_hz);
+    out.push_back(terms[j] > 0 ? std::sqrt(sums[j] / (2.0 * tau * tau * terms[j])) : kNaN);
   }
   return out;
 }
@@ -300,28 +316,96 @@ absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin,
     return absl::InvalidArgumentError(Cat("noise interval [", begin, ", ", end,
                                           ") outside the capture of ", capture.size(), " samples"));
   }
-  const size_t n = end - begin;
-  if (n < kMinSamples) {
-    return absl::FailedPreconditionError(
-        Cat("noise interval of ", n, " samples is too short for an Allan deviation (at least ",
-            kMinSamples, ")"));
-  }
-  // Uniform sampling is assumed: the rate is that of the median interval.
+  return ComputeNoiseOfSegments(capture, {SampleRange{begin, end}}, correction);
+}
+
+namespace {
+
+// The rate of the segments' samples: that of the median interval inside them (uniform sampling
+// is assumed), rounded to a micro-hertz: the median of float time stamps is a nominal rate plus
+// noise (200.00000000000426 Hz), and the rate is written into files robots read. NaN when time
+// does not increase.
+double SegmentsRateHz(const Capture& capture, const std::vector<SampleRange>& segments) {
   std::vector<double> dt;
-  dt.reserve(n - 1);
-  for (size_t i = begin + 1; i < end; ++i) dt.push_back(capture.t_s[i] - capture.t_s[i - 1]);
+  for (const SampleRange& r : segments)
+    for (size_t i = r.begin + 1; i < r.end; ++i) dt.push_back(capture.t_s[i] - capture.t_s[i - 1]);
+  if (dt.empty()) return kNaN;
   std::nth_element(dt.begin(), dt.begin() + static_cast<std::ptrdiff_t>(dt.size() / 2), dt.end());
   const double median_dt = dt[dt.size() / 2];
-  if (!(median_dt > 0)) return absl::InvalidArgumentError("noise interval: time does not increase");
-  // Rounded to a micro-hertz: the median of float time stamps is a nominal rate plus noise
-  // (200.00000000000426 Hz), and the rate is written into files robots read.
-  const double rate_hz = std::round(1e6 / median_dt) / 1e6;
+  return median_dt > 0 ? std::round(1e6 / median_dt) / 1e6 : kNaN;
+}
 
-  const std::vector<size_t> m = LogSpacedClusterSizes(n);
+absl::Status CheckSegments(const Capture& capture, const std::vector<SampleRange>& segments) {
+  size_t previous_end = 0, longest = 0;
+  for (const SampleRange& r : segments) {
+    if (r.begin >= r.end || r.end > capture.size() || r.begin < previous_end) {
+      return absl::InvalidArgumentError(Cat("noise interval [", r.begin, ", ", r.end,
+                                            ") outside the capture of ", capture.size(),
+                                            " samples, or not after the previous one"));
+    }
+    previous_end = r.end;
+    longest = std::max(longest, r.size());
+  }
+  if (longest < kMinSamples) {
+    return absl::FailedPreconditionError(Cat("noise interval of ", longest,
+                                             " samples is too short for an Allan deviation (at "
+                                             "least ",
+                                             kMinSamples, ")"));
+  }
+  return absl::OkStatus();
+}
+
+// One axis' pooled deviation over the segments (k: accel x, y, z, gyro x, y, z), calibrated by
+// `correction` one sample at a time: memory is one segment's series (and its integral).
+std::vector<double> PooledAxisDeviation(const Capture& capture,
+                                        const std::vector<SampleRange>& segments,
+                                        const SampleCorrection& correction, int k, double rate_hz,
+                                        const std::vector<size_t>& m) {
+  std::vector<double> sums(m.size(), 0.0), terms(m.size(), 0.0), series;
+  for (const SampleRange& r : segments) {
+    series.clear();
+    series.reserve(r.size());
+    for (size_t i = r.begin; i < r.end; ++i) {
+      const CorrectedSample corrected = correction.Apply(
+          capture.accel[i], capture.gyro[i],
+          capture.has_temp() ? capture.temp[i] : std::numeric_limits<double>::quiet_NaN(),
+          capture.t_s[i]);
+      series.push_back(k < 3 ? corrected.accel_m_s2(k) : corrected.gyro_rad_s(k - 3));
+    }
+    AccumulateAllanSums(series, rate_hz, m, &sums, &terms);
+  }
+  std::vector<double> adev(m.size(), kNaN);
+  for (size_t j = 0; j < m.size(); ++j) {
+    // Pieces: only the segments long enough for this cluster size hold its clusters.
+    size_t contributing = 0;
+    for (const SampleRange& r : segments) contributing += 2 * m[j] <= r.size() ? r.size() : 0;
+    if (segments.size() > 1 &&
+        static_cast<double>(contributing) / static_cast<double>(m[j]) < kMinClustersForFit)
+      continue;
+    const double tau = static_cast<double>(m[j]) * (1.0 / rate_hz);
+    if (terms[j] > 0) adev[j] = std::sqrt(sums[j] / (2.0 * tau * tau * terms[j]));
+  }
+  return adev;
+}
+
+}  // namespace
+
+absl::StatusOr<NoiseAnalysis> ComputeNoiseOfSegments(const Capture& capture,
+                                                     const std::vector<SampleRange>& segments,
+                                                     const SampleCorrection& correction) {
+  if (segments.empty()) return absl::InvalidArgumentError("noise: no interval to analyse");
+  if (absl::Status s = CheckSegments(capture, segments); !s.ok()) return s;
+  const double rate_hz = SegmentsRateHz(capture, segments);
+  if (!(rate_hz > 0)) return absl::InvalidArgumentError("noise interval: time does not increase");
+  size_t n = 0, longest = 0;
+  for (const SampleRange& r : segments) n += r.size(), longest = std::max(longest, r.size());
+
+  const std::vector<size_t> m = LogSpacedClusterSizes(longest);
   NoiseAnalysis out;
+  out.segments = segments;
   NoiseFigures& nf = out.figures;
-  nf.t_start_s = capture.t_s[begin];
-  nf.t_end_s = capture.t_s[end - 1];
+  nf.t_start_s = capture.t_s[segments.front().begin];
+  nf.t_end_s = capture.t_s[segments.back().end - 1];
   nf.samples = static_cast<int64_t>(n);
   nf.rate_hz = rate_hz;
   AllanCurves& c = out.curves;
@@ -330,20 +414,9 @@ absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin,
   c.gyro_rad_s.assign(m.size(), Eigen::Vector3d::Zero());
   const double duration_s = static_cast<double>(n) / rate_hz;
   double tau_max_s = 0;
-  // The calibrated body-frame signal of one axis at a time: memory is one series (and its
-  // integral), whatever the number of axes or of cluster times.
-  std::vector<double> series;
-  series.reserve(n);
   for (int k = 0; k < 6; ++k) {
-    series.clear();
-    for (size_t i = begin; i < end; ++i) {
-      const CorrectedSample corrected = correction.Apply(
-          capture.accel[i], capture.gyro[i],
-          capture.has_temp() ? capture.temp[i] : std::numeric_limits<double>::quiet_NaN(),
-          capture.t_s[i]);
-      series.push_back(k < 3 ? corrected.accel_m_s2(k) : corrected.gyro_rad_s(k - 3));
-    }
-    const std::vector<double> adev = OverlappingAllanDeviation(series, rate_hz, m);
+    const std::vector<double> adev =
+        PooledAxisDeviation(capture, segments, correction, k, rate_hz, m);
     out.readings[static_cast<size_t>(k)] = ReadAllanFigures(c.tau_s, adev, n, rate_hz);
     for (size_t j = 0; j < m.size(); ++j) (k < 3 ? c.accel_m_s2 : c.gyro_rad_s)[j](k % 3) = adev[j];
     const AxisFigures f = FitAllanFigures(c.tau_s, adev, duration_s);

@@ -113,8 +113,18 @@ double AllanEdf(AllanNoise noise, size_t n, size_t m);
 AxisReadings ReadAllanFigures(const std::vector<double>& tau_s, const std::vector<double>& adev,
                               size_t n, double rate_hz);
 
+// A stretch of samples [begin, end) of a capture.
+struct SampleRange {
+  size_t begin = 0;
+  size_t end = 0;
+  size_t size() const { return end - begin; }
+};
+
 struct NoiseAnalysis {
   NoiseFigures figures;
+  // The still stretches the curves were computed on (one, unless a rest was cut into pieces:
+  // ComputeNoiseOfSegments).
+  std::vector<SampleRange> segments;
   AllanCurves curves;
   // accel x, y, z, then gyro x, y, z.
   std::array<AxisReadings, 6> readings;
@@ -129,6 +139,23 @@ absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin,
 // The same, each sample calibrated by `correction` (a parameter set with its effects).
 absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
                                            const SampleCorrection& correction);
+
+// The noise of a rest cut into still segments (disjoint, in time order; handling cut out of a
+// long rest, core/noise_rest.h): the overlapping Allan variance POOLED over the segments, every
+// second difference (theta_{k+2m} - 2 theta_{k+m} + theta_k) taken wholly inside one segment,
+//   avar(tau) = sum_s sum_k d_{s,k}^2 / (2 tau^2 sum_s (n_s - 2m + 1)),
+// i.e. the segments' own overlapping Allan variances averaged with weights their numbers of
+// terms (as NIST SP 1065 treats gaps: a term that would straddle one is left out). Why not join
+// the segments into one series: a step of orientation (or of bias) between them enters every
+// difference that straddles the joint, and inflates B and K. Why not the longest segment alone:
+// it throws away the other segments' clusters at the shorter cluster times. One segment gives
+// ComputeNoise's figures exactly. Cluster times reach half the longest segment; a cluster time
+// is used for the figures only where the segments long enough for it hold kMinClustersForFit
+// clusters (the others contribute nothing there), and the figures' intervals count the
+// segments' samples together (slightly optimistic where only the longest segment contributes).
+absl::StatusOr<NoiseAnalysis> ComputeNoiseOfSegments(const Capture& capture,
+                                                     const std::vector<SampleRange>& segments,
+                                                     const SampleCorrection& correction);
 
 // What the pipeline calls: the noise of the longest used static interval (the initial rest of a
 // protocol capture), calibrated with `params` as the SDK applies them (effects included).

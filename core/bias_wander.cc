@@ -62,6 +62,10 @@ double Combine(std::initializer_list<std::pair<double, double>> parts) {
   return w > 0 ? wm / w : 0.0;
 }
 
+// The rest's random-walk step is compared with the steps between poses only when it is at least
+// this fraction of the poses' noise floor: a real sensor's is orders of magnitude above it.
+constexpr double kAllanResolvable = 1e-6;
+
 struct AxisFit {
   double q = 0, s2 = 0;
 };
@@ -286,7 +290,15 @@ BiasWander AnalyseBiasWander(const std::vector<WanderPose>& poses, const Eigen::
     return out;
   }
   std::string allan;
-  if (std::isfinite(out.allan_step_rad_s) && out.allan_step_rad_s > 0) {
+  // A rest whose readings never change (a channel on one quantisation step, or noise-free) has
+  // an Allan deviation of ~0 at every cluster time (1e-27 rad/s from rounding): it says nothing
+  // of a random walk, and a ratio against it (1e25) would say something false.
+  const bool allan_resolved = out.allan_step_rad_s > kAllanResolvable * out.noise_floor_rad_s;
+  if (std::isfinite(out.allan_step_rad_s) && out.allan_step_rad_s > 0 && !allan_resolved) {
+    allan =
+        "; the rest's readings do not change (quantised below a step, or noise-free), so "
+        "its Allan deviation cannot tell a random walk";
+  } else if (std::isfinite(out.allan_step_rad_s) && out.allan_step_rad_s > 0) {
     const double ratio = out.step_rms_rad_s / out.allan_step_rad_s;
     const std::string k =
         absl::StrFormat("K %s%.5f deg/s/sqrt(s): %.4f deg/s", out.allan_is_bound ? "at most " : "",

@@ -53,6 +53,12 @@ struct Capture {
   TempUnit temp_unit = TempUnit::kCelsius;
   double gravity_m_s2 = kStandardGravity;  // local gravity magnitude
   double rate_hz = 0.0;                    // nominal rate from the header; 0 if not given
+  // How the units were decided (the report's input_units records it): "declared" (the user
+  // named them: --accel-unit / --gyro-unit), "file" (the format or the file's header states
+  // them), "inferred" (importers/unit_inference.h); empty for a capture made in memory or a
+  // device's registered units.
+  std::string accel_unit_source;
+  std::string gyro_unit_source;
 
   // Header keys that imucal does not interpret, in file order, kept for round trips.
   std::vector<std::pair<std::string, std::string>> extra_metadata;

@@ -78,7 +78,6 @@ RestRate DenseRestRate(const std::vector<RateSample>& runs, double bound) {
 double RoughRadPerGyroUnit(const Capture& capture, const GyroIntegral& integral,
                            const std::vector<std::pair<size_t, size_t>>& rests,
                            const Eigen::Vector3d& rest_rate) {
-  if (capture.gyro_unit != GyroUnit::kCounts) return NominalGyroToSi(capture.gyro_unit);
   if (rests.size() < 2) return 0;
   std::vector<Eigen::Vector3d> means;
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(INFINITY), hi = -lo;
@@ -87,7 +86,11 @@ double RoughRadPerGyroUnit(const Capture& capture, const GyroIntegral& integral,
     lo = lo.cwiseMin(means.back());
     hi = hi.cwiseMax(means.back());
   }
-  const Eigen::Vector3d offset = 0.5 * (lo + hi);
+  // Raw counts carry an offset (the middle of the extremes, near enough for a rough figure);
+  // m/s^2 and g read zero at zero.
+  const Eigen::Vector3d offset =
+      capture.accel_unit == AccelUnit::kCounts ? Eigen::Vector3d(0.5 * (lo + hi))
+                                               : Eigen::Vector3d::Zero();
   double best = 0;
   for (size_t k = 1; k < rests.size(); ++k) {
     const size_t from = rests[k - 1].second, to = rests[k].first;

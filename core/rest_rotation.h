@@ -53,12 +53,12 @@ struct RestRate {
 };
 RestRate DenseRestRate(const std::vector<RateSample>& runs, double bound);
 
-// Radians per input unit of the gyroscope: nominal for rad/s and deg/s. For raw counts, a rough
-// figure from the capture's moves: between two rests, the gravity direction turns by no more
+// Radians per input unit of the gyroscope, a rough figure from the capture's moves (for raw
+// counts, or to check a nominal unit): between two rests, the gravity direction turns by no more
 // than the rotation (a turn about the vertical shows it nothing), so the largest ratio of the
 // accelerometer's turn to the gyroscope's integral, over the moves that tilt the unit by 30
-// degrees or more, is about the gyroscope's scale. The accelerometer's offset is taken from the
-// middle of each axis' extreme rest readings. 0 when nothing tells (no such move).
+// degrees or more, is about the gyroscope's scale. A raw-count accelerometer's offset is taken
+// from the middle of each axis' extreme rest readings. 0 when nothing tells (no such move).
 double RoughRadPerGyroUnit(const Capture& capture, const GyroIntegral& integral,
                            const std::vector<std::pair<size_t, size_t>>& rests,
                            const Eigen::Vector3d& rest_rate);

@@ -226,44 +226,76 @@ constexpr double kDegPerRad = 180.0 / std::numbers::pi;
 // carry an offset).
 constexpr double kMostBiasDegS = 25.0;
 
-// The samples a rest rate may come from: all of them in counts, else those within kMostBiasDegS.
-std::vector<RateSample> PlausibleRests(std::vector<RateSample> runs, const Capture& capture) {
-  if (capture.gyro_unit == GyroUnit::kCounts) return runs;
-  const double most = kMostBiasDegS * std::numbers::pi / 180 / NominalGyroToSi(capture.gyro_unit);
+// The samples a rest rate may come from: those within kMostBiasDegS (`rad_per_unit` radians per
+// input unit), or all of them when the readings have no known zero (raw counts).
+std::vector<RateSample> PlausibleRests(std::vector<RateSample> runs, double rad_per_unit,
+                                       bool zero_known) {
+  if (!zero_known) return runs;
+  const double most = kMostBiasDegS * std::numbers::pi / 180 / rad_per_unit;
   std::erase_if(runs, [&](const RateSample& r) { return r.mean.norm() > most; });
   return runs;
 }
 
-// The runs a rest rate may come from: the plausible ones (PlausibleRests), and of those the ones
-// long enough to be poses when there are any (`held`: a turn's piece between two bursts of
-// motion is short; a rest is held).
-struct RestCandidates {
-  std::vector<RateSample> runs;
+// A run's rate sample, and whether it is held long enough to be a pose.
+struct RunRate {
+  RateSample rate;
   bool held = false;
 };
 
-RestCandidates RateSamples(const Capture& capture, const std::vector<Run>& runs,
-                           const StaticDetectorOptions& options) {
-  std::vector<RateSample> all;
-  std::vector<bool> is_long;
+std::vector<RunRate> RunRates(const Capture& capture, const std::vector<Run>& runs,
+                              const StaticDetectorOptions& options) {
+  std::vector<RunRate> out;
   for (const Run& r : runs) {
     if (r.end <= r.begin + 1) continue;
     const StaticInterval s = SummariseInterval(capture, r.begin, r.end);
-    all.push_back({s.gyro_mean, static_cast<double>(s.samples())});
-    is_long.push_back(s.t_end_s - s.t_start_s >= options.min_static_s);
+    out.push_back({{s.gyro_mean, static_cast<double>(s.samples())},
+                   s.t_end_s - s.t_start_s >= options.min_static_s});
   }
-  RestCandidates out;
-  std::vector<RateSample> held;
-  for (size_t i = 0; i < all.size(); ++i)
-    if (is_long[i] && !PlausibleRests({all[i]}, capture).empty()) held.push_back(all[i]);
-  out.held = !held.empty();
-  out.runs = out.held ? std::move(held) : PlausibleRests(std::move(all), capture);
   return out;
+}
+
+// The runs a rest rate may come from: the plausible ones (PlausibleRests), and of those the ones
+// held long enough to be poses when there are any (a turn's piece between two bursts of motion
+// is short; a rest is held).
+std::vector<RateSample> RestCandidates(const std::vector<RunRate>& runs, double rad_per_unit,
+                                       bool zero_known) {
+  std::vector<RateSample> held, all;
+  for (const RunRate& r : runs) {
+    if (PlausibleRests({r.rate}, rad_per_unit, zero_known).empty()) continue;
+    all.push_back(r.rate);
+    if (r.held) held.push_back(r.rate);
+  }
+  return held.empty() ? all : held;
 }
 
 // With no rest to learn from, the rest rate is zero and a rest may read up to this: the turn-on
 // bias of most MEMS gyroscopes is within a few deg/s.
 constexpr double kUnknownBiasDegS = 5.0;
+
+// The gyroscope's radians per input unit for the rotation test. Its nominal unit's, unless the
+// moves say it is the other nominal unit (a deg/s gyroscope read as rad/s turns gravity 57 times
+// less than it says): within 3x of the other and not of its own, the other's, so that a wrong
+// unit does not make every rest a turn (the calibration's unit check then refuses it by name,
+// core/calibrate/unit_check.h). A figure near neither (a gyroscope that recorded no rotation)
+// changes nothing. Raw counts, or a unit the caller does not know
+// (StaticDetectorOptions::gyro_unit_known), have only the moves' figure.
+double GyroRadPerUnit(const Capture& capture, const RestContext& ctx,
+                      const StaticDetectorOptions& options, const Eigen::Vector3d& provisional) {
+  std::vector<std::pair<size_t, size_t>> rests;
+  for (const FileRest& f : ctx.files)
+    for (const Run& r : f.runs) rests.emplace_back(r.begin, r.end);
+  const double moves = RoughRadPerGyroUnit(capture, ctx.integral, rests, provisional);
+  if (capture.gyro_unit == GyroUnit::kCounts || !options.gyro_unit_known) return moves;
+  const double nominal = NominalGyroToSi(capture.gyro_unit);
+  const double other = NominalGyroToSi(capture.gyro_unit == GyroUnit::kRadPerSecond
+                                           ? GyroUnit::kDegPerSecond
+                                           : GyroUnit::kRadPerSecond);
+  const double near = std::log(3.0);
+  if (moves > 0 && std::abs(std::log(moves / other)) < near &&
+      std::abs(std::log(moves / nominal)) > near)
+    return other;
+  return nominal;
+}
 
 // Each file's rest rate: the densest cluster (by duration) of its own runs, when two or more
 // agree on it (one run cannot vouch for itself: a slow steady turn reads like a bias). Else (a
@@ -272,28 +304,32 @@ constexpr double kUnknownBiasDegS = 5.0;
 // kUnknownBiasDegS; raw counts have no zero, so there the provisional rate of all runs.
 void SetRestRates(const Capture& capture, const StaticDetectorOptions& options,
                   RestContext* ctx) {
-  std::vector<RateSample> all;
-  std::vector<std::pair<size_t, size_t>> rests;
-  std::vector<RestCandidates> own;
+  std::vector<std::vector<RunRate>> runs;
+  std::vector<RateSample> every;
   for (const FileRest& f : ctx->files) {
-    own.push_back(RateSamples(capture, f.runs, options));
-    all.insert(all.end(), own.back().runs.begin(), own.back().runs.end());
-    for (const Run& r : f.runs) rests.emplace_back(r.begin, r.end);
+    runs.push_back(RunRates(capture, f.runs, options));
+    for (const RunRate& r : runs.back()) every.push_back(r.rate);
   }
-  const Eigen::Vector3d provisional = DenseRestRate(all, INFINITY).rate;
-  ctx->rad_per_unit = RoughRadPerGyroUnit(capture, ctx->integral, rests, provisional);
+  const Eigen::Vector3d provisional = DenseRestRate(every, INFINITY).rate;
+  ctx->rad_per_unit = GyroRadPerUnit(capture, *ctx, options, provisional);
   if (!(ctx->rad_per_unit > 0)) return;
+  const bool zero_known = capture.gyro_unit != GyroUnit::kCounts;
+  std::vector<std::vector<RateSample>> own;
+  std::vector<RateSample> all;
+  for (const std::vector<RunRate>& r : runs) {
+    own.push_back(RestCandidates(r, ctx->rad_per_unit, zero_known));
+    all.insert(all.end(), own.back().begin(), own.back().end());
+  }
   const double rest_bound = options.rest_rate_bound_deg_s / kDegPerRad;
   const double power_up_bound = options.power_up_rate_bound_deg_s / kDegPerRad;
   const RestRate across = DenseRestRate(all, power_up_bound / ctx->rad_per_unit);
-  const bool counts = capture.gyro_unit == GyroUnit::kCounts;
   for (size_t k = 0; k < ctx->files.size(); ++k) {
     FileRest& f = ctx->files[k];
-    const RestRate mine = DenseRestRate(own[k].runs, rest_bound / ctx->rad_per_unit);
+    const RestRate mine = DenseRestRate(own[k], rest_bound / ctx->rad_per_unit);
     if (mine.members >= 2) {
       f.rate = mine.rate;
       f.bias_bound_rad_s = rest_bound;
-    } else if (across.members >= 2 || counts) {
+    } else if (across.members >= 2 || !zero_known) {
       f.rate = across.members >= 2 ? across.rate : provisional;
       f.bias_bound_rad_s = power_up_bound;
     } else {

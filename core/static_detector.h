@@ -41,6 +41,9 @@ struct StaticDetectorOptions {
   double rotation_sigmas = 5.0;
   double rest_rate_bound_deg_s = 0.5;
   double power_up_rate_bound_deg_s = 5.0;
+  // False while the gyroscope's unit is being inferred (importers/unit_inference.h): its scale
+  // is then taken from the moves alone, as for raw counts.
+  bool gyro_unit_known = true;
 };
 
 // Per-sample white-noise standard deviation, in the capture's input units.

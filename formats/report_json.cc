@@ -260,6 +260,14 @@ std::string ReportToJson(const core::CalibrationReport& r) {
   if (r.verdict != core::Verdict::kRefused) j["parameters"] = std::move(params);
   j["verdict"] = std::string(core::VerdictName(r.verdict));
   j["verdict_reasons"] = r.verdict_reasons;
+  // Beside the spec's fields: the units the capture was read in and how each was decided
+  // ("declared": --accel-unit/--gyro-unit; "file": the format or its header; "inferred":
+  // importers/unit_inference.h; "unstated": a device's registration or a capture in memory).
+  auto source = [](const std::string& s) { return s.empty() ? std::string("unstated") : s; };
+  j["input_units"] = {{"accel", std::string(core::AccelUnitName(r.input_units.accel))},
+                      {"gyro", std::string(core::GyroUnitName(r.input_units.gyro))},
+                      {"accel_source", source(r.input_units.accel_source)},
+                      {"gyro_source", source(r.input_units.gyro_source)}};
   if (r.refusal) {
     j["refusal"] = {{"reason", std::string(core::RefusalReasonName(r.refusal->reason))},
                     {"message", r.refusal->message}};

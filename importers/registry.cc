@@ -150,6 +150,17 @@ absl::StatusOr<core::Capture> ImportCapture(const std::vector<std::string>& path
   absl::StatusOr<core::Capture> capture =
       ImportParts(*importer, paths, options, &used_paths, &notes);
   if (!capture.ok()) return capture.status();
+  // How the units were decided: named by the user, else as the importer set it (inferred),
+  // else the format's or the file's own.
+  for (auto [declared, source] :
+       {std::pair{options.accel_unit.has_value(), &capture->accel_unit_source},
+        std::pair{options.gyro_unit.has_value(), &capture->gyro_unit_source}}) {
+    if (declared) {
+      *source = "declared";
+    } else if (source->empty()) {
+      *source = "file";
+    }
+  }
   // Every importer promises this; checking here keeps a new importer's slip from reaching the
   // solvers as a confusing numerical failure.
   if (absl::Status s = core::ValidateCapture(*capture); !s.ok()) {

@@ -9,8 +9,11 @@
 #include <vector>
 
 #include "Eigen/Core"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/capture.h"
+#include "core/gyro_unit.h"
+#include "core/static_detector.h"
 #include "util/str_util.h"
 
 namespace imucal::importers {
@@ -33,7 +36,29 @@ constexpr double kGyroCountsMedianAbs = 50.0;
 constexpr double kGyroDegPerSecondP99 = 20.0;
 constexpr double kGyroRateQuantile = 0.99;
 
+// Physics rule (1b): the detector's threshold for the rests (times the learnt noise variance,
+// as core/noise_rest.h: a rest's windows stay well under it, a hand's move far above).
+constexpr double kRestMultiplier = 8.0;
+
 }  // namespace
+
+std::optional<core::GyroUnit> InferGyroUnitFromMoves(const core::Capture& capture,
+                                                     std::string* reason) {
+  const double dt = capture.MedianDt();
+  if (capture.size() < 10 || !(dt > 0)) return std::nullopt;
+  core::StaticDetectorOptions options;
+  options.gyro_unit_known = false;  // what this is finding out
+  const core::MotionSignal motion = core::ComputeMotionSignal(capture, options);
+  const core::NoiseLevel noise = core::EstimateNoise(capture, motion);
+  std::vector<core::StaticInterval> rests;
+  for (core::StaticInterval& iv :
+       core::DetectStatic(capture, motion, noise, kRestMultiplier, options))
+    if (iv.used) rests.push_back(std::move(iv));
+  const core::GyroUnitEvidence evidence = core::GyroUnitFromMoves(capture, rests);
+  *reason = evidence.Describe();
+  if (!evidence.unit && evidence.moves > 0) absl::StrAppend(reason, ": neither agrees clearly");
+  return evidence.unit;
+}
 
 core::AccelUnit InferAccelUnit(std::span<const Eigen::Vector3d> accel, double gravity_m_s2,
                                std::string* reason) {
@@ -108,16 +133,31 @@ void ApplyOrInferUnits(const ImportOptions& options, core::Capture* capture,
   std::string reason;
   if (options.accel_unit.has_value()) {
     capture->accel_unit = *options.accel_unit;
+    capture->accel_unit_source = "declared";
   } else {
     capture->accel_unit = InferAccelUnit(capture->accel, capture->gravity_m_s2, &reason);
+    capture->accel_unit_source = "inferred";
     if (notes != nullptr) notes->push_back(reason);
   }
   if (options.gyro_unit.has_value()) {
     capture->gyro_unit = *options.gyro_unit;
-  } else {
-    capture->gyro_unit = InferGyroUnit(capture->gyro, capture->accel_unit, &reason);
-    if (notes != nullptr) notes->push_back(reason);
+    capture->gyro_unit_source = "declared";
+    return;
   }
+  capture->gyro_unit_source = "inferred";
+  capture->gyro_unit = InferGyroUnit(capture->gyro, capture->accel_unit, &reason);
+  // The physics (rule 1b) overrides the rates' size (rule 2), not a raw-counts decision.
+  if (capture->gyro_unit != core::GyroUnit::kCounts &&
+      capture->accel_unit != core::AccelUnit::kCounts) {
+    std::string physics;
+    if (std::optional<core::GyroUnit> unit = InferGyroUnitFromMoves(*capture, &physics)) {
+      capture->gyro_unit = *unit;
+      reason = Cat("gyro unit inferred as ", core::GyroUnitName(*unit), ": ", physics);
+    } else {
+      absl::StrAppend(&reason, "; the moves did not settle it (", physics, ")");
+    }
+  }
+  if (notes != nullptr) notes->push_back(reason);
 }
 
 }  // namespace imucal::importers

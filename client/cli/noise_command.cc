@@ -21,6 +21,7 @@
 #include "client/cli/noise_source.h"
 #include "core/allan.h"
 #include "core/export.h"
+#include "core/noise_rest.h"
 #include "formats/params_json.h"
 #include "formats/plots.h"
 #include "importers/registry.h"
@@ -37,7 +38,9 @@ constexpr char kNoiseHelp[] =
     "  overlapping Allan deviation of each calibrated axis and, read off it, the white-noise\n"
     "  density N, the bias instability B and the rate random walk K, each with the cluster time\n"
     "  it was read at and its 95% confidence interval. A figure the record is too short to\n"
-    "  reach is an upper bound (a 95% upper limit), marked '<='. REST: any capture format\n"
+    "  reach is an upper bound (a 95% upper limit), marked '<='. The still detector checks the\n"
+    "  rest: a record with no still stretch of 10 s is refused; motion in it (a capture's moves,\n"
+    "  handling) is cut out, and the output says what was cut. REST: any capture format\n"
     "  calibrate reads. --session S: a robot's rest as the server stored it (its samples in the\n"
     "  device's registered units), with the same figures as the same samples in a file.\n"
     "options:\n"
@@ -54,9 +57,9 @@ constexpr char kNoiseHelp[] =
     "  --gravity G         local gravity, m/s^2, for a capture in g (default: the file's,\n"
     "                      else 9.80665)\n"
     "  --format F, --accel-unit U, --gyro-unit U, --device ID: files only, as for calibrate\n"
-    "exit codes: 0 ok, 1 usage, 2 bad input or unknown session, 3 the session holds no\n"
-    "            samples yet, 5 internal, 6 server unreachable, 7 the server refused the\n"
-    "            token or its role\n";
+    "exit codes: 0 ok, 1 usage, 2 bad input or unknown session, 3 the record is not at rest\n"
+    "            or the session holds no samples yet, 5 internal, 6 server unreachable, 7 the\n"
+    "            server refused the token or its role\n";
 
 constexpr const char* kAxes[6] = {"accel x", "accel y", "accel z", "gyro x", "gyro y", "gyro z"};
 
@@ -148,7 +151,33 @@ std::string OpenVinsNoiseYaml(const core::NoiseAnalysis& na, const std::string& 
   return "%YAML:1.0\n---\n" + std::string(out.c_str()) + "\n";
 }
 
-nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const NoiseInput& input) {
+// How a unit was decided, as the calibration report says it (formats/report_json.cc).
+std::string UnitSource(const std::string& source) { return source.empty() ? "unstated" : source; }
+
+// What part of the record the figures are of: its still stretches and what was cut.
+nlohmann::json RestJson(const core::NoiseRest& rest, const core::Capture& capture) {
+  auto ranges = [&](const std::vector<core::SampleRange>& v) {
+    nlohmann::json out = nlohmann::json::array();
+    for (const core::SampleRange& r : v) {
+      out.push_back({{"t_start_s", capture.t_s[r.begin]},
+                     {"t_end_s", capture.t_s[r.end - 1]},
+                     {"samples", r.size()}});
+    }
+    return out;
+  };
+  return {{"whole", rest.whole},
+          {"record_s", rest.record_s},
+          {"rest_s", rest.rest_s},
+          {"cut_s", rest.cut_s},
+          {"segments", ranges(rest.segments)},
+          {"cut", ranges(rest.cut)},
+          {"method",
+           rest.segments.size() > 1 ? "pooled: each difference inside one segment" : "one segment"},
+          {"note", rest.note}};
+}
+
+nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const NoiseInput& input,
+                         const nlohmann::json& rest) {
   const importers::ImportReport& import = input.report;
   nlohmann::json axes = nlohmann::json::object();
   for (size_t k = 0; k < 6; ++k) {
@@ -171,6 +200,12 @@ nlohmann::json NoiseJson(const core::NoiseAnalysis& na, const NoiseInput& input)
                             {"bias_instability", "rad/s"},
                             {"random_walk", "rad/s^2/sqrt(Hz)"}}}}},
                         {"axes", axes},
+                        {"rest", rest},
+                        {"input_units",
+                         {{"accel", core::AccelUnitName(input.capture.accel_unit)},
+                          {"gyro", core::GyroUnitName(input.capture.gyro_unit)},
+                          {"accel_source", UnitSource(input.capture.accel_unit_source)},
+                          {"gyro_source", UnitSource(input.capture.gyro_unit_source)}}},
                         {"notes", na.figures.notes}};
   if (input.session) {
     out["session"] = {{"id", input.session->id},
@@ -210,6 +245,100 @@ int ReadNoiseInput(const Args& a, const NoiseSessionReader& read_session, NoiseI
   return kExitOk;
 }
 
+// The signal analysed: the parameter set's calibration applied to `input`'s capture (through the
+// SDK, as a robot applies it), else `accel` and `gyro` set to the nominal factors of its units.
+// Returns kExitOk or the exit code of the error printed.
+int SignalToAnalyse(const Args& a, NoiseInput* input, core::AccelParams* accel,
+                    core::GyroParams* gyro) {
+  if (auto params_path = a.Get("params")) {
+    std::ifstream f(*params_path, std::ios::binary);
+    if (!f) return ReportError(absl::NotFoundError(*params_path + ": cannot open"));
+    std::stringstream text;
+    text << f.rdbuf();
+    auto params = formats::ParamSetFromJson(text.str());
+    if (!params.ok()) {
+      return ReportError(absl::InvalidArgumentError(
+          absl::StrFormat("%s: %s", *params_path, params.status().message())));
+    }
+    auto calibrated = ApplyParams(*params, input->capture);
+    if (!calibrated.ok()) return ReportError(calibrated.status());
+    input->capture = *std::move(calibrated);
+  } else {
+    const double ka =
+        core::NominalAccelToSi(input->capture.accel_unit, input->capture.gravity_m_s2);
+    const double kg = core::NominalGyroToSi(input->capture.gyro_unit);
+    if (std::isnan(ka) || std::isnan(kg)) {
+      return ReportError(absl::InvalidArgumentError(
+          input->session ? "the device's samples are in raw counts, which have no unit: give "
+                           "--params P.json (a calibration of this sensor)"
+                         : "the capture is in raw counts, which have no unit: give --params "
+                           "P.json (a calibration of this sensor) or --accel-unit/--gyro-unit"));
+    }
+    accel->scale = Eigen::Vector3d::Constant(ka);
+    gyro->matrix = kg * Eigen::Matrix3d::Identity();
+  }
+  return kExitOk;
+}
+
+// The rest of `capture` (the still detector's stretches, motion cut out: core/noise_rest.h)
+// and its figures, calibrated by `accel` and `gyro`. A record with no rest long enough is
+// refused (FailedPrecondition: exit 3). Returns kExitOk or the exit code of the error printed.
+int AnalyseRest(const core::Capture& capture, const core::AccelParams& accel,
+                const core::GyroParams& gyro, core::NoiseRest* rest, core::NoiseAnalysis* na) {
+  auto found = core::FindNoiseRest(capture);
+  if (!found.ok()) return ReportError(found.status());
+  *rest = *std::move(found);
+  auto analysis = core::ComputeNoiseOfSegments(capture, rest->segments,
+                                               core::SampleCorrection(accel, gyro, {}, 0.0));
+  if (!analysis.ok()) return ReportError(analysis.status());
+  *na = *std::move(analysis);
+  if (!rest->whole) na->figures.notes.insert(na->figures.notes.begin(), rest->note);
+  if (rest->segments.size() > 1 && rest->whole) {
+    na->figures.notes.push_back(
+        "several files were joined: the Allan variances of their rests are pooled, no "
+        "difference spans two files");
+  }
+  return kExitOk;
+}
+
+// The figures as text: what was read, the rest used, each axis' figures, the notes.
+void PrintNoiseText(const core::NoiseAnalysis& analysis, const core::NoiseRest& rest,
+                    const NoiseInput& input) {
+  const core::NoiseAnalysis* const na = &analysis;
+  const core::Capture* const capture = &input.capture;
+  const importers::ImportReport& import = input.report;
+  std::printf("input       %s (%s, %zu samples at %.6g Hz, %.0f s)\n",
+              absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(), capture->size(),
+              na->figures.rate_hz, rest.record_s);
+  for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
+  std::printf("rest        %s\n",
+              rest.whole ? absl::StrFormat("the whole record (%.1f s still)", rest.rest_s).c_str()
+                         : absl::StrFormat("%.1f s used, %.1f s cut (see the first note)",
+                                           rest.rest_s, rest.cut_s)
+                               .c_str());
+  std::printf(
+      "figures     value [95%% interval] at the cluster time read; '<=' a 95%% upper bound\n"
+      "            units: accel N m/s^2/sqrt(Hz), B m/s^2, K m/s^3/sqrt(Hz); gyro N "
+      "rad/s/sqrt(Hz), B rad/s, K rad/s^2/sqrt(Hz)\n");
+  std::printf("%-8s  %-40s  %-40s  %s\n", "axis", "N (white noise density)", "B (bias instability)",
+              "K (rate random walk)");
+  for (size_t k = 0; k < 6; ++k) {
+    const core::AxisReadings& r = na->readings[k];
+    std::printf("%-8s  %-40s  %-40s  %s\n", kAxes[k], Fig(r.noise_density).c_str(),
+                Fig(r.bias_instability).c_str(), Fig(r.random_walk).c_str());
+  }
+  bool bounds = false;
+  for (const auto& r : na->readings)
+    bounds |=
+        r.noise_density.upper_bound || r.bias_instability.upper_bound || r.random_walk.upper_bound;
+  if (bounds) {
+    std::printf(
+        "note        '<=' figures are upper bounds, not measurements: the record is too short "
+        "to reach them (B and K need minutes to hours at rest)\n");
+  }
+  for (const auto& n : na->figures.notes) std::printf("note        %s\n", n.c_str());
+}
+
 }  // namespace
 
 int RunNoiseWith(const std::vector<std::string>& argv, const NoiseSessionReader& read_session) {
@@ -223,48 +352,16 @@ int RunNoiseWith(const std::vector<std::string>& argv, const NoiseSessionReader&
   NoiseInput input;
   if (int code = ReadNoiseInput(*a, read_session, &input); code != kExitOk) return code;
   core::Capture* const capture = &input.capture;
-  const importers::ImportReport& import = input.report;
 
-  // The signal analysed: the parameter set's calibration applied (through the SDK, as a robot
-  // applies it), else the capture in SI through the nominal factor of its units.
   core::AccelParams accel;
   core::GyroParams gyro;
-  if (auto params_path = a->Get("params")) {
-    std::ifstream f(*params_path, std::ios::binary);
-    if (!f) return ReportError(absl::NotFoundError(*params_path + ": cannot open"));
-    std::stringstream text;
-    text << f.rdbuf();
-    auto params = formats::ParamSetFromJson(text.str());
-    if (!params.ok()) {
-      return ReportError(absl::InvalidArgumentError(
-          absl::StrFormat("%s: %s", *params_path, params.status().message())));
-    }
-    auto calibrated = ApplyParams(*params, *capture);
-    if (!calibrated.ok()) return ReportError(calibrated.status());
-    *capture = *std::move(calibrated);
-  } else {
-    const double ka = core::NominalAccelToSi(capture->accel_unit, capture->gravity_m_s2);
-    const double kg = core::NominalGyroToSi(capture->gyro_unit);
-    if (std::isnan(ka) || std::isnan(kg)) {
-      return ReportError(absl::InvalidArgumentError(
-          input.session ? "the device's samples are in raw counts, which have no unit: give "
-                          "--params P.json (a calibration of this sensor)"
-                        : "the capture is in raw counts, which have no unit: give --params "
-                          "P.json (a calibration of this sensor) or --accel-unit/--gyro-unit"));
-    }
-    accel.scale = Eigen::Vector3d::Constant(ka);
-    gyro.matrix = kg * Eigen::Matrix3d::Identity();
-  }
-  auto na = core::ComputeNoise(*capture, 0, capture->size(), accel, gyro);
-  if (!na.ok()) return ReportError(na.status());
-  if (capture->files.size() > 1) {
-    // Joined files: the Allan deviation runs across the gaps between them.
-    na->figures.notes.push_back(
-        "several files were joined: the curve spans the gaps between them (a single "
-        "uninterrupted rest is what the figures assume)");
-  }
+  if (int code = SignalToAnalyse(*a, &input, &accel, &gyro); code != kExitOk) return code;
+  core::NoiseRest rest;
+  core::NoiseAnalysis analysis;
+  if (int code = AnalyseRest(*capture, accel, gyro, &rest, &analysis); code != kExitOk) return code;
+  const core::NoiseAnalysis* const na = &analysis;
 
-  const nlohmann::json json = NoiseJson(*na, input);
+  const nlohmann::json json = NoiseJson(*na, input, RestJson(rest, *capture));
   if (auto dir = a->Get("out")) {
     std::error_code error;
     std::filesystem::create_directories(*dir, error);
@@ -298,32 +395,7 @@ int RunNoiseWith(const std::vector<std::string>& argv, const NoiseSessionReader&
     std::puts(json.dump(1).c_str());
     return kExitOk;
   }
-  std::printf("input       %s (%s, %lld samples at %.6g Hz, %.0f s)\n",
-              absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(),
-              static_cast<long long>(na->figures.samples), na->figures.rate_hz,
-              static_cast<double>(na->figures.samples) / na->figures.rate_hz);
-  for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
-  std::printf(
-      "figures     value [95%% interval] at the cluster time read; '<=' a 95%% upper bound\n"
-      "            units: accel N m/s^2/sqrt(Hz), B m/s^2, K m/s^3/sqrt(Hz); gyro N "
-      "rad/s/sqrt(Hz), B rad/s, K rad/s^2/sqrt(Hz)\n");
-  std::printf("%-8s  %-40s  %-40s  %s\n", "axis", "N (white noise density)", "B (bias instability)",
-              "K (rate random walk)");
-  for (size_t k = 0; k < 6; ++k) {
-    const core::AxisReadings& r = na->readings[k];
-    std::printf("%-8s  %-40s  %-40s  %s\n", kAxes[k], Fig(r.noise_density).c_str(),
-                Fig(r.bias_instability).c_str(), Fig(r.random_walk).c_str());
-  }
-  bool bounds = false;
-  for (const auto& r : na->readings)
-    bounds |=
-        r.noise_density.upper_bound || r.bias_instability.upper_bound || r.random_walk.upper_bound;
-  if (bounds) {
-    std::printf(
-        "note        '<=' figures are upper bounds, not measurements: the record is too short "
-        "to reach them (B and K need minutes to hours at rest)\n");
-  }
-  for (const auto& n : na->figures.notes) std::printf("note        %s\n", n.c_str());
+  PrintNoiseText(*na, rest, input);
   return kExitOk;
 }
 

@@ -337,9 +337,10 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   if (!report.ok()) return ReportError(report.status());
   const bool refused = report->verdict == core::Verdict::kRefused;
   if (refused) {
-    // What the import decided (units, time base, gaps) often explains why poses are missing.
-    for (const auto& n : import.notes) std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
+    // The refusal first (its first sentence names the problem), then what the import decided
+    // (units, time base, gaps), which often explains why poses are missing.
     std::fprintf(stderr, "imucal: %s\n", report->refusal->message.c_str());
+    for (const auto& n : import.notes) std::fprintf(stderr, "imucal: note: %s\n", n.c_str());
   } else {
     StampParams(&report->params);
   }

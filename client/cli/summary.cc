@@ -122,20 +122,31 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                           res.gyro_static_rms_rad_s * kRadToDeg);
   }
   for (const auto& t : r.turns) {
-    absl::StrAppendFormat(&s,
-                          "  turn      %6.1f-%6.1f s  %d x 360 deg about %s: measured %.2f deg, "
-                          "error %.2f deg\n",
-                          t.t_start_s, t.t_end_s, t.turns, t.axis, t.angle_deg, t.error_deg);
+    // A turn is measured with the calibrated gyroscope: without its scale (raw counts, only the
+    // bias calibrated) there is no angle to print, and "nan deg" said nothing true.
+    const std::string measured =
+        std::isfinite(t.angle_deg)
+            ? absl::StrFormat("measured %.2f deg, error %.2f deg", t.angle_deg, t.error_deg)
+            : std::string("not measured (the gyroscope's scale was not calibrated)");
+    absl::StrAppendFormat(&s, "  turn      %6.1f-%6.1f s  %d x 360 deg about %s: %s\n", t.t_start_s,
+                          t.t_end_s, t.turns, t.axis, measured);
   }
   if (std::isfinite(res.move_rms_deg)) {
     absl::StrAppendFormat(
         &s,
         "            gravity direction after %d moves, final parameters as a robot applies them: "
-        "RMS %.3f deg, max %.3f deg\n"
-        "            the gyroscope fit's own (bias between poses): RMS %.3f deg; held out RMS "
-        "%.3f deg, max %.3f deg\n",
-        static_cast<int>(r.moves.size()), res.move_rms_deg, res.move_max_deg, res.move_fit_rms_deg,
-        res.move_heldout_rms_deg, res.move_heldout_max_deg);
+        "RMS %.3f deg, max %.3f deg\n",
+        static_cast<int>(r.moves.size()), res.move_rms_deg, res.move_max_deg);
+    // The gyroscope's own fit has no figure when only its bias was calibrated: say so, not nan.
+    if (std::isfinite(res.move_fit_rms_deg)) {
+      absl::StrAppendFormat(&s,
+                            "            the gyroscope fit's own (bias between poses): RMS %.3f "
+                            "deg; held out RMS %.3f deg, max %.3f deg\n",
+                            res.move_fit_rms_deg, res.move_heldout_rms_deg,
+                            res.move_heldout_max_deg);
+    } else {
+      s += "            the gyroscope fit's own: none (only its bias was calibrated)\n";
+    }
   }
   absl::StrAppendFormat(&s, "parameters  (inverse model raw -> SI; see `model` in the JSON)\n");
   absl::StrAppendFormat(&s, "  accel bias     %s %s\n", Vec(p.accel.bias, 6),

@@ -17,6 +17,7 @@
 #include "core/calibrate/protocol_checks.h"
 #include "core/calibrate/residuals.h"
 #include "core/calibrate/static_poses.h"
+#include "core/calibrate/unit_check.h"
 #include "core/calibrate/verdict.h"
 
 namespace imucal::core {
@@ -99,6 +100,20 @@ void SetLonePoses(const std::vector<PoseReport>& poses, VerdictInputs* in) {
       in->accel_heldout_rms_m_s2 * std::sqrt(ss_lone / static_cast<double>(n_lone)) / rms_all;
 }
 
+// A fitted scale far from its unit's (core/calibrate/unit_check.h): the unit is wrong, and
+// nothing after the fit is meaningful. Sets the refusal and returns true.
+bool RefuseWrongUnit(const Capture& cap, const std::vector<StaticInterval>& intervals,
+                     const std::vector<int>& used, CalibrationReport* rep) {
+  std::vector<StaticInterval> used_poses;
+  for (int i : used) used_poses.push_back(intervals[static_cast<size_t>(i)]);
+  std::optional<Refusal> wrong_unit = CheckFittedUnits(cap, rep->params, used_poses);
+  if (!wrong_unit) return false;
+  rep->verdict = Verdict::kRefused;
+  rep->verdict_reasons = {wrong_unit->message};
+  rep->refusal = std::move(wrong_unit);
+  return true;
+}
+
 // What the verdict reads: the final figures, the parameters' spreads, what the model lacks.
 VerdictInputs VerdictInputsOf(const CalibrationReport& rep, const AccelStage& accel,
                               const GyroFit& gyro) {
@@ -136,6 +151,8 @@ std::string_view RefusalReasonName(RefusalReason reason) {
       return "rest_only";
     case RefusalReason::kPosesTooAlike:
       return "poses_too_alike";
+    case RefusalReason::kUnitMismatch:
+      return "unit_mismatch";
   }
   return "too_few_orientations";
 }
@@ -146,6 +163,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   CalibrationReport rep;
   PhaseTimer timer(&rep);
   rep.device = cap.device;
+  rep.input_units = {cap.accel_unit, cap.gyro_unit, cap.accel_unit_source, cap.gyro_unit_source};
   rep.gravity_m_s2 = cap.gravity_m_s2;
   // The capture's units, for a report that ends before the parameter set (a refusal).
   rep.params.device = cap.device;
@@ -212,9 +230,10 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.residual.gyro_static_rms_rad_s = GyroStaticRms(intervals, accel->used, gyro.fit.params);
   rep.poses = MakePoseReports(intervals, accel->params, accel_residuals);
   AttachSources(cap, &rep.poses);
-  rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual);
+  rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual, rep.noise);
   ReportGyroFit(cap, gyro.planned, rough.turns, gyro.fit, &rep);
   timer.Mark("report");
+  if (RefuseWrongUnit(cap, intervals, accel->used, &rep)) return rep;
 
   // -> effects: close the loop
   if (opt.effects.enabled) {
@@ -230,7 +249,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     rep.allan = std::move(noise->curves);
   }
   // -> the gyroscope's bias between poses: what the static residual is made of
-  rep.gyro_wander = GyroWanderOf(cap, intervals, accel->used, rep.params);
+  rep.gyro_wander = GyroWanderOf(cap, intervals, accel->used, rep.params, rep.noise);
   if (rep.gyro_wander.ran) rep.effect_diagnostics.notes.push_back(rep.gyro_wander.note);
   timer.Mark("final");
 

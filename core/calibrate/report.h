@@ -76,8 +76,9 @@ enum class RefusalReason {
   kTooFewOrientations,  // too few distinct orientations for any model
   kRestOnly,            // one orientation (or two or three): a rest or a check, not a calibration
   kPosesTooAlike,       // the poses do not spread over the sphere (all in one plane, ...)
+  kUnitMismatch,        // a fitted scale is far from its unit's: the unit is wrong (unit_check.h)
 };
-// "stops_too_short", "too_few_orientations", "rest_only", "poses_too_alike".
+// "stops_too_short", "too_few_orientations", "rest_only", "poses_too_alike", "unit_mismatch".
 std::string_view RefusalReasonName(RefusalReason reason);
 
 struct Refusal {
@@ -85,8 +86,18 @@ struct Refusal {
   std::string message;  // what the capture holds, what the models need, what to record
 };
 
+// The units the capture was read in and how each was decided ("declared", "file", "inferred";
+// empty: unstated, e.g. a capture made in memory or a device's registered units).
+struct InputUnits {
+  AccelUnit accel = AccelUnit::kMetersPerSecond2;
+  GyroUnit gyro = GyroUnit::kRadPerSecond;
+  std::string accel_source;
+  std::string gyro_source;
+};
+
 struct CalibrationReport {
   std::string device;
+  InputUnits input_units;
   double gravity_m_s2 = kStandardGravity;
   ProtocolKind protocol = ProtocolKind::kFree;
   bool protocol_detected = false;

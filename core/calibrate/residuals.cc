@@ -9,6 +9,7 @@
 #include "core/calibrate/protocol_checks.h"
 #include "core/correction.h"
 #include "core/gyro_solver.h"
+#include "core/quantisation.h"
 
 namespace imucal::core::pipeline {
 namespace {
@@ -152,7 +153,8 @@ void AttachSources(const Capture& cap, std::vector<PoseReport>* poses) {
 }
 
 ParamSet MakeParamSet(const Capture& cap, const AccelStage& accel, const GyroFit& gyro,
-                      const std::vector<StaticInterval>& ivs, const Residuals& residual) {
+                      const std::vector<StaticInterval>& ivs, const Residuals& residual,
+                      const NoiseLevel& noise) {
   ParamSet ps;
   ps.device = cap.device;
   ps.accel_unit = cap.accel_unit;
@@ -174,6 +176,19 @@ ParamSet MakeParamSet(const Capture& cap, const AccelStage& accel, const GyroFit
     for (int i : used) ss += (ivs[static_cast<size_t>(i)].gyro_mean - gyro.params.bias).cwiseAbs2();
     ps.stderrs.gyro_bias =
         (ss / static_cast<double>(used.size() - 1) / static_cast<double>(used.size())).cwiseSqrt();
+  }
+  // A channel on a grid its noise does not dither rounds the same way in every pose: the pose
+  // means share that rounding error, their scatter does not show it, and the bias keeps it
+  // (core/quantisation.h). sigma: the median over the poses of the channel's scatter.
+  if (!used.empty()) {
+    for (int j = 0; j < 3; ++j) {
+      std::vector<double> sigma;
+      for (int i : used) sigma.push_back(ivs[static_cast<size_t>(i)].gyro_std(j));
+      std::nth_element(sigma.begin(), sigma.begin() + static_cast<long>(sigma.size() / 2),
+                       sigma.end());
+      const double se = std::isfinite(ps.stderrs.gyro_bias(j)) ? ps.stderrs.gyro_bias(j) : 0.0;
+      ps.stderrs.gyro_bias(j) = WithRoundingError(se, noise.gyro_step(j), sigma[sigma.size() / 2]);
+    }
   }
   ps.quality_accel_rms_m_s2 = residual.accel_rms_m_s2;
   ps.quality_gyro_static_rms_rad_s = residual.gyro_static_rms_rad_s;
@@ -277,7 +292,7 @@ std::vector<FaceResidual> FaceResiduals(const Capture& cap, const std::vector<St
 }
 
 BiasWander GyroWanderOf(const Capture& cap, const std::vector<StaticInterval>& ivs,
-                        const std::vector<int>& used, const ParamSet& ps) {
+                        const std::vector<int>& used, const ParamSet& ps, const NoiseLevel& noise) {
   if (!ps.gyro_calibrated && std::isnan(NominalGyroToSi(cap.gyro_unit))) return {};
   if (cap.t_s.empty()) return {};
   const SampleCorrection correct(ps, cap.t_s.front());
@@ -306,6 +321,13 @@ BiasWander GyroWanderOf(const Capture& cap, const std::vector<StaticInterval>& i
     p.duration_s = s.t_end_s - s.t_start_s;
     p.rate_rad_s = mean;
     p.sigma_rad_s = sd / std::sqrt(dn);
+    // A channel stuck on one quantisation step reads sd = 0: its mean is known to the grid's
+    // rounding (core/quantisation.h), not exactly. A step of input axis j moves output j by
+    // |matrix(j, j)| times it.
+    for (int j = 0; j < 3; ++j) {
+      const double step_rad_s = noise.gyro_step(j) * std::abs(ps.gyro.matrix(j, j));
+      p.sigma_rad_s(j) = WithRoundingError(p.sigma_rad_s(j), step_rad_s, sd(j));
+    }
     p.half_diff_rad_s = (sum - first) / n2 - first / n1;
     p.half_diff_sigma_rad_s = sd * std::sqrt(1 / n1 + 1 / n2);
     poses.push_back(p);

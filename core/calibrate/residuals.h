@@ -71,9 +71,11 @@ std::vector<PoseReport> MakePoseReports(const std::vector<StaticInterval>& inter
 void AttachSources(const Capture& capture, std::vector<PoseReport>* poses);
 
 // The parameter set of the final model, with its standard errors (the gyro matrix's are
-// ReportGyroFit's) and the quality figures of `residual`.
+// ReportGyroFit's; the gyro bias's never below what the readings' grid, noise.gyro_step,
+// allows) and the quality figures of `residual`.
 ParamSet MakeParamSet(const Capture& capture, const AccelStage& accel, const GyroFit& gyro,
-                      const std::vector<StaticInterval>& intervals, const Residuals& residual);
+                      const std::vector<StaticInterval>& intervals, const Residuals& residual,
+                      const NoiseLevel& noise);
 
 // Each estimated parameter's standard error against the range a sensor plausibly has, for the
 // verdict: the accelerometer's free parameters (AccelPlausibleRange) and, when calibrated, the
@@ -100,7 +102,8 @@ std::vector<FaceResidual> FaceResiduals(const Capture& capture,
 // (params.noise) is what it is compared with. Not run (ran false) when the gyroscope's output is
 // not in rad/s.
 BiasWander GyroWanderOf(const Capture& capture, const std::vector<StaticInterval>& intervals,
-                        const std::vector<int>& used, const ParamSet& params);
+                        const std::vector<int>& used, const ParamSet& params,
+                        const NoiseLevel& noise);
 
 }  // namespace imucal::core::pipeline
 

@@ -10,6 +10,7 @@
 #include "absl/strings/str_join.h"
 #include "core/calibrate/orientations.h"
 #include "core/protocol.h"
+#include "core/quantisation.h"
 
 namespace imucal::core::pipeline {
 namespace {
@@ -263,6 +264,11 @@ std::vector<AccelPose> ToAccelPoses(const std::vector<StaticInterval>& ivs,
     // Never below the noise of the pose's own file (its thresholds were learnt there).
     const Eigen::Vector3d floor = s.accel_noise_std.isZero() ? noise.accel_std : s.accel_noise_std;
     p.mean_std = s.accel_std.cwiseMax(floor) / std::sqrt(static_cast<double>(s.samples()));
+    // Readings on a grid whose step the noise does not dither keep a rounding error in their
+    // mean that does not average down (core/quantisation.h); sigma is the pose's own scatter,
+    // not the floored noise level, since it is the noise below the step that leaves it whole.
+    for (int j = 0; j < 3; ++j)
+      p.mean_std(j) = WithRoundingError(p.mean_std(j), noise.accel_step(j), s.accel_std(j));
     out.push_back(p);
   }
   return out;

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -15,6 +16,7 @@
 #include "Eigen/Core"
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
+#include "client/cli/noise_source.h"
 #include "core/capture.h"
 #include "core/simulator.h"
 #include "core/validation.h"
@@ -388,6 +390,80 @@ TEST_F(CliTest, JsonReportHasTheDocumentedKeys) {
   EXPECT_TRUE(verdict == "pass" || verdict == "warn" || verdict == "fail") << verdict;
   ASSERT_TRUE(j.at("warnings").is_array());
   for (const json& w : j["warnings"]) EXPECT_TRUE(w.is_string());
+}
+
+// ---------------------------------------------------------------------------------------------
+// `imucal noise` checks its rest (core/noise_rest.h).
+
+int NoiseOfFiles(const std::vector<std::string>& args) { return RunNoiseWith(args, nullptr); }
+
+// A rest of `seconds` at 100 Hz (white noise, gravity on z), with `handling_s` of motion from
+// `handling_at_s` after which the unit reads 0.2 m/s^2 more on x (set down turned).
+core::Capture RestCapture(double seconds, double handling_at_s, double handling_s) {
+  std::mt19937_64 rng(81);
+  std::normal_distribution<double> a(0.0, 0.02), g(0.0, 0.002);
+  core::Capture c;
+  for (int i = 0; i < static_cast<int>(seconds * 100); ++i) {
+    const double t = i / 100.0;
+    Eigen::Vector3d acc(a(rng), a(rng), core::kStandardGravity + a(rng));
+    Eigen::Vector3d gyr(g(rng), g(rng), g(rng));
+    if (t >= handling_at_s && t < handling_at_s + handling_s) {
+      acc += Eigen::Vector3d::Constant(3 * std::sin(2 * M_PI * t));
+      gyr += Eigen::Vector3d::Constant(1.5 * std::cos(2 * M_PI * t));
+    } else if (t >= handling_at_s + handling_s) {
+      acc.x() += 0.2;
+    }
+    c.t_s.push_back(t);
+    c.accel.push_back(acc);
+    c.gyro.push_back(gyr);
+  }
+  return c;
+}
+
+TEST_F(CliTest, NoiseRefusesAMovingRecord) {
+  const std::string capture = Path("moving.csv");
+  core::SimOptions o = CliSimOptions(7, 0, true);
+  o.initial_rest_s = 5;  // a calibration capture: 5 s first rest, 4 s holds, moves between
+  ASSERT_TRUE(importers::WriteImucalCsvFile(core::Simulate(o)->capture, capture).ok());
+  EXPECT_EQ(Run(NoiseOfFiles, {capture, "--out", Path("out")}), kExitUndetermined) << out_;
+  EXPECT_EQ(err_.rfind("imucal: the record is not at rest: ", 0), 0u) << err_;
+  EXPECT_FALSE(fs::exists(Path("out/imu.yaml")));
+}
+
+TEST_F(CliTest, NoiseCutsHandlingOutAndSaysSo) {
+  const std::string whole = Path("rest.csv"), handled = Path("handled.csv");
+  ASSERT_TRUE(importers::WriteImucalCsvFile(RestCapture(120, 1e9, 0), whole).ok());
+  ASSERT_TRUE(importers::WriteImucalCsvFile(RestCapture(120, 50, 5), handled).ok());
+  ASSERT_EQ(Run(NoiseOfFiles, {whole, "--json"}), kExitOk) << err_;
+  const json w = json::parse(out_);
+  EXPECT_TRUE(w["rest"]["whole"].get<bool>()) << w["rest"];
+  EXPECT_EQ(w["samples"], 12000);
+  ASSERT_EQ(Run(NoiseOfFiles, {handled, "--json", "--out", Path("out")}), kExitOk) << err_;
+  const json h = json::parse(out_);
+  EXPECT_FALSE(h["rest"]["whole"].get<bool>());
+  EXPECT_EQ(h["rest"]["segments"].size(), 2u) << h["rest"];
+  EXPECT_NEAR(h["rest"]["cut_s"].get<double>(), 5.0, 1.5) << h["rest"];
+  EXPECT_NE(h["notes"][0].get<std::string>().find("cut"), std::string::npos) << h["notes"];
+  EXPECT_EQ(json::parse(ReadText(Path("out/noise.json")))["rest"], h["rest"]);
+  // The accel x white-noise density is the untouched rest's, not the handling's.
+  const double n_whole = w["axes"]["accel_x"]["noise_density"]["value"].get<double>();
+  const double n_handled = h["axes"]["accel_x"]["noise_density"]["value"].get<double>();
+  EXPECT_NEAR(n_handled / n_whole, 1.0, 0.05);
+  ASSERT_EQ(Run(NoiseOfFiles, {handled}), kExitOk) << err_;
+  EXPECT_NE(out_.find("s cut"), std::string::npos) << out_;
+}
+
+// The report records the units it was read in and how each was decided.
+TEST_F(CliTest, CalibrateJsonRecordsTheInputUnits) {
+  const std::string capture = Path("capture.csv");
+  ASSERT_EQ(Run(RunSimulate, {"--out", capture, "--seed", "8", "--extra-poses", "4"}), kExitOk)
+      << err_;
+  ASSERT_EQ(Run(RunCalibrate, {capture, "--json", "--gyro-unit", "rad/s"}), kExitOk) << err_;
+  const json r = json::parse(out_);
+  EXPECT_EQ(r["input_units"], json({{"accel", "m/s^2"},
+                                    {"gyro", "rad/s"},
+                                    {"accel_source", "file"},
+                                    {"gyro_source", "declared"}}));
 }
 
 }  // namespace

@@ -19,6 +19,7 @@
 #include "Eigen/Core"
 #include "core/calibrate/calibrate.h"
 #include "core/capture.h"
+#include "core/noise_rest.h"
 #include "core/simulator.h"
 #include "formats/params_json.h"
 
@@ -549,6 +550,84 @@ TEST(ParamsJsonNoise, RoundTripAndOptional) {
   ASSERT_TRUE(old_back.ok()) << old_back.status();
   EXPECT_FALSE(old_back->noise.has_value());
   EXPECT_EQ(formats::ParamSetToJson(old).find("\"noise\""), std::string::npos);
+}
+
+// The rest with handling in it: the clean rest, then the same with 5 s of motion (a large
+// swing on every axis) 40% in, after which the unit reads 0.2 m/s^2 and 5e-4 rad/s off on x
+// (set down turned, a new bias): the step and the motion enter every Allan difference that
+// straddles them.
+Capture WithHandling(Capture cap, size_t at, size_t length) {
+  for (size_t i = at; i < cap.size(); ++i) {
+    if (i < at + length) {
+      const double phase = 2 * M_PI * static_cast<double>(i - at) / 100.0;
+      cap.accel[i] += Eigen::Vector3d::Constant(3.0 * std::sin(phase));
+      cap.gyro[i] += Eigen::Vector3d::Constant(1.5 * std::cos(phase));
+    } else {
+      cap.accel[i].x() += 0.2;
+      cap.gyro[i].x() += 5e-4;
+    }
+  }
+  return cap;
+}
+
+// ComputeNoiseOfSegments: one segment is ComputeNoise exactly; the two still segments around
+// the handling give the clean rest's figures (within 10%), where the whole record's are inflated.
+TEST(AllanTest, SegmentsPoolTheirVariancesAndLeaveTheStepBetweenOut) {
+  const AxisNoise accel{2e-3, 0.0, 3.5e-4}, gyro{2e-4, 0.0, 3.5e-5};
+  const Capture clean = SimulateRest(accel, gyro, 100.0, 1200.0, 311);
+  const size_t n = clean.size(), at = 480 * 100, length = 500;
+  const Capture handled = WithHandling(clean, at, length);
+  const SampleCorrection identity(AccelParams{}, GyroParams{}, {}, 0.0);
+  auto whole = ComputeNoise(clean, 0, n, AccelParams{}, GyroParams{});
+  auto one = ComputeNoiseOfSegments(clean, {SampleRange{0, n}}, identity);
+  auto pooled = ComputeNoiseOfSegments(handled, {{0, at}, {at + length, n}}, identity);
+  auto joined = ComputeNoise(handled, 0, n, AccelParams{}, GyroParams{});
+  ASSERT_TRUE(whole.ok() && one.ok() && pooled.ok() && joined.ok());
+  for (size_t k = 0; k < 6; ++k) {
+    EXPECT_EQ(one->readings[k].noise_density.value, whole->readings[k].noise_density.value);
+    EXPECT_EQ(one->readings[k].random_walk.value, whole->readings[k].random_walk.value);
+    const double k_clean = whole->readings[k].random_walk.value;
+    const double k_pooled = pooled->readings[k].random_walk.value;
+    EXPECT_NEAR(k_pooled / k_clean, 1.0, 0.1) << "axis " << k;
+    EXPECT_NEAR(pooled->readings[k].noise_density.value / whole->readings[k].noise_density.value,
+                1.0, 0.05)
+        << "axis " << k;
+  }
+  // Joined across the handling, accel x's random walk is several times the truth.
+  EXPECT_GT(joined->readings[0].random_walk.value, 2 * whole->readings[0].random_walk.value);
+  EXPECT_EQ(pooled->segments.size(), 2u);
+  EXPECT_EQ(pooled->figures.samples, static_cast<int64_t>(n - length));
+}
+
+// FindNoiseRest: a rest stays whole; handling is cut out and said; a capture with moves and no
+// 10 s rest is refused, the message's first words naming the problem.
+TEST(NoiseRestTest, WholeRestHandlingCutMovingRefused) {
+  const AxisNoise accel{2e-3, 0.0, 3.5e-4}, gyro{2e-4, 0.0, 3.5e-5};
+  const Capture clean = SimulateRest(accel, gyro, 100.0, 600.0, 312);
+  absl::StatusOr<NoiseRest> rest = FindNoiseRest(clean);
+  ASSERT_TRUE(rest.ok()) << rest.status();
+  EXPECT_TRUE(rest->whole);
+  ASSERT_EQ(rest->segments.size(), 1u);
+  EXPECT_EQ(rest->segments[0].begin, 0u);
+  EXPECT_EQ(rest->segments[0].end, clean.size());
+
+  const Capture handled = WithHandling(clean, 240 * 100, 500);
+  rest = FindNoiseRest(handled);
+  ASSERT_TRUE(rest.ok()) << rest.status();
+  EXPECT_FALSE(rest->whole);
+  EXPECT_EQ(rest->segments.size(), 2u);
+  EXPECT_GT(rest->cut_s, 4.9);
+  EXPECT_LT(rest->cut_s, 8.0);
+  EXPECT_NE(rest->note.find("cut"), std::string::npos) << rest->note;
+
+  SimOptions o;
+  o.initial_rest_s = 5.0;
+  const SimResult moving = MustSimulate(o);
+  rest = FindNoiseRest(moving.capture);
+  ASSERT_FALSE(rest.ok());
+  EXPECT_TRUE(absl::IsFailedPrecondition(rest.status()));
+  EXPECT_EQ(rest.status().message().rfind("the record is not at rest: ", 0), 0u)
+      << rest.status().message();
 }
 
 }  // namespace

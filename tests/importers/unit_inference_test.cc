@@ -6,6 +6,7 @@
 
 #include "Eigen/Core"
 #include "core/capture.h"
+#include "core/simulator.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 
@@ -67,6 +68,40 @@ TEST(InferUnitTest, Gyroscope) {
   // Integer values alone do not make counts when the accelerometer is in physical units.
   EXPECT_EQ(InferGyroUnit(integers, core::AccelUnit::kMetersPerSecond2, nullptr),
             core::GyroUnit::kRadPerSecond);
+}
+
+// A capture in deg/s whose moves are under 1% of its samples (five-minute holds): the rates'
+// 99th percentile is a rest's, which read it as rad/s. The moves against the accelerometer's
+// turn of gravity say deg/s; the same capture in rad/s stays rad/s.
+TEST(InferUnitTest, GyroUnitFromTheMovesWhenTheyAreRare) {
+  core::SimOptions o;
+  o.seed = 71;
+  o.rate_hz = 50;
+  o.hold_s = 300;
+  o.initial_rest_s = 300;
+  for (core::GyroUnit unit : {core::GyroUnit::kDegPerSecond, core::GyroUnit::kRadPerSecond}) {
+    o.gyro_unit = unit;
+    absl::StatusOr<core::SimResult> sim = core::Simulate(o);
+    ASSERT_TRUE(sim.ok()) << sim.status();
+    core::Capture c = sim->capture;
+    std::string rare_rule;
+    EXPECT_EQ(InferGyroUnit(c.gyro, core::AccelUnit::kMetersPerSecond2, &rare_rule),
+              core::GyroUnit::kRadPerSecond)
+        << "the rates' size alone should miss it here: " << rare_rule;
+    std::vector<std::string> notes;
+    ApplyOrInferUnits(ImportOptions{}, &c, &notes);
+    EXPECT_EQ(c.gyro_unit, unit) << notes.back();
+    EXPECT_EQ(c.gyro_unit_source, "inferred");
+    EXPECT_EQ(c.accel_unit_source, "inferred");
+    EXPECT_THAT(notes.back(), HasSubstr("moves between rests")) << notes.back();
+  }
+  // Declared units are kept, and said to be.
+  core::Capture c = core::Simulate(o)->capture;
+  ImportOptions declared;
+  declared.gyro_unit = core::GyroUnit::kDegPerSecond;
+  ApplyOrInferUnits(declared, &c, nullptr);
+  EXPECT_EQ(c.gyro_unit, core::GyroUnit::kDegPerSecond);
+  EXPECT_EQ(c.gyro_unit_source, "declared");
 }
 
 }  // namespace

@@ -454,12 +454,151 @@ case_final_figures() {
   checks final "$dir/x1.json" --applied "$dir/x1.applied.csv"
 }
 
+# A gyroscope written in deg/s with no unit given (a vendor's CSV): the unit is inferred from the
+# moves (the rates integrated between rests against the accelerometer's turn of gravity), the
+# report's input_units records gyro deg/s inferred, and the gyro matrix is the writer's scale
+# times pi/180 rad/s per deg/s (within 1%).
+case_gyro_deg_s() {
+  write u1 --seed 41 --gyro-unit deg/s || return 1
+  run u1 "$(files u1)" --columns "$(columns u1)" --time-unit us
+  want_rc u1 0 || return 1
+  python3 - "$dir/u1.json" "$dir/u1/truth.json" <<'PY'
+import json, math, sys
+r, t = (json.load(open(p)) for p in sys.argv[1:3])
+bad = []
+u = r.get("input_units", {})
+if u.get("gyro") != "deg/s" or u.get("gyro_source") != "inferred":
+    bad.append(f"input_units {u}, want gyro deg/s inferred")
+m = r["parameters"]["gyro"]["matrix"]
+for j in range(3):
+    want = t["gyro_scale"][j] * math.pi / 180
+    if abs(m[j][j] / want - 1) > 0.01:
+        bad.append(f"gyro matrix ({j},{j}) {m[j][j]:.6g}, want {want:.6g} rad/s per deg/s")
+print("\n".join("  " + b for b in bad) or f"  gyro deg/s inferred, matrix diagonal within 1%")
+sys.exit(1 if bad else 0)
+PY
+}
+
+# Data in m/s^2 declared --accel-unit g: refused (exit 3, unit_mismatch), the first sentence of
+# stderr names the unit the data look like (m/s^2). Before, it passed and exported Ta ~ 9.7.
+case_wrong_declared_unit() {
+  write u2 --seed 42 || return 1
+  run u2 "$(files u2)" --columns "$(columns u2)" --time-unit us --accel-unit g
+  want_rc u2 3 || return 1
+  local first
+  first=$(head -1 "$dir/u2.err" | sed 's/^imucal: //; s/\. .*//')
+  [[ $first == *"m/s^2"* && $first == *"--accel-unit g"* ]] ||
+    { echo "  stderr's first sentence does not name m/s^2 and --accel-unit g: $first"; return 1; }
+  grep -q '"unit_mismatch"' "$dir/u2.json" || { echo "  refusal.reason is not unit_mismatch"; return 1; }
+  echo "  $first"
+}
+
+# `imucal noise` on a calibration capture (moves between 3 s holds, a 10 s first rest): refused
+# with "the record is not at rest", or its longest rest used and said; never the moving figures
+# (the gyro white-noise density within 30% of the writer's).
+case_noise_moving() {
+  write m1 --seed 43 --format imucal || return 1
+  rc=0
+  "$imucal" noise "$(files m1)" --json >"$dir/m1.out" 2>"$dir/m1.err" || rc=$?
+  if [[ $rc -eq 3 ]]; then
+    grep -q '^imucal: the record is not at rest' "$dir/m1.err" ||
+      { echo "  exit 3, but stderr does not start 'the record is not at rest': $(head -c 300 "$dir/m1.err")"; return 1; }
+    echo "  refused: $(head -c 160 "$dir/m1.err")"
+    return 0
+  fi
+  [[ $rc -eq 0 ]] || { echo "  exit $rc: $(head -c 300 "$dir/m1.err")"; return 1; }
+  python3 - "$dir/m1.out" "$dir/m1/truth.json" <<'PY'
+import json, math, sys
+r, t = (json.load(open(p)) for p in sys.argv[1:3])
+want = t["gyro_noise_rad_s"] / math.sqrt(t["rate_hz"])
+bad = []
+rest = r.get("rest", {"whole": True, "note": ""})
+if rest["whole"] or "rest" not in rest["note"]:
+    bad.append(f"the moves were not cut, or not said: {rest}")
+for a in ("gyro_x", "gyro_y", "gyro_z"):
+    n = r["axes"][a]["noise_density"]["value"]
+    if n is None or abs(n / want - 1) > 0.3:
+        bad.append(f"{a} N {n}, want {want:.3g}")
+print("\n".join("  " + b for b in bad) or "  longest rest used and said")
+sys.exit(1 if bad else 0)
+PY
+}
+
+# A 40-minute rest with bias random walks (K reached within minutes), and the same rest with 10 s
+# of handling 40% in (picked up, put down 2 degrees off): every figure (N, B, K, bounds too) of
+# the handled rest within 20% of the untouched one's, and the output (text, --json, noise.json)
+# says how much was cut.
+case_noise_handling() {
+  local shape=(--seed 44 --format imucal --protocol rest --first-hold-s 2400
+    --gyro-random-walk 7e-5 --accel-random-walk 3.5e-4)
+  write n0 "${shape[@]}" || return 1
+  write n1 "${shape[@]}" --handling-s 10 || return 1
+  local n
+  for n in n0 n1; do
+    "$imucal" noise "$(files $n)" --json --out "$dir/$n.dir" >"$dir/$n.out" 2>"$dir/$n.err" ||
+      { echo "  noise $n failed: $(head -c 300 "$dir/$n.err")"; return 1; }
+  done
+  "$imucal" noise "$(files n1)" >"$dir/n1.txt" 2>&1 || { echo "  text run failed"; return 1; }
+  grep -q "cut" "$dir/n1.txt" || { echo "  the text output does not say what was cut"; return 1; }
+  python3 - "$dir/n0.out" "$dir/n1.out" "$dir/n1.dir/noise.json" <<'PY'
+import json, sys
+r0, r1, f1 = (json.load(open(p)) for p in sys.argv[1:4])
+bad = []
+for r in (r1, f1):
+    rest = r.get("rest", {"whole": True, "cut_s": 0, "note": ""})
+    if rest["whole"] or not 5 <= rest["cut_s"] <= 30 or "cut" not in rest["note"]:
+        bad.append(f"the handling is not said to be cut: {rest}")
+worst = 0
+for a, v0 in r0["axes"].items():
+    for fig, x0 in v0.items():
+        a0, a1 = x0["value"], r1["axes"][a][fig]["value"]
+        if a0 is None or a1 is None:
+            bad.append(f"{a} {fig}: {a0} vs {a1}")
+            continue
+        worst = max(worst, abs(a1 / a0 - 1))
+        if abs(a1 / a0 - 1) > 0.2:
+            bad.append(f"{a} {fig}: {a1:.4g} with handling, {a0:.4g} without")
+print("\n".join("  " + b for b in bad) or
+      f"  {r1['rest']['cut_s']:.1f} s cut; figures within {100 * worst:.1f}% of the untouched rest")
+sys.exit(1 if bad else 0)
+PY
+}
+
+# A gyroscope quantised to 0.01 rad/s with noise far below the step (5e-4 rad/s): the axes whose
+# bias sits far from a rounding edge read one value through every rest. Their reported bias
+# standard error must not sit below the grid's own rounding, step/sqrt(12) (0.9 of it allowed).
+case_quantised_stuck() {
+  write k1 --seed 45 --gyro-step 0.01 --gyro-noise 0.0005 || return 1
+  run k1 "$(files k1)" --columns "$(columns k1)" --time-unit us
+  want_rc k1 0 || return 1
+  python3 - "$dir/k1.json" "$dir/k1/truth.json" <<'PY'
+import json, math, sys
+r, t = (json.load(open(p)) for p in sys.argv[1:3])
+step, noise = t["gyro_step_rad_s"], t["gyro_noise_rad_s"]
+se = r["parameters"]["gyro"]["stderr"]["bias"]
+bad, stuck = [], []
+for j, b in enumerate(t["gyro_bias_rad_s"]):
+    to_edge = abs(abs(b / step - round(b / step)) - 0.5) * step
+    if to_edge < 5 * noise:
+        continue  # the noise flips it across the edge: dithered, no floor to check
+    stuck.append("xyz"[j])
+    if not se[j] >= 0.9 * step / math.sqrt(12):
+        bad.append(f"gyro {'xyz'[j]} bias stderr {se[j]:.3g}, below {step / math.sqrt(12):.3g}")
+if not stuck:
+    bad.append("no axis is stuck: the case checks nothing")
+print("\n".join("  " + b for b in bad) or
+      f"  stuck axes {', '.join(stuck)}: bias stderr >= step/sqrt(12) = {step / math.sqrt(12):.3g}")
+sys.exit(1 if bad else 0)
+PY
+}
+
 cases=(quantised_si quantised_counts quantised_faces noise_free low_noise steady_turns
   steady_turns_20 steady_turns_50 steady_turns_100 steady_turns_200 hand_held_turns table_rests
   file_noise_floors faces_held_once faces_files
   faces_files_imucal faces_once duplicate_face noisy_rest_hand noisy_rest_motor
   noisy_rest_settling short_stops short_stops_all commented_header nul_byte final_figures
   temperature_turnover gyro_bias_shift rate_scale)
+cases+=(gyro_deg_s wrong_declared_unit noise_moving noise_handling quantised_stuck)
 (($# > 0)) && cases=("$@")
 failed=()
 for c in "${cases[@]}"; do

@@ -19,6 +19,8 @@ Protocols (--protocol):
       the table (its default 0.3 applies; pass 0 for a level floor).
   random              an IMU-TK style capture: a first rest, then --poses stops, each reached by
       a smooth rotation about a random body axis by 30-120 degrees (--move-angle-range-deg).
+  rest                a recording for the noise figures: one hold of --first-hold-s, Z+ up,
+      nothing else (unless --handling-s).
 
 Classes of capture (each off by default; the default output is the same as before they existed):
   --accel-step / --gyro-step  quantisation: each reading, noise included, becomes
@@ -54,6 +56,15 @@ Classes of capture (each off by default; the default output is the same as befor
   --duplicate-face FACE=OTHER  (faces-once) the pose meant for FACE holds OTHER's orientation,
       turned --duplicate-angle-deg (default 0.005) about one of OTHER's horizontal body axes:
       e.g. Z+=Z- leaves no pose with +Z up. The truth keeps the face each pose was meant for.
+
+  --handling-s S  (rest) S seconds of handling inside the rest, starting --handling-at-s after
+      its start (default: 40% of the way through): the unit is picked up and put down again,
+      four smooth moves of S/4 s about random body axes by 20-60 degrees (its own generator),
+      the last one setting it down --handling-tilt-deg (default 2) off its first orientation.
+      The truth holds the two holds as poses and the handling's time range.
+  --gyro-random-walk K / --accel-random-walk K  a bias random walk on every axis: each sample
+      the bias moves by a Gaussian step of K sqrt(dt) (K in rad/s^2/sqrt(Hz) or m/s^3/sqrt(Hz),
+      the Allan rate random walk K; its own generator). The walk starts at 0.
 
   --gyro-bias-shift SIGMA  the gyroscope's bias moves each time the unit is moved: at the middle
       of every move each axis draws a new offset, Gaussian with standard deviation SIGMA rad/s
@@ -126,7 +137,7 @@ FACE_ORDER = ["Z+", "X+", "Y+", "Z-", "X-", "Y-"]
 # accelerometer's misalignment. A return to Z+ and three poses off the faces fix both.
 EXTRA_TILTS = [((1.0, 0.0, 0.0), 90.0), ((1.0, 0.0, 0.0), 45.0), ((0.0, 1.0, 0.0), 45.0),
                ((1.0, 0.0, 0.0), -90.0)]
-PROTOCOLS = ["six-face", "faces-once", "random"]
+PROTOCOLS = ["six-face", "faces-once", "random", "rest"]
 NOISY_REST_KINDS = ["hand", "motor", "settling"]
 # The settling rest's mean offset from its final value: a sensor still settling has a mean
 # steady only to about this much (mg of standard gravity).
@@ -301,6 +312,16 @@ def add_arguments(parser):
     parser.add_argument("--duplicate-face", type=_parse_duplicate, default=None,
                         metavar="FACE=OTHER", help="faces-once: FACE's pose holds OTHER's")
     parser.add_argument("--duplicate-angle-deg", type=float, default=0.005)
+    parser.add_argument("--handling-s", type=float, default=0.0,
+                        help="rest protocol: seconds of handling inside the rest")
+    parser.add_argument("--handling-at-s", type=float, default=None,
+                        help="rest protocol: when the handling starts (default 40%% in)")
+    parser.add_argument("--handling-tilt-deg", type=float, default=2.0,
+                        help="rest protocol: how far off the unit is set down")
+    parser.add_argument("--gyro-random-walk", type=float, default=0.0, metavar="K",
+                        help="gyro bias random walk, rad/s^2/sqrt(Hz)")
+    parser.add_argument("--accel-random-walk", type=float, default=0.0, metavar="K",
+                        help="accel bias random walk, m/s^3/sqrt(Hz)")
     parser.add_argument("--gyro-bias-shift", type=float, default=0.0, metavar="SIGMA",
                         help="a new gyro offset per axis (rad/s, Gaussian) at every move's middle")
     parser.add_argument("--temp-history", type=_parse_history, default=None, metavar="KIND:ARGS",
@@ -547,6 +568,34 @@ def _random(args, g_world, hold_for):
     return _moves_through(orientations, args, g_world, hold_for, faces)
 
 
+def _rest(args, g_world):
+    """One hold; with --handling-s, picked up and put down inside it (two holds)."""
+    r0 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    if args.handling_s <= 0:
+        return [("hold", args.first_hold_s, 0)], [_up_entry("Z+", r0, g_world, args.gravity)], r0
+    rng = random.Random(args.seed * 1000003 + 97)
+    at = args.handling_at_s if args.handling_at_s is not None else 0.4 * args.first_hold_s
+    moves, r = [], r0
+    for _ in range(3):
+        v = [rng.gauss(0.0, 1.0) for _ in range(3)]
+        n = math.sqrt(sum(x * x for x in v))
+        axis = [x / n for x in v]
+        angle = math.radians(rng.uniform(20.0, 60.0)) * rng.choice((-1.0, 1.0))
+        moves.append(("move", args.handling_s / 4, axis, angle, "smooth"))
+        r = _matmul(r, _axis_angle(axis, angle))
+    # Set down off the first orientation by the tilt, about a horizontal axis.
+    tilt = rng.uniform(0.0, 2 * math.pi)
+    target = _matmul(r0, _axis_angle([math.cos(tilt), math.sin(tilt), 0.0],
+                                     math.radians(args.handling_tilt_deg)))
+    axis, angle = _rotation_log(_matmul(_transpose(r), target))
+    moves.append(("move", args.handling_s / 4, axis, angle, "smooth"))
+    segments = ([("hold", at, 0)] + moves +
+                [("hold", args.first_hold_s - at - args.handling_s, 1)])
+    poses = [_up_entry("Z+", r0, g_world, args.gravity),
+             _up_entry("Z+ after handling", target, g_world, args.gravity)]
+    return segments, poses, r0
+
+
 def simulate(args):
     """Returns (samples, truth): samples are (t_s, gyro_raw[3], accel_raw[3]) in rad/s and
     m/s^2 input units; truth is a JSON-ready dict of what was used."""
@@ -575,6 +624,8 @@ def simulate(args):
         segments, poses, turn_errors_deg, r0 = _six_face(args, rng, g_world, hold_for)
     elif args.protocol == "faces-once":
         segments, poses, r0 = _faces_once(args, g_world, hold_for)
+    elif args.protocol == "rest":
+        segments, poses, r0 = _rest(args, g_world)
     else:
         segments, poses, r0 = _random(args, g_world, hold_for)
 
@@ -596,6 +647,10 @@ def simulate(args):
     shift_rng = random.Random(args.seed * 1000003 + 71)
     shift = [0.0, 0.0, 0.0]
     hold_shifts = []
+    # The bias random walks: their own generator, so the noise stream is unchanged.
+    walk_rng = random.Random(args.seed * 1000003 + 89)
+    walk_k = (getattr(args, "gyro_random_walk", 0.0), getattr(args, "accel_random_walk", 0.0))
+    walk = ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
 
     # Sample the segments. Rotations restart from the pose at the segment start, so the
     # orientation is exact (no integration drift), and the body rate is axis * dtheta/dt.
@@ -662,6 +717,13 @@ def simulate(args):
                     for i in range(3)]
             if bursts and seg[0] == "hold":
                 bursts.add(accel, gyro, seg[2], j * dt, n * dt)
+            for w_i, k_walk in enumerate(walk_k):
+                if k_walk > 0:
+                    for i in range(3):
+                        walk[w_i][i] += walk_rng.gauss(0.0, k_walk * math.sqrt(dt))
+                    target_list = gyro if w_i == 0 else accel
+                    for i in range(3):
+                        target_list[i] += walk[w_i][i]
             if noisy and seg[0] == "hold" and seg[2] == args.noisy_rest:
                 noisy.add(accel, gyro, (j + 0.5) * dt, n * dt)
             if args.accel_step is not None:
@@ -697,6 +759,13 @@ def simulate(args):
     }
     if unit:
         truth["accel_model"] = unit.truth()
+    if walk_k[0] > 0 or walk_k[1] > 0:
+        truth["random_walk"] = {"gyro_rad_s2_sqrt_hz": walk_k[0], "accel_m_s3_sqrt_hz": walk_k[1],
+                                "model": "a Gaussian step of K sqrt(dt) per sample on every "
+                                         "axis' bias"}
+    if getattr(args, "handling_s", 0.0) > 0 and args.protocol == "rest":
+        truth["handling"] = {"t_start_s": moves[0]["t_start_s"], "t_end_s": moves[-1]["t_end_s"],
+                             "tilt_deg": args.handling_tilt_deg}
     if shift_sigma > 0:
         truth["gyro_bias_shift"] = {
             "sigma_rad_s": shift_sigma, "per_hold_rad_s": hold_shifts,

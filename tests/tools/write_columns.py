@@ -27,6 +27,10 @@ Raw counts (--counts, needs --accel-step and --gyro-step): each value is round(u
 integer, where u is the simulated reading in m/s^2 or rad/s; the truth gives the model in counts
 (bias / step in counts, scale * step in m/s^2 or rad/s per count).
 
+--gyro-unit deg/s writes the rate in degrees per second (the simulated rad/s times 180 / pi), as
+many vendors' tools do (not with --counts); the truth's gyro figures stay in rad/s and
+"gyro_unit_written" says which unit the file holds.
+
 --nul-at LINE puts a NUL byte at the start of the time field on line LINE (1-based, the header
 is line 1 of a columns file) of the first file written, as a corrupted SD card or a serial link
 leaves it.
@@ -41,6 +45,7 @@ Standard library only. Usage: write_columns.py OUT_DIR [--format columns|imucal]
 """
 import argparse
 import json
+import math
 import os
 import sys
 
@@ -98,12 +103,16 @@ def main():
     parser.add_argument("--counts", action="store_true",
                         help="raw integer counts (needs --accel-step and --gyro-step)")
     parser.add_argument("--temp-c", type=float, default=25.0, help="the temperature column")
+    parser.add_argument("--gyro-unit", choices=["rad/s", "deg/s"], default="rad/s",
+                        help="the unit the rate is written in")
     parser.add_argument("--nul-at", type=int, metavar="LINE", help="a NUL byte on this line")
     parser.add_argument("--crlf", action="store_true", help="Windows line endings")
     imu_sim.add_arguments(parser)
     args = parser.parse_args()
     if args.counts and (args.accel_step is None or args.gyro_step is None):
         parser.error("--counts needs --accel-step and --gyro-step")
+    if args.counts and args.gyro_unit != "rad/s":
+        parser.error("--gyro-unit applies to values in SI, not to --counts")
     if args.format == "imucal":
         args.time_unit = "s"
         names = ROLES
@@ -132,7 +141,7 @@ def main():
         unit = "counts" if args.counts else None
         preamble = ["# imucal-capture v1",
                     f"# accel_unit={unit or 'm/s^2'}",
-                    f"# gyro_unit={unit or 'rad/s'}",
+                    f"# gyro_unit={unit or args.gyro_unit}",
                     f"# gravity={args.gravity!r}",
                     f"# rate_hz={rate!r}",
                     ",".join(names)]
@@ -146,6 +155,8 @@ def main():
         if args.counts:
             return ([str(int(round(v / args.accel_step))) for v in accel] +
                     [str(int(round(v / args.gyro_step))) for v in gyro])
+        if args.gyro_unit == "deg/s":
+            gyro = [v * 180.0 / math.pi for v in gyro]
         return [repr(v) for v in accel + gyro]
 
     os.makedirs(args.out_dir, exist_ok=True)
@@ -187,6 +198,7 @@ def main():
                        "commented_header": args.commented_header, "counts": args.counts,
                        "temp_c": args.temp_c, "crlf": args.crlf}
     truth["files"] = files
+    truth["gyro_unit_written"] = "counts" if args.counts else args.gyro_unit
     truth["time_unit"] = args.time_unit
     truth["columns_option"] = ",".join(f"{role}={name}" for role, name in zip(ROLES, names))
     if args.counts:

@@ -22,6 +22,7 @@
 #include "core/calibrate/static_poses.h"
 #include "core/capture.h"
 #include "core/protocol.h"
+#include "core/quantisation.h"
 #include "core/simulator.h"
 #include "core/validation.h"
 
@@ -635,4 +636,80 @@ TEST(CalibrateTest, EightPosesGiveBiasAndScaleWithAWarnVerdict) {
 }
 
 }  // namespace
+
+// A unit that does not fit the data is refused after the fit, naming the likely unit: data in
+// m/s^2 declared in g (before: passed, with a scale of 1/9.8 of g's, an OpenVINS Ta of 9.7), and
+// a gyroscope in deg/s declared rad/s (the fit can settle on an aliased scale near 1; the moves
+// against gravity's turn tell).
+TEST(CalibrateTest, WrongDeclaredUnitIsRefusedNamingTheLikelyUnit) {
+  SimOptions options;
+  options.seed = 61;
+  options.extra_poses = 4;
+  SimResult sim = *Simulate(options);
+  Capture c = sim.capture;
+  c.accel_unit = AccelUnit::kG;
+  c.accel_unit_source = "declared";
+  CalibrationReport r = MustCalibrate(c);
+  ASSERT_EQ(r.verdict, Verdict::kRefused) << Summary(r);
+  EXPECT_EQ(r.refusal->reason, RefusalReason::kUnitMismatch);
+  EXPECT_EQ(r.refusal->message.rfind("the accelerometer reads about 9.", 0), 0u)
+      << r.refusal->message;
+  EXPECT_NE(r.refusal->message.find("what --accel-unit g implies: the data look like m/s^2; "
+                                    "give --accel-unit m/s^2"),
+            std::string::npos)
+      << r.refusal->message;
+
+  options.gyro_unit = GyroUnit::kDegPerSecond;
+  sim = *Simulate(options);
+  c = sim.capture;
+  c.gyro_unit = GyroUnit::kRadPerSecond;
+  c.gyro_unit_source = "inferred";
+  r = MustCalibrate(c);
+  ASSERT_EQ(r.verdict, Verdict::kRefused) << Summary(r);
+  EXPECT_EQ(r.refusal->reason, RefusalReason::kUnitMismatch);
+  EXPECT_EQ(r.refusal->message.rfind("the gyroscope reads about 57.3 times what the inferred "
+                                     "unit rad/s implies: the data look like deg/s",
+                                     0),
+            0u)
+      << r.refusal->message;
+  // In its own unit the same capture calibrates.
+  sim.capture.gyro_unit_source = "declared";
+  EXPECT_NE(MustCalibrate(sim.capture).verdict, Verdict::kRefused);
+}
+
+// core/quantisation.h at its limits: a stuck channel's mean is known to q / sqrt(12); noise of
+// one step dithers the rounding away.
+TEST(QuantisationTest, RoundingErrorOfAMean) {
+  EXPECT_DOUBLE_EQ(RoundingBiasStd(0.01, 0.0), 0.01 / std::sqrt(12.0));
+  EXPECT_LT(RoundingBiasStd(0.01, 0.01), 1e-8 * 0.01);
+  EXPECT_EQ(RoundingBiasStd(0.0, 0.0), 0.0);
+  EXPECT_DOUBLE_EQ(WithRoundingError(3e-6, 0.0, 0.0), 3e-6);
+  EXPECT_NEAR(WithRoundingError(3e-6, 0.01, 0.0), 0.01 / std::sqrt(12.0), 1e-8);
+}
+
+// A gyroscope quantised to 0.01 rad/s whose noise (2e-4 rad/s) is far below the step: an axis
+// whose rests all read one value. Its bias standard error was the pose means' scatter, ~0; it
+// must not sit below the grid's rounding, q / sqrt(12).
+TEST(CalibrateTest, StuckGyroChannelBiasStdErrorRespectsTheGrid) {
+  SimOptions options;
+  options.seed = 62;
+  options.extra_poses = 4;
+  options.gyro_step = 0.01;
+  options.gyro_noise_rad_s = 2e-4;
+  const SimResult sim = *Simulate(options);
+  const CalibrationReport r = MustCalibrate(sim.capture);
+  ASSERT_NE(r.verdict, Verdict::kRefused) << Summary(r);
+  int stuck = 0;
+  for (int j = 0; j < 3; ++j) {
+    // Stuck: every used pose reads one value on this axis.
+    bool constant = true;
+    for (const PoseReport& p : r.poses)
+      if (p.interval.used) constant &= p.interval.gyro_std(j) == 0.0;
+    if (!constant) continue;
+    ++stuck;
+    EXPECT_GE(r.params.stderrs.gyro_bias(j), 0.9 * 0.01 / std::sqrt(12.0)) << "axis " << j;
+  }
+  EXPECT_GT(stuck, 0) << "no axis is stuck: the test checks nothing (seed 62)";
+}
+
 }  // namespace imucal::core
