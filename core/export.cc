@@ -536,18 +536,22 @@ absl::Status ValidateRosTopic(std::string_view topic) {
 absl::Status CheckGyroExportable(const ParamSet& params, ExportFormat format,
                                  const ExportOptions& options) {
   if (params.has_gyro) return absl::OkStatus();
-  const std::string what = Cat("the parameter set has no gyroscope (fitted on an "
-                               "accelerometer-only capture), and ", ExportFormatName(format));
+  const std::string what =
+      Cat("the parameter set has no gyroscope (fitted on an "
+          "accelerometer-only capture), and ",
+          ExportFormatName(format));
   if (format != ExportFormat::kKalibrImu) {
     return absl::FailedPreconditionError(
-        Cat(what, " holds a gyroscope model that the estimator applies to every rate; it cannot "
-                  "be exported without a gyroscope (the accelerometer parameters are in the "
-                  "imucal JSON: --format json)"));
+        Cat(what,
+            " holds a gyroscope model that the estimator applies to every rate; it cannot "
+            "be exported without a gyroscope (the accelerometer parameters are in the "
+            "imucal JSON: --format json)"));
   }
   if (!std::isfinite(options.gyro_noise_density) || !std::isfinite(options.gyro_random_walk)) {
     return absl::FailedPreconditionError(
-        Cat(what, " needs gyroscope_noise_density and gyroscope_random_walk: give the "
-                  "gyroscope's figures with --gyro-noise-density and --gyro-random-walk"));
+        Cat(what,
+            " needs gyroscope_noise_density and gyroscope_random_walk: give the "
+            "gyroscope's figures with --gyro-noise-density and --gyro-random-walk"));
   }
   return absl::OkStatus();
 }

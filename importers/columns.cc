@@ -64,8 +64,7 @@ absl::StatusOr<ColumnMap> CheckGyroMapped(const ColumnMap& map) {
 absl::StatusOr<ColumnMap> ParseColumnMap(std::string_view spec) {
   ColumnMap map;
   if (TrimSpaces(spec).empty()) {
-    return MapError(
-        "empty (expected ax=NAME,ay=NAME,az=NAME[,gx=NAME,gy=NAME,gz=NAME][,t=NAME])");
+    return MapError("empty (expected ax=NAME,ay=NAME,az=NAME[,gx=NAME,gy=NAME,gz=NAME][,t=NAME])");
   }
   size_t start = 0;
   while (start <= spec.size()) {
@@ -390,7 +389,8 @@ absl::Status ParseRowValues(std::string_view source, int line_number, const Layo
   for (size_t f = 0; f < kFieldCount; ++f) {
     if (layout.index[f] < 0) continue;
     const std::string_view field = fields[static_cast<size_t>(layout.index[f])];
-    if (absl::Status s = ParseNumberField(field, source, line_number, layout.labels[f], &(*values)[f]);
+    if (absl::Status s =
+            ParseNumberField(field, source, line_number, layout.labels[f], &(*values)[f]);
         !s.ok()) {
       if (field.empty()) return absl::InvalidArgumentError(Cat(s.message(), kSkipHint));
       return s;
@@ -494,7 +494,7 @@ std::string DescribeTimeBase(const Layout& layout, const ColumnCsvOptions& optio
 }
 
 core::Capture CaptureOfRows(const std::vector<Row>& rows, const Layout& layout,
-                           const ImportOptions& options, std::optional<double> rate_hz) {
+                            const ImportOptions& options, std::optional<double> rate_hz) {
   core::Capture capture;
   capture.device = options.device.value_or("");
   capture.gravity_m_s2 = options.gravity_m_s2.value_or(core::kStandardGravity);

@@ -137,8 +137,8 @@ absl::Status ParseHeaderLine(std::string_view line, std::string_view source, int
   return ApplyKnownHeader(key_index, value, source, line_number, capture);
 }
 
-absl::Status CheckRequiredHeaders(const HeaderSeen& seen, std::string_view source,
-                                  int line_number, bool has_gyro) {
+absl::Status CheckRequiredHeaders(const HeaderSeen& seen, std::string_view source, int line_number,
+                                  bool has_gyro) {
   for (const std::string_view key : {kKeyAccelUnit, kKeyGyroUnit}) {
     if (key == kKeyGyroUnit && !has_gyro) continue;
     const size_t index = static_cast<size_t>(std::find(kKnownKeys.begin(), kKnownKeys.end(), key) -
@@ -493,9 +493,8 @@ std::string FormatImucalCsv(const core::Capture& capture) {
     AppendTo(&out, "# ", key, "=", value, "\n");
   }
 
-  out.append(Join(std::span(kRequiredColumns).first(has_gyro ? kRequiredColumns.size()
-                                                             : kGyroColumns),
-                  ","));
+  out.append(Join(
+      std::span(kRequiredColumns).first(has_gyro ? kRequiredColumns.size() : kGyroColumns), ","));
   if (has_temp) AppendTo(&out, ",", kTempColumn);
   for (size_t k = 0; k < extra; ++k) AppendTo(&out, ",", capture.extra_column_names[k]);
   out.push_back('\n');

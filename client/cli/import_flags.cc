@@ -15,7 +15,8 @@ const char kImportFlagsHelp[] =
     "input formats (--format, default auto): imucal CSV, EuRoC imu0/data.csv, imu_tk pair,\n"
     "  ROS 2 bag (directory with metadata.yaml, sqlite3 or mcap storage; a .db3 or .mcap file),\n"
     "  and vendor CSV with --columns:\n"
-    "  --columns ax=C,ay=C,az=C[,gx=C,gy=C,gz=C][,t=C][,temp=C]   C: header name or column number;\n"
+    "  --columns ax=C,ay=C,az=C[,gx=C,gy=C,gz=C][,t=C][,temp=C]   C: header name or column "
+    "number;\n"
     "                    without gx,gy,gz: an accelerometer-only capture\n"
     "  --time-unit s|ms|us|ns|index   unit of the t column (index: a sample counter; needs a "
     "rate)\n"
@@ -33,8 +34,7 @@ namespace {
 
 const std::vector<std::string> kColumnValued = {
     "columns", "time-unit", "rate", "rate-from-preamble", "skip-lines", "delimiter", "temp-unit"};
-const std::vector<std::string> kColumnSwitches = {"no-header", "sort-time",
-                                                  "skip-incomplete-rows"};
+const std::vector<std::string> kColumnSwitches = {"no-header", "sort-time", "skip-incomplete-rows"};
 
 absl::Status FlagError(const std::string& flag, absl::string_view message) {
   return absl::InvalidArgumentError(absl::StrCat("--", flag, ": ", message));

@@ -219,8 +219,7 @@ absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
 // Units the parameters expect and the capture does not have. The gyro unit matters only when
 // both have a gyroscope.
 absl::Status CheckApplyUnits(const core::ParamSet& params, const core::Capture& in) {
-  const bool gyro_differs =
-      params.has_gyro && in.has_gyro && in.gyro_unit != params.gyro_unit;
+  const bool gyro_differs = params.has_gyro && in.has_gyro && in.gyro_unit != params.gyro_unit;
   if (in.accel_unit == params.accel_unit && !gyro_differs) return absl::OkStatus();
   return absl::InvalidArgumentError(absl::StrFormat(
       "units differ: the capture is accel %s / gyro %s, the parameters expect %s / %s",
@@ -249,7 +248,8 @@ absl::StatusOr<core::Capture> ApplyParams(const core::ParamSet& params, const co
     sdk::CalibratedSample c;
     corrector->Apply(raw, &c);
     out.accel[i] = Eigen::Vector3d(c.accel_m_s2[0], c.accel_m_s2[1], c.accel_m_s2[2]);
-    if (in.has_gyro) out.gyro[i] = Eigen::Vector3d(c.gyro_rad_s[0], c.gyro_rad_s[1], c.gyro_rad_s[2]);
+    if (in.has_gyro)
+      out.gyro[i] = Eigen::Vector3d(c.gyro_rad_s[0], c.gyro_rad_s[1], c.gyro_rad_s[2]);
   }
   return out;
 }
@@ -258,7 +258,8 @@ absl::StatusOr<core::Capture> ApplyParams(const core::ParamSet& params, const co
 std::string AppliedText(const core::ParamSet& params, const core::Capture& in,
                         const core::Capture& out) {
   if (!in.has_gyro) {
-    return absl::StrFormat("calibrated accelerometer samples (m/s^2; the capture has no gyroscope)");
+    return absl::StrFormat(
+        "calibrated accelerometer samples (m/s^2; the capture has no gyroscope)");
   }
   if (!params.has_gyro) {
     return absl::StrFormat(
@@ -393,11 +394,11 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   if (a->Has("json")) {
     std::fputs(json.c_str(), stdout);
   } else {
-    std::printf("input       %s (%s, %zu samples, accel %s, gyro %s)\n",
-                absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(), capture->size(),
-                std::string(core::AccelUnitName(capture->accel_unit)).c_str(),
-                capture->has_gyro ? std::string(core::GyroUnitName(capture->gyro_unit)).c_str()
-                                  : "none");
+    std::printf(
+        "input       %s (%s, %zu samples, accel %s, gyro %s)\n",
+        absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(), capture->size(),
+        std::string(core::AccelUnitName(capture->accel_unit)).c_str(),
+        capture->has_gyro ? std::string(core::GyroUnitName(capture->gyro_unit)).c_str() : "none");
     for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
     std::fputs(FormatSummary(*report).c_str(), stdout);
     for (const auto& p : plot_paths) std::printf("wrote       %s\n", p.c_str());

@@ -103,8 +103,8 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                                  ? absl::StrFormat("turn %6.1f deg", pair.rotation_deg)
                                  : std::string("turn not checked");
     absl::StrAppendFormat(&s, "  pair %2d+%-2d %-3s %-8s %s, tilt %.2f deg %s\n", pair.pose_a,
-                          pair.pose_b, pair.face, pair.ok ? "ok" : "REJECTED", turn,
-                          pair.tilt_deg, pair.reason);
+                          pair.pose_b, pair.face, pair.ok ? "ok" : "REJECTED", turn, pair.tilt_deg,
+                          pair.reason);
   }
   if (r.verdict == core::Verdict::kRefused) {
     absl::StrAppendFormat(&s, "verdict     refused   (%.0f ms)\n", r.total_ms);

@@ -113,7 +113,8 @@ Capture WithStillGyro(const Capture& cap) {
 // The noise block of an accelerometer-only parameter set: the accelerometer's figures only.
 void AttachAccelNoise(const Capture& still_view, const std::vector<StaticInterval>& intervals,
                       CalibrationReport* rep) {
-  absl::StatusOr<NoiseAnalysis> noise = NoiseFromLongestInterval(still_view, intervals, rep->params);
+  absl::StatusOr<NoiseAnalysis> noise =
+      NoiseFromLongestInterval(still_view, intervals, rep->params);
   if (!noise.ok()) return;
   noise->figures.gyro = SensorNoise{};
   std::erase_if(noise->figures.notes, [](const std::string& n) { return n.starts_with("gyro"); });

@@ -93,8 +93,7 @@ void MarkDuplicates(const Capture& cap, const GyroParams& gyro, const TimeGaps& 
       // Without a gyroscope a re-placement in the same orientation cannot be told from none:
       // the poses count as one, which loses a repeat but never double-counts a rest.
       const double turned =
-          cap.has_gyro ? PathAngle(cap, (*ivs)[p].end - 1, (*ivs)[i].begin, gyro) * kRadToDeg
-                       : 0.0;
+          cap.has_gyro ? PathAngle(cap, (*ivs)[p].end - 1, (*ivs)[i].begin, gyro) * kRadToDeg : 0.0;
       if (angle < kDuplicateDeg && turned < kNotTurnedDeg &&
           gaps.In((*ivs)[p].end - 1, (*ivs)[i].begin) < 0) {
         const bool keep_this = (*ivs)[i].samples() > (*ivs)[p].samples();
@@ -149,7 +148,8 @@ ProtocolChecks CheckProtocol(const Capture& cap, const CalibrateOptions& opt, co
   }
   if (out.protocol == ProtocolKind::kSixFace)
     CheckPairs(cap, ivs, used, sp.gaps, rough.params, &out);
-  if (out.protocol == ProtocolKind::kFerraris && cap.has_gyro) CheckFerrarisTurns(rough.turns, &out);
+  if (out.protocol == ProtocolKind::kFerraris && cap.has_gyro)
+    CheckFerrarisTurns(rough.turns, &out);
   for (std::string& w : RepeatedOrientations(cap, ivs, out.ups))
     out.warnings.push_back(std::move(w));
   MarkDuplicates(cap, rough.params, sp.gaps, out.ups, &out.intervals);

@@ -54,9 +54,8 @@ TEST(ColumnCsvAccelOnlyTest, NoGyroUnitIsInferredOrNoted) {
 }
 
 TEST(ColumnCsvAccelOnlyTest, PartOfTheGyroIsAnError) {
-  absl::StatusOr<core::Capture> c =
-      ImportText("part.csv", "t,ax,ay,az,gx,gy\n0,0,0,9.8,0,0\n",
-                 SiOptions("t=t,ax=ax,ay=ay,az=az,gx=gx,gy=gy"));
+  absl::StatusOr<core::Capture> c = ImportText("part.csv", "t,ax,ay,az,gx,gy\n0,0,0,9.8,0,0\n",
+                                               SiOptions("t=t,ax=ax,ay=ay,az=az,gx=gx,gy=gy"));
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(), HasSubstr("--columns: field 'gz' is missing"));
   EXPECT_THAT(c.status().message(), HasSubstr("or none for an accelerometer-only capture"));
@@ -101,9 +100,9 @@ TEST(ColumnCsvRowsTest, SkipIncompleteRowsKeepsRowsOfOtherColumnsAlone) {
   ImportOptions options = SiOptions("t=t,ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz");
   options.columns.skip_incomplete_rows = true;
   ImportReport report;
-  absl::StatusOr<core::Capture> c = ImportText(
-      "full.csv", "t,ax,ay,az,gx,gy,gz,mag\n0,0,0,9.8,0,0,0,\n0.01,0,0,9.8,0,0,0,\n", options,
-      &report);
+  absl::StatusOr<core::Capture> c =
+      ImportText("full.csv", "t,ax,ay,az,gx,gy,gz,mag\n0,0,0,9.8,0,0,0,\n0.01,0,0,9.8,0,0,0,\n",
+                 options, &report);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->size(), 2u);
   for (const std::string& note : report.notes) EXPECT_THAT(note, Not(HasSubstr("skipped")));
@@ -112,16 +111,15 @@ TEST(ColumnCsvRowsTest, SkipIncompleteRowsKeepsRowsOfOtherColumnsAlone) {
 TEST(ColumnCsvRowsTest, EveryRowIncompleteIsAnError) {
   ImportOptions options = SiOptions("t=t,ax=ax,ay=ay,az=az");
   options.columns.skip_incomplete_rows = true;
-  absl::StatusOr<core::Capture> c =
-      ImportText("none.csv", "t,ax,ay,az\n0,,,\n0.1,,,\n", options);
+  absl::StatusOr<core::Capture> c = ImportText("none.csv", "t,ax,ay,az\n0,,,\n0.1,,,\n", options);
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(),
               HasSubstr("none.csv:2: every row (2) leaves a mapped column empty"));
 }
 
 TEST(ColumnCsvRowsTest, ShortRowWithoutTheFlagSuggestsIt) {
-  absl::StatusOr<core::Capture> c = ImportText(
-      "short.csv", "t,ax,ay,az\n0,0,0,9.8\n0.1\n", SiOptions("t=t,ax=ax,ay=ay,az=az"));
+  absl::StatusOr<core::Capture> c =
+      ImportText("short.csv", "t,ax,ay,az\n0,0,0,9.8\n0.1\n", SiOptions("t=t,ax=ax,ay=ay,az=az"));
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(c.status().message(), HasSubstr("short.csv:3: expected 4 fields, found 1"));
   EXPECT_THAT(c.status().message(), HasSubstr("--skip-incomplete-rows"));
@@ -132,12 +130,11 @@ TEST(ColumnCsvRowsTest, ShortRowWithoutTheFlagSuggestsIt) {
 
 TEST(ColumnCsvQuotesTest, QuotedCommaIsOneField) {
   ImportOptions options = SiOptions("t=t,ax=ax,ay=ay,az=az,gx=gx,gy=gy,gz=gz");
-  absl::StatusOr<core::Capture> c = ImportText(
-      "label.csv",
-      "t,label,ax,ay,az,gx,gy,gz\n"
-      "0,\"rest, face \"\"Z+\"\"\",0,0,9.8,0.01,0,0\n"
-      "0.01,\"moving, by hand\",0.5,0,9.8,0.01,0,0\n",
-      options);
+  absl::StatusOr<core::Capture> c = ImportText("label.csv",
+                                               "t,label,ax,ay,az,gx,gy,gz\n"
+                                               "0,\"rest, face \"\"Z+\"\"\",0,0,9.8,0.01,0,0\n"
+                                               "0.01,\"moving, by hand\",0.5,0,9.8,0.01,0,0\n",
+                                               options);
   ASSERT_TRUE(c.ok()) << c.status();
   ASSERT_EQ(c->size(), 2u);
   EXPECT_DOUBLE_EQ(c->accel[1].x(), 0.5);
@@ -152,9 +149,9 @@ TEST(ColumnCsvQuotesTest, QuotedHeaderNamesAndNumbers) {
 }
 
 TEST(ColumnCsvQuotesTest, QuotedLineBreakJoinsLinesAndKeepsTheFirstLineNumber) {
-  absl::StatusOr<core::Capture> c = ImportText(
-      "nl.csv", "t,note,ax,ay,az\n0,\"two\nlines\",0,0,9.8\n0.01,x,bad,0,9.8\n",
-      SiOptions("t=t,ax=ax,ay=ay,az=az"));
+  absl::StatusOr<core::Capture> c =
+      ImportText("nl.csv", "t,note,ax,ay,az\n0,\"two\nlines\",0,0,9.8\n0.01,x,bad,0,9.8\n",
+                 SiOptions("t=t,ax=ax,ay=ay,az=az"));
   ASSERT_FALSE(c.ok());
   // The second record starts on line 4: line 2's record spans lines 2-3.
   EXPECT_THAT(c.status().message(), HasSubstr("nl.csv:4: column 'ax': 'bad' is not a number"));
