@@ -312,6 +312,13 @@ absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin,
 
 absl::StatusOr<NoiseAnalysis> ComputeNoise(const Capture& capture, size_t begin, size_t end,
                                            const SampleCorrection& correction) {
+  // Both sensors' figures read every sample's gyro: refused rather than read past an empty one.
+  if (!capture.has_gyro) {
+    return absl::FailedPreconditionError(
+        "the capture has no gyroscope (noise figures are computed for both sensors; an "
+        "accelerometer-only capture's accelerometer figures are in `imucal calibrate`'s noise "
+        "block)");
+  }
   if (begin >= end || end > capture.size()) {
     return absl::InvalidArgumentError(Cat("noise interval [", begin, ", ", end,
                                           ") outside the capture of ", capture.size(), " samples"));

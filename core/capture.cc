@@ -42,9 +42,13 @@ absl::Status CheckLengths(const Capture& capture) {
     return absl::InvalidArgumentError(absl::StrCat("capture has ", n, " timestamps but ",
                                                    capture.accel.size(), " accel samples"));
   }
-  if (capture.gyro.size() != n) {
+  if (capture.has_gyro && capture.gyro.size() != n) {
     return absl::InvalidArgumentError(
         absl::StrCat("capture has ", n, " timestamps but ", capture.gyro.size(), " gyro samples"));
+  }
+  if (!capture.has_gyro && !capture.gyro.empty()) {
+    return absl::InvalidArgumentError(absl::StrCat("capture says it has no gyroscope but holds ",
+                                                   capture.gyro.size(), " gyro samples"));
   }
   if (!capture.temp.empty() && capture.temp.size() != n) {
     return absl::InvalidArgumentError(absl::StrCat("capture has ", n, " timestamps but ",

@@ -66,7 +66,7 @@ struct Capture {
   // One entry per sample, all the same length. `t_s` strictly increasing (seconds, any origin).
   std::vector<double> t_s;
   std::vector<Eigen::Vector3d> accel;  // in accel_unit
-  std::vector<Eigen::Vector3d> gyro;   // in gyro_unit
+  std::vector<Eigen::Vector3d> gyro;   // in gyro_unit; empty when !has_gyro
   std::vector<double> temp;            // in temp_unit; empty when the capture has no temperature
 
   // Columns beyond t,ax..gz,temp, carried through unchanged: names, then values[column][sample].
@@ -79,6 +79,11 @@ struct Capture {
   // nothing is integrated across it and no pose spans it (FileStarts).
   std::vector<CaptureFile> files;
   std::vector<uint32_t> line;
+
+  // False for an accelerometer-only capture (a file with no gyroscope columns). `gyro` is then
+  // empty, never zero-filled: zeros would read as a perfectly still gyroscope to any stage that
+  // forgot to ask, and gyro_unit means nothing.
+  bool has_gyro = true;
 
   size_t size() const { return t_s.size(); }
   // The first sample of every file after the first.

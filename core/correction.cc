@@ -26,12 +26,17 @@ SampleCorrection::SampleCorrection(const AccelParams& accel, const GyroParams& g
   }
 }
 
+void SampleCorrection::LeaveGyroAsRead() {
+  corrects_gyro_ = false;
+  std::erase_if(terms_, [](const Term& t) { return t.output >= 3; });
+}
+
 CorrectedSample SampleCorrection::Apply(const Eigen::Vector3d& accel_raw,
                                         const Eigen::Vector3d& gyro_raw, double temp_c,
                                         double t_s) const {
   CorrectedSample out;
   out.accel_m_s2 = accel_misalignment_ * accel_.PerAxis(accel_raw);  // accel_.Apply(accel_raw)
-  out.gyro_rad_s = gyro_.Apply(gyro_raw, out.accel_m_s2);
+  out.gyro_rad_s = corrects_gyro_ ? gyro_.Apply(gyro_raw, out.accel_m_s2) : gyro_raw;
   if (terms_.empty()) return out;
   const Eigen::Vector3d& a = out.accel_m_s2;
   const Eigen::Vector3d& w = out.gyro_rad_s;

@@ -27,8 +27,13 @@ class SampleCorrection {
   // refused where it is read: formats/params_json, the SDK).
   SampleCorrection(const AccelParams& accel, const GyroParams& gyro,
                    const std::vector<Effect>& effects, double time_origin_s);
+  // A parameter set without a gyroscope (ParamSet::has_gyro false) corrects the accelerometer
+  // only: Apply then returns the gyro reading as read (input units, not rad/s), untouched.
   SampleCorrection(const ParamSet& params, double time_origin_s)
-      : SampleCorrection(params.accel, params.gyro, params.effects, time_origin_s) {}
+      : SampleCorrection(params.accel, params.gyro, params.effects, time_origin_s) {
+    if (!params.has_gyro) LeaveGyroAsRead();
+  }
+  bool corrects_gyro() const { return corrects_gyro_; }
 
   // Raw readings (the parameter set's input units), temperature in degC (NaN when absent) and
   // time stamp in s -> the calibrated sample.
@@ -45,8 +50,11 @@ class SampleCorrection {
   AccelParams accel_;
   Eigen::Matrix3d accel_misalignment_;  // accel_.Misalignment(), once: it costs an exp map
   GyroParams gyro_;
+  void LeaveGyroAsRead();
+
   std::vector<Term> terms_;
   double time_origin_s_ = 0;
+  bool corrects_gyro_ = true;
 };
 
 }  // namespace imucal::core

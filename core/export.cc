@@ -465,6 +465,11 @@ std::vector<std::string> ExportNotes(const ParamSet& p, ExportFormat format,
       notes.push_back(Cat(key, " supplied to the export: ", Num(v),
                           " (used only if the noise block lacks it)"));
   };
+  if (!p.has_gyro) {
+    notes.push_back(
+        "the capture had no gyroscope: gyroscope_noise_density and gyroscope_random_walk are the "
+        "values supplied to the export, not measured");
+  }
   user(options.accel_noise_density, "accelerometer_noise_density");
   user(options.accel_random_walk, "accelerometer_random_walk");
   user(options.gyro_noise_density, "gyroscope_noise_density");
@@ -523,9 +528,38 @@ absl::Status ValidateRosTopic(std::string_view topic) {
   return absl::OkStatus();
 }
 
+// An accelerometer-only parameter set (ParamSet::has_gyro false) has no gyroscope to write.
+// Kalibr's intrinsics and OpenVINS's chain hold a gyroscope model that their estimators apply to
+// every rate: an identity written there would claim a calibrated gyroscope, so they are refused.
+// Kalibr's noise file needs only the gyroscope's two noise figures: with both supplied (say, the
+// datasheet's) it is written, and its notes say where they came from; without, it is refused.
+absl::Status CheckGyroExportable(const ParamSet& params, ExportFormat format,
+                                 const ExportOptions& options) {
+  if (params.has_gyro) return absl::OkStatus();
+  const std::string what =
+      Cat("the parameter set has no gyroscope (fitted on an "
+          "accelerometer-only capture), and ",
+          ExportFormatName(format));
+  if (format != ExportFormat::kKalibrImu) {
+    return absl::FailedPreconditionError(
+        Cat(what,
+            " holds a gyroscope model that the estimator applies to every rate; it cannot "
+            "be exported without a gyroscope (the accelerometer parameters are in the "
+            "imucal JSON: --format json)"));
+  }
+  if (!std::isfinite(options.gyro_noise_density) || !std::isfinite(options.gyro_random_walk)) {
+    return absl::FailedPreconditionError(
+        Cat(what,
+            " needs gyroscope_noise_density and gyroscope_random_walk: give the "
+            "gyroscope's figures with --gyro-noise-density and --gyro-random-walk"));
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::string> ExportParams(const ParamSet& params, ExportFormat format,
                                          const ExportOptions& options) {
   if (absl::Status s = ValidateRosTopic(options.rostopic); !s.ok()) return s;
+  if (absl::Status s = CheckGyroExportable(params, format, options); !s.ok()) return s;
   absl::StatusOr<SiModel> model = ToSi(params);
   if (!model.ok()) return model.status();
   absl::StatusOr<Noise> noise = ResolveNoise(params, options);

@@ -120,6 +120,10 @@ struct ParamSet {
   AccelParams accel;
   GyroParams gyro;
   bool gyro_calibrated = false;  // false: only the gyro bias was determined (matrix nominal)
+  // False for a parameter set fitted on an accelerometer-only capture: `gyro`, `gyro_unit`,
+  // `gyro_calibrated`, the gyro standard errors, quality and noise mean nothing and are left out
+  // of every file written (absent, not zero); whoever applies it leaves gyro readings as read.
+  bool has_gyro = true;
   std::vector<Effect> effects;
   EffectReference effect_reference;
   ParamStdErrors stderrs;
@@ -131,7 +135,8 @@ struct ParamSet {
   std::optional<NoiseFigures> noise;
 };
 
-// The model text stored in every parameter set and export, so a reader never guesses.
+// The model text stored in every parameter set and export, so a reader never guesses (the
+// accelerometer-only one: kAccelOnlyModelText).
 inline constexpr const char* kModelText =
     "inverse model, raw -> calibrated, body frame = accelerometer frame rotated by "
     "frame_angles. accel: y = diag(scale)*(u - bias); z_i = y_i + quadratic_i*y_i^2; "
@@ -140,6 +145,20 @@ inline constexpr const char* kModelText =
     "gyro: w[rad/s] = matrix*(u - bias) - accel_coupling*a. "
     "effects: out[axis] -= coefficient*regressor, a centred factor (temperature-T0) read about "
     "effect_reference. u in the stated input units.";
+
+// kModelText for a parameter set without a gyroscope (ParamSet::has_gyro false).
+inline constexpr const char* kAccelOnlyModelText =
+    "inverse model, raw -> calibrated, body frame = accelerometer frame rotated by "
+    "frame_angles. accel: y = diag(scale)*(u - bias); z_i = y_i + quadratic_i*y_i^2; "
+    "a[m/s^2] = R(frame_angles)*L(tri_angles)*z, L unit lower-triangular "
+    "[[1,0,0],[t_yx,1,0],[t_zx,t_zy,1]], R = exp([frame_angles]x). "
+    "accelerometer only: fitted on a capture without a gyroscope, no angular-rate model. "
+    "effects: out[axis] -= coefficient*regressor, a centred factor (temperature-T0) read about "
+    "effect_reference. u in the stated input units.";
+
+inline const char* ModelTextOf(const ParamSet& params) {
+  return params.has_gyro ? kModelText : kAccelOnlyModelText;
+}
 
 }  // namespace imucal::core
 

@@ -60,6 +60,7 @@ PairCheck VerifyPair(const FacePose& a, const FacePose& b, const Eigen::Vector3d
     p.reason = absl::StrFormat("wrong face: %s was up, then %s; turn about the vertical only",
                                fa.Label(), fb.Label());
   } else if (!b.rotation_known) {
+    p.turn_checked = false;
     p.ok = misalignment_deg <= 2 * kFaceToleranceDeg / 3;
     p.rotation_deg = std::numeric_limits<double>::quiet_NaN();
     if (!p.ok) {

@@ -67,6 +67,10 @@ struct PairCheck {
   Eigen::Vector3d rotation_rad = Eigen::Vector3d::Zero();
   std::string face;
   std::string reason;  // why rejected, in a technician's words
+  // False when the gyroscope could not measure the turn (a time gap, or a capture without a
+  // gyroscope): only the faces and the mirrored components were checked; the turn is "not
+  // checked", neither passed nor failed.
+  bool turn_checked = true;
 };
 
 // What the six-face check needs to know about one usable pose, in time order.

@@ -90,7 +90,8 @@ OrderedJson SensorNoiseToJson(const core::SensorNoise& s, double rate_hz) {
   return out;
 }
 
-OrderedJson NoiseToJson(const core::NoiseFigures& n) {
+// Without a gyroscope (has_gyro false) the gyro figures and their units are left out.
+OrderedJson NoiseToJson(const core::NoiseFigures& n, bool has_gyro) {
   OrderedJson out = OrderedJson::object();
   out["method"] =
       "overlapping Allan deviation of the calibrated body-frame signal over the longest static "
@@ -108,13 +109,15 @@ OrderedJson NoiseToJson(const core::NoiseFigures& n) {
   units["accel.bias_instability"] = "m/s^2";
   units["accel.random_walk"] = "m/s^3/sqrt(Hz)";
   units["accel.noise_std_per_sample"] = "m/s^2 (discrete: noise_density * sqrt(rate_hz))";
-  units["gyro.noise_density"] = "rad/s/sqrt(Hz) (continuous-time)";
-  units["gyro.bias_instability"] = "rad/s";
-  units["gyro.random_walk"] = "rad/s^2/sqrt(Hz)";
-  units["gyro.noise_std_per_sample"] = "rad/s (discrete: noise_density * sqrt(rate_hz))";
+  if (has_gyro) {
+    units["gyro.noise_density"] = "rad/s/sqrt(Hz) (continuous-time)";
+    units["gyro.bias_instability"] = "rad/s";
+    units["gyro.random_walk"] = "rad/s^2/sqrt(Hz)";
+    units["gyro.noise_std_per_sample"] = "rad/s (discrete: noise_density * sqrt(rate_hz))";
+  }
   out["units"] = std::move(units);
   out["accel"] = SensorNoiseToJson(n.accel, n.rate_hz);
-  out["gyro"] = SensorNoiseToJson(n.gyro, n.rate_hz);
+  if (has_gyro) out["gyro"] = SensorNoiseToJson(n.gyro, n.rate_hz);
   out["notes"] = n.notes;
   return out;
 }
@@ -456,7 +459,8 @@ absl::Status ReadNoise(const Json& j, const std::string& path,
   core::NoiseFigures n;
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "interval", kRequired, ReadNoiseInterval, &n));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "accel", kRequired, ReadSensorNoise, &n.accel));
-  IMUCAL_RETURN_IF_ERROR(Member(j, path, "gyro", kRequired, ReadSensorNoise, &n.gyro));
+  // Optional here; ReadParamSet requires it of a parameter set that has a gyroscope.
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "gyro", kOptional, ReadSensorNoise, &n.gyro));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "notes", kOptional, ReadStrings, &n.notes));
   *out = std::move(n);
   return absl::OkStatus();
@@ -466,6 +470,18 @@ absl::Status ReadSource(const Json& j, const std::string& path, core::ParamSet* 
   IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "session", kOptional, ReadString, &out->source_session));
   return Member(j, path, "software", kOptional, ReadString, &out->software);
+}
+
+// A parameter set without a gyroscope cannot correct the gyroscope.
+absl::Status CheckNoGyroEffects(const core::ParamSet& params, const std::string& path) {
+  if (params.has_gyro) return absl::OkStatus();
+  for (size_t i = 0; i < params.effects.size(); ++i) {
+    if (params.effects[i].sensor == core::Sensor::kGyro) {
+      return PathError(Child(Element(Child(path, "effects"), i), "sensor"),
+                       "a gyro effect in a parameter set without a \"gyro\" block");
+    }
+  }
+  return absl::OkStatus();
 }
 
 // An "imucal-params v1" object at `path` ("" at top level, "parameters" inside a report).
@@ -483,8 +499,11 @@ absl::Status ReadParamSet(const Json& j, const std::string& path, core::ParamSet
   IMUCAL_RETURN_IF_ERROR(
       Member(j, path, "gravity", kOptional, Numbers(Null::kReject), &out->gravity_m_s2));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "accel", kRequired, ReadAccel, out));
-  IMUCAL_RETURN_IF_ERROR(Member(j, path, "gyro", kRequired, ReadGyro, out));
+  // No "gyro" member: a parameter set fitted without a gyroscope (ParamSet::has_gyro).
+  out->has_gyro = j.contains("gyro");
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "gyro", kOptional, ReadGyro, out));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "effects", kOptional, ReadEffects, &out->effects));
+  IMUCAL_RETURN_IF_ERROR(CheckNoGyroEffects(*out, path));
   IMUCAL_RETURN_IF_ERROR(
       Member(j, path, "effect_reference", kOptional, ReadEffectReference, &out->effect_reference));
   for (size_t i = 0; i < out->effects.size(); ++i) {
@@ -495,6 +514,9 @@ absl::Status ReadParamSet(const Json& j, const std::string& path, core::ParamSet
   }
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "quality", kOptional, ReadQuality, out));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "noise", kOptional, ReadNoise, &out->noise));
+  if (out->noise && out->has_gyro && !j.at("noise").contains("gyro")) {
+    return PathError(Child(Child(path, "noise"), "gyro"), "missing");
+  }
   return Member(j, path, "source", kOptional, ReadSource, out);
 }
 
@@ -526,21 +548,7 @@ std::string_view UnitName(core::GyroUnit unit) {
   return "unknown";
 }
 
-std::string ParamSetToJson(const core::ParamSet& params) {
-  OrderedJson j = OrderedJson::object();
-  j["format"] = std::string(kParamsFormat);
-  j["device"] = params.device;
-  j["version"] = params.version;
-  j["created_at"] = params.created_at;
-  j["model"] = core::kModelText;
-  j["gravity"] = Number(params.gravity_m_s2);
-
-  OrderedJson accel = AccelModelFields(params.accel);
-  accel["misalignment"] = Mat(params.accel.Misalignment());
-  accel["input_unit"] = std::string(UnitName(params.accel_unit));
-  accel["stderr"] = AccelModelFields(params.stderrs.accel);
-  j["accel"] = std::move(accel);
-
+OrderedJson GyroToJson(const core::ParamSet& params) {
   OrderedJson gyro = OrderedJson::object();
   gyro["bias"] = Vec(params.gyro.bias);
   gyro["matrix"] = Mat(params.gyro.matrix);
@@ -552,7 +560,25 @@ std::string ParamSetToJson(const core::ParamSet& params) {
   gyro_se["bias"] = Vec(params.stderrs.gyro_bias);
   gyro_se["matrix"] = Mat(params.stderrs.gyro_matrix);
   gyro["stderr"] = std::move(gyro_se);
-  j["gyro"] = std::move(gyro);
+  return gyro;
+}
+
+std::string ParamSetToJson(const core::ParamSet& params) {
+  OrderedJson j = OrderedJson::object();
+  j["format"] = std::string(kParamsFormat);
+  j["device"] = params.device;
+  j["version"] = params.version;
+  j["created_at"] = params.created_at;
+  j["model"] = core::ModelTextOf(params);
+  j["gravity"] = Number(params.gravity_m_s2);
+
+  OrderedJson accel = AccelModelFields(params.accel);
+  accel["misalignment"] = Mat(params.accel.Misalignment());
+  accel["input_unit"] = std::string(UnitName(params.accel_unit));
+  accel["stderr"] = AccelModelFields(params.stderrs.accel);
+  j["accel"] = std::move(accel);
+
+  if (params.has_gyro) j["gyro"] = GyroToJson(params);
 
   OrderedJson effects = OrderedJson::array();
   for (const core::Effect& e : params.effects) effects.push_back(EffectToJson(e));
@@ -568,9 +594,9 @@ std::string ParamSetToJson(const core::ParamSet& params) {
 
   OrderedJson quality = OrderedJson::object();
   quality["accel_rms"] = Number(params.quality_accel_rms_m_s2);
-  quality["gyro_static_rms"] = Number(params.quality_gyro_static_rms_rad_s);
+  if (params.has_gyro) quality["gyro_static_rms"] = Number(params.quality_gyro_static_rms_rad_s);
   j["quality"] = std::move(quality);
-  if (params.noise) j["noise"] = NoiseToJson(*params.noise);
+  if (params.noise) j["noise"] = NoiseToJson(*params.noise, params.has_gyro);
   OrderedJson source = OrderedJson::object();
   source["session"] = params.source_session;
   source["software"] = params.software;

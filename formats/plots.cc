@@ -212,6 +212,8 @@ absl::Status WriteAllanPlots(const json& report, const PlotWriter& write) {
   if (!tau.is_array()) return absl::InvalidArgumentError("allan.tau: expected an array");
   for (const char* sensor : {"accel", "gyro"}) {
     const json curves = Get(allan, sensor);
+    // An accelerometer-only report has no gyro curves (absent, not empty): no gyro plot.
+    if (std::string(sensor) == "gyro" && !allan.contains(sensor)) continue;
     if (!curves.is_array() || curves.size() != tau.size()) {
       return absl::InvalidArgumentError(
           absl::StrFormat("allan.%s: expected one [x, y, z] per tau", sensor));
@@ -424,6 +426,8 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
   if (absl::Status s = WriteAllanPlots(report, write); !s.ok()) return s;
   const json diag = Get(report, "effect_diagnostics");
   if (!diag.is_object()) return written;
+  // Only notes: the search did not run (an accelerometer-only capture), nothing to plot.
+  if (diag.size() == 1 && diag.contains("notes")) return written;
   const json rows = Get(diag, "poses");
   if (!rows.is_array()) {
     return absl::InvalidArgumentError("effect_diagnostics.poses: expected an array");

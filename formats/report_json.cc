@@ -14,7 +14,9 @@ json Num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
 json Vec(const Eigen::Vector3d& v) { return json::array({Num(v.x()), Num(v.y()), Num(v.z())}); }
 
-json PoseJson(const core::PoseReport& p) {
+// `has_gyro` false (an accelerometer-only capture): the gyro mean is left out, not written as
+// the zero nothing measured.
+json PoseJson(const core::PoseReport& p, bool has_gyro) {
   const core::StaticInterval& s = p.interval;
   json j = {{"index", p.index},
             {"t_start", s.t_start_s},
@@ -30,6 +32,7 @@ json PoseJson(const core::PoseReport& p) {
             {"up", Vec(p.up)},
             {"residual", Num(p.residual_m_s2)},
             {"residual_heldout", Num(p.heldout_m_s2)}};
+  if (!has_gyro) j.erase("gyro_mean");
   if (!p.file.empty()) j["file"] = p.file;
   if (p.first_line > 0) j["lines"] = {p.first_line, p.last_line};
   return j;
@@ -181,14 +184,17 @@ std::string ReportToJson(const core::CalibrationReport& r) {
                 {"source", r.noise.source},
                 {"static_threshold_multiplier", r.threshold_multiplier}};
   j["poses"] = json::array();
-  for (const auto& p : r.poses) j["poses"].push_back(PoseJson(p));
+  const bool has_gyro = r.params.has_gyro;
+  if (!has_gyro) j["noise"].erase("gyro_std");
+  for (const auto& p : r.poses) j["poses"].push_back(PoseJson(p, has_gyro));
   j["pairs"] = json::array();
   for (const auto& p : r.pairs) {
     j["pairs"].push_back({{"poses", {p.pose_a, p.pose_b}},
                           {"status", p.ok ? "ok" : "rejected"},
                           {"face", p.face},
                           {"tilt_deg", p.tilt_deg},
-                          {"rotation_deg", p.rotation_deg},
+                          {"rotation_deg", Num(p.rotation_deg)},
+                          {"turn_checked", p.turn_checked},
                           {"reason", p.reason}});
   }
   j["moves"] = json::array();
@@ -234,6 +240,7 @@ std::string ReportToJson(const core::CalibrationReport& r) {
                   {"accel", std::move(accel)},
                   {"gyro", std::move(gyro)},
                   {"units", "tau s; accel m/s^2; gyro rad/s (Allan deviation, per axis x y z)"}};
+    if (!has_gyro) j["allan"].erase("gyro");
   }
   const core::Residuals& res = r.residual;
   j["residual"] = {{"accel_rms", res.accel_rms_m_s2},
@@ -248,12 +255,16 @@ std::string ReportToJson(const core::CalibrationReport& r) {
                    {"gravity_direction_fit_rms_deg", Num(res.move_fit_rms_deg)},
                    {"gravity_direction_heldout_rms_deg", Num(res.move_heldout_rms_deg)},
                    {"gravity_direction_heldout_max_deg", Num(res.move_heldout_max_deg)}};
+  if (!has_gyro) j["residual"].erase("gyro_static_rms");
   json params = json::parse(ParamSetToJson(r.params));
   j["effects"] = params.contains("effects") ? params["effects"] : json::array();
   // Beside the spec's fields: the coefficient in an engineer's units (mg/degC, deg/s/g, ...).
   for (size_t k = 0; k < r.params.effects.size() && k < j["effects"].size(); ++k)
     j["effects"][k]["human"] = core::HumanCoefficient(r.params.effects[k]);
-  if (r.effect_diagnostics.ran || !r.effect_diagnostics.notes.empty())
+  // Without a gyroscope the search did not run: only its notes say why (no gyro figures).
+  if (!has_gyro && !r.effect_diagnostics.notes.empty())
+    j["effect_diagnostics"] = {{"notes", r.effect_diagnostics.notes}};
+  else if (r.effect_diagnostics.ran || !r.effect_diagnostics.notes.empty())
     j["effect_diagnostics"] = DiagnosticsJson(r.effect_diagnostics);
   if (r.gyro_wander.ran) j["gyro_wander"] = WanderJson(r.gyro_wander);
   // A refused capture has no parameters to apply: the report says why, not a confident number.

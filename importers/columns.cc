@@ -13,6 +13,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "importers/csv_fields.h"
 #include "importers/registry.h"
 #include "importers/text_scan.h"
 #include "importers/unit_inference.h"
@@ -47,10 +48,23 @@ absl::Status MapError(std::string_view message) {
   return absl::InvalidArgumentError(Cat("--columns: ", message));
 }
 
+// The gyroscope is mapped whole or not at all: without gx, gy and gz the capture is
+// accelerometer-only (core::Capture::has_gyro), but one axis missing is a typo, not a sensor.
+absl::StatusOr<ColumnMap> CheckGyroMapped(const ColumnMap& map) {
+  std::vector<std::string_view> mapped, missing;
+  for (size_t f = kGx; f <= kGz; ++f) {
+    (map.refs[f].has_value() ? mapped : missing).push_back(kFieldNames[f]);
+  }
+  if (mapped.empty() || missing.empty()) return map;
+  return MapError(Cat("field '", missing.front(), "' is missing (", Join(mapped, ", "),
+                      " are mapped: map all of gx, gy, gz, or none for an accelerometer-only "
+                      "capture)"));
+}
+
 absl::StatusOr<ColumnMap> ParseColumnMap(std::string_view spec) {
   ColumnMap map;
   if (TrimSpaces(spec).empty()) {
-    return MapError("empty (expected ax=NAME,ay=NAME,az=NAME,gx=NAME,gy=NAME,gz=NAME[,t=NAME])");
+    return MapError("empty (expected ax=NAME,ay=NAME,az=NAME[,gx=NAME,gy=NAME,gz=NAME][,t=NAME])");
   }
   size_t start = 0;
   while (start <= spec.size()) {
@@ -83,10 +97,10 @@ absl::StatusOr<ColumnMap> ParseColumnMap(std::string_view spec) {
     }
     map.refs[field] = std::move(ref);
   }
-  for (size_t f = kAx; f <= kGz; ++f) {
+  for (size_t f = kAx; f <= kAz; ++f) {
     if (!map.refs[f].has_value()) return MapError(Cat("field '", kFieldNames[f], "' is missing"));
   }
-  return map;
+  return CheckGyroMapped(map);
 }
 
 std::string RefText(const ColumnRef& ref) {
@@ -94,10 +108,9 @@ std::string RefText(const ColumnRef& ref) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Splitting.
+// Splitting (importers/csv_fields.h: quotes as RFC 4180 reads them).
 
-// ' ' stands for "runs of spaces and tabs".
-constexpr char kWhitespace = ' ';
+constexpr char kWhitespace = kWhitespaceDelimiter;
 
 absl::StatusOr<std::optional<char>> ParseDelimiter(std::string_view name) {
   if (name.empty()) return std::optional<char>();
@@ -122,34 +135,21 @@ char DetectDelimiter(std::string_view line) {
   return TrimSpaces(line).find(' ') != std::string_view::npos ? kWhitespace : ',';
 }
 
-std::string_view Unquote(std::string_view field) {
-  field = TrimSpaces(field);
-  if (field.size() >= 2 && field.front() == '"' && field.back() == '"') {
-    field = field.substr(1, field.size() - 2);
-  }
-  return field;
-}
-
-void SplitFields(std::string_view line, char delimiter, std::vector<std::string_view>* fields) {
-  fields->clear();
-  if (delimiter == kWhitespace) {
-    size_t i = 0;
-    while (true) {
-      while (i < line.size() && (line[i] == ' ' || line[i] == '\t')) ++i;
-      if (i == line.size()) break;
-      const size_t begin = i;
-      while (i < line.size() && line[i] != ' ' && line[i] != '\t') ++i;
-      fields->push_back(Unquote(line.substr(begin, i - begin)));
+// Splits the record that starts with `*record` (a line just read), joining the next lines while
+// a quoted field holds a line break; the record then spans them (the text is one buffer).
+absl::Status SplitRecord(LineCursor* lines, std::string_view source, char delimiter,
+                         std::string_view* record, CsvFields* fields) {
+  const int first_line = lines->line_number();
+  while (SplitCsvRecord(*record, delimiter, fields) == CsvSplit::kOpenQuote) {
+    std::string_view more;
+    if (!lines->Next(&more)) {
+      return LineError(source, first_line,
+                       "a quoted field opened on this line is never closed (no closing '\"')");
     }
-    return;
+    *record = std::string_view(record->data(),
+                               static_cast<size_t>(more.data() + more.size() - record->data()));
   }
-  size_t start = 0;
-  while (true) {
-    const size_t end = std::min(line.find(delimiter, start), line.size());
-    fields->push_back(Unquote(line.substr(start, end - start)));
-    if (end == line.size()) break;
-    start = end + 1;
-  }
+  return absl::OkStatus();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -179,7 +179,8 @@ bool HeaderHasNames(const std::vector<std::string_view>& fields, const ColumnMap
 absl::Status FindHeader(std::string_view source, const ColumnCsvOptions& options,
                         const ColumnMap& map, std::optional<char> delimiter, Layout* layout,
                         LineCursor* lines) {
-  std::vector<std::string_view> fields;
+  CsvFields split;
+  const std::vector<std::string_view>& fields = split.fields;
   std::string_view line;
   const int skip = options.skip_lines.value_or(0);
   for (int i = 0; i < skip; ++i) {
@@ -231,7 +232,9 @@ absl::Status FindHeader(std::string_view source, const ColumnCsvOptions& options
     }
     // Detected per line: a preamble may be prose, or use another delimiter than the table.
     layout->delimiter = delimiter.value_or(DetectDelimiter(named));
-    SplitFields(named, layout->delimiter, &fields);
+    // One line: a quote left open is not followed onto the next line here (a preamble's prose
+    // may hold a lone '"').
+    SplitCsvRecord(named, layout->delimiter, &split);
     if (options.skip_lines.has_value() || HeaderHasNames(fields, map)) {
       layout->header_line = lines->line_number();
       layout->header.assign(fields.begin(), fields.end());
@@ -342,12 +345,66 @@ struct Row {
   int line_number;
 };
 
+// Rows left out by --skip-incomplete-rows: how many, and the first one's line.
+struct SkippedRows {
+  size_t count = 0;
+  int first_line = 0;
+};
+
+// The first mapped capture field that `fields` leaves empty (or lacks: a short row), or -1.
+// An interleaved log fills only its own sensor's columns on each row.
+int FirstEmptyMappedField(const Layout& layout, const std::vector<std::string_view>& fields) {
+  for (size_t f = 0; f < kFieldCount; ++f) {
+    const int index = layout.index[f];
+    if (index < 0) continue;
+    if (static_cast<size_t>(index) >= fields.size() || fields[static_cast<size_t>(index)].empty()) {
+      return static_cast<int>(f);
+    }
+  }
+  return -1;
+}
+
+constexpr std::string_view kSkipHint =
+    " (rows with empty fields, as an interleaved log of several sensors writes them, are skipped "
+    "with --skip-incomplete-rows)";
+
+absl::Status CheckRowShape(std::string_view source, int line_number, const Layout& layout,
+                           size_t expected_fields, const std::vector<std::string_view>& fields) {
+  const std::string_view hint = FirstEmptyMappedField(layout, fields) >= 0 ? kSkipHint : "";
+  if (fields.size() != expected_fields) {
+    return LineError(source, line_number,
+                     Cat("expected ", expected_fields, " fields, found ", fields.size(), hint));
+  }
+  if (layout.max_index >= fields.size()) {
+    return LineError(source, line_number,
+                     Cat("has ", fields.size(), " fields, but the map uses column ",
+                         layout.max_index + 1, hint));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ParseRowValues(std::string_view source, int line_number, const Layout& layout,
+                            const std::vector<std::string_view>& fields,
+                            std::array<double, kFieldCount>* values) {
+  for (size_t f = 0; f < kFieldCount; ++f) {
+    if (layout.index[f] < 0) continue;
+    const std::string_view field = fields[static_cast<size_t>(layout.index[f])];
+    if (absl::Status s =
+            ParseNumberField(field, source, line_number, layout.labels[f], &(*values)[f]);
+        !s.ok()) {
+      if (field.empty()) return absl::InvalidArgumentError(Cat(s.message(), kSkipHint));
+      return s;
+    }
+  }
+  return absl::OkStatus();
+}
+
 absl::Status ParseRows(LineCursor* lines, std::string_view source, const Layout& layout,
                        const ColumnCsvOptions& options, std::optional<double> rate_hz,
-                       std::vector<Row>* rows) {
+                       std::vector<Row>* rows, SkippedRows* skipped) {
   rows->reserve(CountLines(lines->rest()));
   size_t expected_fields = layout.header_line > 0 ? layout.header.size() : 0;
-  std::vector<std::string_view> fields;
+  CsvFields split;
   std::string_view line;
   std::array<double, kFieldCount> values{};
   const bool index_time = options.time_unit == ColumnTimeUnit::kSampleIndex;
@@ -355,24 +412,21 @@ absl::Status ParseRows(LineCursor* lines, std::string_view source, const Layout&
   while (lines->Next(&line)) {
     if (IsBlank(line)) continue;
     const int line_number = lines->line_number();
-    SplitFields(line, layout.delimiter, &fields);
-    if (expected_fields == 0) expected_fields = fields.size();  // no header: the first row
-    if (fields.size() != expected_fields) {
-      return LineError(source, line_number,
-                       Cat("expected ", expected_fields, " fields, found ", fields.size()));
+    if (absl::Status s = SplitRecord(lines, source, layout.delimiter, &line, &split); !s.ok()) {
+      return s;
     }
-    if (layout.max_index >= fields.size()) {
-      return LineError(
-          source, line_number,
-          Cat("has ", fields.size(), " fields, but the map uses column ", layout.max_index + 1));
+    if (options.skip_incomplete_rows && FirstEmptyMappedField(layout, split.fields) >= 0) {
+      if (skipped->count++ == 0) skipped->first_line = line_number;
+      continue;
     }
-    for (size_t f = 0; f < kFieldCount; ++f) {
-      if (layout.index[f] < 0) continue;
-      if (absl::Status s = ParseNumberField(fields[static_cast<size_t>(layout.index[f])], source,
-                                            line_number, layout.labels[f], &values[f]);
-          !s.ok()) {
-        return s;
-      }
+    if (expected_fields == 0) expected_fields = split.fields.size();  // no header: the first row
+    if (absl::Status s = CheckRowShape(source, line_number, layout, expected_fields, split.fields);
+        !s.ok()) {
+      return s;
+    }
+    if (absl::Status s = ParseRowValues(source, line_number, layout, split.fields, &values);
+        !s.ok()) {
+      return s;
     }
     double t_s = 0.0;
     if (layout.index[kT] < 0) {
@@ -437,6 +491,63 @@ std::string DescribeTimeBase(const Layout& layout, const ColumnCsvOptions& optio
                " Hz; a jump in the index stays a gap");
   }
   return Cat("time = ", column, " in ", ColumnTimeUnitName(options.time_unit));
+}
+
+core::Capture CaptureOfRows(const std::vector<Row>& rows, const Layout& layout,
+                            const ImportOptions& options, std::optional<double> rate_hz) {
+  core::Capture capture;
+  capture.device = options.device.value_or("");
+  capture.gravity_m_s2 = options.gravity_m_s2.value_or(core::kStandardGravity);
+  capture.rate_hz = rate_hz.value_or(0.0);
+  capture.temp_unit = options.columns.temp_unit.value_or(core::TempUnit::kCelsius);
+  const bool has_temp = layout.index[kTemp] >= 0;
+  capture.has_gyro = layout.index[kGx] >= 0;
+  capture.t_s.reserve(rows.size());
+  capture.accel.reserve(rows.size());
+  if (capture.has_gyro) capture.gyro.reserve(rows.size());
+  if (has_temp) capture.temp.reserve(rows.size());
+  capture.line.reserve(rows.size());
+  for (const Row& row : rows) {
+    capture.line.push_back(static_cast<uint32_t>(row.line_number));
+    capture.t_s.push_back(row.t_s);
+    capture.accel.push_back(row.accel);
+    if (capture.has_gyro) capture.gyro.push_back(row.gyro);
+    if (has_temp) capture.temp.push_back(row.temp);
+  }
+  return capture;
+}
+
+void AddLayoutNotes(const Layout& layout, const ColumnCsvOptions& columns,
+                    std::optional<double> rate_hz, std::vector<std::string>* notes) {
+  std::vector<std::string> mapped;
+  for (size_t f = 0; f < kFieldCount; ++f) {
+    if (layout.index[f] >= 0) mapped.push_back(Cat(kFieldNames[f], "='", layout.labels[f], "'"));
+  }
+  notes->push_back(Cat("columns: ", Join(mapped, ", ")));
+  if (layout.index[kGx] < 0) {
+    notes->push_back("no gyroscope columns: an accelerometer-only capture");
+  }
+  notes->push_back(DescribeTimeBase(layout, columns, rate_hz));
+  if (layout.header_line > 0) {
+    std::vector<std::string> ignored;
+    for (size_t i = 0; i < layout.header.size(); ++i) {
+      if (std::find(layout.index.begin(), layout.index.end(), static_cast<int>(i)) ==
+          layout.index.end()) {
+        ignored.push_back(Cat("'", layout.header[i], "'"));
+      }
+    }
+    if (!ignored.empty()) notes->push_back(Cat("ignored columns: ", Join(ignored, ", ")));
+  }
+}
+
+// ApplyOrInferUnits, except that a capture without a gyroscope has no gyro unit to infer or
+// note: it is left at its default, which nothing reads.
+void InferUnits(const ImportOptions& options, core::Capture* capture,
+                std::vector<std::string>* notes) {
+  if (capture->has_gyro) return ApplyOrInferUnits(options, capture, notes);
+  ImportOptions accel_only = options;
+  accel_only.gyro_unit = capture->gyro_unit;
+  ApplyOrInferUnits(accel_only, capture, notes);
 }
 
 class ColumnCsvImporterImpl final : public CaptureImporter {
@@ -551,50 +662,27 @@ absl::StatusOr<core::Capture> ParseColumnCsv(std::string_view text, std::string_
   }
 
   std::vector<Row> rows;
-  if (absl::Status s = ParseRows(&lines, source_name, layout, columns, rate_hz, &rows); !s.ok()) {
+  SkippedRows skipped;
+  if (absl::Status s = ParseRows(&lines, source_name, layout, columns, rate_hz, &rows, &skipped);
+      !s.ok()) {
     return s;
+  }
+  if (rows.empty() && skipped.count > 0) {
+    return LineError(source_name, skipped.first_line,
+                     Cat("every row (", skipped.count, ") leaves a mapped column empty"));
   }
   if (rows.empty()) {
     return LineError(source_name, std::max(lines.line_number(), 1), "no rows after the header");
   }
   if (absl::Status s = OrderRows(source_name, columns, &rows, notes); !s.ok()) return s;
 
-  core::Capture capture;
-  capture.device = options.device.value_or("");
-  capture.gravity_m_s2 = options.gravity_m_s2.value_or(core::kStandardGravity);
-  capture.rate_hz = rate_hz.value_or(0.0);
-  capture.temp_unit = columns.temp_unit.value_or(core::TempUnit::kCelsius);
-  const bool has_temp = layout.index[kTemp] >= 0;
-  capture.t_s.reserve(rows.size());
-  capture.accel.reserve(rows.size());
-  capture.gyro.reserve(rows.size());
-  if (has_temp) capture.temp.reserve(rows.size());
-  capture.line.reserve(rows.size());
-  for (const Row& row : rows) {
-    capture.line.push_back(static_cast<uint32_t>(row.line_number));
-    capture.t_s.push_back(row.t_s);
-    capture.accel.push_back(row.accel);
-    capture.gyro.push_back(row.gyro);
-    if (has_temp) capture.temp.push_back(row.temp);
+  core::Capture capture = CaptureOfRows(rows, layout, options, rate_hz);
+  AddLayoutNotes(layout, columns, rate_hz, notes);
+  if (skipped.count > 0) {
+    notes->push_back(Cat("skipped ", skipped.count, " rows with empty fields (first at ",
+                         source_name, ":", skipped.first_line, ")"));
   }
-
-  std::vector<std::string> mapped;
-  for (size_t f = 0; f < kFieldCount; ++f) {
-    if (layout.index[f] >= 0) mapped.push_back(Cat(kFieldNames[f], "='", layout.labels[f], "'"));
-  }
-  notes->push_back(Cat("columns: ", Join(mapped, ", ")));
-  notes->push_back(DescribeTimeBase(layout, columns, rate_hz));
-  if (layout.header_line > 0) {
-    std::vector<std::string> ignored;
-    for (size_t i = 0; i < layout.header.size(); ++i) {
-      if (std::find(layout.index.begin(), layout.index.end(), static_cast<int>(i)) ==
-          layout.index.end()) {
-        ignored.push_back(Cat("'", layout.header[i], "'"));
-      }
-    }
-    if (!ignored.empty()) notes->push_back(Cat("ignored columns: ", Join(ignored, ", ")));
-  }
-  ApplyOrInferUnits(options, &capture, notes);
+  InferUnits(options, &capture, notes);
   NoteTimeGaps(capture, notes);
   return capture;
 }

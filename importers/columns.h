@@ -3,13 +3,18 @@
 // The mapping (ColumnCsvOptions::map, the CLI's --columns) assigns the capture's fields to the
 // file's columns, by header name or 1-based column number:
 //   ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z[,t=time][,temp=temperature]
-// Columns not named are ignored (they may hold text, e.g. a "part" label).
+// Columns not named are ignored (they may hold text, e.g. a "part" label). Without gx, gy and gz
+// (all three or none) the capture is accelerometer-only (core::Capture::has_gyro false).
 //
 // File layout: `skip_lines` preamble lines (default: everything before the first line that holds
 // every mapped name, so a preamble needs no counting), a header line (unless `no_header`), then
 // one row per sample. The delimiter is ',', ';' or tab, detected from the header line (or the
-// first row) unless given; "space" splits on runs of spaces and tabs. Fields may be wrapped in
-// double quotes. Blank lines are skipped; CRLF and a UTF-8 byte-order mark are accepted.
+// first row) unless given; "space" splits on runs of spaces and tabs. Fields are split as RFC
+// 4180 says (importers/csv_fields.h): "a,b" is one field, "" inside quotes a quote, a quoted line
+// break joins the next line to the row. Blank lines are skipped; CRLF and a UTF-8 byte-order
+// mark are accepted. A row that leaves a mapped column empty (an interleaved log of several
+// sensors) is an error that suggests `skip_incomplete_rows`, which skips such rows and notes how
+// many, and the first one's line.
 //
 // Time base, in seconds from the file's own origin:
 //   t column, time_unit s|ms|us|ns  -> t_s = value * unit (the rate, if given, is only nominal);

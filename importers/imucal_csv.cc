@@ -36,9 +36,12 @@ constexpr std::string_view kKeyTempUnit = "temp_unit";
 constexpr std::array<std::string_view, 6> kKnownKeys = {kKeyDevice,  kKeyAccelUnit, kKeyGyroUnit,
                                                         kKeyGravity, kKeyRateHz,    kKeyTempUnit};
 
-// The required columns in canonical (written) order; `temp` is optional.
+// The required columns in canonical (written) order; `temp` is optional. The three gyro
+// columns (kGyroColumns on) are required together or absent together: a capture without them is
+// accelerometer-only (core::Capture::has_gyro), and its `gyro_unit` header is optional.
 constexpr std::array<std::string_view, 7> kRequiredColumns = {"t",  "ax", "ay", "az",
                                                               "gx", "gy", "gz"};
+constexpr size_t kGyroColumns = 4;
 constexpr std::string_view kTempColumn = "temp";
 
 // Where each known header key was first seen (0 = not seen), to reject duplicates and report
@@ -134,9 +137,10 @@ absl::Status ParseHeaderLine(std::string_view line, std::string_view source, int
   return ApplyKnownHeader(key_index, value, source, line_number, capture);
 }
 
-absl::Status CheckRequiredHeaders(const HeaderSeen& seen, std::string_view source,
-                                  int line_number) {
+absl::Status CheckRequiredHeaders(const HeaderSeen& seen, std::string_view source, int line_number,
+                                  bool has_gyro) {
   for (const std::string_view key : {kKeyAccelUnit, kKeyGyroUnit}) {
+    if (key == kKeyGyroUnit && !has_gyro) continue;
     const size_t index = static_cast<size_t>(std::find(kKnownKeys.begin(), kKnownKeys.end(), key) -
                                              kKnownKeys.begin());
     if (seen.line_of_key[index] == 0) {
@@ -156,7 +160,26 @@ struct ColumnLayout {
   std::array<int, kRequiredColumns.size()> required{};  // t, ax, ay, az, gx, gy, gz
   int temp = -1;
   std::vector<int> extra;  // field index of each extra column, in file order
+  bool has_gyro() const { return required[kGyroColumns] >= 0; }
 };
+
+// All of t..az, and the gyro columns all or none.
+absl::Status CheckRequiredColumns(const ColumnLayout& layout, std::string_view source,
+                                  int line_number) {
+  size_t gyro_present = 0;
+  for (size_t i = kGyroColumns; i < kRequiredColumns.size(); ++i) {
+    gyro_present += layout.required[i] >= 0;
+  }
+  for (size_t i = 0; i < kRequiredColumns.size(); ++i) {
+    if (layout.required[i] >= 0 || (i >= kGyroColumns && gyro_present == 0)) continue;
+    return LineError(source, line_number,
+                     Cat("missing required column '", kRequiredColumns[i], "'",
+                         i >= kGyroColumns ? " (give all of gx, gy, gz, or none for an "
+                                             "accelerometer-only capture)"
+                                           : ""));
+  }
+  return absl::OkStatus();
+}
 
 absl::StatusOr<ColumnLayout> ParseColumnLine(std::string_view line, std::string_view source,
                                              int line_number) {
@@ -186,12 +209,7 @@ absl::StatusOr<ColumnLayout> ParseColumnLine(std::string_view line, std::string_
     if (comma == std::string_view::npos) break;
     start = comma + 1;
   }
-  for (size_t i = 0; i < kRequiredColumns.size(); ++i) {
-    if (layout.required[i] < 0) {
-      return LineError(source, line_number,
-                       Cat("missing required column '", kRequiredColumns[i], "'"));
-    }
-  }
+  if (absl::Status s = CheckRequiredColumns(layout, source, line_number); !s.ok()) return s;
   return layout;
 }
 
@@ -242,7 +260,7 @@ void ReserveSamples(size_t rows, const ColumnLayout& layout, core::Capture* capt
   capture->t_s.reserve(rows);
   capture->line.reserve(rows);
   capture->accel.reserve(rows);
-  capture->gyro.reserve(rows);
+  if (layout.has_gyro()) capture->gyro.reserve(rows);
   if (layout.temp >= 0) capture->temp.reserve(rows);
   capture->extra_column_names.reserve(layout.extra.size());
   capture->extra_columns.resize(layout.extra.size());
@@ -274,7 +292,7 @@ absl::Status ParseCsvRows(LineCursor* lines, const ColumnLayout& layout, std::st
     capture->t_s.push_back(t_s);
     auto at = [&](size_t k) { return row[static_cast<size_t>(col[k])]; };
     capture->accel.emplace_back(at(1), at(2), at(3));
-    capture->gyro.emplace_back(at(4), at(5), at(6));
+    if (layout.has_gyro()) capture->gyro.emplace_back(at(4), at(5), at(6));
     if (layout.temp >= 0) capture->temp.push_back(row[static_cast<size_t>(layout.temp)]);
     for (size_t k = 0; k < layout.extra.size(); ++k) {
       capture->extra_columns[k].push_back(row[static_cast<size_t>(layout.extra[k])]);
@@ -413,14 +431,21 @@ absl::StatusOr<core::Capture> ParseImucalCsv(std::string_view text, std::string_
       continue;
     }
     // The first line that is neither blank nor metadata names the columns.
-    if (absl::Status s = CheckRequiredHeaders(seen, source_name, line_number); !s.ok()) return s;
     absl::StatusOr<ColumnLayout> layout = ParseColumnLine(line, source_name, line_number);
     if (!layout.ok()) return layout.status();
+    capture.has_gyro = layout->has_gyro();
+    if (absl::Status s = CheckRequiredHeaders(seen, source_name, line_number, capture.has_gyro);
+        !s.ok()) {
+      return s;
+    }
     if (absl::Status s = ParseCsvRows(&lines, *layout, source_name, &capture); !s.ok()) return s;
     return capture;
   }
   const int last_line = lines.line_number();
-  if (absl::Status s = CheckRequiredHeaders(seen, source_name, last_line); !s.ok()) return s;
+  if (absl::Status s = CheckRequiredHeaders(seen, source_name, last_line, /*has_gyro=*/false);
+      !s.ok()) {
+    return s;
+  }
   return LineError(source_name, last_line, "missing column line (t,ax,ay,az,gx,gy,gz)");
 }
 
@@ -439,20 +464,24 @@ absl::Status CheckCaptureWritable(const core::Capture& capture) {
 std::string FormatImucalCsv(const core::Capture& capture) {
   // Rows are written up to the shortest sample vector, so a capture that breaks the
   // precondition cannot make this read out of bounds.
-  size_t rows = std::min({capture.t_s.size(), capture.accel.size(), capture.gyro.size()});
+  const bool has_gyro = capture.has_gyro;
+  size_t rows = std::min(capture.t_s.size(), capture.accel.size());
+  if (has_gyro) rows = std::min(rows, capture.gyro.size());
   const bool has_temp = capture.has_temp();
   if (has_temp) rows = std::min(rows, capture.temp.size());
   const size_t extra = std::min(capture.extra_column_names.size(), capture.extra_columns.size());
   for (size_t k = 0; k < extra; ++k) rows = std::min(rows, capture.extra_columns[k].size());
 
   std::string out;
-  const size_t columns = 7 + (has_temp ? 1 : 0) + extra;
+  const size_t columns = (has_gyro ? 7 : 4) + (has_temp ? 1 : 0) + extra;
   // About 12 characters per value is typical; the string grows if the guess is short.
   out.reserve(512 + rows * columns * 12);
   AppendTo(&out, kImucalCaptureMarker, "\n");
   if (!capture.device.empty()) AppendTo(&out, "# ", kKeyDevice, "=", capture.device, "\n");
   AppendTo(&out, "# ", kKeyAccelUnit, "=", core::AccelUnitName(capture.accel_unit), "\n");
-  AppendTo(&out, "# ", kKeyGyroUnit, "=", core::GyroUnitName(capture.gyro_unit), "\n");
+  if (has_gyro) {
+    AppendTo(&out, "# ", kKeyGyroUnit, "=", core::GyroUnitName(capture.gyro_unit), "\n");
+  }
   AppendTo(&out, "# ", kKeyGravity, "=", FormatDouble(capture.gravity_m_s2), "\n");
   if (capture.rate_hz > 0.0) {
     AppendTo(&out, "# ", kKeyRateHz, "=", FormatDouble(capture.rate_hz), "\n");
@@ -464,7 +493,8 @@ std::string FormatImucalCsv(const core::Capture& capture) {
     AppendTo(&out, "# ", key, "=", value, "\n");
   }
 
-  out.append(Join(kRequiredColumns, ","));
+  out.append(Join(
+      std::span(kRequiredColumns).first(has_gyro ? kRequiredColumns.size() : kGyroColumns), ","));
   if (has_temp) AppendTo(&out, ",", kTempColumn);
   for (size_t k = 0; k < extra; ++k) AppendTo(&out, ",", capture.extra_column_names[k]);
   out.push_back('\n');
@@ -476,7 +506,9 @@ std::string FormatImucalCsv(const core::Capture& capture) {
     RowWriter writer(row.data(), row.data() + row.size());
     writer.Add(capture.t_s[i]);
     for (int axis = 0; axis < 3; ++axis) writer.Add(capture.accel[i][axis]);
-    for (int axis = 0; axis < 3; ++axis) writer.Add(capture.gyro[i][axis]);
+    if (has_gyro) {
+      for (int axis = 0; axis < 3; ++axis) writer.Add(capture.gyro[i][axis]);
+    }
     if (has_temp) writer.Add(capture.temp[i]);
     for (size_t k = 0; k < extra; ++k) writer.Add(capture.extra_columns[k][i]);
     writer.EndRow();

@@ -22,6 +22,9 @@ inline constexpr std::string_view kImucalCaptureMarker = "# imucal-capture v1";
 // '#' counts as blank). Unknown header keys go to `extra_metadata` in file order; columns other
 // than t,ax,ay,az,gx,gy,gz,temp go to `extra_columns` in file order. A capture with a column line
 // and no rows is valid (and empty).
+// A compatible extension of the spec: the gyro columns gx,gy,gz are required together or absent
+// together; without them the capture is accelerometer-only (core::Capture::has_gyro false) and
+// the gyro_unit header is optional. FormatImucalCsv writes such a capture the same way.
 absl::StatusOr<core::Capture> ParseImucalCsv(std::string_view text, std::string_view source_name);
 
 // Reads `path` with one read and parses it; errors are prefixed with `path`.

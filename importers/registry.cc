@@ -185,7 +185,14 @@ absl::StatusOr<core::Capture> JoinCaptures(std::vector<core::Capture> parts,
   bool extras = true;
   for (size_t k = 1; k < parts.size(); ++k) {
     const core::Capture& p = parts[k];
-    if (p.accel_unit != out.accel_unit || p.gyro_unit != out.gyro_unit) {
+    if (p.has_gyro != out.has_gyro) {
+      const core::Capture& without = p.has_gyro ? out : p;
+      return absl::InvalidArgumentError(
+          Cat("the files do not agree on the sensors: ", file_name(without),
+              " has no gyroscope columns and ", file_name(p.has_gyro ? p : out),
+              " has (calibrate accelerometer-only files on their own)"));
+    }
+    if (p.accel_unit != out.accel_unit || (out.has_gyro && p.gyro_unit != out.gyro_unit)) {
       return absl::InvalidArgumentError(
           Cat("the files do not agree on units: ", file_name(out), " has accel ",
               core::AccelUnitName(out.accel_unit), ", gyro ", core::GyroUnitName(out.gyro_unit),
@@ -275,7 +282,8 @@ void ApplyImportOverrides(const ImportOptions& options, core::Capture* capture,
                          " used instead of the file's ", core::AccelUnitName(capture->accel_unit)));
     capture->accel_unit = *options.accel_unit;
   }
-  if (options.gyro_unit.has_value() && *options.gyro_unit != capture->gyro_unit) {
+  if (capture->has_gyro && options.gyro_unit.has_value() &&
+      *options.gyro_unit != capture->gyro_unit) {
     notes->push_back(Cat("gyro unit ", core::GyroUnitName(*options.gyro_unit),
                          " used instead of the file's ", core::GyroUnitName(capture->gyro_unit)));
     capture->gyro_unit = *options.gyro_unit;

@@ -36,8 +36,9 @@ enum class ColumnTimeUnit { kSeconds, kMilliseconds, kMicroseconds, kNanoseconds
 
 // Options of the column-mapped CSV importer ("columns"; importers/columns.h documents them).
 struct ColumnCsvOptions {
-  // "ax=NAME,ay=NAME,az=NAME,gx=NAME,gy=NAME,gz=NAME[,t=NAME][,temp=NAME]"; NAME is a header
-  // name or a 1-based column number. Empty: not configured (then "auto" never picks "columns").
+  // "ax=NAME,ay=NAME,az=NAME[,gx=NAME,gy=NAME,gz=NAME][,t=NAME][,temp=NAME]"; NAME is a header
+  // name or a 1-based column number; without gx, gy, gz the capture is accelerometer-only.
+  // Empty: not configured (then "auto" never picks "columns").
   std::string map;
   ColumnTimeUnit time_unit = ColumnTimeUnit::kSeconds;  // of the t column
   std::optional<double> rate_hz;   // sample rate: needed without a t column or with kSampleIndex
@@ -46,6 +47,9 @@ struct ColumnCsvOptions {
   std::string delimiter;           // ",", ";", "tab", "space"; empty: detected from the header
   bool no_header = false;          // the file has no header line (NAME must be a number)
   bool sort_by_time = false;       // rows out of time order are sorted instead of an error
+  // Rows that leave a mapped column empty (an interleaved log: each row fills one sensor's
+  // columns) are skipped and counted in a note, instead of an error.
+  bool skip_incomplete_rows = false;
   std::optional<core::TempUnit> temp_unit;
 };
 

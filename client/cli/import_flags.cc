@@ -15,7 +15,9 @@ const char kImportFlagsHelp[] =
     "input formats (--format, default auto): imucal CSV, EuRoC imu0/data.csv, imu_tk pair,\n"
     "  ROS 2 bag (directory with metadata.yaml, sqlite3 or mcap storage; a .db3 or .mcap file),\n"
     "  and vendor CSV with --columns:\n"
-    "  --columns ax=C,ay=C,az=C,gx=C,gy=C,gz=C[,t=C][,temp=C]   C: header name or column number\n"
+    "  --columns ax=C,ay=C,az=C[,gx=C,gy=C,gz=C][,t=C][,temp=C]   C: header name or column "
+    "number;\n"
+    "                    without gx,gy,gz: an accelerometer-only capture\n"
     "  --time-unit s|ms|us|ns|index   unit of the t column (index: a sample counter; needs a "
     "rate)\n"
     "  --rate HZ | --rate-from-preamble KEY   sample rate (needed without t, or with index)\n"
@@ -23,6 +25,8 @@ const char kImportFlagsHelp[] =
     "columns)\n"
     "  --delimiter ,|;|tab|space   (default: detected)   --no-header   columns by number only\n"
     "  --sort-time       sort rows by time (a file saved part by part) instead of an error\n"
+    "  --skip-incomplete-rows   skip (and count) rows that leave a mapped column empty, as an\n"
+    "                    interleaved log of several sensors writes them, instead of an error\n"
     "  --temp-unit C|counts\n"
     "  --topic NAME      ROS 2 bag: the sensor_msgs/msg/Imu topic (default: the only one)\n";
 
@@ -30,7 +34,7 @@ namespace {
 
 const std::vector<std::string> kColumnValued = {
     "columns", "time-unit", "rate", "rate-from-preamble", "skip-lines", "delimiter", "temp-unit"};
-const std::vector<std::string> kColumnSwitches = {"no-header", "sort-time"};
+const std::vector<std::string> kColumnSwitches = {"no-header", "sort-time", "skip-incomplete-rows"};
 
 absl::Status FlagError(const std::string& flag, absl::string_view message) {
   return absl::InvalidArgumentError(absl::StrCat("--", flag, ": ", message));
@@ -87,6 +91,7 @@ absl::Status ApplyImportFlags(const Args& a, importers::ImportOptions* o) {
   }
   c.no_header = a.Has("no-header");
   c.sort_by_time = a.Has("sort-time");
+  c.skip_incomplete_rows = a.Has("skip-incomplete-rows");
   if (o->format != "auto" && o->format != "columns") {
     return FlagError("columns", absl::StrCat("needs --format columns or auto, not ", o->format));
   }

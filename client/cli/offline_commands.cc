@@ -216,34 +216,58 @@ absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
   return o;
 }
 
-// Applies `params` to every sample of `in` through the SDK's Corrector (as a robot does).
+// Units the parameters expect and the capture does not have. The gyro unit matters only when
+// both have a gyroscope.
+absl::Status CheckApplyUnits(const core::ParamSet& params, const core::Capture& in) {
+  const bool gyro_differs = params.has_gyro && in.has_gyro && in.gyro_unit != params.gyro_unit;
+  if (in.accel_unit == params.accel_unit && !gyro_differs) return absl::OkStatus();
+  return absl::InvalidArgumentError(absl::StrFormat(
+      "units differ: the capture is accel %s / gyro %s, the parameters expect %s / %s",
+      core::AccelUnitName(in.accel_unit), core::GyroUnitName(in.gyro_unit),
+      core::AccelUnitName(params.accel_unit), core::GyroUnitName(params.gyro_unit)));
+}
+
+// Applies `params` to every sample of `in` through the SDK's Corrector (as a robot does). A
+// parameter set without a gyroscope leaves the capture's gyro as read, in its own unit.
 absl::StatusOr<core::Capture> ApplyParams(const core::ParamSet& params, const core::Capture& in) {
-  if (in.accel_unit != params.accel_unit || in.gyro_unit != params.gyro_unit) {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "units differ: the capture is accel %s / gyro %s, the parameters expect %s / %s",
-        core::AccelUnitName(in.accel_unit), core::GyroUnitName(in.gyro_unit),
-        core::AccelUnitName(params.accel_unit), core::GyroUnitName(params.gyro_unit)));
-  }
+  if (absl::Status s = CheckApplyUnits(params, in); !s.ok()) return s;
   auto corrector =
       sdk::Corrector::Create(params, in.size() ? std::optional<double>(in.t_s[0]) : std::nullopt);
   if (!corrector.ok()) return corrector.status();
   core::Capture out = in;
   out.accel_unit = core::AccelUnit::kMetersPerSecond2;
-  out.gyro_unit = core::GyroUnit::kRadPerSecond;
+  if (params.has_gyro) out.gyro_unit = core::GyroUnit::kRadPerSecond;
   for (size_t i = 0; i < in.size(); ++i) {
     sdk::RawSample raw;
     raw.t_s = in.t_s[i];
     for (int k = 0; k < 3; ++k) {
       raw.accel[k] = in.accel[i](k);
-      raw.gyro[k] = in.gyro[i](k);
+      raw.gyro[k] = in.has_gyro ? in.gyro[i](k) : 0.0;  // no gyro: nothing is written back
     }
     if (in.has_temp()) raw.temp_c = in.temp[i];
     sdk::CalibratedSample c;
     corrector->Apply(raw, &c);
     out.accel[i] = Eigen::Vector3d(c.accel_m_s2[0], c.accel_m_s2[1], c.accel_m_s2[2]);
-    out.gyro[i] = Eigen::Vector3d(c.gyro_rad_s[0], c.gyro_rad_s[1], c.gyro_rad_s[2]);
+    if (in.has_gyro)
+      out.gyro[i] = Eigen::Vector3d(c.gyro_rad_s[0], c.gyro_rad_s[1], c.gyro_rad_s[2]);
   }
   return out;
+}
+
+// What `apply` wrote, in one line: which sensors were corrected.
+std::string AppliedText(const core::ParamSet& params, const core::Capture& in,
+                        const core::Capture& out) {
+  if (!in.has_gyro) {
+    return absl::StrFormat(
+        "calibrated accelerometer samples (m/s^2; the capture has no gyroscope)");
+  }
+  if (!params.has_gyro) {
+    return absl::StrFormat(
+        "samples: accelerometer calibrated (m/s^2); gyro left as read (%s): the parameter set "
+        "has no gyroscope part",
+        core::GyroUnitName(out.gyro_unit));
+  }
+  return "calibrated samples (m/s^2, rad/s)";
 }
 
 core::SimOptions DemoCaptureOptions(uint64_t seed, int extra_poses) {
@@ -371,10 +395,11 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   if (a->Has("json")) {
     std::fputs(json.c_str(), stdout);
   } else {
-    std::printf("input       %s (%s, %zu samples, accel %s, gyro %s)\n",
-                absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(), capture->size(),
-                std::string(core::AccelUnitName(capture->accel_unit)).c_str(),
-                std::string(core::GyroUnitName(capture->gyro_unit)).c_str());
+    std::printf(
+        "input       %s (%s, %zu samples, accel %s, gyro %s)\n",
+        absl::StrJoin(import.paths, " + ").c_str(), import.format.c_str(), capture->size(),
+        std::string(core::AccelUnitName(capture->accel_unit)).c_str(),
+        capture->has_gyro ? std::string(core::GyroUnitName(capture->gyro_unit)).c_str() : "none");
     for (const auto& n : import.notes) std::printf("note        %s\n", n.c_str());
     std::fputs(FormatSummary(*report).c_str(), stdout);
     for (const auto& p : plot_paths) std::printf("wrote       %s\n", p.c_str());
@@ -404,7 +429,7 @@ int RunApply(const std::vector<std::string>& argv) {
   if (!out.ok()) return ReportError(out.status());
   if (absl::Status s = importers::WriteImucalCsvFile(*out, a->positional().back()); !s.ok())
     return ReportError(s);
-  std::printf("wrote %zu calibrated samples (m/s^2, rad/s) to %s\n", out->size(),
+  std::printf("wrote %zu %s to %s\n", out->size(), AppliedText(*params, *capture, *out).c_str(),
               a->positional().back().c_str());
   return kExitOk;
 }

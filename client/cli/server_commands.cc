@@ -470,6 +470,11 @@ int RunUpload(const std::vector<std::string>& argv) {
   if (!io.ok()) return UsageError(std::string(io.status().message()), kUploadHelp);
   auto capture = importers::ImportCapture(a->positional(), *io);
   if (!capture.ok()) return ReportError(capture.status());
+  if (!capture->has_gyro) {
+    std::fprintf(stderr, "imucal: %s: %s\n", a->positional().front().c_str(),
+                 sdk::kNoGyroUploadMessage);
+    return kExitBadInput;
+  }
 
   Server server = Connect(*a);
   pb::Session session;
@@ -658,7 +663,7 @@ std::string FormatReportSummary(const json& r) {
     // printed as `calibrate`'s summary prints them.
     absl::StatusOr<core::ParamSet> params = formats::ParamSetFromJson(r["parameters"].dump());
     if (params.ok()) {
-      out += FormatAllanFigures(params->noise);
+      out += FormatAllanFigures(params->noise, params->has_gyro);
     } else {
       absl::StrAppendFormat(&out, "allan       not shown: %s\n", params.status().message());
     }

@@ -52,7 +52,7 @@ void AppendSensorFigures(const char* sensor, const core::SensorNoise& s, const c
 
 }  // namespace
 
-std::string FormatAllanFigures(const std::optional<core::NoiseFigures>& noise) {
+std::string FormatAllanFigures(const std::optional<core::NoiseFigures>& noise, bool has_gyro) {
   if (!noise.has_value()) {
     return "allan       no noise figures (no used static interval long enough for an Allan "
            "deviation)\n";
@@ -63,7 +63,9 @@ std::string FormatAllanFigures(const std::optional<core::NoiseFigures>& noise) {
       "continuous-time; n/a: not reached\n",
       n.t_start_s, n.t_end_s, static_cast<int>(n.samples), n.rate_hz);
   AppendSensorFigures("accel", n.accel, "m/s^2/sqrt(Hz)", "m/s^2", "m/s^3/sqrt(Hz)", &s);
-  AppendSensorFigures("gyro", n.gyro, "rad/s/sqrt(Hz)", "rad/s", "rad/s^2/sqrt(Hz)", &s);
+  if (has_gyro) {
+    AppendSensorFigures("gyro", n.gyro, "rad/s/sqrt(Hz)", "rad/s", "rad/s^2/sqrt(Hz)", &s);
+  }
   for (const std::string& note : n.notes) absl::StrAppendFormat(&s, "  note: %s\n", note);
   return s;
 }
@@ -77,10 +79,18 @@ std::string FormatSummary(const core::CalibrationReport& r) {
   absl::StrAppendFormat(&s, "device      %s\n", r.device.empty() ? "(unnamed)" : r.device);
   absl::StrAppendFormat(&s, "protocol    %s%s\n", core::ProtocolKindName(r.protocol),
                         r.protocol_detected ? " (detected)" : " (declared)");
-  absl::StrAppendFormat(&s, "noise       accel %s %s, gyro %s %s per sample; from the %s\n",
-                        Vec(r.noise.accel_std, 3), core::AccelUnitName(p.accel_unit),
-                        Vec(r.noise.gyro_std, 3), core::GyroUnitName(p.gyro_unit), r.noise.source);
-  s += FormatAllanFigures(p.noise);
+  if (p.has_gyro) {
+    absl::StrAppendFormat(&s, "noise       accel %s %s, gyro %s %s per sample; from the %s\n",
+                          Vec(r.noise.accel_std, 3), core::AccelUnitName(p.accel_unit),
+                          Vec(r.noise.gyro_std, 3), core::GyroUnitName(p.gyro_unit),
+                          r.noise.source);
+  } else {
+    absl::StrAppendFormat(&s, "sensors     accelerometer only (the capture has no gyroscope)\n");
+    absl::StrAppendFormat(&s, "noise       accel %s %s per sample; from the %s\n",
+                          Vec(r.noise.accel_std, 3), core::AccelUnitName(p.accel_unit),
+                          r.noise.source);
+  }
+  s += FormatAllanFigures(p.noise, p.has_gyro);
   absl::StrAppendFormat(&s, "poses       %d static intervals, %d used (threshold %.0fx noise)\n",
                         static_cast<int>(r.poses.size()), used, r.threshold_multiplier);
   for (const auto& pose : r.poses) {
@@ -89,9 +99,12 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                           pose.interval.t_start_s, pose.interval.t_end_s, pose.interval.reason);
   }
   for (const auto& pair : r.pairs) {
-    absl::StrAppendFormat(&s, "  pair %2d+%-2d %-3s %-8s turn %6.1f deg, tilt %.2f deg %s\n",
-                          pair.pose_a, pair.pose_b, pair.face, pair.ok ? "ok" : "REJECTED",
-                          pair.rotation_deg, pair.tilt_deg, pair.reason);
+    const std::string turn = pair.turn_checked
+                                 ? absl::StrFormat("turn %6.1f deg", pair.rotation_deg)
+                                 : std::string("turn not checked");
+    absl::StrAppendFormat(&s, "  pair %2d+%-2d %-3s %-8s %s, tilt %.2f deg %s\n", pair.pose_a,
+                          pair.pose_b, pair.face, pair.ok ? "ok" : "REJECTED", turn, pair.tilt_deg,
+                          pair.reason);
   }
   if (r.verdict == core::Verdict::kRefused) {
     absl::StrAppendFormat(&s, "verdict     refused   (%.0f ms)\n", r.total_ms);
@@ -113,7 +126,9 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                         Accel(res.accel_max_m_s2, g));
   absl::StrAppendFormat(&s, "            held out (leave one pose out) RMS %s, max %s\n",
                         Accel(res.accel_heldout_rms_m_s2, g), Accel(res.accel_heldout_max_m_s2, g));
-  if (p.gyro_unit == core::GyroUnit::kCounts && !p.gyro_calibrated) {
+  if (!p.has_gyro) {
+    // Nothing to print: an accelerometer-only parameter set has no gyro figure, not a zero one.
+  } else if (p.gyro_unit == core::GyroUnit::kCounts && !p.gyro_calibrated) {
     // No scale was determined: the residual rate is still in the sensor's counts.
     absl::StrAppendFormat(&s, "gyro        static rate RMS %.3g counts (scale not calibrated)\n",
                           res.gyro_static_rms_rad_s);
@@ -156,11 +171,15 @@ std::string FormatSummary(const core::CalibrationReport& r) {
   absl::StrAppendFormat(&s, "  accel t_yx,t_zx,t_zy %s rad; frame %s rad; quadratic %s 1/(m/s^2)\n",
                         Vec(p.accel.tri_angles, 3), Vec(p.accel.frame_angles, 3),
                         Vec(p.accel.quadratic, 3));
-  absl::StrAppendFormat(&s, "  gyro bias      %s %s\n", Vec(p.gyro.bias, 6),
-                        core::GyroUnitName(p.gyro_unit));
-  absl::StrAppendFormat(&s, "  gyro scale     %s rad/s per %s%s\n",
-                        Vec(p.gyro.matrix.diagonal(), 6), core::GyroUnitName(p.gyro_unit),
-                        p.gyro_calibrated ? "" : " (NOT calibrated: nominal)");
+  if (p.has_gyro) {
+    absl::StrAppendFormat(&s, "  gyro bias      %s %s\n", Vec(p.gyro.bias, 6),
+                          core::GyroUnitName(p.gyro_unit));
+    absl::StrAppendFormat(&s, "  gyro scale     %s rad/s per %s%s\n",
+                          Vec(p.gyro.matrix.diagonal(), 6), core::GyroUnitName(p.gyro_unit),
+                          p.gyro_calibrated ? "" : " (NOT calibrated: nominal)");
+  } else {
+    s += "  gyro           none (accelerometer-only capture)\n";
+  }
   const core::EffectDiagnostics& d = r.effect_diagnostics;
   if (d.ran) {
     absl::StrAppendFormat(

@@ -17,7 +17,9 @@ std::string FormatSummary(const core::CalibrationReport& report);
 // continuous-time. A random walk the rest did not reach shows the data's upper bound, marked
 // "<" and labelled. Shared by `calibrate` and the server's `report`; no noise block: one line
 // that says so.
-std::string FormatAllanFigures(const std::optional<core::NoiseFigures>& noise);
+// `has_gyro` false: the accelerometer's figures only (an accelerometer-only parameter set).
+std::string FormatAllanFigures(const std::optional<core::NoiseFigures>& noise,
+                               bool has_gyro = true);
 
 }  // namespace imucal::cli
 

@@ -84,7 +84,9 @@ bool UsesSignal(const core::Regressor& r, core::Signal signal) {
 absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
                                             std::optional<double> time_origin_s) {
   if (absl::Status s = AccelParamsAreValid(params.accel); !s.ok()) return s;
-  if (absl::Status s = GyroParamsAreValid(params.gyro); !s.ok()) return s;
+  if (params.has_gyro) {
+    if (absl::Status s = GyroParamsAreValid(params.gyro); !s.ok()) return s;
+  }
   if (time_origin_s.has_value() && !std::isfinite(*time_origin_s)) {
     return absl::InvalidArgumentError("time origin: not finite");
   }
@@ -96,9 +98,14 @@ absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
   c.accel_scale_ = params.accel.scale;
   c.accel_quadratic_ = params.accel.quadratic;
   c.accel_has_quadratic_ = !params.accel.quadratic.isZero(0.0);
-  c.gyro_matrix_ = params.gyro.matrix;
-  c.gyro_bias_ = params.gyro.bias;
-  c.gyro_accel_coupling_ = params.gyro.accel_coupling;
+  // Without a gyroscope the defaults (identity, zero bias, no coupling) pass the reading through
+  // bit for bit: 1*u + 0*v + 0*w == u for finite values.
+  c.has_gyro_ = params.has_gyro;
+  if (params.has_gyro) {
+    c.gyro_matrix_ = params.gyro.matrix;
+    c.gyro_bias_ = params.gyro.bias;
+    c.gyro_accel_coupling_ = params.gyro.accel_coupling;
+  }
   c.time_origin_s_ = time_origin_s;
   c.time_origin_or_zero_s_ = time_origin_s.value_or(0.0);
   c.accel_unit_ = params.accel_unit;
@@ -116,6 +123,9 @@ absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
     }
     const std::string mismatch = core::CentreMismatch(*regressor, params.effect_reference);
     if (!mismatch.empty()) return PathError(path + ".regressor", mismatch);
+    if (e.sensor == core::Sensor::kGyro && !params.has_gyro) {
+      return PathError(path + ".sensor", "a gyro effect in a parameter set without a gyroscope");
+    }
     if (!e.applied) continue;
     CompiledEffect compiled;
     compiled.regressor = *regressor;
@@ -196,7 +206,7 @@ absl::Status Corrector::CheckInputUnits(core::AccelUnit accel, core::GyroUnit gy
                                       " but the parameters expect " +
                                       std::string(formats::UnitName(accel_unit_)));
   }
-  if (gyro != gyro_unit_) {
+  if (has_gyro_ && gyro != gyro_unit_) {
     return absl::InvalidArgumentError("gyro unit " + std::string(formats::UnitName(gyro)) +
                                       " but the parameters expect " +
                                       std::string(formats::UnitName(gyro_unit_)));

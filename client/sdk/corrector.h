@@ -13,6 +13,10 @@
 // applied effect whose regressor uses temperature is skipped on a sample without temperature
 // (temp_c NaN) and counted in CalibratedSample::effects_skipped.
 //
+// A parameter set without a gyroscope (core::ParamSet::has_gyro false, fitted on an
+// accelerometer-only capture) corrects the accelerometer only: gyro_rad_s is then the gyro
+// reading exactly as given (its own unit, not rad/s), and any gyro unit is accepted.
+//
 // Thread safety: a Corrector is immutable after Create; Apply is const, allocation-free and
 // noexcept, so any number of threads may share one Corrector.
 #ifndef IMUCAL_CLIENT_SDK_CORRECTOR_H_
@@ -78,6 +82,8 @@ class Corrector {
   // CheckInputUnits says which one differs.
   core::AccelUnit accel_unit() const { return accel_unit_; }
   core::GyroUnit gyro_unit() const { return gyro_unit_; }
+  // False: the parameter set has no gyroscope part; Apply leaves the gyro as read.
+  bool has_gyro() const { return has_gyro_; }
   absl::Status CheckInputUnits(core::AccelUnit accel, core::GyroUnit gyro) const;
 
  private:
@@ -102,6 +108,7 @@ class Corrector {
   Eigen::Matrix3d gyro_matrix_ = Eigen::Matrix3d::Identity();
   Eigen::Vector3d gyro_bias_ = Eigen::Vector3d::Zero();
   Eigen::Matrix3d gyro_accel_coupling_ = Eigen::Matrix3d::Zero();
+  bool has_gyro_ = true;
 
   std::vector<CompiledEffect> effects_;
   bool needs_temperature_ = false;

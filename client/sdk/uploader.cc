@@ -74,7 +74,9 @@ SampleColumns ColumnsFromCapture(const core::Capture& capture) {
   s.gyro.reserve(3 * n);
   for (size_t i = 0; i < n; ++i) {
     for (int k = 0; k < 3; ++k) s.accel.push_back(capture.accel[i][k]);
-    for (int k = 0; k < 3; ++k) s.gyro.push_back(capture.gyro[i][k]);
+    if (capture.has_gyro) {  // else none: Upload refuses a capture without a gyroscope
+      for (int k = 0; k < 3; ++k) s.gyro.push_back(capture.gyro[i][k]);
+    }
   }
   if (capture.has_temp() && capture.temp_unit == core::TempUnit::kCelsius) s.temp_c = capture.temp;
   return s;
@@ -124,6 +126,7 @@ absl::StatusOr<pb::Session> Uploader::GetSession(const std::string& session_id) 
 
 absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
                                               const core::Capture& capture) {
+  if (!capture.has_gyro) return absl::InvalidArgumentError(kNoGyroUploadMessage);
   return Upload(session_id, ColumnsFromCapture(capture));
 }
 

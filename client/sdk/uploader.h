@@ -63,6 +63,12 @@ struct SampleColumns {
 // (a temperature in counts has no meaning to the server and is left out).
 SampleColumns ColumnsFromCapture(const core::Capture& capture);
 
+// Why a capture without a gyroscope (core::Capture::has_gyro false) is not uploaded: a session
+// streams both sensors (proto SampleBatch), and the server's calibration needs the gyroscope.
+inline constexpr char kNoGyroUploadMessage[] =
+    "the capture has no gyroscope: the service's sessions stream accelerometer and gyroscope "
+    "together; calibrate an accelerometer-only capture offline (imucal calibrate)";
+
 struct UploadOptions {
   int batch_samples = 2000;  // samples per batch (the last one may be shorter)
   int max_in_flight = 8;     // batches sent and not yet acknowledged

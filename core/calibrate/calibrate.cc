@@ -115,8 +115,9 @@ bool RefuseWrongUnit(const Capture& cap, const std::vector<StaticInterval>& inte
 }
 
 // What the verdict reads: the final figures, the parameters' spreads, what the model lacks.
+// `gyro` is null for a capture without a gyroscope (nothing is missing from its model).
 VerdictInputs VerdictInputsOf(const CalibrationReport& rep, const AccelStage& accel,
-                              const GyroFit& gyro) {
+                              const GyroFit* gyro) {
   VerdictInputs in;
   in.accel_rms_m_s2 = rep.residual.accel_rms_m_s2;
   in.accel_heldout_rms_m_s2 = rep.residual.accel_heldout_rms_m_s2;
@@ -130,13 +131,113 @@ VerdictInputs VerdictInputsOf(const CalibrationReport& rep, const AccelStage& ac
   in.parameters = ParameterSpreads(rep.params, accel.free);
   SetLonePoses(rep.poses, &in);
   in.incomplete = accel.incomplete;
-  if (!gyro.calibrated)
+  if (gyro != nullptr && !gyro->calibrated)
     in.incomplete.push_back("gyroscope: only the bias was calibrated (the warnings say why)");
   for (const PairCheck& pair : rep.pairs)
     if (!pair.ok)
       in.incomplete.push_back(absl::StrFormat("six-face pair of poses %d and %d (%s) rejected",
                                               pair.pose_a, pair.pose_b, pair.face));
   return in;
+}
+
+// The report's start: the capture's units, for a report that ends before the parameter set (a
+// refusal).
+void StartReport(const Capture& cap, CalibrationReport* rep) {
+  rep->device = cap.device;
+  rep->input_units = {cap.accel_unit, cap.gyro_unit, cap.accel_unit_source, cap.gyro_unit_source};
+  rep->gravity_m_s2 = cap.gravity_m_s2;
+  // The capture's units, for a report that ends before the parameter set (a refusal).
+  rep->params.device = cap.device;
+  rep->params.accel_unit = cap.accel_unit;
+  rep->params.gyro_unit = cap.gyro_unit;
+  rep->params.gravity_m_s2 = cap.gravity_m_s2;
+  rep->params.has_gyro = cap.has_gyro;
+}
+
+// What the static detector and the noise analysis read for a capture without a gyroscope: the
+// same samples with a gyroscope that reads exactly zero, so that the accelerometer alone decides
+// what is still (both read the gyro of every sample). Nothing else sees it: every stage that
+// would believe a gyro reading is skipped, and the gyro figures they return are dropped.
+Capture WithStillGyro(const Capture& cap) {
+  Capture view = cap;
+  view.has_gyro = true;
+  view.gyro.assign(cap.size(), Eigen::Vector3d::Zero());
+  return view;
+}
+
+// The noise block of an accelerometer-only parameter set: the accelerometer's figures only.
+void AttachAccelNoise(const Capture& still_view, const std::vector<StaticInterval>& intervals,
+                      CalibrationReport* rep) {
+  absl::StatusOr<NoiseAnalysis> noise =
+      NoiseFromLongestInterval(still_view, intervals, rep->params);
+  if (!noise.ok()) return;
+  noise->figures.gyro = SensorNoise{};
+  std::erase_if(noise->figures.notes, [](const std::string& n) { return n.starts_with("gyro"); });
+  noise->curves.gyro_rad_s.clear();
+  rep->params.noise = std::move(noise->figures);
+  rep->allan = std::move(noise->curves);
+}
+
+// Calibrate for a capture without a gyroscope: the accelerometer stages alone. No gyroscope
+// stage, no turn checks (six-face pairs are checked on their faces only), no moves, no effects
+// search (it reads the gyroscope's moves); the parameter set has no gyro part.
+absl::StatusOr<CalibrationReport> CalibrateAccelOnly(const Capture& cap,
+                                                     const CalibrateOptions& opt) {
+  const auto t0 = std::chrono::steady_clock::now();
+  CalibrationReport rep;
+  PhaseTimer timer(&rep);
+  StartReport(cap, &rep);
+  const Capture still_view = WithStillGyro(cap);
+  const StaticPoses still = FindStaticPoses(still_view, opt);
+  rep.noise = still.noise;
+  rep.threshold_multiplier = still.multiplier;
+  Append(&rep.warnings, still.warnings);
+  timer.Mark("static");
+  if (still.refusal) return Refuse(cap, std::move(rep), *still.refusal, still.intervals);
+
+  const ProtocolChecks checks = CheckProtocol(cap, opt, still, RoughGyro{});
+  rep.protocol = checks.protocol;
+  rep.protocol_detected = checks.detected;
+  rep.pairs = checks.pairs;
+  Append(&rep.warnings, checks.warnings);
+  const std::vector<StaticInterval>& intervals = checks.intervals;
+  timer.Mark("protocol");
+
+  absl::StatusOr<AccelStage> accel = SolveAccel(cap, opt, rep.noise, checks);
+  if (absl::IsFailedPrecondition(accel.status())) {
+    return Refuse(cap, std::move(rep),
+                  {RefusalReason::kPosesTooAlike,
+                   absl::StrCat(accel.status().message(), ". ", RequirementsText())},
+                  intervals);
+  }
+  if (!accel.ok()) return accel.status();
+  Append(&rep.stages, accel->stages);
+  Append(&rep.warnings, accel->warnings);
+  rep.accel_chi2_reduced = accel->chi2_reduced;
+  timer.Mark("accel");
+
+  const AccelResiduals accel_residuals = ComputeAccelResiduals(
+      *accel, rep.protocol, checks.ups, cap.gravity_m_s2, opt.heldout, &rep.residual);
+  rep.poses = MakePoseReports(intervals, accel->params, accel_residuals);
+  AttachSources(cap, &rep.poses);
+  rep.params = MakeParamSet(cap, *accel, GyroFit{}, intervals, rep.residual, rep.noise);
+  rep.params.has_gyro = false;
+  if (RefuseWrongUnit(cap, intervals, accel->used, &rep)) return rep;
+  rep.warnings.push_back(
+      "accelerometer only: the capture has no gyroscope, so the parameter set has no gyro part "
+      "and nothing was checked with one (pair turns, gravity direction after the moves)");
+  if (opt.effects.enabled) {
+    rep.effect_diagnostics.notes.push_back(
+        "effects search skipped: it needs the gyroscope (the capture has none)");
+  }
+  AttachAccelNoise(still_view, intervals, &rep);
+  timer.Mark("report");
+
+  VerdictResult verdict = JudgeVerdict(VerdictInputsOf(rep, *accel, nullptr));
+  rep.verdict = verdict.verdict;
+  rep.verdict_reasons = std::move(verdict.reasons);
+  rep.total_ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return rep;
 }
 
 }  // namespace
@@ -160,16 +261,10 @@ std::string_view RefusalReasonName(RefusalReason reason) {
 absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateOptions& opt) {
   const auto t0 = std::chrono::steady_clock::now();
   if (absl::Status s = ValidateCapture(cap); !s.ok()) return s;
+  if (!cap.has_gyro) return CalibrateAccelOnly(cap, opt);
   CalibrationReport rep;
   PhaseTimer timer(&rep);
-  rep.device = cap.device;
-  rep.input_units = {cap.accel_unit, cap.gyro_unit, cap.accel_unit_source, cap.gyro_unit_source};
-  rep.gravity_m_s2 = cap.gravity_m_s2;
-  // The capture's units, for a report that ends before the parameter set (a refusal).
-  rep.params.device = cap.device;
-  rep.params.accel_unit = cap.accel_unit;
-  rep.params.gyro_unit = cap.gyro_unit;
-  rep.params.gravity_m_s2 = cap.gravity_m_s2;
+  StartReport(cap, &rep);
 
   // capture -> static poses
   const StaticPoses still = FindStaticPoses(cap, opt);
@@ -256,7 +351,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   // -> verdict. Undetermined first-order parameters make it warn at best; undetermined
   //    second-order terms do not (six-face determines seeds/000's 12-parameter model
   //    completely), but are warned of.
-  VerdictResult verdict = JudgeVerdict(VerdictInputsOf(rep, *accel, gyro.fit));
+  VerdictResult verdict = JudgeVerdict(VerdictInputsOf(rep, *accel, &gyro.fit));
   rep.verdict = verdict.verdict;
   rep.verdict_reasons = std::move(verdict.reasons);
   rep.total_ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

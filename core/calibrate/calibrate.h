@@ -61,6 +61,11 @@ struct CalibrateOptions {
 // refused, with the refusal (what the capture holds, what the models need) and every interval
 // found. Errors: InvalidArgument for a capture that fails ValidateCapture; Internal when a solver
 // fails on data it accepted.
+// A capture without a gyroscope (Capture::has_gyro false) gets the accelerometer stages alone:
+// the still poses from the accelerometer, the protocol's checks that need no gyroscope (a
+// six-face pair's turn is PairCheck::turn_checked false), ls/bsas/lm, held-out figures and the
+// accelerometer's noise; no gyroscope stage, moves, turns or effects search, and the parameter
+// set has has_gyro false.
 absl::StatusOr<CalibrationReport> Calibrate(const Capture& capture,
                                             const CalibrateOptions& options);
 

@@ -29,7 +29,9 @@ void CheckPairs(const Capture& cap, const std::vector<StaticInterval>& ivs,
     FacePose fp;
     fp.index = used[k];
     fp.up = out->ups[static_cast<size_t>(used[k])];
-    if (k > 0) {
+    if (k > 0 && !cap.has_gyro) {
+      fp.rotation_known = false;  // no gyroscope: the turn is not checked, not failed
+    } else if (k > 0) {
       const size_t begin = ivs[static_cast<size_t>(used[k - 1])].end - 1;
       const size_t end = ivs[static_cast<size_t>(used[k])].begin;
       fp.rotation_from_previous = IntegrateRotation(cap, begin, end, rough);
@@ -45,6 +47,11 @@ void CheckPairs(const Capture& cap, const std::vector<StaticInterval>& ivs,
   }
   SixFaceCheck check = CheckSixFacePairs(fps);
   out->pairs = check.pairs;
+  if (!cap.has_gyro && !out->pairs.empty()) {
+    out->warnings.push_back(
+        "six-face pairs: the half turns were not checked (the capture has no gyroscope); only "
+        "each pair's face and mirrored horizontal components were");
+  }
   for (const auto& p : out->pairs)
     if (!p.ok)
       out->warnings.push_back(absl::StrFormat("pair of poses %d and %d (%s) rejected: %s", p.pose_a,
@@ -83,7 +90,10 @@ void MarkDuplicates(const Capture& cap, const GyroParams& gyro, const TimeGaps& 
     if (previous >= 0) {
       const size_t p = static_cast<size_t>(previous);
       const double angle = AngleDeg(ups[i], ups[p]);
-      const double turned = PathAngle(cap, (*ivs)[p].end - 1, (*ivs)[i].begin, gyro) * kRadToDeg;
+      // Without a gyroscope a re-placement in the same orientation cannot be told from none:
+      // the poses count as one, which loses a repeat but never double-counts a rest.
+      const double turned =
+          cap.has_gyro ? PathAngle(cap, (*ivs)[p].end - 1, (*ivs)[i].begin, gyro) * kRadToDeg : 0.0;
       if (angle < kDuplicateDeg && turned < kNotTurnedDeg &&
           gaps.In((*ivs)[p].end - 1, (*ivs)[i].begin) < 0) {
         const bool keep_this = (*ivs)[i].samples() > (*ivs)[p].samples();
@@ -138,7 +148,8 @@ ProtocolChecks CheckProtocol(const Capture& cap, const CalibrateOptions& opt, co
   }
   if (out.protocol == ProtocolKind::kSixFace)
     CheckPairs(cap, ivs, used, sp.gaps, rough.params, &out);
-  if (out.protocol == ProtocolKind::kFerraris) CheckFerrarisTurns(rough.turns, &out);
+  if (out.protocol == ProtocolKind::kFerraris && cap.has_gyro)
+    CheckFerrarisTurns(rough.turns, &out);
   for (std::string& w : RepeatedOrientations(cap, ivs, out.ups))
     out.warnings.push_back(std::move(w));
   MarkDuplicates(cap, rough.params, sp.gaps, out.ups, &out.intervals);

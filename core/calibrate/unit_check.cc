@@ -93,6 +93,7 @@ std::optional<Refusal> CheckFittedUnits(const Capture& capture, const ParamSet& 
                              fitted, {{"m/s^2", 1.0}, {"g", g}}))
       return r;
   }
+  if (!capture.has_gyro) return std::nullopt;  // an accelerometer-only capture
   if (auto r = CheckGyroMoves(capture, rests)) return r;
   if (capture.gyro_unit != GyroUnit::kCounts && params.gyro_calibrated) {
     const double fitted = params.gyro.matrix.diagonal().cwiseAbs().mean();

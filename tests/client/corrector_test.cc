@@ -483,5 +483,34 @@ TEST(CorrectorTest, ChecksInputUnits) {
   EXPECT_EQ(gyro.message(), "gyro unit counts but the parameters expect deg/s");
 }
 
+// A parameter set without a gyroscope: the gyro passes through bit for bit, any gyro unit is
+// accepted, and a gyro effect is a malformed parameter set.
+TEST(CorrectorTest, WithoutGyroLeavesTheGyroAsRead) {
+  std::mt19937_64 rng(kSeed);
+  core::ParamSet p = RandomParams(rng, false);
+  p.has_gyro = false;
+  p.gyro.matrix.setZero();  // singular: never checked nor applied without a gyroscope
+  const absl::StatusOr<Corrector> c = Corrector::Create(p);
+  ASSERT_TRUE(c.ok()) << c.status();
+  EXPECT_FALSE(c->has_gyro());
+  EXPECT_TRUE(c->CheckInputUnits(p.accel_unit, core::GyroUnit::kCounts).ok());
+  const Eigen::Vector3d u_a = RandomVec(rng, -2500.0, 2500.0);
+  const Eigen::Vector3d u_g(0.1234567, -31.5, 1e-9);
+  CalibratedSample out;
+  c->Apply(MakeSample(0.0, u_a, u_g, 25.0), &out);
+  const Eigen::Vector3d a = p.accel.Apply(u_a);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(out.gyro_rad_s[i], u_g(i)) << i;
+    ExpectClose(out.accel_m_s2[i], a(i), 1e-12, "accel", i);
+  }
+  core::Effect e;
+  e.sensor = core::Sensor::kGyro;
+  e.regressor = "temperature";
+  p.effects = {e};
+  const absl::StatusOr<Corrector> bad = Corrector::Create(p);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("effects[0].sensor"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace imucal::sdk

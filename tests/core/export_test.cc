@@ -431,6 +431,37 @@ TEST(ExportTest, MissingNoiseIsRefusedUnlessSupplied) {
   }
 }
 
+// A parameter set without a gyroscope (an accelerometer-only capture): the formats whose
+// estimators apply a gyroscope model refuse it (an identity there would claim a calibrated
+// gyroscope); Kalibr's noise file takes the gyroscope's two figures from the user, and says so.
+TEST(ExportTest, WithoutGyroscope) {
+  ParamSet p = TestParams(AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond);
+  p.has_gyro = false;
+  p.noise->gyro = SensorNoise{};
+  ExportOptions o;
+  for (ExportFormat f : {ExportFormat::kKalibrIntrinsics, ExportFormat::kOpenVins}) {
+    absl::StatusOr<std::string> text = ExportParams(p, f, o);
+    ASSERT_FALSE(text.ok()) << ExportFormatName(f);
+    EXPECT_EQ(text.status().code(), absl::StatusCode::kFailedPrecondition);
+    EXPECT_NE(text.status().message().find("cannot be exported without a gyroscope"),
+              std::string::npos)
+        << text.status();
+  }
+  absl::StatusOr<std::string> kalibr = ExportParams(p, ExportFormat::kKalibrImu, o);
+  ASSERT_FALSE(kalibr.ok());
+  EXPECT_NE(kalibr.status().message().find("--gyro-noise-density and --gyro-random-walk"),
+            std::string::npos)
+      << kalibr.status();
+  o.gyro_noise_density = 1e-4;
+  o.gyro_random_walk = 1e-5;
+  kalibr = ExportParams(p, ExportFormat::kKalibrImu, o);
+  ASSERT_TRUE(kalibr.ok()) << kalibr.status();
+  const Yaml y = ParseYaml(*kalibr);
+  EXPECT_EQ(Scalar(y, "gyroscope_noise_density"), 1e-4);
+  EXPECT_EQ(Scalar(y, "accelerometer_random_walk"), 3.2e-4);
+  EXPECT_NE(kalibr->find("not measured"), std::string::npos);
+}
+
 TEST(ExportTest, RefusesRawCounts) {
   ParamSet p = TestParams(AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond);
   p.gyro_unit = GyroUnit::kCounts;

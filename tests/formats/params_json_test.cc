@@ -406,3 +406,65 @@ TEST(ParamsJsonTest, UnitNamesMatchTheCaptureHeader) {
 
 }  // namespace
 }  // namespace imucal::formats
+
+// A parameter set fitted without a gyroscope: no gyro key anywhere, read back as such.
+namespace imucal::formats {
+namespace {
+
+bool HasGyroKey(const nlohmann::ordered_json& j) {
+  if (j.is_object()) {
+    for (const auto& [key, value] : j.items()) {
+      if (key.find("gyro") != std::string::npos || HasGyroKey(value)) return true;
+    }
+  } else if (j.is_array()) {
+    for (const auto& value : j) {
+      if (HasGyroKey(value)) return true;
+    }
+  }
+  return false;
+}
+
+TEST(ParamsJsonAccelOnlyTest, WritesNoGyroKeyAndReadsBackWithoutGyro) {
+  core::ParamSet params;
+  params.has_gyro = false;
+  params.accel.bias = Eigen::Vector3d(0.1, 0.2, 0.3);
+  core::NoiseFigures noise;
+  noise.rate_hz = 100;
+  noise.accel.noise_density = Eigen::Vector3d(1e-3, 1e-3, 1e-3);
+  params.noise = noise;
+  const std::string text = ParamSetToJson(params);
+  const auto j = nlohmann::ordered_json::parse(text);
+  EXPECT_FALSE(HasGyroKey(j)) << text;
+  EXPECT_EQ(j["model"], core::kAccelOnlyModelText);
+  absl::StatusOr<core::ParamSet> back = ParamSetFromJson(text);
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_FALSE(back->has_gyro);
+  EXPECT_EQ(back->accel.bias, params.accel.bias);
+  ASSERT_TRUE(back->noise.has_value());
+  EXPECT_EQ(ParamSetToJson(*back), text);
+}
+
+TEST(ParamsJsonAccelOnlyTest, GyroEffectWithoutGyroIsRefused) {
+  core::ParamSet params;
+  params.has_gyro = false;
+  core::Effect e;
+  e.sensor = core::Sensor::kGyro;
+  e.regressor = "temperature";
+  params.effects = {e};
+  absl::StatusOr<core::ParamSet> back = ParamSetFromJson(ParamSetToJson(params));
+  ASSERT_FALSE(back.ok());
+  EXPECT_TRUE(absl::StrContains(back.status().message(), "effects[0].sensor"));
+}
+
+TEST(ParamsJsonAccelOnlyTest, ANoiseBlockWithoutGyroNeedsAParamSetWithoutGyro) {
+  core::ParamSet params;
+  params.noise = core::NoiseFigures();
+  auto j = nlohmann::ordered_json::parse(ParamSetToJson(params));
+  j["noise"].erase("gyro");
+  absl::StatusOr<core::ParamSet> back = ParamSetFromJson(j.dump());
+  ASSERT_FALSE(back.ok());
+  EXPECT_TRUE(absl::StrContains(back.status().message(), "noise.gyro: missing"));
+}
+
+}  // namespace
+}  // namespace imucal::formats

@@ -66,6 +66,11 @@ write("columns", "4_semicolon_ns.csv", "\x04exported by vendor tool\n" +
       "".join("%d;" % (i * 5000000) + ";".join(fmt(v) for v in r[1:7]) + "\n"
               for i, r in enumerate(rows(5))))
 
+write("columns", "5_accel_only_interleaved.csv", "\x05t,label,ax,ay,az,mag\n" +
+      "".join("%s,\"rest, face \"\"Z+\"\"\",%s,\n%s,,,,,4%d.5\n" %
+              (fmt(r[0]), ",".join(fmt(v) for v in r[1:4]), fmt(r[0]), i)
+              for i, r in enumerate(rows(5))))
+
 # euroc: imu0/data.csv.
 write("euroc", "data.csv",
       "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"

@@ -34,6 +34,7 @@ using test_files::TempPath;
 using test_files::WriteText;
 using ::testing::ElementsAre;
 using ::testing::HasSubstr;
+using ::testing::Not;
 using ::testing::Pair;
 using ::testing::StartsWith;
 
@@ -324,7 +325,8 @@ TEST(ParseImucalCsvErrorTest, BadHeaderValues) {
 
 TEST(ParseImucalCsvErrorTest, MissingRequiredColumn) {
   EXPECT_EQ(ParseError(std::string(kHeader) + "t,ax,ay,az,gx,gy,temp\n0,1,2,3,4,5,6\n"),
-            "cap.csv:4: missing required column 'gz'");
+            "cap.csv:4: missing required column 'gz' (give all of gx, gy, gz, or none for an "
+            "accelerometer-only capture)");
   EXPECT_EQ(ParseError(std::string(kHeader) + "ax,ay,az,gx,gy,gz\n"),
             "cap.csv:4: missing required column 't'");
   // Names are exact: no case folding.
@@ -404,6 +406,50 @@ TEST(ParseImucalCsvErrorTest, CrlfLineNumbersAreTheSame) {
 
 // ---------------------------------------------------------------------------------------------
 // imucal CSV: writing
+
+// ---------------------------------------------------------------------------------------------
+// Accelerometer-only captures: no gx,gy,gz columns (and then no gyro_unit needed).
+
+TEST(ImucalCsvAccelOnlyTest, NoGyroColumnsIsACaptureWithoutGyro) {
+  absl::StatusOr<core::Capture> c = ParseImucalCsv(
+      "# imucal-capture v1\n# accel_unit=m/s^2\nt,ax,ay,az,temp\n0,1,2,3,25\n0.1,1,2,3.5,25\n",
+      "acc.csv");
+  ASSERT_TRUE(c.ok()) << c.status();
+  EXPECT_FALSE(c->has_gyro);
+  EXPECT_TRUE(c->gyro.empty());
+  ASSERT_EQ(c->size(), 2u);
+  EXPECT_DOUBLE_EQ(c->accel[1].z(), 3.5);
+  EXPECT_TRUE(c->has_temp());
+  EXPECT_TRUE(core::ValidateCapture(*c).ok());
+}
+
+TEST(ImucalCsvAccelOnlyTest, GyroUnitStillRequiredWithGyroColumns) {
+  EXPECT_EQ(ParseError("# imucal-capture v1\n# accel_unit=g\nt,ax,ay,az,gx,gy,gz\n"),
+            "cap.csv:3: missing required header 'gyro_unit'");
+}
+
+TEST(ImucalCsvAccelOnlyTest, WrittenWithoutGyroColumnsAndReadBackTheSame) {
+  core::Capture c;
+  c.has_gyro = false;
+  c.t_s = {0.0, 0.005};
+  c.accel = {Eigen::Vector3d(0.1, 0.2, 9.8), Eigen::Vector3d(0.1, 0.25, 9.81)};
+  const std::string text = FormatImucalCsv(c);
+  EXPECT_THAT(text, HasSubstr("\nt,ax,ay,az\n"));
+  EXPECT_THAT(text, Not(HasSubstr("gyro")));
+  absl::StatusOr<core::Capture> back = ParseImucalCsv(text, "back.csv");
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_FALSE(back->has_gyro);
+  EXPECT_EQ(FormatImucalCsv(*back), text);
+}
+
+TEST(ImucalCsvAccelOnlyTest, ValidateCaptureRefusesGyroSamplesWithoutGyro) {
+  core::Capture c;
+  c.has_gyro = false;
+  c.t_s = {0.0};
+  c.accel = {Eigen::Vector3d(0, 0, 9.8)};
+  c.gyro = {Eigen::Vector3d::Zero()};
+  EXPECT_THAT(core::ValidateCapture(c).message(), HasSubstr("no gyroscope but holds 1"));
+}
 
 TEST(FormatImucalCsvTest, RoundTripIsExact) {
   const core::Capture original = AwkwardCapture();

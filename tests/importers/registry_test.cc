@@ -184,6 +184,29 @@ TEST(ImportCaptureTest, JoinsFilesInOrderAndKeepsTheirLines) {
               AllOf(HasSubstr("do not agree on units"), HasSubstr(a), HasSubstr(c)));
 }
 
+// Accelerometer-only files join each other, never a file with a gyroscope (zeros would have to
+// stand in for the missing rates).
+TEST(ImportCaptureTest, JoinsFilesWithoutGyroOnlyWithEachOther) {
+  const std::string a = TempPath("join_acc_a.csv");
+  const std::string b = TempPath("join_acc_b.csv");
+  const std::string g = TempPath("join_gyro.csv");
+  const std::string accel_only = "# imucal-capture v1\n# accel_unit=m/s^2\nt,ax,ay,az\n"
+                                 "0,0,0,9.8\n0.01,0,0,9.8\n";
+  WriteText(a, accel_only);
+  WriteText(b, accel_only);
+  WriteText(g, kSpecExample);
+  absl::StatusOr<core::Capture> both = ImportCapture({a, b}, {});
+  ASSERT_TRUE(both.ok()) << both.status();
+  EXPECT_FALSE(both->has_gyro);
+  EXPECT_EQ(both->size(), 4u);
+  EXPECT_TRUE(core::ValidateCapture(*both).ok());
+  absl::StatusOr<core::Capture> mixed = ImportCapture({a, g}, {});
+  ASSERT_FALSE(mixed.ok());
+  EXPECT_THAT(std::string(mixed.status().message()),
+              AllOf(HasSubstr("do not agree on the sensors"), HasSubstr(a + " has no gyroscope"),
+                    HasSubstr(g)));
+}
+
 TEST(ImportCaptureTest, ExportThenImportRoundTrip) {
   const std::string path = TempPath("export_import.csv");
   const core::Capture original = AwkwardCapture();

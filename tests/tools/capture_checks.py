@@ -22,7 +22,8 @@ Each axis' bias and scale differ from the others' by more than these, so a swapp
 unit-confused axis fails.
 
 usage: capture_checks.py CHECK REPORT TRUTH [options]; prints what failed, exits 1 if anything
-did. CHECK: params, files, steady, noisy, refused, names, effects, final (see main()).
+did. CHECK: params, files, steady, noisy, refused, names, effects, final, rates, same (see
+main()).
 """
 import argparse
 import bisect
@@ -129,6 +130,12 @@ def check_params(c, report, truth, args):
     accel, gyro = params.get("accel") or {}, params.get("gyro") or {}
     counts = truth.get("counts") if truth.get("writer", {}).get("counts") else None
     unit_a, unit_g = ("counts", "counts") if counts else ("m/s^2", "rad/s")
+    if args.gyro == "absent":
+        # An accelerometer-only capture: the parameter set has no gyro part at all, no key
+        # naming the gyroscope anywhere in it (absent, not zero).
+        keys = gyro_keys(params)
+        c.check(f"the parameter set names the gyroscope: {keys[:5]}", not keys)
+        unit_g = None
     if not c.check(f"input units {accel.get('input_unit')} {gyro.get('input_unit')}, "
                    f"want {unit_a} {unit_g}",
                    accel.get("input_unit") == unit_a and gyro.get("input_unit") == unit_g):
@@ -164,6 +171,29 @@ def check_params(c, report, truth, args):
             c.check(f"{name}[{i}] = {v[i]:.6g}, simulated {want[name][i]:.6g} (tolerance "
                     f"{t:.3g})", abs(v[i] - want[name][i]) <= t * (1 + 1e-9))
     return tol
+
+
+def gyro_keys(value, path=""):
+    """The paths of every key that names the gyroscope ("gyro" in it), recursively."""
+    found = []
+    if isinstance(value, dict):
+        for k, v in value.items():
+            p = f"{path}.{k}" if path else k
+            if "gyro" in k:
+                found.append(p)
+            found += gyro_keys(v, p)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            found += gyro_keys(v, f"{path}[{i}]")
+    return found
+
+
+def same_params(c, report, other):
+    """Two reports' parameter sets agree in every fitted value (not in dates or sources)."""
+    a, b = report.get("parameters") or {}, other.get("parameters") or {}
+    for key in ("accel", "gyro", "effects", "quality"):
+        c.check(f"parameters.{key} differ: {json.dumps(a.get(key))[:200]} vs "
+                f"{json.dumps(b.get(key))[:200]}", a.get(key) == b.get(key))
 
 
 def match_poses(c, report, truth, multi_file):
@@ -579,14 +609,15 @@ def final_moves(report, rows):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("check", choices=["params", "files", "steady", "noisy", "refused", "rests",
-                                          "names", "effects", "final", "rates"])
+                                          "names", "effects", "final", "rates", "same"])
     parser.add_argument("report")
     parser.add_argument("truth", nargs="?")
     parser.add_argument("--verdict", default="pass,warn", help="allowed verdicts")
     parser.add_argument("--faces-once", action="store_true",
                         help="six faces once: the floor is assumed level")
-    parser.add_argument("--gyro", choices=["none", "bias", "all"], default="all",
-                        help="which gyroscope parameters the capture determines")
+    parser.add_argument("--gyro", choices=["none", "bias", "all", "absent"], default="all",
+                        help="which gyroscope parameters the capture determines (absent: an "
+                             "accelerometer-only capture, no gyro key in the parameter set)")
     parser.add_argument("--multi-file", action="store_true",
                         help="poses are matched to the simulated holds by file")
     parser.add_argument("--stderr", help="names: the command's stderr, searched too")
@@ -629,6 +660,10 @@ def main():
         c.done("validation: the gravity direction after the moves %.4f deg RMS with the term "
                "(truth %.4f, without it %.4f)" % (math.degrees(found), math.degrees(floor),
                                                    math.degrees(without)))
+    elif args.check == "same":
+        # TRUTH is another report here: the same capture read another way.
+        same_params(c, report, truth)
+        c.done("the same parameters as " + os.path.basename(args.truth))
     elif args.check == "params":
         pairs = match_poses(c, report, truth, args.multi_file)
         check_directions(c, pairs, truth)

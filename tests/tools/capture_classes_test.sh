@@ -6,7 +6,8 @@
 # stops shorter than the 1 s hold, a commented header, a NUL byte in a field, and temperature
 # quadratics with a turnover, validated on a second capture with another temperature history,
 # a gyro bias that moves each time the unit is moved, and a rate-dependent gyroscope scale,
-# validated on the moves of a second capture.
+# validated on the moves of a second capture; and files others write: accelerometer-only,
+# an interleaved log with rows of empty fields, a quoted free-text column.
 # Asserts only what the README ("Offline CLI": exit 0 pass/warn, 2 bad input, 3 refused, 4 fail)
 # and ../shared/spec/report.md promise: exit codes, the report's verdict and poses (file and
 # lines for a capture from several files; a refusal still writes the report), the number of
@@ -592,6 +593,56 @@ sys.exit(1 if bad else 0)
 PY
 }
 
+# An accelerometer-only logger: no gyroscope columns at all, as a vendor CSV and as the imucal
+# capture CSV. The accelerometer is calibrated alone: exit 0, its parameters within the
+# tolerances of the simulated noise, and no key naming the gyroscope in the parameter set. The
+# IMU-TK protocol (stops reached by tilts about random axes): a turn about the vertical, as
+# six-face pairs make, leaves the accelerometer unchanged and cannot be seen without a gyroscope.
+case_accel_only() {
+  write a1 --seed 31 --no-gyro --protocol random || return 1
+  run a1 "$(files a1)" --columns "$(columns a1)" --time-unit us
+  want_rc a1 0 && checks params "$dir/a1.json" "$dir/a1/truth.json" --gyro absent || return 1
+  write a2 --seed 31 --no-gyro --protocol random --format imucal || return 1
+  run a2 "$(files a2)"
+  want_rc a2 0 && checks params "$dir/a2.json" "$dir/a2/truth.json" --gyro absent
+}
+
+# An interleaved log: after each of the sensor's rows a row of another sensor's, whose mapped
+# fields are empty. Without --skip-incomplete-rows: bad input (exit 2) naming the file and the
+# first such line, and the flag; with it: the same parameters as the same capture written clean.
+case_interleaved_empty_rows() {
+  write i1 --seed 32 --interleave-empty || return 1
+  write i0 --seed 32 || return 1
+  run i1 "$(files i1)" --columns "$(columns i1)" --time-unit us
+  [[ $rc -eq 2 ]] || { echo "  exit $rc without --skip-incomplete-rows, want 2"; return 1; }
+  local line
+  line=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["interleaved"]["first_line"])' \
+    "$dir/i1/truth.json")
+  grep -qF "$(files i1):$line:" "$dir/i1.err" ||
+    { echo "  the error does not name $(files i1):$line: $(head -c 400 "$dir/i1.err")"; return 1; }
+  grep -qF -- "--skip-incomplete-rows" "$dir/i1.err" ||
+    { echo "  the error does not name --skip-incomplete-rows"; return 1; }
+  run i1s "$(files i1)" --columns "$(columns i1)" --time-unit us --skip-incomplete-rows
+  want_rc i1s 0 || return 1
+  # The import's notes are in the text output.
+  "$imucal" calibrate "$(files i1)" --columns "$(columns i1)" --time-unit us \
+    --skip-incomplete-rows --no-effects >"$dir/i1t.out" 2>&1
+  grep -qF "skipped $(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["files"][0]["samples"])' \
+    "$dir/i1/truth.json") rows with empty fields (first at $(files i1):$line)" "$dir/i1t.out" ||
+    { echo "  no note of the skipped rows: $(grep skipped "$dir/i1t.out")"; return 1; }
+  run i0 "$(files i0)" --columns "$(columns i0)" --time-unit us
+  want_rc i0 0 && checks same "$dir/i1s.json" "$dir/i0.json" &&
+    checks params "$dir/i1s.json" "$dir/i1/truth.json"
+}
+
+# A free-text label column as spreadsheets write it: quoted, with a comma and doubled quotes
+# inside ("rest, face ""Z+"""). RFC 4180 makes that one field: the capture reads as without it.
+case_quoted_label() {
+  write ql --seed 33 --label-column || return 1
+  run ql "$(files ql)" --columns "$(columns ql)" --time-unit us
+  want_rc ql 0 && checks params "$dir/ql.json" "$dir/ql/truth.json"
+}
+
 cases=(quantised_si quantised_counts quantised_faces noise_free low_noise steady_turns
   steady_turns_20 steady_turns_50 steady_turns_100 steady_turns_200 hand_held_turns table_rests
   file_noise_floors faces_held_once faces_files
@@ -599,6 +650,7 @@ cases=(quantised_si quantised_counts quantised_faces noise_free low_noise steady
   noisy_rest_settling short_stops short_stops_all commented_header nul_byte final_figures
   temperature_turnover gyro_bias_shift rate_scale)
 cases+=(gyro_deg_s wrong_declared_unit noise_moving noise_handling quantised_stuck)
+cases+=(accel_only interleaved_empty_rows quoted_label)
 (($# > 0)) && cases=("$@")
 failed=()
 for c in "${cases[@]}"; do

@@ -31,6 +31,17 @@ integer, where u is the simulated reading in m/s^2 or rad/s; the truth gives the
 many vendors' tools do (not with --counts); the truth's gyro figures stay in rad/s and
 "gyro_unit_written" says which unit the file holds.
 
+Files others write (columns format):
+  --no-gyro           an accelerometer-only logger: no gyroscope columns (the header's gx, gy, gz
+                      names are dropped; imucal format: no gx,gy,gz columns and no gyro_unit).
+  --interleave-empty  an interleaved log of several sensors: after each row of this sensor a row
+                      whose fields are empty except another sensor's, alternately only the time
+                      ("12.5,,,,,,,") and only the temperature (",,,,,,,25.00"). truth.json's
+                      "interleaved" names the file and the first such line.
+  --label-column      a last column "label" of free text as spreadsheets quote it (RFC 4180): a
+                      comma inside quotes and a doubled quote for a quote, e.g.
+                      "rest, face ""Z+"" " without the final space.
+
 --nul-at LINE puts a NUL byte at the start of the time field on line LINE (1-based, the header
 is line 1 of a columns file) of the first file written, as a corrupted SD card or a serial link
 leaves it.
@@ -107,6 +118,11 @@ def main():
                         help="the unit the rate is written in")
     parser.add_argument("--nul-at", type=int, metavar="LINE", help="a NUL byte on this line")
     parser.add_argument("--crlf", action="store_true", help="Windows line endings")
+    parser.add_argument("--no-gyro", action="store_true", help="no gyroscope columns")
+    parser.add_argument("--interleave-empty", action="store_true",
+                        help="columns: a row of empty fields after each row")
+    parser.add_argument("--label-column", action="store_true",
+                        help="columns: a quoted free-text label column with commas")
     imu_sim.add_arguments(parser)
     args = parser.parse_args()
     if args.counts and (args.accel_step is None or args.gyro_step is None):
@@ -115,13 +131,22 @@ def main():
         parser.error("--gyro-unit applies to values in SI, not to --counts")
     if args.format == "imucal":
         args.time_unit = "s"
-        names = ROLES
+        names = list(ROLES)
         delimiter = ","
     else:
         names = args.header.split(",")
         if len(names) not in (7, 8):
             parser.error(f"--header names t,ax,ay,az,gx,gy,gz[,temp]: got {len(names)}")
         delimiter = DELIMITERS[args.delimiter]
+    if args.format == "imucal" and (args.interleave_empty or args.label_column):
+        parser.error("--interleave-empty and --label-column are for --format columns")
+    if args.label_column and args.delimiter != "comma":
+        parser.error("--label-column needs --delimiter comma")
+    roles = ROLES[:len(names)]
+    if args.no_gyro:  # the roles and names of the columns written, in file order
+        keep = [i for i, role in enumerate(roles) if role not in ("gx", "gy", "gz")]
+        roles, names = [roles[i] for i in keep], [names[i] for i in keep]
+    has_temp = "temp" in roles
     args.full_truth = True
     samples, truth = imu_sim.simulate(args)
     poses = truth["poses"]
@@ -145,13 +170,16 @@ def main():
                     f"# gravity={args.gravity!r}",
                     f"# rate_hz={rate!r}",
                     ",".join(names)]
+        if args.no_gyro:
+            preamble.remove(f"# gyro_unit={unit or 'rad/s'}")
     else:
-        header = delimiter.join(names)
+        header = delimiter.join(names + (["label"] if args.label_column else []))
         if args.commented_header:
             header = "# " + header
         preamble = [header]
 
     def values(gyro, accel):
+        gyro = [] if args.no_gyro else gyro
         if args.counts:
             return ([str(int(round(v / args.accel_step))) for v in accel] +
                     [str(int(round(v / args.gyro_step))) for v in gyro])
@@ -159,19 +187,40 @@ def main():
             gyro = [v * 180.0 / math.pi for v in gyro]
         return [repr(v) for v in accel + gyro]
 
+    def label(t_s):
+        """Free text with a comma and a quote, quoted as RFC 4180 says."""
+        held = [p for p in poses if p["t_start_s"] <= t_s <= p["t_end_s"]]
+        text = f'rest, face "{held[0]["face"]}"' if held else "moving, by hand"
+        return '"' + text.replace('"', '""') + '"'
+
+    def empty_row(k, row):
+        """Another sensor's row: only the time, or only the temperature, filled."""
+        other = [""] * len(row)
+        if k % 2 == 0 or not has_temp:
+            other[0] = row[0]
+        else:
+            other[roles.index("temp")] = row[roles.index("temp")]
+        return delimiter.join(other)
+
     os.makedirs(args.out_dir, exist_ok=True)
     eol = "\r\n" if args.crlf else "\n"
     files = []
     for n, (name, first, last, pose_ids) in enumerate(chunks):
         lines = list(preamble)
-        first_line = len(lines) + 1
+        line_of = {}  # sample -> its 1-based line
         for k in range(first, last + 1):
             gyro, accel = samples[k][1], samples[k][2]
             row = [time_text(k, first, args)] + values(gyro, accel)
-            if len(names) == 8:  # the simulated temperature history, else --temp-c
+            if has_temp:  # the simulated temperature history, else --temp-c
                 temp = samples[k][3] if len(samples[k]) > 3 else args.temp_c
                 row.append(f"{temp:.3f}" if len(samples[k]) > 3 else f"{temp:.2f}")
-            lines.append(delimiter.join(row))
+            line_of[k] = len(lines) + 1
+            lines.append(delimiter.join(row + ([label(k / rate)] if args.label_column else [])))
+            if args.interleave_empty:
+                if "interleaved" not in truth:
+                    truth["interleaved"] = {"file": name, "first_line": len(lines) + 1}
+                lines.append(empty_row(k, row + ([""] if args.label_column else [])))
+        first_line = line_of[first]
         if n == 0 and args.nul_at:
             fields = lines[args.nul_at - 1].split(delimiter)
             fields[0] = "\0" + fields[0]
@@ -182,25 +231,27 @@ def main():
         for k in pose_ids:
             p = poses[k]
             p["file"] = name
-            p["lines"] = [first_line + sample_index(p["t_start_s"]) - first,
-                          first_line + sample_index(p["t_end_s"]) - first]
+            p["lines"] = [line_of[sample_index(p["t_start_s"])],
+                          line_of[sample_index(p["t_end_s"])]]
         files.append({"name": name, "poses": pose_ids,
                       "meant_face": [poses[k].get("meant_face", poses[k]["face"])
                                      for k in pose_ids],
                       "face": [poses[k]["face"] for k in pose_ids],
                       "up_body": [poses[k]["up_body"] for k in pose_ids],
-                      "lines": [first_line, first_line + last - first],
+                      "lines": [first_line, line_of[last]],
                       "samples": last - first + 1,
                       "t_start_s": first / rate})
 
     truth["writer"] = {"format": args.format, "split": args.split, "time_base": args.time_base,
                        "header": names, "delimiter": args.delimiter,
                        "commented_header": args.commented_header, "counts": args.counts,
-                       "temp_c": args.temp_c, "crlf": args.crlf}
+                       "temp_c": args.temp_c, "crlf": args.crlf, "no_gyro": args.no_gyro,
+                       "interleave_empty": args.interleave_empty,
+                       "label_column": args.label_column}
     truth["files"] = files
     truth["gyro_unit_written"] = "counts" if args.counts else args.gyro_unit
     truth["time_unit"] = args.time_unit
-    truth["columns_option"] = ",".join(f"{role}={name}" for role, name in zip(ROLES, names))
+    truth["columns_option"] = ",".join(f"{role}={name}" for role, name in zip(roles, names))
     if args.counts:
         a_step, g_step = args.accel_step, args.gyro_step
         truth["counts"] = {
