@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <optional>
 #include <utility>
 #include <vector>
 
@@ -178,6 +179,38 @@ void AttachAccelNoise(const Capture& still_view, const std::vector<StaticInterva
   rep->allan = std::move(noise->curves);
 }
 
+// The stages a capture with or without a gyroscope shares: the protocol and its checks, then
+// the accelerometer (ls, bsas, lm). The accelerometer stage, or nullopt with `rep` made the
+// refusal when the poses determine not even bias and scale, or an error.
+absl::StatusOr<std::optional<AccelStage>> ProtocolAndAccel(const Capture& cap,
+                                                           const CalibrateOptions& opt,
+                                                           const StaticPoses& still,
+                                                           const RoughGyro& rough,
+                                                           PhaseTimer* timer,
+                                                           CalibrationReport* rep,
+                                                           ProtocolChecks* checks) {
+  *checks = CheckProtocol(cap, opt, still, rough);
+  rep->protocol = checks->protocol;
+  rep->protocol_detected = checks->detected;
+  rep->pairs = checks->pairs;
+  Append(&rep->warnings, checks->warnings);
+  timer->Mark("protocol");
+  absl::StatusOr<AccelStage> accel = SolveAccel(cap, opt, rep->noise, *checks);
+  if (absl::IsFailedPrecondition(accel.status())) {
+    *rep = Refuse(cap, std::move(*rep),
+                  {RefusalReason::kPosesTooAlike,
+                   absl::StrCat(accel.status().message(), ". ", RequirementsText())},
+                  checks->intervals);
+    return std::nullopt;
+  }
+  if (!accel.ok()) return accel.status();
+  Append(&rep->stages, accel->stages);
+  Append(&rep->warnings, accel->warnings);
+  rep->accel_chi2_reduced = accel->chi2_reduced;
+  timer->Mark("accel");
+  return std::optional<AccelStage>(*std::move(accel));
+}
+
 // Calibrate for a capture without a gyroscope: the accelerometer stages alone. No gyroscope
 // stage, no turn checks (six-face pairs are checked on their faces only), no moves, no effects
 // search (it reads the gyroscope's moves); the parameter set has no gyro part.
@@ -195,26 +228,13 @@ absl::StatusOr<CalibrationReport> CalibrateAccelOnly(const Capture& cap,
   timer.Mark("static");
   if (still.refusal) return Refuse(cap, std::move(rep), *still.refusal, still.intervals);
 
-  const ProtocolChecks checks = CheckProtocol(cap, opt, still, RoughGyro{});
-  rep.protocol = checks.protocol;
-  rep.protocol_detected = checks.detected;
-  rep.pairs = checks.pairs;
-  Append(&rep.warnings, checks.warnings);
+  ProtocolChecks checks;
+  absl::StatusOr<std::optional<AccelStage>> solved =
+      ProtocolAndAccel(cap, opt, still, RoughGyro{}, &timer, &rep, &checks);
+  if (!solved.ok()) return solved.status();
+  std::optional<AccelStage>& accel = *solved;
+  if (!accel) return rep;  // refused: the poses are too alike
   const std::vector<StaticInterval>& intervals = checks.intervals;
-  timer.Mark("protocol");
-
-  absl::StatusOr<AccelStage> accel = SolveAccel(cap, opt, rep.noise, checks);
-  if (absl::IsFailedPrecondition(accel.status())) {
-    return Refuse(cap, std::move(rep),
-                  {RefusalReason::kPosesTooAlike,
-                   absl::StrCat(accel.status().message(), ". ", RequirementsText())},
-                  intervals);
-  }
-  if (!accel.ok()) return accel.status();
-  Append(&rep.stages, accel->stages);
-  Append(&rep.warnings, accel->warnings);
-  rep.accel_chi2_reduced = accel->chi2_reduced;
-  timer.Mark("accel");
 
   const AccelResiduals accel_residuals = ComputeAccelResiduals(
       *accel, rep.protocol, checks.ups, cap.gravity_m_s2, opt.heldout, &rep.residual);
@@ -279,28 +299,14 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.turns = rough.turn_reports;
   timer.Mark("gyro_rough");
 
-  // -> protocol and its checks
-  const ProtocolChecks checks = CheckProtocol(cap, opt, still, rough);
-  rep.protocol = checks.protocol;
-  rep.protocol_detected = checks.detected;
-  rep.pairs = checks.pairs;
-  Append(&rep.warnings, checks.warnings);
+  // -> protocol and its checks; accelerometer: ls, bsas, lm
+  ProtocolChecks checks;
+  absl::StatusOr<std::optional<AccelStage>> solved =
+      ProtocolAndAccel(cap, opt, still, rough, &timer, &rep, &checks);
+  if (!solved.ok()) return solved.status();
+  std::optional<AccelStage>& accel = *solved;
+  if (!accel) return rep;  // refused: the poses are too alike
   const std::vector<StaticInterval>& intervals = checks.intervals;
-  timer.Mark("protocol");
-
-  // -> accelerometer: ls, bsas, lm
-  absl::StatusOr<AccelStage> accel = SolveAccel(cap, opt, rep.noise, checks);
-  if (absl::IsFailedPrecondition(accel.status())) {
-    return Refuse(cap, std::move(rep),
-                  {RefusalReason::kPosesTooAlike,
-                   absl::StrCat(accel.status().message(), ". ", RequirementsText())},
-                  intervals);
-  }
-  if (!accel.ok()) return accel.status();
-  Append(&rep.stages, accel->stages);
-  Append(&rep.warnings, accel->warnings);
-  rep.accel_chi2_reduced = accel->chi2_reduced;
-  timer.Mark("accel");
 
   // -> final gyroscope; the pairs' turns measured with it; the six-face case frame from the axes
   //    the pairs were turned about (the gyroscope, fitted in the faces' frame, turns with it)

@@ -28,25 +28,17 @@ import sys
 import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+sys.dont_write_bytecode = True  # no __pycache__ in the source tree when ctest runs this
+from capture_checks import read_csv  # noqa: E402 (the path above)
+
 TRIM_S = 0.3
-
-
-def read_csv(path):
-    names, rows = None, []
-    with open(path) as f:
-        for line in f:
-            if line.startswith("#") or not line.strip():
-                continue
-            if names is None:
-                names = line.strip().split(",")
-                continue
-            rows.append([float(v) for v in line.split(",")])
-    return {n: i for i, n in enumerate(names)}, rows
 
 
 def hold_means(truth, path):
     """Mean (ax, ay, az) of each simulated hold, trimmed, from an imucal CSV."""
-    col, rows = read_csv(path)
+    names, rows = read_csv(path)
+    col = {n: i for i, n in enumerate(names)}
     t0 = rows[0][col["t"]]
     out = []
     for p in truth["poses"]:
