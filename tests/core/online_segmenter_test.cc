@@ -39,6 +39,14 @@ Fed FeedAll(OnlineSegmenter& seg, const Capture& cap) {
   return fed;
 }
 
+// The pose events among `events`, in order.
+std::vector<PoseUpdate> PosesOf(const std::vector<SegmenterEvent>& events) {
+  std::vector<PoseUpdate> out;
+  for (const SegmenterEvent& e : events)
+    if (e.kind == SegmenterEvent::Kind::kPose) out.push_back(e.pose);
+  return out;
+}
+
 std::vector<PoseUpdate> Accepted(const Fed& fed) {
   std::vector<PoseUpdate> out;
   for (const PoseUpdate& p : fed.poses)
@@ -128,9 +136,7 @@ TEST(OnlineSegmenterTest, RejectsTooShortAndMovedPoses) {
   move(1);
   hold(4, up, none);
   seg.Flush(&events);
-  std::vector<PoseUpdate> poses;
-  for (const SegmenterEvent& e : events)
-    if (e.kind == SegmenterEvent::Kind::kPose) poses.push_back(e.pose);
+  const std::vector<PoseUpdate> poses = PosesOf(events);
   ASSERT_EQ(poses.size(), 4u);
   EXPECT_TRUE(poses[0].accepted);
   EXPECT_EQ(poses[0].face, "Z+");
@@ -166,10 +172,7 @@ TEST(OnlineSegmenterTest, ASteadyTurnIsNotAPose) {
     run(180.0 / rate_deg_s, Eigen::Vector3d(0, 0, rate_deg_s * std::numbers::pi / 180));
     run(4, none);
     seg.Flush(&events);
-    std::vector<PoseUpdate> poses;
-    for (const SegmenterEvent& e : events)
-      if (e.kind == SegmenterEvent::Kind::kPose) poses.push_back(e.pose);
-    for (const PoseUpdate& p : poses) {
+    for (const PoseUpdate& p : PosesOf(events)) {
       const bool in_turn = p.t_start_s > 5.2 && p.t_end_s < 5 + 180.0 / rate_deg_s - 0.2;
       if (in_turn) {
         EXPECT_FALSE(p.accepted);
