@@ -1,6 +1,7 @@
 // The only translation unit of imucal that instantiates Ceres autodiff (build time on 2 cores).
 #include "core/accel_solver.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -355,8 +356,24 @@ std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<Acce
   return out;
 }
 
+double EffectiveParameters(const AccelParams& p, const std::vector<AccelPose>& poses,
+                           const AccelMask& free, const AccelPriors& priors) {
+  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free);
+  const Eigen::MatrixXd data = jw.transpose() * jw;
+  Eigen::MatrixXd info = data;
+  std::vector<int> index;
+  for (int c = 0; c < kAccelParams; ++c)
+    if (free[static_cast<size_t>(c)]) index.push_back(c);
+  for (const AccelPrior& q : ActivePriors(free, priors)) {
+    const auto k = std::find(index.begin(), index.end(), q.index) - index.begin();
+    info(k, k) += 1.0 / (q.sigma * q.sigma);
+  }
+  const Eigen::MatrixXd share = info.ldlt().solve(data);
+  return share.allFinite() ? share.trace() : static_cast<double>(index.size());
+}
+
 double EstimateModelSigma(const AccelParams& p, const std::vector<AccelPose>& poses,
-                          double gravity_m_s2, int n_free) {
+                          double gravity_m_s2, double n_free) {
   std::vector<AccelPose> bare = poses;
   for (auto& pose : bare) pose.model_sigma_m_s2 = 0;
   const std::vector<double> r = MagnitudeResiduals(p, bare, gravity_m_s2);
@@ -630,6 +647,20 @@ AccelMatrix AccelCovariance(const AccelParams& p, const std::vector<AccelPose>& 
 AccelVector AccelStdErrors(const AccelParams& p, const std::vector<AccelPose>& poses,
                            const AccelMask& free, const AccelPriors& priors) {
   return AccelCovariance(p, poses, free, priors).diagonal().cwiseMax(0.0).cwiseSqrt();
+}
+
+double AccelLogEvidence(const AccelParams& p, const std::vector<AccelPose>& poses,
+                        double gravity_m_s2, const AccelMask& free, const AccelPriors& priors) {
+  const std::vector<double> sigma = MagnitudeSigmas(p, poses);
+  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, sigma, free, priors);
+  const Eigen::VectorXd rw = WeightedResiduals(p, poses, sigma, gravity_m_s2, free, priors);
+  const Eigen::LDLT<Eigen::MatrixXd> h(jw.transpose() * jw);
+  double log_det = 0;
+  for (Eigen::Index i = 0; i < h.vectorD().size(); ++i)
+    log_det += std::log(std::max(h.vectorD()(i), 1e-300));
+  double log_prior_norm = 0;
+  for (const AccelPrior& q : ActivePriors(free, priors)) log_prior_norm -= std::log(q.sigma);
+  return -0.5 * rw.squaredNorm() - 0.5 * log_det + log_prior_norm;
 }
 
 namespace {

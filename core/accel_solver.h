@@ -61,6 +61,7 @@ struct AccelPrior {
   int index = 0;
   double value = 0;
   double sigma = 1;
+  std::string source;  // where it comes from, for the report: "face references", "sensor class mems"
 };
 using AccelPriors = std::vector<AccelPrior>;
 // The number of free parameters less those a prior constrains: what the poses' residual pays
@@ -114,7 +115,13 @@ std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<Acce
 // Weighting by noise alone lets a 50 s rest outweigh every 4 s pose tenfold, although on real
 // data the model, not the noise, limits the fit; with tau each pose counts as what it is worth.
 double EstimateModelSigma(const AccelParams& p, const std::vector<AccelPose>& poses,
-                          double gravity_m_s2, int n_free);
+                          double gravity_m_s2, double n_free);
+
+// The parameters the poses pay for, trace((J'WJ + P)^-1 J'WJ) over the free ones: a parameter the
+// poses determine counts 1, one its prior decides 0, a shrunk one between (P: the priors'
+// precisions). The model error's degrees of freedom are the poses less this.
+double EffectiveParameters(const AccelParams& p, const std::vector<AccelPose>& poses,
+                           const AccelMask& free, const AccelPriors& priors);
 
 // The range a MEMS accelerometer's parameters plausibly have, in parameter units: bias 0.2 g,
 // scale 10 %, angles 30 mrad, quadratic 1e-3 per m/s^2 (datasheet tolerances with room).
@@ -185,6 +192,11 @@ AccelParams RefineAccelGaussNewton(const AccelParams& start, const std::vector<A
 // and model_sigma_m_s2, not scaled by the fit's chi^2); zero rows and columns for fixed ones.
 AccelMatrix AccelCovariance(const AccelParams& p, const std::vector<AccelPose>& poses,
                             const AccelMask& free, const AccelPriors& priors = {});
+// The log marginal likelihood of the priors' widths (Laplace, at a converged fit `p` with these
+// priors), up to a constant: -1/2 |r_w|^2 (priors' rows included) - 1/2 log det(J'WJ + P)
+// - sum log sigma. Compares prior widths on one capture (empirical Bayes, accel_stage.cc).
+double AccelLogEvidence(const AccelParams& p, const std::vector<AccelPose>& poses,
+                        double gravity_m_s2, const AccelMask& free, const AccelPriors& priors);
 // Its diagonal's square root: one-sigma standard errors, 0 for fixed parameters.
 AccelVector AccelStdErrors(const AccelParams& p, const std::vector<AccelPose>& poses,
                            const AccelMask& free, const AccelPriors& priors = {});

@@ -109,6 +109,24 @@ struct NoiseFigures {
   std::vector<std::string> notes;  // which figures the data did not reach, and why
 };
 
+// The prior widths of the model's own physical terms (issue 25): what a sensor class says of the
+// terms the poses may not determine. They are estimated by maximum a posteriori with a zero-mean
+// Gaussian prior of these one-sigma widths, never switched on or off: a weakly determined term
+// is shrunk toward 0 and its uncertainty enters every other parameter's standard error.
+//   accel_quadratic_per_m_s2  second-order term q_i (z_i = y_i + q_i y_i^2), 1/(m/s^2)
+//   accel_angle_rad           non-orthogonality t_yx, t_zx, t_zy where no face reference
+//                             measures them (with six-face or ferraris the faces give them)
+// Classes (core/calibrate/term_priors.cc TermPriorsFor): "mems" (consumer and industrial MEMS:
+// cross-axis sensitivity about 1 %, nonlinearity up to 0.5 % of a 2 g full scale, i.e.
+// second-order terms up to 2.6e-4 per m/s^2; the width is wider, so a term the poses determine
+// even loosely is theirs, not the prior's) and "tactical".
+struct TermPriors {
+  std::string sensor_class = "mems";
+  double accel_quadratic_per_m_s2 = 5e-4;
+  double accel_angle_rad = 0.01;
+  bool operator==(const TermPriors&) const = default;
+};
+
 struct ParamSet {
   std::string device;
   int version = 0;         // assigned by the server; 0 offline
@@ -133,6 +151,8 @@ struct ParamSet {
   std::string software;
   // Allan-deviation noise figures (absent in parameter sets made before they existed).
   std::optional<NoiseFigures> noise;
+  // The priors the estimate was made with (absent in parameter sets made before issue 25).
+  std::optional<TermPriors> term_priors;
 };
 
 // The model text stored in every parameter set and export, so a reader never guesses (the

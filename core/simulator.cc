@@ -624,6 +624,12 @@ SimTruth RandomTruth(uint64_t seed, AccelUnit accel_unit, GyroUnit gyro_unit,
   gyro.bias = rng.Normal3(0.5 * kDegToRad) / gyro_nominal;
   if (gyro_counts) gyro.bias.array() += options.gyro_offset_counts;
   gyro.accel_coupling.setZero();
+  if (options.wide_second_order) {
+    for (int i = 0; i < 3; ++i) {
+      const double sign = rng.Uniform() < 0.5 ? -1.0 : 1.0;
+      accel.quadratic(i) = sign * std::exp(rng.Uniform(std::log(1e-5), std::log(3e-4)));
+    }
+  }
   return truth;
 }
 

@@ -466,6 +466,23 @@ absl::Status ReadNoise(const Json& j, const std::string& path,
   return absl::OkStatus();
 }
 
+// Optional as a whole: parameter sets written before issue 25 have none. Widths must be > 0.
+absl::Status ReadTermPriors(const Json& j, const std::string& path,
+                            std::optional<core::TermPriors>* out) {
+  IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
+  core::TermPriors p;
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "sensor_class", kRequired, ReadString, &p.sensor_class));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "accel_quadratic_sigma", kRequired,
+                                Numbers(Null::kReject), &p.accel_quadratic_per_m_s2));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "accel_angle_sigma", kRequired, Numbers(Null::kReject),
+                                &p.accel_angle_rad));
+  if (!(p.accel_quadratic_per_m_s2 > 0))
+    return PathError(Child(path, "accel_quadratic_sigma"), "must be > 0");
+  if (!(p.accel_angle_rad > 0)) return PathError(Child(path, "accel_angle_sigma"), "must be > 0");
+  *out = std::move(p);
+  return absl::OkStatus();
+}
+
 absl::Status ReadSource(const Json& j, const std::string& path, core::ParamSet* out) {
   IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "session", kOptional, ReadString, &out->source_session));
@@ -517,6 +534,8 @@ absl::Status ReadParamSet(const Json& j, const std::string& path, core::ParamSet
   if (out->noise && out->has_gyro && !j.at("noise").contains("gyro")) {
     return PathError(Child(Child(path, "noise"), "gyro"), "missing");
   }
+  IMUCAL_RETURN_IF_ERROR(
+      Member(j, path, "term_priors", kOptional, ReadTermPriors, &out->term_priors));
   return Member(j, path, "source", kOptional, ReadSource, out);
 }
 
@@ -597,6 +616,15 @@ std::string ParamSetToJson(const core::ParamSet& params) {
   if (params.has_gyro) quality["gyro_static_rms"] = Number(params.quality_gyro_static_rms_rad_s);
   j["quality"] = std::move(quality);
   if (params.noise) j["noise"] = NoiseToJson(*params.noise, params.has_gyro);
+  if (params.term_priors) {
+    // The one-sigma widths the terms were estimated with (core/params.h TermPriors):
+    // accel_quadratic_sigma in 1/(m/s^2), accel_angle_sigma in rad.
+    OrderedJson priors = OrderedJson::object();
+    priors["sensor_class"] = params.term_priors->sensor_class;
+    priors["accel_quadratic_sigma"] = Number(params.term_priors->accel_quadratic_per_m_s2);
+    priors["accel_angle_sigma"] = Number(params.term_priors->accel_angle_rad);
+    j["term_priors"] = std::move(priors);
+  }
   OrderedJson source = OrderedJson::object();
   source["session"] = params.source_session;
   source["software"] = params.software;

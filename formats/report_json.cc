@@ -256,6 +256,19 @@ std::string ReportToJson(const core::CalibrationReport& r) {
                    {"gravity_direction_heldout_rms_deg", Num(res.move_heldout_rms_deg)},
                    {"gravity_direction_heldout_max_deg", Num(res.move_heldout_max_deg)}};
   if (!has_gyro) j["residual"].erase("gyro_static_rms");
+  // Beside the spec's fields: what each prior did to its term (parameter units; data_sigma null
+  // when the poses add nothing beyond the prior).
+  j["term_priors"] = json::array();
+  for (const core::TermPriorEffect& e : r.term_priors) {
+    j["term_priors"].push_back({{"name", e.name},
+                                {"source", e.source},
+                                {"estimate", e.estimate},
+                                {"prior_value", e.prior_value},
+                                {"prior_sigma", e.prior_sigma},
+                                {"posterior_sigma", e.posterior_sigma},
+                                {"data_sigma", Num(e.data_sigma)},
+                                {"data_weight", e.data_weight}});
+  }
   json params = json::parse(ParamSetToJson(r.params));
   j["effects"] = params.contains("effects") ? params["effects"] : json::array();
   // Beside the spec's fields: the coefficient in an engineer's units (mg/degC, deg/s/g, ...).

@@ -20,7 +20,7 @@ std::vector<CommandSpec> BuildTable() {
        .positional_files = true,
        .valued = WithImportValuedFlags({"format", "protocol", "gravity", "accel-unit",
                                         "gyro-unit", "device", "seed", "out", "params-out",
-                                        "plots"}),
+                                        "plots", "sensor-class"}),
        .switches = WithImportSwitches(
            {"json", "no-bsas", "no-heldout", "no-effects", "apply-time-effects", "help"})},
       {.id = "apply",

@@ -25,6 +25,7 @@
 #include "client/cli/summary.h"
 #include "client/sdk/corrector.h"
 #include "core/calibrate/calibrate.h"
+#include "core/calibrate/term_priors.h"
 #include "core/export.h"
 #include "core/simulator.h"
 #include "core/static_detector.h"
@@ -83,6 +84,8 @@ constexpr char kCalibrateHelp[] =
     "                                only, by default)\n"
     "  --params-out FILE             write the parameter set (imucal-params v1) to FILE\n"
     "  --no-bsas                     skip the BSAS stage (least squares, then LM)\n"
+    "  --sensor-class C              the prior widths of the second-order terms and angles the\n"
+    "                                poses may not determine: mems (default) or tactical\n"
     "  --no-heldout                  skip the leave-one-pose-out refits\n"
     "exit codes: 0 pass/warn, 1 usage, 2 bad input, 3 capture cannot determine the model,\n"
     "            4 calibrated but the verdict is fail, 5 internal error\n";
@@ -350,6 +353,11 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   if (!seed.ok()) return Usage(std::string(seed.status().message()), kCalibrateHelp);
   co.seed = static_cast<uint64_t>(*seed);
   co.use_bsas = !a->Has("no-bsas");
+  if (auto c = a->Get("sensor-class")) {
+    auto priors = core::TermPriorsFor(*c);
+    if (!priors.ok()) return Usage("--sensor-class: " + std::string(priors.status().message()), kCalibrateHelp);
+    co.term_priors = *priors;
+  }
   co.heldout = !a->Has("no-heldout");
   co.effects.enabled = !a->Has("no-effects");
   co.effects.apply_time_effects = a->Has("apply-time-effects");

@@ -96,14 +96,6 @@ std::string BiasScaleOnlyWarning(size_t poses) {
       static_cast<int>(poses), static_cast<int>(kFullModelNeeds.count));
 }
 
-std::string QuadraticHeldNote(int c, double z, double needed_z) {
-  return absl::StrFormat(
-      "accel %s: held at 0; it lies %.1f standard errors from zero, where keeping a term needs "
-      "%.1f (the information criterion); add poses with that axis about 45 degrees from vertical "
-      "to resolve it",
-      AccelParamName(c), z, needed_z);
-}
-
 std::string AffineOnlyWarning(size_t poses) {
   return absl::StrFormat(
       "accelerometer: %d poses leave nothing to refine |a| = g on; the result is the face "
@@ -159,42 +151,6 @@ absl::StatusOr<AccelParams> FitFaces(ProtocolKind protocol, const FaceReferences
   return FitKnownReferences(faces.means, faces.refs);
 }
 
-// Backward elimination of the quadratic terms by the information criterion the effect search
-// uses (BIC): a term stays when its fit improves chi^2 by more than ln N (N poses), i.e. when it
-// lies more than sqrt(ln N) standard errors from zero (1.7 for 16 poses, 1.9 for 40); the least
-// significant term goes first and the rest are judged again without it. With few poses at
-// intermediate angles a second-order term fits noise (the Xsens capture's quadratic_x does) and
-// pulls its axis' bias by its own error times g^2: freed on one capture of a unit and not on
-// another, it moved bias z by 3.2 standard errors between the two. Where it is real and
-// significant, it stays. (Leave-one-out prediction, used before, kept a term whenever it
-// predicted a little better, which on 16 poses it often did by chance.)
-AccelMask SelectQuadratics(const AccelParams& start, const std::vector<AccelPose>& poses, double g,
-                           const AccelMask& determined, const AccelPriors& priors,
-                           std::vector<std::string>* notes) {
-  AccelMask mask = determined;
-  const double needed_z = std::sqrt(std::log(static_cast<double>(poses.size())));
-  std::array<double, kAccelParams> z_dropped{};
-  for (;;) {
-    const AccelParams current = RefineAccelGaussNewton(start, poses, g, mask, 10, priors);
-    const AccelVector se = AccelStdErrors(current, poses, mask, priors);
-    int drop = -1;
-    double drop_z = needed_z;
-    for (int c : kAccelQuadratic.Indices()) {
-      if (!mask[static_cast<size_t>(c)]) continue;
-      const double z = std::abs(PackAccel(current)(c)) / se(c);
-      if (!(z >= drop_z)) drop = c, drop_z = std::isfinite(z) ? z : 0.0;
-    }
-    if (drop < 0) break;
-    mask[static_cast<size_t>(drop)] = false;
-    z_dropped[static_cast<size_t>(drop)] = drop_z;
-  }
-  for (int c : kAccelQuadratic.Indices()) {
-    const size_t k = static_cast<size_t>(c);
-    if (determined[k] && !mask[k]) notes->push_back(QuadraticHeldNote(c, z_dropped[k], needed_z));
-  }
-  return mask;
-}
-
 // The error the pair means leave in the face references' angles: a turn of 180 + e degrees on a
 // floor tilted by t puts a pair's mean t * e / 2 off its face axis (core/protocol.h
 // PairTurnAxis), and the affine fit's angles err by as much. Measured with the rough gyroscope,
@@ -239,7 +195,7 @@ AccelPriors FaceAnglePriors(ProtocolKind protocol, const std::vector<PairCheck>&
     (*fit_sigma)(c) = fit;
     const double sigma = std::hypot(std::isfinite(fit) ? fit : 0.0, systematic);
     if (!(sigma > 0)) continue;
-    out.push_back({c, PackAccel(stage_one)(c), sigma});
+    out.push_back({c, PackAccel(stage_one)(c), sigma, "face references"});
     absl::StrAppendFormat(&sigmas, "%s%s %.2g", sigmas.empty() ? "" : ", ", AccelParamName(c),
                           sigma);
   }
@@ -249,6 +205,31 @@ AccelPriors FaceAnglePriors(ProtocolKind protocol, const std::vector<PairCheck>&
       sigmas,
       protocol == ProtocolKind::kSixFace ? "pairs' turn error" : "floor's tilt, taken as 1 deg"));
   return out;
+}
+
+// The second-order terms' prior width by the capture's own evidence (empirical Bayes, type-II
+// maximum likelihood over a grid): the sensor class's width is the widest tried, down to 1/50
+// of it. The class says what a unit may have; the poses say how large this unit's terms are.
+// A unit whose poses show them small gets them shrunk hard (on a plain six-face capture, where
+// the poses know them only through the floor's tilt, the class's width let noise into them and
+// through them into the biases: 1.1-2.5 mg against 0.8 held at 0); one whose terms are large
+// keeps them. Returns the width chosen and sets it in `priors`.
+double ChooseQuadraticWidth(const AccelParams& start, const std::vector<AccelPose>& poses,
+                            double g, const AccelMask& free, double class_width,
+                            AccelPriors* priors) {
+  const auto set_width = [priors](double w) {
+    for (AccelPrior& q : *priors)
+      if (q.index >= kAccelQuadratic.begin && q.index < kAccelQuadratic.end) q.sigma = w;
+  };
+  double best = class_width, best_evidence = -std::numeric_limits<double>::infinity();
+  for (double f : {1.0, 0.5, 0.2, 0.1, 0.05, 0.02}) {
+    set_width(f * class_width);
+    const AccelParams fit = RefineAccelGaussNewton(start, poses, g, free, 10, *priors);
+    const double evidence = AccelLogEvidence(fit, poses, g, free, *priors);
+    if (evidence > best_evidence) best_evidence = evidence, best = f * class_width;
+  }
+  set_width(best);
+  return best;
 }
 
 }  // namespace
@@ -285,7 +266,7 @@ AccelVector StageOneUnits(const AccelParams& p, const std::vector<AccelPose>& po
 
 void SetModelSigma(const AccelParams& p, double g, const AccelMask& free, const AccelPriors& priors,
                    std::vector<AccelPose>* poses) {
-  const double tau = EstimateModelSigma(p, *poses, g, PosesPayFor(free, priors));
+  const double tau = EstimateModelSigma(p, *poses, g, EffectiveParameters(p, *poses, free, priors));
   for (auto& pose : *poses) pose.model_sigma_m_s2 = tau;
 }
 
@@ -349,23 +330,26 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
     out.priors =
         FaceAnglePriors(checks.protocol, checks.pairs, faces, *s1, &faces_fit_sigma, &out.warnings);
   }
+  // Stage 1's misfit, over the first-order model, as the first model error.
+  SetModelSigma(*s1, g, MaskOf(kAccelFirstOrder), out.priors, &poses);
+  // The model's own second-order terms (and the angles where no face measures them) by their
+  // evidence: a prior of the sensor class, never a switch (issue 25; term_priors.h).
+  for (AccelPrior& q : ClassAccelPriors(opt.term_priors, out.from_faces))
+    out.priors.push_back(std::move(q));
   const AccelPriors& priors = out.priors;
-  SetModelSigma(*s1, g, MaskOf(kAccelFirstOrder), priors, &poses);
   AccelMask all{};
   all.fill(true);
   if (bias_scale_only) all = MaskOf(kAccelBiasScale);
-  // What |a| = g alone knows of the faces' angles: where the faces' fit knows one ten times
-  // better, refits that cannot take the priors (the effect search's) hold it where the priors
-  // put it (their systematic part is what the combination already weighed).
+  // What |a| = g alone knows of the terms with a prior: where their prior knows one better (the
+  // faces' fit ten times better; a class prior at all), refits that cannot take the priors (the
+  // effect search's) hold it where the fit with the priors put it.
   out.refit_free = MaskOf(kAccelBiasScale);
-  if (!priors.empty()) {
-    const AccelObservability alone = AnalyseAccelObservability(*s1, poses, g, all);
-    for (const AccelPrior& q : priors) {
-      const size_t k = static_cast<size_t>(q.index);
-      const double faces_sigma = faces_fit_sigma(q.index);
-      out.refit_free[k] = alone.determined[k] &&
-                          !(std::isfinite(faces_sigma) && 10 * faces_sigma < alone.sigma(q.index));
-    }
+  const AccelObservability alone = AnalyseAccelObservability(*s1, poses, g, all);
+  for (const AccelPrior& q : priors) {
+    const size_t k = static_cast<size_t>(q.index);
+    const double faces_sigma = faces_fit_sigma(q.index);
+    const double prior_knows = std::isfinite(faces_sigma) ? 10 * faces_sigma : q.sigma;
+    out.refit_free[k] = alone.determined[k] && !(prior_knows < alone.sigma(q.index));
   }
   // An angle the face references measure is free whatever |a| = g adds: it is not neutral (0)
   // but the faces' value, with their error (the warnings say what was assumed).
@@ -390,12 +374,22 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   out.affine_only =
       out.from_faces && static_cast<int>(poses.size()) <= PosesPayFor(obs.determined, priors);
 
-  // 3. Second-order terms stay unless leaving them out predicts held-out poses better.
+  // 3. Every determined term is estimated; those with a prior are shrunk by it as far as the
+  //    poses leave them to it.
   out.free = obs.determined;
+  out.quadratic_prior_sigma = opt.term_priors.accel_quadratic_per_m_s2;
   if (!out.affine_only) {
     SetModelSigma(RefineAccelGaussNewton(*s1, poses, g, obs.determined, 10, priors), g,
                   obs.determined, priors, &poses);
-    out.free = SelectQuadratics(*s1, poses, g, obs.determined, priors, &out.warnings);
+    out.quadratic_prior_sigma = ChooseQuadraticWidth(
+        *s1, poses, g, obs.determined, opt.term_priors.accel_quadratic_per_m_s2, &out.priors);
+    for (AccelPrior& q : out.priors) {
+      if (q.index < kAccelQuadratic.begin) continue;
+      q.source += absl::StrFormat(" (its %.1e, the widest, narrowed to the capture's evidence)",
+                                  opt.term_priors.accel_quadratic_per_m_s2);
+      const size_t k = static_cast<size_t>(q.index);
+      out.refit_free[k] = alone.determined[k] && !(q.sigma < alone.sigma(q.index));
+    }
   }
 
   // 4. BSAS, then LM.
@@ -405,10 +399,10 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   for (int c = kAccelTri.begin; c < kAccelParams; ++c)
     if (!obs.determined[static_cast<size_t>(c)]) s1_vector(c) = 0;
   *s1 = UnpackAccel(s1_vector, s1->frame_angles);
-  const int pays_for = PosesPayFor(out.free, priors);
-  if (!out.affine_only && static_cast<int>(poses.size()) <= pays_for) {
+  const double pays_for = EffectiveParameters(*s1, poses, out.free, priors);
+  if (!out.affine_only && static_cast<double>(poses.size()) - pays_for < 0.5) {
     // As many poses as parameters: the solution fits every pose exactly, nothing checks it.
-    const int n_free = pays_for;
+    const int n_free = static_cast<int>(std::lround(pays_for));
     out.params = *s1;
     out.covariance = AccelCovariance(*s1, poses, out.free, priors);
     out.chi2_reduced = kNaN;
@@ -444,6 +438,9 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
     out.chi2_reduced = lm->chi2_reduced;
   }
   if (out.from_faces) out.params.frame_angles = FrameAngles(out.params, faces);
+  out.term_priors = DescribePriors(priors, out.params, out.covariance);
+  for (const TermPriorEffect& e : out.term_priors)
+    if (e.data_weight < 0.5) out.warnings.push_back(DescribePriorEffect(e));
   return out;
 }
 

@@ -3,9 +3,10 @@
 //   ls    stage 1, linear least squares: the face references' affine fit (six-face, ferraris;
 //         seeds/000), else the ellipsoid of |a| = g; with too few poses for either, bias and
 //         scale alone (the axis-aligned ellipsoid);
-//   then  what the poses determine (observability); six-face angles that the face references
-//         determine far better than |a| = g stay at their stage-1 value; second-order terms
-//         stay unless leaving them out predicts held-out poses better;
+//   then  what the poses determine (observability). The terms the poses may not determine are
+//         estimated with a prior, never switched off (maximum a posteriori): the faces' angles
+//         with the face references' own fit, the second-order terms (and the angles without
+//         faces) with the sensor class's widths (term_priors.h);
 //   bsas  stage 2 (seeds/002), in units of the stage-1 standard errors;
 //   lm    stage 3, Levenberg-Marquardt with the covariance; the case frame from the faces.
 // With the six faces once each and nothing more, the affine fit is the result.
@@ -19,6 +20,7 @@
 #include "core/accel_solver.h"
 #include "core/calibrate/calibrate.h"
 #include "core/calibrate/protocol_checks.h"
+#include "core/calibrate/term_priors.h"
 #include "core/static_detector.h"
 
 namespace imucal::core::pipeline {
@@ -33,11 +35,17 @@ struct AccelStage {
   std::vector<AccelPose> poses;
   AccelMask free{};  // the parameters estimated
   AccelObservability observability;
-  // The face references' angles as priors of the |a| = g fit (empty without face references).
+  // The priors of the |a| = g fit: the face references' angles, then the sensor class's
+  // second-order terms (and angles, without face references).
   AccelPriors priors;
-  // The parameters a refit without the priors may move: the determined ones, less the faces'
-  // angles that |a| = g alone knows ten times worse than the faces (refitting them on |a| = g
-  // alone fits noise). Before the second-order terms are selected (`free` is then narrower).
+  // The second-order terms' prior width the capture's evidence chose (at most the class's),
+  // 1/(m/s^2).
+  double quadratic_prior_sigma = 0;
+  // What each prior did to its term (the report's term_priors).
+  std::vector<TermPriorEffect> term_priors;
+  // The parameters a refit without the priors may move: the determined ones, less the terms
+  // whose prior knows them better than |a| = g alone (the faces' angles ten times better, a
+  // class prior at all): refitting them on |a| = g alone fits noise.
   AccelMask refit_free{};
   bool from_faces = false;   // stage 1 came from the face references (the case frame is known)
   bool affine_only = false;  // the face references' fit is the result (nothing to refine on)

@@ -207,6 +207,7 @@ absl::StatusOr<std::optional<AccelStage>> ProtocolAndAccel(const Capture& cap,
   Append(&rep->stages, accel->stages);
   Append(&rep->warnings, accel->warnings);
   rep->accel_chi2_reduced = accel->chi2_reduced;
+  rep->term_priors = accel->term_priors;
   timer->Mark("accel");
   return std::optional<AccelStage>(*std::move(accel));
 }
@@ -241,6 +242,7 @@ absl::StatusOr<CalibrationReport> CalibrateAccelOnly(const Capture& cap,
   rep.poses = MakePoseReports(intervals, accel->params, accel_residuals);
   AttachSources(cap, &rep.poses);
   rep.params = MakeParamSet(cap, *accel, GyroFit{}, intervals, rep.residual, rep.noise);
+  rep.params.term_priors = opt.term_priors;
   rep.params.has_gyro = false;
   if (RefuseWrongUnit(cap, intervals, accel->used, &rep)) return rep;
   rep.warnings.push_back(
@@ -332,6 +334,7 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   rep.poses = MakePoseReports(intervals, accel->params, accel_residuals);
   AttachSources(cap, &rep.poses);
   rep.params = MakeParamSet(cap, *accel, gyro.fit, intervals, rep.residual, rep.noise);
+  rep.params.term_priors = opt.term_priors;
   ReportGyroFit(cap, gyro.planned, rough.turns, gyro.fit, &rep);
   timer.Mark("report");
   if (RefuseWrongUnit(cap, intervals, accel->used, &rep)) return rep;

@@ -55,6 +55,9 @@ struct CalibrateOptions {
   // Tried only when `multipliers` find too few poses for the full model: poses held by hand
   // shake more than a rest on a table (the noise is learnt there), up to 16x its std.
   std::vector<double> escalation_multipliers = {64, 96, 128, 192, 256};
+  // The prior widths of the model's own terms (core/params.h; TermPriorsFor in
+  // core/calibrate/term_priors.h gives a class's).
+  TermPriors term_priors;
 };
 
 // A capture that cannot determine even bias and scale is not an error: the report's verdict is

@@ -14,6 +14,7 @@
 #include "core/accel_solver.h"
 #include "core/allan.h"
 #include "core/bias_wander.h"
+#include "core/calibrate/term_priors.h"
 #include "core/calibrate/verdict.h"
 #include "core/effects.h"
 #include "core/params.h"
@@ -111,6 +112,9 @@ struct CalibrationReport {
   Residuals residual;
   ParamSet params;
   double accel_chi2_reduced = 0;
+  // What each prior did to its term (core/calibrate/term_priors.h): the faces' angles, the
+  // sensor class's second-order terms.
+  std::vector<TermPriorEffect> term_priors;
   Verdict verdict = Verdict::kFail;
   // The gates that failed or warned and what the capture left incomplete (verdict.h).
   std::vector<std::string> verdict_reasons;

@@ -49,6 +49,9 @@ def run(imucal, inputs, out_json):
 
 
 def params_of(report):
+    """The compared parameters: (value, standard error or None) by name. The first twelve are
+    the table's (bias and scale); the rest (angles, second-order terms, the gyro matrix's
+    off-diagonal) join the z statistics only."""
     if not report or report.get("verdict") == "refused":
         return None
     a, g = report["parameters"]["accel"], report["parameters"]["gyro"]
@@ -59,6 +62,30 @@ def params_of(report):
         out[f"accel scale {ax}"] = (a["scale"][k], a["stderr"]["scale"][k])
         out[f"gyro bias {ax}"] = (g["bias"][k], g["stderr"]["bias"][k])
         out[f"gyro scale {ax}"] = (g["matrix"][k][k], g["stderr"]["matrix"][k][k])
+    for k, name in enumerate(("t_yx", "t_zx", "t_zy")):
+        out[f"accel {name}"] = (a["tri_angles"][k], a["stderr"]["tri_angles"][k])
+    for k in range(3):
+        out[f"accel quadratic {'xyz'[k]}"] = (a["quadratic"][k], a["stderr"]["quadratic"][k])
+    for r in range(3):
+        for c in range(3):
+            if r != c:
+                out[f"gyro matrix {'xyz'[r]}{'xyz'[c]}"] = (g["matrix"][r][c],
+                                                            g["stderr"]["matrix"][r][c])
+    return out
+
+
+TABLE_KEYS = 12
+
+
+def pairwise_z(runs):
+    """Every parameter's difference between every two captures, in combined standard errors
+    (|p_i - p_j| / sqrt(se_i^2 + se_j^2)); honest standard errors make these |N(0, 1)|."""
+    out = []
+    for (n1, p1), (n2, p2) in itertools.combinations(runs, 2):
+        for k in p1:
+            (v1, s1), (v2, s2) = p1[k], p2[k]
+            if s1 and s2 and v1 is not None and v2 is not None:
+                out.append((abs(v1 - v2) / math.hypot(s1, s2), k, n1, n2))
     return out
 
 
@@ -96,6 +123,10 @@ def main():
     ap.add_argument("imucal")
     ap.add_argument("data_dir")
     ap.add_argument("--json", help="write the figures as JSON here")
+    ap.add_argument("--z-rms-max", type=float, default=None,
+                    help="fail when the RMS of the pairwise z exceeds this")
+    ap.add_argument("--z-max", type=float, default=None,
+                    help="fail when any pairwise z exceeds this")
     args = ap.parse_args()
     runs = []  # (name, rc, report, imutk or None)
     tmp = tempfile.mkdtemp(prefix="imucal-repeat-")
@@ -124,7 +155,7 @@ def main():
         print(f"| {name} | {rc} | {verdict} | {reasons[:160]} | {freed(rep)} | {effects(rep)} |")
 
     solved = [(n, params_of(r), tk) for n, _, r, tk, _ in runs if params_of(r)]
-    keys = list(solved[0][1].keys()) if solved else []
+    keys = list(solved[0][1].keys())[:TABLE_KEYS] if solved else []
     print()
     print("| parameter | " + " | ".join(f"{n} imucal | {n} IMU-TK" for n, _, _ in solved) +
           " | spread (combined SE) |")
@@ -144,13 +175,37 @@ def main():
                 worst = max(worst, abs(v1 - v2) / math.hypot(s1, s2))
         spreads[k] = worst
         print(f"| {k} | " + " | ".join(cells) + f" | {worst:.1f} |")
+    zs = pairwise_z(text_runs)
+    bad = []
+    if zs:
+        z_rms = math.sqrt(sum(z * z for z, *_ in zs) / len(zs))
+        worst = max(zs)
+        print()
+        print(f"pairwise differences over {len(text_runs)} captures: {len(zs)} parameter pairs, "
+              f"RMS {z_rms:.2f} combined SE (1 if honest), mean |z| "
+              f"{sum(z for z, *_ in zs) / len(zs):.2f} (0.80 if honest), "
+              f"{sum(z > 2 for z, *_ in zs)} above 2, {sum(z > 3 for z, *_ in zs)} above 3; "
+              f"largest {worst[0]:.1f} ({worst[1]}, {worst[2]} vs {worst[3]})")
+        for z, k, n1, n2 in sorted(zs, reverse=True)[:8]:
+            print(f"  {z:4.1f}  {k}  ({n1} vs {n2})")
+        if args.z_rms_max is not None and z_rms > args.z_rms_max:
+            bad.append(f"RMS of the pairwise z {z_rms:.2f} above {args.z_rms_max}")
+        if args.z_max is not None and worst[0] > args.z_max:
+            bad.append(f"largest pairwise z {worst[0]:.1f} above {args.z_max}")
+    elif args.z_rms_max is not None or args.z_max is not None:
+        bad.append("fewer than two captures calibrated: nothing to compare")
+    for b in bad:
+        print("FAIL: " + b)
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"runs": [{"name": n, "exit": rc, "verdict": (r or {}).get("verdict"),
                                  "reasons": (r or {}).get("verdict_reasons"),
                                  "refusal": (r or {}).get("refusal"),
                                  "params": params_of(r)} for n, rc, r, _, _ in runs],
-                       "spread_combined_se": spreads}, f, indent=1)
+                       "spread_combined_se": spreads,
+                       "pairwise_z": [{"z": z, "parameter": k, "captures": [n1, n2]}
+                                      for z, k, n1, n2 in zs]}, f, indent=1)
+    return 1 if bad else 0
 
 
 if __name__ == "__main__":
