@@ -62,10 +62,16 @@ grpc::ServerUnaryReactor* DeviceServiceImpl::RegisterDevice(
 grpc::ServerUnaryReactor* DeviceServiceImpl::GetDevice(grpc::CallbackServerContext* context,
                                                        const v1::GetDeviceRequest* request,
                                                        v1::Device* response) {
-  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetDevice); !who.ok())
-    return FinishUnary(context, who.status());
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetDevice);
+  if (!who.ok()) return FinishUnary(context, who.status());
   if (request->device_id().empty())
     return FinishUnary(context, absl::InvalidArgumentError("device_id: required"));
+  // A robot reads only its own device; checked before the lookup, so whether another device
+  // exists is not told either.
+  if (absl::Status s =
+          auth_->AuthorizeDevice(*context, **who, Rpc::kGetDevice, request->device_id());
+      !s.ok())
+    return FinishUnary(context, s);
   absl::StatusOr<storage::Device> device = store_->GetDevice(request->device_id());
   if (!device.ok()) return FinishUnary(context, device.status());
   *response = ToProto(*device);

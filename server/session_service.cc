@@ -271,8 +271,13 @@ grpc::ServerUnaryReactor* SessionServiceImpl::GetSession(grpc::CallbackServerCon
 grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(grpc::CallbackServerContext* context,
                                                            const v1::ListSessionsRequest* request,
                                                            v1::ListSessionsResponse* response) {
-  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListSessions); !who.ok())
-    return FinishUnary(context, who.status());
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListSessions);
+  if (!who.ok()) return FinishUnary(context, who.status());
+  // A robot lists only its own device's sessions: it must name its device.
+  if (absl::Status s =
+          auth_->AuthorizeDevice(*context, **who, Rpc::kListSessions, request->device_id());
+      !s.ok())
+    return FinishUnary(context, s);
   std::optional<storage::SessionState> state;
   if (request->state() != v1::SESSION_STATE_UNSPECIFIED) {
     absl::StatusOr<storage::SessionState> s = FromProto(request->state());
