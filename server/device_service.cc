@@ -1,3 +1,4 @@
+#include <optional>
 #include <regex>
 #include <string>
 
@@ -8,6 +9,7 @@
 #include "server/convert.h"
 #include "server/services.h"
 #include "server/unary.h"
+#include "util/text_check.h"
 
 namespace imucal::server {
 namespace {
@@ -18,6 +20,9 @@ absl::Status ValidateDevice(const v1::Device& device) {
     return absl::InvalidArgumentError("device.id: must match [A-Za-z0-9._-]{1,64}");
   if (device.sensor_model().size() > 256)
     return absl::InvalidArgumentError("device.sensor_model: at most 256 characters");
+  // Shown in `imucal devices` and reports: no control character, C0 or C1.
+  if (std::optional<UnreadableChar> bad = FindUnreadableChar(device.sensor_model()))
+    return absl::InvalidArgumentError(bad->Message("device.sensor_model"));
   if (!(device.nominal_rate_hz() > 0 && device.nominal_rate_hz() <= 100000))
     return absl::InvalidArgumentError("device.nominal_rate_hz: must be in (0, 100000] Hz");
   if (!core::ParseAccelUnit(device.accel_unit()).ok())

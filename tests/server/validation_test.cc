@@ -886,7 +886,44 @@ TEST_F(ValidationTest, PromoteAndRollbackReasonsAreCapped) {
                 "reason: 1025 bytes, at most 1024");
   rollback.set_reason(std::string("line one\x01", 9));
   EXPECT_STATUS(params->Rollback(Ctx().get(), rollback, &set), INVALID_ARGUMENT,
-                "reason: a control character at byte 9");
+                "reason: a control character at byte 9 (U+0001)");
+}
+
+// Free text that people read (a reason, a capture's source, a sensor model) refuses the C1
+// controls (U+0080-U+009F) as it refuses C0 ones, naming the field, the byte and the character:
+// U+0085 is a line break to many readers, U+009B a terminal's CSI (util/text_check.h).
+TEST_F(ValidationTest, FreeTextRefusesC1ControlsLikeC0Ones) {
+  StartServer();
+  const std::string s = NewSession("robot-c1");
+  auto params = v1::ParameterService::NewStub(channel_);
+  v1::PromoteRequest promote;
+  promote.set_device_id("robot-c1");
+  promote.set_version(1);
+  promote.set_reason("approved\u0085by QA");
+  v1::ParameterSet set;
+  EXPECT_STATUS(params->Promote(Ctx().get(), promote, &set), INVALID_ARGUMENT,
+                "reason: a control character at byte 9 (U+0085)");
+  promote.set_reason("tab\tand\nnewline are a paragraph's; \u00e9 is a letter");
+  EXPECT_STATUS(params->Promote(Ctx().get(), promote, &set), NOT_FOUND, "");  // past the check
+
+  v1::SampleBatch b = RestBatch(s, 1);
+  b.set_source("cap\u009b31m.csv");
+  EXPECT_STATUS(StreamAsIs({b}), INVALID_ARGUMENT,
+                "source: a control character at byte 4 (U+009B)");
+  EXPECT_EQ(GetSession(s).samples(), 0);
+
+  v1::RegisterDeviceRequest reg;
+  reg.mutable_device()->set_id("robot-c1-model");
+  reg.mutable_device()->set_sensor_model("BMI\u0085088");
+  reg.mutable_device()->set_nominal_rate_hz(kRateHz);
+  reg.mutable_device()->set_accel_unit("m/s^2");
+  reg.mutable_device()->set_gyro_unit("rad/s");
+  v1::Device d;
+  EXPECT_STATUS(devices_->RegisterDevice(Ctx().get(), reg, &d), INVALID_ARGUMENT,
+                "device.sensor_model: a control character at byte 4 (U+0085)");
+  reg.mutable_device()->set_sensor_model("BMI\x1b[2J088");
+  EXPECT_STATUS(devices_->RegisterDevice(Ctx().get(), reg, &d), INVALID_ARGUMENT,
+                "device.sensor_model: a control character at byte 4 (U+001B)");
 }
 
 // A bad rostopic is echoed as it was sent: the path scrubber (which hides the server's files)
