@@ -926,6 +926,61 @@ TEST_F(ValidationTest, FreeTextRefusesC1ControlsLikeC0Ones) {
                 "device.sensor_model: a control character at byte 4 (U+001B)");
 }
 
+// GetSolveJob's job_id is "solve-<n>", n a positive integer as SolveSession returns it: any
+// other form is INVALID_ARGUMENT naming it (the proto's contract), and only a well-formed id of
+// no job is NOT_FOUND. "solve--1" used to go to storage as -1 and come back NOT_FOUND.
+TEST_F(ValidationTest, GetSolveJobRefusesMalformedIds) {
+  StartServer();
+  v1::SolveJob job;
+  v1::GetSolveJobRequest get;
+  const std::vector<std::string> malformed = {"solve--1",
+                                              "solve-",
+                                              "solve-0",
+                                              "solve-007",
+                                              "solve- 7",
+                                              "solve-+7",
+                                              "solve-7 ",
+                                              "solve-7x",
+                                              "solve-1.0",
+                                              "SOLVE-7",
+                                              "job-7",
+                                              "solve-99999999999999999999",
+                                              std::string("solve-7\0", 8)};
+  for (const std::string& bad : malformed) {
+    get.set_job_id(bad);
+    const grpc::Status st = sessions_->GetSolveJob(Ctx().get(), get, &job);
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT)
+        << bad << ": " << st.error_message();
+    EXPECT_THAT(st.error_message(), HasSubstr("is not a solve job id (\"solve-<n>\", n a "
+                                              "positive integer"))
+        << bad;
+  }
+  get.set_job_id("solve--1");
+  EXPECT_STATUS(sessions_->GetSolveJob(Ctx().get(), get, &job), INVALID_ARGUMENT,
+                "job_id: 'solve--1' is not a solve job id");
+  get.set_job_id("solve-" + std::string(1000, '9'));  // echoed cut short
+  const grpc::Status long_id = sessions_->GetSolveJob(Ctx().get(), get, &job);
+  EXPECT_EQ(long_id.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_LT(long_id.error_message().size(), 200u) << long_id.error_message();
+  get.set_job_id("");
+  EXPECT_STATUS(sessions_->GetSolveJob(Ctx().get(), get, &job), INVALID_ARGUMENT,
+                "job_id: required");
+  get.set_job_id("solve-999");
+  EXPECT_STATUS(sessions_->GetSolveJob(Ctx().get(), get, &job), NOT_FOUND, "");
+
+  // A job SolveSession returned is found by its id.
+  const std::string s = NewSession("robot-job");
+  ASSERT_TRUE(Stream({RestBatch(s, 1)}).ok());
+  v1::SolveSessionRequest solve;
+  solve.set_session_id(s);
+  v1::SolveJob started;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), solve, &started).ok());
+  get.set_job_id(started.id());
+  grpc::Status found = sessions_->GetSolveJob(Ctx().get(), get, &job);
+  EXPECT_TRUE(found.ok()) << started.id() << ": " << found.error_message();
+  EXPECT_EQ(job.session_id(), s);
+}
+
 // A bad rostopic is echoed as it was sent: the path scrubber (which hides the server's files)
 // leaves request fields alone ("/imu0 raw" used to come back as "<path> raw").
 TEST_F(ValidationTest, ABadRostopicIsNamedAsSent) {
