@@ -485,7 +485,7 @@ absl::StatusOr<int> SessionServiceImpl::ResumeLapsedSolves(std::string_view rest
                           " times and each time its server stopped before it ended; solve the "
                           "session again (the server's log may say why)")
                     : Cat("the session cannot be loaded to solve it again: ",
-                          live.status().message());
+                          ClientMessage(live.status()));
       if (absl::Status s = FailAndReopen(solve.id, error); !s.ok()) return s;
       if (live.ok()) hub_.CloseSession(**live);
       if (env_.metrics != nullptr) env_.metrics->CountSolveTakenOver("given_up");
