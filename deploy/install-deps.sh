@@ -19,6 +19,7 @@ packages=(
   librsvg2-bin  # tests: the SVG plots rendered to PNG (rsvg-convert)
   postgresql  # deploy/pg-throwaway.sh: the throwaway cluster the PostgreSQL tests run against
   prometheus-cpp-dev  # imucald's Prometheus metrics (server/metrics.h)
+  libmicrohttpd-dev  # the metrics' HTTP endpoint (server/metrics_http.h)
   libssl-dev openssl  # TLS and token hashing (libcrypto); the openssl CLI makes deploy/demo.sh's certificates
 )
 missing=()

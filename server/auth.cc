@@ -22,16 +22,18 @@ using storage::Role;
 constexpr RpcRule kRpcRules[] = {
     {Rpc::kRegisterDevice, "/imucal.v1.DeviceService/RegisterDevice", true, false, true,
      "admin registers devices; a robot re-registers itself at every boot (its own id only)"},
-    {Rpc::kGetDevice, "/imucal.v1.DeviceService/GetDevice", false, true, true,
-     "technicians read devices"},
+    {Rpc::kGetDevice, "/imucal.v1.DeviceService/GetDevice", true, true, true,
+     "technicians read devices; a robot reads its own (imucal upload checks the capture's "
+     "units against it)"},
     {Rpc::kListDevices, "/imucal.v1.DeviceService/ListDevices", false, true, true,
      "technicians read devices"},
     {Rpc::kCreateSession, "/imucal.v1.SessionService/CreateSession", false, true, true,
      "the technician opens a session (guide, upload)"},
     {Rpc::kGetSession, "/imucal.v1.SessionService/GetSession", true, true, true,
      "a robot's uploader reads its session to resume"},
-    {Rpc::kListSessions, "/imucal.v1.SessionService/ListSessions", false, true, true,
-     "sessions are the technician's"},
+    {Rpc::kListSessions, "/imucal.v1.SessionService/ListSessions", true, true, true,
+     "technicians list sessions; a robot lists its own device's (imucal upload joins the "
+     "session the guide opened)"},
     {Rpc::kCancelSession, "/imucal.v1.SessionService/CancelSession", false, true, true,
      "sessions are the technician's"},
     {Rpc::kStreamSamples, "/imucal.v1.SessionService/StreamSamples", true, true, true,
@@ -206,10 +208,15 @@ absl::Status Authorizer::AuthorizeDevice(const grpc::ServerContextBase& /*contex
                                          const Principal& who, Rpc rpc,
                                          std::string_view device_id) {
   if (who.role != Role::kRobot || who.device_id == device_id) return absl::OkStatus();
+  // An empty device: a request that may name none (ListSessions of every device).
   return Deny(
       CallerOf(who), rpc,
       absl::PermissionDeniedError(
-          Cat("robot ", who.device_id, " may act only for its own device, not '", device_id, "'")));
+          device_id.empty()
+              ? Cat("robot ", who.device_id,
+                    " may act only for its own device: name it (device_id '", who.device_id, "')")
+              : Cat("robot ", who.device_id, " may act only for its own device, not '", device_id,
+                    "'")));
 }
 
 absl::StatusOr<PrincipalRef> Authorizer::AuthorizeForDevice(const grpc::ServerContextBase& context,

@@ -1,3 +1,4 @@
+#include <optional>
 #include <regex>
 #include <string>
 
@@ -8,6 +9,7 @@
 #include "server/convert.h"
 #include "server/services.h"
 #include "server/unary.h"
+#include "util/text_check.h"
 
 namespace imucal::server {
 namespace {
@@ -18,6 +20,9 @@ absl::Status ValidateDevice(const v1::Device& device) {
     return absl::InvalidArgumentError("device.id: must match [A-Za-z0-9._-]{1,64}");
   if (device.sensor_model().size() > 256)
     return absl::InvalidArgumentError("device.sensor_model: at most 256 characters");
+  // Shown in `imucal devices` and reports: no control character, C0 or C1.
+  if (std::optional<UnreadableChar> bad = FindUnreadableChar(device.sensor_model()))
+    return absl::InvalidArgumentError(bad->Message("device.sensor_model"));
   if (!(device.nominal_rate_hz() > 0 && device.nominal_rate_hz() <= 100000))
     return absl::InvalidArgumentError("device.nominal_rate_hz: must be in (0, 100000] Hz");
   if (!core::ParseAccelUnit(device.accel_unit()).ok())
@@ -62,10 +67,16 @@ grpc::ServerUnaryReactor* DeviceServiceImpl::RegisterDevice(
 grpc::ServerUnaryReactor* DeviceServiceImpl::GetDevice(grpc::CallbackServerContext* context,
                                                        const v1::GetDeviceRequest* request,
                                                        v1::Device* response) {
-  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetDevice); !who.ok())
-    return FinishUnary(context, who.status());
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetDevice);
+  if (!who.ok()) return FinishUnary(context, who.status());
   if (request->device_id().empty())
     return FinishUnary(context, absl::InvalidArgumentError("device_id: required"));
+  // A robot reads only its own device; checked before the lookup, so whether another device
+  // exists is not told either.
+  if (absl::Status s =
+          auth_->AuthorizeDevice(*context, **who, Rpc::kGetDevice, request->device_id());
+      !s.ok())
+    return FinishUnary(context, s);
   absl::StatusOr<storage::Device> device = store_->GetDevice(request->device_id());
   if (!device.ok()) return FinishUnary(context, device.status());
   *response = ToProto(*device);

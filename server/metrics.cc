@@ -1,18 +1,15 @@
 #include "server/metrics.h"
 
-#include <exception>
 #include <mutex>
 #include <sstream>
 #include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
-#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/time/clock.h"
 #include "prometheus/collectable.h"
 #include "prometheus/counter.h"
-#include "prometheus/exposer.h"
 #include "prometheus/family.h"
 #include "prometheus/histogram.h"
 #include "prometheus/registry.h"
@@ -126,33 +123,14 @@ Metrics::Metrics()
 
 Metrics::~Metrics() = default;
 
-absl::StatusOr<std::unique_ptr<Metrics>> Metrics::Start(const std::string& listen) {
+absl::StatusOr<std::unique_ptr<Metrics>> Metrics::Start(const std::string& listen,
+                                                        const MetricsHttpLimits& limits) {
   std::unique_ptr<Metrics> m(new Metrics());
   if (listen.empty()) return m;
-  // HOST:PORT, checked here: the HTTP server's own error does not say what is wrong.
-  const size_t colon = listen.rfind(':');
-  int port = -1;
-  if (colon == std::string::npos || colon == 0 ||
-      !absl::SimpleAtoi(listen.substr(colon + 1), &port) || port < 0 ||
-      port > 65535) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "metrics_listen: expected HOST:PORT with a port from 0 to 65535 (e.g. 127.0.0.1:9464), "
-        "got '", listen, "'"));
-  }
-  try {
-    // One thread serves scrapes: a replica is scraped every few seconds, by one Prometheus.
-    m->exposer_ = std::make_unique<prometheus::Exposer>(listen, /*num_threads=*/1);
-  } catch (const std::exception&) {
-    return absl::UnavailableError(
-        absl::StrCat("metrics_listen: cannot listen on ", listen,
-                     ": the port is in use, or the host is not an address of this machine"));
-  }
-  m->exposer_->RegisterCollectable(m->registry_);
-  m->exposer_->RegisterCollectable(m->gauges_);
-  const std::vector<int> ports = m->exposer_->GetListeningPorts();
-  if (ports.empty())
-    return absl::UnavailableError(absl::StrCat("metrics_listen: not listening on ", listen));
-  m->port_ = ports.front();
+  absl::StatusOr<std::unique_ptr<MetricsHttpEndpoint>> endpoint = MetricsHttpEndpoint::Start(
+      listen, [metrics = m.get()] { return metrics->Text(); }, limits);
+  if (!endpoint.ok()) return endpoint.status();
+  m->endpoint_ = *std::move(endpoint);
   return m;
 }
 

@@ -1,6 +1,7 @@
-// Prometheus metrics of one imucald (one replica of a fleet's servers), through prometheus-cpp
+// Prometheus metrics of one imucald (one replica of a fleet's servers), kept with prometheus-cpp
 // (Debian's prometheus-cpp-dev). Served in the text exposition format at
-// http://<metrics_listen>/metrics when ServerOptions::metrics_listen is set; scraped per replica.
+// http://<metrics_listen>/metrics when ServerOptions::metrics_listen is set, by the endpoint of
+// server/metrics_http.h (which says what it answers to anything else); scraped per replica.
 //
 // What is measured (names are the exported ones; units are in the names):
 //   imucal_rpc_total{method,code}                    calls completed, by gRPC status code
@@ -28,9 +29,9 @@
 #include "absl/time/time.h"
 #include "grpcpp/support/server_interceptor.h"
 #include "grpcpp/support/status.h"
+#include "server/metrics_http.h"
 
 namespace prometheus {
-class Exposer;
 class Registry;
 }  // namespace prometheus
 
@@ -39,13 +40,15 @@ namespace imucal::server {
 class Metrics {
  public:
   // `listen` "HOST:PORT" (port 0 picks a free one) serves /metrics over HTTP; empty: no
-  // endpoint (Text() still gives what a scrape would). Unavailable when it cannot listen.
-  static absl::StatusOr<std::unique_ptr<Metrics>> Start(const std::string& listen);
+  // endpoint (Text() still gives what a scrape would). InvalidArgument when `listen` is not
+  // HOST:PORT, Unavailable when it cannot listen there (MetricsHttpEndpoint::Start).
+  static absl::StatusOr<std::unique_ptr<Metrics>> Start(const std::string& listen,
+                                                        const MetricsHttpLimits& limits = {});
   ~Metrics();
   Metrics(const Metrics&) = delete;
   Metrics& operator=(const Metrics&) = delete;
 
-  int port() const { return port_; }  // the endpoint's port; 0 without one
+  int port() const { return endpoint_ == nullptr ? 0 : endpoint_->port(); }  // 0 without one
 
   void ObserveRpc(std::string_view method, grpc::StatusCode code, absl::Duration duration);
   void CountSamplesReceived(int64_t samples);
@@ -74,8 +77,7 @@ class Metrics {
   std::shared_ptr<prometheus::Registry> registry_;
   std::unique_ptr<Families> families_;
   std::shared_ptr<Gauges> gauges_;
-  std::unique_ptr<prometheus::Exposer> exposer_;  // last: stops serving before the rest goes
-  int port_ = 0;
+  std::unique_ptr<MetricsHttpEndpoint> endpoint_;  // last: stops serving before the rest goes
 };
 
 }  // namespace imucal::server

@@ -9,6 +9,7 @@
 #include "server/convert.h"
 #include "server/services.h"
 #include "server/unary.h"
+#include "util/text_check.h"
 
 namespace imucal::server {
 namespace {
@@ -23,8 +24,8 @@ absl::Status RequireVersion(int version, const char* field) {
 }
 
 // Promote's and Rollback's `reason` goes into the audit log: free text, but a paragraph at
-// most (a 120 KB one was once stored), and no control characters but tab and newline (a log
-// reader's terminal would interpret them).
+// most (a 120 KB one was once stored), and no control characters, C0 or C1, but tab and newline
+// (a log reader's terminal would interpret them; util/text_check.h).
 constexpr size_t kMaxReasonBytes = 1024;
 
 absl::Status ValidateReason(const std::string& reason) {
@@ -32,12 +33,8 @@ absl::Status ValidateReason(const std::string& reason) {
     return absl::InvalidArgumentError(
         absl::StrCat("reason: ", reason.size(), " bytes, at most ", kMaxReasonBytes));
   }
-  for (size_t i = 0; i < reason.size(); ++i) {
-    const auto c = static_cast<unsigned char>(reason[i]);
-    if ((c < 0x20 && c != '\t' && c != '\n') || c == 0x7f)
-      return absl::InvalidArgumentError(
-          absl::StrCat("reason: a control character at byte ", i + 1));
-  }
+  if (std::optional<UnreadableChar> bad = FindUnreadableChar(reason, "\t\n"))
+    return absl::InvalidArgumentError(bad->Message("reason"));
   return absl::OkStatus();
 }
 

@@ -5,6 +5,7 @@
 #include <utility>
 #include <vector>
 
+#include "absl/strings/escaping.h"
 #include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
@@ -32,6 +33,28 @@ constexpr char kServerActor[] = "imucald";  // the audit's actor for what the se
 // bounded; beyond, the call is RESOURCE_EXHAUSTED.
 constexpr int kLoaderThreads = 2;
 constexpr size_t kLoaderQueueLimit = 4096;
+
+// A SolveJob.id: "solve-<n>", n the solve's id as the server writes it, a positive decimal
+// integer without sign, spaces or leading zeros (absl::SimpleAtoi alone took "solve--1" and
+// "solve- 7", which then went to storage and came back NOT_FOUND). At most 18 digits: int64.
+absl::StatusOr<int64_t> ParseJobId(const std::string& job_id) {
+  if (job_id.empty()) return absl::InvalidArgumentError("job_id: required");
+  absl::string_view digits = job_id;
+  const bool well_formed =
+      absl::ConsumePrefix(&digits, kJobPrefix) && !digits.empty() && digits.size() <= 18 &&
+      digits[0] != '0' &&
+      std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; });
+  int64_t id = 0;
+  if (!well_formed || !absl::SimpleAtoi(digits, &id)) {
+    // The id as sent, escaped (it may hold anything) and cut to a readable length.
+    const std::string shown = absl::CHexEscape(job_id.substr(0, 64));
+    return EchoesRequest(absl::InvalidArgumentError(
+        absl::StrCat("job_id: '", shown, job_id.size() > 64 ? "...' " : "' ",
+                     "is not a solve job id (\"solve-<n>\", n a positive integer, as SolveSession "
+                     "returns it)")));
+  }
+  return id;
+}
 
 absl::Status LoadersFull() {
   return absl::ResourceExhaustedError("too many sessions are being loaded; retry in a moment");
@@ -271,8 +294,13 @@ grpc::ServerUnaryReactor* SessionServiceImpl::GetSession(grpc::CallbackServerCon
 grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(grpc::CallbackServerContext* context,
                                                            const v1::ListSessionsRequest* request,
                                                            v1::ListSessionsResponse* response) {
-  if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListSessions); !who.ok())
-    return FinishUnary(context, who.status());
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kListSessions);
+  if (!who.ok()) return FinishUnary(context, who.status());
+  // A robot lists only its own device's sessions: it must name its device.
+  if (absl::Status s =
+          auth_->AuthorizeDevice(*context, **who, Rpc::kListSessions, request->device_id());
+      !s.ok())
+    return FinishUnary(context, s);
   std::optional<storage::SessionState> state;
   if (request->state() != v1::SESSION_STATE_UNSPECIFIED) {
     absl::StatusOr<storage::SessionState> s = FromProto(request->state());
@@ -457,7 +485,7 @@ absl::StatusOr<int> SessionServiceImpl::ResumeLapsedSolves(std::string_view rest
                           " times and each time its server stopped before it ended; solve the "
                           "session again (the server's log may say why)")
                     : Cat("the session cannot be loaded to solve it again: ",
-                          live.status().message());
+                          ClientMessage(live.status()));
       if (absl::Status s = FailAndReopen(solve.id, error); !s.ok()) return s;
       if (live.ok()) hub_.CloseSession(**live);
       if (env_.metrics != nullptr) env_.metrics->CountSolveTakenOver("given_up");
@@ -667,10 +695,8 @@ grpc::ServerUnaryReactor* SessionServiceImpl::SolveSession(grpc::CallbackServerC
 
 absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& request,
                                                v1::SolveJob* response) {
-  absl::string_view id = request.job_id();
-  int64_t solve_id = 0;
-  if (!absl::ConsumePrefix(&id, kJobPrefix) || !absl::SimpleAtoi(id, &solve_id))
-    return absl::InvalidArgumentError("job_id: not a solve job id (\"solve-<n>\")");
+  absl::StatusOr<int64_t> solve_id = ParseJobId(request.job_id());
+  if (!solve_id.ok()) return solve_id.status();
   {
     std::lock_guard lock(jobs_mu_);
     if (auto it = jobs_.find(request.job_id()); it != jobs_.end()) {
@@ -679,7 +705,7 @@ absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& req
     }
   }
   // A job of an earlier server run, or of another server's: from storage.
-  absl::StatusOr<storage::Solve> solve = store_->GetSolve(solve_id);
+  absl::StatusOr<storage::Solve> solve = store_->GetSolve(*solve_id);
   if (!solve.ok()) return solve.status();
   return JobFromStore(*solve, response);
 }

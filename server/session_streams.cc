@@ -29,6 +29,7 @@
 #include "server/services.h"
 #include "server/status_util.h"
 #include "storage/sample_codec.h"
+#include "util/text_check.h"
 
 namespace imucal::server {
 namespace {
@@ -46,17 +47,14 @@ std::string CallerKey(const Principal& who) {
 std::string Seconds(absl::Duration d) { return absl::StrCat(absl::ToDoubleSeconds(d), " s"); }
 
 // SampleBatch.source: a name for a person to read in messages (a file name, the robot's capture
-// label), so short and printable.
+// label), so short and printable: no control character, C0 or C1 (util/text_check.h).
 absl::Status ValidateSource(const std::string& source) {
   if (source.size() > kMaxSourceBytes) {
     return absl::InvalidArgumentError(
         absl::StrCat("source: ", source.size(), " bytes, at most ", kMaxSourceBytes));
   }
-  for (size_t i = 0; i < source.size(); ++i) {
-    if (static_cast<unsigned char>(source[i]) < 0x20 || source[i] == 0x7f)
-      return absl::InvalidArgumentError(
-          absl::StrCat("source: a control character at byte ", i + 1));
-  }
+  if (std::optional<UnreadableChar> bad = FindUnreadableChar(source))
+    return absl::InvalidArgumentError(bad->Message("source"));
   return absl::OkStatus();
 }
 

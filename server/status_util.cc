@@ -1,6 +1,8 @@
 #include "server/status_util.h"
 
+#include <cstdint>
 #include <cstdio>
+#include <mutex>
 #include <optional>
 #include <string>
 
@@ -9,6 +11,9 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
+#include "absl/time/clock.h"
+#include "server/log.h"
+#include "storage/db.h"
 #include "storage/types.h"
 
 namespace imucal::server {
@@ -47,6 +52,36 @@ std::string WithoutOperation(const absl::Status& status) {
   return message;
 }
 
+// The detail of a database error, for the operator: at most one line a second per event, so
+// that an outage (every call failing alike) does not flood the log; a line says how many were
+// left out before it.
+void LogDatabaseError(const absl::Status& status) {
+  const bool unavailable = status.code() == absl::StatusCode::kUnavailable;
+  struct Limiter {
+    std::mutex mu;
+    absl::Time last = absl::InfinitePast();
+    int64_t left_out = 0;
+  };
+  static Limiter limiters[2];
+  Limiter& l = limiters[unavailable ? 0 : 1];
+  int64_t left_out = 0;
+  {
+    std::lock_guard lock(l.mu);
+    const absl::Time now = absl::Now();
+    if (now - l.last < absl::Seconds(1)) {
+      ++l.left_out;
+      return;
+    }
+    l.last = now;
+    left_out = l.left_out;
+    l.left_out = 0;
+  }
+  Log(LogLevel::kWarning, unavailable ? "database_unavailable" : "database_error",
+      {{"code", absl::StatusCodeToString(status.code())},
+       {"error", std::string(status.message())},
+       {"left_out", left_out}});
+}
+
 grpc::StatusCode ToGrpcCode(absl::StatusCode code) {
   // absl's canonical codes are gRPC's, number for number.
   return static_cast<grpc::StatusCode>(static_cast<int>(code));
@@ -66,7 +101,33 @@ absl::Status EchoesRequest(absl::Status status) {
   return status;
 }
 
+std::string DatabaseErrorMessage(absl::StatusCode code) {
+  switch (code) {
+    case absl::StatusCode::kUnavailable:
+      return kDatabaseUnavailableMessage;
+    case absl::StatusCode::kAlreadyExists:
+    case absl::StatusCode::kFailedPrecondition:
+    case absl::StatusCode::kAborted:
+      return "the calibration service's database refused the change: another one made at the "
+             "same time conflicts with it; retry";
+    case absl::StatusCode::kResourceExhausted:
+      return "the calibration service's database is out of resources (space, memory or "
+             "connections)";
+    case absl::StatusCode::kCancelled:
+    case absl::StatusCode::kDeadlineExceeded:
+      return "the calibration service's database did not finish in time; retry";
+    case absl::StatusCode::kDataLoss:
+      return "stored data is damaged; see the server log";
+    default:
+      return "the calibration service's database failed; see the server log";
+  }
+}
+
 std::string ClientMessage(const absl::Status& status) {
+  if (storage::IsFromDatabase(status)) {
+    LogDatabaseError(status);
+    return DatabaseErrorMessage(status.code());
+  }
   const std::string message = WithoutOperation(status);
   return status.GetPayload(kEchoesRequestPayload).has_value() ? Capped(message)
                                                               : ScrubMessage(message);
@@ -74,6 +135,8 @@ std::string ClientMessage(const absl::Status& status) {
 
 grpc::Status ToGrpcStatus(const absl::Status& status) {
   if (status.ok()) return grpc::Status::OK;
+  if (storage::IsFromDatabase(status))
+    return grpc::Status(ToGrpcCode(status.code()), ClientMessage(status));
   switch (status.code()) {
     case absl::StatusCode::kInternal:
     case absl::StatusCode::kUnknown:

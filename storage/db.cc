@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cctype>
 
+#include "absl/strings/cord.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -59,6 +60,15 @@ absl::Status CheckLocation(std::string_view location) {
       Cat("'", RedactedLocation(location),
           "' is neither a SQLite file path nor a PostgreSQL URL "
           "(postgresql://USER[:PASSWORD]@HOST[:PORT]/DB)"));
+}
+
+absl::Status FromDatabase(absl::Status status) {
+  if (!status.ok()) status.SetPayload(kDatabaseErrorPayload, absl::Cord("1"));
+  return status;
+}
+
+bool IsFromDatabase(const absl::Status& status) {
+  return status.GetPayload(kDatabaseErrorPayload).has_value();
 }
 
 absl::Status Statement::Run() {

@@ -65,6 +65,16 @@ bool IsPostgresUrl(std::string_view location);
 // `location` without the password of a PostgreSQL URL, for logs and errors.
 std::string RedactedLocation(std::string_view location);
 
+// Every error made from the database's own text (libpq's and PostgreSQL's messages, SQLite's)
+// carries this payload. Those messages are for the operator: they name the database's host and
+// port, its constraints, the statement's context. The server's boundary (server/status_util.h)
+// gives a client a fixed message in their place ("the calibration service's database is
+// unavailable") and writes the detail to its log. Status wrappers keep the payload
+// (WithOperation copies every payload).
+inline constexpr char kDatabaseErrorPayload[] = "imucal.storage/database-error";
+absl::Status FromDatabase(absl::Status status);
+bool IsFromDatabase(const absl::Status& status);
+
 // InvalidArgument when `location` looks like a URL (it has "scheme://", or begins "postgres")
 // but is not one IsPostgresUrl takes: a mistyped URL would otherwise be a new SQLite file named
 // after it. The message shows it without its password and says what is expected.

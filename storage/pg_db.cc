@@ -313,8 +313,9 @@ absl::StatusOr<std::unique_ptr<PgConnection>> PgConnection::Open(
   PGconn* pg = PQconnectdbParams(keywords, values, /*expand_dbname=*/1);
   if (pg == nullptr) return absl::ResourceExhaustedError("libpq could not allocate a connection");
   if (PQstatus(pg) != CONNECTION_OK) {
-    absl::Status status = absl::UnavailableError(
-        Cat("cannot connect to ", RedactedLocation(url), ": ", StripTrailingNewline(PQerrorMessage(pg))));
+    absl::Status status =
+        FromDatabase(absl::UnavailableError(Cat("cannot connect to ", RedactedLocation(url), ": ",
+                                                StripTrailingNewline(PQerrorMessage(pg)))));
     PQfinish(pg);
     return status;
   }
@@ -365,12 +366,13 @@ absl::Status PgConnection::EnsureConnected() {
   if (PQstatus(conn_) == CONNECTION_OK) return absl::OkStatus();
   if (txn_open_) {
     // Never carry on in autocommit what was meant to be one transaction.
-    return absl::UnavailableError("the connection to PostgreSQL broke during a transaction");
+    return FromDatabase(
+        absl::UnavailableError("the connection to PostgreSQL broke during a transaction"));
   }
   PQreset(conn_);
   if (PQstatus(conn_) != CONNECTION_OK) {
-    return absl::UnavailableError(
-        Cat("cannot reconnect to PostgreSQL: ", StripTrailingNewline(PQerrorMessage(conn_))));
+    return FromDatabase(absl::UnavailableError(
+        Cat("cannot reconnect to PostgreSQL: ", StripTrailingNewline(PQerrorMessage(conn_)))));
   }
   ++generation_;  // the server forgot every prepared statement
   return ApplySettings();
@@ -382,7 +384,8 @@ absl::Status PgConnection::StatementError(std::string_view context, const char* 
   if (state == "25P02" && !txn_error_.ok()) return txn_error_;  // the transaction's real error
   absl::StatusCode code = PgCode(state);
   if (state.empty() && PQstatus(conn_) != CONNECTION_OK) code = absl::StatusCode::kUnavailable;
-  absl::Status status(code, Cat(context, ": ", StripTrailingNewline(message)));
+  absl::Status status =
+      FromDatabase(absl::Status(code, Cat(context, ": ", StripTrailingNewline(message))));
   if (txn_open_ && txn_error_.ok()) txn_error_ = status;
   return status;
 }
@@ -440,8 +443,9 @@ absl::Status PgListener::Connect() {
   const char* values[] = {"10", "imucald-listener", url_.c_str(), nullptr};
   conn_ = PQconnectdbParams(keywords, values, /*expand_dbname=*/1);
   if (conn_ == nullptr || PQstatus(conn_) != CONNECTION_OK) {
-    return absl::UnavailableError(Cat("listen: cannot connect to ", RedactedLocation(url_), ": ",
-                                      StripTrailingNewline(conn_ ? PQerrorMessage(conn_) : "")));
+    return FromDatabase(
+        absl::UnavailableError(Cat("listen: cannot connect to ", RedactedLocation(url_), ": ",
+                                   StripTrailingNewline(conn_ ? PQerrorMessage(conn_) : ""))));
   }
   std::string sql;
   for (const std::string& channel : channels_) {
@@ -452,8 +456,8 @@ absl::Status PgListener::Connect() {
   }
   Result r(PQexec(conn_, sql.c_str()));
   if (r == nullptr || PQresultStatus(r.get()) != PGRES_COMMAND_OK) {
-    return absl::UnavailableError(
-        Cat("listen: ", StripTrailingNewline(PQerrorMessage(conn_))));
+    return FromDatabase(
+        absl::UnavailableError(Cat("listen: ", StripTrailingNewline(PQerrorMessage(conn_)))));
   }
   return absl::OkStatus();
 }

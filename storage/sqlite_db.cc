@@ -49,7 +49,7 @@ absl::Status SqliteStatus(int extended_code, std::string_view context, sqlite3* 
   // sqlite3_errmsg describes the connection's latest failure, which is this one when the caller
   // passes the code it just got; without a connection, the generic text for the code.
   const char* what = db != nullptr ? sqlite3_errmsg(db) : sqlite3_errstr(extended_code);
-  return absl::Status(CodeFor(extended_code), Cat(context, ": ", what));
+  return FromDatabase(absl::Status(CodeFor(extended_code), Cat(context, ": ", what)));
 }
 
 // ---- Statement -------------------------------------------------------------------------------
@@ -191,8 +191,8 @@ absl::Status SqliteConnection::Exec(const char* sql) {
   const int rc = sqlite3_exec(db_, sql, nullptr, nullptr, &message);
   if (rc == SQLITE_OK) return absl::OkStatus();
   absl::Status status =
-      absl::Status(SqliteStatus(rc, "exec", nullptr).code(),
-                   Cat("exec: ", message != nullptr ? message : sqlite3_errstr(rc)));
+      FromDatabase(absl::Status(SqliteStatus(rc, "exec", nullptr).code(),
+                                Cat("exec: ", message != nullptr ? message : sqlite3_errstr(rc))));
   sqlite3_free(message);
   return status;
 }

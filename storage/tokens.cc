@@ -13,6 +13,7 @@
 #include "storage/store_internal.h"
 #include "storage/types.h"
 #include "util/str_util.h"
+#include "util/text_check.h"
 
 namespace imucal::storage {
 namespace {
@@ -65,10 +66,9 @@ absl::Status ValidateNewToken(Role role, std::string_view device_id, std::string
   }
   if (label.size() > kMaxLabel)
     return absl::InvalidArgumentError(Cat("label: at most ", kMaxLabel, " characters"));
-  for (char c : label) {
-    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f)
-      return absl::InvalidArgumentError("label: control characters are not allowed");
-  }
+  // Shown in `imucal admin token list` and the audit's actor: no control character, C0 or C1.
+  if (std::optional<UnreadableChar> bad = FindUnreadableChar(label))
+    return absl::InvalidArgumentError(bad->Message("label"));
   return absl::OkStatus();
 }
 

@@ -62,6 +62,9 @@ std::string SessionTarget(std::string_view session_id) { return Cat("session:", 
 absl::Status WithOperation(std::string_view op, const absl::Status& s) {
   if (s.ok()) return s;
   absl::Status out(s.code(), Cat(op, ": ", s.message()));
+  // Every payload of `s` (kDatabaseErrorPayload among them), then the operation's prefix.
+  s.ForEachPayload(
+      [&out](absl::string_view type, const absl::Cord& payload) { out.SetPayload(type, payload); });
   std::string prefix = Cat(op, ": ");
   if (auto inner = s.GetPayload(kOperationPayload); inner.has_value())
     prefix += std::string(*inner);

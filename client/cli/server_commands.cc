@@ -388,7 +388,8 @@ constexpr char kUploadHelp[] =
     "  Resumes after the last acknowledged batch when the connection drops or the server\n"
     "  restarts (it retries until nothing was acknowledged for 5 minutes), and when run again\n"
     "  for the same session and file; a session holding another capture's start is refused,\n"
-    "  naming both. FILE: imucal CSV or an imu_tk pair.\n"
+    "  naming both. FILE: imucal CSV or an imu_tk pair. With a robot's token: into its own\n"
+    "  device's session the guide opened (a robot may not open one, nor --solve).\n"
     "options:\n"
     "  --protocol six-face|positions|free|ferraris|auto   for a new session (default auto)\n"
     "  --format F   --accel-unit U   --gyro-unit U   input as for calibrate (and below)\n"
@@ -540,8 +541,18 @@ int RunUpload(const std::vector<std::string>& argv) {
     if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kUploadHelp);
     if (grpc::Status s =
             CreateSession(server, device_id, *protocol, capture->gravity_m_s2, &session);
-        !s.ok())
-      return RpcError(server, s);
+        !s.ok()) {
+      const int code = RpcError(server, s);
+      // A robot's token may join the session the guide opened, not open one.
+      if (s.error_code() == grpc::StatusCode::PERMISSION_DENIED) {
+        std::fprintf(stderr,
+                     "imucal: %s has no open session to stream into, and this token may not "
+                     "open one: a technician opens it (imucal guide --device %s, or imucal "
+                     "session start --device %s), then run this again\n",
+                     device_id.c_str(), device_id.c_str(), device_id.c_str());
+      }
+      return code;
+    }
     if (!a->Has("json"))
       std::printf("session %s opened for %s\n", session.id().c_str(), device_id.c_str());
   }

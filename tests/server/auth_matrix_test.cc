@@ -22,9 +22,11 @@
 #include "client/cli/commands.h"
 #include "client/cli/server_common.h"
 #include "client/sdk/client.h"
+#include "core/capture.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "grpcpp/grpcpp.h"
 #include "gtest/gtest.h"
+#include "importers/imucal_csv.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "server/auth.h"
 #include "server/server.h"
@@ -942,6 +944,86 @@ TEST_F(AuthTest, TheCliManagesTokens) {
   as_robot.bearer_token = robot;
   cli::SetConnectionOptions(as_robot);
   EXPECT_EQ(cli::RunAdmin({"--server", address, "token", "list"}), cli::kExitDenied);
+  cli::SetConnectionOptions(sdk::ClientOptions());
+}
+
+// The README's walkthrough: the guide (a technician) opens robot-A's session, and the robot
+// runs `imucal upload FILE --device robot-A` with its own token. What upload needs of the device
+// (its units, its open session) the robot may read of its own device, and of no other.
+TEST_F(AuthTest, ARobotUploadsIntoItsOpenSessionWithTheCli) {
+  const Fleet fleet = MakeFleet(options_.db_path);  // robot-A's open, empty session
+  StartServer();
+  const std::string admin = AdminSecret();
+  const std::string robot = CreateToken(admin, v1::ROLE_ROBOT, kDeviceA, "A").secret();
+  // 2 s of a robot at rest at robot-A's 100 Hz, in its registered units (m/s^2, rad/s).
+  core::Capture capture;
+  for (int i = 0; i < 200; ++i) {
+    capture.t_s.push_back(i / 100.0);
+    capture.accel.emplace_back(0.01, -0.02, 9.81);
+    capture.gyro.emplace_back(1e-3, -1e-3, 2e-3);
+  }
+  const std::string file = (dir_ / "rest.csv").string();
+  ASSERT_TRUE(importers::WriteImucalCsvFile(capture, file).ok());
+
+  sdk::ClientOptions as_robot;
+  as_robot.ca_cert_pem = Pem("ca");
+  as_robot.bearer_token = robot;
+  cli::SetConnectionOptions(as_robot);
+  const std::string address = server_->address();
+  testing::internal::CaptureStdout();
+  testing::internal::CaptureStderr();
+  const int uploaded = cli::RunUpload({"--server", address, file, "--device", kDeviceA});
+  const std::string out = testing::internal::GetCapturedStdout();
+  const std::string err = testing::internal::GetCapturedStderr();
+  EXPECT_EQ(uploaded, cli::kExitOk) << out << err;
+  EXPECT_NE(out.find("streaming into robot-A's open session " + fleet.session_a), std::string::npos)
+      << out;
+  EXPECT_NE(out.find("uploaded 200 samples"), std::string::npos) << out;
+
+  // Another device's data stays out of reach, through the CLI and through the API.
+  testing::internal::CaptureStderr();
+  EXPECT_EQ(cli::RunUpload({"--server", address, file, "--device", kDeviceB}), cli::kExitDenied);
+  EXPECT_NE(testing::internal::GetCapturedStderr().find(
+                "robot robot-A may act only for its own device, not 'robot-B'"),
+            std::string::npos);
+  auto devices = v1::DeviceService::NewStub(Channel(robot));
+  v1::GetDeviceRequest other;
+  other.set_device_id(kDeviceB);
+  v1::Device device;
+  EXPECT_EQ(devices->GetDevice(Ctx().get(), other, &device).error_code(),
+            StatusCode::PERMISSION_DENIED);
+  other.set_device_id("robot-nonexistent");  // no hint whether it exists
+  EXPECT_EQ(devices->GetDevice(Ctx().get(), other, &device).error_code(),
+            StatusCode::PERMISSION_DENIED);
+  auto sessions = v1::SessionService::NewStub(Channel(robot));
+  v1::ListSessionsRequest list;
+  v1::ListSessionsResponse listed;
+  const grpc::Status every = sessions->ListSessions(Ctx().get(), list, &listed);
+  EXPECT_EQ(every.error_code(), StatusCode::PERMISSION_DENIED);
+  EXPECT_EQ(every.error_message(),
+            "robot robot-A may act only for its own device: name it (device_id 'robot-A')");
+  list.set_device_id(kDeviceB);
+  EXPECT_EQ(sessions->ListSessions(Ctx().get(), list, &listed).error_code(),
+            StatusCode::PERMISSION_DENIED);
+  list.set_device_id(kDeviceA);
+  ASSERT_TRUE(sessions->ListSessions(Ctx().get(), list, &listed).ok());
+  ASSERT_EQ(listed.sessions_size(), 1);
+  EXPECT_EQ(listed.sessions(0).samples(), 200);
+
+  // With no open session, the robot is told who opens one rather than only "denied".
+  auto admin_sessions = v1::SessionService::NewStub(Channel(admin));
+  v1::CancelSessionRequest cancel;
+  cancel.set_session_id(fleet.session_a);
+  v1::Session cancelled;
+  ASSERT_TRUE(admin_sessions->CancelSession(Ctx().get(), cancel, &cancelled).ok());
+  testing::internal::CaptureStdout();
+  testing::internal::CaptureStderr();
+  EXPECT_EQ(cli::RunUpload({"--server", address, file, "--device", kDeviceA}), cli::kExitDenied);
+  testing::internal::GetCapturedStdout();
+  EXPECT_NE(testing::internal::GetCapturedStderr().find(
+                "robot-A has no open session to stream into, and this token may not open one: a "
+                "technician opens it (imucal guide --device robot-A"),
+            std::string::npos);
   cli::SetConnectionOptions(sdk::ClientOptions());
 }
 

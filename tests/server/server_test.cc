@@ -14,6 +14,7 @@
 #include <string>
 #include <string_view>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "core/accel_solver.h"
@@ -21,18 +22,21 @@
 #include "core/simulator.h"
 #include "formats/crc32c.h"
 #include "formats/params_json.h"
+#include "gmock/gmock.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "grpcpp/grpcpp.h"
-#include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "server/active_cache.h"
 #include "server/convert.h"
 #include "server/status_util.h"
 #include "server/stream_registry.h"
+#include "storage/db.h"
 #include "storage/store.h"
-#include "tests/server/resume_proofs.h"
+#include "storage/types.h"
 #include "tests/pg_test_cluster.h"
+#include "tests/server/resume_proofs.h"
+#include "tests/server/tcp_proxy.h"
 #include "tests/server/watch.h"
 #include "tests/test_dir.h"
 
@@ -1347,6 +1351,89 @@ TEST_F(ServerTest, HealthIsServingAndUnknownsAreNotFound) {
             grpc::StatusCode::INVALID_ARGUMENT);
 }
 
+// PostgreSQL out of reach (the server cut off it by a proxy; the database itself stays up):
+// every call that needs the database answers UNAVAILABLE with "the calibration service's
+// database is unavailable", and nothing of the database: not its host or port, not libpq's
+// text, not SQL (the detail goes to the server's log). Once it is back, the calls succeed again.
+TEST_F(ServerTest, OnPostgresAnOutageSaysTheDatabaseIsUnavailableAndNothingOfIt) {
+  absl::StatusOr<std::unique_ptr<testing_util::PgTestDatabase>> db =
+      testing_util::PgTestDatabase::Create();
+  ASSERT_TRUE(db.ok()) << db.status();
+  const std::string url = (*db)->url();  // postgresql://imucal@127.0.0.1:PORT/NAME
+  const size_t host = url.find("@127.0.0.1:");
+  ASSERT_NE(host, std::string::npos) << url;
+  const size_t port_at = host + 11, port_end = url.find('/', port_at);
+  const std::string pg_port = url.substr(port_at, port_end - port_at);
+  std::unique_ptr<testing_util::TcpProxy> proxy = testing_util::TcpProxy::Start(std::stoi(pg_port));
+  ASSERT_NE(proxy, nullptr);
+  const std::string proxy_port = std::to_string(proxy->port());
+  options_.db_path = url.substr(0, port_at) + proxy_port + url.substr(port_end);
+  StartServer();
+  Register("robot-1");
+  grpc::Status status;
+  const v1::Session session = Create("robot-1", v1::PROTOCOL_SIX_FACE, &status);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  const std::vector<v1::SampleBatch> batches = Batches(Sim().capture, session.id());
+  std::vector<v1::SampleAck> acks;
+  ASSERT_TRUE(Stream({batches[0], batches[1]}, &acks).ok());
+
+  proxy->Cut();
+  testing::internal::CaptureStderr();
+  std::vector<std::pair<std::string, grpc::Status>> calls;
+  {
+    v1::RegisterDeviceRequest reg;
+    reg.mutable_device()->set_id("robot-2");
+    reg.mutable_device()->set_sensor_model("sim");
+    reg.mutable_device()->set_nominal_rate_hz(200);
+    reg.mutable_device()->set_accel_unit("m/s^2");
+    reg.mutable_device()->set_gyro_unit("rad/s");
+    v1::Device device;
+    calls.emplace_back("RegisterDevice", devices_->RegisterDevice(Ctx().get(), reg, &device));
+    v1::ListDevicesResponse devices;
+    calls.emplace_back("ListDevices",
+                       devices_->ListDevices(Ctx().get(), v1::ListDevicesRequest(), &devices));
+    v1::GetSessionRequest get;
+    get.set_session_id(session.id());
+    v1::Session got;
+    calls.emplace_back("GetSession", sessions_->GetSession(Ctx().get(), get, &got));
+    v1::ListSessionsResponse sessions;
+    calls.emplace_back("ListSessions",
+                       sessions_->ListSessions(Ctx().get(), v1::ListSessionsRequest(), &sessions));
+    calls.emplace_back("StreamSamples", Stream({batches[2], batches[3]}, &acks));
+    v1::GetSolveJobRequest job;
+    job.set_job_id("solve-1");
+    v1::SolveJob j;
+    calls.emplace_back("GetSolveJob", sessions_->GetSolveJob(Ctx().get(), job, &j));
+    v1::PromoteRequest promote;
+    promote.set_device_id("robot-1");
+    promote.set_version(1);
+    v1::ParameterSet set;
+    calls.emplace_back("Promote", params_->Promote(Ctx().get(), promote, &set));
+  }
+  const std::string log = testing::internal::GetCapturedStderr();
+  for (const auto& [method, st] : calls) {
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::UNAVAILABLE)
+        << method << ": " << st.error_message();
+    EXPECT_EQ(st.error_message(), "the calibration service's database is unavailable") << method;
+    std::string lower = st.error_message();
+    for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    for (const std::string& leak :
+         {std::string("127.0.0.1"), proxy_port, pg_port, std::string("postgres"),
+          std::string("select "), std::string("insert "), std::string("update "),
+          std::string("connection to server"), std::string("libpq")})
+      EXPECT_EQ(lower.find(leak), std::string::npos) << method << ": " << st.error_message();
+  }
+  // The operator is told what happened, in the log.
+  EXPECT_THAT(log, testing::HasSubstr("database_unavailable"));
+  EXPECT_THAT(log, testing::HasSubstr(proxy_port));
+
+  ASSERT_TRUE(proxy->Restore());
+  Register("robot-2");
+  EXPECT_TRUE(Stream({batches[2], batches[3]}, &acks).ok());
+  EXPECT_EQ(GetSession(session.id()).last_acked_seq(), 4);
+  server_.reset();  // before the database is dropped
+}
+
 // The registry's rules alone (server/stream_registry.h): the caps count from Add, a revoked
 // token's streams are told and its later streams refused, and the sweeper tells a stream past
 // its deadline.
@@ -1432,6 +1519,46 @@ TEST(StatusUtilTest, MapsCodesOneToOneAndScrubsPaths) {
             kMaxStatusMessage);
   EXPECT_EQ(ToGrpcStatus(absl::ResourceExhaustedError("full")).error_code(),
             grpc::StatusCode::RESOURCE_EXHAUSTED);
+}
+
+// The database's own errors (storage::FromDatabase) keep their code and lose their text: a
+// client is told a fixed sentence, whatever wrapped the error on its way (WithOperation keeps
+// the mark), and the same goes for errors carried in a response (ClientMessage: SolveJob.error).
+TEST(StatusUtilTest, DatabaseErrorsKeepTheirCodeAndNotTheirText) {
+  auto from_db = [](absl::StatusCode code, const std::string& text) {
+    return storage::WithOperation(
+        "AppendBatch",
+        storage::WithOperation("step", storage::FromDatabase(absl::Status(code, text))));
+  };
+  const grpc::Status down = ToGrpcStatus(from_db(
+      absl::StatusCode::kUnavailable,
+      "cannot reconnect to PostgreSQL: connection to server at \"10.0.0.5\", port 5432 failed"));
+  EXPECT_EQ(down.error_code(), grpc::StatusCode::UNAVAILABLE);
+  EXPECT_EQ(down.error_message(), "the calibration service's database is unavailable");
+  const grpc::Status race = ToGrpcStatus(from_db(
+      absl::StatusCode::kAlreadyExists,
+      "INSERT INTO sessions: duplicate key value violates unique constraint \"sessions_open\""));
+  EXPECT_EQ(race.error_code(), grpc::StatusCode::ALREADY_EXISTS);
+  EXPECT_EQ(race.error_message(),
+            "the calibration service's database refused the change: another one made at the "
+            "same time conflicts with it; retry");
+  for (absl::StatusCode code : {absl::StatusCode::kFailedPrecondition, absl::StatusCode::kAborted,
+                                absl::StatusCode::kResourceExhausted, absl::StatusCode::kCancelled,
+                                absl::StatusCode::kInvalidArgument, absl::StatusCode::kInternal,
+                                absl::StatusCode::kDataLoss}) {
+    const grpc::Status st = ToGrpcStatus(from_db(code, "SELECT x FROM y at 10.0.0.5:5432"));
+    EXPECT_EQ(static_cast<int>(st.error_code()), static_cast<int>(code));
+    EXPECT_EQ(st.error_message().find("10.0.0.5"), std::string::npos) << st.error_message();
+    EXPECT_EQ(st.error_message().find("SELECT"), std::string::npos) << st.error_message();
+    EXPECT_EQ(st.error_message(), DatabaseErrorMessage(code));
+  }
+  EXPECT_EQ(ClientMessage(from_db(absl::StatusCode::kUnavailable, "port 5432 failed")),
+            "the calibration service's database is unavailable");
+  // Not from the database: told as before.
+  EXPECT_EQ(ToGrpcStatus(storage::WithOperation("GetSession", absl::NotFoundError("session 's-1' "
+                                                                                  "not found")))
+                .error_message(),
+            "session 's-1' not found");
 }
 
 }  // namespace

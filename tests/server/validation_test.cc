@@ -886,7 +886,99 @@ TEST_F(ValidationTest, PromoteAndRollbackReasonsAreCapped) {
                 "reason: 1025 bytes, at most 1024");
   rollback.set_reason(std::string("line one\x01", 9));
   EXPECT_STATUS(params->Rollback(Ctx().get(), rollback, &set), INVALID_ARGUMENT,
-                "reason: a control character at byte 9");
+                "reason: a control character at byte 9 (U+0001)");
+}
+
+// Free text that people read (a reason, a capture's source, a sensor model) refuses the C1
+// controls (U+0080-U+009F) as it refuses C0 ones, naming the field, the byte and the character:
+// U+0085 is a line break to many readers, U+009B a terminal's CSI (util/text_check.h).
+TEST_F(ValidationTest, FreeTextRefusesC1ControlsLikeC0Ones) {
+  StartServer();
+  const std::string s = NewSession("robot-c1");
+  auto params = v1::ParameterService::NewStub(channel_);
+  v1::PromoteRequest promote;
+  promote.set_device_id("robot-c1");
+  promote.set_version(1);
+  promote.set_reason("approved\u0085by QA");
+  v1::ParameterSet set;
+  EXPECT_STATUS(params->Promote(Ctx().get(), promote, &set), INVALID_ARGUMENT,
+                "reason: a control character at byte 9 (U+0085)");
+  promote.set_reason("tab\tand\nnewline are a paragraph's; \u00e9 is a letter");
+  EXPECT_STATUS(params->Promote(Ctx().get(), promote, &set), NOT_FOUND, "");  // past the check
+
+  v1::SampleBatch b = RestBatch(s, 1);
+  b.set_source("cap\u009b31m.csv");
+  EXPECT_STATUS(StreamAsIs({b}), INVALID_ARGUMENT,
+                "source: a control character at byte 4 (U+009B)");
+  EXPECT_EQ(GetSession(s).samples(), 0);
+
+  v1::RegisterDeviceRequest reg;
+  reg.mutable_device()->set_id("robot-c1-model");
+  reg.mutable_device()->set_sensor_model("BMI\u0085088");
+  reg.mutable_device()->set_nominal_rate_hz(kRateHz);
+  reg.mutable_device()->set_accel_unit("m/s^2");
+  reg.mutable_device()->set_gyro_unit("rad/s");
+  v1::Device d;
+  EXPECT_STATUS(devices_->RegisterDevice(Ctx().get(), reg, &d), INVALID_ARGUMENT,
+                "device.sensor_model: a control character at byte 4 (U+0085)");
+  reg.mutable_device()->set_sensor_model("BMI\x1b[2J088");
+  EXPECT_STATUS(devices_->RegisterDevice(Ctx().get(), reg, &d), INVALID_ARGUMENT,
+                "device.sensor_model: a control character at byte 4 (U+001B)");
+}
+
+// GetSolveJob's job_id is "solve-<n>", n a positive integer as SolveSession returns it: any
+// other form is INVALID_ARGUMENT naming it (the proto's contract), and only a well-formed id of
+// no job is NOT_FOUND. "solve--1" used to go to storage as -1 and come back NOT_FOUND.
+TEST_F(ValidationTest, GetSolveJobRefusesMalformedIds) {
+  StartServer();
+  v1::SolveJob job;
+  v1::GetSolveJobRequest get;
+  const std::vector<std::string> malformed = {"solve--1",
+                                              "solve-",
+                                              "solve-0",
+                                              "solve-007",
+                                              "solve- 7",
+                                              "solve-+7",
+                                              "solve-7 ",
+                                              "solve-7x",
+                                              "solve-1.0",
+                                              "SOLVE-7",
+                                              "job-7",
+                                              "solve-99999999999999999999",
+                                              std::string("solve-7\0", 8)};
+  for (const std::string& bad : malformed) {
+    get.set_job_id(bad);
+    const grpc::Status st = sessions_->GetSolveJob(Ctx().get(), get, &job);
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT)
+        << bad << ": " << st.error_message();
+    EXPECT_THAT(st.error_message(), HasSubstr("is not a solve job id (\"solve-<n>\", n a "
+                                              "positive integer"))
+        << bad;
+  }
+  get.set_job_id("solve--1");
+  EXPECT_STATUS(sessions_->GetSolveJob(Ctx().get(), get, &job), INVALID_ARGUMENT,
+                "job_id: 'solve--1' is not a solve job id");
+  get.set_job_id("solve-" + std::string(1000, '9'));  // echoed cut short
+  const grpc::Status long_id = sessions_->GetSolveJob(Ctx().get(), get, &job);
+  EXPECT_EQ(long_id.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_LT(long_id.error_message().size(), 200u) << long_id.error_message();
+  get.set_job_id("");
+  EXPECT_STATUS(sessions_->GetSolveJob(Ctx().get(), get, &job), INVALID_ARGUMENT,
+                "job_id: required");
+  get.set_job_id("solve-999");
+  EXPECT_STATUS(sessions_->GetSolveJob(Ctx().get(), get, &job), NOT_FOUND, "");
+
+  // A job SolveSession returned is found by its id.
+  const std::string s = NewSession("robot-job");
+  ASSERT_TRUE(Stream({RestBatch(s, 1)}).ok());
+  v1::SolveSessionRequest solve;
+  solve.set_session_id(s);
+  v1::SolveJob started;
+  ASSERT_TRUE(sessions_->SolveSession(Ctx().get(), solve, &started).ok());
+  get.set_job_id(started.id());
+  grpc::Status found = sessions_->GetSolveJob(Ctx().get(), get, &job);
+  EXPECT_TRUE(found.ok()) << started.id() << ": " << found.error_message();
+  EXPECT_EQ(job.session_id(), s);
 }
 
 // A bad rostopic is echoed as it was sent: the path scrubber (which hides the server's files)

@@ -55,6 +55,14 @@ TEST(TokensTest, RolesAndDevicesAreChecked) {
   EXPECT_NE(s.message().find("label"), std::string::npos) << s;
   s = tokens->Create(Role::kAdmin, "", "two\nlines", "test").status();
   EXPECT_NE(s.message().find("label"), std::string::npos) << s;
+  // C1 controls as C0 ones (util/text_check.h): U+0085 is a line break to many readers.
+  s = tokens->Create(Role::kAdmin, "", "line 3\u0085laptop", "test").status();
+  EXPECT_TRUE(absl::IsInvalidArgument(s)) << s;
+  EXPECT_NE(s.message().find("label: a control character at byte 7 (U+0085)"), std::string::npos)
+      << s;
+  s = tokens->Create(Role::kAdmin, "", "caf\xe9", "test").status();  // Latin-1, not UTF-8
+  EXPECT_NE(s.message().find("label: a byte that is not UTF-8 at byte 4 (0xE9)"), std::string::npos)
+      << s;
   EXPECT_TRUE(absl::IsInvalidArgument(ParseRole("root").status()));
   ASSERT_OK_AND_ASSIGN(auto all, tokens->List());
   EXPECT_TRUE(all.empty());
