@@ -439,18 +439,17 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   }
   if (out.from_faces) out.params.frame_angles = FrameAngles(out.params, faces);
   out.term_priors = DescribePriors(priors, out.params, out.covariance);
-  // A term the poses know no better than the class does is an assumption, not a measurement:
-  // at best a warn (the faces' angles are the faces' measurement). One whose prior the evidence
-  // narrowed because the poses show it small is theirs.
+  // A first-order term (a non-orthogonality angle) the poses know no better than the class
+  // does is an assumption, not a measurement: at best a warn, as when it was held at 0 (the
+  // faces' angles are the faces' measurement). The second-order terms' shrinkage is said in
+  // the warnings and term_priors; a capture that leaves them to the prior (six faces) passes.
   std::string assumed;
   for (size_t k = 0; k < out.term_priors.size(); ++k) {
     const TermPriorEffect& e = out.term_priors[k];
     if (e.data_weight < 0.5) out.warnings.push_back(DescribePriorEffect(e));
-    if (e.source.rfind("sensor class", 0) != 0) continue;
-    const bool quadratic = priors[k].index >= kAccelQuadratic.begin;
-    const double class_width = quadratic ? opt.term_priors.accel_quadratic_per_m_s2
-                                         : opt.term_priors.accel_angle_rad;
-    if (!(e.data_sigma < class_width))
+    if (e.source.rfind("sensor class", 0) != 0 || priors[k].index >= kAccelQuadratic.begin)
+      continue;
+    if (!(e.data_sigma < opt.term_priors.accel_angle_rad))
       absl::StrAppend(&assumed, assumed.empty() ? "" : ", ", e.name.substr(6));
   }
   if (!assumed.empty()) {

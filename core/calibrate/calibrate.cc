@@ -83,6 +83,7 @@ void SetLonePoses(const std::vector<PoseReport>& poses, VerdictInputs* in) {
     if (leverage < kSelfDetermined) continue;
     ss_lone += r2;
     ++n_lone;
+    in->lone_faces += !p.face.empty();
     in->lone_poses.push_back(
         p.face.empty() ? absl::StrFormat("pose %d (up %.2f %.2f %.2f)", p.index, p.up(0), p.up(1),
                                          p.up(2))
@@ -92,6 +93,7 @@ void SetLonePoses(const std::vector<PoseReport>& poses, VerdictInputs* in) {
   // own warnings say so (the 12-parameter model), and the gate reads the figure as it is.
   if (n_lone == 0 || n_lone == n_all || ss_all <= 0) {
     in->lone_poses.clear();
+    in->lone_faces = 0;
     return;
   }
   const double rms_all = std::sqrt(ss_all / static_cast<double>(n_all));

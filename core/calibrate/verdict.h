@@ -86,6 +86,9 @@ struct VerdictInputs {
   // gate, it reads the other poses' figure (the held-out RMS scaled by the ratio of the poses'
   // own held-out RMS without and with the lone ones) and the verdict warns, naming them.
   std::vector<std::string> lone_poses;
+  // How many of them are faces of the protocol (a face held once, without its pair): they warn
+  // even when the held-out figure passes, since nothing checks them.
+  int lone_faces = 0;
   double accel_heldout_checked_rms_m_s2 = kNone;
   double accel_heldout_lone_rms_m_s2 = kNone;
   // Why the model is incomplete or assumed (at best warn), in a technician's words.
