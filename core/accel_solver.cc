@@ -358,18 +358,12 @@ std::vector<double> MagnitudeSigmas(const AccelParams& p, const std::vector<Acce
 
 double EffectiveParameters(const AccelParams& p, const std::vector<AccelPose>& poses,
                            const AccelMask& free, const AccelPriors& priors) {
-  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free);
+  const std::vector<double> sigma = MagnitudeSigmas(p, poses);
+  const Eigen::MatrixXd jw = WeightedJacobian(p, poses, sigma, free);
+  const Eigen::MatrixXd with_priors = WeightedJacobian(p, poses, sigma, free, priors);
   const Eigen::MatrixXd data = jw.transpose() * jw;
-  Eigen::MatrixXd info = data;
-  std::vector<int> index;
-  for (int c = 0; c < kAccelParams; ++c)
-    if (free[static_cast<size_t>(c)]) index.push_back(c);
-  for (const AccelPrior& q : ActivePriors(free, priors)) {
-    const auto k = std::find(index.begin(), index.end(), q.index) - index.begin();
-    info(k, k) += 1.0 / (q.sigma * q.sigma);
-  }
-  const Eigen::MatrixXd share = info.ldlt().solve(data);
-  return share.allFinite() ? share.trace() : static_cast<double>(index.size());
+  const Eigen::MatrixXd share = (with_priors.transpose() * with_priors).ldlt().solve(data);
+  return share.allFinite() ? share.trace() : static_cast<double>(data.rows());
 }
 
 double EstimateModelSigma(const AccelParams& p, const std::vector<AccelPose>& poses,

@@ -213,8 +213,8 @@ AccelPriors FaceAnglePriors(ProtocolKind protocol, const std::vector<PairCheck>&
 // A unit whose poses show them small gets them shrunk hard (on a plain six-face capture, where
 // the poses know them only through the floor's tilt, the class's width let noise into them and
 // through them into the biases: 1.1-2.5 mg against 0.8 held at 0); one whose terms are large
-// keeps them. Returns the width chosen and sets it in `priors`.
-double ChooseQuadraticWidth(const AccelParams& start, const std::vector<AccelPose>& poses,
+// keeps them. Sets the width chosen in `priors`.
+void ChooseQuadraticWidth(const AccelParams& start, const std::vector<AccelPose>& poses,
                             double g, const AccelMask& free, double class_width,
                             AccelPriors* priors) {
   const auto set_width = [priors](double w) {
@@ -229,7 +229,6 @@ double ChooseQuadraticWidth(const AccelParams& start, const std::vector<AccelPos
     if (evidence > best_evidence) best_evidence = evidence, best = f * class_width;
   }
   set_width(best);
-  return best;
 }
 
 }  // namespace
@@ -377,12 +376,11 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   // 3. Every determined term is estimated; those with a prior are shrunk by it as far as the
   //    poses leave them to it.
   out.free = obs.determined;
-  out.quadratic_prior_sigma = opt.term_priors.accel_quadratic_per_m_s2;
   if (!out.affine_only) {
     SetModelSigma(RefineAccelGaussNewton(*s1, poses, g, obs.determined, 10, priors), g,
                   obs.determined, priors, &poses);
-    out.quadratic_prior_sigma = ChooseQuadraticWidth(
-        *s1, poses, g, obs.determined, opt.term_priors.accel_quadratic_per_m_s2, &out.priors);
+    ChooseQuadraticWidth(*s1, poses, g, obs.determined, opt.term_priors.accel_quadratic_per_m_s2,
+                         &out.priors);
     for (AccelPrior& q : out.priors) {
       if (q.index < kAccelQuadratic.begin) continue;
       q.source += absl::StrFormat(" (its %.1e, the widest, narrowed to the capture's evidence)",
@@ -447,10 +445,10 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   for (size_t k = 0; k < out.term_priors.size(); ++k) {
     const TermPriorEffect& e = out.term_priors[k];
     if (e.data_weight < 0.5) out.warnings.push_back(DescribePriorEffect(e));
-    if (e.source.rfind("sensor class", 0) != 0 || priors[k].index >= kAccelQuadratic.begin)
-      continue;
-    if (!(e.data_sigma < opt.term_priors.accel_angle_rad))
-      absl::StrAppend(&assumed, assumed.empty() ? "" : ", ", e.name.substr(6));
+    const int c = priors[k].index;
+    const bool class_angle = !out.from_faces && c >= kAccelTri.begin && c < kAccelTri.end;
+    if (class_angle && !(e.data_sigma < opt.term_priors.accel_angle_rad))
+      absl::StrAppend(&assumed, assumed.empty() ? "" : ", ", AccelParamName(c));
   }
   if (!assumed.empty()) {
     out.incomplete.push_back("accel " + assumed +

@@ -38,9 +38,6 @@ struct AccelStage {
   // The priors of the |a| = g fit: the face references' angles, then the sensor class's
   // second-order terms (and angles, without face references).
   AccelPriors priors;
-  // The second-order terms' prior width the capture's evidence chose (at most the class's),
-  // 1/(m/s^2).
-  double quadratic_prior_sigma = 0;
   // What each prior did to its term (the report's term_priors).
   std::vector<TermPriorEffect> term_priors;
   // The parameters a refit without the priors may move: the determined ones, less the terms
