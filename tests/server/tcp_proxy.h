@@ -144,9 +144,10 @@ class TcpProxy {
         if (stop) return;
         continue;
       }
-      if (first_pair == 2 && fds[1].revents != 0) Accept();
+      // The pairs polled are the first `polled`; one accepted below was not polled yet.
+      const size_t polled = pairs_.size();
       std::vector<Pair> kept;
-      for (size_t i = 0; i < pairs_.size(); ++i) {
+      for (size_t i = 0; i < polled; ++i) {
         const pollfd& c = fds[first_pair + 2 * i];
         const pollfd& u = fds[first_pair + 2 * i + 1];
         bool alive = true;
@@ -160,6 +161,7 @@ class TcpProxy {
         }
       }
       pairs_ = std::move(kept);
+      if (first_pair == 2 && fds[1].revents != 0) Accept();
     }
   }
 
