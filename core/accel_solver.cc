@@ -11,6 +11,7 @@
 #include "absl/strings/str_format.h"
 #include "ceres/ceres.h"
 #include "core/bsas.h"
+#include "core/robust_covariance.h"
 
 namespace imucal::core {
 namespace {
@@ -574,12 +575,22 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
       WeightedResiduals(p, poses, MagnitudeSigmas(p, poses), gravity_m_s2, free, priors);
   const int dof = n_observations - n_free;
   out.chi2_reduced = rw.squaredNorm() / dof;
-  Eigen::MatrixXd cov =
+  const Eigen::MatrixXd bread =
       (jw.transpose() * jw).ldlt().solve(Eigen::MatrixXd::Identity(n_free, n_free));
+  Eigen::MatrixXd cov = bread;
   if (out.chi2_reduced > 1) {
     cov *= out.chi2_reduced;
     out.covariance_scaled = true;
   }
+  // Poses in time order share a floor, a drift, a rest's neighbour: the sandwich over them
+  // (core/robust_covariance.h), never below the scaled estimate; the priors as information.
+  std::vector<ObservationBlock> pose_blocks;
+  pose_blocks.reserve(poses.size());
+  const auto n_poses = static_cast<Eigen::Index>(poses.size());
+  for (Eigen::Index i = 0; i < n_poses; ++i)
+    pose_blocks.push_back({jw.row(i), rw.segment(i, 1)});
+  const Eigen::MatrixXd prior_rows = jw.bottomRows(jw.rows() - n_poses);
+  cov = RobustCovariance(bread, pose_blocks, prior_rows.transpose() * prior_rows, cov);
   std::vector<int> index;
   for (int c = 0; c < kAccelParams; ++c)
     if (free[c]) index.push_back(c);

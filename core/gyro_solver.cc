@@ -18,6 +18,7 @@
 #include "ceres/sized_cost_function.h"
 #include "ceres/solver.h"
 #include "ceres/types.h"
+#include "core/robust_covariance.h"
 #include "core/so3.h"
 
 namespace imucal::core {
@@ -434,8 +435,9 @@ absl::StatusOr<LmOutcome> RunLevenbergMarquardt(const std::vector<PreparedMove>&
 struct Linearisation {
   std::vector<Mat39> jacobians;
   std::vector<Eigen::Vector3d> residuals;
-  Mat99 hessian = Mat99::Zero();  // J^T J
-  Vec9 gradient = Vec9::Zero();   // J^T r
+  Mat99 hessian = Mat99::Zero();       // J^T J
+  Vec9 gradient = Vec9::Zero();        // J^T r
+  Mat99 turn_hessian = Mat99::Zero();  // the turns' share of J^T J
 };
 
 // Moves first (their Jacobians and residuals are indexed like the moves), then the turns, which
@@ -455,6 +457,7 @@ Linearisation Linearise(const std::vector<PreparedMove>& moves,
     Mat39 j;
     const Eigen::Vector3d r = TurnResidual(turn, m, &j);
     lin.hessian += j.transpose() * j;
+    lin.turn_hessian += j.transpose() * j;
     lin.gradient += j.transpose() * r;
   }
   return lin;
@@ -529,6 +532,17 @@ void AnalyseSolution(const std::vector<PreparedMove>& moves, const std::vector<P
   const int dof = 2 * static_cast<int>(moves.size()) + TurnConstraints(turns) - split.rank;
   const double reduced_chi2 = dof > 0 ? 2.0 * result->cost / dof : kNaN;
   result->covariance = reduced_chi2 * split.pseudo_inverse;
+  if (std::isfinite(reduced_chi2)) {
+    // Moves in time order share their rests (and a hand-held move's error grows with its
+    // angle): the sandwich over the moves (core/robust_covariance.h); the turns, whose angle is
+    // known, as information at the fit's misfit.
+    std::vector<ObservationBlock> blocks;
+    blocks.reserve(moves.size());
+    for (size_t i = 0; i < moves.size(); ++i)
+      blocks.push_back({lin.jacobians[i], lin.residuals[i]});
+    result->covariance = RobustCovariance(split.pseudo_inverse, blocks,
+                                          reduced_chi2 * lin.turn_hessian, result->covariance);
+  }
   const double matrix_scale = result->matrix.norm() / std::sqrt(3.0);
   FindUndetermined(split, result->covariance, matrix_scale, options.undetermined_rel_sigma, result);
   result->move_error_rad.reserve(moves.size());
