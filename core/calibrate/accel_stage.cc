@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/robust_covariance.h"
 
 namespace imucal::core::pipeline {
 namespace {
@@ -214,21 +215,48 @@ AccelPriors FaceAnglePriors(ProtocolKind protocol, const std::vector<PairCheck>&
 // the poses know them only through the floor's tilt, the class's width let noise into them and
 // through them into the biases: 1.1-2.5 mg against 0.8 held at 0); one whose terms are large
 // keeps them. Sets the width chosen in `priors`.
-void ChooseQuadraticWidth(const AccelParams& start, const std::vector<AccelPose>& poses,
-                            double g, const AccelMask& free, double class_width,
-                            AccelPriors* priors) {
+//
+// The width is itself uncertain: two captures of one unit can choose neighbouring widths and
+// then shrink the terms, and the biases they trade against, differently. Returns what that
+// uncertainty adds to the covariance at the chosen width: the positive part of the covariance
+// averaged over the widths (each weighted by its evidence, a uniform prior over the grid; each
+// width's posterior covariance plus its fit's distance from the chosen one) less the chosen
+// width's own.
+AccelMatrix ChooseQuadraticWidth(const AccelParams& start, const std::vector<AccelPose>& poses,
+                                 double g, const AccelMask& free, double class_width,
+                                 AccelPriors* priors) {
   const auto set_width = [priors](double w) {
     for (AccelPrior& q : *priors)
       if (q.index >= kAccelQuadratic.begin && q.index < kAccelQuadratic.end) q.sigma = w;
   };
-  double best = class_width, best_evidence = -std::numeric_limits<double>::infinity();
+  struct Tried {
+    double width, evidence;
+    AccelVector theta;
+    AccelMatrix covariance;
+  };
+  std::vector<Tried> tried;
+  size_t best = 0;
   for (double f : {1.0, 0.5, 0.2, 0.1, 0.05, 0.02}) {
     set_width(f * class_width);
     const AccelParams fit = RefineAccelGaussNewton(start, poses, g, free, 10, *priors);
-    const double evidence = AccelLogEvidence(fit, poses, g, free, *priors);
-    if (evidence > best_evidence) best_evidence = evidence, best = f * class_width;
+    tried.push_back({f * class_width, AccelLogEvidence(fit, poses, g, free, *priors),
+                     PackAccel(fit), AccelCovariance(fit, poses, free, *priors)});
+    if (tried.back().evidence > tried[best].evidence) best = tried.size() - 1;
   }
-  set_width(best);
+  set_width(tried[best].width);
+  AccelMatrix averaged = AccelMatrix::Zero();
+  double total = 0;
+  for (const Tried& t : tried) {
+    const double weight = std::exp(t.evidence - tried[best].evidence);
+    if (!std::isfinite(weight) || !t.covariance.allFinite()) continue;
+    const AccelVector d = t.theta - tried[best].theta;
+    averaged += weight * (t.covariance + d * d.transpose());
+    total += weight;
+  }
+  if (!(total > 0)) return AccelMatrix::Zero();
+  const AccelMatrix extra =
+      LoewnerUpperBound(tried[best].covariance, averaged / total) - tried[best].covariance;
+  return extra.allFinite() ? extra : AccelMatrix::Zero();
 }
 
 }  // namespace
@@ -376,11 +404,12 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   // 3. Every determined term is estimated; those with a prior are shrunk by it as far as the
   //    poses leave them to it.
   out.free = obs.determined;
+  AccelMatrix width_uncertainty = AccelMatrix::Zero();  // what the prior width's doubt adds
   if (!out.affine_only) {
     SetModelSigma(RefineAccelGaussNewton(*s1, poses, g, obs.determined, 10, priors), g,
                   obs.determined, priors, &poses);
-    ChooseQuadraticWidth(*s1, poses, g, obs.determined, opt.term_priors.accel_quadratic_per_m_s2,
-                         &out.priors);
+    width_uncertainty = ChooseQuadraticWidth(
+        *s1, poses, g, obs.determined, opt.term_priors.accel_quadratic_per_m_s2, &out.priors);
     for (AccelPrior& q : out.priors) {
       if (q.index < kAccelQuadratic.begin) continue;
       q.source += absl::StrFormat(" (its %.1e, the widest, narrowed to the capture's evidence)",
@@ -432,7 +461,7 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
     lm_report.accel_rms_m_s2 = Rms(lm_report.pose_residual_m_s2);
     out.stages.push_back(lm_report);
     out.params = lm->params;
-    out.covariance = lm->covariance;
+    out.covariance = lm->covariance + width_uncertainty;
     out.chi2_reduced = lm->chi2_reduced;
   }
   if (out.from_faces) out.params.frame_angles = FrameAngles(out.params, faces);
