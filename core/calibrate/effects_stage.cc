@@ -129,46 +129,39 @@ void TakeSearchResult(EffectSearchResult res, const AccelMask& searched, const A
   rep->effect_diagnostics = std::move(res.diagnostics);
   if (res.effects.empty()) return;
   ParamSet& ps = rep->params;
-  // The search refits the accelerometer without the stage's priors, holding the prior'd terms
-  // at their estimates: its covariance has no share of their uncertainty. When it added nothing
-  // on the accelerometer (no effect there, no held term freed), the stage's estimate, priors
-  // and all, stands.
-  bool accel_changed = false;
-  for (const Effect& e : res.effects) accel_changed |= e.sensor == Sensor::kAccel;
-  for (int c = 0; c < kAccelParams; ++c)
-    accel_changed |= res.accel_free[static_cast<size_t>(c)] && !searched[static_cast<size_t>(c)];
+  ps.accel = res.accel;
   ps.gyro = res.gyro;
   ps.effects = std::move(res.effects);
   ps.effect_reference = res.reference;
-  if (accel_changed) {
-    ps.accel = res.accel;
-    AccelVector se = res.accel_covariance.diagonal().cwiseSqrt();
-    const AccelVector before = PackAccel(ps.stderrs.accel);
-    for (int c = 0; c < kAccelParams; ++c) {
-      const size_t k = static_cast<size_t>(c);
-      if (res.accel_free[k]) continue;  // estimated by the search (a held one freed included)
-      // Estimated before and held by the search, or never estimated.
-      se(c) = free[k] && !searched[k] ? before(c) : kNaN;
+  AccelVector se = res.accel_covariance.diagonal().cwiseSqrt();
+  const AccelVector before = PackAccel(ps.stderrs.accel);
+  for (int c = 0; c < kAccelParams; ++c) {
+    const size_t k = static_cast<size_t>(c);
+    if (res.accel_free[k]) {
+      // Estimated by the search (a held one freed included). The search refits without the
+      // stage's priors and holds the prior'd terms at the stage's estimates, so its covariance
+      // has none of their uncertainty: the stage's standard error is the floor.
+      if (free[k] && std::isfinite(before(c))) se(c) = std::max(se(c), before(c));
+      continue;
     }
-    ps.stderrs.accel = UnpackAccel(se, ps.stderrs.accel.frame_angles);
+    // Estimated before and held by the search, or never estimated.
+    se(c) = free[k] && !searched[k] ? before(c) : kNaN;
   }
+  ps.stderrs.accel = UnpackAccel(se, ps.stderrs.accel.frame_angles);
   // Residuals of the model as stored (with its applied effects).
   std::vector<double> after;
   double gyro_ss = 0;
   for (const EffectPoseRow& row : rep->effect_diagnostics.rows) {
     after.push_back(row.accel_after_m_s2);
     gyro_ss += row.gyro_after_rad_s.squaredNorm();
-    if (!accel_changed) continue;
     for (PoseReport& pr : rep->poses)
       if (pr.index == row.pose_index) pr.residual_m_s2 = row.accel_after_m_s2;
   }
+  rep->residual.accel_rms_m_s2 = Rms(after);
+  rep->residual.accel_max_m_s2 = MaxAbsFinite(after);
   rep->residual.gyro_static_rms_rad_s = std::sqrt(gyro_ss / std::max<size_t>(1, after.size()));
-  if (accel_changed) {
-    rep->residual.accel_rms_m_s2 = Rms(after);
-    rep->residual.accel_max_m_s2 = MaxAbsFinite(after);
-    if (std::isfinite(rep->effect_diagnostics.accel_heldout_after_m_s2))
-      rep->residual.accel_heldout_rms_m_s2 = rep->effect_diagnostics.accel_heldout_after_m_s2;
-  }
+  if (std::isfinite(rep->effect_diagnostics.accel_heldout_after_m_s2))
+    rep->residual.accel_heldout_rms_m_s2 = rep->effect_diagnostics.accel_heldout_after_m_s2;
   ps.quality_accel_rms_m_s2 = rep->residual.accel_rms_m_s2;
   ps.quality_gyro_static_rms_rad_s = rep->residual.gyro_static_rms_rad_s;
   StageReport st;
