@@ -4,7 +4,6 @@
 #include <cmath>
 
 #include <Eigen/Eigenvalues>
-#include <Eigen/LU>
 
 namespace imucal::core {
 namespace {
@@ -41,7 +40,7 @@ Eigen::MatrixXd RobustCovariance(const Eigen::MatrixXd& pseudo_inverse,
                                  const std::vector<ObservationBlock>& blocks,
                                  const Eigen::MatrixXd& other_information,
                                  const Eigen::MatrixXd& model_covariance) {
-  const Eigen::Index n = pseudo_inverse.rows();
+  if (other_information.rows() != pseudo_inverse.rows()) return model_covariance;
   std::vector<Eigen::VectorXd> scores;
   scores.reserve(blocks.size());
   for (const ObservationBlock& b : blocks) {
@@ -58,7 +57,6 @@ Eigen::MatrixXd RobustCovariance(const Eigen::MatrixXd& pseudo_inverse,
               (cross + cross.transpose());
     }
   }
-  if (meat.rows() != n) return model_covariance;
   const Eigen::MatrixXd sandwich = pseudo_inverse * meat * pseudo_inverse;
   return LoewnerUpperBound(model_covariance, sandwich);
 }
