@@ -69,15 +69,6 @@ double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-// The priors on free parameters, in the order their rows follow the poses' rows.
-std::vector<AccelPrior> ActivePriors(const AccelMask& free, const AccelPriors& priors) {
-  std::vector<AccelPrior> out;
-  for (const AccelPrior& q : priors)
-    if (q.index >= 0 && q.index < kAccelParams && free[static_cast<size_t>(q.index)] && q.sigma > 0)
-      out.push_back(q);
-  return out;
-}
-
 // Weighted Jacobian rows (d r_i / d theta with r_i = (|a_i| - g)/sigma_i) restricted to `free`,
 // then one row per active prior ((theta_c - value) / sigma).
 Eigen::MatrixXd WeightedJacobian(const AccelParams& p, const std::vector<AccelPose>& poses,
@@ -140,6 +131,18 @@ double MagnitudeResidual(const Eigen::Matrix3d& l, const AccelParams& p, const A
 }
 
 }  // namespace
+
+std::vector<AccelPrior> ActivePriors(const AccelMask& free, const AccelPriors& priors) {
+  std::vector<AccelPrior> out;
+  for (const AccelPrior& q : priors)
+    if (q.index >= 0 && q.index < kAccelParams && free[static_cast<size_t>(q.index)] && q.sigma > 0)
+      out.push_back(q);
+  return out;
+}
+
+ceres::CostFunction* NewAccelPriorCost(const AccelPrior& prior) {
+  return PriorError::Create(prior);
+}
 
 int PosesPayFor(const AccelMask& free, const AccelPriors& priors) {
   int n = 0;
@@ -587,8 +590,7 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
   std::vector<ObservationBlock> pose_blocks;
   pose_blocks.reserve(poses.size());
   const auto n_poses = static_cast<Eigen::Index>(poses.size());
-  for (Eigen::Index i = 0; i < n_poses; ++i)
-    pose_blocks.push_back({jw.row(i), rw.segment(i, 1)});
+  for (Eigen::Index i = 0; i < n_poses; ++i) pose_blocks.push_back({jw.row(i), rw.segment(i, 1)});
   const Eigen::MatrixXd prior_rows = jw.bottomRows(jw.rows() - n_poses);
   cov = RobustCovariance(bread, pose_blocks, prior_rows.transpose() * prior_rows, cov);
   std::vector<int> index;

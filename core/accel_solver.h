@@ -25,6 +25,10 @@
 #include "absl/status/statusor.h"
 #include "core/model.h"
 
+namespace ceres {
+class CostFunction;
+}  // namespace ceres
+
 namespace imucal::core {
 
 inline constexpr int kAccelParams = 12;
@@ -61,12 +65,19 @@ struct AccelPrior {
   int index = 0;
   double value = 0;
   double sigma = 1;
-  std::string source;  // where it comes from, for the report: "face references", "sensor class mems"
+  std::string
+      source;  // where it comes from, for the report: "face references", "sensor class mems"
 };
 using AccelPriors = std::vector<AccelPrior>;
 // The number of free parameters less those a prior constrains: what the poses' residual pays
 // for (the model error's degrees of freedom).
 int PosesPayFor(const AccelMask& free, const AccelPriors& priors);
+// The priors on free parameters (sigma > 0), in the order their rows follow the poses' rows in
+// every weighted design of the magnitude fit.
+std::vector<AccelPrior> ActivePriors(const AccelMask& free, const AccelPriors& priors);
+// One prior as a Ceres residual (theta[index] - value) / sigma on the parameter block of its
+// index's group (3 components: bias, scale, tri_angles or quadratic). The caller owns it.
+ceres::CostFunction* NewAccelPriorCost(const AccelPrior& prior);
 
 // A static pose as the accelerometer solver sees it.
 struct AccelPose {

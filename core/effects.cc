@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <string>
@@ -15,6 +16,7 @@
 #include "boost/math/distributions/fisher_f.hpp"
 #include "boost/math/distributions/students_t.hpp"
 #include "ceres/ceres.h"
+#include "core/robust_covariance.h"
 #include "util/str_util.h"
 
 namespace imucal::core {
@@ -79,6 +81,10 @@ struct Term {
 struct State {
   AccelParams accel;
   AccelMask free{};  // the accelerometer model's estimated parameters (the search may free more)
+  // The priors the accelerometer stage estimated its terms with (EffectSearchInput::
+  // accel_priors): every refit of the search is the same maximum a posteriori fit, with the
+  // effects' coefficients beside the model's terms.
+  AccelPriors priors;
   Eigen::Vector3d gyro_offset = Eigen::Vector3d::Zero();  // rad/s, added to the static rate fit
   std::vector<Term> terms;
 };
@@ -201,11 +207,15 @@ double AccelEffectDerivative(const AccelParams& p, const AccelPose& pose, int ax
 }
 
 // The accelerometer's weighted design [free model columns | accelerometer term columns] and
-// weighted residual at the current state.
+// weighted residual at the current state: one row per pose, then one per active prior
+// ((theta_c - value) / sigma, core/accel_solver.h ActivePriors).
 struct Design {
   Eigen::MatrixXd x;
   Eigen::VectorXd r;
-  std::vector<double> weight;  // 1 / sigma_i, sigma_i^2 = noise_i^2 + tau^2
+  std::vector<double> weight;  // per pose: 1 / sigma_i, sigma_i^2 = noise_i^2 + tau^2
+  // The rows after the poses' that are priors: not observations of the capture. They shape the
+  // fit, not the count of data (BIC's N, the held-out sum, the degrees of freedom).
+  Eigen::Index prior_rows = 0;
   // Mean of noise_i^2 / sigma_i^2: the weighted residual variance that the within-pose noise
   // alone would give (1 when tau = 0). The F statistic's variance never goes below it.
   double noise_s2 = 1.0;
@@ -230,8 +240,18 @@ Design AccelDesign(const State& st, const std::vector<AccelPose>& poses, const A
   for (const Term& t : st.terms)
     if (t.sensor == Sensor::kAccel) terms.push_back(&t);
   const auto n = static_cast<Eigen::Index>(poses.size());
-  d.x.resize(n, static_cast<Eigen::Index>(cols.size() + terms.size()));
-  d.r.resize(n);
+  const std::vector<AccelPrior> active = ActivePriors(free, st.priors);
+  d.prior_rows = static_cast<Eigen::Index>(active.size());
+  d.x = Eigen::MatrixXd::Zero(n + d.prior_rows,
+                              static_cast<Eigen::Index>(cols.size() + terms.size()));
+  d.r.resize(n + d.prior_rows);
+  const AccelVector theta = PackAccel(st.accel);
+  for (Eigen::Index m = 0; m < d.prior_rows; ++m) {
+    const AccelPrior& q = active[static_cast<size_t>(m)];
+    const auto col = std::find(cols.begin(), cols.end(), q.index) - cols.begin();
+    d.x(n + m, col) = 1.0 / q.sigma;
+    d.r(n + m) = (theta(q.index) - q.value) / q.sigma;
+  }
   for (Eigen::Index i = 0; i < n; ++i) {
     const double w = 1.0 / sigma[static_cast<size_t>(i)];
     d.weight.push_back(w);
@@ -244,6 +264,17 @@ Design AccelDesign(const State& st, const std::vector<AccelPose>& poses, const A
                     w;
   }
   return d;
+}
+
+// The parameters the poses pay for in a design with prior rows: the trace of the hat matrix over
+// the poses' rows (a term its prior decides counts for nothing, one the poses decide for 1;
+// core/accel_solver.h EffectiveParameters). The column count when there are no prior rows.
+double EffectiveColumns(const Design& d) {
+  if (d.prior_rows == 0 || d.x.rows() <= d.x.cols()) return static_cast<double>(d.x.cols());
+  const Eigen::MatrixXd info = d.x.transpose() * d.x;
+  const Eigen::MatrixXd obs = d.x.topRows(d.x.rows() - d.prior_rows);
+  const Eigen::MatrixXd share = info.ldlt().solve(obs.transpose() * obs);
+  return share.allFinite() ? share.trace() : static_cast<double>(d.x.cols());
 }
 
 // Applies a step over [free model parameters | accelerometer term coefficients].
@@ -344,6 +375,8 @@ absl::StatusOr<Eigen::MatrixXd> AccelJointFit(const AccelMask& free,
     if (!coeffs.empty()) b.push_back(coeffs.data());
     problem.AddResidualBlock(cost, nullptr, b);
   }
+  for (const AccelPrior& q : ActivePriors(free, st->priors))
+    problem.AddResidualBlock(NewAccelPriorCost(q), nullptr, blocks[q.index / 3]);
   for (int b = 0; b < 4; ++b) {
     std::vector<int> fixed;
     for (int k = 0; k < 3; ++k)
@@ -369,12 +402,23 @@ absl::StatusOr<Eigen::MatrixXd> AccelJointFit(const AccelMask& free,
   for (size_t k = 0; k < terms.size(); ++k) terms[k]->coefficient = coeffs[k];
   SetAccelOffsets(*st, signals, &poses);
   const Design d = AccelDesign(*st, AccelPoses(poses), free, signals, g);
-  const auto dof = static_cast<double>(d.x.rows() - d.x.cols());
+  // As the accelerometer stage's (core/accel_solver.h RefineAccelLm): the poses pay for what
+  // the priors leave to them (EffectiveColumns); scaled by the reduced chi^2 when above 1, then the
+  // sandwich over the poses in time order with the priors as information
+  // (core/robust_covariance.h).
+  const Eigen::Index n_poses = d.x.rows() - d.prior_rows;
+  const double dof = static_cast<double>(n_poses) - EffectiveColumns(d);
   const Eigen::MatrixXd info = d.x.transpose() * d.x;
-  Eigen::MatrixXd cov = info.ldlt().solve(Eigen::MatrixXd::Identity(info.rows(), info.cols()));
-  const double chi2 = dof > 0 ? d.r.squaredNorm() / dof : 1.0;
-  if (chi2 > 1) cov *= chi2;
-  return cov;
+  const Eigen::MatrixXd bread =
+      info.ldlt().solve(Eigen::MatrixXd::Identity(info.rows(), info.cols()));
+  const double chi2 = dof > 0 ? d.r.head(n_poses).squaredNorm() / dof : 1.0;
+  Eigen::MatrixXd cov = chi2 > 1 ? Eigen::MatrixXd(bread * chi2) : bread;
+  std::vector<ObservationBlock> blocks_in_time;
+  blocks_in_time.reserve(static_cast<size_t>(n_poses));
+  for (Eigen::Index i = 0; i < n_poses; ++i)
+    blocks_in_time.push_back({d.x.row(i), d.r.segment(i, 1)});
+  const Eigen::MatrixXd prior_rows = d.x.bottomRows(d.prior_rows);
+  return RobustCovariance(bread, blocks_in_time, prior_rows.transpose() * prior_rows, cov);
 }
 
 // Sets every pose's common model error from the residual of the current state.
@@ -384,9 +428,7 @@ void SetAccelModelSigma(const State& st, const AccelMask& free,
   SetAccelOffsets(st, signals, poses);
   std::vector<AccelPose> bare = AccelPoses(*poses);
   for (AccelPose& p : bare) p.model_sigma_m_s2 = 0;
-  int n_free = 0;
-  for (bool f : free) n_free += f;
-  for (const Term& t : st.terms) n_free += t.sensor == Sensor::kAccel;
+  const double n_free = EffectiveColumns(AccelDesign(st, AccelPoses(*poses), free, signals, g));
   const double tau =
       CommonModelSigma(MagnitudeResiduals(st.accel, bare, g), MagnitudeSigmas(st.accel, bare),
                        static_cast<double>(poses->size()) - n_free);
@@ -490,22 +532,48 @@ GyroAxisFit FitGyroAxis(int axis, const std::vector<Eigen::Vector3d>& rates,
 // The candidate scorer: the current weighted design's orthonormal basis, leverages and residual.
 class Scorer {
  public:
+  // The statistics count the poses' rows (n_) and the parameters they pay for (p_,
+  // EffectiveColumns); the fit and the projections use every row.
   explicit Scorer(const Design& d)
-      : r_(d.r), n_(d.x.rows()), p_(d.x.cols()), noise_s2_(d.noise_s2) {
+      : r_(d.r), rows_(d.x.rows()), n_(d.x.rows() - d.prior_rows), noise_s2_(d.noise_s2) {
     const Eigen::HouseholderQR<Eigen::MatrixXd> qr(d.x);
-    q_ = qr.householderQ() * Eigen::MatrixXd::Identity(n_, p_);
+    q_ = qr.householderQ() * Eigen::MatrixXd::Identity(rows_, d.x.cols());
     h_ = q_.rowwise().squaredNorm();
+    p_ = h_.head(n_).sum();
     rss_ = r_.squaredNorm();
   }
-  Eigen::Index dof_after() const { return n_ - p_ - 1; }
+  // The parameters the poses pay for (EffectiveColumns).
+  double pays_for() const { return p_; }
+  // The residual variance a candidate is tested against before it enters (weighted units).
+  double variance() const {
+    return std::max(noise_s2_, rss_ / std::max(1.0, static_cast<double>(n_) - p_));
+  }
+  // The size of the last of `pose_cols` beyond the model and the columns before it (0 when they
+  // span it): what a coefficient on it moves the residual by, per unit.
+  double LastBeyond(const Eigen::MatrixXd& pose_cols) const {
+    Eigen::MatrixXd cols = Eigen::MatrixXd::Zero(rows_, pose_cols.cols());
+    cols.topRows(pose_cols.rows()) = pose_cols;
+    Eigen::MatrixXd p = cols - q_ * (q_.transpose() * cols);
+    const Eigen::Index k = p.cols();
+    Eigen::VectorXd last = p.col(k - 1);
+    if (k > 1) {
+      const Eigen::HouseholderQR<Eigen::MatrixXd> qr(p.leftCols(k - 1));
+      const Eigen::MatrixXd qo = qr.householderQ() * Eigen::MatrixXd::Identity(rows_, k - 1);
+      last -= qo * (qo.transpose() * last);
+    }
+    return last.norm();
+  }
   double rss() const { return rss_; }
 
   // Fills score (except threshold/passed) for a candidate of one or more columns entering
   // together (a power with its lower powers); false when the current model absorbs any of them.
   // `perp` is the fitted direction beyond the model (the columns' part the model lacks, times
   // their coefficients); `coefficients` are per column, in column units.
-  bool Score(const Eigen::MatrixXd& cols, CandidateScore* s, Eigen::VectorXd* perp,
+  // `pose_cols` has a row per pose; a candidate has no prior (its rows there are zero).
+  bool Score(const Eigen::MatrixXd& pose_cols, CandidateScore* s, Eigen::VectorXd* perp,
              Eigen::VectorXd* coefficients) const {
+    Eigen::MatrixXd cols = Eigen::MatrixXd::Zero(rows_, pose_cols.cols());
+    cols.topRows(pose_cols.rows()) = pose_cols;
     const Eigen::MatrixXd p = cols - q_ * (q_.transpose() * cols);
     const Eigen::Index k = cols.cols();
     for (Eigen::Index c = 0; c < k; ++c) {
@@ -517,7 +585,7 @@ class Scorer {
     // Frisch-Waugh: the columns' coefficients in the joint fit are those of the residual on
     // their part orthogonal to the model.
     const Eigen::HouseholderQR<Eigen::MatrixXd> qr(p);
-    const Eigen::MatrixXd qp = qr.householderQ() * Eigen::MatrixXd::Identity(n_, k);
+    const Eigen::MatrixXd qp = qr.householderQ() * Eigen::MatrixXd::Identity(rows_, k);
     const Eigen::MatrixXd rp = qr.matrixQR().topRows(k).triangularView<Eigen::Upper>();
     if (std::abs(rp.diagonal().prod()) <= 0) return false;
     const Eigen::VectorXd qr_r = qp.transpose() * r_;
@@ -525,8 +593,8 @@ class Scorer {
     *coefficients = rp.triangularView<Eigen::Upper>().solve(qr_r);
     *perp = qp * qr_r;  // = p * coefficients
     const double rss_after = std::max(1e-300, rss_ - drss);
-    const double s2 = std::max(
-        noise_s2_, rss_after / static_cast<double>(std::max<Eigen::Index>(1, n_ - p_ - k)));
+    const double s2 =
+        std::max(noise_s2_, rss_after / std::max(1.0, static_cast<double>(n_ - k) - p_));
     s->f = drss / static_cast<double>(k) / s2;
     const double n = static_cast<double>(n_);
     s->delta_bic = n * std::log(rss_after / rss_) + static_cast<double>(k) * std::log(n);
@@ -546,7 +614,8 @@ class Scorer {
 
  private:
   Eigen::VectorXd r_;
-  Eigen::Index n_, p_;
+  Eigen::Index rows_, n_;
+  double p_ = 0;
   double noise_s2_;
   Eigen::MatrixXd q_;
   Eigen::VectorXd h_;
@@ -834,6 +903,7 @@ class Search {
     State st;
     st.accel = in_.accel;
     st.free = in_.accel_free;
+    st.priors = in_.accel_priors;
     absl::StatusOr<Fit> base = Refit(&st);
     if (!base.ok()) return base.status();
     Fit fit = *base;
@@ -886,6 +956,7 @@ class Search {
       ++diag.rounds;
       if (cands.empty()) break;
       const int tests = static_cast<int>(cands.size());
+      last_tests_ = tests;
       int best = -1;
       for (size_t c = 0; c < cands.size(); ++c) {
         CandidateScore& s = cands[c].score;
@@ -894,9 +965,12 @@ class Search {
             FThreshold(opt_.family_alpha, tests, DofAfter(st, s.sensor, s.axis) - (k - 1), k);
         // The held-out margin is the same F* s^2 per column entering.
         s.passed = s.f > s.f_threshold && s.delta_bic < 0 && s.press_gain > k * s.f_threshold;
-        // Ranked by BIC, which compares candidates of different axes on one scale.
-        if (s.passed &&
-            (best < 0 || s.delta_bic < cands[static_cast<size_t>(best)].score.delta_bic))
+      }
+      // Ranked by BIC, which compares candidates of different axes on one scale.
+      for (size_t c = 0; c < cands.size(); ++c) {
+        if (cands[c].score.passed &&
+            (best < 0 ||
+             cands[c].score.delta_bic < cands[static_cast<size_t>(best)].score.delta_bic))
           best = static_cast<int>(c);
       }
       if (round == 0) KeepTop(cands, &diag);
@@ -1041,8 +1115,131 @@ class Search {
       ++s;
     }
     FinalNotes(st, *final_fit, &diag);
+    TemperatureBounds(st, excited, &diag);
     ExamineMoveResiduals(in_.moves, &diag);
     return out;
+  }
+
+  // DETECTION BOUNDS (core/move_effects.h DetectionBound): on each output where the search did
+  // not put it, the smallest bias slope `(temperature-T)`, curvature `(temperature-T)^2` and (on
+  // the accelerometer) scale slope `(temperature-T)*a` this capture would have found, at the final
+  // model and the last round's threshold. Each form is tested as the search tests it: with the
+  // lower powers it lacks on that output (a curvature with its slope: the bound is the one for a
+  // turnover at the capture's reference temperature, the hardest place for it).
+  void TemperatureBounds(const State& st, const std::array<bool, kNumSignals>& excited,
+                         EffectDiagnostics* diag) {
+    const auto temp = static_cast<size_t>(Signal::kTemperature);
+    double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+    for (const SignalArray& a : signals_)
+      if (std::isfinite(a[temp])) lo = std::min(lo, a[temp]), hi = std::max(hi, a[temp]);
+    if (!(hi >= lo)) return;  // no temperature channel: the notes say so
+    const std::string from =
+        absl::StrFormat("%d poses at %.1f-%.1f degC", static_cast<int>(poses_.size()), lo, hi);
+    const int tests = std::max(1, last_tests_);
+    SetAccelModelSigma(st, st.free, signals_, in_.gravity_m_s2, &poses_);
+    const std::vector<AccelPose> ap = AccelPoses(poses_);
+    const Design ad = AccelDesign(st, ap, st.free, signals_, in_.gravity_m_s2);
+    const Scorer accel_scorer(ad);
+    accel_pays_for_ = accel_scorer.pays_for();
+    const auto n = static_cast<Eigen::Index>(poses_.size());
+    for (int sensor = 0; sensor < (in_.gyro_output_si ? 2 : 1); ++sensor) {
+      const auto sn = static_cast<Sensor>(sensor);
+      for (int axis = 0; axis < 3; ++axis) {
+        std::vector<std::string> forms = {"temperature", "temperature^2"};
+        if (sn == Sensor::kAccel) forms.push_back(absl::StrFormat("temperature*a%c", "xyz"[axis]));
+        std::unique_ptr<Scorer> gyro_scorer;
+        std::vector<double> gyro_w;
+        if (sn == Sensor::kGyro) {
+          std::vector<const Term*> terms;
+          for (const Term& t : st.terms)
+            if (t.sensor == Sensor::kGyro && t.axis == axis) terms.push_back(&t);
+          const GyroAxisFit g =
+              FitGyroAxis(axis, rates_, gyro_sigma_, GyroTau(axis, terms), terms, signals_);
+          gyro_scorer = std::make_unique<Scorer>(g.design);
+          gyro_w = g.design.weight;
+        }
+        const Scorer& scorer = sn == Sensor::kAccel ? accel_scorer : *gyro_scorer;
+        for (const std::string& name : forms) {
+          const Regressor form = ParseRegressor(name)->CentredOn(centre_);
+          if (InModel(st, sn, axis, form)) continue;  // found: its coefficient says the rest
+          const std::optional<std::vector<Regressor>> lower = LowerPowers(st, sn, axis, form);
+          if (!lower) continue;
+          std::vector<Regressor> group = *lower;
+          group.push_back(form);
+          const auto k = static_cast<Eigen::Index>(group.size());
+          Eigen::MatrixXd cols(n, k);
+          for (Eigen::Index i = 0; i < n; ++i) {
+            const auto ii = static_cast<size_t>(i);
+            for (Eigen::Index c = 0; c < k; ++c) {
+              const double x = group[static_cast<size_t>(c)].Evaluate(signals_[ii]);
+              cols(i, c) = sn == Sensor::kAccel
+                               ? AccelEffectDerivative(st.accel, ap[ii], axis, x) * ad.weight[ii]
+                               : x * gyro_w[ii];
+            }
+          }
+          DetectionBound b;
+          b.sensor = sn;
+          b.axis = axis;
+          b.regressor = form.Name();
+          b.from = from;
+          b.coefficient = std::numeric_limits<double>::infinity();
+          const double beyond = excited[temp] ? scorer.LastBeyond(cols) : 0.0;
+          const double f_star = FThreshold(opt_.family_alpha, tests,
+                                           DofAfter(st, sn, axis) - (k - 1), static_cast<int>(k));
+          if (beyond > 0) {
+            const double lambda =
+                DetectableNoncentrality(static_cast<int>(k), static_cast<double>(k) * f_star);
+            b.coefficient = std::sqrt(lambda * scorer.variance()) / beyond;
+          }
+          diag->detection_bounds.push_back(std::move(b));
+        }
+      }
+    }
+    // One note: per sensor and kind of form, the range of the bounds over the axes.
+    std::string text;
+    // 0: a bias slope, 1: a curvature (temperature alone, one or two factors), 2: a scale slope.
+    const auto kind_of = [](const std::string& name) {
+      const std::optional<Regressor> r = ParseRegressor(name);
+      if (!r) return -1;
+      for (int i = 0; i < r->num_factors; ++i)
+        if (r->factors[i] != static_cast<int>(Signal::kTemperature)) return 2;
+      return r->num_factors - 1;
+    };
+    const char* const kKinds[] = {"bias slope", "curvature", "scale slope"};
+    for (int sensor = 0; sensor < 2; ++sensor) {
+      for (int kind = 0; kind < 3; ++kind) {
+        std::vector<const DetectionBound*> same;
+        for (const DetectionBound& b : diag->detection_bounds)
+          if (static_cast<int>(b.sensor) == sensor && kind_of(b.regressor) == kind)
+            same.push_back(&b);
+        if (same.empty()) continue;
+        const DetectionBound* low = same.front();
+        const DetectionBound* high = same.front();
+        std::string axes;
+        for (const DetectionBound* b : same) {
+          if (b->coefficient < low->coefficient) low = b;
+          if (b->coefficient > high->coefficient) high = b;
+          axes += AxisName(b->axis);
+        }
+        const auto sn = static_cast<Sensor>(sensor);
+        const std::string range =
+            !std::isfinite(high->coefficient)
+                ? absl::StrFormat("none (%s: the temperature does not vary)", axes)
+            : high->coefficient > low->coefficient * 1.05
+                ? absl::StrFormat("%s to %s (%s)", HumanValue(sn, low->regressor, low->coefficient),
+                                  HumanValue(sn, high->regressor, high->coefficient), axes)
+                : absl::StrFormat("%s (%s)", HumanValue(sn, high->regressor, high->coefficient),
+                                  axes);
+        absl::StrAppendFormat(&text, "%s %s %s %s", text.empty() ? "" : ";", SensorName(sn),
+                              kKinds[kind], range);
+      }
+    }
+    if (!text.empty())
+      diag->notes.push_back(
+          Cat("temperature: where none was found, this capture (", from,
+              ") would have found one 9 times in 10 at:", text,
+              ". A smaller one may be there; a capture over a wider temperature span sees smaller "
+              "ones"));
   }
 
  private:
@@ -1056,8 +1253,8 @@ class Search {
     const auto n = static_cast<Eigen::Index>(poses_.size());
     Eigen::Index p = 0;
     if (sensor == Sensor::kAccel) {
-      for (bool f : st.free) p += f;
-      for (const Term& t : st.terms) p += t.sensor == Sensor::kAccel;
+      // What the poses pay for at the round's state (ScoreRound): the priors' share excluded.
+      p = static_cast<Eigen::Index>(std::ceil(accel_pays_for_ - 1e-9));
     } else {
       p = 1;
       for (const Term& t : st.terms) p += t.sensor == Sensor::kGyro && t.axis == axis;
@@ -1119,6 +1316,7 @@ class Search {
     const std::vector<AccelPose> ap = AccelPoses(poses_);
     const Design ad = AccelDesign(st, ap, st.free, signals_, in_.gravity_m_s2);
     const Scorer accel_scorer(ad);
+    accel_pays_for_ = accel_scorer.pays_for();
     std::vector<std::unique_ptr<Scorer>> gyro_scorers;
     std::vector<std::vector<double>> gyro_w;
     for (int j = 0; j < 3; ++j) {
@@ -1495,8 +1693,10 @@ class Search {
   std::vector<Eigen::Vector3d> rates_;
   std::vector<Eigen::Vector3d> gyro_sigma_;
   EffectReference reference_;
-  SignalArray centre_{};    // reference_ indexed by Signal
-  std::vector<int> freed_;  // held parameters freed by the re-examination, in order
+  SignalArray centre_{};       // reference_ indexed by Signal
+  std::vector<int> freed_;     // held parameters freed by the re-examination, in order
+  double accel_pays_for_ = 0;  // the accelerometer design's EffectiveColumns at the last round
+  int last_tests_ = 0;         // the candidates of the last round (its Bonferroni count)
 };
 
 }  // namespace
@@ -1504,15 +1704,18 @@ class Search {
 absl::StatusOr<EffectSearchResult> FindEffects(const EffectSearchInput& input,
                                                const EffectSearchOptions& options) {
   if (!options.enabled) return absl::InvalidArgumentError("effect search is disabled");
-  int n_free = 0;
-  for (bool f : input.accel_free) n_free += f;
+  // The parameters the poses pay for: a term its prior decides counts for nothing.
+  std::vector<AccelPose> poses;
+  for (const EffectPose& p : input.poses) poses.push_back(p.accel);
+  const int n_free = static_cast<int>(std::ceil(
+      EffectiveParameters(input.accel, poses, input.accel_free, input.accel_priors) - 1e-9));
   if (static_cast<int>(input.poses.size()) < n_free + 3) {
     EffectSearchResult out;
     out.accel = input.accel;
     out.gyro = input.gyro;
     out.diagnostics.notes.push_back(absl::StrFormat(
         "effects not searched: %d poses leave too few degrees of freedom beyond the %d model "
-        "parameters",
+        "parameters they determine",
         static_cast<int>(input.poses.size()), n_free));
     return out;
   }
@@ -1520,11 +1723,19 @@ absl::StatusOr<EffectSearchResult> FindEffects(const EffectSearchInput& input,
   return search.Run();
 }
 
-std::string HumanCoefficient(const Effect& e) {
+namespace {
+
+// A coefficient's unit as an engineer reads it, and the factor from SI to it.
+struct HumanUnit {
+  double factor = 1;
+  std::string unit;
+};
+
+HumanUnit HumanUnitOf(Sensor sensor, const std::string& regressor) {
   // Numerator: mg or deg/s. Each factor of the regressor: degC, s, g or deg/s. A factor of the
   // sensor's own kind turns the ratio into ppm (mg/g = 1000 ppm, (deg/s)/(deg/s) = 1e6 ppm).
-  const std::optional<Regressor> r = ParseRegressor(e.regressor);
-  const bool accel = e.sensor == Sensor::kAccel;
+  const std::optional<Regressor> r = ParseRegressor(regressor);
+  const bool accel = sensor == Sensor::kAccel;
   double factor = accel ? 1e3 / kStandardGravity : kRadToDeg;
   std::string numerator = accel ? "mg" : "deg/s";
   std::vector<std::string> units;
@@ -1555,7 +1766,20 @@ std::string HumanCoefficient(const Effect& e) {
     i += run - 1;
   }
   if (units.empty() && !ppm) unit += " per regressor unit";
-  return absl::StrFormat("%.4g +- %.2g %s", e.coefficient * factor, e.std_error * factor, unit);
+  return {factor, unit};
+}
+
+}  // namespace
+
+std::string HumanCoefficient(const Effect& e) {
+  const HumanUnit u = HumanUnitOf(e.sensor, e.regressor);
+  return absl::StrFormat("%.4g +- %.2g %s", e.coefficient * u.factor, e.std_error * u.factor,
+                         u.unit);
+}
+
+std::string HumanValue(Sensor sensor, const std::string& regressor, double value) {
+  const HumanUnit u = HumanUnitOf(sensor, regressor);
+  return absl::StrFormat("%.2g %s", value * u.factor, u.unit);
 }
 
 // The rotation residuals: regress the gravity-direction error after each move on each of its
@@ -1574,9 +1798,10 @@ void ExamineMoveResiduals(const std::vector<EffectMoveResidual>& all, EffectDiag
   const int blind = static_cast<int>(all.size() - m.size());
   const std::string left_out =
       blind == 0 ? ""
-                 : absl::StrFormat("; %d that turned about the vertical left out: gravity stays "
-                                   "where it was whatever the gyroscope reads",
-                                   blind);
+                 : absl::StrFormat(
+                       "; %d that turned about the vertical left out: gravity stays "
+                       "where it was whatever the gyroscope reads",
+                       blind);
   if (m.size() < 6) return;
   struct MoveSignal {
     const char* name;

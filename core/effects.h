@@ -57,14 +57,22 @@
 //   3. the held-out (leave-one-pose-out) weighted sum of squares falls by more than the same
 //      margin, F* s^2: the effect must predict poses it was not fitted to.
 // The passing candidate with the lowest BIC enters, the model is refitted jointly (accelerometer:
-// Ceres over the free model parameters and every accelerometer effect coefficient; gyroscope:
-// the static model is linear in its bias and coefficients, an exact weighted least squares), and
-// the search repeats until nothing passes. Candidates as collinear with the chosen one (beyond
-// the current model, correlation over 0.9) whose BIC is within 6 of it are named in the notes
-// with what would tell them apart: the data do not strongly prefer one (Kass and Raftery: a
-// BIC difference under 2 is "barely worth a mention", 2-6 "positive", over 6 "strong"). Within 2
-// the simpler regressor (and one without `time`) enters. PREFER WHAT THE ROBOT CAN APPLY: unless
-// time effects are opted in, a candidate containing `time` gives way to the best passing one
+// Ceres over the free model parameters and every accelerometer effect coefficient, with the
+// priors the accelerometer stage estimated its terms with, EffectSearchInput::accel_priors;
+// gyroscope: the static model is linear in its bias and coefficients, an exact weighted least
+// squares), and the search repeats until nothing passes.
+// THE MODEL STAYS WHOLE (issue 25): a second-order term or angle the poses hardly determine is
+// neither held at a value nor dropped while the effects are searched; it stays shrunk toward its
+// prior, moves with the effects in every refit (the leave-one-pose-out ones included), and its
+// uncertainty enters the effects' standard errors (the sandwich covariance of
+// core/robust_covariance.h, the priors as information). The statistics count the poses, and the
+// parameters the poses pay for: the trace of the hat matrix over the poses' rows, where a term
+// its prior decides counts for nothing and one the poses decide for 1. Candidates as collinear with
+// the chosen one (beyond the current model, correlation over 0.9) whose BIC is within 6 of it are
+// named in the notes with what would tell them apart: the data do not strongly prefer one (Kass and
+// Raftery: a BIC difference under 2 is "barely worth a mention", 2-6 "positive", over 6 "strong").
+// Within 2 the simpler regressor (and one without `time`) enters. PREFER WHAT THE ROBOT CAN APPLY:
+// unless time effects are opted in, a candidate containing `time` gives way to the best passing one
 // made only of run-time signals (temperature, specific force) on the same sensor within 6 of its
 // BIC (collinear with it or not): a time term is not applied on the robot, so a weak
 // preference for time would leave a real effect uncorrected (the notes still name both, and
@@ -87,6 +95,12 @@
 // pose's direction enters the move before it and the one after it, so the components are not
 // independent, and the test must not count them as if they were. This is what tells `ax*az` on
 // x from `ax^2` on z, and it overrules the static ranking only on significant evidence.
+// DETECTION BOUNDS: "none found" must say whether none is there. On every output where no
+// temperature term entered, the search states the smallest bias slope `(temperature-T)` and
+// curvature `(temperature-T)^2` (with its slope: a turnover anywhere) that it would have found 9
+// times in 10 on this capture (core/move_effects.h DetectionBound), and says it in a note: a
+// capture whose temperature hardly moves gets a large bound, or none at all when it does not
+// vary. The moves' search does the same for the gyroscope's rate-dependent scale.
 #ifndef IMUCAL_CORE_EFFECTS_H_
 #define IMUCAL_CORE_EFFECTS_H_
 
@@ -218,7 +232,11 @@ struct EffectDiagnostics {
   std::vector<MoveTrend> move_trends;  // every signal tested on the moves (6 moves or more)
   // The rate-dependent gyroscope terms tested on the moves (core/move_effects.h).
   MoveEffectDiagnostics move_search;
-  std::vector<std::string> notes;      // ambiguities, what was not testable, residual vs floor
+  // What the capture could not have missed (DETECTION BOUNDS): per output without a temperature
+  // term, the smallest bias slope and curvature in temperature it would have found; the moves'
+  // bounds on the gyro's rate-dependent scale are in move_search.
+  std::vector<DetectionBound> detection_bounds;
+  std::vector<std::string> notes;  // ambiguities, what was not testable, residual vs floor
 };
 
 struct EffectSearchInput {
@@ -226,6 +244,11 @@ struct EffectSearchInput {
   double gravity_m_s2 = kStandardGravity;
   AccelParams accel;       // the converged model without effects
   AccelMask accel_free{};  // its free parameters
+  // The priors it was estimated with (core/calibrate/term_priors.h: the second-order terms and
+  // angles of the sensor class, the faces' angles): every refit of the search keeps them, so a
+  // weakly determined term stays shrunk toward its prior and its uncertainty enters the effects'
+  // standard errors, as in the model without effects (issue 25).
+  AccelPriors accel_priors;
   // Parameters the data determine but the model held (a quadratic the selection kept at 0, an
   // angle kept at the face references): once an effect is in, each is tested again with it
   // present, by the same rule as a candidate effect (RE-EXAMINATION).
@@ -273,6 +296,8 @@ void ExamineMoveResiduals(const std::vector<EffectMoveResidual>& moves, EffectDi
 // The effect's coefficient in the units an engineer uses: mg/degC, deg/s per g, ppm/degC, ...,
 // with its standard error: "0.52 +- 0.03 mg/degC".
 std::string HumanCoefficient(const Effect& effect);
+// A value of a coefficient of that form in the same units, 2 digits: "0.021 mg/degC".
+std::string HumanValue(Sensor sensor, const std::string& regressor, double value);
 
 }  // namespace imucal::core
 

@@ -1,9 +1,9 @@
 #include "core/move_effects.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <cmath>
 #include <limits>
 #include <optional>
 #include <string>
@@ -15,6 +15,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "boost/math/distributions/fisher_f.hpp"
+#include "boost/math/distributions/non_central_chi_squared.hpp"
 #include "core/so3.h"
 
 namespace imucal::core {
@@ -78,8 +79,8 @@ std::vector<Prepared> PrepareMoves(const MoveSearchInput& in) {
     p.up_after = m.up_after.normalized();
     double dt2 = 0;
     for (double d : p.dt) dt2 += d * d;
-    p.noise_var = in.gyro_noise_rad_s * in.gyro_noise_rad_s * dt2 +
-                  2 * in.up_noise_rad * in.up_noise_rad;
+    p.noise_var =
+        in.gyro_noise_rad_s * in.gyro_noise_rad_s * dt2 + 2 * in.up_noise_rad * in.up_noise_rad;
     out.push_back(std::move(p));
   }
   return out;
@@ -119,12 +120,14 @@ struct Model {
   Eigen::VectorXd Theta() const {
     Eigen::VectorXd th(Params());
     th.head<9>() = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(m.data());
-    for (size_t t = 0; t < terms.size(); ++t) th(9 + static_cast<Eigen::Index>(t)) = terms[t].coefficient;
+    for (size_t t = 0; t < terms.size(); ++t)
+      th(9 + static_cast<Eigen::Index>(t)) = terms[t].coefficient;
     return th;
   }
   void SetTheta(const Eigen::VectorXd& th) {
     m = Eigen::Map<const Eigen::Matrix3d>(th.data());
-    for (size_t t = 0; t < terms.size(); ++t) terms[t].coefficient = th(9 + static_cast<Eigen::Index>(t));
+    for (size_t t = 0; t < terms.size(); ++t)
+      terms[t].coefficient = th(9 + static_cast<Eigen::Index>(t));
   }
 };
 
@@ -309,8 +312,7 @@ int Solve(const std::vector<Prepared>& moves, const std::vector<Prepared>& turns
     bool improved = false;
     for (int tries = 0; tries < 12 && !improved; ++tries) {
       Eigen::MatrixXd a = h;
-      for (Eigen::Index i = 0; i < a.rows(); ++i)
-        a(i, i) += lambda * std::max(h(i, i), 1e-300);
+      for (Eigen::Index i = 0; i < a.rows(); ++i) a(i, i) += lambda * std::max(h(i, i), 1e-300);
       const Eigen::VectorXd step = -PseudoInverse(a) * g;
       Model trial = *model;
       trial.SetTheta(model->Theta() + step);
@@ -350,8 +352,8 @@ std::vector<double> HeldOut(const Model& model, const Linearisation& lin,
   for (size_t i = 0; i < moves.size(); ++i) {
     const auto row = static_cast<Eigen::Index>(3 * i);
     const Eigen::MatrixXd ji = j.middleRows<3>(row);
-    const Eigen::VectorXd step = -PseudoInverse(h - ji.transpose() * ji) *
-                                 (g - ji.transpose() * lin.r.segment<3>(row));
+    const Eigen::VectorXd step =
+        -PseudoInverse(h - ji.transpose() * ji) * (g - ji.transpose() * lin.r.segment<3>(row));
     Model without = model;
     if (extra_term != nullptr) without.terms.push_back(*extra_term);
     without.SetTheta(without.Theta() + step);
@@ -503,8 +505,8 @@ std::string Describe(int axis, const Regressor& r) {
 // What the term means, for the notes.
 std::string Meaning(int axis, const Regressor& r) {
   const int own = static_cast<int>(Signal::kGx) + axis;
-  const bool abs_pair = r.num_factors == 2 && r.factors[0] == r.factors[1] &&
-                        !r.absolute[0] && r.absolute[1];
+  const bool abs_pair =
+      r.num_factors == 2 && r.factors[0] == r.factors[1] && !r.absolute[0] && r.absolute[1];
   if (abs_pair)
     return r.factors[0] == own ? "a scale that grows with the rate (scale nonlinearity)"
                                : "a misalignment that grows with the rate";
@@ -551,6 +553,39 @@ struct Candidate {
   Eigen::VectorXd perp;  // its column beyond the model
 };
 
+// DetectionBound for each gyro axis without a rate term: the scale that grows with the rate's
+// size about that axis (`gk*|gk|` on k), from its candidate's column beyond the round's model.
+// The last round's stand (the model as it ends).
+void SetDetectionBounds(const Model& model, const std::vector<Prepared>& moves,
+                        const Eigen::Vector3d& bias, const std::vector<Candidate>& cands, double s2,
+                        double threshold, MoveSearchResult* out) {
+  out->detection_bounds.clear();
+  const double lambda = DetectableNoncentrality(1, threshold);
+  Eigen::Vector3d fastest = Eigen::Vector3d::Zero();  // rad/s, through the model
+  for (const Prepared& m : moves)
+    for (const Eigen::Vector3d& u : m.u)
+      fastest = fastest.cwiseMax((model.m * (u - bias)).cwiseAbs());
+  for (int axis = 0; axis < 3; ++axis) {
+    bool modelled = false;
+    for (const MoveTerm& t : model.terms) modelled |= t.axis == axis;
+    if (modelled) continue;
+    const std::string g = absl::StrFormat("g%c", kAxes[axis]);
+    const std::optional<Regressor> form = ParseRegressor(absl::StrFormat("%s*|%s|", g, g));
+    if (!form) continue;
+    DetectionBound b;
+    b.sensor = Sensor::kGyro;
+    b.axis = axis;
+    b.regressor = form->Name();
+    b.coefficient = std::numeric_limits<double>::infinity();
+    for (const Candidate& c : cands)
+      if (c.term.axis == axis && c.term.regressor == *form && c.perp.norm() > 0)
+        b.coefficient = std::sqrt(lambda * s2) / c.perp.norm();
+    b.from = absl::StrFormat("%d moves, up to %.0f deg/s about %c", static_cast<int>(moves.size()),
+                             fastest(axis) * 180.0 / M_PI, kAxes[axis]);
+    out->detection_bounds.push_back(std::move(b));
+  }
+}
+
 }  // namespace
 
 double MoveModelFit::RmsMoveError() const { return Rms(move_error_rad); }
@@ -571,7 +606,16 @@ MoveEffectDiagnostics MoveSearchResult::Diagnostics() const {
   d.heldout_after_per_move_rad = after.heldout_error_rad;
   d.top = top;
   d.turn_angle_moves_only_rad = turn_angle_moves_only_rad;
+  d.detection_bounds = detection_bounds;
   return d;
+}
+
+double DetectableNoncentrality(int df, double threshold, double power) {
+  if (!(threshold > 0) || !std::isfinite(threshold) || df < 1)
+    return std::numeric_limits<double>::infinity();
+  // The noncentrality at which P(chi2'(df, lambda) <= threshold) = 1 - power.
+  return boost::math::non_central_chi_squared_distribution<double>::find_non_centrality(
+      static_cast<double>(df), threshold, 1 - power);
 }
 double MoveModelFit::RmsHeldOut() const { return Rms(heldout_error_rad); }
 
@@ -602,8 +646,7 @@ std::vector<Regressor> MoveDictionary() {
 
 absl::StatusOr<MoveModelFit> FitMoveModel(const MoveSearchInput& in,
                                           const std::vector<MoveTerm>& terms) {
-  if (in.t_s == nullptr || in.gyro_raw == nullptr)
-    return absl::InvalidArgumentError("no samples");
+  if (in.t_s == nullptr || in.gyro_raw == nullptr) return absl::InvalidArgumentError("no samples");
   if (absl::Status s = ValidateGyroMoves(*in.t_s, *in.gyro_raw, in.moves); !s.ok()) return s;
   for (size_t i = 0; i < in.turns.size(); ++i) {
     const GyroFullTurn& t = in.turns[i];
@@ -626,8 +669,7 @@ absl::StatusOr<MoveModelFit> FitMoveModel(const MoveSearchInput& in,
 absl::StatusOr<MoveSearchResult> SearchMoveEffects(const MoveSearchInput& in,
                                                    const MoveSearchOptions& opt) {
   MoveSearchResult out;
-  if (in.t_s == nullptr || in.gyro_raw == nullptr)
-    return absl::InvalidArgumentError("no samples");
+  if (in.t_s == nullptr || in.gyro_raw == nullptr) return absl::InvalidArgumentError("no samples");
   if (static_cast<int>(in.moves.size()) < kMinMoves) {
     out.notes.push_back(absl::StrFormat(
         "rotations between poses: %d moves, too few to test rate-dependent gyroscope terms "
@@ -707,8 +749,7 @@ absl::StatusOr<MoveSearchResult> SearchMoveEffects(const MoveSearchInput& in,
       c.term = terms[k];
       const Eigen::VectorXd col = columns.col(static_cast<Eigen::Index>(k));
       c.perp = col - q * (q.transpose() * col);
-      if (!col.allFinite() || col.norm() == 0 ||
-          c.perp.norm() <= kAbsorbedFraction * col.norm()) {
+      if (!col.allFinite() || col.norm() == 0 || c.perp.norm() <= kAbsorbedFraction * col.norm()) {
         ++not_excited;
         continue;
       }
@@ -757,8 +798,8 @@ absl::StatusOr<MoveSearchResult> SearchMoveEffects(const MoveSearchInput& in,
                      "moves round %d: gyro %c ~ %-8s F %6.1f (%5.1f) BIC %+7.1f held-out %+7.1f "
                      "without the best %d moves %+7.1f%s\n",
                      round, kAxes[sc.axis], sc.regressor.c_str(), sc.f, sc.f_threshold,
-                     sc.delta_bic, sc.press_gain, static_cast<int>(kTrimmedMoves),
-                     sc.trimmed_gain, sc.passed ? " passed" : "");
+                     sc.delta_bic, sc.press_gain, static_cast<int>(kTrimmedMoves), sc.trimmed_gain,
+                     sc.passed ? " passed" : "");
       }
     }
     if (round == 0) {
@@ -769,15 +810,17 @@ absl::StatusOr<MoveSearchResult> SearchMoveEffects(const MoveSearchInput& in,
       for (size_t k = 0; k < by_f.size() && k < static_cast<size_t>(kTopCandidates); ++k)
         out.top.push_back(by_f[k]->score);
     }
+    SetDetectionBounds(model, moves, in.bias, cands, std::max(rss0 / dof1, floor_var), threshold,
+                       &out);
     if (best < 0) break;
     const Candidate& chosen = cands[static_cast<size_t>(best)];
     // Rivals the moves do not tell apart from the chosen one.
     std::vector<std::string> rivals;
     for (const Candidate& c : cands) {
       if (&c == &chosen || !c.score.passed) continue;
-      const double corr =
-          std::abs(c.perp.dot(chosen.perp)) / (c.perp.norm() * chosen.perp.norm());
-      if (corr > kAmbiguousCorrelation && c.score.delta_bic - chosen.score.delta_bic < kWeakEvidenceBic)
+      const double corr = std::abs(c.perp.dot(chosen.perp)) / (c.perp.norm() * chosen.perp.norm());
+      if (corr > kAmbiguousCorrelation &&
+          c.score.delta_bic - chosen.score.delta_bic < kWeakEvidenceBic)
         rivals.push_back(Describe(c.term.axis, c.term.regressor));
     }
     Model next = model;

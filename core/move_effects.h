@@ -72,6 +72,27 @@
 
 namespace imucal::core {
 
+// What a capture could not have missed (issue 25, item 4): where a search found no term of a form
+// on an output, the smallest coefficient of that form it would have found 9 times in 10. From
+// the search's own test at its final model: the form's column beyond the model (and beyond its
+// lower powers), the residual's noise, and the F threshold of the search's last round; the
+// noncentrality that the test passes with probability 0.9 (chi-square with the candidate's
+// degrees of freedom at its threshold) over the column's size, in units of the noise:
+//   |coefficient| >= sqrt(lambda_0.9) * s / |column beyond the model|.
+// It says whether "none found" means "none there": a term above the bound would have been found.
+// (The held-out and BIC conditions are met wherever F is, at these sizes.)
+struct DetectionBound {
+  Sensor sensor = Sensor::kGyro;
+  int axis = 0;
+  std::string regressor;   // the form, as the effect would be named ("(temperature-29.6)")
+  double coefficient = 0;  // SI per regressor unit; +inf: the capture does not excite the form
+  std::string from;        // what it comes from: "40 poses at 25.1-33.0 degC"
+};
+
+// The noncentrality at which a chi-square test of `df` degrees of freedom at `threshold` (the
+// statistic's value, df * F*) passes with probability `power`.
+double DetectableNoncentrality(int df, double threshold, double power = 0.9);
+
 // One term on a gyro output axis: w[axis] -= coefficient * regressor(model rates).
 struct MoveTerm {
   int axis = 0;
@@ -117,8 +138,8 @@ struct MoveModelFit {
   std::vector<double> move_error_rad;          // per move, in-sample
   std::vector<double> heldout_error_rad;       // per move, leave-one-move-out (first order)
   std::vector<double> turn_angle_rad;          // per turn: |sum_k phi_k|
-  double rss = 0;                         // sum over moves and turns of |r|^2
-  int observations = 0;                   // 2 per move, 3 or 1 per turn
+  double rss = 0;                              // sum over moves and turns of |r|^2
+  int observations = 0;                        // 2 per move, 3 or 1 per turn
   int rank = 0;
   int iterations = 0;
   double RmsMoveError() const;
@@ -131,9 +152,9 @@ struct MoveCandidateScore {
   std::string regressor;
   double f = 0, f_threshold = 0;
   double delta_bic = 0;
-  double press_gain = 0;   // held-out sum of squares before - after, in units of s^2
+  double press_gain = 0;    // held-out sum of squares before - after, in units of s^2
   double trimmed_gain = 0;  // the same without the 2 moves that gain most (condition 4)
-  double coefficient = 0;  // linearised, rad/s per regressor unit
+  double coefficient = 0;   // linearised, rad/s per regressor unit
   bool passed = false;
 };
 
@@ -151,6 +172,7 @@ struct MoveEffectDiagnostics {
   std::vector<double> heldout_before_per_move_rad, heldout_after_per_move_rad;
   std::vector<MoveCandidateScore> top;
   std::vector<double> turn_angle_moves_only_rad;  // see MoveSearchResult
+  std::vector<DetectionBound> detection_bounds;   // see MoveSearchResult
 };
 
 struct MoveSearchResult {
@@ -158,15 +180,18 @@ struct MoveSearchResult {
   int candidates = 0;   // tested in the first round
   int not_excited = 0;  // skipped: the moves do not excite the candidate beyond the model
   int rounds = 0;
-  MoveModelFit before;  // the model without terms (with the given ones)
-  MoveModelFit after;   // with every term found
-  std::vector<Effect> effects;         // gyroscope effects, in the order found
+  MoveModelFit before;                  // the model without terms (with the given ones)
+  MoveModelFit after;                   // with every term found
+  std::vector<Effect> effects;          // gyroscope effects, in the order found
   std::vector<MoveCandidateScore> top;  // the first round's best few by F
-  double noise_floor_rad = 0;  // RMS gravity-direction error the noise alone would leave
+  double noise_floor_rad = 0;           // RMS gravity-direction error the noise alone would leave
   // Fitted to the moves alone, each full turn's angle (rad): when the turns and the moves
   // disagree on the scale, this says by how much. Empty without turns or when the moves alone
   // do not determine M.
   std::vector<double> turn_angle_moves_only_rad;
+  // Per gyro axis without a rate term found: the smallest scale that grows with the rate
+  // (`gk*|gk|` on axis k) these moves would have found (DetectionBound).
+  std::vector<DetectionBound> detection_bounds;
   std::vector<std::string> notes;
 
   MoveEffectDiagnostics Diagnostics() const;

@@ -72,6 +72,23 @@ json WanderJson(const core::BiasWander& w) {
   return j;
 }
 
+// What a capture could not have missed (core/move_effects.h DetectionBound): coefficient in SI
+// per regressor unit, null where the capture does not excite the form.
+json DetectionBoundsJson(const std::vector<core::DetectionBound>& bounds) {
+  json out = json::array();
+  for (const core::DetectionBound& b : bounds) {
+    out.push_back({{"sensor", b.sensor == core::Sensor::kAccel ? "accel" : "gyro"},
+                   {"axis", std::string(1, "xyz"[b.axis])},
+                   {"regressor", b.regressor},
+                   {"coefficient", Num(b.coefficient)},
+                   {"human", std::isfinite(b.coefficient)
+                                 ? core::HumanValue(b.sensor, b.regressor, b.coefficient)
+                                 : std::string("not excited")},
+                   {"from", b.from}});
+  }
+  return out;
+}
+
 json DiagnosticsJson(const core::EffectDiagnostics& d) {
   json j;
   j["ran"] = d.ran;
@@ -166,7 +183,9 @@ json DiagnosticsJson(const core::EffectDiagnostics& d) {
   }
   ms["turn_angles_moves_only"] = json::array();
   for (double a : m.turn_angle_moves_only_rad) ms["turn_angles_moves_only"].push_back(Num(a));
+  ms["detection_bounds"] = DetectionBoundsJson(m.detection_bounds);
   j["move_search"] = std::move(ms);
+  j["detection_bounds"] = DetectionBoundsJson(d.detection_bounds);
   j["notes"] = d.notes;
   return j;
 }

@@ -183,7 +183,7 @@ double PairMeanAngleError(const std::vector<PairCheck>& pairs) {
 // 2e-3 m/s^2, 4-7 standard errors, on an independent writer's capture with 4 extra poses).
 AccelPriors FaceAnglePriors(ProtocolKind protocol, const std::vector<PairCheck>& pairs,
                             const FaceReferences& faces, const AccelParams& stage_one,
-                            AccelVector* fit_sigma, std::vector<std::string>* warnings) {
+                            std::vector<std::string>* warnings) {
   constexpr double kFacesOnceTiltRad = 1.0 * M_PI / 180.0;
   const double systematic =
       protocol == ProtocolKind::kSixFace ? PairMeanAngleError(pairs) : kFacesOnceTiltRad;
@@ -193,7 +193,6 @@ AccelPriors FaceAnglePriors(ProtocolKind protocol, const std::vector<PairCheck>&
   std::string sigmas;
   for (int c : kAccelTri.Indices()) {
     const double fit = std::sqrt(cov(c, c));
-    (*fit_sigma)(c) = fit;
     const double sigma = std::hypot(std::isfinite(fit) ? fit : 0.0, systematic);
     if (!(sigma > 0)) continue;
     out.push_back({c, PackAccel(stage_one)(c), sigma, "face references"});
@@ -352,11 +351,8 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   // the second-order terms, so its misfit overstates it: it is measured again at each refit.
   // 2. What the poses (and the face references' angles) determine; undetermined parameters
   //    stay at neutral values.
-  AccelVector faces_fit_sigma = AccelVector::Constant(kNaN);
-  if (out.from_faces) {
-    out.priors =
-        FaceAnglePriors(checks.protocol, checks.pairs, faces, *s1, &faces_fit_sigma, &out.warnings);
-  }
+  if (out.from_faces)
+    out.priors = FaceAnglePriors(checks.protocol, checks.pairs, faces, *s1, &out.warnings);
   // Stage 1's misfit, over the first-order model, as the first model error.
   SetModelSigma(*s1, g, MaskOf(kAccelFirstOrder), out.priors, &poses);
   // The model's own second-order terms (and the angles where no face measures them) by their
@@ -367,28 +363,11 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   AccelMask all{};
   all.fill(true);
   if (bias_scale_only) all = MaskOf(kAccelBiasScale);
-  // What |a| = g alone knows of the terms with a prior: where their prior knows one better (the
-  // faces' fit ten times better; a class prior at all), refits that cannot take the priors (the
-  // effect search's) hold it where the fit with the priors put it.
-  out.refit_free = MaskOf(kAccelBiasScale);
-  const AccelObservability alone = AnalyseAccelObservability(*s1, poses, g, all);
-  for (const AccelPrior& q : priors) {
-    const size_t k = static_cast<size_t>(q.index);
-    const double faces_sigma = faces_fit_sigma(q.index);
-    const double prior_knows = std::isfinite(faces_sigma) ? 10 * faces_sigma : q.sigma;
-    out.refit_free[k] = alone.determined[k] && !(prior_knows < alone.sigma(q.index));
-  }
   // An angle the face references measure is free whatever |a| = g adds: it is not neutral (0)
   // but the faces' value, with their error (the warnings say what was assumed).
   out.observability = AnalyseAccelObservability(*s1, poses, g, all, priors);
   const AccelObservability& obs = out.observability;
   for (const auto& w : obs.warnings) out.warnings.push_back(w);
-  for (int c = 0; c < kAccelParams; ++c) {
-    const size_t k = static_cast<size_t>(c);
-    bool prior = false;
-    for (const AccelPrior& q : priors) prior |= q.index == c;
-    if (!prior) out.refit_free[k] = obs.determined[k];
-  }
   if (!bias_scale_only) {
     for (int c : kAccelFirstOrder.Indices())
       if (!obs.determined[static_cast<size_t>(c)])
@@ -408,14 +387,12 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   if (!out.affine_only) {
     SetModelSigma(RefineAccelGaussNewton(*s1, poses, g, obs.determined, 10, priors), g,
                   obs.determined, priors, &poses);
-    width_uncertainty = ChooseQuadraticWidth(
-        *s1, poses, g, obs.determined, opt.term_priors.accel_quadratic_per_m_s2, &out.priors);
+    width_uncertainty = ChooseQuadraticWidth(*s1, poses, g, obs.determined,
+                                             opt.term_priors.accel_quadratic_per_m_s2, &out.priors);
     for (AccelPrior& q : out.priors) {
       if (q.index < kAccelQuadratic.begin) continue;
       q.source += absl::StrFormat(" (its %.1e, the widest, narrowed to the capture's evidence)",
                                   opt.term_priors.accel_quadratic_per_m_s2);
-      const size_t k = static_cast<size_t>(q.index);
-      out.refit_free[k] = alone.determined[k] && !(q.sigma < alone.sigma(q.index));
     }
   }
 

@@ -40,10 +40,6 @@ struct AccelStage {
   AccelPriors priors;
   // What each prior did to its term (the report's term_priors).
   std::vector<TermPriorEffect> term_priors;
-  // The parameters a refit without the priors may move: the determined ones, less the terms
-  // whose prior knows them better than |a| = g alone (the faces' angles ten times better, a
-  // class prior at all): refitting them on |a| = g alone fits noise.
-  AccelMask refit_free{};
   bool from_faces = false;   // stage 1 came from the face references (the case frame is known)
   bool affine_only = false;  // the face references' fit is the result (nothing to refine on)
   std::vector<StageReport> stages;  // ls, bsas, lm

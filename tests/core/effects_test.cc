@@ -405,7 +405,8 @@ TEST(AccelEffectRefit, FrameAndGyroscopeFollowTheCorrectedDirections) {
       }
       EXPECT_NE(Notes(rep).find(absl::StrFormat("after the %d moves (", tilting)),
                 std::string::npos)
-          << tilting << "\n" << Notes(rep);
+          << tilting << "\n"
+          << Notes(rep);
       EXPECT_NE(Notes(rep).find("shows no trend"), std::string::npos) << Notes(rep);
     }
   }
@@ -636,6 +637,55 @@ TEST(HumanCoefficient, UsesEngineeringUnits) {
   e.coefficient = 0.05 * kDegS / kStandardGravity;
   e.std_error = 0.002 * kDegS / kStandardGravity;
   EXPECT_EQ(HumanCoefficient(e), "0.05 +- 0.002 deg/s/g");
+}
+
+// Issue 25, item 4: "none found" says what the capture would have found. The bound an
+// effect-free capture states for an accelerometer bias slope in temperature is tested against
+// the same unit and path with the effect put in: three times the bound is found, a fifth of it
+// is not; a capture at a steady temperature states a bound far larger (or none), and says so.
+const DetectionBound* AccelSlopeBound(const CalibrationReport& r, int axis) {
+  for (const DetectionBound& b : r.effect_diagnostics.detection_bounds)
+    if (b.sensor == Sensor::kAccel && b.axis == axis && SameForm(b.regressor, "temperature"))
+      return &b;
+  return nullptr;
+}
+
+TEST(DetectionBound, SaysWhatTheCaptureWouldHaveFound) {
+  int above_found = 0, below_found = 0;
+  constexpr int kSeeds = 4;
+  for (int seed = 1; seed <= kSeeds; ++seed) {
+    const auto s = static_cast<uint64_t>(seed);
+    const absl::StatusOr<CalibrationReport> clean =
+        Calibrate(MustSimulate(EffectScenario(s, {})).capture, CalibrateOptions{});
+    ASSERT_TRUE(clean.ok()) << clean.status();
+    const DetectionBound* bound = AccelSlopeBound(*clean, 0);
+    ASSERT_NE(bound, nullptr) << "seed " << seed;
+    ASSERT_TRUE(std::isfinite(bound->coefficient)) << "seed " << seed;
+    EXPECT_GT(bound->coefficient, 0);
+    bool noted = false;
+    for (const std::string& n : clean->effect_diagnostics.notes)
+      noted |= n.find("would have found one 9 times in 10") != std::string::npos;
+    EXPECT_TRUE(noted) << "seed " << seed;
+    for (double times : {3.0, 0.2}) {
+      const SimEffect truth = Fx(Sensor::kAccel, 0, "temperature", times * bound->coefficient);
+      const absl::StatusOr<CalibrationReport> r =
+          Calibrate(MustSimulate(EffectScenario(s, {truth})).capture, CalibrateOptions{});
+      ASSERT_TRUE(r.ok()) << r.status();
+      bool found = false;
+      for (const Effect& e : r->params.effects)
+        found |= e.sensor == Sensor::kAccel && e.axis == 0 && SameForm(e.regressor, "temperature");
+      (times > 1 ? above_found : below_found) += found;
+    }
+    // The same unit on a plateau: the temperature barely moves, the bound is far larger.
+    const absl::StatusOr<CalibrationReport> flat = Calibrate(
+        MustSimulate(HistoryScenario(s, {}, History::kPlateau)).capture, CalibrateOptions{});
+    ASSERT_TRUE(flat.ok()) << flat.status();
+    const DetectionBound* flat_bound = AccelSlopeBound(*flat, 0);
+    ASSERT_NE(flat_bound, nullptr);
+    EXPECT_GT(flat_bound->coefficient, 10 * bound->coefficient) << "seed " << seed;
+  }
+  EXPECT_EQ(above_found, kSeeds);
+  EXPECT_EQ(below_found, 0);
 }
 
 }  // namespace
