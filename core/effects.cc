@@ -4,7 +4,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <functional>
 #include <limits>
 #include <memory>
 #include <string>
@@ -551,8 +550,7 @@ class Scorer {
   // The size of the last of `pose_cols` beyond the model and the columns before it (0 when they
   // span it): what a coefficient on it moves the residual by, per unit.
   double LastBeyond(const Eigen::MatrixXd& pose_cols) const {
-    Eigen::MatrixXd cols = Eigen::MatrixXd::Zero(rows_, pose_cols.cols());
-    cols.topRows(pose_cols.rows()) = pose_cols;
+    const Eigen::MatrixXd cols = Padded(pose_cols);
     Eigen::MatrixXd p = cols - q_ * (q_.transpose() * cols);
     const Eigen::Index k = p.cols();
     Eigen::VectorXd last = p.col(k - 1);
@@ -572,8 +570,7 @@ class Scorer {
   // `pose_cols` has a row per pose; a candidate has no prior (its rows there are zero).
   bool Score(const Eigen::MatrixXd& pose_cols, CandidateScore* s, Eigen::VectorXd* perp,
              Eigen::VectorXd* coefficients) const {
-    Eigen::MatrixXd cols = Eigen::MatrixXd::Zero(rows_, pose_cols.cols());
-    cols.topRows(pose_cols.rows()) = pose_cols;
+    const Eigen::MatrixXd cols = Padded(pose_cols);
     const Eigen::MatrixXd p = cols - q_ * (q_.transpose() * cols);
     const Eigen::Index k = cols.cols();
     for (Eigen::Index c = 0; c < k; ++c) {
@@ -613,6 +610,13 @@ class Scorer {
   }
 
  private:
+  // A candidate's columns (a row per pose) with zero rows for the priors, which it has none of.
+  Eigen::MatrixXd Padded(const Eigen::MatrixXd& pose_cols) const {
+    Eigen::MatrixXd cols = Eigen::MatrixXd::Zero(rows_, pose_cols.cols());
+    cols.topRows(pose_cols.rows()) = pose_cols;
+    return cols;
+  }
+
   Eigen::VectorXd r_;
   Eigen::Index rows_, n_;
   double p_ = 0;
@@ -965,12 +969,9 @@ class Search {
             FThreshold(opt_.family_alpha, tests, DofAfter(st, s.sensor, s.axis) - (k - 1), k);
         // The held-out margin is the same F* s^2 per column entering.
         s.passed = s.f > s.f_threshold && s.delta_bic < 0 && s.press_gain > k * s.f_threshold;
-      }
-      // Ranked by BIC, which compares candidates of different axes on one scale.
-      for (size_t c = 0; c < cands.size(); ++c) {
-        if (cands[c].score.passed &&
-            (best < 0 ||
-             cands[c].score.delta_bic < cands[static_cast<size_t>(best)].score.delta_bic))
+        // Ranked by BIC, which compares candidates of different axes on one scale.
+        if (s.passed &&
+            (best < 0 || s.delta_bic < cands[static_cast<size_t>(best)].score.delta_bic))
           best = static_cast<int>(c);
       }
       if (round == 0) KeepTop(cands, &diag);
@@ -1136,29 +1137,13 @@ class Search {
     const std::string from =
         absl::StrFormat("%d poses at %.1f-%.1f degC", static_cast<int>(poses_.size()), lo, hi);
     const int tests = std::max(1, last_tests_);
-    SetAccelModelSigma(st, st.free, signals_, in_.gravity_m_s2, &poses_);
-    const std::vector<AccelPose> ap = AccelPoses(poses_);
-    const Design ad = AccelDesign(st, ap, st.free, signals_, in_.gravity_m_s2);
-    const Scorer accel_scorer(ad);
-    accel_pays_for_ = accel_scorer.pays_for();
-    const auto n = static_cast<Eigen::Index>(poses_.size());
+    const RoundDesigns designs = DesignsAt(st);
     for (int sensor = 0; sensor < (in_.gyro_output_si ? 2 : 1); ++sensor) {
       const auto sn = static_cast<Sensor>(sensor);
       for (int axis = 0; axis < 3; ++axis) {
         std::vector<std::string> forms = {"temperature", "temperature^2"};
         if (sn == Sensor::kAccel) forms.push_back(absl::StrFormat("temperature*a%c", "xyz"[axis]));
-        std::unique_ptr<Scorer> gyro_scorer;
-        std::vector<double> gyro_w;
-        if (sn == Sensor::kGyro) {
-          std::vector<const Term*> terms;
-          for (const Term& t : st.terms)
-            if (t.sensor == Sensor::kGyro && t.axis == axis) terms.push_back(&t);
-          const GyroAxisFit g =
-              FitGyroAxis(axis, rates_, gyro_sigma_, GyroTau(axis, terms), terms, signals_);
-          gyro_scorer = std::make_unique<Scorer>(g.design);
-          gyro_w = g.design.weight;
-        }
-        const Scorer& scorer = sn == Sensor::kAccel ? accel_scorer : *gyro_scorer;
+        const Scorer& scorer = designs.For(sn, axis);
         for (const std::string& name : forms) {
           const Regressor form = ParseRegressor(name)->CentredOn(centre_);
           if (InModel(st, sn, axis, form)) continue;  // found: its coefficient says the rest
@@ -1167,16 +1152,7 @@ class Search {
           std::vector<Regressor> group = *lower;
           group.push_back(form);
           const auto k = static_cast<Eigen::Index>(group.size());
-          Eigen::MatrixXd cols(n, k);
-          for (Eigen::Index i = 0; i < n; ++i) {
-            const auto ii = static_cast<size_t>(i);
-            for (Eigen::Index c = 0; c < k; ++c) {
-              const double x = group[static_cast<size_t>(c)].Evaluate(signals_[ii]);
-              cols(i, c) = sn == Sensor::kAccel
-                               ? AccelEffectDerivative(st.accel, ap[ii], axis, x) * ad.weight[ii]
-                               : x * gyro_w[ii];
-            }
-          }
+          const Eigen::MatrixXd cols = CandidateColumns(designs, st, sn, axis, group);
           DetectionBound b;
           b.sensor = sn;
           b.axis = axis;
@@ -1309,24 +1285,62 @@ class Search {
     return out;
   }
 
-  void ScoreRound(const State& st, const std::array<bool, kNumSignals>& excited,
-                  std::vector<RoundCandidate>* cands, int* absorbed, int* not_excited) {
-    // Accelerometer design at the current state.
+  // The weighted designs candidates are scored against at a state: the accelerometer's (its
+  // poses with the state's model error) and each gyroscope axis's.
+  struct RoundDesigns {
+    std::vector<AccelPose> accel_poses;
+    Design accel;
+    std::unique_ptr<Scorer> accel_scorer;
+    std::array<std::vector<double>, 3> gyro_weight;
+    std::array<std::unique_ptr<Scorer>, 3> gyro_scorer;
+    const Scorer& For(Sensor sensor, int axis) const {
+      return sensor == Sensor::kAccel ? *accel_scorer : *gyro_scorer[static_cast<size_t>(axis)];
+    }
+  };
+
+  // Also keeps what the accelerometer's poses pay for (DofAfter).
+  RoundDesigns DesignsAt(const State& st) {
+    RoundDesigns d;
     SetAccelModelSigma(st, st.free, signals_, in_.gravity_m_s2, &poses_);
-    const std::vector<AccelPose> ap = AccelPoses(poses_);
-    const Design ad = AccelDesign(st, ap, st.free, signals_, in_.gravity_m_s2);
-    const Scorer accel_scorer(ad);
-    accel_pays_for_ = accel_scorer.pays_for();
-    std::vector<std::unique_ptr<Scorer>> gyro_scorers;
-    std::vector<std::vector<double>> gyro_w;
+    d.accel_poses = AccelPoses(poses_);
+    d.accel = AccelDesign(st, d.accel_poses, st.free, signals_, in_.gravity_m_s2);
+    d.accel_scorer = std::make_unique<Scorer>(d.accel);
+    accel_pays_for_ = d.accel_scorer->pays_for();
     for (int j = 0; j < 3; ++j) {
       std::vector<const Term*> terms;
       for (const Term& t : st.terms)
         if (t.sensor == Sensor::kGyro && t.axis == j) terms.push_back(&t);
       const GyroAxisFit g = FitGyroAxis(j, rates_, gyro_sigma_, GyroTau(j, terms), terms, signals_);
-      gyro_scorers.push_back(std::make_unique<Scorer>(g.design));
-      gyro_w.push_back(g.design.weight);
+      d.gyro_scorer[static_cast<size_t>(j)] = std::make_unique<Scorer>(g.design);
+      d.gyro_weight[static_cast<size_t>(j)] = g.design.weight;
     }
+    return d;
+  }
+
+  // A candidate's weighted columns, a row per pose and one column per regressor of `group`:
+  // an accelerometer term's trace on |a| - g, a gyroscope term's on the static rate.
+  Eigen::MatrixXd CandidateColumns(const RoundDesigns& d, const State& st, Sensor sensor, int axis,
+                                   const std::vector<Regressor>& group) const {
+    const auto n = static_cast<Eigen::Index>(poses_.size());
+    Eigen::MatrixXd cols(n, static_cast<Eigen::Index>(group.size()));
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const auto ii = static_cast<size_t>(i);
+      for (size_t g = 0; g < group.size(); ++g) {
+        const double x = group[g].Evaluate(signals_[ii]);
+        cols(i, static_cast<Eigen::Index>(g)) =
+            sensor == Sensor::kAccel
+                ? AccelEffectDerivative(st.accel, d.accel_poses[ii], axis, x) * d.accel.weight[ii]
+                : x * d.gyro_weight[static_cast<size_t>(axis)][ii];
+      }
+    }
+    return cols;
+  }
+
+  void ScoreRound(const State& st, const std::array<bool, kNumSignals>& excited,
+                  std::vector<RoundCandidate>* cands, int* absorbed, int* not_excited) {
+    const RoundDesigns designs = DesignsAt(st);
+    const std::vector<AccelPose>& ap = designs.accel_poses;
+    const Design& ad = designs.accel;
     const auto n = static_cast<Eigen::Index>(poses_.size());
     for (const Regressor& plain : Dictionary(opt_.max_factors)) {
       const Regressor r = plain.CentredOn(centre_);
@@ -1355,24 +1369,15 @@ class Search {
           if (!lower.has_value()) continue;
           std::vector<Regressor> group = *lower;
           group.push_back(r);
-          Eigen::MatrixXd cols(n, static_cast<Eigen::Index>(group.size()));
-          for (Eigen::Index i = 0; i < n; ++i) {
-            const auto ii = static_cast<size_t>(i);
-            for (size_t g = 0; g < group.size(); ++g) {
-              const double x = group[g].Evaluate(signals_[ii]);
-              cols(i, static_cast<Eigen::Index>(g)) =
-                  sensor == 0 ? AccelEffectDerivative(st.accel, ap[ii], axis, x) * ad.weight[ii]
-                              : x * gyro_w[static_cast<size_t>(axis)][ii];
-            }
-          }
+          const Eigen::MatrixXd cols =
+              CandidateColumns(designs, st, static_cast<Sensor>(sensor), axis, group);
           RoundCandidate c;
           c.regressor = r;
           c.lower = *lower;
           c.score.sensor = sensor == 0 ? Sensor::kAccel : Sensor::kGyro;
           c.score.axis = axis;
           c.score.regressor = r.Name();
-          const Scorer& scorer =
-              sensor == 0 ? accel_scorer : *gyro_scorers[static_cast<size_t>(axis)];
+          const Scorer& scorer = designs.For(static_cast<Sensor>(sensor), axis);
           Eigen::VectorXd coefficients;
           if (!scorer.Score(cols, &c.score, &c.perp, &coefficients)) {
             ++*absorbed;
@@ -1401,7 +1406,7 @@ class Search {
       c.score.axis = p % 3;
       c.score.regressor = Cat("model ", AccelParamName(p));
       Eigen::VectorXd coefficients;
-      if (!accel_scorer.Score(col, &c.score, &c.perp, &coefficients)) continue;
+      if (!designs.accel_scorer->Score(col, &c.score, &c.perp, &coefficients)) continue;
       c.score.coefficient = -c.score.coefficient;  // the Gauss-Newton step of the parameter
       cands->push_back(std::move(c));
     }
