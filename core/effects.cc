@@ -1198,14 +1198,13 @@ class Search {
           axes += AxisName(b->axis);
         }
         const auto sn = static_cast<Sensor>(sensor);
+        const std::string lo_text = HumanValue(sn, low->regressor, low->coefficient);
+        const std::string hi_text = HumanValue(sn, high->regressor, high->coefficient);
         const std::string range =
             !std::isfinite(high->coefficient)
                 ? absl::StrFormat("none (%s: the temperature does not vary)", axes)
-            : high->coefficient > low->coefficient * 1.05
-                ? absl::StrFormat("%s to %s (%s)", HumanValue(sn, low->regressor, low->coefficient),
-                                  HumanValue(sn, high->regressor, high->coefficient), axes)
-                : absl::StrFormat("%s (%s)", HumanValue(sn, high->regressor, high->coefficient),
-                                  axes);
+            : lo_text == hi_text ? absl::StrFormat("%s (%s)", hi_text, axes)
+                                 : absl::StrFormat("%s to %s (%s)", lo_text, hi_text, axes);
         absl::StrAppendFormat(&text, "%s %s %s %s", text.empty() ? "" : ";", SensorName(sn),
                               kKinds[kind], range);
       }
