@@ -87,8 +87,10 @@ done
 "$imucal" simulate --out "$dir/botched.csv" --seed 11 --extra-poses 1 --botch-turn >/dev/null
 
 # A plain shell in a 160x60 terminal with `imucal` on its PATH, in the captures' directory.
+# HISTFILE is null so that the shells keep no history: bash writes $HOME/.bash_history when the
+# tmux server hangs up on it, after `kill-server` has returned, and that raced cleanup's rm.
 printf 'set -g history-limit 100000\n' >"$dir/tmux.conf"
-shell=(env -i HOME="$dir" TERM=xterm-256color PATH="$(cd "$(dirname "$imucal")" && pwd):/usr/bin:/bin"
+shell=(env -i HOME="$dir" HISTFILE= TERM=xterm-256color PATH="$(cd "$(dirname "$imucal")" && pwd):/usr/bin:/bin"
        PS1='tech$ ' bash --norc --noprofile)
 # The session's first window stays idle: each part opens its own two windows.
 tm new-session -d -s tech -n idle -x 160 -y 60 -c "$dir" "${shell[@]}"
