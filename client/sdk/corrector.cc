@@ -8,6 +8,7 @@
 #include "Eigen/SVD"
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/correction.h"
 #include "core/model.h"
 #include "core/regressor.h"
 #include "formats/params_json.h"
@@ -72,13 +73,6 @@ absl::Status GyroParamsAreValid(const core::GyroParams& g) {
   return absl::OkStatus();
 }
 
-bool UsesSignal(const core::Regressor& r, core::Signal signal) {
-  for (int i = 0; i < r.num_factors; ++i) {
-    if (r.factors[i] == static_cast<int>(signal)) return true;
-  }
-  return false;
-}
-
 }  // namespace
 
 absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
@@ -91,27 +85,9 @@ absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
     return absl::InvalidArgumentError("time origin: not finite");
   }
 
-  Corrector c;
-  c.accel_misalignment_ = params.accel.Misalignment();
-  c.accel_linear_ = c.accel_misalignment_ * params.accel.scale.asDiagonal();
-  c.accel_bias_ = params.accel.bias;
-  c.accel_scale_ = params.accel.scale;
-  c.accel_quadratic_ = params.accel.quadratic;
-  c.accel_has_quadratic_ = !params.accel.quadratic.isZero(0.0);
-  // Without a gyroscope the defaults (identity, zero bias, no coupling) pass the reading through
-  // bit for bit: 1*u + 0*v + 0*w == u for finite values.
-  c.has_gyro_ = params.has_gyro;
-  if (params.has_gyro) {
-    c.gyro_matrix_ = params.gyro.matrix;
-    c.gyro_bias_ = params.gyro.bias;
-    c.gyro_accel_coupling_ = params.gyro.accel_coupling;
-  }
-  c.time_origin_s_ = time_origin_s;
-  c.time_origin_or_zero_s_ = time_origin_s.value_or(0.0);
-  c.accel_unit_ = params.accel_unit;
-  c.gyro_unit_ = params.gyro_unit;
-
   // Every effect is checked, applied or not: a malformed one means a malformed parameter set.
+  int applied = 0;
+  bool needs_temperature = false, needs_time = false;
   for (size_t i = 0; i < params.effects.size(); ++i) {
     const core::Effect& e = params.effects[i];
     const std::string path = "effects[" + std::to_string(i) + "]";
@@ -127,22 +103,25 @@ absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
       return PathError(path + ".sensor", "a gyro effect in a parameter set without a gyroscope");
     }
     if (!e.applied) continue;
-    CompiledEffect compiled;
-    compiled.regressor = *regressor;
-    compiled.output = (e.sensor == core::Sensor::kGyro ? 3 : 0) + e.axis;
-    compiled.coefficient = e.coefficient;
-    compiled.uses_temperature = UsesSignal(*regressor, core::Signal::kTemperature);
-    if (UsesSignal(*regressor, core::Signal::kTime)) {
+    ++applied;
+    needs_temperature |= core::SampleCorrection::Uses(*regressor, core::Signal::kTemperature);
+    if (core::SampleCorrection::Uses(*regressor, core::Signal::kTime)) {
       if (!time_origin_s.has_value()) {
         return PathError(path, "applied effect on \"" + e.regressor +
                                    "\" needs a time origin (Create's time_origin_s, e.g. the "
                                    "first sample's t_s)");
       }
-      c.needs_time_ = true;
+      needs_time = true;
     }
-    c.needs_temperature_ = c.needs_temperature_ || compiled.uses_temperature;
-    c.effects_.push_back(compiled);
   }
+  Corrector c(core::SampleCorrection(params, time_origin_s.value_or(0.0)));
+  c.has_gyro_ = params.has_gyro;
+  c.num_applied_effects_ = applied;
+  c.needs_temperature_ = needs_temperature;
+  c.needs_time_ = needs_time;
+  c.time_origin_s_ = time_origin_s;
+  c.accel_unit_ = params.accel_unit;
+  c.gyro_unit_ = params.gyro_unit;
   return c;
 }
 
@@ -150,43 +129,19 @@ absl::StatusOr<Corrector> Corrector::WithTimeOrigin(double time_origin_s) const 
   if (!std::isfinite(time_origin_s)) return absl::InvalidArgumentError("time origin: not finite");
   Corrector c = *this;
   c.time_origin_s_ = time_origin_s;
-  c.time_origin_or_zero_s_ = time_origin_s;
+  c.applier_.set_time_origin_s(time_origin_s);
   return c;
 }
 
 void Corrector::Apply(const RawSample& in, CalibratedSample* out) const noexcept {
-  const Eigen::Map<const Eigen::Vector3d> u_accel(in.accel);
-  const Eigen::Map<const Eigen::Vector3d> u_gyro(in.gyro);
-  Eigen::Vector3d a;
-  if (accel_has_quadratic_) {
-    const Eigen::Vector3d y = accel_scale_.cwiseProduct(u_accel - accel_bias_);
-    a = accel_misalignment_ * (y + accel_quadratic_.cwiseProduct(y.cwiseProduct(y)));
-  } else {
-    a.noalias() = accel_linear_ * (u_accel - accel_bias_);
-  }
-  Eigen::Vector3d w;
-  w.noalias() = gyro_matrix_ * (u_gyro - gyro_bias_);
-  w.noalias() -= gyro_accel_coupling_ * a;
-
-  double values[6] = {a(0), a(1), a(2), w(0), w(1), w(2)};
-  int skipped = 0;
-  if (!effects_.empty()) {
-    const core::SignalArray signals = {
-        in.temp_c, in.t_s - time_origin_or_zero_s_, a(0), a(1), a(2), w(0), w(1), w(2)};
-    const bool no_temperature = std::isnan(in.temp_c);
-    for (const CompiledEffect& e : effects_) {
-      if (e.uses_temperature && no_temperature) {
-        ++skipped;
-        continue;
-      }
-      values[e.output] -= e.coefficient * e.regressor.Evaluate(signals);
-    }
-  }
+  const core::CorrectedSample c =
+      applier_.Apply(Eigen::Map<const Eigen::Vector3d>(in.accel),
+                     Eigen::Map<const Eigen::Vector3d>(in.gyro), in.temp_c, in.t_s);
   for (int i = 0; i < 3; ++i) {
-    out->accel_m_s2[i] = values[i];
-    out->gyro_rad_s[i] = values[3 + i];
+    out->accel_m_s2[i] = c.accel_m_s2(i);
+    out->gyro_rad_s[i] = c.gyro_rad_s(i);
   }
-  out->effects_skipped = skipped;
+  out->effects_skipped = c.effects_skipped;
 }
 
 absl::Status Corrector::ApplyBatch(std::span<const RawSample> in,

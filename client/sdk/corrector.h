@@ -1,17 +1,14 @@
 // The robot SDK's per-sample correction: applies a calibration parameter set (core/params.h) to
-// raw IMU samples. Links no solver: the equations are core/model.h's, shared header-only.
+// raw IMU samples. Links no solver: the equations are core/correction.h's, header-only, the very
+// code the server's reports are computed with; the SDK adds the checks a received parameter set
+// must pass before a robot applies it.
 //
-// For a raw sample (u_a accel, u_g gyro, in the parameter set's input units; t_s; temp_c):
-//   a  = AccelModel::Apply(u_a)      = R(frame_angles) L(tri_angles) z,
-//        z_i = y_i + quadratic_i y_i^2,  y = diag(scale) (u_a - bias)           [m/s^2]
-//   w  = GyroModel::Apply(u_g, a)    = matrix (u_g - bias) - accel_coupling a   [rad/s]
-//   signals = (temperature = temp_c, time = t_s - time_origin_s, ax, ay, az = a, gx, gy, gz = w)
-//   for every applied effect:  out[sensor][axis] -= coefficient * regressor(signals)
-// All effects read the same signals, computed from the model output before any effect, so the
-// order of the effects does not matter; the gyro's accel_coupling uses a before accel effects.
-// Effects with `applied == false` (time effects unless the user opts in) are not applied. An
-// applied effect whose regressor uses temperature is skipped on a sample without temperature
-// (temp_c NaN) and counted in CalibratedSample::effects_skipped.
+// The model (core/correction.h has it written out): a = R L (y + quadratic y^2), y = diag(scale)
+// (u_a - bias) [m/s^2]; w = matrix (u_g - bias) - accel_coupling a [rad/s]; then every applied
+// effect subtracted from its output, its regressor evaluated on (temperature, time since the
+// time origin, a, w) before any effect. Effects with `applied == false` (time effects unless the
+// user opts in) are not applied. An applied effect whose regressor uses temperature is skipped on
+// a sample without temperature (temp_c NaN) and counted in CalibratedSample::effects_skipped.
 //
 // A parameter set without a gyroscope (core::ParamSet::has_gyro false, fitted on an
 // accelerometer-only capture) corrects the accelerometer only: gyro_rad_s is then the gyro
@@ -25,12 +22,14 @@
 #include <limits>
 #include <optional>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include "Eigen/Core"
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/capture.h"
+#include "core/correction.h"
 #include "core/params.h"
 #include "core/regressor.h"
 
@@ -75,7 +74,7 @@ class Corrector {
   bool NeedsTemperature() const { return needs_temperature_; }
   // True if some applied effect reads time (a time origin was then required by Create).
   bool NeedsTime() const { return needs_time_; }
-  int num_applied_effects() const { return static_cast<int>(effects_.size()); }
+  int num_applied_effects() const { return num_applied_effects_; }
   std::optional<double> time_origin_s() const { return time_origin_s_; }
 
   // The input units the parameters expect. Samples in any other unit must be refused:
@@ -87,34 +86,14 @@ class Corrector {
   absl::Status CheckInputUnits(core::AccelUnit accel, core::GyroUnit gyro) const;
 
  private:
-  // An applied effect, parsed once.
-  struct CompiledEffect {
-    core::Regressor regressor;
-    int output = 0;  // 0..2 accel x..z, 3..5 gyro x..z
-    double coefficient = 0.0;
-    bool uses_temperature = false;
-  };
+  explicit Corrector(core::SampleCorrection applier) : applier_(std::move(applier)) {}
 
-  Corrector() = default;
-
-  // Accel: a = accel_linear_ (u - bias) when there is no quadratic term (the common case);
-  // otherwise misalignment (y + quadratic .* y.^2), y = diag(scale) (u - bias).
-  Eigen::Matrix3d accel_linear_ = Eigen::Matrix3d::Identity();  // misalignment * diag(scale)
-  Eigen::Matrix3d accel_misalignment_ = Eigen::Matrix3d::Identity();
-  Eigen::Vector3d accel_bias_ = Eigen::Vector3d::Zero();
-  Eigen::Vector3d accel_scale_ = Eigen::Vector3d::Ones();
-  Eigen::Vector3d accel_quadratic_ = Eigen::Vector3d::Zero();
-  bool accel_has_quadratic_ = false;
-  Eigen::Matrix3d gyro_matrix_ = Eigen::Matrix3d::Identity();
-  Eigen::Vector3d gyro_bias_ = Eigen::Vector3d::Zero();
-  Eigen::Matrix3d gyro_accel_coupling_ = Eigen::Matrix3d::Zero();
+  core::SampleCorrection applier_;
   bool has_gyro_ = true;
-
-  std::vector<CompiledEffect> effects_;
+  int num_applied_effects_ = 0;
   bool needs_temperature_ = false;
   bool needs_time_ = false;
   std::optional<double> time_origin_s_;
-  double time_origin_or_zero_s_ = 0.0;
   core::AccelUnit accel_unit_ = core::AccelUnit::kMetersPerSecond2;
   core::GyroUnit gyro_unit_ = core::GyroUnit::kRadPerSecond;
 };
