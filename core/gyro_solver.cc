@@ -80,20 +80,7 @@ Eigen::Vector3d TurnResidual(const PreparedTurn& turn, const Eigen::Matrix3d& m,
 Eigen::Quaterniond IntegrateDeltaQ(const std::vector<Eigen::Vector3d>& increments,
                                    const Eigen::Matrix3d& matrix) {
   Eigen::Quaterniond q = Eigen::Quaterniond::Identity();
-  for (const Eigen::Vector3d& c : increments) {
-    const Eigen::Vector3d phi = matrix * c;
-    const double t2 = phi.squaredNorm();
-    double w, s;  // cos(t/2), sin(t/2)/t
-    if (t2 < 1e-8) {
-      w = 1.0 - t2 / 8.0;
-      s = 0.5 - t2 / 48.0;
-    } else {
-      const double t = std::sqrt(t2);
-      w = std::cos(0.5 * t);
-      s = std::sin(0.5 * t) / t;
-    }
-    q = q * Eigen::Quaterniond(w, s * phi.x(), s * phi.y(), s * phi.z());
-  }
+  for (const Eigen::Vector3d& c : increments) q = q * ExpQuaternion(matrix * c);
   return q.normalized();
 }
 

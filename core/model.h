@@ -32,6 +32,7 @@
 
 #include "Eigen/Core"
 #include "Eigen/Geometry"
+#include "core/so3.h"
 
 namespace imucal::core {
 
@@ -39,27 +40,6 @@ template <typename Scalar>
 using Vec3 = Eigen::Matrix<Scalar, 3, 1>;
 template <typename Scalar>
 using Mat3 = Eigen::Matrix<Scalar, 3, 3>;
-
-// Rotation matrix exp([v]x) for a rotation vector v (rad). Valid for any Scalar with sqrt/sin/cos.
-template <typename Scalar>
-Mat3<Scalar> ExpSo3(const Vec3<Scalar>& v) {
-  using std::cos;
-  using std::sin;
-  using std::sqrt;
-  const Scalar theta2 = v.squaredNorm();
-  Mat3<Scalar> k;
-  k << Scalar(0), -v.z(), v.y(), v.z(), Scalar(0), -v.x(), -v.y(), v.x(), Scalar(0);
-  Scalar a, b;  // sin(theta)/theta, (1-cos(theta))/theta^2, with Taylor series near zero
-  if (theta2 < Scalar(1e-12)) {
-    a = Scalar(1) - theta2 / Scalar(6);
-    b = Scalar(0.5) - theta2 / Scalar(24);
-  } else {
-    const Scalar theta = sqrt(theta2);
-    a = sin(theta) / theta;
-    b = (Scalar(1) - cos(theta)) / theta2;
-  }
-  return Mat3<Scalar>::Identity() + a * k + b * k * k;
-}
 
 // Unit lower-triangular non-orthogonality matrix L from (t_yx, t_zx, t_zy).
 template <typename Scalar>
