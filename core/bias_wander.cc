@@ -5,12 +5,12 @@
 #include <limits>
 
 #include "absl/strings/str_format.h"
+#include "util/units.h"
 
 namespace imucal::core {
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr double kRadToDeg = 180.0 / M_PI;
 constexpr int kModels = 4;
 
 // One axis's sequence: times, pose means, their noise variances.

@@ -17,11 +17,13 @@
 #include "Eigen/Core"
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "util/units.h"
 
 namespace imucal::core {
 
-// Standard gravity, m/s^2. The default when a capture does not state its local gravity.
-inline constexpr double kStandardGravity = 9.80665;
+// Standard gravity, m/s^2 (util/units.h). The default when a capture does not state its local
+// gravity.
+using ::imucal::kStandardGravity;
 
 enum class AccelUnit { kMetersPerSecond2, kG, kCounts };
 enum class GyroUnit { kRadPerSecond, kDegPerSecond, kCounts };

@@ -12,6 +12,7 @@
 #include "absl/status/status.h"
 #include "core/capture.h"
 #include "util/str_util.h"
+#include "util/units.h"
 #include "yaml-cpp/yaml.h"
 
 namespace imucal::core {
@@ -19,8 +20,6 @@ namespace {
 
 using Eigen::Matrix3d;
 using Eigen::Vector3d;
-
-constexpr double kPi = 3.14159265358979323846;
 
 // ---------------------------------------------------------------------------------------------
 // Matrix factorisations into a rotation (det +1) and a triangular factor. The triangular

@@ -7,11 +7,10 @@
 #include "Eigen/Geometry"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
+#include "util/units.h"
 
 namespace imucal::core {
 namespace {
-
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   return kRadToDeg * std::atan2(a.cross(b).norm(), a.dot(b));

@@ -22,12 +22,10 @@
 #include "core/model.h"
 #include "core/params.h"
 #include "core/regressor.h"
+#include "util/units.h"
 
 namespace imucal::core {
 namespace {
-
-constexpr double kPi = std::numbers::pi;
-constexpr double kDegToRad = kPi / 180.0;
 
 // Limits that keep a mistyped option from allocating gigabytes.
 constexpr int kMaxPoses = 10000;

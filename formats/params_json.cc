@@ -15,6 +15,7 @@
 #include "absl/status/statusor.h"
 #include "core/regressor.h"
 #include "nlohmann/json.hpp"
+#include "util/status.h"
 
 namespace imucal::formats {
 namespace {
@@ -136,13 +137,6 @@ std::string Child(const std::string& path, const char* key) {
 std::string Element(const std::string& path, size_t index) {
   return path + "[" + std::to_string(index) + "]";
 }
-
-#define IMUCAL_RETURN_IF_ERROR(expr)                    \
-  do {                                                  \
-    if (absl::Status status_ = (expr); !status_.ok()) { \
-      return status_;                                   \
-    }                                                   \
-  } while (false)
 
 // Whether null is read as NaN (standard errors) or rejected (everything else).
 enum class Null { kReject, kAsNan };

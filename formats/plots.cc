@@ -10,6 +10,8 @@
 #include "absl/strings/str_format.h"
 #include "core/calibrate/verdict.h"
 #include "core/regressor.h"
+#include "util/file.h"
+#include "util/units.h"
 
 namespace imucal::formats {
 namespace {
@@ -19,7 +21,6 @@ using nlohmann::json;
 constexpr double kW = 720, kH = 460;                                // canvas, px
 constexpr double kLeft = 80, kRight = 20, kTop = 40, kBottom = 80;  // margins, px
 constexpr double kMg = 9.80665e-3;                                  // m/s^2 per mg
-constexpr double kRadToDeg = 180.0 / M_PI;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 std::string Escape(const std::string& s) {
@@ -561,20 +562,6 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
   return written;
 }
 
-absl::Status WriteFileAtomically(const std::string& path, const std::string& text) {
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
-    if (!f) return absl::InvalidArgumentError(absl::StrFormat("%s: cannot write", path));
-    f << text;
-    if (!f.flush()) return absl::InvalidArgumentError(absl::StrFormat("%s: write failed", path));
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) return absl::InvalidArgumentError(absl::StrFormat("%s: %s", path, ec.message()));
-  return absl::OkStatus();
-}
-
 absl::StatusOr<std::vector<std::string>> WriteReportBundle(const json& report,
                                                            const std::string& report_text,
                                                            const std::string& summary,
@@ -589,7 +576,7 @@ absl::StatusOr<std::vector<std::string>> WriteReportBundle(const json& report,
        {std::pair<const char*, const std::string*>{"report.json", &report_text},
         {"summary.txt", &summary}}) {
     const std::string path = (std::filesystem::path(dir) / name).string();
-    if (absl::Status s = WriteFileAtomically(path, *text); !s.ok()) return s;
+    if (absl::Status s = WriteFileDurably(path, *text); !s.ok()) return s;
     written->insert(written->begin(), path);
   }
   return written;

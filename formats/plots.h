@@ -35,9 +35,6 @@ namespace imucal::formats {
 absl::StatusOr<std::vector<std::string>> WriteReportPlots(const nlohmann::json& report,
                                                           const std::string& dir);
 
-// Writes `text` to `path` through a temporary file and a rename: a reader never sees half.
-absl::Status WriteFileAtomically(const std::string& path, const std::string& text);
-
 // The report's files in `dir` (created if missing): report.json (`report_text`, as given),
 // summary.txt (`summary`) and the plots. Returns every path written.
 absl::StatusOr<std::vector<std::string>> WriteReportBundle(const nlohmann::json& report,

@@ -521,14 +521,7 @@ absl::Status WriteImucalCsvFile(const core::Capture& capture, const std::string&
   if (absl::Status s = CheckCaptureWritable(capture); !s.ok()) {
     return absl::InvalidArgumentError(Cat(path, ": not written: ", s.message()));
   }
-  const std::string text = FormatImucalCsv(capture);
-  const std::string temp_path = path + ".tmp";
-  absl::Status written = WriteFileBytes(temp_path, text);
-  if (written.ok() && std::rename(temp_path.c_str(), path.c_str()) != 0) {
-    written = absl::ErrnoToStatus(errno, Cat(path, ": cannot rename ", temp_path));
-  }
-  if (!written.ok()) std::remove(temp_path.c_str());
-  return written;
+  return WriteFileDurably(path, FormatImucalCsv(capture));
 }
 
 const CaptureImporter* ImucalCsvImporter() {

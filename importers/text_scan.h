@@ -20,6 +20,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "util/file.h"  // ReadFileBytes, for the parsers
 
 namespace imucal::importers {
 
@@ -194,17 +195,6 @@ absl::Status ParseNumberField(std::string_view field, std::string_view source, i
 // "SOURCE:LINE: t=T does not increase (previous P at line N)".
 absl::Status TimeNotIncreasingError(std::string_view source, int line_number, double t_s,
                                     double previous_t_s, int previous_line_number);
-
-// ---------------------------------------------------------------------------------------------
-// Files, read and written whole: the parsers then work on one contiguous buffer. Errors name the
-// path and keep errno's code (NotFound, PermissionDenied, ...).
-
-// The whole file, or at most `max_bytes` of it. A directory is InvalidArgument.
-absl::StatusOr<std::string> ReadFileBytes(const std::string& path,
-                                          std::optional<size_t> max_bytes = std::nullopt);
-
-// Creates or truncates `path`, writes `data` and syncs it to disk.
-absl::Status WriteFileBytes(const std::string& path, std::string_view data);
 
 }  // namespace imucal::importers
 

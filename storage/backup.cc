@@ -16,6 +16,7 @@
 #include "storage/pg_db.h"
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
+#include "util/file.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -110,21 +111,6 @@ absl::Status CopyPages(SqliteConnection& src, SqliteConnection& dest, std::strin
   }
   if (finish_rc != SQLITE_OK) return SqliteStatus(finish_rc, what, dest.db());
   return absl::OkStatus();
-}
-
-absl::Status FsyncPath(const std::string& path, bool directory) {
-  const int fd = ::open(path.c_str(), (directory ? O_RDONLY | O_DIRECTORY : O_RDONLY) | O_CLOEXEC);
-  if (fd < 0) return absl::UnavailableError(Cat("open ", path, ": ", std::strerror(errno)));
-  const int rc = ::fsync(fd);
-  const int saved = errno;
-  ::close(fd);
-  if (rc != 0) return absl::UnavailableError(Cat("fsync ", path, ": ", std::strerror(saved)));
-  return absl::OkStatus();
-}
-
-std::string DirectoryOf(const std::string& path) {
-  std::filesystem::path parent = std::filesystem::path(path).parent_path();
-  return parent.empty() ? std::string(".") : parent.string();
 }
 
 // The directory that is to hold `path` exists: SQLite's own error for a missing one ("unable

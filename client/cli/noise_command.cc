@@ -26,6 +26,7 @@
 #include "formats/plots.h"
 #include "importers/registry.h"
 #include "nlohmann/json.hpp"
+#include "util/file.h"
 #include "yaml-cpp/yaml.h"
 
 namespace imucal::cli {
@@ -382,7 +383,7 @@ int RunNoiseWith(const std::vector<std::string>& argv, const NoiseSessionReader&
          {std::pair<std::string, std::string>{"imu.yaml", KalibrImuYaml(*na, rostopic)},
           {"kalibr_imu_chain.yaml", OpenVinsNoiseYaml(*na, rostopic)},
           {"noise.json", json.dump(1) + "\n"}}) {
-      if (absl::Status s = formats::WriteFileAtomically((d / name).string(), text); !s.ok())
+      if (absl::Status s = WriteFileDurably((d / name).string(), text); !s.ok())
         return ReportError(s);
       if (!a->Has("json")) std::printf("wrote       %s\n", (d / name).c_str());
     }

@@ -35,11 +35,11 @@
 #include "formats/report_json.h"
 #include "importers/imucal_csv.h"
 #include "importers/registry.h"
+#include "util/file.h"
+#include "util/units.h"
 
 namespace imucal::cli {
 namespace {
-
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 // Provenance of a parameter set made by this CLI: the software and when (RFC 3339, UTC).
 void StampParams(core::ParamSet* params) {
@@ -383,7 +383,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   if (auto out = a->Get("out")) {
     if (std::filesystem::is_directory(*out) || out->ends_with('/')) {
       bundle_dir = *out;
-    } else if (absl::Status s = formats::WriteFileAtomically(*out, json); !s.ok()) {
+    } else if (absl::Status s = WriteFileDurably(*out, json); !s.ok()) {
       return ReportError(s);
     }
   }
@@ -395,9 +395,7 @@ int RunCalibrate(const std::vector<std::string>& argv) {
     plot_paths = std::move(*written);
   }
   if (auto out = a->Get("params-out"); out && !refused) {
-    if (absl::Status s =
-            formats::WriteFileAtomically(*out, formats::ParamSetToJson(report->params));
-        !s.ok())
+    if (absl::Status s = WriteFileDurably(*out, formats::ParamSetToJson(report->params)); !s.ok())
       return ReportError(s);
   }
   if (a->Has("json")) {
@@ -463,8 +461,7 @@ int RunSimulate(const std::vector<std::string>& argv) {
   if (absl::Status s = importers::WriteImucalCsvFile(sim->capture, *a->Get("out")); !s.ok())
     return ReportError(s);
   if (auto truth = a->Get("truth")) {
-    if (absl::Status s =
-            formats::WriteFileAtomically(*truth, formats::ParamSetToJson(TruthParams(*sim)));
+    if (absl::Status s = WriteFileDurably(*truth, formats::ParamSetToJson(TruthParams(*sim)));
         !s.ok())
       return ReportError(s);
   }
@@ -507,9 +504,8 @@ int RunDemo(const std::vector<std::string>& argv) {
   auto report = core::Calibrate(sim->capture, co);
   if (!report.ok()) return ReportError(report.status());
   StampParams(&report->params);
-  formats::WriteFileAtomically(dir + "/report.json", formats::ReportToJson(*report)).IgnoreError();
-  formats::WriteFileAtomically(dir + "/params.json", formats::ParamSetToJson(report->params))
-      .IgnoreError();
+  WriteFileDurably(dir + "/report.json", formats::ReportToJson(*report)).IgnoreError();
+  WriteFileDurably(dir + "/params.json", formats::ParamSetToJson(report->params)).IgnoreError();
   std::printf("== 2. calibrated it (report.json, params.json in %s)\n%s", dir.c_str(),
               FormatSummary(*report).c_str());
   std::printf("== 3. ");
@@ -588,7 +584,7 @@ int RunExportFile(const std::vector<std::string>& argv) {
     out = formats::ParamSetToJson(*params);
   }
   if (auto path = a->Get("out")) {
-    if (absl::Status s = formats::WriteFileAtomically(*path, out); !s.ok()) return ReportError(s);
+    if (absl::Status s = WriteFileDurably(*path, out); !s.ok()) return ReportError(s);
     std::fprintf(stderr, "imucal: wrote %s (%s)\n", path->c_str(), format_name->c_str());
   } else {
     std::fputs(out.c_str(), stdout);

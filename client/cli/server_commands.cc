@@ -26,6 +26,7 @@
 #include "formats/plots.h"
 #include "importers/registry.h"
 #include "nlohmann/json.hpp"
+#include "util/file.h"
 
 namespace imucal::cli {
 namespace {
@@ -914,13 +915,7 @@ int RunExport(const std::vector<std::string>& argv) {
     return RpcError(server, s);
   for (const auto& note : out.notes()) std::fprintf(stderr, "imucal: note: %s\n", note.c_str());
   if (auto path = a->Get("out")) {
-    std::FILE* f = std::fopen((*path + ".tmp").c_str(), "wb");
-    if (f == nullptr) return ReportError(absl::NotFoundError(*path + ": cannot write"));
-    const bool written =
-        std::fwrite(out.content().data(), 1, out.content().size(), f) == out.content().size();
-    const bool ok = std::fclose(f) == 0 && written;
-    if (!ok || std::rename((*path + ".tmp").c_str(), path->c_str()) != 0)
-      return ReportError(absl::InternalError(*path + ": write failed"));
+    if (absl::Status s = WriteFileDurably(*path, out.content()); !s.ok()) return ReportError(s);
     std::fprintf(stderr, "wrote %s\n", path->c_str());
     return kExitOk;
   }

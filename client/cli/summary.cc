@@ -4,11 +4,10 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "util/units.h"
 
 namespace imucal::cli {
 namespace {
-
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 // m/s^2 with its equivalent in micro-g (what accelerometer datasheets use).
 std::string Accel(double v, double g) {

@@ -1,10 +1,5 @@
 #include "client/sdk/param_cache.h"
 
-#include <fcntl.h>
-#include <unistd.h>
-
-#include <cerrno>
-#include <cstring>
 #include <utility>
 #include <vector>
 
@@ -14,60 +9,10 @@
 #include "absl/strings/str_split.h"
 #include "formats/crc32c.h"
 #include "formats/params_json.h"
+#include "util/file.h"
 
 namespace imucal::sdk {
 namespace {
-
-absl::Status ErrnoStatus(const std::string& path, const char* what) {
-  const int err = errno;
-  const std::string message = absl::StrCat(path, ": ", what, ": ", std::strerror(err));
-  if (err == ENOENT) return absl::NotFoundError(message);
-  if (err == EACCES || err == EPERM) return absl::PermissionDeniedError(message);
-  return absl::UnavailableError(message);
-}
-
-absl::Status WriteAll(int fd, std::string_view data) {
-  while (!data.empty()) {
-    const ssize_t n = ::write(fd, data.data(), data.size());
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return absl::UnknownError(std::strerror(errno));
-    }
-    data.remove_prefix(static_cast<size_t>(n));
-  }
-  return absl::OkStatus();
-}
-
-// Makes the rename durable: the directory entry must reach the disk too.
-void SyncDirectory(const std::string& path) {
-  const size_t slash = path.rfind('/');
-  const std::string dir =
-      slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
-  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0) return;
-  ::fsync(fd);
-  ::close(fd);
-}
-
-absl::StatusOr<std::string> ReadWholeFile(const std::string& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return ErrnoStatus(path, "cannot open");
-  std::string text;
-  char buffer[8192];
-  for (;;) {
-    const ssize_t n = ::read(fd, buffer, sizeof buffer);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      absl::Status s = ErrnoStatus(path, "read failed");
-      ::close(fd);
-      return s;
-    }
-    if (n == 0) break;
-    text.append(buffer, static_cast<size_t>(n));
-  }
-  ::close(fd);
-  return text;
-}
 
 // Reads "KEY VALUE\n" from the front of `rest`.
 absl::StatusOr<std::string> TakeField(std::string_view* rest, std::string_view key,
@@ -116,23 +61,11 @@ absl::Status SaveParamCache(const std::string& path, const StoredParams& params)
   const std::string text = absl::StrFormat(
       "%s\ndevice %s\nversion %d\ncrc32c %08x\nlength %d\n\n%s", kParamCacheFormat,
       params.device_id, params.version, params.crc32c, params.json.size(), params.json);
-  const std::string tmp = absl::StrCat(path, ".tmp.", ::getpid());
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) return ErrnoStatus(tmp, "cannot create");
-  absl::Status s = WriteAll(fd, text);
-  if (s.ok() && ::fsync(fd) != 0) s = ErrnoStatus(tmp, "fsync failed");
-  if (::close(fd) != 0 && s.ok()) s = ErrnoStatus(tmp, "close failed");
-  if (s.ok() && ::rename(tmp.c_str(), path.c_str()) != 0) s = ErrnoStatus(path, "rename failed");
-  if (!s.ok()) {
-    ::unlink(tmp.c_str());
-    return absl::Status(s.code(), absl::StrCat(path, ": ", s.message()));
-  }
-  SyncDirectory(path);
-  return absl::OkStatus();
+  return WriteFileDurably(path, text);
 }
 
 absl::StatusOr<LoadedParams> LoadParamCache(const std::string& path) {
-  absl::StatusOr<std::string> text = ReadWholeFile(path);
+  absl::StatusOr<std::string> text = ReadFileBytes(path);
   if (!text.ok()) return text.status();
   std::string_view rest = *text;
   const size_t eol = rest.find('\n');

@@ -10,6 +10,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/robust_covariance.h"
+#include "util/units.h"
 
 namespace imucal::core::pipeline {
 namespace {
@@ -158,7 +159,6 @@ absl::StatusOr<AccelParams> FitFaces(ProtocolKind protocol, const FaceReferences
 // whose scale may be 3 % off (5.4 degrees of a half turn), hence e is taken that much larger.
 // The largest over the verified pairs, rad.
 double PairMeanAngleError(const std::vector<PairCheck>& pairs) {
-  constexpr double kDegToRad = M_PI / 180.0;
   constexpr double kRoughTurnErrorDeg = 0.03 * 180.0;
   double out = 0;
   for (const PairCheck& p : pairs) {

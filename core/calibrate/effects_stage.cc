@@ -10,11 +10,11 @@
 #include "core/calibrate/residuals.h"
 #include "core/effects.h"
 #include "core/move_effects.h"
+#include "util/units.h"
 
 namespace imucal::core::pipeline {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 std::string NotSearchedNote(size_t poses) {

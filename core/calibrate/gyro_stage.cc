@@ -6,11 +6,10 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
+#include "util/units.h"
 
 namespace imucal::core::pipeline {
 namespace {
-
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 // Full turns (Ferraris et al. 1995): the ends' up directions agree within kTurnSameUpDeg; the
 // path is about one axis in one direction (|integral of rate| / integral of |rate| at least

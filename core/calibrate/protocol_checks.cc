@@ -5,11 +5,11 @@
 #include "absl/strings/str_format.h"
 #include "core/calibrate/orientations.h"
 #include "core/validation.h"
+#include "util/units.h"
 
 namespace imucal::core::pipeline {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 // Two poses whose up directions agree within this are the same orientation (not a new pose).
 constexpr double kDuplicateDeg = 2.0;
 // ... and a move that turned less than this (along its path) did not re-place the robot.

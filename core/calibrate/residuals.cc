@@ -10,11 +10,11 @@
 #include "core/correction.h"
 #include "core/gyro_solver.h"
 #include "core/quantisation.h"
+#include "util/units.h"
 
 namespace imucal::core::pipeline {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 std::vector<double> ToDeg(const std::vector<double>& rad) {
