@@ -16,7 +16,7 @@ cd "$(dirname "$0")/.."
 if [ -n "${IMUCAL_DEMO_BUILD:-}" ]; then
   build="$IMUCAL_DEMO_BUILD"
 else
-  deploy/build.sh
+  deploy/build.sh --run
   build=build
 fi
 imucald="$build/server/imucald"
