@@ -1,5 +1,5 @@
 // How the tests read the real captures under ../shared/data/real through the column-mapped
-// importer (README "Vendor CSV"): the same options a user passes to `imucal calibrate`.
+// importer (docs/formats.md, "Vendor CSV"): the same options a user passes to `imucal calibrate`.
 // Shared by real_data_test (the calibration) and real_effects_test (the effect search).
 #ifndef IMUCAL_TESTS_CORE_REAL_CAPTURES_H_
 #define IMUCAL_TESTS_CORE_REAL_CAPTURES_H_

@@ -3,7 +3,7 @@
 //   - SIGTERM drains: with a robot streaming and solves queued on the one solve thread, imucald
 //     exits 0 within its drain deadline (plus the queued solves' run time); every batch
 //     acknowledged before the signal is in the file byte for byte; every solve accepted before
-//     the signal finished and stored its version (README: "gives in-flight ones drain_deadline,
+//     the signal finished and stored its version (docs/operations.md: "gives in-flight ones drain_deadline,
 //     then finishes queued solves"); the restarted server resumes the robot's stream.
 //   - `imucald backup` while the server serves and a robot streams, `imucald restore` into a new
 //     path: a server started on it has the devices, sessions, versions, the active version (the

@@ -8,7 +8,7 @@
 # a gyro bias that moves each time the unit is moved, and a rate-dependent gyroscope scale,
 # validated on the moves of a second capture; and files others write: accelerometer-only,
 # an interleaved log with rows of empty fields, a quoted free-text column.
-# Asserts only what the README ("Offline CLI": exit 0 pass/warn, 2 bad input, 3 refused, 4 fail)
+# Asserts only what the README ("Calibrate a capture of your own": exit 0 pass/warn, 2 bad input, 3 refused, 4 fail)
 # and ../shared/spec/report.md promise: exit codes, the report's verdict and poses (file and
 # lines for a capture from several files; a refusal still writes the report), the number of
 # poses used, and the parameters against the writer's truth.json within tolerances derived from

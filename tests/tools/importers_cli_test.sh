@@ -4,7 +4,7 @@
 #    writers (tests/tools/write_rosbag2.py, write_mcap.py, write_euroc.py: standard library and
 #    the zstd/lz4 tools only, their own CDR, SQLite and MCAP), from a simulated six-face capture with a known bias and scale, calibrated with
 #    `imucal calibrate --json` and compared with the writers' truth.json;
-#  - the real captures in ../shared/data/real through the column mapping (README "Vendor CSV").
+#  - the real captures in ../shared/data/real through the column mapping (docs/formats.md, "Vendor CSV").
 # Skips (exit 0, "SKIP") without python3; the real-capture part skips without the shared data.
 # usage: importers_cli_test.sh IMUCAL [REAL_DATA_DIR]
 set -euo pipefail
