@@ -296,45 +296,43 @@ void SetModelSigma(const AccelParams& p, double g, const AccelMask& free, const 
   for (auto& pose : *poses) pose.model_sigma_m_s2 = tau;
 }
 
-absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions& opt,
-                                      const NoiseLevel& noise, const ProtocolChecks& checks) {
-  AccelStage out;
-  const double g = cap.gravity_m_s2;
-  const std::vector<StaticInterval>& ivs = checks.intervals;
-  out.used = UsedIndices(ivs);
-  out.poses = ToAccelPoses(ivs, out.used, noise);
-  std::vector<AccelPose>& poses = out.poses;
+namespace {
 
-  // 1. Linear least squares.
-  const auto ls_start = std::chrono::steady_clock::now();
+// 1. Linear least squares: the face references when the protocol has them, else the ellipsoid;
+// with too few poses for either, the per-axis ellipsoid (bias and scale only).
+absl::StatusOr<AccelParams> LinearStage(const ProtocolChecks& checks, double g,
+                                        FaceReferences* faces, bool* bias_scale_only,
+                                        AccelStage* out) {
+  const auto start = std::chrono::steady_clock::now();
+  const std::vector<StaticInterval>& ivs = checks.intervals;
+  const std::vector<AccelPose>& poses = out->poses;
   absl::StatusOr<AccelParams> s1 = absl::FailedPreconditionError("no face references");
-  FaceReferences faces;
   if (checks.protocol == ProtocolKind::kSixFace) {
-    faces = VerifiedFaces(ivs, checks.pairs, checks.ups, g);
+    *faces = VerifiedFaces(ivs, checks.pairs, checks.ups, g);
   } else if (FacesHeldOnce(checks.protocol)) {
-    faces = SingleFaces(ivs, out.used, checks.ups, g);
+    *faces = SingleFaces(ivs, out->used, checks.ups, g);
   }
   if (checks.protocol == ProtocolKind::kSixFace || FacesHeldOnce(checks.protocol)) {
-    s1 = FitFaces(checks.protocol, faces);
+    s1 = FitFaces(checks.protocol, *faces);
     if (!s1.ok()) {
-      out.warnings.push_back(FacesNotPossibleWarning(checks.protocol, s1.status()));
+      out->warnings.push_back(FacesNotPossibleWarning(checks.protocol, s1.status()));
     } else if (FacesHeldOnce(checks.protocol)) {
-      out.warnings.push_back(FacesOnceWarning(checks.protocol, faces, *s1, g));
+      out->warnings.push_back(FacesOnceWarning(checks.protocol, *faces, *s1, g));
       if (checks.protocol == ProtocolKind::kFaces)
-        out.incomplete.push_back("faces held once each: the floor was assumed level");
+        out->incomplete.push_back("faces held once each: the floor was assumed level");
     }
   }
-  out.from_faces = s1.ok();
-  bool bias_scale_only = false;
+  out->from_faces = s1.ok();
+  *bias_scale_only = false;
   if (!s1.ok()) s1 = FitEllipsoid(poses, g);
   if (!s1.ok() && poses.size() >= kBiasScaleNeeds.count) {
     // Too few poses for the full model: the largest one they determine.
     s1 = FitAxisEllipsoid(poses, g);
     if (s1.ok()) {
-      bias_scale_only = true;
+      *bias_scale_only = true;
       *s1 = RefineAccelGaussNewton(*s1, poses, g, MaskOf(kAccelBiasScale), 20);
-      out.warnings.push_back(BiasScaleOnlyWarning(poses.size()));
-      out.incomplete.push_back(
+      out->warnings.push_back(BiasScaleOnlyWarning(poses.size()));
+      out->incomplete.push_back(
           "accelerometer: only bias and scale were calibrated (too few orientations)");
     }
   }
@@ -342,125 +340,163 @@ absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions
   StageReport ls;
   ls.name = "ls";
   ls.iterations = 1;
-  ls.pose_indices = out.used;
+  ls.pose_indices = out->used;
   ls.pose_residual_m_s2 = MagnitudeResiduals(*s1, poses, g);
   ls.accel_rms_m_s2 = Rms(ls.pose_residual_m_s2);
-  ls.ms = MsSince(ls_start);
-  out.stages.push_back(ls);
-  // Model error beyond each pose's noise joins the weights (accel_solver.h). Stage 1 lacks
-  // the second-order terms, so its misfit overstates it: it is measured again at each refit.
-  // 2. What the poses (and the face references' angles) determine; undetermined parameters
-  //    stay at neutral values.
-  if (out.from_faces)
-    out.priors = FaceAnglePriors(checks.protocol, checks.pairs, faces, *s1, &out.warnings);
-  // Stage 1's misfit, over the first-order model, as the first model error.
-  SetModelSigma(*s1, g, MaskOf(kAccelFirstOrder), out.priors, &poses);
-  // The model's own second-order terms (and the angles where no face measures them) by their
-  // evidence: a prior of the sensor class, never a switch (issue 25; term_priors.h).
-  for (AccelPrior& q : ClassAccelPriors(opt.term_priors, out.from_faces))
-    out.priors.push_back(std::move(q));
-  const AccelPriors& priors = out.priors;
+  ls.ms = MsSince(start);
+  out->stages.push_back(ls);
+  return s1;
+}
+
+// 2. What the poses (and the face references' angles) determine; undetermined parameters stay
+// at neutral values. The priors: the faces' angles, and the model's own second-order terms (and
+// the angles where no face measures them) by their evidence: a prior of the sensor class, never
+// a switch (issue 25; term_priors.h).
+void PriorsAndObservability(const ProtocolChecks& checks, const CalibrateOptions& opt,
+                            const FaceReferences& faces, const AccelParams& s1, double g,
+                            bool bias_scale_only, AccelStage* out) {
+  std::vector<AccelPose>& poses = out->poses;
+  if (out->from_faces)
+    out->priors = FaceAnglePriors(checks.protocol, checks.pairs, faces, s1, &out->warnings);
+  // Model error beyond each pose's noise joins the weights (accel_solver.h). Stage 1 lacks the
+  // second-order terms, so its misfit overstates it: it is measured again at each refit. Stage
+  // 1's misfit, over the first-order model, is the first model error.
+  SetModelSigma(s1, g, MaskOf(kAccelFirstOrder), out->priors, &poses);
+  for (AccelPrior& q : ClassAccelPriors(opt.term_priors, out->from_faces))
+    out->priors.push_back(std::move(q));
   AccelMask all{};
   all.fill(true);
   if (bias_scale_only) all = MaskOf(kAccelBiasScale);
   // An angle the face references measure is free whatever |a| = g adds: it is not neutral (0)
   // but the faces' value, with their error (the warnings say what was assumed).
-  out.observability = AnalyseAccelObservability(*s1, poses, g, all, priors);
-  const AccelObservability& obs = out.observability;
-  for (const auto& w : obs.warnings) out.warnings.push_back(w);
+  out->observability = AnalyseAccelObservability(s1, poses, g, all, out->priors);
+  const AccelObservability& obs = out->observability;
+  for (const auto& w : obs.warnings) out->warnings.push_back(w);
   if (!bias_scale_only) {
     for (int c : kAccelFirstOrder.Indices())
       if (!obs.determined[static_cast<size_t>(c)])
-        out.incomplete.push_back("accel " + AccelParamName(c) + " is not determined by the poses");
+        out->incomplete.push_back("accel " + AccelParamName(c) + " is not determined by the poses");
   }
-
   // The face references alone, when the poses are too few to refine |a| = g on (the six faces
   // once each: 6 poses for the 6 parameters the angles' priors leave): the affine fit is the
   // result.
-  out.affine_only =
-      out.from_faces && static_cast<int>(poses.size()) <= PosesPayFor(obs.determined, priors);
+  out->affine_only =
+      out->from_faces && static_cast<int>(poses.size()) <= PosesPayFor(obs.determined, out->priors);
+  out->free = obs.determined;
+}
 
-  // 3. Every determined term is estimated; those with a prior are shrunk by it as far as the
-  //    poses leave them to it.
-  out.free = obs.determined;
-  AccelMatrix width_uncertainty = AccelMatrix::Zero();  // what the prior width's doubt adds
-  if (!out.affine_only) {
-    SetModelSigma(RefineAccelGaussNewton(*s1, poses, g, obs.determined, 10, priors), g,
-                  obs.determined, priors, &poses);
-    width_uncertainty = ChooseQuadraticWidth(*s1, poses, g, obs.determined,
-                                             opt.term_priors.accel_quadratic_per_m_s2, &out.priors);
-    for (AccelPrior& q : out.priors) {
-      if (q.index < kAccelQuadratic.begin) continue;
-      q.source += absl::StrFormat(" (its %.1e, the widest, narrowed to the capture's evidence)",
-                                  opt.term_priors.accel_quadratic_per_m_s2);
-    }
+// 3. Every determined term is estimated; those with a prior are shrunk by it as far as the poses
+// leave them to it. Returns what the prior width's doubt adds to the covariance.
+AccelMatrix ChooseWidths(const CalibrateOptions& opt, const AccelParams& s1, double g,
+                         AccelStage* out) {
+  if (out->affine_only) return AccelMatrix::Zero();
+  const AccelMask& determined = out->observability.determined;
+  SetModelSigma(RefineAccelGaussNewton(s1, out->poses, g, determined, 10, out->priors), g,
+                determined, out->priors, &out->poses);
+  const AccelMatrix width_uncertainty = ChooseQuadraticWidth(
+      s1, out->poses, g, determined, opt.term_priors.accel_quadratic_per_m_s2, &out->priors);
+  for (AccelPrior& q : out->priors) {
+    if (q.index < kAccelQuadratic.begin) continue;
+    q.source += absl::StrFormat(" (its %.1e, the widest, narrowed to the capture's evidence)",
+                                opt.term_priors.accel_quadratic_per_m_s2);
   }
+  return width_uncertainty;
+}
 
-  // 4. BSAS, then LM.
+// 4. BSAS, then LM, from `s1`; or `s1` itself when nothing is left to refine it on.
+absl::Status Refine(const CalibrateOptions& opt, const FaceReferences& faces, AccelParams s1,
+                    double g, const AccelMatrix& width_uncertainty, AccelStage* out) {
+  std::vector<AccelPose>& poses = out->poses;
+  const AccelPriors& priors = out->priors;
   // Undetermined second-order terms and angles are held at their neutral value, 0: a stage-1
   // value the data does not support would be a confident number it cannot back.
-  AccelVector s1_vector = PackAccel(*s1);
+  AccelVector s1_vector = PackAccel(s1);
   for (int c = kAccelTri.begin; c < kAccelParams; ++c)
-    if (!obs.determined[static_cast<size_t>(c)]) s1_vector(c) = 0;
-  *s1 = UnpackAccel(s1_vector, s1->frame_angles);
-  const double pays_for = EffectiveParameters(*s1, poses, out.free, priors);
-  if (!out.affine_only && static_cast<double>(poses.size()) - pays_for < 0.5) {
+    if (!out->observability.determined[static_cast<size_t>(c)]) s1_vector(c) = 0;
+  s1 = UnpackAccel(s1_vector, s1.frame_angles);
+  const double pays_for = EffectiveParameters(s1, poses, out->free, priors);
+  if (!out->affine_only && static_cast<double>(poses.size()) - pays_for < 0.5) {
     // As many poses as parameters: the solution fits every pose exactly, nothing checks it.
     const int n_free = static_cast<int>(std::lround(pays_for));
-    out.params = *s1;
-    out.covariance = AccelCovariance(*s1, poses, out.free, priors);
-    out.chi2_reduced = kNaN;
-    out.warnings.push_back(NothingToCheckWarning(poses.size(), n_free));
-    out.incomplete.push_back("nothing is left to check the accelerometer's fit");
-  } else if (out.affine_only) {
-    out.params = *s1;
-    out.covariance = AffineFitCovariance(faces, *s1, &out.chi2_reduced);
-    out.warnings.push_back(AffineOnlyWarning(poses.size()));
-  } else {
-    AccelParams start = *s1;
-    if (opt.use_bsas) {
-      StageReport bs;
-      start = RefineAccelBsas(*s1, poses, g, out.free, StageOneUnits(*s1, poses, out.free, priors),
-                              BsasStageOptions{.seed = opt.seed}, &bs, priors);
-      bs.pose_indices = out.used;
-      bs.pose_residual_m_s2 = MagnitudeResiduals(start, poses, g);
-      out.stages.push_back(bs);
-    }
-    StageReport lm_report;
-    absl::StatusOr<LmResult> lm = RefineAccelLm(start, poses, g, out.free, &lm_report, priors);
-    if (!lm.ok()) return lm.status();
-    // The weights and the covariance with the model error of the final fit.
-    SetModelSigma(lm->params, g, out.free, priors, &poses);
-    lm = RefineAccelLm(lm->params, poses, g, out.free, nullptr, priors);
-    if (!lm.ok()) return lm.status();
-    lm_report.pose_indices = out.used;
-    lm_report.pose_residual_m_s2 = MagnitudeResiduals(lm->params, poses, g);
-    lm_report.accel_rms_m_s2 = Rms(lm_report.pose_residual_m_s2);
-    out.stages.push_back(lm_report);
-    out.params = lm->params;
-    out.covariance = lm->covariance + width_uncertainty;
-    out.chi2_reduced = lm->chi2_reduced;
+    out->params = s1;
+    out->covariance = AccelCovariance(s1, poses, out->free, priors);
+    out->chi2_reduced = kNaN;
+    out->warnings.push_back(NothingToCheckWarning(poses.size(), n_free));
+    out->incomplete.push_back("nothing is left to check the accelerometer's fit");
+    return absl::OkStatus();
   }
-  if (out.from_faces) out.params.frame_angles = FrameAngles(out.params, faces);
-  out.term_priors = DescribePriors(priors, out.params, out.covariance);
-  // A first-order term (a non-orthogonality angle) the poses know no better than the class
-  // does is an assumption, not a measurement: at best a warn, as when it was held at 0 (the
-  // faces' angles are the faces' measurement). The second-order terms' shrinkage is said in
-  // the warnings and term_priors; a capture that leaves them to the prior (six faces) passes.
+  if (out->affine_only) {
+    out->params = s1;
+    out->covariance = AffineFitCovariance(faces, s1, &out->chi2_reduced);
+    out->warnings.push_back(AffineOnlyWarning(poses.size()));
+    return absl::OkStatus();
+  }
+  AccelParams start = s1;
+  if (opt.use_bsas) {
+    StageReport bs;
+    start = RefineAccelBsas(s1, poses, g, out->free, StageOneUnits(s1, poses, out->free, priors),
+                            BsasStageOptions{.seed = opt.seed}, &bs, priors);
+    bs.pose_indices = out->used;
+    bs.pose_residual_m_s2 = MagnitudeResiduals(start, poses, g);
+    out->stages.push_back(bs);
+  }
+  StageReport lm_report;
+  absl::StatusOr<LmResult> lm = RefineAccelLm(start, poses, g, out->free, &lm_report, priors);
+  if (!lm.ok()) return lm.status();
+  // The weights and the covariance with the model error of the final fit.
+  SetModelSigma(lm->params, g, out->free, priors, &poses);
+  lm = RefineAccelLm(lm->params, poses, g, out->free, nullptr, priors);
+  if (!lm.ok()) return lm.status();
+  lm_report.pose_indices = out->used;
+  lm_report.pose_residual_m_s2 = MagnitudeResiduals(lm->params, poses, g);
+  lm_report.accel_rms_m_s2 = Rms(lm_report.pose_residual_m_s2);
+  out->stages.push_back(lm_report);
+  out->params = lm->params;
+  out->covariance = lm->covariance + width_uncertainty;
+  out->chi2_reduced = lm->chi2_reduced;
+  return absl::OkStatus();
+}
+
+// What each prior did. A first-order term (a non-orthogonality angle) the poses know no better
+// than the class does is an assumption, not a measurement: at best a warn, as when it was held
+// at 0 (the faces' angles are the faces' measurement). The second-order terms' shrinkage is
+// said in the warnings and term_priors; a capture that leaves them to the prior (six faces)
+// passes.
+void DescribeTermPriors(const CalibrateOptions& opt, AccelStage* out) {
+  out->term_priors = DescribePriors(out->priors, out->params, out->covariance);
   std::string assumed;
-  for (size_t k = 0; k < out.term_priors.size(); ++k) {
-    const TermPriorEffect& e = out.term_priors[k];
-    if (e.data_weight < 0.5) out.warnings.push_back(DescribePriorEffect(e));
-    const int c = priors[k].index;
-    const bool class_angle = !out.from_faces && c >= kAccelTri.begin && c < kAccelTri.end;
+  for (size_t k = 0; k < out->term_priors.size(); ++k) {
+    const TermPriorEffect& e = out->term_priors[k];
+    if (e.data_weight < 0.5) out->warnings.push_back(DescribePriorEffect(e));
+    const int c = out->priors[k].index;
+    const bool class_angle = !out->from_faces && c >= kAccelTri.begin && c < kAccelTri.end;
     if (class_angle && !(e.data_sigma < opt.term_priors.accel_angle_rad))
       absl::StrAppend(&assumed, assumed.empty() ? "" : ", ", AccelParamName(c));
   }
   if (!assumed.empty()) {
-    out.incomplete.push_back("accel " + assumed +
-                             ": the poses do not determine them; the sensor class's prior holds "
-                             "them near 0");
+    out->incomplete.push_back("accel " + assumed +
+                              ": the poses do not determine them; the sensor class's prior "
+                              "holds them near 0");
   }
+}
+
+}  // namespace
+
+absl::StatusOr<AccelStage> SolveAccel(const Capture& cap, const CalibrateOptions& opt,
+                                      const NoiseLevel& noise, const ProtocolChecks& checks) {
+  AccelStage out;
+  const double g = cap.gravity_m_s2;
+  out.used = UsedIndices(checks.intervals);
+  out.poses = ToAccelPoses(checks.intervals, out.used, noise);
+  FaceReferences faces;
+  bool bias_scale_only = false;
+  absl::StatusOr<AccelParams> s1 = LinearStage(checks, g, &faces, &bias_scale_only, &out);
+  if (!s1.ok()) return s1.status();
+  PriorsAndObservability(checks, opt, faces, *s1, g, bias_scale_only, &out);
+  const AccelMatrix width_uncertainty = ChooseWidths(opt, *s1, g, &out);
+  if (absl::Status s = Refine(opt, faces, *s1, g, width_uncertainty, &out); !s.ok()) return s;
+  if (out.from_faces) out.params.frame_angles = FrameAngles(out.params, faces);
+  DescribeTermPriors(opt, &out);
   return out;
 }
 
