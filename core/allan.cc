@@ -144,101 +144,124 @@ std::vector<size_t> LogSpacedClusterSizes(size_t n, int per_decade) {
   return out;
 }
 
-AxisFigures FitAllanFigures(const std::vector<double>& tau_s, const std::vector<double>& adev,
-                            double duration_s) {
-  AxisFigures f;
-  // The usable points: enough independent clusters, a positive finite deviation.
-  std::vector<double> lt, la, w;
-  for (size_t i = 0; i < tau_s.size(); ++i) {
-    if (duration_s / tau_s[i] < kMinClustersForFit || !(adev[i] > 0) || !std::isfinite(adev[i]))
-      continue;
-    lt.push_back(std::log(tau_s[i]));
-    la.push_back(std::log(adev[i]));
-    w.push_back(duration_s / tau_s[i]);  // ~ independent clusters: the weight of the point
-  }
-  const size_t n = lt.size();
-  if (n < 3) return f;
-  f.tau_max_fit_s = std::exp(lt.back());
-  std::vector<double> slope(n);
-  for (size_t i = 0; i < n; ++i)
-    slope[i] = LocalSlope(lt, la, i < 2 ? 0 : i - 2, std::min(n - 1, i + 2));
-  auto near = [](double s, double target) { return std::abs(s - target) <= kSlopeTolerance; };
+namespace {
 
-  // N: the first run of points with slope -1/2; the line of slope -1/2 through them (weighted
-  // mean of log(adev sqrt(tau))), read at tau = 1 s.
+// The curve in log-log coordinates over its usable points, with each point's local slope and
+// weight (~ independent clusters).
+struct LogCurve {
+  std::vector<double> lt, la, w, slope;
+  size_t size() const { return lt.size(); }
+};
+
+bool NearSlope(double s, double target) { return std::abs(s - target) <= kSlopeTolerance; }
+
+// N: the first run of points with slope -1/2; the line of slope -1/2 through them (weighted mean
+// of log(adev sqrt(tau))), read at tau = 1 s.
+void FitWhite(const LogCurve& c, AxisFigures* f) {
+  const size_t n = c.size();
   size_t i = 0;
-  while (i < n && !near(slope[i], -0.5)) ++i;
+  while (i < n && !NearSlope(c.slope[i], -0.5)) ++i;
   double sw = 0, swl = 0;
   size_t nearest_1s = n;
-  for (; i < n && near(slope[i], -0.5); ++i) {
-    sw += w[i], swl += w[i] * (la[i] + 0.5 * lt[i]);
-    if (nearest_1s == n || std::abs(lt[i]) < std::abs(lt[nearest_1s])) nearest_1s = i;
+  for (; i < n && NearSlope(c.slope[i], -0.5); ++i) {
+    sw += c.w[i], swl += c.w[i] * (c.la[i] + 0.5 * c.lt[i]);
+    if (nearest_1s == n || std::abs(c.lt[i]) < std::abs(c.lt[nearest_1s])) nearest_1s = i;
   }
   if (sw > 0) {
-    f.noise_density = std::exp(swl / sw);
-    f.noise_density_tau_s = std::exp(lt[nearest_1s]);
+    f->noise_density = std::exp(swl / sw);
+    f->noise_density_tau_s = std::exp(c.lt[nearest_1s]);
   }
+}
 
-  // K: reached when, past the curve's minimum, at least kMinRandomWalkPoints cluster times
-  // have slope +1/2 and the curve has risen by kMinRise. Every point past the minimum then
-  // estimates K^2 = (avar - N^2 / tau) * 3 / tau (the white part removed, unbiased like avar);
-  // they are averaged with weights clusters * (share of the random walk in avar)^2, the inverse
-  // relative variance of each estimate, refined twice from the current K.
-  const size_t k_min = static_cast<size_t>(std::min_element(la.begin(), la.end()) - la.begin());
+// K: reached when, past the curve's minimum, at least kMinRandomWalkPoints cluster times have
+// slope +1/2 and the curve has risen by kMinRise. Every point past the minimum then estimates
+// K^2 = (avar - N^2 / tau) * 3 / tau (the white part removed, unbiased like avar); they are
+// averaged with weights clusters * (share of the random walk in avar)^2, the inverse relative
+// variance of each estimate, refined twice from the current K. Not reached: a bound.
+void FitRandomWalk(const LogCurve& c, AxisFigures* f) {
+  const size_t n = c.size();
+  const auto k_min = static_cast<size_t>(std::min_element(c.la.begin(), c.la.end()) - c.la.begin());
   int rising = 0;
-  double highest_after_min = la[k_min];
+  double highest_after_min = c.la[k_min];
   for (size_t k = k_min + 1; k < n; ++k) {
-    rising += near(slope[k], 0.5);
-    highest_after_min = std::max(highest_after_min, la[k]);
+    rising += NearSlope(c.slope[k], 0.5);
+    highest_after_min = std::max(highest_after_min, c.la[k]);
   }
-  if (rising >= kMinRandomWalkPoints && highest_after_min - la[k_min] > std::log(kMinRise)) {
-    const double white = std::isnan(f.noise_density) ? 0.0 : f.noise_density * f.noise_density;
+  if (rising >= kMinRandomWalkPoints && highest_after_min - c.la[k_min] > std::log(kMinRise)) {
+    const double white = std::isnan(f->noise_density) ? 0.0 : f->noise_density * f->noise_density;
     double k2 = 0;
     size_t heaviest = k_min;  // the point of largest weight in the last pass
     for (int pass = 0; pass < 3; ++pass) {
-      sw = swl = 0;
+      double sw = 0, swl = 0;
       double heaviest_weight = -1;
       for (size_t k = k_min; k < n; ++k) {
-        const double tau = std::exp(lt[k]);
-        const double avar = std::exp(2 * la[k]);
+        const double tau = std::exp(c.lt[k]);
+        const double avar = std::exp(2 * c.la[k]);
         const double share = pass == 0 ? 1.0 : (k2 * tau / 3) / (white / tau + k2 * tau / 3);
-        sw += w[k] * share * share;
-        swl += w[k] * share * share * (avar - white / tau) * 3.0 / tau;
-        if (w[k] * share * share > heaviest_weight)
-          heaviest_weight = w[k] * share * share, heaviest = k;
+        sw += c.w[k] * share * share;
+        swl += c.w[k] * share * share * (avar - white / tau) * 3.0 / tau;
+        if (c.w[k] * share * share > heaviest_weight)
+          heaviest_weight = c.w[k] * share * share, heaviest = k;
       }
       k2 = sw > 0 ? swl / sw : 0.0;
       if (!(k2 > 0)) break;
     }
     if (k2 > 0) {
-      f.random_walk = std::sqrt(k2);
-      f.random_walk_tau_s = std::exp(lt[heaviest]);
+      f->random_walk = std::sqrt(k2);
+      f->random_walk_tau_s = std::exp(c.lt[heaviest]);
     }
   }
-  if (std::isnan(f.random_walk)) {
-    f.random_walk_bound = std::exp(la.back()) * std::sqrt(3.0 / f.tau_max_fit_s);
+  if (std::isnan(f->random_walk)) {
+    f->random_walk_bound = std::exp(c.la.back()) * std::sqrt(3.0 / f->tau_max_fit_s);
   }
+}
 
-  // B: the minimum of the curve, if it is flat there (slope 0) after a falling part. Searched
-  // only where there are kMinClustersForFloor clusters: the last cluster times (6-30 clusters, a
-  // few degrees of freedom) scatter so much that a minimum picks their dips. Searched over the
-  // whole curve, pure white noise on a 30 s rest showed a "floor" on 6 of 54 simulated series
-  // (WhiteNoiseDensityFromSimulatedRest), and 1-hour white + flicker + random-walk rests gave B
-  // NaN or up to 14% low on 7 of 120 axes where the tail dipped below the floor (searched from
-  // 30 clusters: 1 of 120 NaN, none off by more than 7%).
+// B: the minimum of the curve, if it is flat there (slope 0) after a falling part. Searched only
+// where there are kMinClustersForFloor clusters: the last cluster times (6-30 clusters, a few
+// degrees of freedom) scatter so much that a minimum picks their dips. Searched over the whole
+// curve, pure white noise on a 30 s rest showed a "floor" on 6 of 54 simulated series
+// (WhiteNoiseDensityFromSimulatedRest), and 1-hour white + flicker + random-walk rests gave B NaN
+// or up to 14% low on 7 of 120 axes where the tail dipped below the floor (searched from 30
+// clusters: 1 of 120 NaN, none off by more than 7%).
+void FitFloor(const LogCurve& c, AxisFigures* f) {
+  const size_t n = c.size();
   size_t n_floor = 0;
-  while (n_floor < n && w[n_floor] >= kMinClustersForFloor) ++n_floor;
-  if (n_floor >= 3) {
-    const size_t k_floor = static_cast<size_t>(
-        std::min_element(la.begin(), la.begin() + static_cast<std::ptrdiff_t>(n_floor)) -
-        la.begin());
-    bool fell_before = false;
-    for (size_t k = 0; k < k_floor; ++k) fell_before |= slope[k] < -kSlopeTolerance;
-    if (fell_before && near(slope[k_floor], 0.0) && k_floor + 1 < n_floor) {
-      f.bias_instability = std::exp(la[k_floor]) / kFlickerFloor;
-      f.bias_instability_tau_s = std::exp(lt[k_floor]);
-    }
+  while (n_floor < n && c.w[n_floor] >= kMinClustersForFloor) ++n_floor;
+  if (n_floor < 3) return;
+  const auto k_floor = static_cast<size_t>(
+      std::min_element(c.la.begin(), c.la.begin() + static_cast<std::ptrdiff_t>(n_floor)) -
+      c.la.begin());
+  bool fell_before = false;
+  for (size_t k = 0; k < k_floor; ++k) fell_before |= c.slope[k] < -kSlopeTolerance;
+  if (fell_before && NearSlope(c.slope[k_floor], 0.0) && k_floor + 1 < n_floor) {
+    f->bias_instability = std::exp(c.la[k_floor]) / kFlickerFloor;
+    f->bias_instability_tau_s = std::exp(c.lt[k_floor]);
   }
+}
+
+}  // namespace
+
+AxisFigures FitAllanFigures(const std::vector<double>& tau_s, const std::vector<double>& adev,
+                            double duration_s) {
+  AxisFigures f;
+  // The usable points: enough independent clusters, a positive finite deviation.
+  LogCurve c;
+  for (size_t i = 0; i < tau_s.size(); ++i) {
+    if (duration_s / tau_s[i] < kMinClustersForFit || !(adev[i] > 0) || !std::isfinite(adev[i]))
+      continue;
+    c.lt.push_back(std::log(tau_s[i]));
+    c.la.push_back(std::log(adev[i]));
+    c.w.push_back(duration_s / tau_s[i]);  // ~ independent clusters: the weight of the point
+  }
+  const size_t n = c.size();
+  if (n < 3) return f;
+  f.tau_max_fit_s = std::exp(c.lt.back());
+  c.slope.resize(n);
+  for (size_t i = 0; i < n; ++i)
+    c.slope[i] = LocalSlope(c.lt, c.la, i < 2 ? 0 : i - 2, std::min(n - 1, i + 2));
+  FitWhite(c, &f);
+  FitRandomWalk(c, &f);
+  FitFloor(c, &f);
   return f;
 }
 
