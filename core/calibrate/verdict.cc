@@ -28,10 +28,17 @@ std::optional<Verdict> ParseVerdict(std::string_view name) {
   return std::nullopt;
 }
 
-VerdictResult JudgeVerdict(const VerdictInputs& in) {
-  VerdictResult out;
-  std::vector<std::string> fail, warn;
-  const double mg = 1e3 / 9.80665;
+namespace {
+
+constexpr double kMgPerMs2Reading = 1e3 / 9.80665;  // mg per m/s^2, for the reasons' figures
+
+// The accelerometer's gates: its residual, and the held-out one against what a sound fit of
+// these poses leaves.
+void JudgeAccel(const VerdictInputs& in, std::vector<std::string>* fail_out,
+                std::vector<std::string>* warn_out) {
+  std::vector<std::string>& fail = *fail_out;
+  std::vector<std::string>& warn = *warn_out;
+  const double mg = kMgPerMs2Reading;
   if (in.accel_rms_m_s2 > kAccelFailRmsM_s2) {
     fail.push_back(absl::StrFormat("accelerometer residual %.2f mg RMS is above the %.1f mg gate",
                                    mg * in.accel_rms_m_s2, mg * kAccelFailRmsM_s2));
@@ -81,6 +88,13 @@ VerdictResult JudgeVerdict(const VerdictInputs& in) {
           mg * in.accel_noise_floor_m_s2));
     }
   }
+}
+
+// The gyroscope's gates: the gravity direction after the moves, in-sample and held out.
+void JudgeMoves(const VerdictInputs& in, std::vector<std::string>* fail_out,
+                std::vector<std::string>* warn_out) {
+  std::vector<std::string>& fail = *fail_out;
+  std::vector<std::string>& warn = *warn_out;
   const double move = in.move_rms_deg, move_heldout = in.move_heldout_rms_deg;
   // The held-out figure is the fit's: it compares with the fit's in-sample one.
   const double move_fit = std::isfinite(in.move_fit_rms_deg) ? in.move_fit_rms_deg : move;
@@ -100,6 +114,11 @@ VerdictResult JudgeVerdict(const VerdictInputs& in) {
         "gyroscope fit does not predict the moves it was not fitted to",
         move_heldout, move));
   }
+}
+
+// A parameter the capture does not determine: its standard error wider than a sensor's range.
+void JudgeSpreads(const VerdictInputs& in, std::vector<std::string>* fail_out) {
+  std::vector<std::string>& fail = *fail_out;
   for (const ParameterSpread& p : in.parameters) {
     if (std::isfinite(p.std_error) && p.std_error > p.plausible) {
       fail.push_back(absl::StrFormat(
@@ -108,6 +127,16 @@ VerdictResult JudgeVerdict(const VerdictInputs& in) {
           p.name, p.std_error, p.plausible));
     }
   }
+}
+
+}  // namespace
+
+VerdictResult JudgeVerdict(const VerdictInputs& in) {
+  VerdictResult out;
+  std::vector<std::string> fail, warn;
+  JudgeAccel(in, &fail, &warn);
+  JudgeMoves(in, &fail, &warn);
+  JudgeSpreads(in, &fail);
   warn.insert(warn.end(), in.incomplete.begin(), in.incomplete.end());
   out.verdict = !fail.empty() ? Verdict::kFail : !warn.empty() ? Verdict::kWarn : Verdict::kPass;
   out.reasons = std::move(fail);
