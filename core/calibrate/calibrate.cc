@@ -282,6 +282,45 @@ std::string_view RefusalReasonName(RefusalReason reason) {
   return "too_few_orientations";
 }
 
+namespace {
+
+// The final gyroscope, the pairs' turns measured with it, and the six-face case frame from the
+// axes the pairs were turned about (the gyroscope, fitted in the faces' frame, turns with it).
+FinalGyro GyroAndCaseFrame(const Capture& cap, const std::vector<StaticInterval>& intervals,
+                           const StaticPoses& still, const RoughGyro& rough, PhaseTimer* timer,
+                           AccelStage* accel, CalibrationReport* rep) {
+  FinalGyro gyro = SolveFinalGyro(cap, intervals, accel->used, accel->params, still.gaps, rough);
+  Append(&rep->warnings, gyro.warnings);
+  timer->Mark("gyro");
+  MeasurePairTurns(cap, intervals, gyro.fit, &rep->pairs);
+  if (rep->protocol == ProtocolKind::kSixFace && accel->from_faces && gyro.fit.calibrated) {
+    AccelParams frame_free = accel->params;
+    frame_free.frame_angles.setZero();
+    const Eigen::Matrix3d R_new_old = SetCaseFrameFromPairAxes(
+        rep->pairs, cap.gravity_m_s2,
+        [&](int i) { return frame_free.Apply(intervals[static_cast<size_t>(i)].accel_mean); },
+        &accel->params);
+    TurnGyroFrame(R_new_old, &gyro.fit, &gyro.planned);
+  }
+  return gyro;
+}
+
+// The figures a robot will see: the final parameter set applied as the SDK applies it, the
+// noise figures of the longest rest, and the gyroscope's bias between poses (what the static
+// residual is made of).
+void FinalFigures(const Capture& cap, const std::vector<StaticInterval>& intervals,
+                  const FinalGyro& gyro, const AccelStage& accel, CalibrationReport* rep) {
+  ReportFinalFigures(cap, intervals, gyro.planned, rep);
+  if (auto noise = NoiseFromLongestInterval(cap, intervals, rep->params); noise.ok()) {
+    rep->params.noise = std::move(noise->figures);
+    rep->allan = std::move(noise->curves);
+  }
+  rep->gyro_wander = GyroWanderOf(cap, intervals, accel.used, rep->params, rep->noise);
+  if (rep->gyro_wander.ran) rep->effect_diagnostics.notes.push_back(rep->gyro_wander.note);
+}
+
+}  // namespace
+
 absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateOptions& opt) {
   const auto t0 = std::chrono::steady_clock::now();
   if (absl::Status s = ValidateCapture(cap); !s.ok()) return s;
@@ -312,21 +351,8 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
   if (!accel) return rep;  // refused: the poses are too alike
   const std::vector<StaticInterval>& intervals = checks.intervals;
 
-  // -> final gyroscope; the pairs' turns measured with it; the six-face case frame from the axes
-  //    the pairs were turned about (the gyroscope, fitted in the faces' frame, turns with it)
-  FinalGyro gyro = SolveFinalGyro(cap, intervals, accel->used, accel->params, still.gaps, rough);
-  Append(&rep.warnings, gyro.warnings);
-  timer.Mark("gyro");
-  MeasurePairTurns(cap, intervals, gyro.fit, &rep.pairs);
-  if (rep.protocol == ProtocolKind::kSixFace && accel->from_faces && gyro.fit.calibrated) {
-    AccelParams frame_free = accel->params;
-    frame_free.frame_angles.setZero();
-    const Eigen::Matrix3d R_new_old = SetCaseFrameFromPairAxes(
-        rep.pairs, cap.gravity_m_s2,
-        [&](int i) { return frame_free.Apply(intervals[static_cast<size_t>(i)].accel_mean); },
-        &accel->params);
-    TurnGyroFrame(R_new_old, &gyro.fit, &gyro.planned);
-  }
+  // -> final gyroscope; the pairs' turns measured with it; the six-face case frame
+  FinalGyro gyro = GyroAndCaseFrame(cap, intervals, still, rough, &timer, &*accel, &rep);
 
   // -> residuals, poses, parameter set
   const AccelResiduals accel_residuals = ComputeAccelResiduals(
@@ -348,15 +374,8 @@ absl::StatusOr<CalibrationReport> Calibrate(const Capture& cap, const CalibrateO
     timer.Mark("effects");
   }
 
-  // -> the figures a robot will see: the final parameter set applied as the SDK applies it
-  ReportFinalFigures(cap, intervals, gyro.planned, &rep);
-  if (auto noise = NoiseFromLongestInterval(cap, intervals, rep.params); noise.ok()) {
-    rep.params.noise = std::move(noise->figures);
-    rep.allan = std::move(noise->curves);
-  }
-  // -> the gyroscope's bias between poses: what the static residual is made of
-  rep.gyro_wander = GyroWanderOf(cap, intervals, accel->used, rep.params, rep.noise);
-  if (rep.gyro_wander.ran) rep.effect_diagnostics.notes.push_back(rep.gyro_wander.note);
+  // -> the figures a robot will see
+  FinalFigures(cap, intervals, gyro, *accel, &rep);
   timer.Mark("final");
 
   // -> verdict. Undetermined first-order parameters make it warn at best; undetermined
