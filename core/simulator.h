@@ -165,6 +165,9 @@ struct SimResult {
 
 // InvalidArgument naming the offending field (e.g. "rate_hz", "effects[1].regressor").
 absl::Status ValidateSimOptions(const SimOptions& options);
+// InvalidArgument naming the offending parameter of a given truth (non-finite, zero scale, a
+// singular gyroscope matrix).
+absl::Status ValidateSimTruth(const SimTruth& truth);
 
 // Simulates `options` with the given truth (in options' input units).
 absl::StatusOr<SimResult> Simulate(const SimOptions& options, const SimTruth& truth);
