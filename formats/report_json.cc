@@ -89,67 +89,10 @@ json DetectionBoundsJson(const std::vector<core::DetectionBound>& bounds) {
   return out;
 }
 
-json DiagnosticsJson(const core::EffectDiagnostics& d) {
-  json j;
-  j["ran"] = d.ran;
-  j["rounds"] = d.rounds;
-  j["candidates"] = d.candidates;
-  j["absorbed_by_model"] = d.absorbed;
-  j["not_excited"] = d.not_excited;
-  j["accel_noise_floor"] = Num(d.accel_noise_floor_m_s2);
-  j["gyro_noise_floor"] = Num(d.gyro_noise_floor_rad_s);
-  j["accel_heldout_before"] = Num(d.accel_heldout_before_m_s2);
-  j["accel_heldout_after"] = Num(d.accel_heldout_after_m_s2);
-  j["gyro_heldout_before"] = Num(d.gyro_heldout_before_rad_s);
-  j["gyro_heldout_after"] = Num(d.gyro_heldout_after_rad_s);
-  j["units"] =
-      "accel m/s^2, gyro rad/s; signals: temperature degC, time s, ax..az m/s^2, gx..gz rad/s; "
-      "per pose: _before without effects, _after the stored model (applied effects), _all every "
-      "effect found";
-  j["top_candidates"] = json::array();
-  for (const core::CandidateScore& c : d.top) {
-    j["top_candidates"].push_back({{"sensor", c.sensor == core::Sensor::kGyro ? "gyro" : "accel"},
-                                   {"axis", std::string(1, "xyz"[c.axis])},
-                                   {"regressor", c.regressor},
-                                   {"f", Num(c.f)},
-                                   {"f_threshold", Num(c.f_threshold)},
-                                   {"delta_bic", Num(c.delta_bic)},
-                                   {"heldout_gain", Num(c.press_gain)},
-                                   {"coefficient", Num(c.coefficient)},
-                                   {"passed", c.passed}});
-  }
-  j["poses"] = json::array();
-  for (const core::EffectPoseRow& row : d.rows) {
-    json signals;
-    for (int s = 0; s < core::kNumSignals; ++s)
-      signals[std::string(core::kSignalNames[static_cast<size_t>(s)])] =
-          Num(row.signals[static_cast<size_t>(s)]);
-    j["poses"].push_back({{"index", row.pose_index},
-                          {"signals", std::move(signals)},
-                          {"accel_before", Num(row.accel_before_m_s2)},
-                          {"accel_after", Num(row.accel_after_m_s2)},
-                          {"accel_all", Num(row.accel_all_m_s2)},
-                          {"gyro_before", Vec(row.gyro_before_rad_s)},
-                          {"gyro_after", Vec(row.gyro_after_rad_s)},
-                          {"gyro_all", Vec(row.gyro_all_rad_s)}});
-  }
-  j["faces"] = json::array();
-  for (const core::FaceResidual& f : d.faces)
-    j["faces"].push_back({{"face", f.face}, {"residual", Vec(f.residual_m_s2)}});
-  // The gravity-direction error after the moves regressed on each signal of the moves (the
-  // rotation residuals; effects.h MoveTrend): slope and standard error in `unit`.
-  j["move_trends"] = json::array();
-  for (const core::MoveTrend& t : d.move_trends) {
-    j["move_trends"].push_back({{"signal", t.signal},
-                                {"unit", t.unit},
-                                {"slope", Num(t.slope_deg)},
-                                {"stderr", Num(t.slope_std_error_deg)},
-                                {"f", Num(t.f)},
-                                {"f_threshold", Num(t.f_threshold)},
-                                {"significant", t.significant}});
-  }
-  // The rate-dependent gyroscope terms tested on the moves (core/move_effects.h).
-  const core::MoveEffectDiagnostics& m = d.move_search;
+namespace {
+
+// The rate-dependent gyroscope terms tested on the moves (core/move_effects.h).
+json MoveSearchJson(const core::MoveEffectDiagnostics& m) {
   json ms;
   ms["ran"] = m.ran;
   ms["units"] =
@@ -184,28 +127,87 @@ json DiagnosticsJson(const core::EffectDiagnostics& d) {
   ms["turn_angles_moves_only"] = json::array();
   for (double a : m.turn_angle_moves_only_rad) ms["turn_angles_moves_only"].push_back(Num(a));
   ms["detection_bounds"] = DetectionBoundsJson(m.detection_bounds);
-  j["move_search"] = std::move(ms);
+  return ms;
+}
+
+// Each pose's signals and residuals before, after and with every effect found.
+json EffectRowsJson(const std::vector<core::EffectPoseRow>& rows) {
+  json out = json::array();
+  for (const core::EffectPoseRow& row : rows) {
+    json signals;
+    for (int s = 0; s < core::kNumSignals; ++s)
+      signals[std::string(core::kSignalNames[static_cast<size_t>(s)])] =
+          Num(row.signals[static_cast<size_t>(s)]);
+    out.push_back({{"index", row.pose_index},
+                   {"signals", std::move(signals)},
+                   {"accel_before", Num(row.accel_before_m_s2)},
+                   {"accel_after", Num(row.accel_after_m_s2)},
+                   {"accel_all", Num(row.accel_all_m_s2)},
+                   {"gyro_before", Vec(row.gyro_before_rad_s)},
+                   {"gyro_after", Vec(row.gyro_after_rad_s)},
+                   {"gyro_all", Vec(row.gyro_all_rad_s)}});
+  }
+  return out;
+}
+
+}  // namespace
+
+json DiagnosticsJson(const core::EffectDiagnostics& d) {
+  json j;
+  j["ran"] = d.ran;
+  j["rounds"] = d.rounds;
+  j["candidates"] = d.candidates;
+  j["absorbed_by_model"] = d.absorbed;
+  j["not_excited"] = d.not_excited;
+  j["accel_noise_floor"] = Num(d.accel_noise_floor_m_s2);
+  j["gyro_noise_floor"] = Num(d.gyro_noise_floor_rad_s);
+  j["accel_heldout_before"] = Num(d.accel_heldout_before_m_s2);
+  j["accel_heldout_after"] = Num(d.accel_heldout_after_m_s2);
+  j["gyro_heldout_before"] = Num(d.gyro_heldout_before_rad_s);
+  j["gyro_heldout_after"] = Num(d.gyro_heldout_after_rad_s);
+  j["units"] =
+      "accel m/s^2, gyro rad/s; signals: temperature degC, time s, ax..az m/s^2, gx..gz rad/s; "
+      "per pose: _before without effects, _after the stored model (applied effects), _all every "
+      "effect found";
+  j["top_candidates"] = json::array();
+  for (const core::CandidateScore& c : d.top) {
+    j["top_candidates"].push_back({{"sensor", c.sensor == core::Sensor::kGyro ? "gyro" : "accel"},
+                                   {"axis", std::string(1, "xyz"[c.axis])},
+                                   {"regressor", c.regressor},
+                                   {"f", Num(c.f)},
+                                   {"f_threshold", Num(c.f_threshold)},
+                                   {"delta_bic", Num(c.delta_bic)},
+                                   {"heldout_gain", Num(c.press_gain)},
+                                   {"coefficient", Num(c.coefficient)},
+                                   {"passed", c.passed}});
+  }
+  j["poses"] = EffectRowsJson(d.rows);
+  j["faces"] = json::array();
+  for (const core::FaceResidual& f : d.faces)
+    j["faces"].push_back({{"face", f.face}, {"residual", Vec(f.residual_m_s2)}});
+  // The gravity-direction error after the moves regressed on each signal of the moves (the
+  // rotation residuals; effects.h MoveTrend): slope and standard error in `unit`.
+  j["move_trends"] = json::array();
+  for (const core::MoveTrend& t : d.move_trends) {
+    j["move_trends"].push_back({{"signal", t.signal},
+                                {"unit", t.unit},
+                                {"slope", Num(t.slope_deg)},
+                                {"stderr", Num(t.slope_std_error_deg)},
+                                {"f", Num(t.f)},
+                                {"f_threshold", Num(t.f_threshold)},
+                                {"significant", t.significant}});
+  }
+  j["move_search"] = MoveSearchJson(d.move_search);
   j["detection_bounds"] = DetectionBoundsJson(d.detection_bounds);
   j["notes"] = d.notes;
   return j;
 }
 
-std::string ReportToJson(const core::CalibrationReport& r) {
-  json j;
-  j["format"] = "imucal-report v1";
-  j["device"] = r.device;
-  j["gravity"] = r.gravity_m_s2;
-  j["protocol"] = std::string(core::ProtocolKindName(r.protocol));
-  j["protocol_detected"] = r.protocol_detected;
-  j["noise"] = {{"accel_std", Vec(r.noise.accel_std)},
-                {"gyro_std", Vec(r.noise.gyro_std)},
-                {"units", "input units per sample"},
-                {"source", r.noise.source},
-                {"static_threshold_multiplier", r.threshold_multiplier}};
-  j["poses"] = json::array();
-  const bool has_gyro = r.params.has_gyro;
-  if (!has_gyro) j["noise"].erase("gyro_std");
-  for (const auto& p : r.poses) j["poses"].push_back(PoseJson(p, has_gyro));
+namespace {
+
+// The pairs, the moves between poses, the solver's stages and the full turns.
+void PosesAndMovesJson(const core::CalibrationReport& r, json* out) {
+  json& j = *out;
   j["pairs"] = json::array();
   for (const auto& p : r.pairs) {
     j["pairs"].push_back({{"poses", {p.pose_a, p.pose_b}},
@@ -250,17 +252,12 @@ std::string ReportToJson(const core::CalibrationReport& r) {
                           {"angle_deg", Num(t.angle_deg)},
                           {"error_deg", Num(t.error_deg)}});
   }
-  // Allan deviation of the calibrated signals over the rest the noise block was measured on.
-  if (!r.allan.tau_s.empty()) {
-    json accel = json::array(), gyro = json::array();
-    for (const auto& v : r.allan.accel_m_s2) accel.push_back(Vec(v));
-    for (const auto& v : r.allan.gyro_rad_s) gyro.push_back(Vec(v));
-    j["allan"] = {{"tau", r.allan.tau_s},
-                  {"accel", std::move(accel)},
-                  {"gyro", std::move(gyro)},
-                  {"units", "tau s; accel m/s^2; gyro rad/s (Allan deviation, per axis x y z)"}};
-    if (!has_gyro) j["allan"].erase("gyro");
-  }
+}
+
+// The residuals of the fit, and what each prior did to its term.
+void FitJson(const core::CalibrationReport& r, json* out) {
+  json& j = *out;
+  const bool has_gyro = r.params.has_gyro;
   const core::Residuals& res = r.residual;
   j["residual"] = {{"accel_rms", res.accel_rms_m_s2},
                    {"accel_max", res.accel_max_m_s2},
@@ -288,6 +285,39 @@ std::string ReportToJson(const core::CalibrationReport& r) {
                                 {"data_sigma", Num(e.data_sigma)},
                                 {"data_weight", e.data_weight}});
   }
+}
+
+}  // namespace
+
+std::string ReportToJson(const core::CalibrationReport& r) {
+  json j;
+  j["format"] = "imucal-report v1";
+  j["device"] = r.device;
+  j["gravity"] = r.gravity_m_s2;
+  j["protocol"] = std::string(core::ProtocolKindName(r.protocol));
+  j["protocol_detected"] = r.protocol_detected;
+  j["noise"] = {{"accel_std", Vec(r.noise.accel_std)},
+                {"gyro_std", Vec(r.noise.gyro_std)},
+                {"units", "input units per sample"},
+                {"source", r.noise.source},
+                {"static_threshold_multiplier", r.threshold_multiplier}};
+  j["poses"] = json::array();
+  const bool has_gyro = r.params.has_gyro;
+  if (!has_gyro) j["noise"].erase("gyro_std");
+  for (const auto& p : r.poses) j["poses"].push_back(PoseJson(p, has_gyro));
+  PosesAndMovesJson(r, &j);
+  // Allan deviation of the calibrated signals over the rest the noise block was measured on.
+  if (!r.allan.tau_s.empty()) {
+    json accel = json::array(), gyro = json::array();
+    for (const auto& v : r.allan.accel_m_s2) accel.push_back(Vec(v));
+    for (const auto& v : r.allan.gyro_rad_s) gyro.push_back(Vec(v));
+    j["allan"] = {{"tau", r.allan.tau_s},
+                  {"accel", std::move(accel)},
+                  {"gyro", std::move(gyro)},
+                  {"units", "tau s; accel m/s^2; gyro rad/s (Allan deviation, per axis x y z)"}};
+    if (!has_gyro) j["allan"].erase("gyro");
+  }
+  FitJson(r, &j);
   json params = json::parse(ParamSetToJson(r.params));
   j["effects"] = params.contains("effects") ? params["effects"] : json::array();
   // Beside the spec's fields: the coefficient in an engineer's units (mg/degC, deg/s/g, ...).
