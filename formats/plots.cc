@@ -277,60 +277,70 @@ absl::Status WriteAllanPlots(const json& report, const PlotWriter& write) {
 
 }  // namespace
 
-std::string RenderSvg(const Plot& plot) {
-  // Log axes: everything below works on log10 of the value.
-  auto tx = [&](double x) { return plot.log_x ? (x > 0 ? std::log10(x) : kNaN) : x; };
-  auto ty = [&](double y) { return plot.log_y ? (y > 0 ? std::log10(y) : kNaN) : y; };
+namespace {
+
+// The plot's area and its axes' ranges: where a value is drawn. Log axes work on log10 of the
+// value; tx/ty give the axis coordinate, px/py the pixel of a value, gx/gy of an axis coordinate.
+struct Canvas {
+  explicit Canvas(const Plot& p) : plot(p) {
+    for (const PlotSeries& s : plot.series) {
+      for (double v : s.x) xr.Add(tx(v));
+      for (double v : s.y) yr.Add(ty(v));
+    }
+    for (const RefLine& r : plot.ref_lines) yr.Add(ty(r.y));
+    xr.Pad();
+    yr.Pad();
+    if (plot.equal_aspect) {  // widen the tighter axis
+      const double ux = (xr.hi - xr.lo) / pw, uy = (yr.hi - yr.lo) / ph;
+      Range& r = ux < uy ? xr : yr;
+      const double half = 0.5 * std::max(ux, uy) * (ux < uy ? pw : ph), mid = 0.5 * (r.lo + r.hi);
+      r.lo = mid - half, r.hi = mid + half;
+    }
+  }
+  double tx(double x) const { return plot.log_x ? (x > 0 ? std::log10(x) : kNaN) : x; }
+  double ty(double y) const { return plot.log_y ? (y > 0 ? std::log10(y) : kNaN) : y; }
+  double gx(double x) const { return kLeft + (x - xr.lo) / (xr.hi - xr.lo) * pw; }
+  double gy(double y) const { return kTop + (yr.hi - y) / (yr.hi - yr.lo) * ph; }
+  double px(double x) const { return gx(tx(x)); }
+  double py(double y) const { return gy(ty(y)); }
+
+  const Plot& plot;
   Range xr, yr;
-  for (const PlotSeries& s : plot.series) {
-    for (double v : s.x) xr.Add(tx(v));
-    for (double v : s.y) yr.Add(ty(v));
-  }
-  for (const RefLine& r : plot.ref_lines) yr.Add(ty(r.y));
-  xr.Pad();
-  yr.Pad();
   const double pw = kW - kLeft - kRight, ph = kH - kTop - kBottom;
-  if (plot.equal_aspect) {  // widen the tighter axis
-    const double ux = (xr.hi - xr.lo) / pw, uy = (yr.hi - yr.lo) / ph;
-    Range& r = ux < uy ? xr : yr;
-    const double half = 0.5 * std::max(ux, uy) * (ux < uy ? pw : ph), mid = 0.5 * (r.lo + r.hi);
-    r.lo = mid - half, r.hi = mid + half;
-  }
-  auto px = [&](double x) { return kLeft + (tx(x) - xr.lo) / (xr.hi - xr.lo) * pw; };
-  auto py = [&](double y) { return kTop + (yr.hi - ty(y)) / (yr.hi - yr.lo) * ph; };
-  auto gx = [&](double x) { return kLeft + (x - xr.lo) / (xr.hi - xr.lo) * pw; };  // axis units
-  auto gy = [&](double y) { return kTop + (yr.hi - y) / (yr.hi - yr.lo) * ph; };
-  auto label = [](double v, bool log, double step) {
-    if (log) return absl::StrFormat("%.2g", std::pow(10.0, v));
-    return absl::StrFormat("%.4g", std::abs(v) < 1e-9 * step ? 0.0 : v);
-  };
-  std::string s = absl::StrFormat(
-      "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" "
-      "viewBox=\"0 0 %.0f %.0f\" font-family=\"sans-serif\" font-size=\"12\">\n"
-      "<rect width=\"100%%\" height=\"100%%\" fill=\"white\"/>\n"
-      "<text x=\"%.0f\" y=\"22\" font-size=\"15\" text-anchor=\"middle\">%s</text>\n",
-      kW, kH, kW, kH, kW / 2, Escape(plot.title));
-  // Grid and ticks (log axes: one per decade when the span allows).
+};
+
+std::string TickLabel(double v, bool log, double step) {
+  if (log) return absl::StrFormat("%.2g", std::pow(10.0, v));
+  return absl::StrFormat("%.4g", std::abs(v) < 1e-9 * step ? 0.0 : v);
+}
+
+// Grid and ticks (log axes: one per decade when the span allows), the zero line, the frame, the
+// axis labels and the caption.
+void DrawFrame(const Canvas& c, std::string* out) {
+  std::string& s = *out;
+  const Plot& plot = c.plot;
+  const Range &xr = c.xr, &yr = c.yr;
+  const double pw = c.pw, ph = c.ph;
   const double xs = plot.log_x && xr.hi - xr.lo >= 2 ? 1.0 : TickStep(xr.hi - xr.lo);
   const double ys = plot.log_y && yr.hi - yr.lo >= 2 ? 1.0 : TickStep(yr.hi - yr.lo);
   for (double x = std::ceil(xr.lo / xs) * xs; plot.axes && x <= xr.hi; x += xs) {
     absl::StrAppendFormat(&s,
                           "<line x1=\"%.1f\" y1=\"%.0f\" x2=\"%.1f\" y2=\"%.0f\" stroke=\"#ddd\"/>"
                           "<text x=\"%.1f\" y=\"%.0f\" text-anchor=\"middle\">%s</text>\n",
-                          gx(x), kTop, gx(x), kTop + ph, gx(x), kTop + ph + 16,
-                          label(x, plot.log_x, xs));
+                          c.gx(x), kTop, c.gx(x), kTop + ph, c.gx(x), kTop + ph + 16,
+                          TickLabel(x, plot.log_x, xs));
   }
   for (double y = std::ceil(yr.lo / ys) * ys; plot.axes && y <= yr.hi; y += ys) {
     absl::StrAppendFormat(&s,
                           "<line x1=\"%.0f\" y1=\"%.1f\" x2=\"%.0f\" y2=\"%.1f\" stroke=\"#ddd\"/>"
                           "<text x=\"%.0f\" y=\"%.1f\" text-anchor=\"end\">%s</text>\n",
-                          kLeft, gy(y), kLeft + pw, gy(y), kLeft - 6, gy(y) + 4,
-                          label(y, plot.log_y, ys));
+                          kLeft, c.gy(y), kLeft + pw, c.gy(y), kLeft - 6, c.gy(y) + 4,
+                          TickLabel(y, plot.log_y, ys));
   }
   if (plot.axes && !plot.log_y && yr.lo < 0 && yr.hi > 0) {
     absl::StrAppendFormat(
         &s, "<line x1=\"%.0f\" y1=\"%.1f\" x2=\"%.0f\" y2=\"%.1f\" stroke=\"#888\"/>\n", kLeft,
-        gy(0), kLeft + pw, gy(0));
+        c.gy(0), kLeft + pw, c.gy(0));
   }
   if (plot.axes) {
     absl::StrAppendFormat(&s,
@@ -351,7 +361,7 @@ std::string RenderSvg(const Plot& plot) {
                           kW / 2, kH - 12, Escape(plot.caption));
   }
   for (const RefLine& r : plot.ref_lines) {
-    const double y = py(r.y);
+    const double y = c.py(r.y);
     if (!std::isfinite(y)) continue;
     absl::StrAppendFormat(&s,
                           "<line x1=\"%.0f\" y1=\"%.1f\" x2=\"%.0f\" y2=\"%.1f\" stroke=\"%s\" "
@@ -360,51 +370,225 @@ std::string RenderSvg(const Plot& plot) {
                           kLeft, y, kLeft + pw, y, r.colour, kLeft + 4, y - 3, r.colour,
                           Escape(r.label));
   }
+}
+
+// A series as a line; a point that cannot be drawn (NaN, or <= 0 on a log axis) breaks it.
+void DrawLine(const Canvas& c, const PlotSeries& ser, std::string* s) {
+  std::string pts;
+  auto flush = [&] {
+    if (!pts.empty())
+      absl::StrAppendFormat(
+          s, "<polyline points=\"%s\" fill=\"none\" stroke=\"%s\" stroke-width=\"1.5\"%s/>\n", pts,
+          ser.colour, ser.dashed ? " stroke-dasharray=\"6 4\"" : "");
+    pts.clear();
+  };
+  for (size_t i = 0; i < ser.x.size() && i < ser.y.size(); ++i) {
+    if (std::isfinite(c.px(ser.x[i])) && std::isfinite(c.py(ser.y[i])))
+      absl::StrAppendFormat(&pts, "%.1f,%.1f ", c.px(ser.x[i]), c.py(ser.y[i]));
+    else
+      flush();
+  }
+  flush();
+}
+
+// A series as points, each with its label if it has one.
+void DrawPoints(const Canvas& c, const PlotSeries& ser, std::string* s) {
+  for (size_t i = 0; ser.colour != "none" && i < ser.x.size() && i < ser.y.size(); ++i) {
+    if (!std::isfinite(c.px(ser.x[i])) || !std::isfinite(c.py(ser.y[i]))) continue;
+    absl::StrAppendFormat(
+        s, "<circle cx=\"%.1f\" cy=\"%.1f\" r=\"%s\" fill=\"%s\" stroke=\"%s\"/>\n", c.px(ser.x[i]),
+        c.py(ser.y[i]), ser.hollow ? "4.5" : "3", ser.hollow ? "none" : ser.colour, ser.colour);
+    if (i < ser.point_labels.size() && !ser.point_labels[i].empty()) {
+      absl::StrAppendFormat(s,
+                            "<text x=\"%.1f\" y=\"%.1f\" font-size=\"9\" fill=\"#333\">%s</text>\n",
+                            c.px(ser.x[i]) + 4, c.py(ser.y[i]) - 4, Escape(ser.point_labels[i]));
+    }
+  }
+}
+
+}  // namespace
+
+std::string RenderSvg(const Plot& plot) {
+  const Canvas c(plot);
+  std::string s = absl::StrFormat(
+      "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" "
+      "viewBox=\"0 0 %.0f %.0f\" font-family=\"sans-serif\" font-size=\"12\">\n"
+      "<rect width=\"100%%\" height=\"100%%\" fill=\"white\"/>\n"
+      "<text x=\"%.0f\" y=\"22\" font-size=\"15\" text-anchor=\"middle\">%s</text>\n",
+      kW, kH, kW, kH, kW / 2, Escape(plot.title));
+  DrawFrame(c, &s);
   // Series and legend.
   double legend_y = kTop + 14;
   for (const PlotSeries& ser : plot.series) {
-    if (ser.line) {
-      // A point that cannot be drawn (NaN, or <= 0 on a log axis) breaks the line.
-      std::string pts;
-      auto flush = [&] {
-        if (!pts.empty())
-          absl::StrAppendFormat(
-              &s, "<polyline points=\"%s\" fill=\"none\" stroke=\"%s\" stroke-width=\"1.5\"%s/>\n",
-              pts, ser.colour, ser.dashed ? " stroke-dasharray=\"6 4\"" : "");
-        pts.clear();
-      };
-      for (size_t i = 0; i < ser.x.size() && i < ser.y.size(); ++i) {
-        if (std::isfinite(px(ser.x[i])) && std::isfinite(py(ser.y[i])))
-          absl::StrAppendFormat(&pts, "%.1f,%.1f ", px(ser.x[i]), py(ser.y[i]));
-        else
-          flush();
-      }
-      flush();
-    } else {
-      for (size_t i = 0; ser.colour != "none" && i < ser.x.size() && i < ser.y.size(); ++i) {
-        if (!std::isfinite(px(ser.x[i])) || !std::isfinite(py(ser.y[i]))) continue;
-        absl::StrAppendFormat(
-            &s, "<circle cx=\"%.1f\" cy=\"%.1f\" r=\"%s\" fill=\"%s\" stroke=\"%s\"/>\n",
-            px(ser.x[i]), py(ser.y[i]), ser.hollow ? "4.5" : "3", ser.hollow ? "none" : ser.colour,
-            ser.colour);
-        if (i < ser.point_labels.size() && !ser.point_labels[i].empty()) {
-          absl::StrAppendFormat(
-              &s, "<text x=\"%.1f\" y=\"%.1f\" font-size=\"9\" fill=\"#333\">%s</text>\n",
-              px(ser.x[i]) + 4, py(ser.y[i]) - 4, Escape(ser.point_labels[i]));
-        }
-      }
-    }
+    if (ser.line)
+      DrawLine(c, ser, &s);
+    else
+      DrawPoints(c, ser, &s);
     if (ser.label.empty()) continue;
     absl::StrAppendFormat(&s,
                           "<rect x=\"%.0f\" y=\"%.0f\" width=\"10\" height=\"10\" fill=\"%s\"/>"
                           "<text x=\"%.0f\" y=\"%.0f\">%s</text>\n",
-                          kLeft + pw - 230, legend_y - 9, ser.colour, kLeft + pw - 214, legend_y,
-                          Escape(ser.label));
+                          kLeft + c.pw - 230, legend_y - 9, ser.colour, kLeft + c.pw - 214,
+                          legend_y, Escape(ser.label));
     legend_y += 16;
   }
   s += "</svg>\n";
   return s;
 }
+
+namespace {
+
+// Per-pose residuals, before and after the effects.
+absl::Status WritePosePlots(const json& report, const json& diag, const json& rows,
+                            const PlotWriter& write) {
+  Plot accel{"Accelerometer |a| - g per pose", "pose number", "|a| - g [mg]", {}};
+  Plot gyro{"Gyroscope static rate per pose", "pose number", "|rate| [deg/s]", {}};
+  accel.ref_lines = AccelRefLines(report);
+  accel.caption = "Good: the filled points (after effects) inside the noise floor lines";
+  if (const double floor = Num(Get(diag, "gyro_noise_floor")); floor > 0) {
+    gyro.ref_lines.push_back(
+        {floor * kRadToDeg, absl::StrFormat("noise floor %.2g deg/s", floor * kRadToDeg)});
+  }
+  gyro.caption = "Good: every pose near the noise floor line (at rest, bias removed)";
+  PlotSeries ab{"before effects", {}, {}, "#d62728", false, true},
+      aa{"after effects", {}, {}, "#1f77b4"};
+  PlotSeries gb = ab, ga = aa;
+  auto norm = [](const json& v) {
+    double s = 0;
+    for (const json& c : v) s += Num(c) * Num(c);
+    return std::sqrt(s) * kRadToDeg;
+  };
+  for (size_t i = 0; i < rows.size(); ++i) {
+    const json& r = rows[i];
+    const double index = Num(Get(r, "index"));
+    const std::string number = std::isfinite(index) ? absl::StrFormat("%.0f", index) : "";
+    aa.point_labels.push_back(number), ga.point_labels.push_back(number);
+    ab.x.push_back(index), ab.y.push_back(Num(Get(r, "accel_before")) / kMg);
+    aa.x.push_back(index), aa.y.push_back(Num(Get(r, "accel_after")) / kMg);
+    gb.x.push_back(index), gb.y.push_back(norm(Get(r, "gyro_before")));
+    ga.x.push_back(index), ga.y.push_back(norm(Get(r, "gyro_after")));
+  }
+  accel.series = {aa, ab};  // hollow markers drawn last, on top
+  gyro.series = {ga, gb};
+  if (absl::Status s = write("residual_accel_per_pose.svg", accel); !s.ok()) return s;
+  return write("residual_gyro_per_pose.svg", gyro);
+}
+
+// Effect k's plot file: `*` as x, `^` as p, `|gz|` as absgz.
+std::string EffectPlotFile(size_t k, const std::string& sensor, const std::string& axis,
+                           const std::string& name) {
+  std::string safe;
+  bool open_bar = false;
+  for (const char ch : name) {
+    if (ch == '|') {
+      if (!open_bar) safe += "abs";
+      open_bar = !open_bar;
+      continue;
+    }
+    safe += ch == '*' ? 'x' : ch == '^' ? 'p' : ch;
+  }
+  return absl::StrFormat("effect_%d_%s_%s_%s.svg", static_cast<int>(k) + 1, sensor, axis, safe);
+}
+
+// A rate term does nothing at rest: its figure is the moves'. Each move's gravity-direction
+// error held out by move, without and with the rate terms found.
+Plot RateEffectPlot(const json& diag, const std::string& sensor, const std::string& axis,
+                    const std::string& name) {
+  const json ms = Get(diag, "move_search");
+  const json hb = Get(ms, "heldout_before_per_move"), ha = Get(ms, "heldout_after_per_move");
+  PlotSeries mb{"without the rate terms", {}, {}, "#d62728", false, true},
+      ma{"with them", {}, {}, "#1f77b4"};
+  for (size_t i = 0; hb.is_array() && ha.is_array() && i < hb.size() && i < ha.size(); ++i) {
+    mb.x.push_back(static_cast<double>(i + 1)), mb.y.push_back(Num(hb[i]) * kRadToDeg);
+    ma.x.push_back(static_cast<double>(i + 1)), ma.y.push_back(Num(ha[i]) * kRadToDeg);
+  }
+  Plot p{absl::StrFormat("%s %s ~ %s (on the moves)", sensor, axis, name),
+         "move number",
+         "gravity-direction error after the move, held out [deg]",
+         {ma, mb}};
+  if (const double floor = Num(Get(ms, "noise_floor")); floor > 0)
+    p.ref_lines.push_back(
+        {floor * kRadToDeg, absl::StrFormat("noise %.2g deg", floor * kRadToDeg)});
+  p.caption = "Good: the filled points (with the rate terms) down near the noise line";
+  return p;
+}
+
+// A static effect's partial residual against its regressor, with and without it.
+Plot PartialResidualPlot(const json& e, const json& rows, const core::Regressor& reg,
+                         const std::string& sensor, const std::string& axis, int ax,
+                         const std::string& name) {
+  const bool is_accel = sensor == "accel";
+  const double c = Num(Get(e, "coefficient"));
+  const bool applied = !Get(e, "applied").is_boolean() || Get(e, "applied").get<bool>();
+  const double unit = is_accel ? kMg : 1.0 / kRadToDeg;  // plotted in mg or deg/s
+  PlotSeries before{"without this effect", {}, {}, "#d62728", false, true},
+      after{"with it", {}, {}, "#1f77b4"}, line{"fitted term", {}, {}, "#2ca02c", true};
+  for (const json& r : rows) {
+    core::SignalArray sig{};
+    const json s = Get(r, "signals");
+    for (int q = 0; q < core::kNumSignals; ++q)
+      sig[static_cast<size_t>(q)] =
+          Num(Get(s, std::string(core::kSignalNames[static_cast<size_t>(q)]).c_str()));
+    double x = reg.Evaluate(sig);
+    double res = 0;
+    if (is_accel) {
+      const double n = std::hypot(sig[2], std::hypot(sig[3], sig[4]));
+      x *= sig[static_cast<size_t>(2 + ax)] / n;  // how the term reaches |a| - g
+      res = Num(Get(r, "accel_all"));
+    } else {
+      res = Num(Get(r, "gyro_all")[static_cast<size_t>(ax)]);
+    }
+    // `all`: the fit with every effect found, the one this coefficient comes from.
+    before.x.push_back(x), before.y.push_back((res + c * x) / unit);
+    after.x.push_back(x), after.y.push_back(res / unit);
+  }
+  if (!before.x.empty()) {
+    const auto [lo, hi] = std::minmax_element(before.x.begin(), before.x.end());
+    line.x = {*lo, *hi};
+    line.y = {c * *lo / unit, c * *hi / unit};
+  }
+  const std::string unit_x = RegressorUnit(reg);
+  Plot p{absl::StrFormat("%s %s ~ %s%s", sensor, axis, name,
+                         applied ? "" : " (reported, not applied)"),
+         is_accel ? absl::StrFormat("%s x gravity direction on %s [%s]", name, axis, unit_x)
+                  : absl::StrFormat("%s [%s]", name, unit_x),
+         is_accel ? "|a| - g [mg]" : absl::StrFormat("rate %s [deg/s]", axis),
+         {after, before, line}};
+  p.caption =
+      "Good: the filled points (with the effect) flat around 0; the hollow ones on the "
+      "fitted line";
+  return p;
+}
+
+// One plot per effect.
+absl::Status WriteEffectPlots(const json& report, const json& diag, const json& rows,
+                              const PlotWriter& write) {
+  const json effects = Get(report, "effects");
+  for (size_t k = 0; effects.is_array() && k < effects.size(); ++k) {
+    const json& e = effects[k];
+    const std::string field = absl::StrFormat("effects[%d]", static_cast<int>(k));
+    const std::string sensor =
+        Get(e, "sensor").is_string() ? Get(e, "sensor").get<std::string>() : "";
+    const std::string axis = Get(e, "axis").is_string() ? Get(e, "axis").get<std::string>() : "";
+    const std::string name =
+        Get(e, "regressor").is_string() ? Get(e, "regressor").get<std::string>() : "";
+    const std::optional<core::Regressor> reg = core::ParseRegressor(name);
+    const int ax = axis == "x" ? 0 : axis == "y" ? 1 : axis == "z" ? 2 : -1;
+    if (!reg || ax < 0 || (sensor != "accel" && sensor != "gyro")) {
+      return absl::InvalidArgumentError(field + ": sensor, axis or regressor malformed");
+    }
+    bool rate = false;
+    for (int f = 0; f < reg->num_factors; ++f)
+      rate |= reg->factors[static_cast<size_t>(f)] >= static_cast<int>(core::Signal::kGx);
+    const Plot p = sensor == "gyro" && rate
+                       ? RateEffectPlot(diag, sensor, axis, name)
+                       : PartialResidualPlot(e, rows, *reg, sensor, axis, ax, name);
+    if (absl::Status s = write(EffectPlotFile(k, sensor, axis, name), p); !s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
 
 absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
                                                           const std::string& dir) {
@@ -433,132 +617,8 @@ absl::StatusOr<std::vector<std::string>> WriteReportPlots(const json& report,
   if (!rows.is_array()) {
     return absl::InvalidArgumentError("effect_diagnostics.poses: expected an array");
   }
-
-  // Per-pose residuals, before and after the effects.
-  Plot accel{"Accelerometer |a| - g per pose", "pose number", "|a| - g [mg]", {}};
-  Plot gyro{"Gyroscope static rate per pose", "pose number", "|rate| [deg/s]", {}};
-  accel.ref_lines = AccelRefLines(report);
-  accel.caption = "Good: the filled points (after effects) inside the noise floor lines";
-  if (const double floor = Num(Get(diag, "gyro_noise_floor")); floor > 0) {
-    gyro.ref_lines.push_back(
-        {floor * kRadToDeg, absl::StrFormat("noise floor %.2g deg/s", floor * kRadToDeg)});
-  }
-  gyro.caption = "Good: every pose near the noise floor line (at rest, bias removed)";
-  PlotSeries ab{"before effects", {}, {}, "#d62728", false, true},
-      aa{"after effects", {}, {}, "#1f77b4"};
-  PlotSeries gb = ab, ga = aa;
-  for (size_t i = 0; i < rows.size(); ++i) {
-    const json& r = rows[i];
-    const double index = Num(Get(r, "index"));
-    const std::string number = std::isfinite(index) ? absl::StrFormat("%.0f", index) : "";
-    aa.point_labels.push_back(number), ga.point_labels.push_back(number);
-    ab.x.push_back(index), ab.y.push_back(Num(Get(r, "accel_before")) / kMg);
-    aa.x.push_back(index), aa.y.push_back(Num(Get(r, "accel_after")) / kMg);
-    auto norm = [](const json& v) {
-      double s = 0;
-      for (const json& c : v) s += Num(c) * Num(c);
-      return std::sqrt(s) * kRadToDeg;
-    };
-    gb.x.push_back(index), gb.y.push_back(norm(Get(r, "gyro_before")));
-    ga.x.push_back(index), ga.y.push_back(norm(Get(r, "gyro_after")));
-  }
-  accel.series = {aa, ab};  // hollow markers drawn last, on top
-  gyro.series = {ga, gb};
-  if (absl::Status s = write("residual_accel_per_pose.svg", accel); !s.ok()) return s;
-  if (absl::Status s = write("residual_gyro_per_pose.svg", gyro); !s.ok()) return s;
-
-  // One plot per effect: its partial residual against its regressor.
-  const json effects = Get(report, "effects");
-  for (size_t k = 0; effects.is_array() && k < effects.size(); ++k) {
-    const json& e = effects[k];
-    const std::string field = absl::StrFormat("effects[%d]", static_cast<int>(k));
-    const std::string sensor =
-        Get(e, "sensor").is_string() ? Get(e, "sensor").get<std::string>() : "";
-    const std::string axis = Get(e, "axis").is_string() ? Get(e, "axis").get<std::string>() : "";
-    const std::string name =
-        Get(e, "regressor").is_string() ? Get(e, "regressor").get<std::string>() : "";
-    const std::optional<core::Regressor> reg = core::ParseRegressor(name);
-    const int ax = axis == "x" ? 0 : axis == "y" ? 1 : axis == "z" ? 2 : -1;
-    if (!reg || ax < 0 || (sensor != "accel" && sensor != "gyro")) {
-      return absl::InvalidArgumentError(field + ": sensor, axis or regressor malformed");
-    }
-    const bool is_accel = sensor == "accel";
-    std::string safe;  // the file name: `*` as x, `^` as p, `|gz|` as absgz
-    bool open_bar = false;
-    for (const char ch : name) {
-      if (ch == '|') {
-        if (!open_bar) safe += "abs";
-        open_bar = !open_bar;
-        continue;
-      }
-      safe += ch == '*' ? 'x' : ch == '^' ? 'p' : ch;
-    }
-    const std::string file =
-        absl::StrFormat("effect_%d_%s_%s_%s.svg", static_cast<int>(k) + 1, sensor, axis, safe);
-    bool rate = false;
-    for (int f = 0; f < reg->num_factors; ++f)
-      rate |= reg->factors[static_cast<size_t>(f)] >= static_cast<int>(core::Signal::kGx);
-    if (!is_accel && rate) {
-      // A rate term does nothing at rest: its figure is the moves'. Each move's gravity-
-      // direction error held out by move, without and with the rate terms found.
-      const json ms = Get(diag, "move_search");
-      const json hb = Get(ms, "heldout_before_per_move"), ha = Get(ms, "heldout_after_per_move");
-      PlotSeries mb{"without the rate terms", {}, {}, "#d62728", false, true},
-          ma{"with them", {}, {}, "#1f77b4"};
-      for (size_t i = 0; hb.is_array() && ha.is_array() && i < hb.size() && i < ha.size(); ++i) {
-        mb.x.push_back(static_cast<double>(i + 1)), mb.y.push_back(Num(hb[i]) * kRadToDeg);
-        ma.x.push_back(static_cast<double>(i + 1)), ma.y.push_back(Num(ha[i]) * kRadToDeg);
-      }
-      Plot p{absl::StrFormat("%s %s ~ %s (on the moves)", sensor, axis, name), "move number",
-             "gravity-direction error after the move, held out [deg]", {ma, mb}};
-      if (const double floor = Num(Get(ms, "noise_floor")); floor > 0)
-        p.ref_lines.push_back(
-            {floor * kRadToDeg, absl::StrFormat("noise %.2g deg", floor * kRadToDeg)});
-      p.caption = "Good: the filled points (with the rate terms) down near the noise line";
-      if (absl::Status s = write(file, p); !s.ok()) return s;
-      continue;
-    }
-    const double c = Num(Get(e, "coefficient"));
-    const bool applied = !Get(e, "applied").is_boolean() || Get(e, "applied").get<bool>();
-    const double unit = is_accel ? kMg : 1.0 / kRadToDeg;  // plotted in mg or deg/s
-    PlotSeries before{"without this effect", {}, {}, "#d62728", false, true},
-        after{"with it", {}, {}, "#1f77b4"}, line{"fitted term", {}, {}, "#2ca02c", true};
-    for (const json& r : rows) {
-      core::SignalArray sig{};
-      const json s = Get(r, "signals");
-      for (int q = 0; q < core::kNumSignals; ++q)
-        sig[static_cast<size_t>(q)] =
-            Num(Get(s, std::string(core::kSignalNames[static_cast<size_t>(q)]).c_str()));
-      double x = reg->Evaluate(sig);
-      double res = 0;
-      if (is_accel) {
-        const double n = std::hypot(sig[2], std::hypot(sig[3], sig[4]));
-        x *= sig[static_cast<size_t>(2 + ax)] / n;  // how the term reaches |a| - g
-        res = Num(Get(r, "accel_all"));
-      } else {
-        res = Num(Get(r, "gyro_all")[static_cast<size_t>(ax)]);
-      }
-      // `all`: the fit with every effect found, the one this coefficient comes from.
-      before.x.push_back(x), before.y.push_back((res + c * x) / unit);
-      after.x.push_back(x), after.y.push_back(res / unit);
-    }
-    if (!before.x.empty()) {
-      const auto [lo, hi] = std::minmax_element(before.x.begin(), before.x.end());
-      line.x = {*lo, *hi};
-      line.y = {c * *lo / unit, c * *hi / unit};
-    }
-    const std::string unit_x = RegressorUnit(*reg);
-    Plot p{absl::StrFormat("%s %s ~ %s%s", sensor, axis, name,
-                           applied ? "" : " (reported, not applied)"),
-           is_accel ? absl::StrFormat("%s x gravity direction on %s [%s]", name, axis, unit_x)
-                    : absl::StrFormat("%s [%s]", name, unit_x),
-           is_accel ? "|a| - g [mg]" : absl::StrFormat("rate %s [deg/s]", axis),
-           {after, before, line}};
-    p.caption =
-        "Good: the filled points (with the effect) flat around 0; the hollow ones on the "
-        "fitted line";
-    if (absl::Status s = write(file, p); !s.ok()) return s;
-  }
+  if (absl::Status s = WritePosePlots(report, diag, rows, write); !s.ok()) return s;
+  if (absl::Status s = WriteEffectPlots(report, diag, rows, write); !s.ok()) return s;
   return written;
 }
 
