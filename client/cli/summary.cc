@@ -69,10 +69,12 @@ std::string FormatAllanFigures(const std::optional<core::NoiseFigures>& noise, b
   return s;
 }
 
-std::string FormatSummary(const core::CalibrationReport& r) {
-  const double g = r.gravity_m_s2;
+namespace {
+
+// What the capture held: the device, the protocol, the noise, the poses and the pairs.
+void AppendCapture(const core::CalibrationReport& r, std::string* out) {
+  std::string& s = *out;
   const core::ParamSet& p = r.params;
-  std::string s;
   int used = 0;
   for (const auto& pose : r.poses) used += pose.interval.used;
   absl::StrAppendFormat(&s, "device      %s\n", r.device.empty() ? "(unnamed)" : r.device);
@@ -105,13 +107,13 @@ std::string FormatSummary(const core::CalibrationReport& r) {
                           pair.pose_b, pair.face, pair.ok ? "ok" : "REJECTED", turn, pair.tilt_deg,
                           pair.reason);
   }
-  if (r.verdict == core::Verdict::kRefused) {
-    absl::StrAppendFormat(&s, "verdict     refused   (%.0f ms)\n", r.total_ms);
-    for (const auto& reason : r.verdict_reasons)
-      absl::StrAppendFormat(&s, "reason      %s\n", reason);
-    for (const auto& w : r.warnings) absl::StrAppendFormat(&s, "warning     %s\n", w);
-    return s;
-  }
+}
+
+// The fit: each stage, the residuals, the turns and the moves.
+void AppendFit(const core::CalibrationReport& r, std::string* out) {
+  std::string& s = *out;
+  const double g = r.gravity_m_s2;
+  const core::ParamSet& p = r.params;
   // Each stage's unweighted |a| - g RMS over the used poses; bsas and lm minimise the cost
   // weighted by each pose's noise (and the face references' priors), so theirs may sit above ls.
   s += "stages      (|a|-g RMS, unweighted; ls fits it, bsas and lm the noise-weighted cost)\n";
@@ -162,6 +164,12 @@ std::string FormatSummary(const core::CalibrationReport& r) {
       s += "            the gyroscope fit's own: none (only its bias was calibrated)\n";
     }
   }
+}
+
+// The parameters, in the inverse model's units.
+void AppendParameters(const core::CalibrationReport& r, std::string* out) {
+  std::string& s = *out;
+  const core::ParamSet& p = r.params;
   absl::StrAppendFormat(&s, "parameters  (inverse model raw -> SI; see `model` in the JSON)\n");
   absl::StrAppendFormat(&s, "  accel bias     %s %s\n", Vec(p.accel.bias, 6),
                         core::AccelUnitName(p.accel_unit));
@@ -179,6 +187,13 @@ std::string FormatSummary(const core::CalibrationReport& r) {
   } else {
     s += "  gyro           none (accelerometer-only capture)\n";
   }
+}
+
+// The effects found, with their evidence, and the search's notes.
+void AppendEffects(const core::CalibrationReport& r, std::string* out) {
+  std::string& s = *out;
+  const double g = r.gravity_m_s2;
+  const core::ParamSet& p = r.params;
   const core::EffectDiagnostics& d = r.effect_diagnostics;
   if (d.ran) {
     absl::StrAppendFormat(
@@ -215,6 +230,19 @@ std::string FormatSummary(const core::CalibrationReport& r) {
         absl::StrAppendFormat(&s, " %s %s", f.face, Vec(f.residual_m_s2 * (1e3 / g), 2));
       s += "\n";
     }
+  }
+}
+
+}  // namespace
+
+std::string FormatSummary(const core::CalibrationReport& r) {
+  std::string s;
+  AppendCapture(r, &s);
+  // A refused capture has no fit and no parameters: the verdict and its reasons say why.
+  if (r.verdict != core::Verdict::kRefused) {
+    AppendFit(r, &s);
+    AppendParameters(r, &s);
+    AppendEffects(r, &s);
   }
   absl::StrAppendFormat(&s, "verdict     %s   (%.0f ms)\n", core::VerdictName(r.verdict),
                         r.total_ms);
