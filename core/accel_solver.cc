@@ -189,6 +189,29 @@ double Rms(const std::vector<double>& v) {
   return std::sqrt(s / static_cast<double>(v.size()));
 }
 
+namespace {
+
+// The poses' means centred and scaled, v = scale (u - centre), so that raw counts (~32768) and
+// m/s^2 condition the ellipsoid fits the same.
+struct Normalised {
+  Eigen::Vector3d centre;
+  double scale;
+};
+
+absl::StatusOr<Normalised> Normalise(const std::vector<AccelPose>& poses) {
+  const auto n = static_cast<double>(poses.size());
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (const auto& p : poses) c += p.mean;
+  c /= n;
+  double spread = 0;
+  for (const auto& p : poses) spread += (p.mean - c).squaredNorm();
+  spread = std::sqrt(spread / n);
+  if (!(spread > 0)) return absl::FailedPreconditionError("all static poses read the same value");
+  return Normalised{c, 1.0 / spread};
+}
+
+}  // namespace
+
 absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses, double gravity_m_s2) {
   const size_t n = poses.size();
   if (n < 9) {
@@ -197,15 +220,10 @@ absl::StatusOr<AccelParams> FitEllipsoid(const std::vector<AccelPose>& poses, do
         "over the sphere recommended)",
         static_cast<int>(n)));
   }
-  // Centre and normalise the means so raw counts (~32768) and m/s^2 condition the same.
-  Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  for (const auto& p : poses) c += p.mean;
-  c /= static_cast<double>(n);
-  double spread = 0;
-  for (const auto& p : poses) spread += (p.mean - c).squaredNorm();
-  spread = std::sqrt(spread / static_cast<double>(n));
-  if (!(spread > 0)) return absl::FailedPreconditionError("all static poses read the same value");
-  const double k = 1.0 / spread;
+  absl::StatusOr<Normalised> norm = Normalise(poses);
+  if (!norm.ok()) return norm.status();
+  const Eigen::Vector3d& c = norm->centre;
+  const double k = norm->scale;
   // Quadric v^T A v + beta^T v = 1 in the normalised coordinates v = k (u - c).
   Eigen::MatrixXd x(static_cast<Eigen::Index>(n), 9);
   for (size_t i = 0; i < n; ++i) {
@@ -241,14 +259,10 @@ absl::StatusOr<AccelParams> FitAxisEllipsoid(const std::vector<AccelPose>& poses
         "every axis pointing up and down)",
         static_cast<int>(n)));
   }
-  Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  for (const auto& p : poses) c += p.mean;
-  c /= static_cast<double>(n);
-  double spread = 0;
-  for (const auto& p : poses) spread += (p.mean - c).squaredNorm();
-  spread = std::sqrt(spread / static_cast<double>(n));
-  if (!(spread > 0)) return absl::FailedPreconditionError("all static poses read the same value");
-  const double k = 1.0 / spread;
+  absl::StatusOr<Normalised> norm = Normalise(poses);
+  if (!norm.ok()) return norm.status();
+  const Eigen::Vector3d& c = norm->centre;
+  const double k = norm->scale;
   // a_j v_j^2 + beta_j v_j = 1 in the normalised coordinates v = k (u - c).
   Eigen::MatrixXd x(static_cast<Eigen::Index>(n), 6);
   for (size_t i = 0; i < n; ++i) {
