@@ -9,6 +9,7 @@
 #include "absl/strings/match.h"
 #include "google/protobuf/descriptor.h"
 #include "imucal/v1/imucal.pb.h"
+#include "server/log.h"
 #include "util/str_util.h"
 
 namespace imucal::server {
@@ -434,6 +435,40 @@ absl::StatusOr<storage::Token> Authorizer::RevokeToken(int64_t id, std::string_v
                        absl::FormatTime(absl::RFC3339_sec, at, absl::UTCTimeZone())));
   }
   return revoked;
+}
+
+void Authorizer::TokenChanged(int64_t id) {
+  if (tokens_ == nullptr) return;
+  absl::StatusOr<storage::Token> token = tokens_->Get(id);
+  const bool deleted = absl::IsNotFound(token.status());
+  const bool revoked = deleted || (token.ok() && token->revoked());
+  {
+    std::unique_lock lock(cache_mu_);
+    // Noted before the entries go, as in RevokeToken: a lookup that read the row before the
+    // change cannot put the token back.
+    if (revoked) revoked_ids_.insert(id);
+    absl::erase_if(cache_, [id](const auto& kv) {
+      return kv.second.principal != nullptr && kv.second.principal->token_id == id;
+    });
+    if (token.ok() && !revoked) unknown_.clear();  // a new token: its secret is known now
+  }
+  if (!token.ok() && !deleted) {
+    // Unreadable now: the entries are gone, so the next call with it reads the table again.
+    Log(LogLevel::kWarning, "token_recheck",
+        {{"token_id", id}, {"error", std::string(token.status().message())}});
+    return;
+  }
+  if (!revoked || !on_revoke_) return;
+  on_revoke_(id, deleted ? Cat("token ", id, " was deleted")
+                         : Cat("token ", id, " was revoked at ",
+                               absl::FormatTime(absl::RFC3339_sec, *token->revoked_at,
+                                                absl::UTCTimeZone())));
+}
+
+void Authorizer::ForgetCachedTokens() {
+  std::unique_lock lock(cache_mu_);
+  cache_.clear();
+  unknown_.clear();
 }
 
 int64_t Authorizer::denial_rows_written() const {

@@ -18,8 +18,11 @@
 // token table is read only on a miss. Revoking through the server drops the token's entries at
 // once, remembers the id (a lookup that read the table just before the revocation cannot put
 // it back), and ends the calls still open with it (the revocation listener: the server's open
-// streams and watches); an entry also expires after `cache_ttl`, so a change made to the file
-// by another process is seen within that time (streams check their token at every batch).
+// streams and watches). A change made elsewhere (another server sharing the database, a tool,
+// SQL typed by hand) reaches TokenChanged through the server's TokenWatch (server/
+// token_watch.h) within about a second, which does the same; an entry also expires after
+// `cache_ttl`, the bound if that watch could not read the database (streams check their token
+// at every batch).
 // Unknown secrets are remembered too (a bounded set), so a client retrying a bad token does
 // not read the table on every call.
 //
@@ -169,6 +172,12 @@ class Authorizer {
     on_revoke_ = std::move(listener);
   }
   absl::StatusOr<std::vector<storage::Token>> ListTokens(bool include_revoked);
+  // Token `id` was changed by someone else (TokenWatch): it is read again and, revoked or
+  // deleted, handled as RevokeToken handles it (cache, revocation listener); otherwise its
+  // cached entries are dropped, to be read again. Reads the table: not on an RPC thread.
+  void TokenChanged(int64_t id);
+  // Drops every cached token (changes may have been missed): the next call reads the table.
+  void ForgetCachedTokens();
 
   // Audit rows written for denials so far, and denials suppressed (coalesced) so far.
   int64_t denial_rows_written() const;

@@ -161,10 +161,11 @@ std::vector<ConfigOption> BuildOptions() {
                    "address to serve Prometheus metrics on, http://HOST:PORT/metrics; port 0 "
                    "picks a free one (default: none)",
                    [](DaemonConfig& c) -> std::string& { return c.server.metrics_listen; }),
-      StringOption("db", "IMUCALD_DB", "PATH",
-                   "SQLite database file, or a postgresql:// URL shared by several servers; created "
-                   "(a file) and migrated on start (default imucal.db)",
-                   [](DaemonConfig& c) -> std::string& { return c.server.db_path; }),
+      StringOption(
+          "db", "IMUCALD_DB", "PATH",
+          "SQLite database file, or a postgresql:// URL shared by several servers; created "
+          "(a file) and migrated on start (default imucal.db)",
+          [](DaemonConfig& c) -> std::string& { return c.server.db_path; }),
       ChoiceOption<storage::Durability>(
           "durability", "IMUCALD_DURABILITY", "full|normal",
           "full: fsync every commit, acknowledged data survives a power cut; normal: survives "
@@ -184,13 +185,19 @@ std::vector<ConfigOption> BuildOptions() {
                    "this server's name to others sharing its database, for the solves it claims "
                    "(default: host name/listen address)",
                    [](DaemonConfig& c) -> std::string& { return c.server.sessions.replica_id; }),
-      DurationOption("solve_lease", "IMUCALD_SOLVE_LEASE",
-                     "how long a solve's claim holds without renewal (renewed every third of "
-                     "it); a lapsed one is claimed and run again by a server sharing the "
-                     "database (default 30s)",
-                     [](DaemonConfig& c) -> absl::Duration& {
-                       return c.server.sessions.solve_lease;
-                     }),
+      DurationOption(
+          "solve_lease", "IMUCALD_SOLVE_LEASE",
+          "how long a solve's claim holds without renewal (renewed every third of "
+          "it); a lapsed one is claimed and run again by a server sharing the "
+          "database (default 30s)",
+          [](DaemonConfig& c) -> absl::Duration& { return c.server.sessions.solve_lease; }),
+      DurationOption(
+          "stream_lease", "IMUCALD_STREAM_LEASE",
+          "how long a device's claim to its one sample stream holds without renewal "
+          "(renewed every third of it); a server that dies holding one keeps the "
+          "device from streaming through the others for up to this long "
+          "(default 10s)",
+          [](DaemonConfig& c) -> absl::Duration& { return c.server.sessions.stream_lease; }),
       IntegerOption<int>(
           "max_solve_attempts", "IMUCALD_MAX_SOLVE_ATTEMPTS",
           "servers that may start one solve: one whose server stops (killed, crashed) is run "
@@ -202,9 +209,7 @@ std::vector<ConfigOption> BuildOptions() {
                      "others' promotes and rollbacks (the bound on a stale fetch from this "
                      "server); 0s: never, when it is alone on its database (default 250ms). "
                      "PostgreSQL: not used (changes are heard as they commit)",
-                     [](DaemonConfig& c) -> absl::Duration& {
-                       return c.server.active_cache_sync;
-                     }),
+                     [](DaemonConfig& c) -> absl::Duration& { return c.server.active_cache_sync; }),
       DurationOption("drain_deadline", "IMUCALD_DRAIN_DEADLINE",
                      "on SIGTERM, how long in-flight calls may run before they are cancelled "
                      "(default 30s); queued solves then finish",

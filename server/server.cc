@@ -23,6 +23,9 @@ namespace imucal::server {
 namespace {
 
 constexpr char kStartupActor[] = "imucald";
+// How often a server on SQLite reads the token change log (TokenWatch): the bound on how long a
+// token revoked by another process still works here.
+constexpr absl::Duration kTokenPoll = absl::Milliseconds(250);
 
 // Who this server is to the others sharing its database: the host and the listen address.
 std::string DefaultReplicaId(const std::string& listen) {
@@ -141,6 +144,8 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   if (sessions.replica_id.empty()) sessions.replica_id = DefaultReplicaId(options.listen);
   if (sessions.solve_lease <= absl::ZeroDuration())
     return absl::InvalidArgumentError("solve_lease: must be positive");
+  if (sessions.stream_lease < absl::Milliseconds(30))
+    return absl::InvalidArgumentError("stream_lease: must be at least 30ms");
   if (sessions.max_solve_attempts < 1)
     return absl::InvalidArgumentError("max_solve_attempts: must be at least 1");
 
@@ -189,6 +194,20 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->sessions_ =
       std::make_unique<SessionServiceImpl>(s->store_.get(), sessions, s->auth_.get());
   if (s->metrics_ != nullptr) s->sessions_->SetMetrics(s->metrics_.get());
+  // A revoked token's open streams and watches end at once, not at their next message.
+  s->auth_->SetRevocationListener(
+      [sessions = s->sessions_.get()](int64_t id, const std::string& why) {
+        sessions->RevokeStreams(id, why);
+      });
+  // Tokens changed elsewhere (another server, a tool, SQL by hand): PostgreSQL's trigger tells
+  // the listener below; on SQLite the change log is read every kTokenPoll.
+  if (s->tokens_ != nullptr) {
+    const bool postgres = s->store_->dialect() == storage::Dialect::kPostgres;
+    absl::StatusOr<std::unique_ptr<TokenWatch>> watch = TokenWatch::Start(
+        s->auth_.get(), s->tokens_.get(), postgres ? absl::ZeroDuration() : kTokenPoll);
+    if (!watch.ok()) return watch.status();
+    s->token_watch_ = *std::move(watch);
+  }
   if (s->store_->dialect() == storage::Dialect::kPostgres) {
     // Other replicas' commits: promotes and rollbacks empty the fetch cache's entry; a batch or
     // a state change of a session that someone watches here is told to its watchers.
@@ -199,9 +218,14 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
     handlers.on_session = [live](std::string_view session_id) {
       live->SessionChangedElsewhere(session_id);
     };
-    handlers.on_gap = [c, live] {
+    TokenWatch* tokens = s->token_watch_.get();  // null in insecure mode
+    handlers.on_token = [tokens](int64_t id) {
+      if (tokens != nullptr) tokens->Changed(id);
+    };
+    handlers.on_gap = [c, live, tokens] {
       c->Clear();
       live->RefreshWatchedSessions();
+      if (tokens != nullptr) tokens->Gap();
       Log(LogLevel::kWarning, "change_notifications_gap",
           {{"note", "the database's change notifications were interrupted: fetch cache emptied, "
                     "watched sessions read again"}});
@@ -210,11 +234,6 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
         !listening.ok())
       return listening;
   }
-  // A revoked token's open streams and watches end at once, not at their next message.
-  s->auth_->SetRevocationListener(
-      [sessions = s->sessions_.get()](int64_t id, const std::string& why) {
-        sessions->RevokeStreams(id, why);
-      });
   s->parameters_ = std::make_unique<ParameterServiceImpl>(s->store_.get(), s->active_cache_.get(),
                                                           s->auth_.get());
 

@@ -18,6 +18,7 @@
 #include "server/metrics.h"
 #include "server/services.h"
 #include "server/tls.h"
+#include "server/token_watch.h"
 #include "storage/store.h"
 #include "storage/tokens.h"
 
@@ -108,6 +109,7 @@ class Server {
   std::string admin_token_written_;
   std::unique_ptr<DeviceServiceImpl> devices_;
   std::unique_ptr<SessionServiceImpl> sessions_;
+  std::unique_ptr<TokenWatch> token_watch_;  // after auth_ and sessions_: it calls both
   std::unique_ptr<ParameterServiceImpl> parameters_;
   std::unique_ptr<grpc::Server> server_;
   bool shut_down_ = false;

@@ -21,6 +21,7 @@
 #include "server/metrics.h"
 #include "server/session_hub.h"
 #include "server/solve_pool.h"
+#include "server/stream_claims.h"
 #include "server/stream_registry.h"
 #include "server/stream_slots.h"
 #include "server/validate.h"
@@ -117,6 +118,11 @@ struct SessionServiceOptions {
   // Concurrent StreamSamples per device (RESOURCE_EXHAUSTED beyond); a stream holds its slot
   // from its first batch until it ends (a dead peer is found by keepalive, see ServerOptions).
   int max_streams_per_device = 1;
+  // Across the servers sharing the database, a device's streams are on one server at a time:
+  // the first takes the device's claim in the database, renewed every stream_lease / 3 while
+  // its streams are open (server/stream_claims.h). A killed server's claim lapses after
+  // stream_lease; until then its device's robot is refused elsewhere (its uploader retries).
+  absl::Duration stream_lease = absl::Seconds(10);
   int max_watchers_per_session = 16;  // concurrent WatchSession streams (RESOURCE_EXHAUSTED)
 
   // Calls that hold a place without using it (server/stream_registry.h). A StreamSamples stream
@@ -150,6 +156,7 @@ struct StreamEnv {
   Authorizer* auth = nullptr;
   StreamRegistry* registry = nullptr;
   StreamSlots* device_slots = nullptr;   // StreamSamples per device
+  StreamClaims* device_claims = nullptr;  // StreamSamples per device across servers
   StreamSlots* watcher_slots = nullptr;  // WatchSession per session
   // Runs `work` on the session loaders, off the RPC threads; false when their queue is full.
   std::function<bool(std::function<void()> work)> defer;
@@ -284,6 +291,7 @@ class SessionServiceImpl final : public SessionServiceBase {
   const SessionServiceOptions options_;
   SessionHub hub_;
   StreamSlots stream_slots_;   // StreamSamples per device
+  StreamClaims stream_claims_;  // ...and across the servers sharing the database
   StreamSlots watcher_slots_;  // WatchSession per session
   std::mutex jobs_mu_;
   std::map<std::string, v1::SolveJob> jobs_;  // guarded by jobs_mu_

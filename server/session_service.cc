@@ -154,6 +154,7 @@ SessionServiceImpl::SessionServiceImpl(storage::Store* store, SessionServiceOpti
       auth_(auth),
       options_(options),
       hub_(store),
+      stream_claims_(store, options.replica_id, options.stream_lease),
       registry_(RegistryOptions(options)),
       pool_(options.solve_threads, options.solve_queue_limit),
       loaders_(kLoaderThreads, kLoaderQueueLimit) {
@@ -163,6 +164,7 @@ SessionServiceImpl::SessionServiceImpl(storage::Store* store, SessionServiceOpti
   env_.auth = auth_;
   env_.registry = &registry_;
   env_.device_slots = &stream_slots_;
+  env_.device_claims = &stream_claims_;
   env_.watcher_slots = &watcher_slots_;
   env_.defer = [this](std::function<void()> work) { return Defer(std::move(work)); };
   env_.session_proto = [this](const std::string& id) { return SessionProto(id); };
@@ -224,6 +226,19 @@ absl::StatusOr<v1::Session> SessionServiceImpl::SessionProtoWithoutJob(
   // batch, so reading old sessions would cost seconds and grow memory.
   std::shared_ptr<LiveSession> live = hub_.Find(session_id);
   if (live == nullptr) return ToProto(*session, -1);
+  // Unless this server holds the device's stream (then it stored every batch), another server
+  // may have stored batches since it last looked: read through (a query that finds nothing,
+  // usually), so that every server shows the session as the database holds it.
+  if (!stream_claims_.HeldHere(live->device.id)) {
+    std::vector<v1::SessionEvent> caught_up;
+    {
+      std::lock_guard lock(live->mu);
+      absl::StatusOr<std::vector<v1::SessionEvent>> events = hub_.CatchUpLocked(*live);
+      if (!events.ok()) return events.status();
+      caught_up = *std::move(events);
+    }
+    for (const v1::SessionEvent& e : caught_up) hub_.Publish(*live, e);
+  }
   std::lock_guard lock(live->mu);
   v1::Session out = ToProto(*session, live->segmenter->poses_accepted());
   if (session->state == storage::SessionState::kOpen) {
@@ -319,7 +334,10 @@ grpc::ServerUnaryReactor* SessionServiceImpl::ListSessions(grpc::CallbackServerC
   const bool more = sessions->size() > static_cast<size_t>(*size);
   if (more) sessions->pop_back();
   for (const storage::Session& s : *sessions)
-    *response->add_sessions() = ToProto(s, hub_.PeekPosesAccepted(s.id));
+    // The live count when it is ahead of the stored one (a pose whose row is not stored yet),
+    // the stored count when another server stored poses this one has not read.
+    *response->add_sessions() =
+        ToProto(s, std::max(hub_.PeekPosesAccepted(s.id), s.poses_accepted));
   if (more) response->set_next_page_token(sessions->back().id);
   return FinishUnary(context, absl::OkStatus());
 }
@@ -731,8 +749,10 @@ absl::Status SessionServiceImpl::JobFromStore(const storage::Solve& solve, v1::S
 }
 
 void SessionServiceImpl::SessionChangedElsewhere(std::string_view session_id) {
+  // Watched or not: a session in memory here is read again, so that GetSession, the session
+  // list and later watches show what the other server stored.
   std::shared_ptr<LiveSession> live = hub_.Find(session_id);
-  if (live == nullptr || !SessionHub::Watched(*live)) return;  // nobody here to tell
+  if (live == nullptr) return;
   if (live->refresh_pending.exchange(true)) return;              // one is queued already
   if (!Defer([this, live] { Refresh(live); })) {
     live->refresh_pending = false;

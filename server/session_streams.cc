@@ -316,6 +316,7 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
 
   // validate against the session -> convert -> store (asynchronously).
   absl::Status Store() {
+    if (absl::Status s = CheckClaim(); !s.ok()) return s;
     absl::StatusOr<PreparedBatch> prepared;
     {
       std::lock_guard lock(live_->mu);
@@ -387,6 +388,7 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     Finish(status);
   }
 
+  // The device's slot here, then its claim across the servers sharing the database.
   absl::Status AcquireSlot() {
     std::lock_guard lock(slot_mu_);
     const std::string& device = live_->device.id;
@@ -396,6 +398,10 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
           " sample stream(s) open, the most a device may have; end it (or wait for the server "
           "to see that it broke) and resume from GetSession().last_acked_seq + 1"));
     }
+    if (absl::Status s = env_.device_claims->Acquire(device, session_id_); !s.ok()) {
+      env_.device_slots->Release(device);
+      return s;
+    }
     slot_device_ = device;
     return absl::OkStatus();
   }
@@ -404,7 +410,18 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     std::lock_guard lock(slot_mu_);
     if (slot_device_.empty()) return;
     env_.device_slots->Release(slot_device_);
+    env_.device_claims->Release(slot_device_);
     slot_device_.clear();
+  }
+
+  // Another server took the device's claim (this one's renewal came too late): the stream
+  // ends, as it would have been refused there.
+  absl::Status CheckClaim() {
+    if (env_.device_claims->Held(live_->device.id)) return absl::OkStatus();
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "another server took device ", live_->device.id,
+        "'s sample stream (this server could not renew its claim in time); resume from "
+        "GetSession().last_acked_seq + 1"));
   }
 
   const StreamEnv& env_;

@@ -8,9 +8,10 @@
 #include <thread>
 #include <utility>
 
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "storage/migrations.h"
 #include "storage/db.h"
+#include "storage/migrations.h"
 #include "storage/pg_db.h"
 #include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
@@ -134,10 +135,16 @@ absl::Status Store::ListenForChanges(ChangeHandlers handlers) {
     return absl::FailedPreconditionError("ListenForChanges: already listening");
   }
   absl::StatusOr<std::unique_ptr<PgListener>> listener = PgListener::Start(
-      location_, {kActiveChannel, kSessionChannel},
+      location_, {kActiveChannel, kSessionChannel, kTokenChannel},
       [h = handlers, origin = origin_](std::string_view channel, std::string_view payload) {
         if (channel == kActiveChannel) {
           if (h.on_active) h.on_active(payload);
+          return;
+        }
+        if (channel == kTokenChannel) {
+          int64_t id = 0;
+          if (h.on_token && absl::SimpleAtoi(absl::string_view(payload.data(), payload.size()), &id))
+            h.on_token(id);
           return;
         }
         // "<origin> <session id>": this store's own commits are not news to it.

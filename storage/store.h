@@ -237,6 +237,25 @@ class Store {
   // fails (their sessions stay `solving` until then).
   absl::StatusOr<std::vector<Solve>> ListRunningSolves();
 
+  // ---- Stream claims: one open sample stream per device across the servers sharing the
+  // database (schema migration 7; types.h StreamClaim). A server takes the device's claim when
+  // a stream of it opens, renews it every third of its lease while the stream is open, and
+  // gives it up when the stream ends. A claim whose lease has lapsed (its server was killed, or
+  // could not reach the database for longer than the lease) may be taken by another holder.
+  // ClaimStream returns the claim as it stands afterwards: `holder`'s when it took it (or held
+  // it already: the lease and session are updated), another's while that one's lease runs.
+  absl::StatusOr<StreamClaim> ClaimStream(std::string_view device_id, std::string_view holder,
+                                          std::string_view session_id, absl::Time until);
+  // Extends every claim `holder` holds to `until`; the devices whose claims it still holds.
+  absl::StatusOr<std::vector<std::string>> RenewStreamClaims(std::string_view holder,
+                                                             absl::Time until);
+  // Gives up `holder`'s claim of the device (nothing when another holds it now).
+  absl::Status ReleaseStreamClaim(std::string_view device_id, std::string_view holder);
+  // Gives up every claim of holders named "<replica_id> ...": a server that has just started
+  // gives up its previous life's (that life's streams cannot be open), so that its robots do
+  // not wait for those leases. How many.
+  absl::StatusOr<int> ReleaseStreamClaimsOfReplica(std::string_view replica_id);
+
   // ---- Parameter versions.
   // Adds the next version of `version.device_id` (1, 2, 3, ... assigned atomically). Uses
   // device_id, session_id (optional; must be that device's), params_json, report_json,
@@ -286,6 +305,8 @@ class Store {
   //     channel imucal_active, payload the device id);
   //   on_session: another store stored a batch of a session or changed its state (channel
   //     imucal_session, payload "<origin> <session id>"; this store's own are left out);
+  //   on_token: a token was created, changed or deleted, by anyone (channel imucal_token,
+  //     payload the token's id; a trigger sends it, so SQL typed by hand is told too);
   //   on_gap: some may have been missed (the listening connection broke: once when it does,
   //     once when listening resumes); drop everything cached then.
   // All run on the listener's thread and must be quick. Once per store; FailedPrecondition on
@@ -293,6 +314,7 @@ class Store {
   struct ChangeHandlers {
     std::function<void(std::string_view device_id)> on_active;
     std::function<void(std::string_view session_id)> on_session;
+    std::function<void(int64_t token_id)> on_token;
     std::function<void()> on_gap;
   };
   absl::Status ListenForChanges(ChangeHandlers handlers);

@@ -118,6 +118,8 @@ absl::StatusOr<Device> LoadDevice(Connection& conn, std::string_view id);
 // PostgreSQL's notification channels (Store::ListenForChanges).
 inline constexpr char kActiveChannel[] = "imucal_active";
 inline constexpr char kSessionChannel[] = "imucal_session";
+// Sent by the tokens table's trigger (schema migration 7) at each change; payload the token id.
+inline constexpr char kTokenChannel[] = "imucal_token";
 // PostgreSQL: tells the other servers' listeners that the session changed, when (and if) the
 // transaction commits; payload "<origin> <session id>" (ConnectionOptions::origin). Nothing on
 // SQLite. Several in one transaction arrive as one.

@@ -35,6 +35,9 @@ constexpr char kSelectTokens[] =
     "WHERE ?1 <> 0 OR revoked_at_us IS NULL ORDER BY id";
 constexpr char kCountValidAdmins[] =
     "SELECT COUNT(*) FROM tokens WHERE role = 'admin' AND revoked_at_us IS NULL";
+constexpr char kSelectTokenChanges[] =
+    "SELECT id, token_id FROM token_changes WHERE id > ?1 ORDER BY id LIMIT 1000";
+constexpr char kSelectLastTokenChange[] = "SELECT COALESCE(MAX(id), 0) FROM token_changes";
 constexpr char kRevokeToken[] =
     "UPDATE tokens SET revoked_at_us = ?2 WHERE id = ?1 AND revoked_at_us IS NULL";
 
@@ -230,6 +233,41 @@ absl::StatusOr<Token> TokenStore::Lookup(const TokenHash& hash) {
                                                            SqlBlob{HashView(hash)})));
   if (!token) return absl::NotFoundError("no such token");
   return *std::move(token);
+}
+
+absl::StatusOr<Token> TokenStore::Get(int64_t id) {
+  std::lock_guard lock(mu_);
+  return Annotate("GetToken", SelectById(*conn_, id));
+}
+
+absl::StatusOr<TokenStore::Changes> TokenStore::ChangesSince(int64_t after_id) {
+  std::lock_guard lock(mu_);
+  Changes out;
+  out.last_id = after_id;
+  if (after_id < 0) {
+    STORAGE_ASSIGN_OR_RETURN(
+        std::optional<int64_t> last,
+        Annotate("TokenChanges", ReadRow(*conn_, kSelectLastTokenChange, FirstColumnInt64)));
+    out.last_id = last.value_or(0);
+    return out;
+  }
+  struct Change {
+    int64_t id = 0;
+    int64_t token_id = 0;
+  };
+  STORAGE_ASSIGN_OR_RETURN(
+      std::vector<Change> changes,
+      Annotate("TokenChanges", ReadRows(
+                                   *conn_, kSelectTokenChanges,
+                                   [](const Statement& st) -> absl::StatusOr<Change> {
+                                     return Change{st.ColumnInt64(0), st.ColumnInt64(1)};
+                                   },
+                                   after_id)));
+  for (const Change& c : changes) {
+    out.token_ids.push_back(c.token_id);
+    out.last_id = c.id;
+  }
+  return out;
 }
 
 }  // namespace imucal::storage

@@ -91,6 +91,18 @@ class TokenStore {
   // The token whose secret hashes to `hash`, revoked or not (the caller tells them apart);
   // NotFound when there is none.
   absl::StatusOr<Token> Lookup(const TokenHash& hash);
+  // Token `id`, revoked or not; NotFound when there is none (never was, or deleted).
+  absl::StatusOr<Token> Get(int64_t id);
+
+  // The tokens changed (created, revoked, edited or deleted, by any process: triggers log each
+  // change to the table, schema migration 7) after change `after_id`, in the order logged, and
+  // the last change read: pass it as after_id next time. after_id < 0: no tokens, only the
+  // last change. A server reads this to honour what it did not do itself.
+  struct Changes {
+    std::vector<int64_t> token_ids;
+    int64_t last_id = 0;
+  };
+  absl::StatusOr<Changes> ChangesSince(int64_t after_id);
 
  private:
   explicit TokenStore(std::unique_ptr<Connection> conn);

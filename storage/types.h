@@ -123,6 +123,15 @@ struct SolveClaim {
   absl::Time lease_until = absl::InfinitePast();  // the default: lapsed already
 };
 
+// The one open sample stream of a device across the servers sharing a database (Store
+// "Stream claims"): who holds it, for which session, until when unless renewed.
+struct StreamClaim {
+  std::string device_id;
+  std::string holder;  // a server's instance, e.g. "r1 s0123456789abcdef"
+  std::string session_id;
+  absl::Time lease_until = absl::InfinitePast();
+};
+
 enum class Verdict { kPass, kWarn, kFail };
 
 // What a robot is told when a batch is stored (or found already stored).

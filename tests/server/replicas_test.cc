@@ -84,7 +84,7 @@ class ReplicasTest : public ::testing::TestWithParam<uint64_t> {
     for (int r = 1; r <= 3; ++r) {
       auto replica = ImucaldProcess::StartOnDatabase(
           db_->url(), {"--replica-id", absl::StrCat("r", r), "--log-level", "warning",
-                       "--solve-lease", "1s"});
+                       "--solve-lease", "1s", "--stream-lease", "1s"});
       ASSERT_TRUE(replica.ok()) << "replica " << r << ": " << replica.status();
       replicas_.push_back(*std::move(replica));
     }

@@ -61,8 +61,9 @@ TEST(MigrationsTest, FreshFileMigratesToLatest) {
   ASSERT_OK(Migrate(*conn));
   ASSERT_OK_AND_ASSIGN(int after, SchemaVersion(*conn));
   EXPECT_EQ(after, LatestSchemaVersion());
-  EXPECT_EQ(CountTables(*conn), 9);  // devices sessions sample_batches poses solves
-                                     // param_versions audit_log pose_pairs tokens
+  EXPECT_EQ(CountTables(*conn), 11);  // devices sessions sample_batches poses solves
+                                      // param_versions audit_log pose_pairs tokens
+                                      // stream_claims token_changes
 }
 
 TEST(MigrationsTest, OpeningTwiceIsIdempotentAndKeepsData) {
