@@ -246,6 +246,9 @@ class Store {
   // it already: the lease and session are updated), another's while that one's lease runs.
   absl::StatusOr<StreamClaim> ClaimStream(std::string_view device_id, std::string_view holder,
                                           std::string_view session_id, absl::Time until);
+  // The device's claim while its lease runs (a server streams the device); nullopt when there
+  // is none or it has lapsed.
+  absl::StatusOr<std::optional<StreamClaim>> GetStreamClaim(std::string_view device_id);
   // Extends every claim `holder` holds to `until`; the devices whose claims it still holds.
   absl::StatusOr<std::vector<std::string>> RenewStreamClaims(std::string_view holder,
                                                              absl::Time until);

@@ -53,6 +53,15 @@ absl::StatusOr<StreamClaim> Store::ClaimStream(std::string_view device_id, std::
   });
 }
 
+absl::StatusOr<std::optional<StreamClaim>> Store::GetStreamClaim(std::string_view device_id) {
+  ReadLease lease = AcquireReader();
+  absl::StatusOr<std::optional<StreamClaim>> claim =
+      ReadRow(lease.conn(), kSelectClaim, ReadClaim, device_id);
+  if (!claim.ok()) return Annotate("GetStreamClaim", claim.status());
+  if (*claim && (*claim)->lease_until < Now()) return std::nullopt;  // lapsed: nobody streams
+  return claim;
+}
+
 absl::StatusOr<std::vector<std::string>> Store::RenewStreamClaims(std::string_view holder,
                                                                   absl::Time until) {
   constexpr std::string_view kOp = "RenewStreamClaims";
