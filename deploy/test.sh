@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The README's test command: installs, builds, runs every test (ctest, both cores), then the
-# robustness checks of README "## Robustness":
+# robustness checks of docs/robustness.md:
 #   1. ASan + UBSan (halt on the first error) in build-asan: every test but those labelled
-#      `asan_skip` (the three slowest: accuracy twice, capture classes),
+#      `asan_skip` (the three slowest: accuracy twice, capture classes; and the SDK package check),
 #      against the code that handles bytes, the store, the server and the clients instrumented
 #      (CMakeLists.txt IMUCAL_SANITIZE; the rest is the plain tree's objects, from ccache);
 #   2. the server and store tests under ThreadSanitizer in build-tsan;
