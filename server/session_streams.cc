@@ -94,7 +94,9 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
   // token). Called once, by the handler, on a reactor owned by `self`.
   void Start(std::shared_ptr<IngestReactor> self) {
     self_ = std::move(self);
-    absl::Status added = env_.registry->Add(shared_from_this(), CallerKey(*who_), who_->token_id);
+    // Silent until its first batch: its place may go to a caller with fewer streams meanwhile.
+    absl::Status added = env_.registry->Add(shared_from_this(), CallerKey(*who_), who_->token_id,
+                                            /*silent=*/true);
     std::lock_guard lock(mu_);
     if (!added.ok()) {
       FinishLocked(ToGrpcStatus(added));
@@ -118,6 +120,7 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
         FinishLocked(grpc::Status::OK);
         return;
       }
+      if (first_read_) env_.registry->Heard(this);  // it keeps its place from now on
     }
     if (absl::Status s = Submit(); !s.ok()) End(ToGrpcStatus(s));
   }

@@ -1506,6 +1506,77 @@ TEST(StreamRegistryTest, CapsRevocationAndDeadlines) {
   EXPECT_EQ(registry.size(), 0u);
 }
 
+// Fair shares: with the server full, a caller with fewer streams takes the place of a silent
+// stream of the caller with the most, which is told; a stream that has been heard from keeps
+// its place; a caller with as many streams as the most is refused; the place of a stream that
+// gives way is not counted while it ends.
+TEST(StreamRegistryTest, ASilentFloodGivesWayToACallerWithFewerStreams) {
+  StreamRegistry::Options options;
+  options.max_streams = 4;
+  options.max_per_caller = 3;
+  StreamRegistry registry(options);
+  std::vector<std::shared_ptr<RegisteredStream>> s;
+  for (int i = 0; i < 8; ++i) s.push_back(std::make_shared<RegisteredStream>());
+  ASSERT_TRUE(registry.Add(s[0], "token:1", 1, /*silent=*/true).ok());
+  ASSERT_TRUE(registry.Add(s[1], "token:1", 1, /*silent=*/true).ok());
+  ASSERT_TRUE(registry.Add(s[2], "token:1", 1, /*silent=*/true).ok());
+  ASSERT_TRUE(registry.Add(s[3], "token:2", 2, /*silent=*/true).ok());
+  registry.Heard(s[0].get());
+  registry.Heard(s[1].get());
+  // Full. Token 3 has none: one of token 1's silent streams (s[2]: the others were heard) gives
+  // way.
+  ASSERT_TRUE(registry.Add(s[4], "token:3", 3).ok());
+  EXPECT_NE(s[2]->revoked().find("its place went to a caller with fewer streams"),
+            std::string::npos)
+      << s[2]->revoked();
+  EXPECT_EQ(s[0]->revoked(), "");
+  EXPECT_EQ(s[1]->revoked(), "");
+  EXPECT_EQ(s[3]->revoked(), "");
+  EXPECT_EQ(registry.size(), 5u);  // s[2] is still ending; its place is s[4]'s
+  // Token 1 has no silent stream left, and the only silent one is token 2's own: refused.
+  absl::Status refused = registry.Add(s[5], "token:2", 2);
+  EXPECT_TRUE(absl::IsResourceExhausted(refused)) << refused;
+  EXPECT_NE(refused.message().find("the server has 4 streams open"), std::string::npos) << refused;
+  registry.Remove(s[2].get());
+  EXPECT_EQ(registry.size(), 4u);
+  // Token 4 (none) against token 2 (one silent stream): it takes its place.
+  ASSERT_TRUE(registry.Add(s[6], "token:4", 4).ok());
+  EXPECT_NE(s[3]->revoked(), "");
+  // In insecure mode (no caller) nobody is fewer: refused.
+  refused = registry.Add(s[7], "", 0);
+  EXPECT_TRUE(absl::IsResourceExhausted(refused)) << refused;
+  for (const auto& stream : s) registry.Remove(stream.get());
+  EXPECT_EQ(registry.size(), 0u);
+}
+
+// Many streams ended: the sweeper gives memory back (malloc_trim), once per interval.
+TEST(StreamRegistryTest, MemoryIsGivenBackAfterManyStreamsEnd) {
+  StreamRegistry::Options options;
+  options.tick = absl::Milliseconds(10);
+  options.trim_after_ends = 100;
+  options.trim_interval = absl::Hours(1);
+  StreamRegistry registry(options);
+  for (int i = 0; i < 99; ++i) {
+    auto s = std::make_shared<RegisteredStream>();
+    ASSERT_TRUE(registry.Add(s, "token:1", 1).ok());
+    registry.Remove(s.get());
+  }
+  auto last = std::make_shared<RegisteredStream>();
+  ASSERT_TRUE(registry.Add(last, "token:1", 1).ok());
+  registry.Remove(last.get());
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (registry.trims() == 0 && std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  EXPECT_EQ(registry.trims(), 1);
+  for (int i = 0; i < 200; ++i) {
+    auto s = std::make_shared<RegisteredStream>();
+    ASSERT_TRUE(registry.Add(s, "token:1", 1).ok());
+    registry.Remove(s.get());
+  }
+  // Not again within the interval (the sweeper ticks every 10 ms meanwhile).
+  EXPECT_EQ(registry.trims(), 1);
+}
+
 TEST(StatusUtilTest, MapsCodesOneToOneAndScrubsPaths) {
   const grpc::Status s =
       ToGrpcStatus(absl::UnavailableError("cannot open /var/lib/imucal/imucal.db: locked"));
