@@ -205,6 +205,11 @@ std::vector<ConfigOption> BuildOptions() {
                      [](DaemonConfig& c) -> absl::Duration& {
                        return c.server.active_cache_sync;
                      }),
+      DurationOption("database_ping", "IMUCALD_DATABASE_PING",
+                     "how often the database is pinged: health answers NOT_SERVING from the "
+                     "first ping that cannot reach it until one does again, parameter fetches "
+                     "are answered from the cache meanwhile (default 1s)",
+                     [](DaemonConfig& c) -> absl::Duration& { return c.server.database_ping; }),
       DurationOption("drain_deadline", "IMUCALD_DRAIN_DEADLINE",
                      "on SIGTERM, how long in-flight calls may run before they are cancelled "
                      "(default 30s); queued solves then finish",

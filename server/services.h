@@ -18,6 +18,7 @@
 #include "server/active_cache.h"
 #include "server/auth.h"
 #include "server/convert.h"
+#include "server/database_health.h"
 #include "server/metrics.h"
 #include "server/session_hub.h"
 #include "server/solve_pool.h"
@@ -67,8 +68,11 @@ using ParameterServiceBase = v1::ParameterService::WithRawCallbackMethod_GetActi
 class ParameterServiceImpl final : public ParameterServiceBase {
  public:
   // `cache` (not owned, outlives the service) is invalidated by the store's on_active_change.
-  ParameterServiceImpl(storage::Store* store, ActiveParamCache* cache, Authorizer* auth)
-      : store_(store), cache_(cache), auth_(auth) {}
+  // `database` (optional, outlives the service): while it says the database is down,
+  // GetActiveParameters answers from the cache, marked served_from_cache.
+  ParameterServiceImpl(storage::Store* store, ActiveParamCache* cache, Authorizer* auth,
+                       const DatabaseHealth* database = nullptr)
+      : store_(store), cache_(cache), auth_(auth), database_(database) {}
   grpc::ServerUnaryReactor* GetActiveParameters(grpc::CallbackServerContext* context,
                                                 const grpc::ByteBuffer* request,
                                                 grpc::ByteBuffer* response) override;
@@ -90,12 +94,14 @@ class ParameterServiceImpl final : public ParameterServiceBase {
 
  private:
   absl::Status DoExport(const v1::ExportRequest& request, v1::ExportResponse* response);
-  // The cached responses of the device's active version, filled from the store on a miss.
+  // The cached responses of the device's active version, filled from the store on a miss; the
+  // last known ones (`from_cache` set) when the database cannot be reached.
   absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> ActiveEntry(
-      const std::string& device_id);
+      const std::string& device_id, bool* from_cache);
   storage::Store* store_;
   ActiveParamCache* cache_;
   Authorizer* auth_;
+  const DatabaseHealth* database_;
   ParamCrcCache crc_cache_;  // the CRC, once per version
 };
 
