@@ -157,6 +157,7 @@ struct StreamEnv {
   StreamRegistry* registry = nullptr;
   StreamSlots* device_slots = nullptr;   // StreamSamples per device
   StreamSlots* watcher_slots = nullptr;  // WatchSession per session
+  StreamSlots* session_streams = nullptr;  // StreamSamples per session (OpenStreams)
   // Runs `work` on the session loaders, off the RPC threads; false when their queue is full.
   std::function<bool(std::function<void()> work)> defer;
   // The session as GetSession answers it, without loading it (SessionServiceImpl).
@@ -186,6 +187,9 @@ class SessionServiceImpl final : public SessionServiceBase {
   ~SessionServiceImpl() override;
   size_t live_sessions() { return hub_.LiveSessions(); }  // SessionHub::LiveSessions
   size_t open_streams() { return registry_.size(); }      // the streaming calls
+  // StreamSamples streams of the session open now (Session.open_streams), from their first
+  // batch until they end. The one place that says it: a solve waits on it (SolveSession).
+  int OpenStreams(const std::string& session_id);
   size_t solve_jobs_in_memory();
   // Counts samples and solves into `metrics` (which must outlive the service) and gives it
   // the sessions', streams' and queue's gauges. Called before serving.
@@ -291,6 +295,7 @@ class SessionServiceImpl final : public SessionServiceBase {
   SessionHub hub_;
   StreamSlots stream_slots_;   // StreamSamples per device
   StreamSlots watcher_slots_;  // WatchSession per session
+  StreamSlots session_streams_;  // StreamSamples per session: OpenStreams
   std::mutex jobs_mu_;
   std::map<std::string, v1::SolveJob> jobs_;  // guarded by jobs_mu_
   // Finished jobs in jobs_, oldest first, with when they finished; guarded by jobs_mu_.

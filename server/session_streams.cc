@@ -15,6 +15,7 @@
 #include <cmath>
 #include <deque>
 #include <iterator>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -390,6 +391,8 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     Finish(status);
   }
 
+  // The device's slot, and the session's count of open streams (Session.open_streams, which
+  // holds off a solve until the stream ends).
   absl::Status AcquireSlot() {
     std::lock_guard lock(slot_mu_);
     const std::string& device = live_->device.id;
@@ -400,6 +403,8 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
           "to see that it broke) and resume from GetSession().last_acked_seq + 1"));
     }
     slot_device_ = device;
+    env_.session_streams->TryAcquire(session_id_, std::numeric_limits<int>::max());
+    slot_session_ = session_id_;
     return absl::OkStatus();
   }
 
@@ -407,7 +412,9 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     std::lock_guard lock(slot_mu_);
     if (slot_device_.empty()) return;
     env_.device_slots->Release(slot_device_);
+    env_.session_streams->Release(slot_session_);
     slot_device_.clear();
+    slot_session_.clear();
   }
 
   const StreamEnv& env_;
@@ -437,7 +444,8 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
   bool done_ = false;  // guarded by ctx_mu_: OnDone has begun, context_ is going
 
   std::mutex slot_mu_;
-  std::string slot_device_;  // guarded by slot_mu_; empty when no slot is held
+  std::string slot_device_;   // guarded by slot_mu_; empty when no slot is held
+  std::string slot_session_;  // guarded by slot_mu_; the session counted with the slot
 };
 
 // WatchSession: a snapshot, then the session's events as they are published. The hub pushes
