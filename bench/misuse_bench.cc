@@ -1,11 +1,13 @@
 // What clients that hold the server's resources without using them cost imucald: the real
 // binary in its own process on loopback (its memory is its own), RSS from /proc/PID/status.
 //
-//   --case=silent-streams: one robot token (TLS, as a fleet runs) opens --streams sample streams
-//     (default 30,000, over --channels connections) that never send a batch. Reported: imucald's
-//     RSS idle, its peak while they are open, how many were refused at once (max_streams,
-//     max_streams_per_token), how many the server ended for silence within --wait seconds
-//     (first_batch_timeout), its RSS then, and after the client hung up on the rest.
+//   --case=silent-streams: --tokens robot tokens (default 1; TLS, as a fleet runs) open
+//     --streams sample streams between them, round robin (default 30,000, over --channels
+//     connections), that never send a batch. Reported: imucald's RSS idle, its peak while they
+//     are open, how many were refused at once (max_streams, max_streams_per_token), how many
+//     the server ended for silence within --wait seconds (first_batch_timeout), its RSS then,
+//     and after the client hung up on the rest: 2 s after, and --settle seconds after (the
+//     server gives memory back after a flood at most every 10 s, server/stream_registry.h).
 //   --case=closed-cancels: a session of --samples samples (default 10,000,000, streamed through
 //     the API in 20,000-sample batches, then cancelled), imucald restarted on the file, and
 //     --calls CancelSession calls on it (then a StreamSamples and a SolveSession on it): each
@@ -14,7 +16,8 @@
 //
 //   ninja -C build bench/misuse_bench imucald
 //   build/bench/misuse_bench [--case=all|silent-streams|closed-cancels] [--streams=30000]
-//                            [--channels=8] [--wait=40] [--samples=10000000] [--calls=5]
+//                            [--tokens=1] [--channels=8] [--wait=40] [--settle=15]
+//                            [--samples=10000000] [--calls=5]
 //                            [--imucald=PATH] [--keep]
 // --imucald=PATH measures another build (e.g. one from before the limits, for a "before"
 // column); it is run with --listen, --db, and the TLS flags or --insecure only. Not part of
@@ -55,7 +58,9 @@ using namespace imucal::bench;  // Clock, Seconds, StartImucald, ProcStatusKb, .
 struct Flags {
   std::string which = "all";
   int streams = 30000;
+  int tokens = 1;
   int channels = 8;
+  double settle_s = 15;
   double wait_s = 40;  // first_batch_timeout (30 s) and the sweeper's tick, with a margin
   int64_t samples = 10'000'000;
   int calls = 5;
@@ -72,6 +77,10 @@ Flags ParseFlags(int argc, char** argv) {
   app.add_option("--case", f.which, "which case to run")
       ->check(CLI::IsMember({"all", "silent-streams", "closed-cancels"}));
   app.add_option("--streams", f.streams, "silent-streams: sample streams that never send a batch");
+  app.add_option("--tokens", f.tokens,
+                 "silent-streams: robot tokens the streams are spread over (at least 1)");
+  app.add_option("--settle", f.settle_s,
+                 "silent-streams: seconds after the hang-up to measure RSS again");
   app.add_option("--channels", f.channels,
                  "silent-streams: connections the streams are spread over (at least 1)");
   app.add_option("--wait", f.wait_s,
@@ -83,6 +92,7 @@ Flags ParseFlags(int argc, char** argv) {
   app.add_flag("--keep", f.keep, "keep the temp directory");
   imucal::bench::ParseBenchFlags(app, argc, argv);
   f.channels = std::max(1, f.channels);
+  f.tokens = std::max(1, f.tokens);
   return f;
 }
 
@@ -117,7 +127,10 @@ class SilentStream final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::S
     std::map<grpc::StatusCode, int> ended;  // by code; guarded by mu
     int done = 0;                           // guarded by mu
   };
-  SilentStream(v1::SessionService::Stub* stub, Tally* tally) : tally_(tally) {
+  SilentStream(v1::SessionService::Stub* stub, const std::shared_ptr<grpc::CallCredentials>& token,
+               Tally* tally)
+      : tally_(tally) {
+    context_.set_credentials(token);
     stub->async()->StreamSamples(&context_, this);
     StartRead(&ack_);
     StartCall();
@@ -158,18 +171,20 @@ int SilentStreams(const Flags& flags, const std::string& dir) {
   auto admin_stub = v1::AdminService::NewStub(grpc::CreateChannel(
       listen, grpc::CompositeChannelCredentials(grpc::SslCredentials(ssl),
                                                 grpc::AccessTokenCredentials(admin))));
-  v1::CreateTokenRequest create;
-  create.set_role(v1::ROLE_ROBOT);
-  create.set_device_id("misuse-robot");
-  create.set_label("misuse bench");
-  v1::CreateTokenResponse robot;
-  {
+  // The robots' tokens go with each call: the connections are the fleet's, shared.
+  std::vector<std::shared_ptr<grpc::CallCredentials>> tokens;
+  for (int t = 0; t < flags.tokens; ++t) {
+    v1::CreateTokenRequest create;
+    create.set_role(v1::ROLE_ROBOT);
+    create.set_device_id(absl::StrCat("misuse-robot-", t));
+    create.set_label("misuse bench");
+    v1::CreateTokenResponse robot;
     grpc::ClientContext ctx;
     if (grpc::Status s = admin_stub->CreateToken(&ctx, create, &robot); !s.ok())
       Die("CreateToken: " + s.error_message(), server);
+    tokens.push_back(grpc::AccessTokenCredentials(robot.secret()));
   }
-  auto robot_creds = grpc::CompositeChannelCredentials(
-      grpc::SslCredentials(ssl), grpc::AccessTokenCredentials(robot.secret()));
+  auto robot_creds = grpc::SslCredentials(ssl);
   std::vector<std::shared_ptr<grpc::Channel>> channels;
   std::vector<std::unique_ptr<v1::SessionService::Stub>> stubs;
   for (int i = 0; i < flags.channels; ++i) {
@@ -186,7 +201,8 @@ int SilentStreams(const Flags& flags, const std::string& dir) {
   const Clock::time_point t0 = Clock::now();
   for (int i = 0; i < flags.streams; ++i)
     streams.push_back(
-        std::make_unique<SilentStream>(stubs[static_cast<size_t>(i) % stubs.size()].get(), &tally));
+        std::make_unique<SilentStream>(stubs[static_cast<size_t>(i) % stubs.size()].get(),
+                                       tokens[static_cast<size_t>(i) % tokens.size()], &tally));
   const double open_s = Seconds(Clock::now() - t0);
   int64_t peak = 0;
   int refused_early = -1;
@@ -212,8 +228,12 @@ int SilentStreams(const Flags& flags, const std::string& dir) {
     std::unique_lock lock(tally.mu);
     tally.cv.wait(lock, [&] { return tally.done == flags.streams; });
   }
+  const Clock::time_point hung_up = Clock::now();
   std::this_thread::sleep_for(std::chrono::seconds(2));  // lets imucald free what it held
   const int64_t rss_after_hangup = ProcStatusKb(server, "VmRSS");
+  std::this_thread::sleep_for(std::chrono::duration<double>(
+      std::max(0.0, flags.settle_s - Seconds(Clock::now() - hung_up))));
+  const int64_t rss_settled = ProcStatusKb(server, "VmRSS");
   const int64_t hwm = ProcStatusKb(server, "VmHWM");
   streams.clear();
   stubs.clear();
@@ -221,8 +241,8 @@ int SilentStreams(const Flags& flags, const std::string& dir) {
   kill(server, SIGTERM);
   waitpid(server, nullptr, 0);
 
-  std::printf("silent streams: %d opened in %.1f s by one robot token over %d connections (%s)\n",
-              flags.streams, open_s, flags.channels, flags.imucald.c_str());
+  std::printf("silent streams: %d opened in %.1f s by %d robot token(s) over %d connections (%s)\n",
+              flags.streams, open_s, flags.tokens, flags.channels, flags.imucald.c_str());
   std::printf("  imucald RSS idle %.1f MB, peak with the streams %.1f MB (VmHWM %.1f MB)\n",
               Mb(rss_idle), Mb(peak), Mb(hwm));
   std::printf("  refused at once (RESOURCE_EXHAUSTED): %d\n", std::max(refused_early, 0));
@@ -233,6 +253,8 @@ int SilentStreams(const Flags& flags, const std::string& dir) {
   std::printf(" (%d of %d)\n", ended_by_server, flags.streams);
   std::printf("  imucald RSS after %.0f s %.1f MB; after the client hung up on the rest %.1f MB\n",
               flags.wait_s, Mb(rss_after_wait), Mb(rss_after_hangup));
+  std::printf("  imucald RSS after the flood, no stream open: %.1f MB (%.0f s after the hang-up)\n",
+              Mb(rss_settled), flags.settle_s);
   return 0;
 }
 

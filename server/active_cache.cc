@@ -10,7 +10,15 @@ std::shared_ptr<const ActiveParamCache::Entry> ActiveParamCache::Find(
   const absl::string_view key(device_id.data(), device_id.size());  // Debian's absl::string_view
   std::lock_guard lock(mu_);
   auto it = entries_.find(key);
-  return it == entries_.end() ? nullptr : it->second;
+  return it == entries_.end() || it->second.epoch != epoch_ ? nullptr : it->second.entry;
+}
+
+std::shared_ptr<const ActiveParamCache::Entry> ActiveParamCache::FindLastKnown(
+    std::string_view device_id) const {
+  const absl::string_view key(device_id.data(), device_id.size());
+  std::lock_guard lock(mu_);
+  auto it = entries_.find(key);
+  return it == entries_.end() ? nullptr : it->second.entry;
 }
 
 uint64_t ActiveParamCache::generation() const {
@@ -25,9 +33,9 @@ void ActiveParamCache::Insert(std::string_view device_id, std::shared_ptr<const 
   std::string key(device_id);
   const size_t cost = Cost(key, *entry);
   if (cost > max_bytes_) return;
-  auto [it, inserted] = entries_.try_emplace(key, nullptr);
-  if (!inserted) bytes_ -= Cost(key, *it->second);
-  it->second = std::move(entry);
+  auto [it, inserted] = entries_.try_emplace(key);
+  if (!inserted) bytes_ -= Cost(key, *it->second.entry);
+  it->second = Slot{std::move(entry), epoch_};
   bytes_ += cost;
   if (inserted) order_.push_back(std::move(key));
   EvictLocked();
@@ -38,16 +46,14 @@ void ActiveParamCache::Invalidate(std::string_view device_id) {
   ++generation_;
   auto it = entries_.find(absl::string_view(device_id.data(), device_id.size()));
   if (it == entries_.end()) return;
-  bytes_ -= Cost(it->first, *it->second);
+  bytes_ -= Cost(it->first, *it->second.entry);
   entries_.erase(it);
 }
 
 void ActiveParamCache::Clear() {
   std::lock_guard lock(mu_);
   ++generation_;
-  entries_.clear();
-  order_.clear();
-  bytes_ = 0;
+  ++epoch_;  // every entry is now a last known answer only
 }
 
 void ActiveParamCache::EvictLocked() {
@@ -56,7 +62,7 @@ void ActiveParamCache::EvictLocked() {
   while (bytes_ > max_bytes_ && !order_.empty()) {
     auto it = entries_.find(order_.front());
     if (it != entries_.end()) {
-      bytes_ -= Cost(it->first, *it->second);
+      bytes_ -= Cost(it->first, *it->second.entry);
       entries_.erase(it);
     }
     order_.pop_front();

@@ -293,7 +293,15 @@ absl::StatusOr<PrincipalRef> Authorizer::FromToken(std::string_view secret, int6
     unknown_.emplace(std::move(key), true);
     return absl::UnauthenticatedError("unknown token");
   }
-  if (!token.ok()) return absl::UnavailableError("the token table cannot be read; retry");
+  if (!token.ok()) {
+    // The database out of reach: a token this server knew valid stays so until it answers
+    // (a revocation needs the database too), so robots keep fetching their parameters.
+    std::shared_lock lock(cache_mu_);
+    if (auto it = cache_.find(key); absl::IsUnavailable(token.status()) && it != cache_.end() &&
+                                    it->second.principal != nullptr)
+      return it->second.principal;
+    return absl::UnavailableError("the token table cannot be read; retry");
+  }
   CacheEntry entry;
   entry.expires = now + options_.cache_ttl;
   std::unique_lock lock(cache_mu_);

@@ -209,7 +209,14 @@ std::vector<ConfigOption> BuildOptions() {
                      "others' promotes and rollbacks (the bound on a stale fetch from this "
                      "server); 0s: never, when it is alone on its database (default 250ms). "
                      "PostgreSQL: not used (changes are heard as they commit)",
-                     [](DaemonConfig& c) -> absl::Duration& { return c.server.active_cache_sync; }),
+                     [](DaemonConfig& c) -> absl::Duration& {
+                       return c.server.active_cache_sync;
+                     }),
+      DurationOption("database_ping", "IMUCALD_DATABASE_PING",
+                     "how often the database is pinged: health answers NOT_SERVING from the "
+                     "first ping that cannot reach it until one does again, parameter fetches "
+                     "are answered from the cache meanwhile (default 1s)",
+                     [](DaemonConfig& c) -> absl::Duration& { return c.server.database_ping; }),
       DurationOption("drain_deadline", "IMUCALD_DRAIN_DEADLINE",
                      "on SIGTERM, how long in-flight calls may run before they are cancelled "
                      "(default 30s); queued solves then finish",

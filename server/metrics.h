@@ -13,7 +13,9 @@
 //   imucal_solve_duration_seconds{outcome}           histogram, a solve's run (not its wait)
 //   imucal_db_transaction_duration_seconds{op}       histogram, a write transaction from BEGIN
 //                                                    (its wait for the write lock included)
-//   gauges read at each scrape (SetGauge): open sessions, open streams, watchers, queued solves.
+//   gauges read at each scrape (SetGauge): open sessions, open streams, watchers, queued solves,
+//   and imucal_database_up (1 while the server reaches its database, 0 while it cannot:
+//   server/database_health.h).
 //
 // Thread-safe: every method may be called from any thread.
 #ifndef IMUCAL_SERVER_METRICS_H_

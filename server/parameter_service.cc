@@ -74,17 +74,37 @@ absl::StatusOr<core::ExportOptions> ExportOptionsOf(const v1::ExportRequest& r) 
   return o;
 }
 
+// A ParameterSet with served_from_cache only, serialised once.
+const grpc::Slice& FromCacheSlice() {
+  static const grpc::Slice* slice = [] {
+    v1::ParameterSet marked;
+    marked.set_served_from_cache(true);
+    return new grpc::Slice(marked.SerializeAsString());
+  }();
+  return *slice;
+}
+
 }  // namespace
 
 absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> ParameterServiceImpl::ActiveEntry(
-    const std::string& device_id) {
+    const std::string& device_id, bool* from_cache) {
+  // While the database cannot be reached, the version the server last knew, said to be that.
+  const bool database_down = database_ != nullptr && !database_->up();
+  *from_cache = database_down;
   if (std::shared_ptr<const ActiveParamCache::Entry> hit = cache_->Find(device_id)) return hit;
+  std::shared_ptr<const ActiveParamCache::Entry> last_known = cache_->FindLastKnown(device_id);
+  if (database_down && last_known != nullptr) return last_known;
   const uint64_t generation = cache_->generation();  // before the read: see active_cache.h
   absl::StatusOr<storage::ParamVersion> active = store_->GetActive(device_id);
   if (absl::IsNotFound(active.status())) {
     return absl::NotFoundError(absl::StrCat(
         "device '", device_id, "' has no active parameter set (or is not registered)"));
   }
+  if (absl::IsUnavailable(active.status()) && last_known != nullptr) {
+    *from_cache = true;  // the outage began before the monitor's next ping
+    return last_known;
+  }
+  *from_cache = false;
   if (!active.ok()) return active.status();
   auto entry = std::make_shared<ActiveParamCache::Entry>();
   entry->version = active->version;
@@ -116,12 +136,15 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::GetActiveParameters(
           auth_->AuthorizeDevice(*context, **who, Rpc::kGetActiveParameters, req.device_id());
       !s.ok())
     return FinishUnary(context, s);
+  bool from_cache = false;
   absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> entry =
-      ActiveEntry(req.device_id());
+      ActiveEntry(req.device_id(), &from_cache);
   if (!entry.ok()) return FinishUnary(context, entry.status());
   const bool unchanged = req.if_not_version() != 0 && req.if_not_version() == (*entry)->version;
-  grpc::Slice slice = unchanged ? (*entry)->header : (*entry)->full;
-  *response = grpc::ByteBuffer(&slice, 1);
+  // Two serialised messages one after the other parse as one with the fields of both: the
+  // cached answer, then served_from_cache when it is set.
+  grpc::Slice slices[2] = {unchanged ? (*entry)->header : (*entry)->full, FromCacheSlice()};
+  *response = grpc::ByteBuffer(slices, from_cache ? 2 : 1);
   return FinishUnary(context, absl::OkStatus());
 }
 

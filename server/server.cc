@@ -148,6 +148,8 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
     return absl::InvalidArgumentError("stream_lease: must be at least 30ms");
   if (sessions.max_solve_attempts < 1)
     return absl::InvalidArgumentError("max_solve_attempts: must be at least 1");
+  if (options.database_ping <= absl::ZeroDuration())
+    return absl::InvalidArgumentError("database_ping: must be longer than 0");
 
   std::unique_ptr<Server> s(new Server());
   s->host_ = options.listen.substr(0, colon);
@@ -234,8 +236,18 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
         !listening.ok())
       return listening;
   }
+  // The database's reachability: the server's health follows it (set once the server runs).
+  s->database_ = std::make_shared<DatabaseHealth>(
+      [store = s->store_.get()] { return store->Ping(); },
+      [server = s.get()](bool up) { server->SetServing(up); }, options.database_ping);
+  if (s->metrics_ != nullptr) {
+    s->metrics_->SetGauge("imucal_database_up",
+                          "1 while the server reaches its database (its pings answer), 0 while "
+                          "it cannot (health NOT_SERVING, fetches answered from the cache)",
+                          [database = s->database_] { return database->up() ? 1.0 : 0.0; });
+  }
   s->parameters_ = std::make_unique<ParameterServiceImpl>(s->store_.get(), s->active_cache_.get(),
-                                                          s->auth_.get());
+                                                          s->auth_.get(), s->database_.get());
 
   // Solves this server was running when it stopped (killed, crashed), and those of servers
   // sharing the database whose claim has lapsed, are queued to run again before the first call
@@ -271,6 +283,7 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   if (s->server_ == nullptr || s->port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
   }
+  s->database_->Start();
   s->background_ = std::thread([server = s.get(), id = sessions.replica_id,
                                 lease = sessions.solve_lease, sync = cache_sync] {
     server->Background(id, lease, sync);
@@ -333,6 +346,13 @@ Server::~Server() {
   Shutdown();
 }
 
+void Server::SetServing(bool serving) {
+  std::lock_guard lock(health_mu_);
+  if (shut_down_ || server_ == nullptr) return;
+  // Every service and the server as a whole (""), which --health-check and load balancers ask.
+  server_->GetHealthCheckService()->SetServingStatus(serving);
+}
+
 size_t Server::live_sessions() const { return sessions_->live_sessions(); }
 size_t Server::open_streams() const { return sessions_->open_streams(); }
 size_t Server::solve_jobs_in_memory() const { return sessions_->solve_jobs_in_memory(); }
@@ -340,8 +360,12 @@ size_t Server::solve_jobs_in_memory() const { return sessions_->solve_jobs_in_me
 std::string Server::address() const { return absl::StrCat(host_, ":", port_); }
 
 void Server::Shutdown() {
-  if (shut_down_ || server_ == nullptr) return;
-  shut_down_ = true;
+  if (database_ != nullptr) database_->Stop();  // no health change from here on
+  {
+    std::lock_guard lock(health_mu_);
+    if (shut_down_ || server_ == nullptr) return;
+    shut_down_ = true;
+  }
   // New calls are refused at once; in-flight ones get until the deadline, then are cancelled.
   server_->GetHealthCheckService()->Shutdown();
   server_->Shutdown(std::chrono::system_clock::now() + absl::ToChronoMilliseconds(drain_deadline_));

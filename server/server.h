@@ -15,6 +15,7 @@
 #include "grpcpp/grpcpp.h"
 #include "server/admin_service.h"
 #include "server/auth.h"
+#include "server/database_health.h"
 #include "server/metrics.h"
 #include "server/services.h"
 #include "server/tls.h"
@@ -55,6 +56,9 @@ struct ServerOptions {
   // SQLite only: on PostgreSQL every server hears of each change as it commits (LISTEN/NOTIFY,
   // Store::ListenForActiveChanges), and this is not used.
   absl::Duration active_cache_sync = absl::Milliseconds(250);
+  // How often the server pings its database (server/database_health.h): health answers
+  // NOT_SERVING from the first ping that cannot reach it until one does again.
+  absl::Duration database_ping = absl::Seconds(1);
   // "HOST:PORT" to serve Prometheus metrics on (http://HOST:PORT/metrics, server/metrics.h);
   // port 0 picks a free one; empty: no metrics kept.
   std::string metrics_listen;
@@ -71,6 +75,8 @@ class Server {
   void Wait() { server_->Wait(); }
   // The file Start wrote the first admin token to; empty when it created none.
   const std::string& admin_token_written() const { return admin_token_written_; }
+  // Whether the database answers the server's pings (server/database_health.h).
+  bool database_up() const { return database_->up(); }
   // Sessions whose live state is in memory (SessionHub::LiveSessions): what bounds the
   // server's memory per session.
   size_t live_sessions() const;
@@ -87,6 +93,8 @@ class Server {
   // Until Shutdown, on background_: renews this server's solve claims every lease / 3 and fails
   // others' lapsed ones; every `sync` (if positive), SyncActiveCache.
   void Background(const std::string& replica_id, absl::Duration lease, absl::Duration sync);
+  // The health service's answer for every service (DatabaseHealth's changes).
+  void SetServing(bool serving);
   void RenewLeases(const std::string& replica_id, absl::Duration lease);
 
  public:
@@ -112,7 +120,10 @@ class Server {
   std::unique_ptr<TokenWatch> token_watch_;  // after auth_ and sessions_: it calls both
   std::unique_ptr<ParameterServiceImpl> parameters_;
   std::unique_ptr<grpc::Server> server_;
-  bool shut_down_ = false;
+  // After server_ (its health follows the database); shared with the metrics' gauge.
+  std::shared_ptr<DatabaseHealth> database_;
+  std::mutex health_mu_;
+  bool shut_down_ = false;  // guarded by health_mu_ (read unlocked by Shutdown's own thread)
   std::mutex background_mu_;
   std::condition_variable background_cv_;
   bool background_stop_ = false;  // guarded by background_mu_

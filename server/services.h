@@ -18,6 +18,7 @@
 #include "server/active_cache.h"
 #include "server/auth.h"
 #include "server/convert.h"
+#include "server/database_health.h"
 #include "server/metrics.h"
 #include "server/session_hub.h"
 #include "server/solve_pool.h"
@@ -68,8 +69,11 @@ using ParameterServiceBase = v1::ParameterService::WithRawCallbackMethod_GetActi
 class ParameterServiceImpl final : public ParameterServiceBase {
  public:
   // `cache` (not owned, outlives the service) is invalidated by the store's on_active_change.
-  ParameterServiceImpl(storage::Store* store, ActiveParamCache* cache, Authorizer* auth)
-      : store_(store), cache_(cache), auth_(auth) {}
+  // `database` (optional, outlives the service): while it says the database is down,
+  // GetActiveParameters answers from the cache, marked served_from_cache.
+  ParameterServiceImpl(storage::Store* store, ActiveParamCache* cache, Authorizer* auth,
+                       const DatabaseHealth* database = nullptr)
+      : store_(store), cache_(cache), auth_(auth), database_(database) {}
   grpc::ServerUnaryReactor* GetActiveParameters(grpc::CallbackServerContext* context,
                                                 const grpc::ByteBuffer* request,
                                                 grpc::ByteBuffer* response) override;
@@ -91,12 +95,14 @@ class ParameterServiceImpl final : public ParameterServiceBase {
 
  private:
   absl::Status DoExport(const v1::ExportRequest& request, v1::ExportResponse* response);
-  // The cached responses of the device's active version, filled from the store on a miss.
+  // The cached responses of the device's active version, filled from the store on a miss; the
+  // last known ones (`from_cache` set) when the database cannot be reached.
   absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> ActiveEntry(
-      const std::string& device_id);
+      const std::string& device_id, bool* from_cache);
   storage::Store* store_;
   ActiveParamCache* cache_;
   Authorizer* auth_;
+  const DatabaseHealth* database_;
   ParamCrcCache crc_cache_;  // the CRC, once per version
 };
 
@@ -158,6 +164,7 @@ struct StreamEnv {
   StreamSlots* device_slots = nullptr;   // StreamSamples per device
   StreamClaims* device_claims = nullptr;  // StreamSamples per device across servers
   StreamSlots* watcher_slots = nullptr;  // WatchSession per session
+  StreamSlots* session_streams = nullptr;  // StreamSamples per session (OpenStreams)
   // Runs `work` on the session loaders, off the RPC threads; false when their queue is full.
   std::function<bool(std::function<void()> work)> defer;
   // The session as GetSession answers it, without loading it (SessionServiceImpl).
@@ -187,6 +194,11 @@ class SessionServiceImpl final : public SessionServiceBase {
   ~SessionServiceImpl() override;
   size_t live_sessions() { return hub_.LiveSessions(); }  // SessionHub::LiveSessions
   size_t open_streams() { return registry_.size(); }      // the streaming calls
+  // StreamSamples streams of the session open now (Session.open_streams), from their first
+  // batch until they end: this server's, or 1 while another server sharing the database holds
+  // the device's stream claim for the session. The one place that says it: a solve waits on it
+  // (SolveSession).
+  int OpenStreams(const std::string& session_id, const std::string& device_id);
   size_t solve_jobs_in_memory();
   // Counts samples and solves into `metrics` (which must outlive the service) and gives it
   // the sessions', streams' and queue's gauges. Called before serving.
@@ -293,6 +305,7 @@ class SessionServiceImpl final : public SessionServiceBase {
   StreamSlots stream_slots_;   // StreamSamples per device
   StreamClaims stream_claims_;  // ...and across the servers sharing the database
   StreamSlots watcher_slots_;  // WatchSession per session
+  StreamSlots session_streams_;  // StreamSamples per session: OpenStreams
   std::mutex jobs_mu_;
   std::map<std::string, v1::SolveJob> jobs_;  // guarded by jobs_mu_
   // Finished jobs in jobs_, oldest first, with when they finished; guarded by jobs_mu_.

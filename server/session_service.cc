@@ -166,6 +166,7 @@ SessionServiceImpl::SessionServiceImpl(storage::Store* store, SessionServiceOpti
   env_.device_slots = &stream_slots_;
   env_.device_claims = &stream_claims_;
   env_.watcher_slots = &watcher_slots_;
+  env_.session_streams = &session_streams_;
   env_.defer = [this](std::function<void()> work) { return Defer(std::move(work)); };
   env_.session_proto = [this](const std::string& id) { return SessionProto(id); };
 }
@@ -178,6 +179,16 @@ SessionServiceImpl::~SessionServiceImpl() {
 size_t SessionServiceImpl::solve_jobs_in_memory() {
   std::lock_guard lock(jobs_mu_);
   return jobs_.size();
+}
+
+int SessionServiceImpl::OpenStreams(const std::string& session_id, const std::string& device_id) {
+  if (const int here = session_streams_.Held(session_id); here > 0) return here;
+  // Another server sharing the database may stream it: the device's live claim says so.
+  absl::StatusOr<std::optional<storage::StreamClaim>> claim = store_->GetStreamClaim(device_id);
+  return claim.ok() && *claim && (*claim)->session_id == session_id &&
+                 (*claim)->holder != stream_claims_.holder()
+             ? 1
+             : 0;
 }
 
 void SessionServiceImpl::RevokeStreams(int64_t token_id, const std::string& why) {
@@ -225,7 +236,11 @@ absl::StatusOr<v1::Session> SessionServiceImpl::SessionProtoWithoutJob(
   // is not is answered from its stored poses, never loaded here: loading decodes every stored
   // batch, so reading old sessions would cost seconds and grow memory.
   std::shared_ptr<LiveSession> live = hub_.Find(session_id);
-  if (live == nullptr) return ToProto(*session, -1);
+  if (live == nullptr) {
+    v1::Session out = ToProto(*session, -1);
+    out.set_open_streams(OpenStreams(session_id, session->device_id));
+    return out;
+  }
   // Unless this server holds the device's stream (then it stored every batch), another server
   // may have stored batches since it last looked: read through (a query that finds nothing,
   // usually), so that every server shows the session as the database holds it.
@@ -241,6 +256,7 @@ absl::StatusOr<v1::Session> SessionServiceImpl::SessionProtoWithoutJob(
   }
   std::lock_guard lock(live->mu);
   v1::Session out = ToProto(*session, live->segmenter->poses_accepted());
+  out.set_open_streams(OpenStreams(session_id, session->device_id));
   if (session->state == storage::SessionState::kOpen) {
     // The samples, last batch and digest the session has taken in, all three as of one moment:
     // a batch whose commit has not been acknowledged yet shows in none of them (storage may be
@@ -433,6 +449,18 @@ absl::Status SessionServiceImpl::DoSolve(const std::string& actor,
   if (!pool_.Reserve()) {
     return absl::ResourceExhaustedError(
         "the solve queue is full; retry in a minute (GetSolveJob shows running jobs)");
+  }
+  // A robot still uploading into the session: solving now would end its stream and leave the
+  // rest of its capture unstored (the guide waits for Session.open_streams to fall to 0).
+  if (const int open = OpenStreams(request.session_id(), live->device.id);
+      open > 0 && !request.force()) {
+    pool_.Release();
+    return absl::FailedPreconditionError(absl::StrCat(
+        "session ", request.session_id(), " has ", open, " sample stream", open == 1 ? "" : "s",
+        " open (device ", live->device.id,
+        " is still uploading into it): a solve now would end the upload and leave the rest of "
+        "the capture unstored; solve once the stream has ended (Session.open_streams is 0), or "
+        "force the solve (SolveSessionRequest.force, imucal solve --force)"));
   }
   absl::StatusOr<storage::Solve> solve;
   std::vector<LiveEvent> last_pose;

@@ -15,6 +15,7 @@
 #include <cmath>
 #include <deque>
 #include <iterator>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -94,7 +95,9 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
   // token). Called once, by the handler, on a reactor owned by `self`.
   void Start(std::shared_ptr<IngestReactor> self) {
     self_ = std::move(self);
-    absl::Status added = env_.registry->Add(shared_from_this(), CallerKey(*who_), who_->token_id);
+    // Silent until its first batch: its place may go to a caller with fewer streams meanwhile.
+    absl::Status added = env_.registry->Add(shared_from_this(), CallerKey(*who_), who_->token_id,
+                                            /*silent=*/true);
     std::lock_guard lock(mu_);
     if (!added.ok()) {
       FinishLocked(ToGrpcStatus(added));
@@ -118,6 +121,7 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
         FinishLocked(grpc::Status::OK);
         return;
       }
+      if (first_read_) env_.registry->Heard(this);  // it keeps its place from now on
     }
     if (absl::Status s = Submit(); !s.ok()) End(ToGrpcStatus(s));
   }
@@ -388,7 +392,9 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     Finish(status);
   }
 
-  // The device's slot here, then its claim across the servers sharing the database.
+  // The device's slot here, then its claim across the servers sharing the database, and the
+  // session's count of open streams (Session.open_streams, which holds off a solve until the
+  // stream ends).
   absl::Status AcquireSlot() {
     std::lock_guard lock(slot_mu_);
     const std::string& device = live_->device.id;
@@ -403,6 +409,8 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
       return s;
     }
     slot_device_ = device;
+    env_.session_streams->TryAcquire(session_id_, std::numeric_limits<int>::max());
+    slot_session_ = session_id_;
     return absl::OkStatus();
   }
 
@@ -411,7 +419,9 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
     if (slot_device_.empty()) return;
     env_.device_slots->Release(slot_device_);
     env_.device_claims->Release(slot_device_);
+    env_.session_streams->Release(slot_session_);
     slot_device_.clear();
+    slot_session_.clear();
   }
 
   // Another server took the device's claim (this one's renewal came too late): the stream
@@ -451,7 +461,8 @@ class IngestReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grp
   bool done_ = false;  // guarded by ctx_mu_: OnDone has begun, context_ is going
 
   std::mutex slot_mu_;
-  std::string slot_device_;  // guarded by slot_mu_; empty when no slot is held
+  std::string slot_device_;   // guarded by slot_mu_; empty when no slot is held
+  std::string slot_session_;  // guarded by slot_mu_; the session counted with the slot
 };
 
 // WatchSession: a snapshot, then the session's events as they are published. The hub pushes

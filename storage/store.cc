@@ -164,6 +164,11 @@ void Store::StopListening() { listener_.reset(); }
 
 Dialect Store::dialect() const { return writer_->dialect(); }
 
+absl::Status Store::Ping() {
+  ReadLease lease = AcquireReader();
+  return Annotate("Ping", lease.conn().Exec("SELECT 1"));
+}
+
 void PauseBeforeRetry(int attempt) {
   thread_local std::mt19937_64 rng{std::random_device{}()};
   const int64_t max_us = int64_t{1000} << std::min(attempt, 8);

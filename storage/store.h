@@ -120,6 +120,9 @@ class Store {
                                                      StoreOptions options = {});
   ~Store();
   Dialect dialect() const;  // which backend
+  // A trivial query on a reader: OK when the database answers (a PostgreSQL connection that
+  // broke is opened again first), else its status (Unavailable when it cannot be reached).
+  absl::Status Ping();
   Store(const Store&) = delete;
   Store& operator=(const Store&) = delete;
 

@@ -1,10 +1,14 @@
 // `imucal guide`: the technician's live guidance over a session's WatchSession events. The
 // samples come from the robot (its SDK Uploader, or `imucal upload`); the guide only watches,
-// says what to do next, and starts the solve when the protocol is complete.
+// says what to do next, and starts the solve when the protocol is complete and the robot's
+// upload has ended (the server refuses a solve while a stream of the session is open: it would
+// cut the capture short).
 #include <unistd.h>
 
 #include <chrono>
+#include <condition_variable>
 #include <cstdio>
+#include <mutex>
 #include <string>
 #include <thread>
 #include <vector>
@@ -35,7 +39,8 @@ constexpr char kGuideHelp[] =
     "  --protocol P       six-face (default): faces and 180-degree pairs; positions: the 24\n"
     "                     positions (faces and edges); free: hand-held (faces and corners);\n"
     "                     ferraris, auto: no target, so the guide shows poses but never solves\n"
-    "  --no-solve         do not start the solve when the protocol is complete\n"
+    "  --no-solve         do not start the solve when the protocol is complete (else it starts\n"
+    "                     once the robot's upload has ended, the guide saying it waits for it)\n"
     "  --seed N           BSAS seed for the solve\n"
     "  --reconnects N     re-open the event stream at most N times if it drops (default 5)\n"
     "  --server ADDR      the calibration service (default $IMUCAL_SERVER, else 127.0.0.1:50051)\n"
@@ -46,6 +51,122 @@ int ExitFor(const pb::SolveJob& job) {
   if (job.state() == pb::JOB_STATE_FAILED) return kExitUndetermined;
   return ExitForVerdict(job.verdict());
 }
+
+// Starts the session's solve once the protocol is complete and no stream of the session is open
+// (Session.open_streams): the robot's upload goes on after the last pose (its trailing samples),
+// and a solve would end it with the rest of the capture unstored. Meanwhile it says that it waits
+// and how far the upload has come. Runs on a thread of its own, reading GetSession every
+// kPoll: the upload's end is another client's stream ending, which no call of the guide's can
+// wait on (the watch's events stop with the samples).
+class SolveWhenUploaded {
+ public:
+  static constexpr auto kPoll = std::chrono::milliseconds(500);
+  static constexpr auto kProgressEvery = std::chrono::seconds(2);
+
+  // `view` is shared with the event loop, under `view_mu`.
+  SolveWhenUploaded(const Server& server, std::string session_id, uint64_t seed, GuideView* view,
+                    std::mutex* view_mu)
+      : server_(server),
+        session_id_(std::move(session_id)),
+        seed_(seed),
+        view_(view),
+        view_mu_(view_mu) {}
+  ~SolveWhenUploaded() { Stop(); }
+
+  void Begin() {  // once; from the event loop, view_mu held
+    if (thread_.joinable()) return;
+    thread_ = std::thread([this] { Run(); });
+  }
+  void Stop() {
+    {
+      std::lock_guard lock(mu_);
+      stopping_ = true;
+    }
+    cv_.notify_all();
+    if (thread_.joinable()) thread_.join();
+  }
+  std::string job_id() {
+    std::lock_guard lock(mu_);
+    return job_id_;
+  }
+
+ private:
+  void Say(const std::string& text) {
+    std::lock_guard lock(*view_mu_);
+    view_->Line(text);
+  }
+
+  void Run() {
+    bool said_waiting = false;
+    auto last_said = std::chrono::steady_clock::now();
+    int64_t last_samples = -1;
+    for (;;) {
+      {
+        std::unique_lock lock(mu_);
+        if (stopping_) return;
+      }
+      pb::Session now;
+      grpc::Status got = GetSession(server_, session_id_, &now);
+      if (got.ok() && now.open_streams() == 0) {
+        if (now.state() != pb::SESSION_STATE_OPEN) return;  // solved or cancelled meanwhile
+        pb::SolveSessionRequest solve;
+        solve.set_session_id(session_id_);
+        solve.set_seed(seed_);
+        pb::SolveJob job;
+        auto ctx = CallContext();
+        // The view held through the call: the solve's events, which the watch may bring first,
+        // are shown after the line that starts it.
+        std::unique_lock view_lock(*view_mu_);
+        grpc::Status s = server_.sessions->SolveSession(ctx.get(), solve, &job);
+        if (s.ok()) {
+          {
+            std::lock_guard lock(mu_);
+            job_id_ = job.id();
+          }
+          view_->Line(absl::StrCat(said_waiting ? "upload complete: " : "protocol complete: ",
+                                   "starting the solve (job ", job.id(), ") on ", now.samples(),
+                                   " samples"));
+          return;
+        }
+        view_lock.unlock();
+        // A stream opened meanwhile (the robot resumed): wait for it too.
+        if (s.error_code() != grpc::StatusCode::FAILED_PRECONDITION ||
+            s.error_message().find("stream") == std::string::npos) {
+          Say(absl::StrCat("could not start the solve: ", s.error_message()));
+          return;
+        }
+      } else if (got.ok()) {
+        const auto t = std::chrono::steady_clock::now();
+        if (!said_waiting) {
+          Say(absl::StrFormat(
+              "protocol complete: waiting for the robot's upload to finish before solving "
+              "(%d samples stored so far, %d stream%s open)",
+              now.samples(), now.open_streams(), now.open_streams() == 1 ? "" : "s"));
+          said_waiting = true;
+          last_said = t;
+          last_samples = now.samples();
+        } else if (t - last_said >= kProgressEvery && now.samples() != last_samples) {
+          Say(absl::StrFormat("waiting for the upload: %d samples stored", now.samples()));
+          last_said = t;
+          last_samples = now.samples();
+        }
+      }
+      std::unique_lock lock(mu_);
+      cv_.wait_for(lock, kPoll, [this] { return stopping_; });
+    }
+  }
+
+  const Server& server_;
+  const std::string session_id_;
+  const uint64_t seed_;
+  GuideView* view_;
+  std::mutex* view_mu_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool stopping_ = false;  // guarded by mu_
+  std::string job_id_;     // guarded by mu_
+  std::thread thread_;
+};
 
 }  // namespace
 
@@ -85,7 +206,8 @@ int RunGuide(const std::vector<std::string>& argv) {
                       "(e.g. imucal upload FILE --session %s).",
                       session.id(), session.id()));
 
-  std::string job_id;
+  std::mutex view_mu;  // the view is written by this loop and by the solver's thread
+  SolveWhenUploaded solver(server, session.id(), static_cast<uint64_t>(*seed), &view, &view_mu);
   bool done = false;
   int drops = 0;
   while (!done) {
@@ -99,31 +221,27 @@ int RunGuide(const std::vector<std::string>& argv) {
     bool got_event = false;
     while (!done && stream->Read(&event)) {
       got_event = true;
+      std::lock_guard lock(view_mu);
       done = view.OnEvent(event);
-      if (!done && view.ReadyToSolve() && job_id.empty() && !a->Has("no-solve")) {
-        pb::SolveSessionRequest solve;
-        solve.set_session_id(session.id());
-        solve.set_seed(static_cast<uint64_t>(*seed));
-        pb::SolveJob job;
-        auto ctx = CallContext();
-        if (grpc::Status s = server.sessions->SolveSession(ctx.get(), solve, &job); !s.ok()) {
-          view.Line(absl::StrCat("could not start the solve: ", s.error_message()));
-        } else {
-          job_id = job.id();
-          view.Line(absl::StrCat("protocol complete: starting the solve (job ", job.id(), ")"));
-        }
-      }
+      if (!done && view.ReadyToSolve() && !a->Has("no-solve")) solver.Begin();
     }
     if (done) context.TryCancel();
     const grpc::Status status = stream->Finish();
     if (done) break;
     if (status.ok()) break;  // the server ended the stream: the session is closed
     if (got_event) drops = 0;
-    if (!sdk::IsUnreachable(sdk::FromGrpcStatus(status)) || ++drops > *reconnects)
+    if (!sdk::IsUnreachable(sdk::FromGrpcStatus(status)) || ++drops > *reconnects) {
+      solver.Stop();
       return RpcError(server, status);
-    view.Line(absl::StrCat("connection lost (", status.error_message(), "), reconnecting..."));
+    }
+    {
+      std::lock_guard lock(view_mu);
+      view.Line(absl::StrCat("connection lost (", status.error_message(), "), reconnecting..."));
+    }
     std::this_thread::sleep_for(std::chrono::milliseconds(200 << std::min(drops, 5)));
   }
+  solver.Stop();
+  const std::string job_id = solver.job_id();
 
   // The stream ended without the solve's result (a server that does not send it): ask for it.
   pb::SolveJob job = view.final_job();

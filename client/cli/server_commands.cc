@@ -273,17 +273,21 @@ int RunSession(const std::vector<std::string>& argv) {
 namespace {
 
 constexpr char kSolveHelp[] =
-    "usage: imucal solve --session S [--wait] [--seed N] [--timeout SECONDS] [--json]\n"
+    "usage: imucal solve --session S [--wait] [--force] [--seed N] [--timeout SECONDS] [--json]\n"
     "  Starts a solve job for the session's samples. With --wait, waits for the result and\n"
-    "  prints the version created, its verdict and whether it became active.\n"
-    "options:\n";
+    "  prints the version created, its verdict and whether it became active. A session whose\n"
+    "  robot is still uploading (a sample stream open) is not solved: the server says so.\n"
+    "options:\n"
+    "  --force            solve even while a stream is open: the upload is ended and the rest\n"
+    "                     of its capture is not stored\n";
 
 // Starts a solve and, if `wait`, polls the job until it finishes (at most timeout_s).
 int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t seed, bool wait,
-                      double timeout_s, bool as_json) {
+                      double timeout_s, bool as_json, bool force = false) {
   pb::SolveSessionRequest req;
   req.set_session_id(session);
   req.set_seed(seed);
+  req.set_force(force);
   pb::SolveJob job;
   {
     auto ctx = CallContext();
@@ -374,7 +378,7 @@ int RunSolve(const std::vector<std::string>& argv) {
     return UsageError("--seed and --timeout take numbers", kSolveHelp);
   Server server = Connect(*a);
   return SolveAndMaybeWait(server, *session, static_cast<uint64_t>(*seed), a->Has("wait"), *timeout,
-                           a->Has("json"));
+                           a->Has("json"), a->Has("force"));
 }
 
 // ------------------------------------------------------------------------------------------
@@ -395,6 +399,8 @@ constexpr char kUploadHelp[] =
     "  --protocol six-face|positions|free|ferraris|auto   for a new session (default auto)\n"
     "  --format F   --accel-unit U   --gyro-unit U   input as for calibrate (and below)\n"
     "  --batch N          samples per batch (default 2000)\n"
+    "  --pace X           send at X times the capture's real-time rate (its t_s), as a robot\n"
+    "                     streams while it captures (default: as fast as the server takes it)\n"
     "  --solve            solve when the upload is complete and wait for the verdict\n"
     "  --seed N           with --solve: the solve's BSAS seed (default 0)\n"
     "  --timeout SECONDS  with --solve: how long to wait for the verdict (default 600)\n"
@@ -468,6 +474,9 @@ int RunUpload(const std::vector<std::string>& argv) {
   if (!batch.ok() || *batch < 1 || *batch > 20000)
     return UsageError("--batch: expected 1..20000 samples (the server's limit per batch)",
                       kUploadHelp);
+  auto pace = a->GetDouble("pace", 0);
+  if (!pace.ok() || !(*pace >= 0) || !std::isfinite(*pace))
+    return UsageError("--pace: expected a positive number (times real time)", kUploadHelp);
   auto io = UploadImportOptions(*a);
   if (!io.ok()) return UsageError(std::string(io.status().message()), kUploadHelp);
   auto capture = importers::ImportCapture(a->positional(), *io);
@@ -564,6 +573,7 @@ int RunUpload(const std::vector<std::string>& argv) {
   sdk::UploadOptions options;
   options.batch_samples = static_cast<int>(*batch);
   options.source = CaptureName(a->positional());
+  options.pace = *pace;
   options.progress = [&bar](int64_t done, int64_t total) { bar.Update(done, total); };
   sdk::Uploader uploader(server.channel, options);
   absl::StatusOr<sdk::UploadResult> result = uploader.Upload(session.id(), *capture);

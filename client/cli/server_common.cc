@@ -10,6 +10,7 @@
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
 #include "client/sdk/client.h"
+#include "client/sdk/grpc_status.h"
 #include "google/protobuf/util/json_util.h"
 #include "google/protobuf/util/time_util.h"
 
@@ -151,6 +152,11 @@ grpc::Status CreateSession(const Server& server, const std::string& device_id,
 }
 
 int RpcError(const Server& server, const absl::Status& status) {
+  if (sdk::IsDatabaseUnavailable(status)) {  // the server answered: it is not unreachable
+    std::fprintf(stderr, "imucal: server %s is up, but %s; retry later\n", server.address.c_str(),
+                 sdk::kDatabaseUnavailableMessage);
+    return kExitUnavailable;
+  }
   if (status.code() == absl::StatusCode::kUnavailable ||
       status.code() == absl::StatusCode::kDeadlineExceeded) {
     std::fprintf(stderr, "imucal: server %s unreachable: %s\n", server.address.c_str(),

@@ -50,7 +50,8 @@ grpc::Status CreateSession(const Server& server, const std::string& device_id,
                            imucal::v1::Protocol protocol, double gravity_m_s2,
                            imucal::v1::Session* session);
 
-// Prints "imucal: <the server's message>" (for an unreachable server: which address) to stderr
+// Prints "imucal: <the server's message>" (for an unreachable server: which address; for a
+// server whose database is unavailable: that the server is up, and that) to stderr
 // and returns the exit code: kExitUnavailable for UNAVAILABLE / DEADLINE_EXCEEDED, kExitBadInput
 // for INVALID_ARGUMENT / NOT_FOUND / ALREADY_EXISTS, kExitUndetermined for FAILED_PRECONDITION,
 // kExitDenied for UNAUTHENTICATED / PERMISSION_DENIED, kExitInternal otherwise.

@@ -21,6 +21,15 @@ inline bool IsUnreachable(const absl::Status& status) {
   return absl::IsUnavailable(status) || absl::IsDeadlineExceeded(status);
 }
 
+// The server answered, but its database cannot be reached: UNAVAILABLE with this message
+// (server/status_util.h, kDatabaseUnavailableMessage). Retrying later helps, as for an
+// unreachable server, but the server itself is up and says so.
+inline constexpr char kDatabaseUnavailableMessage[] =
+    "the calibration service's database is unavailable";
+inline bool IsDatabaseUnavailable(const absl::Status& status) {
+  return absl::IsUnavailable(status) && status.message() == kDatabaseUnavailableMessage;
+}
+
 }  // namespace imucal::sdk
 
 #endif  // IMUCAL_CLIENT_SDK_GRPC_STATUS_H_

@@ -1,6 +1,7 @@
 #include "client/sdk/uploader.h"
 
 #include <algorithm>
+#include <cmath>
 #include <thread>
 #include <utility>
 
@@ -29,6 +30,8 @@ absl::Status CheckColumns(const SampleColumns& s) {
 absl::Status CheckOptions(const UploadOptions& o) {
   if (o.batch_samples < 1) return absl::InvalidArgumentError("batch_samples must be >= 1");
   if (o.max_in_flight < 1) return absl::InvalidArgumentError("max_in_flight must be >= 1");
+  if (!(o.pace >= 0) || !std::isfinite(o.pace))
+    return absl::InvalidArgumentError("pace must be 0 or a positive number");
   if (o.retry_for < absl::ZeroDuration())
     return absl::InvalidArgumentError("retry_for must not be negative");
   return absl::OkStatus();
@@ -240,17 +243,25 @@ absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleCol
   int64_t acked_seq = first_seq - 1;  // guarded by window_mu
   bool reading_done = false;          // guarded by window_mu
 
+  const absl::Time started = absl::Now();
   std::thread writer([&] {
     for (int64_t k = 0; k < batches; ++k) {
       const int64_t seq = first_seq + k;
+      const int64_t begin = first_sample + k * n;
+      const int64_t end = std::min(total, begin + n);
       {
         std::unique_lock<std::mutex> lock(window_mu);
         window_cv.wait(lock,
                        [&] { return reading_done || seq - acked_seq <= options_.max_in_flight; });
+        if (options_.pace > 0) {  // the batch's last sample has been captured
+          const double capture_s = samples.t_s[static_cast<size_t>(end - 1)] -
+                                   samples.t_s[static_cast<size_t>(first_sample)];
+          window_cv.wait_until(
+              lock, absl::ToChronoTime(started + absl::Seconds(capture_s / options_.pace)),
+              [&] { return reading_done; });
+        }
         if (reading_done) return;
       }
-      const int64_t begin = first_sample + k * n;
-      const int64_t end = std::min(total, begin + n);
       pb::SampleBatch batch = MakeBatch(session_id, samples, begin, end, seq);
       if (k == 0) {
         batch.set_resume_sha256(resume_sha256);

@@ -72,6 +72,11 @@ inline constexpr char kNoGyroUploadMessage[] =
 struct UploadOptions {
   int batch_samples = 2000;  // samples per batch (the last one may be shorter)
   int max_in_flight = 8;     // batches sent and not yet acknowledged
+  // 0: batches go as fast as the server acknowledges them (a backlog). X > 0: a batch is sent
+  // no earlier than its last sample's t_s after the stream's first, divided by X, from the
+  // stream's start: X = 1 streams as a robot does while it captures, X = 20 twenty times as
+  // fast (to test beside a live guide without waiting the capture's length).
+  double pace = 0;
   // The upload gives up when no batch has been acknowledged for this long (see the retry
   // policy above): a server restart of a minute, or several, is ridden out.
   absl::Duration retry_for = absl::Minutes(5);

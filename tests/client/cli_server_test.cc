@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -16,9 +17,12 @@
 
 #include "absl/strings/str_cat.h"
 #include "client/cli/commands.h"
+#include "client/cli/server_common.h"
 #include "core/simulator.h"
 #include "formats/params_json.h"
+#include "grpcpp/grpcpp.h"
 #include "importers/imucal_csv.h"
+#include "imucal/v1/imucal.grpc.pb.h"
 #include "nlohmann/json.hpp"
 #include "tests/client/imucald_process.h"
 #include "yaml-cpp/yaml.h"
@@ -416,6 +420,60 @@ TEST_F(CliServerTest, NoiseFromASessionRefusesWhatCannotBeRead) {
   const std::string err = testing::internal::GetCapturedStderr();
   EXPECT_EQ(code, kExitUnavailable) << err;
   EXPECT_NE(err.find(nowhere), std::string::npos) << err;
+}
+
+// A robot still streaming into the session: `imucal solve` is refused, saying so (exit 3, as
+// the server's FAILED_PRECONDITION), and `imucal solve --force` starts the solve regardless.
+TEST_F(CliServerTest, SolveIsRefusedWhileTheRobotStreamsUnlessForced) {
+  Register("robot-cli-7");
+  ASSERT_EQ(Run(RunSession, {"start", "--device", "robot-cli-7", "--json"}), kExitOk) << err_;
+  const std::string id = json::parse(out_)["id"];
+  core::SimOptions sim;
+  sim.seed = 9;
+  auto r = core::Simulate(sim);
+  ASSERT_TRUE(r.ok()) << r.status();
+  auto channel = grpc::CreateChannel(server_->address(), grpc::InsecureChannelCredentials());
+  auto sessions = v1::SessionService::NewStub(channel);
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  auto stream = sessions->StreamSamples(&ctx);
+  v1::SampleBatch batch;
+  batch.set_session_id(id);
+  batch.set_seq(1);
+  for (size_t i = 0; i < 2000; ++i) {
+    batch.add_t_s(r->capture.t_s[i]);
+    for (int k = 0; k < 3; ++k) {
+      batch.add_accel(r->capture.accel[i](k));
+      batch.add_gyro(r->capture.gyro[i](k));
+    }
+  }
+  ASSERT_TRUE(stream->Write(batch));
+  v1::SampleAck ack;
+  ASSERT_TRUE(stream->Read(&ack));
+
+  EXPECT_EQ(Run(RunSolve, {"--session", id}), kExitUndetermined) << out_;
+  EXPECT_NE(err_.find("session " + id + " has 1 sample stream open"), std::string::npos) << err_;
+  EXPECT_NE(err_.find("imucal solve --force"), std::string::npos) << err_;
+  ASSERT_EQ(Run(RunSolve, {"--session", id, "--force"}), kExitOk) << err_;
+  EXPECT_NE(out_.find("solve job solve-"), std::string::npos) << out_;
+  ctx.TryCancel();
+  stream->Finish();
+}
+
+// A server whose database is down answers, UNAVAILABLE: the CLI says the server is up and its
+// database is not, rather than that the server is unreachable.
+TEST(CliServerUnreachableTest, ADatabaseOutageIsNotCalledAnUnreachableServer) {
+  Server server;
+  server.address = "127.0.0.1:50051";
+  testing::internal::CaptureStderr();
+  const int code = RpcError(server, grpc::Status(grpc::StatusCode::UNAVAILABLE,
+                                                 "the calibration service's database is "
+                                                 "unavailable"));
+  const std::string err = testing::internal::GetCapturedStderr();
+  EXPECT_EQ(code, kExitUnavailable);
+  EXPECT_EQ(err,
+            "imucal: server 127.0.0.1:50051 is up, but the calibration service's database is "
+            "unavailable; retry later\n");
 }
 
 TEST(CliServerUnreachableTest, ExitCodeSix) {

@@ -4,13 +4,17 @@
 # TYPED with send-keys: `imucal --server ADDR guide --device D --protocol six-face` in one window,
 # and in a second window the robot's `imucal upload capture.csv --device D --session S` (its
 # progress bar shows there). Assertions read the windows with `tmux capture-pane -p`.
-#   1. a clean six-face capture: the guide's instructions, progress, accepted poses, the result;
-#      the upload's progress bar; both exit codes (typed `echo $?`).
+#   1. a clean six-face capture streamed as a robot streams it while capturing (`upload --pace
+#      20`: twenty times real time), with poses after the protocol's: the guide's instructions,
+#      progress, accepted poses; that it waits for the upload to finish before solving (the
+#      robot still streams after the protocol's last pose), and then solves; the upload's
+#      progress bar; every sample stored; both exit codes (typed `echo $?`).
 #   2. a capture from `imucal simulate --botch-turn` (the first half turn stops a quarter turn
 #      short, is held, then finished): the failed pair with its reason, the re-do prompt, the
 #      re-done pair accepted, the last face, the result, the guide's exit code 0. Typed short, as
 #      a technician would: `guide --device D` (six-face by default) and `upload FILE --device D`,
-#      which streams into the session the guide opened.
+#      which streams into the session the guide opened. The upload at full speed: the guide
+#      waits for it all the same, and it ends with every sample stored.
 # Waiting on a pane's content is bounded polling with a deadline (tmux offers nothing to wait on
 # for it); everything else waits on the command itself.
 # usage: guide_tmux_test.sh IMUCAL IMUCALD
@@ -83,7 +87,7 @@ for device in robot-tmux robot-botch; do
 done
 # One extra random pose after the protocol: the robot moves on after the last pose, which is
 # what closes that pose for the online segmentation (as a technician picking the robot up).
-"$imucal" simulate --out "$dir/capture.csv" --seed 11 --extra-poses 1 >/dev/null
+"$imucal" simulate --out "$dir/capture.csv" --seed 11 --extra-poses 8 >/dev/null
 "$imucal" simulate --out "$dir/botched.csv" --seed 11 --extra-poses 1 --botch-turn >/dev/null
 
 # A plain shell in a 160x60 terminal with `imucal` on its PATH, in the captures' directory.
@@ -100,16 +104,19 @@ open_window() {
   wait_for 10 at_new_prompt "$1" 0 || fail "no shell prompt in window $1"
 }
 
-# run_guided N DEVICE CAPTURE [short]: in fresh windows guideN and robotN, types the guide for
-# DEVICE, then the robot's upload of CAPTURE into the guide's session; returns when both are back
-# at their prompt. "short" types what a technician would: the guide without --protocol
-# (six-face is its default) and `upload --device` alone, which streams into the device's open,
-# still empty session (the guide's).
+# run_guided N DEVICE CAPTURE [short|paced]: in fresh windows guideN and robotN, types the guide
+# for DEVICE, then the robot's upload of CAPTURE into the guide's session; returns when both are
+# back at their prompt, with the session's id in $session. "short" types what a technician
+# would: the guide without --protocol (six-face is its default) and `upload --device` alone,
+# which streams into the device's open, still empty session (the guide's). "paced" uploads at
+# twenty times the capture's real-time rate, as a robot streams while it captures.
+session=""
+total=""  # the last expect_upload's capture size
 run_guided() {
-  local guide=guide$1 robot=robot$1 device=$2 capture=$3 short=${4:-} session
+  local guide=guide$1 robot=robot$1 device=$2 capture=$3 short=${4:-}
   open_window "$guide"
   open_window "$robot"
-  if [[ -n "$short" ]]; then
+  if [[ "$short" == short ]]; then
     type_cmd "$guide" "imucal --server $addr guide --device $device"
   else
     type_cmd "$guide" "imucal --server $addr guide --device $device --protocol six-face"
@@ -123,10 +130,12 @@ run_guided() {
   [[ -n "$session" ]] || fail "the guide did not name its session"
   expect "$guide" "(e.g. imucal upload FILE --session $session)" \
     "the guide does not say how to stream into its session"
-  if [[ -n "$short" ]]; then
+  if [[ "$short" == short ]]; then
     type_cmd "$robot" "imucal --server $addr upload $capture --device $device"
     wait_for 20 pane_has "$robot" "streaming into $device's open session $session" ||
       fail "upload --device did not stream into the guide's session $session"
+  elif [[ "$short" == paced ]]; then
+    type_cmd "$robot" "imucal --server $addr upload $capture --device $device --session $session --pace 20"
   else
     type_cmd "$robot" "imucal --server $addr upload $capture --device $device --session $session"
   fi
@@ -134,28 +143,32 @@ run_guided() {
   wait_for 180 at_new_prompt "$guide" 1 || fail "the guide did not finish"
 }
 
-# expect_upload N: the robot's upload in window robotN exited 0 having sent every sample, or (as
-# a robot does) was stopped by the session closing for the solve while it still streamed its
-# trailing samples. Either way its progress bar, redrawn in place, shows its last state.
-bar_re='^\[[#.]{30}\] +[0-9]+%  [0-9]+/[0-9]+ samples'
+# expect_upload N: the robot's upload in window robotN exited 0 having sent every sample (the
+# guide does not solve while it streams, so the solve never cuts it short), its progress bar at
+# 100%, and the session holds every sample of the capture.
+bar_re='^\[#{30}\] 100%  ([0-9]+)/\1 samples'
 expect_upload() {
-  local robot=robot$1
+  local robot=robot$1 stored
   exit_code "$robot" UPLOAD
-  expect_re "$robot" "$bar_re" "no upload progress bar"
-  if [[ "$code" == 0 ]]; then
-    expect_re "$robot" '^\[#{30}\] 100%  ([0-9]+)/\1 samples' "the bar did not reach every sample"
-    expect "$robot" "uploaded " "no upload summary"
-  else
-    expect "$robot" "is solving, not open" "the upload failed with exit code $code"
-  fi
+  [[ "$code" == 0 ]] || fail "the upload's exit code was $code, not 0 (cut short by the solve?)"
+  expect_re "$robot" "$bar_re" "the bar did not reach every sample"
+  expect "$robot" "uploaded " "no upload summary"
+  total=$(pane "$robot" | grep -oE "$bar_re" | tail -1 | sed -E 's|.* ([0-9]+)/.*|\1|')
+  stored=$("$imucal" --server "$addr" session show "$session" --json |
+           python3 -c 'import json, sys; print(json.load(sys.stdin)["samples"])')
+  [[ "$stored" == "$total" ]] || fail "the session holds $stored samples of the capture's $total"
 }
 
-# 1. A clean six-face session.
-run_guided 1 robot-tmux capture.csv
+# 1. A clean six-face session, the robot streaming as it captures.
+run_guided 1 robot-tmux capture.csv paced
 expect_upload 1
 expect guide1 "NEXT:" "no next-pose instruction"
 expect guide1 "progress:" "no progress line"
 expect guide1 "[ok]   pose" "no accepted pose"
+expect guide1 "protocol complete: waiting for the robot's upload to finish before solving" \
+  "the guide did not say that it waits for the upload"
+expect_re guide1 "^upload complete: starting the solve \(job solve-[0-9]+\) on $total samples" \
+  "the guide did not solve the whole capture after the upload"
 expect guide1 "RESULT: version" "no solve result"
 exit_code guide1 GUIDE
 [[ "$code" == 0 ]] || fail "the guide's exit code was $code, not 0"

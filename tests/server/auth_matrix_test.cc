@@ -17,6 +17,7 @@
 #include <mutex>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "client/cli/commands.h"
@@ -718,6 +719,129 @@ TEST_F(AuthTest, ATokenHoldsAtMostItsShareOfStreams) {
   }
   EXPECT_EQ(ended, 2);
   EXPECT_EQ(refused, 1);
+}
+
+// A sample stream that sends nothing, as a flood's are: it only hears how it ends.
+class SilentStream final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAck> {
+ public:
+  struct Ends {
+    std::mutex mu;
+    std::condition_variable cv;
+    std::vector<grpc::Status> statuses;  // guarded by mu
+  };
+  SilentStream(v1::SessionService::Stub* stub, Ends* ends) : ends_(ends) {
+    context_.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    stub->async()->StreamSamples(&context_, this);
+    StartRead(&ack_);
+    StartCall();
+  }
+  void HangUp() { context_.TryCancel(); }
+  void OnReadDone(bool ok) override {
+    if (ok) StartRead(&ack_);
+  }
+  void OnDone(const grpc::Status& status) override {
+    std::lock_guard lock(ends_->mu);
+    ends_->statuses.push_back(status);
+    ends_->cv.notify_all();
+  }
+
+ private:
+  Ends* ends_;
+  grpc::ClientContext context_;
+  v1::SampleAck ack_;
+};
+
+// The server's places are shared fairly (server/stream_registry.h): silent streams from many
+// tokens fill the server (max_streams), each token within its share, and a robot with a token
+// of its own still streams: its stream takes the place of a silent one of the token with the
+// most, which is told why. (Before, the robot was refused until the flood's streams timed out.)
+TEST_F(AuthTest, ARobotStreamsThroughAFloodOfSilentStreamsFromManyTokens) {
+  options_.sessions.max_streams = 12;
+  options_.sessions.max_streams_per_token = 4;
+  StartServer();
+  const std::string admin = AdminSecret();
+  const v1::CreateTokenResponse robot = CreateToken(admin, v1::ROLE_ROBOT, kDeviceA, "robot A");
+  auto admin_channel = Channel(admin);
+  v1::RegisterDeviceRequest reg;
+  reg.mutable_device()->set_id(kDeviceA);
+  reg.mutable_device()->set_sensor_model("test IMU");
+  reg.mutable_device()->set_nominal_rate_hz(100);
+  reg.mutable_device()->set_accel_unit("m/s^2");
+  reg.mutable_device()->set_gyro_unit("rad/s");
+  v1::Device device;
+  ASSERT_TRUE(
+      v1::DeviceService::NewStub(admin_channel)->RegisterDevice(Ctx().get(), reg, &device).ok());
+  v1::CreateSessionRequest create;
+  create.set_device_id(kDeviceA);
+  v1::Session session;
+  ASSERT_TRUE(v1::SessionService::NewStub(admin_channel)
+                  ->CreateSession(Ctx().get(), create, &session)
+                  .ok());
+
+  // Six flood tokens, four streams each: twelve hold the server's places, twelve are refused.
+  constexpr int kFloodTokens = 6, kPerToken = 4;
+  std::vector<std::unique_ptr<v1::SessionService::Stub>> flood_stubs;
+  for (int t = 0; t < kFloodTokens; ++t) {
+    const v1::CreateTokenResponse flood =
+        CreateToken(admin, v1::ROLE_ROBOT, kDeviceB, "flood " + std::to_string(t));
+    flood_stubs.push_back(v1::SessionService::NewStub(Channel(flood.secret())));
+  }
+  SilentStream::Ends ends;
+  std::vector<std::unique_ptr<SilentStream>> flood;
+  for (int i = 0; i < kPerToken; ++i)
+    for (auto& stub : flood_stubs)
+      flood.push_back(std::make_unique<SilentStream>(stub.get(), &ends));
+  const int refused = kFloodTokens * kPerToken - options_.sessions.max_streams;
+  {
+    std::unique_lock lock(ends.mu);
+    ASSERT_TRUE(ends.cv.wait_for(lock, std::chrono::seconds(30), [&] {
+      return static_cast<int>(ends.statuses.size()) >= refused;
+    }));
+    for (const grpc::Status& st : ends.statuses)
+      EXPECT_EQ(st.error_code(), StatusCode::RESOURCE_EXHAUSTED) << st.error_message();
+  }
+  // The places the refused and replaced streams held are free once they have ended on the
+  // server too (bounded polling: the registry has nothing to wait on).
+  for (auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+       server_->open_streams() != static_cast<size_t>(options_.sessions.max_streams) &&
+       std::chrono::steady_clock::now() < deadline;)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  ASSERT_EQ(server_->open_streams(), static_cast<size_t>(options_.sessions.max_streams));
+
+  // The robot streams into its session, and its batch is acknowledged.
+  auto robot_sessions = v1::SessionService::NewStub(Channel(robot.secret()));
+  auto stream_ctx = Ctx();
+  auto stream = robot_sessions->StreamSamples(stream_ctx.get());
+  v1::SampleBatch batch;
+  batch.set_session_id(session.id());
+  batch.set_seq(1);
+  for (int i = 0; i < 10; ++i) {
+    batch.add_t_s(static_cast<double>(i) / 100);
+    for (double x : {0.0, 0.0, 9.81}) batch.add_accel(x);
+    for (double x : {0.0, 0.0, 0.0}) batch.add_gyro(x);
+  }
+  ASSERT_TRUE(stream->Write(batch));
+  v1::SampleAck ack;
+  ASSERT_TRUE(stream->Read(&ack)) << stream->Finish().error_message();
+  EXPECT_EQ(ack.last_acked_seq(), 1);
+  stream->WritesDone();
+  EXPECT_FALSE(stream->Read(&ack));
+  const grpc::Status robot_end = stream->Finish();
+  EXPECT_TRUE(robot_end.ok()) << robot_end.error_message();
+  {
+    // One flood stream gave its place, and was told why.
+    std::unique_lock lock(ends.mu);
+    ASSERT_TRUE(ends.cv.wait_for(lock, std::chrono::seconds(10),
+                                 [&] { return static_cast<int>(ends.statuses.size()) > refused; }));
+    const grpc::Status& replaced = ends.statuses[static_cast<size_t>(refused)];
+    EXPECT_EQ(replaced.error_code(), StatusCode::RESOURCE_EXHAUSTED);
+    EXPECT_NE(replaced.error_message().find("its place went to a caller with fewer streams"),
+              std::string::npos)
+        << replaced.error_message();
+  }
+  for (auto& s : flood) s->HangUp();
+  std::unique_lock lock(ends.mu);
+  ends.cv.wait(lock, [&] { return ends.statuses.size() == flood.size(); });
 }
 
 TEST_F(AuthTest, TheFirstAdminTokenIsWrittenOnceToAPrivateFile) {

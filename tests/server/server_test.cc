@@ -1434,6 +1434,154 @@ TEST_F(ServerTest, OnPostgresAnOutageSaysTheDatabaseIsUnavailableAndNothingOfIt)
   server_.reset();  // before the database is dropped
 }
 
+// grpc.health.v1.Health/Check for the whole server (""): its status, 1 SERVING, 2 NOT_SERVING
+// (0 when the answer holds none); -1 when the call failed.
+int HealthStatus(const std::shared_ptr<grpc::Channel>& channel) {
+  grpc::GenericStub generic(channel);
+  grpc::Slice empty("");  // HealthCheckRequest{service: ""} is zero bytes
+  grpc::ByteBuffer request(&empty, 1), response;
+  grpc::ClientContext ctx;
+  ctx.set_deadline(system_clock::now() + seconds(10));
+  std::promise<grpc::Status> done;
+  generic.UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
+                    [&](grpc::Status st) { done.set_value(st); });
+  if (!done.get_future().get().ok()) return -1;
+  std::vector<grpc::Slice> slices;
+  if (!response.Dump(&slices).ok()) return -1;
+  std::string bytes;
+  for (const auto& sl : slices) bytes.append(reinterpret_cast<const char*>(sl.begin()), sl.size());
+  return bytes.size() == 2 && bytes[0] == '\x08' ? bytes[1] : 0;
+}
+
+// Until `done()` or `timeout` has passed; whether done() held. Bounded polling, for what offers
+// nothing to wait on (the database monitor's ping, the health service's status).
+bool PollUntil(const std::function<bool()>& done, std::chrono::seconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (!done()) {
+    if (std::chrono::steady_clock::now() >= deadline) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return true;
+}
+
+// PostgreSQL out of reach (cut off by a proxy): health answers NOT_SERVING, the log says why, the
+// imucal_database_up gauge reads 0; a robot's fetch of its active parameters is answered from
+// the server's cache, marked served_from_cache, while a device the cache does not hold gets the
+// database's unavailability. Once the database answers again: SERVING, and fetches from the
+// database, unmarked. (Before, health said SERVING throughout and every fetch failed.)
+TEST_F(ServerTest, OnPostgresHealthFollowsTheDatabaseAndFetchesAreServedFromTheCache) {
+  absl::StatusOr<std::unique_ptr<testing_util::PgTestDatabase>> db =
+      testing_util::PgTestDatabase::Create();
+  ASSERT_TRUE(db.ok()) << db.status();
+  const std::string url = (*db)->url();  // postgresql://imucal@127.0.0.1:PORT/NAME
+  const size_t host = url.find("@127.0.0.1:");
+  ASSERT_NE(host, std::string::npos) << url;
+  const size_t port_at = host + 11, port_end = url.find('/', port_at);
+  std::unique_ptr<testing_util::TcpProxy> proxy =
+      testing_util::TcpProxy::Start(std::stoi(url.substr(port_at, port_end - port_at)));
+  ASSERT_NE(proxy, nullptr);
+  options_.db_path = url.substr(0, port_at) + std::to_string(proxy->port()) + url.substr(port_end);
+  options_.metrics_listen = "127.0.0.1:0";
+  StartServer();
+  Register("robot-1");
+  Register("robot-2");
+  {
+    absl::StatusOr<std::unique_ptr<storage::Store>> store = storage::Store::Open(url);
+    ASSERT_TRUE(store.ok()) << store.status();
+    for (const char* device : {"robot-1", "robot-2"}) {
+      storage::ParamVersion v;
+      v.device_id = device;
+      v.params_json = "{\"format\": \"imucal-params\"}";
+      v.report_json = "{}";
+      v.verdict = storage::Verdict::kPass;
+      v.accel_rms = 0.01;
+      v.state = storage::VersionState::kActive;
+      ASSERT_TRUE((*store)->AddVersion(v, "test").ok());
+    }
+  }
+  auto fetch = [&](const std::string& device, v1::ParameterSet* out) {
+    v1::GetActiveParametersRequest req;
+    req.set_device_id(device);
+    return params_->GetActiveParameters(Ctx().get(), req, out);
+  };
+  v1::ParameterSet before;
+  ASSERT_TRUE(fetch("robot-1", &before).ok());  // robot-1 is in the cache, robot-2 is not
+  EXPECT_FALSE(before.served_from_cache());
+  EXPECT_EQ(HealthStatus(channel_), 1);
+
+  testing::internal::CaptureStderr();
+  proxy->Cut();
+  const bool went_down = PollUntil([&] { return HealthStatus(channel_) == 2; }, seconds(30));
+  v1::ParameterSet during;
+  const grpc::Status cached = fetch("robot-1", &during);
+  v1::ParameterSet uncached;
+  const grpc::Status missed = fetch("robot-2", &uncached);
+  const std::string metrics = server_->metrics()->Text();
+  const std::string log = testing::internal::GetCapturedStderr();
+  ASSERT_TRUE(went_down) << "health did not answer NOT_SERVING with the database cut off";
+  ASSERT_TRUE(cached.ok()) << cached.error_message();
+  EXPECT_TRUE(during.served_from_cache());
+  EXPECT_EQ(during.version(), before.version());
+  EXPECT_EQ(during.json(), before.json());
+  EXPECT_EQ(during.crc32c(), before.crc32c());
+  EXPECT_EQ(missed.error_code(), grpc::StatusCode::UNAVAILABLE);
+  EXPECT_EQ(missed.error_message(), "the calibration service's database is unavailable");
+  EXPECT_THAT(metrics, testing::HasSubstr("imucal_database_up 0"));
+  EXPECT_THAT(log, testing::HasSubstr("database_unreachable"));
+
+  ASSERT_TRUE(proxy->Restore());
+  EXPECT_TRUE(PollUntil([&] { return HealthStatus(channel_) == 1; }, seconds(30)))
+      << "health did not answer SERVING again";
+  v1::ParameterSet after;
+  ASSERT_TRUE(PollUntil([&] { return fetch("robot-2", &after).ok(); }, seconds(30)));
+  EXPECT_FALSE(after.served_from_cache());
+  ASSERT_TRUE(fetch("robot-1", &after).ok());
+  EXPECT_FALSE(after.served_from_cache());
+  EXPECT_THAT(server_->metrics()->Text(), testing::HasSubstr("imucal_database_up 1"));
+  server_.reset();  // before the database is dropped
+}
+
+// A robot still uploading into a session (its stream open) holds off the solve: SolveSession
+// is FAILED_PRECONDITION naming the session and the open stream, and Session.open_streams says
+// 1; with `force` the solve starts. Once the stream has ended, open_streams is 0.
+TEST_F(ServerTest, ASolveIsRefusedWhileAStreamIsOpenUnlessForced) {
+  Register("robot-1");
+  grpc::Status status;
+  const v1::Session session = Create("robot-1", v1::PROTOCOL_SIX_FACE, &status);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  const std::vector<v1::SampleBatch> batches = Batches(Sim().capture, session.id());
+  auto ctx = Ctx();
+  auto stream = sessions_->StreamSamples(ctx.get());
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_TRUE(stream->Write(batches[static_cast<size_t>(i)]));
+    v1::SampleAck ack;
+    ASSERT_TRUE(stream->Read(&ack));
+  }
+  EXPECT_EQ(GetSession(session.id()).open_streams(), 1);
+
+  v1::SolveSessionRequest solve;
+  solve.set_session_id(session.id());
+  v1::SolveJob job;
+  const grpc::Status refused = sessions_->SolveSession(Ctx().get(), solve, &job);
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << refused.error_message();
+  EXPECT_THAT(refused.error_message(),
+              testing::HasSubstr("session " + session.id() + " has 1 sample stream open"));
+  EXPECT_EQ(GetSession(session.id()).state(), v1::SESSION_STATE_OPEN);
+
+  solve.set_force(true);
+  const grpc::Status forced = sessions_->SolveSession(Ctx().get(), solve, &job);
+  ASSERT_TRUE(forced.ok()) << forced.error_message();
+  EXPECT_FALSE(job.id().empty());
+  // The robot ends its stream (a batch after the solve began would find the session solving,
+  // or, the solve refused for want of poses, open again); then none is open.
+  stream->WritesDone();
+  v1::SampleAck ack;
+  while (stream->Read(&ack)) {
+  }
+  EXPECT_TRUE(stream->Finish().ok());
+  EXPECT_EQ(GetSession(session.id()).open_streams(), 0);
+}
+
 // The registry's rules alone (server/stream_registry.h): the caps count from Add, a revoked
 // token's streams are told and its later streams refused, and the sweeper tells a stream past
 // its deadline.
@@ -1504,6 +1652,77 @@ TEST(StreamRegistryTest, CapsRevocationAndDeadlines) {
   EXPECT_EQ(s[3]->expired(), 0);
   for (const auto& stream : s) registry.Remove(stream.get());
   EXPECT_EQ(registry.size(), 0u);
+}
+
+// Fair shares: with the server full, a caller with fewer streams takes the place of a silent
+// stream of the caller with the most, which is told; a stream that has been heard from keeps
+// its place; a caller with as many streams as the most is refused; the place of a stream that
+// gives way is not counted while it ends.
+TEST(StreamRegistryTest, ASilentFloodGivesWayToACallerWithFewerStreams) {
+  StreamRegistry::Options options;
+  options.max_streams = 4;
+  options.max_per_caller = 3;
+  StreamRegistry registry(options);
+  std::vector<std::shared_ptr<RegisteredStream>> s;
+  for (int i = 0; i < 8; ++i) s.push_back(std::make_shared<RegisteredStream>());
+  ASSERT_TRUE(registry.Add(s[0], "token:1", 1, /*silent=*/true).ok());
+  ASSERT_TRUE(registry.Add(s[1], "token:1", 1, /*silent=*/true).ok());
+  ASSERT_TRUE(registry.Add(s[2], "token:1", 1, /*silent=*/true).ok());
+  ASSERT_TRUE(registry.Add(s[3], "token:2", 2, /*silent=*/true).ok());
+  registry.Heard(s[0].get());
+  registry.Heard(s[1].get());
+  // Full. Token 3 has none: one of token 1's silent streams (s[2]: the others were heard) gives
+  // way.
+  ASSERT_TRUE(registry.Add(s[4], "token:3", 3).ok());
+  EXPECT_NE(s[2]->revoked().find("its place went to a caller with fewer streams"),
+            std::string::npos)
+      << s[2]->revoked();
+  EXPECT_EQ(s[0]->revoked(), "");
+  EXPECT_EQ(s[1]->revoked(), "");
+  EXPECT_EQ(s[3]->revoked(), "");
+  EXPECT_EQ(registry.size(), 5u);  // s[2] is still ending; its place is s[4]'s
+  // Token 1 has no silent stream left, and the only silent one is token 2's own: refused.
+  absl::Status refused = registry.Add(s[5], "token:2", 2);
+  EXPECT_TRUE(absl::IsResourceExhausted(refused)) << refused;
+  EXPECT_NE(refused.message().find("the server has 4 streams open"), std::string::npos) << refused;
+  registry.Remove(s[2].get());
+  EXPECT_EQ(registry.size(), 4u);
+  // Token 4 (none) against token 2 (one silent stream): it takes its place.
+  ASSERT_TRUE(registry.Add(s[6], "token:4", 4).ok());
+  EXPECT_NE(s[3]->revoked(), "");
+  // In insecure mode (no caller) nobody is fewer: refused.
+  refused = registry.Add(s[7], "", 0);
+  EXPECT_TRUE(absl::IsResourceExhausted(refused)) << refused;
+  for (const auto& stream : s) registry.Remove(stream.get());
+  EXPECT_EQ(registry.size(), 0u);
+}
+
+// Many streams ended: the sweeper gives memory back (malloc_trim), once per interval.
+TEST(StreamRegistryTest, MemoryIsGivenBackAfterManyStreamsEnd) {
+  StreamRegistry::Options options;
+  options.tick = absl::Milliseconds(10);
+  options.trim_after_ends = 100;
+  options.trim_interval = absl::Hours(1);
+  StreamRegistry registry(options);
+  for (int i = 0; i < 99; ++i) {
+    auto s = std::make_shared<RegisteredStream>();
+    ASSERT_TRUE(registry.Add(s, "token:1", 1).ok());
+    registry.Remove(s.get());
+  }
+  auto last = std::make_shared<RegisteredStream>();
+  ASSERT_TRUE(registry.Add(last, "token:1", 1).ok());
+  registry.Remove(last.get());
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (registry.trims() == 0 && std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  EXPECT_EQ(registry.trims(), 1);
+  for (int i = 0; i < 200; ++i) {
+    auto s = std::make_shared<RegisteredStream>();
+    ASSERT_TRUE(registry.Add(s, "token:1", 1).ok());
+    registry.Remove(s.get());
+  }
+  // Not again within the interval (the sweeper ticks every 10 ms meanwhile).
+  EXPECT_EQ(registry.trims(), 1);
 }
 
 TEST(StatusUtilTest, MapsCodesOneToOneAndScrubsPaths) {
