@@ -15,6 +15,7 @@
 #include "boost/math/distributions/fisher_f.hpp"
 #include "boost/math/distributions/students_t.hpp"
 #include "ceres/ceres.h"
+#include "core/accel_problem.h"
 #include "core/robust_covariance.h"
 #include "util/str_util.h"
 
@@ -362,7 +363,7 @@ absl::StatusOr<Eigen::MatrixXd> AccelJointFit(const AccelMask& free,
   for (Term& t : st->terms)
     if (t.sensor == Sensor::kAccel) terms.push_back(&t), coeffs.push_back(t.coefficient);
   AccelParams& p = st->accel;
-  double* blocks[4] = {p.bias.data(), p.scale.data(), p.tri_angles.data(), p.quadratic.data()};
+  const AccelBlocks blocks = AccelParamBlocks(&p);
   ceres::Problem problem;
   for (size_t i = 0; i < poses.size(); ++i) {
     std::vector<std::pair<int, double>> values;
@@ -370,34 +371,13 @@ absl::StatusOr<Eigen::MatrixXd> AccelJointFit(const AccelMask& free,
     AccelPose bare = poses[i].accel;
     bare.offset_m_s2.setZero();
     auto* cost = new AccelEffectCost(bare, p.frame_angles, std::move(values), g, 1.0 / sigma[i]);
-    std::vector<double*> b(blocks, blocks + 4);
+    std::vector<double*> b(blocks.begin(), blocks.end());
     if (!coeffs.empty()) b.push_back(coeffs.data());
     problem.AddResidualBlock(cost, nullptr, b);
   }
-  for (const AccelPrior& q : ActivePriors(free, st->priors))
-    problem.AddResidualBlock(NewAccelPriorCost(q), nullptr, blocks[q.index / 3]);
-  for (int b = 0; b < 4; ++b) {
-    std::vector<int> fixed;
-    for (int k = 0; k < 3; ++k)
-      if (!free[static_cast<size_t>(3 * b + k)]) fixed.push_back(k);
-    if (fixed.size() == 3) {
-      problem.SetParameterBlockConstant(blocks[b]);
-    } else if (!fixed.empty()) {
-      problem.SetManifold(blocks[b], new ceres::SubsetManifold(3, fixed));
-    }
-  }
-  ceres::Solver::Options options;
-  options.linear_solver_type = ceres::DENSE_QR;
-  options.max_num_iterations = 100;
-  options.function_tolerance = 1e-14;
-  options.gradient_tolerance = 1e-14;
-  options.parameter_tolerance = 1e-14;
-  options.num_threads = 1;
-  ceres::Solver::Summary summary;
-  ceres::Solve(options, &problem, &summary);
-  if (!summary.IsSolutionUsable()) {
-    return absl::InternalError("joint accelerometer refit with effects failed: " + summary.message);
-  }
+  const absl::StatusOr<AccelProblemSummary> solved = SolveAccelProblem(
+      free, st->priors, blocks, "joint accelerometer refit with effects", &problem);
+  if (!solved.ok()) return solved.status();
   for (size_t k = 0; k < terms.size(); ++k) terms[k]->coefficient = coeffs[k];
   SetAccelOffsets(*st, signals, &poses);
   const Design d = AccelDesign(*st, AccelPoses(poses), free, signals, g);
