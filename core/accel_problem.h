@@ -1,7 +1,7 @@
 // The accelerometer's Ceres problem, one builder for every fit of the magnitude model: the
 // accelerometer solver's Levenberg-Marquardt (core/accel_solver.h RefineAccelLm) and the effect
-// search's joint refit of the model with its effects' coefficients (core/effects.cc AccelJointFit).
-// Each adds its poses' residuals over the four parameter blocks; SolveAccelProblem adds the priors,
+// search's joint refit of the model with its effects' coefficients (core/effects/refit.cc). Each
+// adds its poses' residuals over the four parameter blocks; SolveAccelProblem adds the priors,
 // holds what the mask leaves out and solves with the same options, so the two fits are the same
 // maximum a posteriori fit (issue 25), one with more parameters.
 #ifndef IMUCAL_CORE_ACCEL_PROBLEM_H_
@@ -30,8 +30,8 @@ struct AccelProblemSummary {
   int evaluations = 0;  // residual evaluations
 };
 // Completes and solves a Ceres problem over the model as every fit of it does (RefineAccelLm; the
-// effect search's joint refit with its coefficients, core/effects.cc AccelJointFit): `problem`
-// holds the poses' residuals over `blocks`; this adds each active prior as the residual
+// effect search's joint refit with its coefficients, core/effects/refit.cc): `problem` holds the
+// poses' residuals over `blocks`; this adds each active prior as the residual
 // (theta[index] - value) / sigma on its block (accel_solver.h NewAccelPriorCost), holds what `free`
 // leaves out (a block wholly, or a subset manifold), and runs Ceres's dense-QR Levenberg-Marquardt
 // at tolerance 1e-14 on one thread. The solution is written through `blocks`. InternalError "<what>
