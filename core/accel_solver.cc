@@ -1,4 +1,3 @@
-// The only translation unit of imucal that instantiates Ceres autodiff (build time on 2 cores).
 #include "core/accel_solver.h"
 
 #include <algorithm>
@@ -10,44 +9,12 @@
 #include "Eigen/Dense"
 #include "absl/strings/str_format.h"
 #include "ceres/ceres.h"
+#include "core/accel_problem.h"
 #include "core/bsas.h"
 #include "core/robust_covariance.h"
 
 namespace imucal::core {
 namespace {
-
-// Residual of one static pose:  r = (|a(u)| - g) / sigma,  a(u) = L(tri) * z(u) - offset, where
-// z = AccelModel::PerAxis(u) (core/model.h: z_i = y_i + q_i y_i^2, y = diag(scale) (u - bias)).
-// frame_angles drop out of |a|.
-struct MagnitudeError {
-  MagnitudeError(const Eigen::Vector3d& u, const Eigen::Vector3d& offset, double g,
-                 double inv_sigma)
-      : u_(u), offset_(offset), g_(g), inv_sigma_(inv_sigma) {}
-
-  template <typename T>
-  bool operator()(const T* bias, const T* scale, const T* tri, const T* quad, T* r) const {
-    AccelModel<T> model;
-    model.bias = Eigen::Map<const Vec3<T>>(bias);
-    model.scale = Eigen::Map<const Vec3<T>>(scale);
-    model.tri_angles = Eigen::Map<const Vec3<T>>(tri);
-    model.quadratic = Eigen::Map<const Vec3<T>>(quad);
-    const Vec3<T> a =
-        LowerMisalignment<T>(model.tri_angles) * model.PerAxis(u_.cast<T>()) - offset_.cast<T>();
-    r[0] = (a.norm() - T(g_)) * T(inv_sigma_);
-    return true;
-  }
-
-  static ceres::CostFunction* Create(const AccelPose& pose, double g, double inv_sigma) {
-    return new ceres::AutoDiffCostFunction<MagnitudeError, 1, 3, 3, 3, 3>(
-        new MagnitudeError(pose.mean, pose.offset_m_s2, g, inv_sigma));
-  }
-
- private:
-  Eigen::Vector3d u_;
-  Eigen::Vector3d offset_;
-  double g_;
-  double inv_sigma_;
-};
 
 // Lower-triangular M with positive diagonal and M^T M = Q (Cholesky of the index-reversed Q).
 std::optional<Eigen::Matrix3d> ReversedCholesky(const Eigen::Matrix3d& q) {
@@ -104,24 +71,6 @@ Eigen::VectorXd WeightedResiduals(const AccelParams& p, const std::vector<AccelP
   return out;
 }
 
-// One prior as a Ceres residual on its parameter block (3 components).
-struct PriorError {
-  PriorError(int k, double value, double inv_sigma) : k_(k), value_(value), inv_sigma_(inv_sigma) {}
-  template <typename T>
-  bool operator()(const T* block, T* r) const {
-    r[0] = (block[k_] - T(value_)) * T(inv_sigma_);
-    return true;
-  }
-  static ceres::CostFunction* Create(const AccelPrior& q) {
-    return new ceres::AutoDiffCostFunction<PriorError, 1, 3>(
-        new PriorError(q.index % 3, q.value, 1.0 / q.sigma));
-  }
-
- private:
-  int k_;
-  double value_, inv_sigma_;
-};
-
 const char* kGroupNames[4] = {"bias", "scale", "tri", "quadratic"};
 
 // |a| - g of one pose, with l = LowerMisalignment(p.tri_angles) computed once by the caller.
@@ -138,10 +87,6 @@ std::vector<AccelPrior> ActivePriors(const AccelMask& free, const AccelPriors& p
     if (q.index >= 0 && q.index < kAccelParams && free[static_cast<size_t>(q.index)] && q.sigma > 0)
       out.push_back(q);
   return out;
-}
-
-ceres::CostFunction* NewAccelPriorCost(const AccelPrior& prior) {
-  return PriorError::Create(prior);
 }
 
 int PosesPayFor(const AccelMask& free, const AccelPriors& priors) {
@@ -555,36 +500,15 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
   out.params = start;
   AccelParams& p = out.params;
   const std::vector<double> sigma = MagnitudeSigmas(start, poses);
+  const AccelBlocks blocks = AccelParamBlocks(&p);
   ceres::Problem problem;
-  double* blocks[4] = {p.bias.data(), p.scale.data(), p.tri_angles.data(), p.quadratic.data()};
   for (size_t i = 0; i < poses.size(); ++i) {
-    problem.AddResidualBlock(MagnitudeError::Create(poses[i], gravity_m_s2, 1.0 / sigma[i]),
-                             nullptr, blocks[0], blocks[1], blocks[2], blocks[3]);
+    problem.AddResidualBlock(NewAccelMagnitudeCost(poses[i], gravity_m_s2, 1.0 / sigma[i]), nullptr,
+                             blocks[0], blocks[1], blocks[2], blocks[3]);
   }
-  for (const AccelPrior& q : active)
-    problem.AddResidualBlock(PriorError::Create(q), nullptr, blocks[q.index / 3]);
-  for (int b = 0; b < 4; ++b) {
-    std::vector<int> fixed;
-    for (int k = 0; k < 3; ++k)
-      if (!free[3 * b + k]) fixed.push_back(k);
-    if (fixed.size() == 3) {
-      problem.SetParameterBlockConstant(blocks[b]);
-    } else if (!fixed.empty()) {
-      problem.SetManifold(blocks[b], new ceres::SubsetManifold(3, fixed));
-    }
-  }
-  ceres::Solver::Options options;
-  options.linear_solver_type = ceres::DENSE_QR;
-  options.max_num_iterations = 100;
-  options.function_tolerance = 1e-14;
-  options.gradient_tolerance = 1e-14;
-  options.parameter_tolerance = 1e-14;
-  options.num_threads = 1;
-  ceres::Solver::Summary summary;
-  ceres::Solve(options, &problem, &summary);
-  if (!summary.IsSolutionUsable()) {
-    return absl::InternalError("accelerometer LM failed: " + summary.message);
-  }
+  const absl::StatusOr<AccelProblemSummary> summary =
+      SolveAccelProblem(free, priors, blocks, "accelerometer LM", &problem);
+  if (!summary.ok()) return summary.status();
   // Covariance = (J^T W J)^-1 over the free parameters, scaled by chi^2/dof when the residual
   // exceeds the noise (model misfit), so standard errors never claim more than the data shows.
   const Eigen::MatrixXd jw = WeightedJacobian(p, poses, MagnitudeSigmas(p, poses), free, priors);
@@ -617,8 +541,8 @@ absl::StatusOr<LmResult> RefineAccelLm(const AccelParams& start,
   if (report) {
     report->name = "lm";
     report->accel_rms_m_s2 = Rms(MagnitudeResiduals(p, poses, gravity_m_s2));
-    report->iterations = static_cast<int>(summary.iterations.size());
-    report->evaluations = summary.num_residual_evaluations;
+    report->iterations = summary->iterations;
+    report->evaluations = summary->evaluations;
     report->ms = 1e3 * Seconds(t0);
   }
   return out;
