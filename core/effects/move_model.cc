@@ -40,20 +40,6 @@ Prepared Prepare(const MoveSearchInput& in, size_t begin, size_t end,
   return p;
 }
 
-Eigen::Quaterniond ExpQ(const Eigen::Vector3d& phi) {
-  const double t2 = phi.squaredNorm();
-  double w, s;
-  if (t2 < 1e-8) {
-    w = 1.0 - t2 / 8.0;
-    s = 0.5 - t2 / 48.0;
-  } else {
-    const double t = std::sqrt(t2);
-    w = std::cos(0.5 * t);
-    s = std::sin(0.5 * t) / t;
-  }
-  return Eigen::Quaterniond(w, s * phi.x(), s * phi.y(), s * phi.z());
-}
-
 // d regressor / d (gx, gy, gz) at `s` (the product rule; d|v|/dv = sign v).
 Eigen::Vector3d RateGradient(const Regressor& r, const SignalArray& s) {
   Eigen::Vector3d grad = Eigen::Vector3d::Zero();
@@ -166,7 +152,7 @@ Eigen::Vector3d MoveResidual(const Model& model, const Prepared& mv, Mat3X* jaco
     Eigen::Vector3d w0 = Rate(model, mv.u[0], nullptr);
     for (size_t k = 0; k + 1 < n; ++k) {
       const Eigen::Vector3d w1 = Rate(model, mv.u[k + 1], nullptr);
-      q = q * ExpQ(0.5 * (w0 + w1) * mv.dt[k]);
+      q = q * ExpQuaternion(0.5 * (w0 + w1) * mv.dt[k]);
       w0 = w1;
     }
     return q.normalized().toRotationMatrix().transpose() * mv.up_before - mv.up_after;
