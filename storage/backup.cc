@@ -35,15 +35,15 @@ constexpr const char* kRequiredTables[] = {"devices", "sessions", "sample_batche
 
 // The first column of the first row of a constant query.
 absl::StatusOr<int64_t> QueryInt(Connection& conn, std::string_view sql) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> value, ReadRow(conn, sql, FirstColumnInt64));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> value, ReadRow(conn, sql, FirstColumnInt64));
   if (!value) return absl::InternalError(Cat("no row from ", sql));
   return *value;
 }
 
 // PRAGMA integrity_check: "ok", or up to three of its complaints.
 absl::Status CheckIntegrity(Connection& conn) {
-  STORAGE_ASSIGN_OR_RETURN(std::vector<std::string> lines,
-                           ReadRows(conn, "PRAGMA integrity_check(3)", FirstColumnText));
+  IMUCAL_ASSIGN_OR_RETURN(std::vector<std::string> lines,
+                          ReadRows(conn, "PRAGMA integrity_check(3)", FirstColumnText));
   if (lines.size() == 1 && lines[0] == "ok") return absl::OkStatus();
   return absl::DataLossError(Cat("integrity_check failed: ", Join(lines, "; ")));
 }
@@ -51,7 +51,7 @@ absl::Status CheckIntegrity(Connection& conn) {
 absl::StatusOr<int64_t> CountTables(Connection& conn) {
   int64_t found = 0;
   for (const char* table : kRequiredTables) {
-    STORAGE_ASSIGN_OR_RETURN(
+    IMUCAL_ASSIGN_OR_RETURN(
         std::optional<int64_t> count,
         ReadRow(conn, "SELECT count(*) FROM sqlite_schema WHERE type = 'table' AND name = ?1",
                 FirstColumnInt64, table));
@@ -63,8 +63,8 @@ absl::StatusOr<int64_t> CountTables(Connection& conn) {
 absl::StatusOr<DatabaseInfo> Inspect(Connection& conn, bool check_integrity) {
   DatabaseInfo info;
   // The first read of the file: a file that is not SQLite fails here with NOTADB (DataLoss).
-  STORAGE_ASSIGN_OR_RETURN(info.schema_version, SchemaVersion(conn));
-  if (check_integrity) STORAGE_RETURN_IF_ERROR(CheckIntegrity(conn));
+  IMUCAL_ASSIGN_OR_RETURN(info.schema_version, SchemaVersion(conn));
+  if (check_integrity) IMUCAL_RETURN_IF_ERROR(CheckIntegrity(conn));
   if (info.schema_version <= 0) {
     return absl::FailedPreconditionError(
         "not an imucal database (schema version 0: no imucal migration was ever applied)");
@@ -74,17 +74,17 @@ absl::StatusOr<DatabaseInfo> Inspect(Connection& conn, bool check_integrity) {
         Cat("schema version ", info.schema_version, " is newer than this imucald knows (",
             LatestSchemaVersion(), "): use the imucald that wrote it, or a newer one"));
   }
-  STORAGE_ASSIGN_OR_RETURN(int64_t tables, CountTables(conn));
+  IMUCAL_ASSIGN_OR_RETURN(int64_t tables, CountTables(conn));
   if (tables != static_cast<int64_t>(std::size(kRequiredTables))) {
     return absl::FailedPreconditionError(
         "not an imucal database (tables devices, sessions, sample_batches, param_versions "
         "missing)");
   }
-  STORAGE_ASSIGN_OR_RETURN(info.page_count, QueryInt(conn, "PRAGMA page_count"));
-  STORAGE_ASSIGN_OR_RETURN(info.page_size_bytes, QueryInt(conn, "PRAGMA page_size"));
-  STORAGE_ASSIGN_OR_RETURN(info.devices, QueryInt(conn, "SELECT count(*) FROM devices"));
-  STORAGE_ASSIGN_OR_RETURN(info.param_versions,
-                           QueryInt(conn, "SELECT count(*) FROM param_versions"));
+  IMUCAL_ASSIGN_OR_RETURN(info.page_count, QueryInt(conn, "PRAGMA page_count"));
+  IMUCAL_ASSIGN_OR_RETURN(info.page_size_bytes, QueryInt(conn, "PRAGMA page_size"));
+  IMUCAL_ASSIGN_OR_RETURN(info.devices, QueryInt(conn, "SELECT count(*) FROM devices"));
+  IMUCAL_ASSIGN_OR_RETURN(info.param_versions,
+                          QueryInt(conn, "SELECT count(*) FROM param_versions"));
   return info;
 }
 
@@ -132,23 +132,23 @@ absl::Status WriteStandaloneCopy(SqliteConnection& src, const std::string& path)
   std::error_code ec;
   std::filesystem::remove(tmp, ec);
   {
-    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> dest,
-                             SqliteConnection::Open(tmp, ConnectionOptions{}));
-    STORAGE_RETURN_IF_ERROR(CopyPages(src, *dest, Cat("copy to ", tmp)));
+    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> dest,
+                            SqliteConnection::Open(tmp, ConnectionOptions{}));
+    IMUCAL_RETURN_IF_ERROR(CopyPages(src, *dest, Cat("copy to ", tmp)));
     // The pages came from a WAL database and say so in their header: make the copy a plain
     // rollback-journal database, so that it is complete without a -wal beside it.
-    STORAGE_ASSIGN_OR_RETURN(std::optional<std::string> mode,
-                             ReadRow(*dest, "PRAGMA journal_mode = DELETE", FirstColumnText));
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<std::string> mode,
+                            ReadRow(*dest, "PRAGMA journal_mode = DELETE", FirstColumnText));
     if (mode.value_or("") != "delete") {
       return absl::InternalError(Cat(tmp, ": cannot leave WAL mode"));
     }
   }
   {
-    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> check,
-                             SqliteConnection::Open(tmp, ConnectionOptions{.read_only = true}));
-    STORAGE_RETURN_IF_ERROR(Annotate(tmp, Inspect(*check, /*check_integrity=*/true).status()));
+    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> check,
+                            SqliteConnection::Open(tmp, ConnectionOptions{.read_only = true}));
+    IMUCAL_RETURN_IF_ERROR(Annotate(tmp, Inspect(*check, /*check_integrity=*/true).status()));
   }
-  STORAGE_RETURN_IF_ERROR(FsyncPath(tmp, /*directory=*/false));
+  IMUCAL_RETURN_IF_ERROR(FsyncPath(tmp, /*directory=*/false));
   std::filesystem::rename(tmp, path, ec);
   if (ec) return absl::UnavailableError(Cat("rename ", tmp, " to ", path, ": ", ec.message()));
   return FsyncPath(DirectoryOf(path), /*directory=*/true);
@@ -157,7 +157,7 @@ absl::Status WriteStandaloneCopy(SqliteConnection& src, const std::string& path)
 }  // namespace
 
 absl::StatusOr<DatabaseInfo> InspectDatabase(const std::string& path, bool check_integrity) {
-  STORAGE_RETURN_IF_ERROR(CheckExists(path));
+  IMUCAL_RETURN_IF_ERROR(CheckExists(path));
   absl::StatusOr<std::unique_ptr<SqliteConnection>> conn =
       SqliteConnection::Open(path, ConnectionOptions{.read_only = true});
   if (!conn.ok()) return Annotate(path, conn.status());
@@ -187,14 +187,14 @@ absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path,
                                             const std::string& out_path) {
   if (IsPostgresUrl(db_path)) return NotForPostgres("backup", "pg_dump --format=custom");
   if (out_path.empty()) return absl::InvalidArgumentError("backup: empty output path");
-  STORAGE_RETURN_IF_ERROR(CheckExists(db_path));
-  STORAGE_RETURN_IF_ERROR(CheckDirectoryOf(out_path));
+  IMUCAL_RETURN_IF_ERROR(CheckExists(db_path));
+  IMUCAL_RETURN_IF_ERROR(CheckDirectoryOf(out_path));
   // Read-only: the backup never writes the live database (nor checkpoints its WAL).
   absl::StatusOr<std::unique_ptr<SqliteConnection>> src =
       SqliteConnection::Open(db_path, ConnectionOptions{.read_only = true});
   if (!src.ok()) return Annotate(db_path, src.status());
   if (absl::Status s = Annotate(db_path, Inspect(**src, false).status()); !s.ok()) return s;
-  STORAGE_RETURN_IF_ERROR(WriteStandaloneCopy(**src, out_path));
+  IMUCAL_RETURN_IF_ERROR(WriteStandaloneCopy(**src, out_path));
   return InspectDatabase(out_path, /*check_integrity=*/false);
 }
 
@@ -206,7 +206,7 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
     return absl::Status(source.status().code(),
                         Cat("refusing to restore: ", source.status().message()));
   }
-  STORAGE_RETURN_IF_ERROR(CheckDirectoryOf(db_path));
+  IMUCAL_RETURN_IF_ERROR(CheckDirectoryOf(db_path));
   std::error_code ec;
   const bool replacing = std::filesystem::exists(db_path, ec);
   {
@@ -218,7 +218,7 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
     options.busy_timeout = absl::ZeroDuration();
     absl::StatusOr<std::unique_ptr<SqliteConnection>> dest = SqliteConnection::Open(db_path, options);
     if (!dest.ok()) return Annotate(db_path, dest.status());
-    STORAGE_RETURN_IF_ERROR((*dest)->Exec("PRAGMA locking_mode = EXCLUSIVE"));
+    IMUCAL_RETURN_IF_ERROR((*dest)->Exec("PRAGMA locking_mode = EXCLUSIVE"));
     if (absl::Status s = (*dest)->Exec("BEGIN EXCLUSIVE; COMMIT"); !s.ok()) {
       if (absl::IsUnavailable(s)) {
         return absl::FailedPreconditionError(
@@ -228,12 +228,12 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
     }
     if (replacing) {
       // Keep what was there: a restore of the wrong file can itself be undone.
-      STORAGE_RETURN_IF_ERROR(WriteStandaloneCopy(**dest, Cat(db_path, ".pre-restore")));
+      IMUCAL_RETURN_IF_ERROR(WriteStandaloneCopy(**dest, Cat(db_path, ".pre-restore")));
     }
     absl::StatusOr<std::unique_ptr<SqliteConnection>> src =
         SqliteConnection::Open(backup_path, ConnectionOptions{.read_only = true});
     if (!src.ok()) return Annotate(backup_path, src.status());
-    STORAGE_RETURN_IF_ERROR(CopyPages(**src, **dest, Cat("restore into ", db_path)));
+    IMUCAL_RETURN_IF_ERROR(CopyPages(**src, **dest, Cat("restore into ", db_path)));
   }
   absl::StatusOr<DatabaseInfo> restored = InspectDatabase(db_path, /*check_integrity=*/true);
   if (!restored.ok()) {

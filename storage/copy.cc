@@ -340,7 +340,7 @@ absl::Status ForEachRow(Connection& conn, const CopyTable& table, OnRow&& on_row
     int64_t rows = 0;
     int64_t bytes = 0;
     {
-      STORAGE_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(table.select_page));
+      IMUCAL_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(table.select_page));
       for (size_t i = 0; i < k; ++i) {
         if (table.columns[i].type == T::kInteger) {
           st->BindInt64(static_cast<int>(i) + 1, key_int[i]);
@@ -350,9 +350,9 @@ absl::Status ForEachRow(Connection& conn, const CopyTable& table, OnRow&& on_row
       }
       st->BindInt64(static_cast<int>(k) + 1, page_rows);
       for (;;) {
-        STORAGE_ASSIGN_OR_RETURN(bool more, st->Step());
+        IMUCAL_ASSIGN_OR_RETURN(bool more, st->Step());
         if (!more) break;
-        STORAGE_ASSIGN_OR_RETURN(int64_t row_bytes, on_row(*st));
+        IMUCAL_ASSIGN_OR_RETURN(int64_t row_bytes, on_row(*st));
         bytes += row_bytes;
         ++rows;
         for (size_t i = 0; i < k; ++i) {
@@ -376,8 +376,8 @@ absl::Status ForEachRow(Connection& conn, const CopyTable& table, OnRow&& on_row
 
 absl::StatusOr<std::set<std::string>> TextSet(Connection& conn, const char* sql,
                                               std::string_view param) {
-  STORAGE_ASSIGN_OR_RETURN(std::vector<std::string> names,
-                           ReadRows(conn, sql, FirstColumnText, param));
+  IMUCAL_ASSIGN_OR_RETURN(std::vector<std::string> names,
+                          ReadRows(conn, sql, FirstColumnText, param));
   return std::set<std::string>(names.begin(), names.end());
 }
 
@@ -387,8 +387,8 @@ absl::Status CheckCoversSchema(Connection& conn) {
   const bool lite = conn.dialect() == Dialect::kSqlite;
   const std::string_view side = lite ? "the SQLite file" : "the PostgreSQL database";
   if (lite) {
-    STORAGE_ASSIGN_OR_RETURN(std::vector<std::string> tables,
-                             ReadRows(conn, kSqliteTables, FirstColumnText));
+    IMUCAL_ASSIGN_OR_RETURN(std::vector<std::string> tables,
+                            ReadRows(conn, kSqliteTables, FirstColumnText));
     std::set<std::string> known;
     for (const CopyTable& t : kTables) known.insert(t.name);
     for (const std::string& table : tables) {
@@ -399,8 +399,8 @@ absl::Status CheckCoversSchema(Connection& conn) {
     }
   }
   for (const CopyTable& t : kTables) {
-    STORAGE_ASSIGN_OR_RETURN(std::set<std::string> have,
-                             TextSet(conn, lite ? kSqliteColumns : kPgColumns, t.name));
+    IMUCAL_ASSIGN_OR_RETURN(std::set<std::string> have,
+                            TextSet(conn, lite ? kSqliteColumns : kPgColumns, t.name));
     std::set<std::string> want;
     for (const CopyColumn& c : t.columns) {
       if (!lite || t.sqlite_rowid_column == nullptr ||
@@ -416,7 +416,7 @@ absl::Status CheckCoversSchema(Connection& conn) {
 }
 
 absl::StatusOr<int64_t> Count(Connection& conn, const CopyTable& table) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> n, ReadRow(conn, table.count, FirstColumnInt64));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> n, ReadRow(conn, table.count, FirstColumnInt64));
   return n.value_or(0);
 }
 
@@ -425,10 +425,10 @@ absl::StatusOr<int64_t> Count(Connection& conn, const CopyTable& table) {
 absl::Status CheckEmpty(Connection& conn, std::string_view where) {
   std::vector<std::string> full;
   for (const CopyTable& t : kTables) {
-    STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> exists,
-                             ReadRow(conn, kPgTableExists, FirstColumnInt64, t.name));
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> exists,
+                            ReadRow(conn, kPgTableExists, FirstColumnInt64, t.name));
     if (exists.value_or(0) == 0) continue;
-    STORAGE_ASSIGN_OR_RETURN(int64_t rows, Count(conn, t));
+    IMUCAL_ASSIGN_OR_RETURN(int64_t rows, Count(conn, t));
     if (rows > 0) full.push_back(Cat(t.name, " (", rows, rows == 1 ? " row)" : " rows)"));
   }
   if (full.empty()) return absl::OkStatus();
@@ -441,7 +441,7 @@ absl::Status CheckEmpty(Connection& conn, std::string_view where) {
 
 // The source as the copy wants it: an imucal file at the latest schema version.
 absl::Status CheckSource(const std::string& path) {
-  STORAGE_ASSIGN_OR_RETURN(DatabaseInfo info, InspectDatabase(path, /*check_integrity=*/false));
+  IMUCAL_ASSIGN_OR_RETURN(DatabaseInfo info, InspectDatabase(path, /*check_integrity=*/false));
   if (info.schema_version < LatestSchemaVersion()) {
     return absl::FailedPreconditionError(
         Cat(path, ": schema version ", info.schema_version, ", older than this imucald's ",
@@ -456,7 +456,7 @@ absl::Status CheckSource(const std::string& path) {
 class ReadSnapshot {
  public:
   static absl::StatusOr<ReadSnapshot> Begin(Connection& conn) {
-    STORAGE_RETURN_IF_ERROR(conn.Exec("BEGIN DEFERRED"));
+    IMUCAL_RETURN_IF_ERROR(conn.Exec("BEGIN DEFERRED"));
     return ReadSnapshot(&conn);
   }
   ReadSnapshot(ReadSnapshot&& other) noexcept : conn_(std::exchange(other.conn_, nullptr)) {}
@@ -473,12 +473,12 @@ class ReadSnapshot {
 // schema version), then migrated and checked against this file's tables.
 absl::StatusOr<std::unique_ptr<PgConnection>> OpenDestination(const std::string& url,
                                                               const std::string& dest) {
-  STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<PgConnection> pg,
-                           PgConnection::Open(url, ConnectionOptions{}));
-  STORAGE_ASSIGN_OR_RETURN(int version, Annotate(dest, SchemaVersion(*pg)));
-  if (version > 0) STORAGE_RETURN_IF_ERROR(CheckEmpty(*pg, dest));
-  STORAGE_RETURN_IF_ERROR(Annotate(Cat("migrate ", dest), Migrate(*pg)));
-  STORAGE_RETURN_IF_ERROR(Annotate(dest, CheckCoversSchema(*pg)));
+  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<PgConnection> pg,
+                          PgConnection::Open(url, ConnectionOptions{}));
+  IMUCAL_ASSIGN_OR_RETURN(int version, Annotate(dest, SchemaVersion(*pg)));
+  if (version > 0) IMUCAL_RETURN_IF_ERROR(CheckEmpty(*pg, dest));
+  IMUCAL_RETURN_IF_ERROR(Annotate(Cat("migrate ", dest), Migrate(*pg)));
+  IMUCAL_RETURN_IF_ERROR(Annotate(dest, CheckCoversSchema(*pg)));
   return pg;
 }
 
@@ -503,7 +503,7 @@ absl::StatusOr<TableCopyReport> CopyRows(Connection& lite, Connection& pg, const
   const auto copy_row = [&](const Statement& row) -> absl::StatusOr<int64_t> {
     {
       absl::Status s = CheckStorageClasses(row, t);
-      STORAGE_ASSIGN_OR_RETURN(ScopedStatement insert, pg.Prepare(t.insert));
+      IMUCAL_ASSIGN_OR_RETURN(ScopedStatement insert, pg.Prepare(t.insert));
       if (s.ok()) {
         BindRow(row, t, *insert);
         s = insert->Run();
@@ -520,7 +520,7 @@ absl::StatusOr<TableCopyReport> CopyRows(Connection& lite, Connection& pg, const
       progress({.table = t.name, .phase = "copy", .rows_done = done, .rows_total = snapshot_rows});
     }
   };
-  STORAGE_RETURN_IF_ERROR(ForEachRow(lite, t, copy_row, on_page));
+  IMUCAL_RETURN_IF_ERROR(ForEachRow(lite, t, copy_row, on_page));
   return table;
 }
 
@@ -540,7 +540,7 @@ absl::Status VerifyRows(Connection& pg, const CopyTable& t, int64_t snapshot_row
       progress({.table = t.name, .phase = "verify", .rows_done = done, .rows_total = copied.rows});
     }
   };
-  STORAGE_RETURN_IF_ERROR(ForEachRow(pg, t, hash_row, on_page));
+  IMUCAL_RETURN_IF_ERROR(ForEachRow(pg, t, hash_row, on_page));
   copied.sha256_hex = source_hash.Hex();
   const std::string dest_hex = dest_hash.Hex();
   if (dest_rows == copied.rows && copied.rows == snapshot_rows && dest_hex == copied.sha256_hex) {
@@ -581,52 +581,51 @@ absl::StatusOr<CopyReport> CopySqliteToPostgres(const std::string& sqlite_path,
         Cat("the destination must be a postgresql:// URL, got '", RedactedLocation(pg_url), "'"));
   }
   const std::string dest = RedactedLocation(pg_url);
-  STORAGE_RETURN_IF_ERROR(CheckSource(sqlite_path));
-  STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<PgConnection> pg, OpenDestination(pg_url, dest));
+  IMUCAL_RETURN_IF_ERROR(CheckSource(sqlite_path));
+  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<PgConnection> pg, OpenDestination(pg_url, dest));
 
-  STORAGE_ASSIGN_OR_RETURN(
+  IMUCAL_ASSIGN_OR_RETURN(
       std::unique_ptr<SqliteConnection> lite,
       Annotate(sqlite_path,
                SqliteConnection::Open(sqlite_path, ConnectionOptions{.read_only = true})));
-  STORAGE_ASSIGN_OR_RETURN(ReadSnapshot snapshot,
-                           Annotate(sqlite_path, ReadSnapshot::Begin(*lite)));
+  IMUCAL_ASSIGN_OR_RETURN(ReadSnapshot snapshot, Annotate(sqlite_path, ReadSnapshot::Begin(*lite)));
   // The snapshot begins with this first read; every read below is from it.
-  STORAGE_ASSIGN_OR_RETURN(int version, Annotate(sqlite_path, SchemaVersion(*lite)));
+  IMUCAL_ASSIGN_OR_RETURN(int version, Annotate(sqlite_path, SchemaVersion(*lite)));
   if (version != LatestSchemaVersion()) {
     return absl::FailedPreconditionError(
         Cat(sqlite_path, ": its schema version became ", version, " after it was checked"));
   }
-  STORAGE_RETURN_IF_ERROR(Annotate(sqlite_path, CheckCoversSchema(*lite)));
+  IMUCAL_RETURN_IF_ERROR(Annotate(sqlite_path, CheckCoversSchema(*lite)));
   std::vector<int64_t> snapshot_rows;
   for (const CopyTable& t : kTables) {
-    STORAGE_ASSIGN_OR_RETURN(int64_t rows, Annotate(sqlite_path, Count(*lite, t)));
+    IMUCAL_ASSIGN_OR_RETURN(int64_t rows, Annotate(sqlite_path, Count(*lite, t)));
     snapshot_rows.push_back(rows);
   }
 
-  STORAGE_ASSIGN_OR_RETURN(Transaction txn, Annotate(dest, Transaction::Begin(*pg)));
-  STORAGE_RETURN_IF_ERROR(LockEmptyDestination(*pg, dest));
+  IMUCAL_ASSIGN_OR_RETURN(Transaction txn, Annotate(dest, Transaction::Begin(*pg)));
+  IMUCAL_RETURN_IF_ERROR(LockEmptyDestination(*pg, dest));
   CopyReport report;
   report.schema_version = version;
   std::vector<RowHash> source_hash(std::size(kTables));
   for (size_t i = 0; i < std::size(kTables); ++i) {
-    STORAGE_ASSIGN_OR_RETURN(
+    IMUCAL_ASSIGN_OR_RETURN(
         TableCopyReport table,
         Annotate(Cat("copy ", kTables[i].name),
                  CopyRows(*lite, *pg, kTables[i], snapshot_rows[i], source_hash[i], progress)));
     report.tables.push_back(std::move(table));
   }
   for (size_t i = 0; i < std::size(kTables); ++i) {
-    STORAGE_RETURN_IF_ERROR(Annotate(Cat("verify ", kTables[i].name),
-                                     VerifyRows(*pg, kTables[i], snapshot_rows[i], report.tables[i],
-                                                source_hash[i], dest, progress)));
+    IMUCAL_RETURN_IF_ERROR(Annotate(Cat("verify ", kTables[i].name),
+                                    VerifyRows(*pg, kTables[i], snapshot_rows[i], report.tables[i],
+                                               source_hash[i], dest, progress)));
   }
   // New rows continue after the copied ids (an empty table's sequence stays where it is).
   for (const CopyTable& t : kTables) {
     if (t.reset_identity == nullptr) continue;
-    STORAGE_RETURN_IF_ERROR(
+    IMUCAL_RETURN_IF_ERROR(
         Annotate(Cat("copy ", t.name), ReadRow(*pg, t.reset_identity, FirstColumnInt64).status()));
   }
-  STORAGE_RETURN_IF_ERROR(Annotate(Cat("commit to ", dest), txn.Commit()));
+  IMUCAL_RETURN_IF_ERROR(Annotate(Cat("commit to ", dest), txn.Commit()));
   report.took = absl::Now() - start;
   return report;
 }

@@ -57,11 +57,11 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
   ConnectionOptions conn_options;
   conn_options.synchronous_full = options.durability == Durability::kFull;
   conn_options.busy_timeout = options.busy_timeout;
-  STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> writer,
-                           Annotate(op, SqliteConnection::Open(path, conn_options)));
+  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<Connection> writer,
+                          Annotate(op, SqliteConnection::Open(path, conn_options)));
   {
     // WAL is a property of the file: set once, kept by every later open.
-    STORAGE_ASSIGN_OR_RETURN(
+    IMUCAL_ASSIGN_OR_RETURN(
         std::optional<std::string> mode,
         Annotate(op, ReadRow(*writer, "PRAGMA journal_mode = WAL", FirstColumnText)));
     if (mode.value_or("") != "wal") {
@@ -71,15 +71,15 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
   }
   // After a checkpoint, cut the -wal file back to 64 MiB instead of leaving it at the size an
   // ingest burst grew it to.
-  STORAGE_RETURN_IF_ERROR(Annotate(op, writer->Exec("PRAGMA journal_size_limit = 67108864")));
-  STORAGE_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
-  STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> checkpointer,
-                           Annotate(op, SqliteConnection::Open(path, conn_options)));
+  IMUCAL_RETURN_IF_ERROR(Annotate(op, writer->Exec("PRAGMA journal_size_limit = 67108864")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
+  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> checkpointer,
+                          Annotate(op, SqliteConnection::Open(path, conn_options)));
   std::vector<std::unique_ptr<Connection>> readers;
   conn_options.read_only = true;
   for (int i = 0; i < options.read_connections; ++i) {
-    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> reader,
-                             Annotate(op, SqliteConnection::Open(path, conn_options)));
+    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<Connection> reader,
+                            Annotate(op, SqliteConnection::Open(path, conn_options)));
     readers.push_back(std::move(reader));
   }
   std::unique_ptr<Store> store(new Store(std::move(options), std::move(writer),
@@ -109,14 +109,14 @@ absl::StatusOr<std::unique_ptr<Store>> Store::OpenPostgres(const std::string& ur
   ConnectionOptions conn_options;
   conn_options.busy_timeout = options.busy_timeout;
   conn_options.origin = RandomOrigin();
-  STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> writer,
-                           Annotate("open", PgConnection::Open(url, conn_options)));
-  STORAGE_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
+  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<Connection> writer,
+                          Annotate("open", PgConnection::Open(url, conn_options)));
+  IMUCAL_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
   std::vector<std::unique_ptr<Connection>> readers;
   conn_options.read_only = true;
   for (int i = 0; i < options.read_connections; ++i) {
-    STORAGE_ASSIGN_OR_RETURN(std::unique_ptr<Connection> reader,
-                             Annotate("open", PgConnection::Open(url, conn_options)));
+    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<Connection> reader,
+                            Annotate("open", PgConnection::Open(url, conn_options)));
     readers.push_back(std::move(reader));
   }
   std::unique_ptr<Store> store(

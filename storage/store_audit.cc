@@ -48,15 +48,15 @@ absl::Status InsertAudit(Connection& conn, absl::Time time, std::string_view act
 
 absl::StatusOr<AuditEntry> Store::AppendAudit(const AuditEntry& entry) {
   constexpr std::string_view kOp = "AppendAudit";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(entry.actor, "actor")));
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(entry.action, "action")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(entry.actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(entry.action, "action")));
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<AuditEntry> {
     AuditEntry e = entry;
     e.time = Now();
-    STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> id,
-                             ReadRow(conn, kInsertAudit, FirstColumnInt64, Micros(e.time), e.actor,
-                                     e.action, e.target, e.detail));
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> id,
+                            ReadRow(conn, kInsertAudit, FirstColumnInt64, Micros(e.time), e.actor,
+                                    e.action, e.target, e.detail));
     if (!id) return absl::InternalError("INSERT ... RETURNING id returned no row");
     e.id = *id;
     return e;
@@ -69,9 +69,9 @@ absl::StatusOr<Store::ActiveChanges> Store::ActiveChangesSince(int64_t after_id)
   ActiveChanges out;
   out.last_id = after_id;
   if (after_id < 0) {
-    STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> last,
-                             Annotate(kOp, ReadRow(lease.conn(), kSelectLastAuditId,
-                                                   FirstColumnInt64)));
+    IMUCAL_ASSIGN_OR_RETURN(
+        std::optional<int64_t> last,
+        Annotate(kOp, ReadRow(lease.conn(), kSelectLastAuditId, FirstColumnInt64)));
     out.last_id = last.value_or(0);
     return out;
   }
@@ -79,13 +79,14 @@ absl::StatusOr<Store::ActiveChanges> Store::ActiveChangesSince(int64_t after_id)
     int64_t id;
     std::string action, target;
   };
-  STORAGE_ASSIGN_OR_RETURN(
+  IMUCAL_ASSIGN_OR_RETURN(
       std::vector<Row> rows,
-      Annotate(kOp, ReadRows(lease.conn(), kSelectAuditActions,
-                             [](const Statement& st) {
-                               return Row{st.ColumnInt64(0), st.ColumnText(1), st.ColumnText(2)};
-                             },
-                             after_id)));
+      Annotate(kOp, ReadRows(
+                        lease.conn(), kSelectAuditActions,
+                        [](const Statement& st) {
+                          return Row{st.ColumnInt64(0), st.ColumnText(1), st.ColumnText(2)};
+                        },
+                        after_id)));
   constexpr std::string_view kDevice = "device:";
   for (const Row& r : rows) {
     out.last_id = r.id;

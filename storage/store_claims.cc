@@ -41,13 +41,13 @@ StreamClaim ReadClaim(const Statement& st) {
 absl::StatusOr<StreamClaim> Store::ClaimStream(std::string_view device_id, std::string_view holder,
                                                std::string_view session_id, absl::Time until) {
   constexpr std::string_view kOp = "ClaimStream";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(holder, "holder")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(holder, "holder")));
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<StreamClaim> {
-    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kClaimStream, device_id, holder, session_id,
-                                         Micros(until), Micros(Now())));
-    STORAGE_ASSIGN_OR_RETURN(std::optional<StreamClaim> claim,
-                             ReadRow(conn, kSelectClaim, ReadClaim, device_id));
+    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kClaimStream, device_id, holder, session_id,
+                                        Micros(until), Micros(Now())));
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<StreamClaim> claim,
+                            ReadRow(conn, kSelectClaim, ReadClaim, device_id));
     if (!claim) return absl::InternalError("the stream claim just written is not there");
     return *std::move(claim);
   });
@@ -65,7 +65,7 @@ absl::StatusOr<std::optional<StreamClaim>> Store::GetStreamClaim(std::string_vie
 absl::StatusOr<std::vector<std::string>> Store::RenewStreamClaims(std::string_view holder,
                                                                   absl::Time until) {
   constexpr std::string_view kOp = "RenewStreamClaims";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(holder, "holder")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(holder, "holder")));
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) {
     return ReadRows(conn, kRenewClaims, FirstColumnText, holder, Micros(until));
@@ -82,12 +82,12 @@ absl::Status Store::ReleaseStreamClaim(std::string_view device_id, std::string_v
 
 absl::StatusOr<int> Store::ReleaseStreamClaimsOfReplica(std::string_view replica_id) {
   constexpr std::string_view kOp = "ReleaseStreamClaimsOfReplica";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(replica_id, "replica_id")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(replica_id, "replica_id")));
   const std::string prefix = std::string(replica_id) + " ";
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int> {
-    STORAGE_ASSIGN_OR_RETURN(std::vector<std::string> devices,
-                             ReadRows(conn, kReleaseReplicaClaims, FirstColumnText, prefix));
+    IMUCAL_ASSIGN_OR_RETURN(std::vector<std::string> devices,
+                            ReadRows(conn, kReleaseReplicaClaims, FirstColumnText, prefix));
     return static_cast<int>(devices.size());
   });
 }

@@ -69,15 +69,15 @@ absl::Status SameRegistration(const Device& stored, const Device& again) {
 }  // namespace
 
 absl::StatusOr<Device> LoadDevice(Connection& conn, std::string_view id) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<Device> d, FindDevice(conn, id));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<Device> d, FindDevice(conn, id));
   if (!d) return absl::NotFoundError(Cat("no device '", id, "'"));
   return *std::move(d);
 }
 
 absl::StatusOr<Device> Store::CreateDevice(const Device& device, std::string_view actor) {
   constexpr std::string_view kOp = "CreateDevice";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(device.id, "device id")));
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(device.id, "device id")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   if (!std::isfinite(device.nominal_rate_hz) || device.nominal_rate_hz < 0) {
     return WithContext(
         kOp, absl::InvalidArgumentError(
@@ -85,20 +85,20 @@ absl::StatusOr<Device> Store::CreateDevice(const Device& device, std::string_vie
   }
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Device> {
-    STORAGE_ASSIGN_OR_RETURN(std::optional<Device> existing, FindDevice(conn, device.id));
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<Device> existing, FindDevice(conn, device.id));
     if (existing) {
-      STORAGE_RETURN_IF_ERROR(SameRegistration(*existing, device));
+      IMUCAL_RETURN_IF_ERROR(SameRegistration(*existing, device));
       return *std::move(existing);
     }
     Device d = device;
     d.created_at = Now();
-    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertDevice, d.id, d.sensor_model,
-                                         d.nominal_rate_hz, d.accel_unit, d.gyro_unit,
-                                         Micros(d.created_at)));
-    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, d.created_at, actor, "device.create",
-                                        DeviceTarget(d.id),
-                                        Cat("sensor ", d.sensor_model, ", ", d.nominal_rate_hz,
-                                            " Hz, accel ", d.accel_unit, ", gyro ", d.gyro_unit)));
+    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kInsertDevice, d.id, d.sensor_model,
+                                        d.nominal_rate_hz, d.accel_unit, d.gyro_unit,
+                                        Micros(d.created_at)));
+    IMUCAL_RETURN_IF_ERROR(InsertAudit(conn, d.created_at, actor, "device.create",
+                                       DeviceTarget(d.id),
+                                       Cat("sensor ", d.sensor_model, ", ", d.nominal_rate_hz,
+                                           " Hz, accel ", d.accel_unit, ", gyro ", d.gyro_unit)));
     return d;
   });
 }

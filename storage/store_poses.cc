@@ -74,7 +74,7 @@ PosePair ReadPair(const Statement& st, std::string_view session_id) {
 absl::Status Store::PutPoses(std::string_view session_id, const std::vector<Pose>& poses,
                              std::string_view actor) {
   constexpr std::string_view kOp = "PutPoses";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   int used = 0;
   for (size_t i = 0; i < poses.size(); ++i) {
     const Pose& p = poses[i];
@@ -94,10 +94,10 @@ absl::Status Store::PutPoses(std::string_view session_id, const std::vector<Pose
   }
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::Status {
-    STORAGE_RETURN_IF_ERROR(CheckSessionExists(conn, session_id));
-    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kDeletePoses, session_id));
+    IMUCAL_RETURN_IF_ERROR(CheckSessionExists(conn, session_id));
+    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kDeletePoses, session_id));
     for (const Pose& p : poses) {
-      STORAGE_RETURN_IF_ERROR(WritePose(conn, kInsertPose, session_id, p));
+      IMUCAL_RETURN_IF_ERROR(WritePose(conn, kInsertPose, session_id, p));
     }
     return InsertAudit(conn, Now(), actor, "session.poses", SessionTarget(session_id),
                        Cat(poses.size(), " poses, ", used, " used"));
@@ -107,7 +107,7 @@ absl::Status Store::PutPoses(std::string_view session_id, const std::vector<Pose
 absl::StatusOr<std::vector<Pose>> Store::ListPoses(std::string_view session_id) {
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<Pose>> {
-    STORAGE_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
+    IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
     return ReadRows(
         lease.conn(), kSelectPoses, [&](const Statement& st) { return ReadPose(st, session_id); },
         session_id);
@@ -136,13 +136,13 @@ absl::Status Store::SavePoses(std::string_view session_id, const std::vector<Pos
   if (poses.empty() && pairs.empty()) return absl::OkStatus();
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::Status {
-    STORAGE_RETURN_IF_ERROR(CheckSessionExists(conn, session_id));
+    IMUCAL_RETURN_IF_ERROR(CheckSessionExists(conn, session_id));
     for (const Pose& p : poses) {
-      STORAGE_RETURN_IF_ERROR(WritePose(conn, kUpsertPose, session_id, p));
+      IMUCAL_RETURN_IF_ERROR(WritePose(conn, kUpsertPose, session_id, p));
     }
     for (const PosePair& p : pairs) {
-      STORAGE_RETURN_IF_ERROR(RunStatement(conn, kUpsertPair, session_id, p.pose_a, p.pose_b, p.ok,
-                                           p.face, p.rotation_deg, p.tilt_deg, p.reason));
+      IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kUpsertPair, session_id, p.pose_a, p.pose_b, p.ok,
+                                          p.face, p.rotation_deg, p.tilt_deg, p.reason));
     }
     return absl::OkStatus();
   });
@@ -151,7 +151,7 @@ absl::Status Store::SavePoses(std::string_view session_id, const std::vector<Pos
 absl::StatusOr<std::vector<PosePair>> Store::ListPairs(std::string_view session_id) {
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<PosePair>> {
-    STORAGE_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
+    IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
     return ReadRows(
         lease.conn(), kSelectPairs, [&](const Statement& st) { return ReadPair(st, session_id); },
         session_id);

@@ -60,8 +60,8 @@ LastBatch ReadLastBatch(const Statement& st) {
 }
 
 absl::StatusOr<LastBatch> FindLastBatch(Connection& conn, std::string_view session_id) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<LastBatch> last,
-                           ReadRow(conn, kSelectLastBatch, ReadLastBatch, session_id));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<LastBatch> last,
+                          ReadRow(conn, kSelectLastBatch, ReadLastBatch, session_id));
   return last.value_or(LastBatch{});
 }
 
@@ -95,17 +95,17 @@ absl::StatusOr<SampleBatch> ReadBatch(const Statement& st, std::string_view sess
 // AppendBatch's checks and insert inside the caller's transaction (see store.h).
 absl::StatusOr<BatchAck> AppendOne(Connection& conn, std::string_view session_id, int64_t seq,
                                    std::string_view payload, const EncodedBatchInfo& info) {
-  STORAGE_ASSIGN_OR_RETURN(
+  IMUCAL_ASSIGN_OR_RETURN(
       std::optional<SessionState> state,
       ReadRow(conn,
               conn.dialect() == Dialect::kPostgres ? kLockSessionStateForAppend
                                                    : kSelectSessionStateForAppend,
               ReadSessionState, session_id));
   if (!state) return absl::NotFoundError(Cat("no session '", session_id, "'"));
-  STORAGE_ASSIGN_OR_RETURN(const LastBatch last, FindLastBatch(conn, session_id));
+  IMUCAL_ASSIGN_OR_RETURN(const LastBatch last, FindLastBatch(conn, session_id));
   if (seq <= last.seq) {
     // A retransmission of an acknowledged batch is a no-op, if it is the same batch.
-    STORAGE_ASSIGN_OR_RETURN(
+    IMUCAL_ASSIGN_OR_RETURN(
         std::optional<bool> same,
         ReadRow(
             conn, kSelectBatchPayload,
@@ -129,7 +129,7 @@ absl::StatusOr<BatchAck> AppendOne(Connection& conn, std::string_view session_id
             ", not after the last sample of batch ", last.seq, " (t_s ", last.last_t_s, ")"));
   }
   const BatchAck ack{seq, last.end_sample + info.count};
-  STORAGE_RETURN_IF_ERROR(RunStatement(
+  IMUCAL_RETURN_IF_ERROR(RunStatement(
       conn, conn.dialect() == Dialect::kPostgres ? kInsertBatchAnnounced : kInsertBatch, session_id,
       seq, info.first_t_s, info.last_t_s, info.count, ack.samples, SqlBlob{payload}));
   return ack;
@@ -223,7 +223,7 @@ absl::StatusOr<std::vector<SampleBatch>> Store::ReadBatches(std::string_view ses
                                                             int64_t after_seq) {
   ReadLease lease = AcquireReader();
   auto read = [&]() -> absl::StatusOr<std::vector<SampleBatch>> {
-    STORAGE_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
+    IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
     return ReadRows(
         lease.conn(), kSelectBatches,
         [&](const Statement& st) { return ReadBatch(st, session_id); }, session_id, after_seq);
@@ -242,7 +242,7 @@ absl::StatusOr<std::vector<SampleBatch>> Store::ReadBatchPage(std::string_view s
   }
   ReadLease lease = AcquireReader();
   auto read = [&]() -> absl::StatusOr<std::vector<SampleBatch>> {
-    STORAGE_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
+    IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
     return ReadRows(
         lease.conn(), kSelectBatchPage,
         [&](const Statement& st) { return ReadBatch(st, session_id); }, session_id, after_seq,

@@ -61,7 +61,7 @@ absl::StatusOr<Session> ReadSession(const Statement& st) {
   Session s;
   s.id = st.ColumnText(0);
   s.device_id = st.ColumnText(1);
-  STORAGE_ASSIGN_OR_RETURN(s.state, FromColumn(ParseSessionState(st.ColumnText(2))));
+  IMUCAL_ASSIGN_OR_RETURN(s.state, FromColumn(ParseSessionState(st.ColumnText(2))));
   s.protocol = st.ColumnText(3);
   s.gravity_m_s2 = st.ColumnDouble(4);
   s.created_at = FromMicros(st.ColumnInt64(5));
@@ -120,16 +120,15 @@ std::string AllowedFrom(SessionState from) {
 }  // namespace
 
 absl::StatusOr<Session> LoadSession(Connection& conn, std::string_view id) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<Session> s,
-                           ReadRow(conn, kSelectSession, ReadSession, id));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<Session> s, ReadRow(conn, kSelectSession, ReadSession, id));
   if (!s) return absl::NotFoundError(Cat("no session '", id, "'"));
   return *std::move(s);
 }
 
 absl::Status CheckSessionExists(Connection& conn, std::string_view id) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<bool> found,
-                           ReadRow(
-                               conn, kSessionExists, [](const Statement&) { return true; }, id));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<bool> found,
+                          ReadRow(
+                              conn, kSessionExists, [](const Statement&) { return true; }, id));
   if (!found) return absl::NotFoundError(Cat("no session '", id, "'"));
   return absl::OkStatus();
 }
@@ -147,24 +146,24 @@ absl::Status ChangeSessionState(Connection& conn, const Session& session, Sessio
         SessionStateName(to), " (allowed: ", AllowedFrom(session.state), ")"));
   }
   if (to == SessionState::kOpen) {
-    STORAGE_ASSIGN_OR_RETURN(std::optional<std::string> open,
-                             FindOpenSession(conn, session.device_id));
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<std::string> open,
+                            FindOpenSession(conn, session.device_id));
     if (open) {
       return absl::FailedPreconditionError(
           Cat("device '", session.device_id, "' already has an open session '", *open, "'"));
     }
   }
-  STORAGE_RETURN_IF_ERROR(
+  IMUCAL_RETURN_IF_ERROR(
       RunStatement(conn, kUpdateSessionState, session.id, SessionStateName(to), Micros(now)));
-  STORAGE_RETURN_IF_ERROR(AnnounceSession(conn, session.id));
+  IMUCAL_RETURN_IF_ERROR(AnnounceSession(conn, session.id));
   return InsertAudit(conn, now, actor, "session.state", SessionTarget(session.id),
                      Cat(SessionStateName(session.state), " -> ", SessionStateName(to)));
 }
 
 absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string_view actor) {
   constexpr std::string_view kOp = "CreateSession";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(session.device_id, "device_id")));
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(session.device_id, "device_id")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   if (!std::isfinite(session.gravity_m_s2) || session.gravity_m_s2 <= 0) {
     return WithContext(kOp, absl::InvalidArgumentError(Cat("gravity_m_s2 ", session.gravity_m_s2,
                                                            " is not a positive number")));
@@ -172,9 +171,9 @@ absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string
   const std::string id = session.id.empty() ? GenerateSessionId() : session.id;
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Session> {
-    STORAGE_RETURN_IF_ERROR(LoadDevice(conn, session.device_id).status());
-    STORAGE_ASSIGN_OR_RETURN(std::optional<std::string> open,
-                             FindOpenSession(conn, session.device_id));
+    IMUCAL_RETURN_IF_ERROR(LoadDevice(conn, session.device_id).status());
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<std::string> open,
+                            FindOpenSession(conn, session.device_id));
     if (open) {
       return absl::FailedPreconditionError(Cat("device '", session.device_id,
                                                "' already has an open session '", *open,
@@ -184,9 +183,9 @@ absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string
       return absl::AlreadyExistsError(Cat("session '", id, "' already exists"));
     }
     const absl::Time now = Now();
-    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertSession, id, session.device_id,
-                                         session.protocol, session.gravity_m_s2, Micros(now)));
-    STORAGE_RETURN_IF_ERROR(
+    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kInsertSession, id, session.device_id,
+                                        session.protocol, session.gravity_m_s2, Micros(now)));
+    IMUCAL_RETURN_IF_ERROR(
         InsertAudit(conn, now, actor, "session.create", SessionTarget(id),
                     Cat("device ", session.device_id, ", protocol ", session.protocol)));
     return LoadSession(conn, id);
@@ -204,16 +203,15 @@ absl::StatusOr<std::vector<Session>> Store::ListSessions(const SessionQuery& que
   auto list = [&]() -> absl::StatusOr<std::vector<Session>> {
     int64_t after_rowid = 0;
     if (!query.after_id.empty()) {
-      STORAGE_ASSIGN_OR_RETURN(
-          std::optional<int64_t> rowid,
-          ReadRow(conn, kSelectSessionRowid, FirstColumnInt64, query.after_id));
+      IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> rowid,
+                              ReadRow(conn, kSelectSessionRowid, FirstColumnInt64, query.after_id));
       if (!rowid) {
         return absl::InvalidArgumentError(Cat("page after unknown session '", query.after_id, "'"));
       }
       after_rowid = *rowid;
     }
     const bool of_device = !query.device_id.empty();
-    if (of_device) STORAGE_RETURN_IF_ERROR(LoadDevice(conn, query.device_id).status());
+    if (of_device) IMUCAL_RETURN_IF_ERROR(LoadDevice(conn, query.device_id).status());
     std::optional<std::string_view> state;
     if (query.state) state = SessionStateName(*query.state);
     return ReadRows(conn, of_device ? kSelectSessionsOfDevice : kSelectSessionsAll, ReadSession,
@@ -225,15 +223,15 @@ absl::StatusOr<std::vector<Session>> Store::ListSessions(const SessionQuery& que
 absl::StatusOr<Session> Store::SetSessionState(std::string_view id, SessionState state,
                                                std::string_view actor) {
   constexpr std::string_view kOp = "SetSessionState";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Session> {
-    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, id));
+    IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, id));
     const absl::Time now = Now();
-    STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, state, actor, now));
+    IMUCAL_RETURN_IF_ERROR(ChangeSessionState(conn, session, state, actor, now));
     if (session.state == SessionState::kSolving) {
       // Leaving `solving` by hand abandons its running solve: it can no longer finish.
-      STORAGE_RETURN_IF_ERROR(AbandonRunningSolve(
+      IMUCAL_RETURN_IF_ERROR(AbandonRunningSolve(
           conn, id, now,
           Cat("abandoned: session set to ", SessionStateName(state), " by ", actor)));
     }
@@ -245,7 +243,7 @@ absl::Status Store::SetSessionSource(std::string_view id, std::string_view sourc
   constexpr std::string_view kOp = "SetSessionSource";
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::Status {
-    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, id));
+    IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, id));
     if (session.state != SessionState::kOpen || session.samples > 0) {
       return absl::FailedPreconditionError(Cat("session '", id, "' is ",
                                                SessionStateName(session.state), " and holds ",

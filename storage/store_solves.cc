@@ -69,7 +69,7 @@ absl::StatusOr<Solve> ReadSolve(const Statement& st) {
   Solve s;
   s.id = st.ColumnInt64(0);
   s.session_id = st.ColumnText(1);
-  STORAGE_ASSIGN_OR_RETURN(s.state, FromColumn(ParseSolveState(st.ColumnText(2))));
+  IMUCAL_ASSIGN_OR_RETURN(s.state, FromColumn(ParseSolveState(st.ColumnText(2))));
   s.actor = st.ColumnText(3);
   s.started_at = FromMicros(st.ColumnInt64(4));
   if (!st.ColumnIsNull(5)) s.finished_at = FromMicros(st.ColumnInt64(5));
@@ -84,7 +84,7 @@ absl::StatusOr<Solve> ReadSolve(const Statement& st) {
 }
 
 absl::StatusOr<Solve> LoadSolve(Connection& conn, int64_t id) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<Solve> s, ReadRow(conn, kSelectSolve, ReadSolve, id));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<Solve> s, ReadRow(conn, kSelectSolve, ReadSolve, id));
   if (!s) return absl::NotFoundError(Cat("no solve ", id));
   return *std::move(s);
 }
@@ -94,7 +94,7 @@ absl::StatusOr<Solve> LoadSolve(Connection& conn, int64_t id) {
 // claim's holder may end it, so a version is written once).
 absl::StatusOr<Solve> LoadRunningSolve(Connection& conn, int64_t solve_id,
                                        std::string_view owner = {}) {
-  STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
+  IMUCAL_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
   if (solve.state != SolveState::kRunning) {
     return absl::FailedPreconditionError(
         Cat("solve ", solve_id, " is ", SolveStateName(solve.state), ", not running"));
@@ -123,19 +123,19 @@ absl::Status AbandonRunningSolve(Connection& conn, std::string_view session_id, 
 absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string_view actor,
                                         const SolveClaim& claim, uint64_t seed) {
   constexpr std::string_view kOp = "StartSolve";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Solve> {
-    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, session_id));
+    IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, session_id));
     const absl::Time now = Now();
-    STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, SessionState::kSolving, actor, now));
-    STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> inserted,
-                             ReadRow(conn, kInsertSolve, FirstColumnInt64, session_id, actor,
-                                     Micros(now), claim.owner, LeaseMicros(claim.lease_until),
-                                     static_cast<int64_t>(seed)));
+    IMUCAL_RETURN_IF_ERROR(ChangeSessionState(conn, session, SessionState::kSolving, actor, now));
+    IMUCAL_ASSIGN_OR_RETURN(
+        std::optional<int64_t> inserted,
+        ReadRow(conn, kInsertSolve, FirstColumnInt64, session_id, actor, Micros(now), claim.owner,
+                LeaseMicros(claim.lease_until), static_cast<int64_t>(seed)));
     if (!inserted) return absl::InternalError("INSERT ... RETURNING id returned no row");
     const int64_t id = *inserted;
-    STORAGE_RETURN_IF_ERROR(
+    IMUCAL_RETURN_IF_ERROR(
         InsertAudit(conn, now, actor, "solve.start", SessionTarget(session_id), Cat("solve ", id)));
     return LoadSolve(conn, id);
   });
@@ -146,12 +146,12 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
                                                 const RenderVersion& render,
                                                 std::string_view owner) {
   constexpr std::string_view kOp = "FinishSolve";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(
       InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
-        STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id, owner));
-        STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
+        IMUCAL_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id, owner));
+        IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
         ParamVersion v = version;
         if (v.device_id.empty()) v.device_id = session.device_id;
         if (v.session_id.empty()) v.session_id = session.id;
@@ -161,15 +161,15 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
                                                 v.session_id, "' of '", v.device_id, "'"));
         }
         const absl::Time now = Now();
-        STORAGE_ASSIGN_OR_RETURN(ParamVersion added, InsertVersion(conn, v, actor, now, render));
+        IMUCAL_ASSIGN_OR_RETURN(ParamVersion added, InsertVersion(conn, v, actor, now, render));
         // The report is the version's.
-        STORAGE_RETURN_IF_ERROR(
+        IMUCAL_RETURN_IF_ERROR(
             FinishSolveRow(conn, solve_id, SolveState::kSucceeded, now, added.version, "", ""));
-        STORAGE_RETURN_IF_ERROR(
+        IMUCAL_RETURN_IF_ERROR(
             ChangeSessionState(conn, session, SessionState::kSolved, actor, now));
-        STORAGE_RETURN_IF_ERROR(
-            InsertAudit(conn, now, actor, "solve.finish", SessionTarget(session.id),
-                        Cat("solve ", solve_id, " -> version ", added.version)));
+        IMUCAL_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.finish",
+                                           SessionTarget(session.id),
+                                           Cat("solve ", solve_id, " -> version ", added.version)));
         return added;
       }));
 }
@@ -178,21 +178,21 @@ absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
                                        std::string_view report_json, std::string_view actor,
                                        SessionState next, std::string_view owner) {
   constexpr std::string_view kOp = "FailSolve";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   if (next != SessionState::kFailed && next != SessionState::kOpen) {
     return absl::InvalidArgumentError(Cat(
         kOp, ": after a failed solve a session is failed or open, not ", SessionStateName(next)));
   }
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Solve> {
-    STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id, owner));
-    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
+    IMUCAL_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id, owner));
+    IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
     const absl::Time now = Now();
-    STORAGE_RETURN_IF_ERROR(
+    IMUCAL_RETURN_IF_ERROR(
         FinishSolveRow(conn, solve_id, SolveState::kFailed, now, 0, error, report_json));
-    STORAGE_RETURN_IF_ERROR(ChangeSessionState(conn, session, next, actor, now));
-    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.fail", SessionTarget(session.id),
-                                        Cat("solve ", solve_id, ": ", error)));
+    IMUCAL_RETURN_IF_ERROR(ChangeSessionState(conn, session, next, actor, now));
+    IMUCAL_RETURN_IF_ERROR(InsertAudit(conn, now, actor, "solve.fail", SessionTarget(session.id),
+                                       Cat("solve ", solve_id, ": ", error)));
     return LoadSolve(conn, solve_id);
   });
 }
@@ -205,7 +205,7 @@ absl::StatusOr<Solve> Store::GetSolve(int64_t solve_id) {
 absl::StatusOr<std::vector<Solve>> Store::ListSolves(std::string_view session_id) {
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<Solve>> {
-    STORAGE_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
+    IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
     return ReadRows(lease.conn(), kSelectSolvesOfSession, ReadSolve, session_id);
   };
   return Annotate("ListSolves", list());
@@ -213,12 +213,12 @@ absl::StatusOr<std::vector<Solve>> Store::ListSolves(std::string_view session_id
 
 absl::StatusOr<int> Store::RenewSolveLeases(std::string_view owner, absl::Time until) {
   constexpr std::string_view kOp = "RenewSolveLeases";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(owner, "owner")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(owner, "owner")));
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int> {
-    STORAGE_ASSIGN_OR_RETURN(std::vector<int64_t> renewed,
-                             ReadRows(conn, kRenewLeases, FirstColumnInt64, owner,
-                                      LeaseMicros(until)));
+    IMUCAL_ASSIGN_OR_RETURN(
+        std::vector<int64_t> renewed,
+        ReadRows(conn, kRenewLeases, FirstColumnInt64, owner, LeaseMicros(until)));
     return static_cast<int>(renewed.size());
   });
 }
@@ -232,17 +232,17 @@ absl::StatusOr<std::vector<Solve>> Store::ListOrphanedSolves(absl::Time now,
 
 absl::StatusOr<int> Store::ReleaseSolveClaims(std::string_view owner) {
   constexpr std::string_view kOp = "ReleaseSolveClaims";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(owner, "owner")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(owner, "owner")));
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int> {
-    STORAGE_ASSIGN_OR_RETURN(std::vector<int64_t> ids,
-                             ReadRows(conn, kReleaseClaims, FirstColumnInt64, owner,
-                                      LeaseMicros(absl::InfinitePast())));
+    IMUCAL_ASSIGN_OR_RETURN(
+        std::vector<int64_t> ids,
+        ReadRows(conn, kReleaseClaims, FirstColumnInt64, owner, LeaseMicros(absl::InfinitePast())));
     for (int64_t id : ids) {
-      STORAGE_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, id));
-      STORAGE_RETURN_IF_ERROR(InsertAudit(conn, Now(), owner, "solve.release",
-                                          SessionTarget(solve.session_id),
-                                          Cat("solve ", id, ": its server restarted")));
+      IMUCAL_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, id));
+      IMUCAL_RETURN_IF_ERROR(InsertAudit(conn, Now(), owner, "solve.release",
+                                         SessionTarget(solve.session_id),
+                                         Cat("solve ", id, ": its server restarted")));
     }
     return static_cast<int>(ids.size());
   });
@@ -251,26 +251,26 @@ absl::StatusOr<int> Store::ReleaseSolveClaims(std::string_view owner) {
 absl::StatusOr<std::optional<Solve>> Store::ClaimLapsedSolve(absl::Time now,
                                                               const SolveClaim& claim) {
   constexpr std::string_view kOp = "ClaimLapsedSolve";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(claim.owner, "owner")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(claim.owner, "owner")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<std::optional<Solve>> {
-    STORAGE_ASSIGN_OR_RETURN(
-        std::optional<int64_t> id,
-        ReadRow(conn,
-                conn.dialect() == Dialect::kPostgres ? kSelectLapsedSolvePg
-                                                     : kSelectLapsedSolveSqlite,
-                FirstColumnInt64, Micros(now)));
-    if (!id) return std::nullopt;
-    STORAGE_ASSIGN_OR_RETURN(Solve before, LoadSolve(conn, *id));
-    STORAGE_RETURN_IF_ERROR(
-        RunStatement(conn, kClaimSolve, *id, claim.owner, LeaseMicros(claim.lease_until)));
-    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, Now(), claim.owner, "solve.claim",
-                                        SessionTarget(before.session_id),
-                                        Cat("solve ", *id, " from '", before.owner,
-                                            "', whose lease lapsed")));
-    STORAGE_ASSIGN_OR_RETURN(Solve claimed, LoadSolve(conn, *id));
-    return std::optional<Solve>(std::move(claimed));
-  });
+  return InTransaction(
+      kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<std::optional<Solve>> {
+        IMUCAL_ASSIGN_OR_RETURN(
+            std::optional<int64_t> id,
+            ReadRow(conn,
+                    conn.dialect() == Dialect::kPostgres ? kSelectLapsedSolvePg
+                                                         : kSelectLapsedSolveSqlite,
+                    FirstColumnInt64, Micros(now)));
+        if (!id) return std::nullopt;
+        IMUCAL_ASSIGN_OR_RETURN(Solve before, LoadSolve(conn, *id));
+        IMUCAL_RETURN_IF_ERROR(
+            RunStatement(conn, kClaimSolve, *id, claim.owner, LeaseMicros(claim.lease_until)));
+        IMUCAL_RETURN_IF_ERROR(
+            InsertAudit(conn, Now(), claim.owner, "solve.claim", SessionTarget(before.session_id),
+                        Cat("solve ", *id, " from '", before.owner, "', whose lease lapsed")));
+        IMUCAL_ASSIGN_OR_RETURN(Solve claimed, LoadSolve(conn, *id));
+        return std::optional<Solve>(std::move(claimed));
+      });
 }
 
 absl::StatusOr<std::vector<Solve>> Store::ListRunningSolves() {

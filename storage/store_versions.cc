@@ -53,9 +53,9 @@ absl::StatusOr<ParamVersion> ReadVersion(const Statement& st, Documents docs) {
   v.version = static_cast<int>(st.ColumnInt64(1));
   v.created_at = FromMicros(st.ColumnInt64(2));
   v.session_id = st.ColumnText(3);
-  STORAGE_ASSIGN_OR_RETURN(v.verdict, FromColumn(ParseVerdict(st.ColumnText(4))));
+  IMUCAL_ASSIGN_OR_RETURN(v.verdict, FromColumn(ParseVerdict(st.ColumnText(4))));
   v.accel_rms = st.ColumnDouble(5);
-  STORAGE_ASSIGN_OR_RETURN(v.state, FromColumn(ParseVersionState(st.ColumnText(6))));
+  IMUCAL_ASSIGN_OR_RETURN(v.state, FromColumn(ParseVersionState(st.ColumnText(6))));
   v.provenance = st.ColumnText(7);
   if (docs != Documents::kNone) v.params_json = st.ColumnText(8);
   if (docs == Documents::kBoth) v.report_json = st.ColumnText(9);
@@ -74,11 +74,11 @@ absl::StatusOr<std::optional<ParamVersion>> FindActive(Connection& conn,
 
 absl::StatusOr<ParamVersion> LoadVersion(Connection& conn, std::string_view device_id,
                                          int version) {
-  STORAGE_ASSIGN_OR_RETURN(
+  IMUCAL_ASSIGN_OR_RETURN(
       std::optional<ParamVersion> v,
       ReadRow(conn, kSelectVersion, VersionWith(Documents::kBoth), device_id, version));
   if (!v) {
-    STORAGE_RETURN_IF_ERROR(LoadDevice(conn, device_id).status());
+    IMUCAL_RETURN_IF_ERROR(LoadDevice(conn, device_id).status());
     return absl::NotFoundError(Cat("device '", device_id, "' has no version ", version));
   }
   return *std::move(v);
@@ -87,8 +87,8 @@ absl::StatusOr<ParamVersion> LoadVersion(Connection& conn, std::string_view devi
 // `documents`: whether params_json is checked (a version whose renderer writes it is checked
 // again once rendered).
 absl::Status ValidateNewVersion(const ParamVersion& v, bool documents) {
-  STORAGE_RETURN_IF_ERROR(NonEmpty(v.device_id, "device_id"));
-  if (documents) STORAGE_RETURN_IF_ERROR(NonEmpty(v.params_json, "params_json"));
+  IMUCAL_RETURN_IF_ERROR(NonEmpty(v.device_id, "device_id"));
+  if (documents) IMUCAL_RETURN_IF_ERROR(NonEmpty(v.params_json, "params_json"));
   if (v.state != VersionState::kCandidate && v.state != VersionState::kActive) {
     return absl::InvalidArgumentError(
         Cat("a new version is a candidate or active, not ", VersionStateName(v.state)));
@@ -109,11 +109,11 @@ absl::Status SetVersionState(Connection& conn, std::string_view device_id, int v
 // PostgreSQL: every server listening (Store::ListenForActiveChanges) hears of it when the
 // transaction commits, and not at all if it does not.
 absl::StatusOr<int> Activate(Connection& conn, std::string_view device_id, int version) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
-  STORAGE_RETURN_IF_ERROR(RunStatement(conn, kSupersedeActive, device_id));
-  STORAGE_RETURN_IF_ERROR(SetVersionState(conn, device_id, version, VersionState::kActive));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
+  IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kSupersedeActive, device_id));
+  IMUCAL_RETURN_IF_ERROR(SetVersionState(conn, device_id, version, VersionState::kActive));
   if (conn.dialect() == Dialect::kPostgres) {
-    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kAnnounceActive, device_id));
+    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kAnnounceActive, device_id));
   }
   return active ? active->version : 0;
 }
@@ -132,9 +132,9 @@ absl::StatusOr<ParamVersion> ActivateAudited(Connection& conn, std::string_view 
                                              int version, std::string_view action,
                                              std::string_view what, std::string_view actor,
                                              std::string_view reason, absl::Time now) {
-  STORAGE_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, version));
-  STORAGE_RETURN_IF_ERROR(InsertAudit(conn, now, actor, action, DeviceTarget(device_id),
-                                      Cat(what, " active", Displaced(displaced), Reason(reason))));
+  IMUCAL_ASSIGN_OR_RETURN(int displaced, Activate(conn, device_id, version));
+  IMUCAL_RETURN_IF_ERROR(InsertAudit(conn, now, actor, action, DeviceTarget(device_id),
+                                     Cat(what, " active", Displaced(displaced), Reason(reason))));
   return LoadVersion(conn, device_id, version);
 }
 
@@ -144,10 +144,10 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
                                            std::string_view actor, absl::Time now,
                                            const RenderVersion& render) {
   ParamVersion v = given;
-  STORAGE_RETURN_IF_ERROR(ValidateNewVersion(v, /*documents=*/!render));
-  STORAGE_RETURN_IF_ERROR(LoadDevice(conn, v.device_id).status());
+  IMUCAL_RETURN_IF_ERROR(ValidateNewVersion(v, /*documents=*/!render));
+  IMUCAL_RETURN_IF_ERROR(LoadDevice(conn, v.device_id).status());
   if (!v.session_id.empty()) {
-    STORAGE_ASSIGN_OR_RETURN(Session session, LoadSession(conn, v.session_id));
+    IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, v.session_id));
     if (session.device_id != v.device_id) {
       return absl::InvalidArgumentError(Cat("session '", v.session_id, "' belongs to device '",
                                             session.device_id, "', not '", v.device_id, "'"));
@@ -156,25 +156,25 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
   // SQLite: the write lock is held (BEGIN IMMEDIATE), so MAX + 1 cannot race another writer.
   // PostgreSQL: a concurrent transaction that takes the same number conflicts with this one
   // (SERIALIZABLE, and UNIQUE (device_id, version)); one of them is aborted and runs again.
-  STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> next,
-                           ReadRow(conn, kSelectNextVersion, FirstColumnInt64, v.device_id));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> next,
+                          ReadRow(conn, kSelectNextVersion, FirstColumnInt64, v.device_id));
   if (!next) return absl::InternalError("no next version");
   const int number = static_cast<int>(*next);
   if (render) {
     v.params_json.clear();
     v.report_json.clear();
-    STORAGE_RETURN_IF_ERROR(render(number, &v.params_json, &v.report_json));
-    STORAGE_RETURN_IF_ERROR(ValidateNewVersion(v, /*documents=*/true));
+    IMUCAL_RETURN_IF_ERROR(render(number, &v.params_json, &v.report_json));
+    IMUCAL_RETURN_IF_ERROR(ValidateNewVersion(v, /*documents=*/true));
   }
-  STORAGE_RETURN_IF_ERROR(RunStatement(conn, kInsertVersion, v.device_id, number, Micros(now),
-                                       NullIfEmpty(v.session_id), VerdictName(v.verdict),
-                                       v.accel_rms, VersionStateName(VersionState::kCandidate),
-                                       v.provenance, v.params_json, v.report_json));
+  IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kInsertVersion, v.device_id, number, Micros(now),
+                                      NullIfEmpty(v.session_id), VerdictName(v.verdict),
+                                      v.accel_rms, VersionStateName(VersionState::kCandidate),
+                                      v.provenance, v.params_json, v.report_json));
   int displaced = 0;
   if (v.state == VersionState::kActive) {
-    STORAGE_ASSIGN_OR_RETURN(displaced, Activate(conn, v.device_id, number));
+    IMUCAL_ASSIGN_OR_RETURN(displaced, Activate(conn, v.device_id, number));
   }
-  STORAGE_RETURN_IF_ERROR(InsertAudit(
+  IMUCAL_RETURN_IF_ERROR(InsertAudit(
       conn, now, actor, "version.add", DeviceTarget(v.device_id),
       Cat("version ", number, " ", VersionStateName(v.state), ", verdict ", VerdictName(v.verdict),
           ", accel_rms ", v.accel_rms, v.session_id.empty() ? "" : Cat(", session ", v.session_id),
@@ -186,7 +186,7 @@ absl::StatusOr<ParamVersion> Store::AddVersion(const ParamVersion& version,
                                                std::string_view actor,
                                                const RenderVersion& render) {
   constexpr std::string_view kOp = "AddVersion";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(InTransaction(
       kOp, *writer_, [&](Connection& conn) { return InsertVersion(conn, version, actor, Now(), render); }));
@@ -195,11 +195,11 @@ absl::StatusOr<ParamVersion> Store::AddVersion(const ParamVersion& version,
 absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int version,
                                             std::string_view actor, std::string_view reason) {
   constexpr std::string_view kOp = "Promote";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(
       InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
-        STORAGE_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
+        IMUCAL_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
         if (v.state == VersionState::kActive) return v;
         if (v.state != VersionState::kCandidate) {
           return absl::FailedPreconditionError(Cat(
@@ -214,12 +214,12 @@ absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int vers
 absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_version,
                                              std::string_view actor, std::string_view reason) {
   constexpr std::string_view kOp = "Rollback";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(
       InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
-        STORAGE_ASSIGN_OR_RETURN(ParamVersion target, LoadVersion(conn, device_id, to_version));
-        STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
+        IMUCAL_ASSIGN_OR_RETURN(ParamVersion target, LoadVersion(conn, device_id, to_version));
+        IMUCAL_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
         if (!active) {
           return absl::FailedPreconditionError(
               Cat("device '", device_id, "' has no active version to roll back from"));
@@ -239,19 +239,19 @@ absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_
 absl::StatusOr<ParamVersion> Store::Reject(std::string_view device_id, int version,
                                            std::string_view actor, std::string_view reason) {
   constexpr std::string_view kOp = "Reject";
-  STORAGE_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
+  IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
-    STORAGE_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
+    IMUCAL_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
     if (v.state != VersionState::kCandidate) {
       return absl::FailedPreconditionError(Cat("version ", version, " of device '", device_id,
                                                "' is ", VersionStateName(v.state),
                                                "; only a candidate can be rejected"));
     }
-    STORAGE_RETURN_IF_ERROR(SetVersionState(conn, device_id, version, VersionState::kRejected));
-    STORAGE_RETURN_IF_ERROR(InsertAudit(conn, Now(), actor, "version.reject",
-                                        DeviceTarget(device_id),
-                                        Cat("version ", version, ": ", reason)));
+    IMUCAL_RETURN_IF_ERROR(SetVersionState(conn, device_id, version, VersionState::kRejected));
+    IMUCAL_RETURN_IF_ERROR(InsertAudit(conn, Now(), actor, "version.reject",
+                                       DeviceTarget(device_id),
+                                       Cat("version ", version, ": ", reason)));
     return LoadVersion(conn, device_id, version);
   });
 }
@@ -259,11 +259,11 @@ absl::StatusOr<ParamVersion> Store::Reject(std::string_view device_id, int versi
 absl::StatusOr<ParamVersion> Store::GetActive(std::string_view device_id) {
   ReadLease lease = AcquireReader();
   auto get = [&]() -> absl::StatusOr<ParamVersion> {
-    STORAGE_ASSIGN_OR_RETURN(std::optional<ParamVersion> active,
-                             FindActive(lease.conn(), device_id));
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<ParamVersion> active,
+                            FindActive(lease.conn(), device_id));
     if (active) return *std::move(active);
     // The miss path only: say whether the device exists at all.
-    STORAGE_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
+    IMUCAL_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
     return absl::NotFoundError(Cat("device '", device_id, "' has no active parameter version"));
   };
   return Annotate("GetActive", get());
@@ -278,7 +278,7 @@ absl::StatusOr<std::vector<ParamVersion>> Store::ListVersions(std::string_view d
                                                               const VersionQuery& query) {
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<ParamVersion>> {
-    STORAGE_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
+    IMUCAL_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
     return ReadRows(lease.conn(),
                     query.with_documents ? kSelectVersionsOfDevice : kSelectVersionHeadersOfDevice,
                     VersionWith(query.with_documents ? Documents::kBoth : Documents::kNone),

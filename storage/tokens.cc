@@ -99,8 +99,8 @@ absl::Status AuditToken(Connection& conn, std::string_view actor, std::string_vi
 }
 
 absl::StatusOr<Token> SelectById(Connection& conn, int64_t id) {
-  STORAGE_ASSIGN_OR_RETURN(std::optional<Token> token,
-                           ReadRow(conn, kSelectTokenById, ReadToken, id));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<Token> token,
+                          ReadRow(conn, kSelectTokenById, ReadToken, id));
   if (!token) return absl::NotFoundError(Cat("token ", id, " does not exist"));
   return *std::move(token);
 }
@@ -164,8 +164,8 @@ absl::StatusOr<std::unique_ptr<TokenStore>> TokenStore::Open(const std::string& 
 
 absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view device_id,
                                                   std::string_view label, std::string_view actor) {
-  STORAGE_RETURN_IF_ERROR(ValidateNewToken(role, device_id, label));
-  STORAGE_ASSIGN_OR_RETURN(std::string secret, NewSecret());
+  IMUCAL_RETURN_IF_ERROR(ValidateNewToken(role, device_id, label));
+  IMUCAL_ASSIGN_OR_RETURN(std::string secret, NewSecret());
   NewToken out;
   out.token.role = role;
   out.token.device_id = std::string(device_id);
@@ -173,7 +173,7 @@ absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view de
   out.token.created_at = Now();
   std::optional<std::string_view> bound_device;  // NULL for the roles bound to no device
   if (role == Role::kRobot) bound_device = device_id;
-  STORAGE_ASSIGN_OR_RETURN(
+  IMUCAL_ASSIGN_OR_RETURN(
       std::optional<int64_t> id,
       ReadRow(*conn_, kInsertToken, FirstColumnInt64, SqlBlob{HashView(HashTokenSecret(secret))},
               RoleName(role), bound_device, label, Micros(out.token.created_at)));
@@ -182,7 +182,7 @@ absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view de
   std::string detail = Cat("role ", RoleName(role));
   if (role == Role::kRobot) AppendTo(&detail, ", device ", device_id);
   if (!label.empty()) AppendTo(&detail, ", label '", label, "'");
-  STORAGE_RETURN_IF_ERROR(AuditToken(*conn_, actor, "token.create", out.token.id, detail));
+  IMUCAL_RETURN_IF_ERROR(AuditToken(*conn_, actor, "token.create", out.token.id, detail));
   out.secret = std::move(secret);
   return out;
 }
@@ -199,10 +199,10 @@ absl::StatusOr<std::optional<NewToken>> TokenStore::CreateFirstAdmin(std::string
   std::lock_guard lock(mu_);
   return InTransaction(
       "CreateFirstAdmin", *conn_, [&](Connection& conn) -> absl::StatusOr<std::optional<NewToken>> {
-        STORAGE_ASSIGN_OR_RETURN(std::optional<int64_t> count,
-                                 ReadRow(conn, kCountValidAdmins, FirstColumnInt64));
+        IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> count,
+                                ReadRow(conn, kCountValidAdmins, FirstColumnInt64));
         if (count.value_or(0) > 0) return std::nullopt;
-        STORAGE_ASSIGN_OR_RETURN(NewToken created, InsertLocked(Role::kAdmin, "", label, actor));
+        IMUCAL_ASSIGN_OR_RETURN(NewToken created, InsertLocked(Role::kAdmin, "", label, actor));
         return created;
       });
 }
@@ -215,22 +215,22 @@ absl::StatusOr<std::vector<Token>> TokenStore::List(bool include_revoked) {
 absl::StatusOr<Token> TokenStore::Revoke(int64_t id, std::string_view actor) {
   std::lock_guard lock(mu_);
   return InTransaction("RevokeToken", *conn_, [&](Connection& conn) -> absl::StatusOr<Token> {
-    STORAGE_ASSIGN_OR_RETURN(Token token, SelectById(conn, id));
+    IMUCAL_ASSIGN_OR_RETURN(Token token, SelectById(conn, id));
     if (token.revoked()) return token;  // already revoked: nothing to do or to audit
     token.revoked_at = Now();
-    STORAGE_RETURN_IF_ERROR(RunStatement(conn, kRevokeToken, id, Micros(*token.revoked_at)));
+    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kRevokeToken, id, Micros(*token.revoked_at)));
     std::string detail = Cat("role ", RoleName(token.role));
     if (token.role == Role::kRobot) AppendTo(&detail, ", device ", token.device_id);
-    STORAGE_RETURN_IF_ERROR(AuditToken(conn, actor, "token.revoke", id, detail));
+    IMUCAL_RETURN_IF_ERROR(AuditToken(conn, actor, "token.revoke", id, detail));
     return token;
   });
 }
 
 absl::StatusOr<Token> TokenStore::Lookup(const TokenHash& hash) {
   std::lock_guard lock(mu_);
-  STORAGE_ASSIGN_OR_RETURN(std::optional<Token> token,
-                           Annotate("LookupToken", ReadRow(*conn_, kSelectTokenByHash, ReadToken,
-                                                           SqlBlob{HashView(hash)})));
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<Token> token,
+                          Annotate("LookupToken", ReadRow(*conn_, kSelectTokenByHash, ReadToken,
+                                                          SqlBlob{HashView(hash)})));
   if (!token) return absl::NotFoundError("no such token");
   return *std::move(token);
 }
@@ -245,7 +245,7 @@ absl::StatusOr<TokenStore::Changes> TokenStore::ChangesSince(int64_t after_id) {
   Changes out;
   out.last_id = after_id;
   if (after_id < 0) {
-    STORAGE_ASSIGN_OR_RETURN(
+    IMUCAL_ASSIGN_OR_RETURN(
         std::optional<int64_t> last,
         Annotate("TokenChanges", ReadRow(*conn_, kSelectLastTokenChange, FirstColumnInt64)));
     out.last_id = last.value_or(0);
@@ -255,7 +255,7 @@ absl::StatusOr<TokenStore::Changes> TokenStore::ChangesSince(int64_t after_id) {
     int64_t id = 0;
     int64_t token_id = 0;
   };
-  STORAGE_ASSIGN_OR_RETURN(
+  IMUCAL_ASSIGN_OR_RETURN(
       std::vector<Change> changes,
       Annotate("TokenChanges", ReadRows(
                                    *conn_, kSelectTokenChanges,
