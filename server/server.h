@@ -87,6 +87,8 @@ class Server {
   // The metrics endpoint's port (0 without one), and the metrics themselves (null without).
   int metrics_port() const { return metrics_ == nullptr ? 0 : metrics_->port(); }
   Metrics* metrics() const { return metrics_.get(); }
+  // The active-parameters fetch cache (tests: to know a device's answer is held).
+  const ActiveParamCache* active_cache() const { return active_cache_.get(); }
 
  private:
   Server() = default;

@@ -1504,8 +1504,17 @@ TEST_F(ServerTest, OnPostgresHealthFollowsTheDatabaseAndFetchesAreServedFromTheC
     req.set_device_id(device);
     return params_->GetActiveParameters(Ctx().get(), req, out);
   };
+  // robot-1 is in the cache, robot-2 is not. The versions' notifications reach the server
+  // after they commit, and a fill that an invalidation may concern is not kept: fetch until the
+  // cache holds robot-1's answer.
   v1::ParameterSet before;
-  ASSERT_TRUE(fetch("robot-1", &before).ok());  // robot-1 is in the cache, robot-2 is not
+  ASSERT_TRUE(PollUntil(
+      [&] {
+        return fetch("robot-1", &before).ok() &&
+               server_->active_cache()->Find("robot-1") != nullptr;
+      },
+      seconds(10)))
+      << "robot-1's answer never stayed in the fetch cache";
   EXPECT_FALSE(before.served_from_cache());
   EXPECT_EQ(HealthStatus(channel_), 1);
 
