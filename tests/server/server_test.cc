@@ -1351,23 +1351,44 @@ TEST_F(ServerTest, HealthIsServingAndUnknownsAreNotFound) {
             grpc::StatusCode::INVALID_ARGUMENT);
 }
 
+// A throwaway PostgreSQL database behind a TCP proxy a test can cut: `url` reaches the database
+// directly (postgresql://imucal@127.0.0.1:PORT/NAME), `proxied_url` through the proxy; `port` is
+// the database's own.
+struct ProxiedPostgres {
+  std::unique_ptr<testing_util::PgTestDatabase> db;
+  std::unique_ptr<testing_util::TcpProxy> proxy;
+  std::string url, port, proxied_url;
+};
+
+absl::StatusOr<ProxiedPostgres> StartProxiedPostgres() {
+  absl::StatusOr<std::unique_ptr<testing_util::PgTestDatabase>> db =
+      testing_util::PgTestDatabase::Create();
+  if (!db.ok()) return db.status();
+  ProxiedPostgres pg;
+  pg.url = (*db)->url();
+  pg.db = *std::move(db);
+  const size_t host = pg.url.find("@127.0.0.1:");
+  if (host == std::string::npos) return absl::InternalError("not a loopback URL: " + pg.url);
+  const size_t port_at = host + 11, port_end = pg.url.find('/', port_at);
+  pg.port = pg.url.substr(port_at, port_end - port_at);
+  pg.proxy = testing_util::TcpProxy::Start(std::stoi(pg.port));
+  if (pg.proxy == nullptr) return absl::InternalError("the TCP proxy did not start");
+  pg.proxied_url =
+      pg.url.substr(0, port_at) + std::to_string(pg.proxy->port()) + pg.url.substr(port_end);
+  return pg;
+}
+
 // PostgreSQL out of reach (the server cut off it by a proxy; the database itself stays up):
 // every call that needs the database answers UNAVAILABLE with "the calibration service's
 // database is unavailable", and nothing of the database: not its host or port, not libpq's
 // text, not SQL (the detail goes to the server's log). Once it is back, the calls succeed again.
 TEST_F(ServerTest, OnPostgresAnOutageSaysTheDatabaseIsUnavailableAndNothingOfIt) {
-  absl::StatusOr<std::unique_ptr<testing_util::PgTestDatabase>> db =
-      testing_util::PgTestDatabase::Create();
-  ASSERT_TRUE(db.ok()) << db.status();
-  const std::string url = (*db)->url();  // postgresql://imucal@127.0.0.1:PORT/NAME
-  const size_t host = url.find("@127.0.0.1:");
-  ASSERT_NE(host, std::string::npos) << url;
-  const size_t port_at = host + 11, port_end = url.find('/', port_at);
-  const std::string pg_port = url.substr(port_at, port_end - port_at);
-  std::unique_ptr<testing_util::TcpProxy> proxy = testing_util::TcpProxy::Start(std::stoi(pg_port));
-  ASSERT_NE(proxy, nullptr);
+  absl::StatusOr<ProxiedPostgres> pg = StartProxiedPostgres();
+  ASSERT_TRUE(pg.ok()) << pg.status();
+  testing_util::TcpProxy* proxy = pg->proxy.get();
+  const std::string& pg_port = pg->port;
   const std::string proxy_port = std::to_string(proxy->port());
-  options_.db_path = url.substr(0, port_at) + proxy_port + url.substr(port_end);
+  options_.db_path = pg->proxied_url;
   StartServer();
   Register("robot-1");
   grpc::Status status;
@@ -1470,17 +1491,11 @@ bool PollUntil(const std::function<bool()>& done, std::chrono::seconds timeout) 
 // database's unavailability. Once the database answers again: SERVING, and fetches from the
 // database, unmarked. (Before, health said SERVING throughout and every fetch failed.)
 TEST_F(ServerTest, OnPostgresHealthFollowsTheDatabaseAndFetchesAreServedFromTheCache) {
-  absl::StatusOr<std::unique_ptr<testing_util::PgTestDatabase>> db =
-      testing_util::PgTestDatabase::Create();
-  ASSERT_TRUE(db.ok()) << db.status();
-  const std::string url = (*db)->url();  // postgresql://imucal@127.0.0.1:PORT/NAME
-  const size_t host = url.find("@127.0.0.1:");
-  ASSERT_NE(host, std::string::npos) << url;
-  const size_t port_at = host + 11, port_end = url.find('/', port_at);
-  std::unique_ptr<testing_util::TcpProxy> proxy =
-      testing_util::TcpProxy::Start(std::stoi(url.substr(port_at, port_end - port_at)));
-  ASSERT_NE(proxy, nullptr);
-  options_.db_path = url.substr(0, port_at) + std::to_string(proxy->port()) + url.substr(port_end);
+  absl::StatusOr<ProxiedPostgres> pg = StartProxiedPostgres();
+  ASSERT_TRUE(pg.ok()) << pg.status();
+  testing_util::TcpProxy* proxy = pg->proxy.get();
+  const std::string& url = pg->url;
+  options_.db_path = pg->proxied_url;
   options_.metrics_listen = "127.0.0.1:0";
   StartServer();
   Register("robot-1");
