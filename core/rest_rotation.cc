@@ -31,9 +31,8 @@ Eigen::Vector3d MeanOf(const std::vector<Eigen::Vector3d>& x, size_t b, size_t e
 
 }  // namespace
 
-GyroIntegral::GyroIntegral(const Capture& capture) {
+GyroIntegral::GyroIntegral(const Capture& capture, double median_dt) : median_dt_s(median_dt) {
   const size_t n = capture.size();
-  median_dt_s = capture.MedianDt();
   angle.assign(n + 1, Eigen::Vector3d::Zero());
   time_s.assign(n + 1, 0.0);
   for (size_t i = 0; i < n; ++i) {

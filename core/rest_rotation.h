@@ -27,7 +27,9 @@ struct GyroIntegral {
   double median_dt_s = 0;
 
   GyroIntegral() = default;
-  explicit GyroIntegral(const Capture& capture);
+  explicit GyroIntegral(const Capture& capture) : GyroIntegral(capture, capture.MedianDt()) {}
+  // With the capture's median sample interval already known (Capture::MedianDt).
+  GyroIntegral(const Capture& capture, double median_dt_s);
   // The largest rotation (input units x s) from sample b to any sample up to e, `rate` (input
   // units) removed: the excursion of [b, e). A rest's stays at its noise however it shakes (a
   // hand's tremor goes back and forth); a turn's grows with its duration.

@@ -8,92 +8,11 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/prefix_moments.h"
 #include "core/rest_rotation.h"
 
 namespace imucal::core {
 namespace {
-
-// Prefix sums of x - x0 and (x - x0)^2 per axis. The offset x0 (the first sample) keeps the
-// sums well conditioned for raw counts around 32768.
-struct PrefixMoments {
-  Eigen::Vector3d offset = Eigen::Vector3d::Zero();
-  std::vector<Eigen::Vector3d> s1, s2;
-
-  explicit PrefixMoments(const std::vector<Eigen::Vector3d>& x) {
-    if (!x.empty()) offset = x.front();
-    s1.assign(x.size() + 1, Eigen::Vector3d::Zero());
-    s2.assign(x.size() + 1, Eigen::Vector3d::Zero());
-    for (size_t i = 0; i < x.size(); ++i) {
-      const Eigen::Vector3d d = x[i] - offset;
-      s1[i + 1] = s1[i] + d;
-      s2[i + 1] = s2[i] + d.cwiseProduct(d);
-    }
-  }
-  // Per-axis mean over [b, e) (b < e).
-  Eigen::Vector3d Mean(size_t b, size_t e) const {
-    return offset + (s1[e] - s1[b]) / static_cast<double>(e - b);
-  }
-  // Unbiased per-axis variance over [b, e).
-  Eigen::Vector3d Variance(size_t b, size_t e) const {
-    const double n = static_cast<double>(e - b);
-    if (n < 2) return Eigen::Vector3d::Zero();
-    const Eigen::Vector3d m1 = s1[e] - s1[b];
-    const Eigen::Vector3d m2 = s2[e] - s2[b];
-    return ((m2 - m1.cwiseProduct(m1) / n) / (n - 1)).cwiseMax(0.0);
-  }
-};
-
-double Quantile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size())));
-  std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
-  return v[k];
-}
-
-// The step of the grid axis `j` of the readings sits on (input units), or 0 when it sits on none:
-// the smallest difference between distinct values, when every difference between neighbouring
-// distinct values is a whole multiple of it (to 1e-6 of the step: the readings are decimal text,
-// so 0.07 - 0.06 is not exactly 0.01). At most 65536 readings, evenly spread, are looked at.
-double GridStep(const std::vector<Eigen::Vector3d>& x, int j) {
-  const size_t stride = std::max<size_t>(1, x.size() / 65536);
-  std::vector<double> v;
-  for (size_t i = 0; i < x.size(); i += stride) v.push_back(x[i](j));
-  std::sort(v.begin(), v.end());
-  v.erase(std::unique(v.begin(), v.end()), v.end());
-  if (v.size() < 2) return 0.0;
-  const double magnitude = std::max(std::abs(v.front()), std::abs(v.back()));
-  // Differences at the readings' own rounding are not a grid.
-  const double tiny = 1e-12 * magnitude;
-  double step = std::numeric_limits<double>::infinity();
-  for (size_t i = 1; i < v.size(); ++i)
-    if (v[i] - v[i - 1] > tiny) step = std::min(step, v[i] - v[i - 1]);
-  if (!std::isfinite(step)) return 0.0;
-  for (size_t i = 1; i < v.size(); ++i) {
-    const double k = (v[i] - v[i - 1]) / step;
-    if (std::abs(k - std::round(k)) > 1e-6 * std::max(1.0, k) + tiny / step) return 0.0;
-  }
-  return step;
-}
-
-Eigen::Vector3d GridSteps(const std::vector<Eigen::Vector3d>& x) {
-  return Eigen::Vector3d(GridStep(x, 0), GridStep(x, 1), GridStep(x, 2));
-}
-
-// The floor of a sensor's per-axis noise std: a grid step's rounding (step / sqrt(12)), and
-// 1e-6 of the largest reading (readings a noiseless rest leaves constant).
-Eigen::Vector3d NoiseFloor(const std::vector<Eigen::Vector3d>& x, const Eigen::Vector3d& step) {
-  double magnitude = 0;
-  for (const Eigen::Vector3d& v : x) magnitude = std::max(magnitude, v.cwiseAbs().maxCoeff());
-  return (step / std::sqrt(12.0)).cwiseMax(1e-6 * magnitude).cwiseMax(1e-12);
-}
-
-// Per-axis noise std over the longest run of samples whose window variance is at the floor.
-Eigen::Vector3d RunStd(const std::vector<Eigen::Vector3d>& x, size_t b, size_t e) {
-  return PrefixMoments(std::vector<Eigen::Vector3d>(x.begin() + static_cast<long>(b),
-                                                    x.begin() + static_cast<long>(e)))
-      .Variance(0, e - b)
-      .cwiseSqrt();
-}
 
 // Saturation: a rail is the extreme value of an axis over the whole capture; a static interval
 // piled up on it (a fifth of its samples or more) reads the rail, not the signal. A rail also
@@ -197,7 +116,7 @@ struct FileRest {
 // raw counts with no move that tilts the unit, where no rotation is measured), and each file's
 // rest.
 struct RestContext {
-  GyroIntegral integral;
+  const GyroIntegral* integral = nullptr;  // the motion signal's (MotionSignal::integral)
   double rad_per_unit = 0;
   std::vector<FileRest> files;
   const StaticDetectorOptions* options = nullptr;
@@ -205,9 +124,9 @@ struct RestContext {
   // The rotation of [b, e) in file `f` and the most a rest could turn, radians.
   std::pair<double, double> Rotation(size_t f, size_t b, size_t e) const {
     const FileRest& file = files[f];
-    const double turned = integral.Excursion(b, e, file.rate) * rad_per_unit;
+    const double turned = integral->Excursion(b, e, file.rate) * rad_per_unit;
     const double bound = RestRotationBound(file.noise.gyro_std * rad_per_unit, e - b,
-                                           integral.median_dt_s, integral.Duration(b, e),
+                                           integral->median_dt_s, integral->Duration(b, e),
                                            file.bias_bound_rad_s, options->rotation_sigmas);
     return {turned, bound};
   }
@@ -284,7 +203,7 @@ double GyroRadPerUnit(const Capture& capture, const RestContext& ctx,
   std::vector<std::pair<size_t, size_t>> rests;
   for (const FileRest& f : ctx.files)
     for (const Run& r : f.runs) rests.emplace_back(r.begin, r.end);
-  const double moves = RoughRadPerGyroUnit(capture, ctx.integral, rests, provisional);
+  const double moves = RoughRadPerGyroUnit(capture, *ctx.integral, rests, provisional);
   if (capture.gyro_unit == GyroUnit::kCounts || !options.gyro_unit_known) return moves;
   const double nominal = NominalGyroToSi(capture.gyro_unit);
   const double other = NominalGyroToSi(capture.gyro_unit == GyroUnit::kRadPerSecond
@@ -351,7 +270,7 @@ constexpr double kWindowTurnDegS = 5.0;
 void SplitAtTurns(const MotionSignal& motion, RestContext* ctx, size_t f) {
   if (!(ctx->rad_per_unit > 0)) return;
   FileRest& file = ctx->files[f];
-  const GyroIntegral& g = ctx->integral;
+  const GyroIntegral& g = *ctx->integral;
   const size_t h = motion.window / 2;
   const size_t n = g.time_s.size() - 1;
   const double limit =
@@ -412,7 +331,7 @@ std::vector<Run> JoinRunsOfOneRest(const Capture& capture, const RestContext& ct
     Run& last = out.back();
     const Run& next = runs[k];
     bool join = last.end - last.begin > 2 && next.end - next.begin > 2 &&
-                !GapBetween(capture, last.end - 1, next.begin, ctx.integral.median_dt_s) &&
+                !GapBetween(capture, last.end - 1, next.begin, ctx.integral->median_dt_s) &&
                 ctx.rad_per_unit > 0 && !ctx.Turns(f, last.begin, next.end);
     if (join) {
       const StaticInterval a = SummariseInterval(capture, last.begin, last.end);
@@ -511,6 +430,7 @@ MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOpt
   size_t w = dt > 0 ? static_cast<size_t>(std::lround(options.window_s / dt)) : 5;
   w = std::max<size_t>(5, w) | 1;  // odd, centred
   out.window = w;
+  out.integral = GyroIntegral(capture, dt);
   Extremes(capture.accel, &out.accel_lo, &out.accel_hi);
   Extremes(capture.gyro, &out.gyro_lo, &out.gyro_hi);
   out.accel_at_rail = AtRail(capture.accel, out.accel_lo, out.accel_hi);
@@ -547,93 +467,6 @@ MotionSignal ComputeMotionSignal(const Capture& capture, const StaticDetectorOpt
     }
   }
   return out;
-}
-
-namespace {
-
-// The noise std of samples [b, e): the 10th percentile of their window variances is rest (a
-// calibration capture is mostly at rest), and the longest run at (twice) that floor is the
-// cleanest rest, where the per-axis noise is measured.
-NoiseLevel::Segment SegmentNoise(const Capture& capture, const MotionSignal& motion, size_t b,
-                                 size_t e) {
-  NoiseLevel::Segment out;
-  out.begin = b;
-  out.end = e;
-  std::vector<double> acc_var, gyr_var;
-  for (size_t i = b; i < e; ++i) {
-    if (!std::isfinite(motion.accel_var[i]) || !std::isfinite(motion.gyro_var[i])) continue;
-    acc_var.push_back(motion.accel_var[i]);
-    gyr_var.push_back(motion.gyro_var[i]);
-  }
-  if (acc_var.empty()) return out;
-  const double acc_floor = Quantile(std::move(acc_var), 0.10);
-  const double gyr_floor = Quantile(std::move(gyr_var), 0.10);
-  size_t best_b = 0, best_e = 0;
-  auto quiet = [&](size_t i) {
-    return motion.accel_var[i] <= 2 * acc_floor && motion.gyro_var[i] <= 2 * gyr_floor;
-  };
-  for (size_t i = b; i < e;) {
-    if (!quiet(i)) {
-      ++i;
-      continue;
-    }
-    size_t j = i;
-    while (j < e && quiet(j)) ++j;
-    if (j - i > best_e - best_b) best_b = i, best_e = j;
-    i = j;
-  }
-  if (best_e - best_b >= motion.window) {
-    out.accel_std = RunStd(capture.accel, best_b, best_e);
-    out.gyro_std = RunStd(capture.gyro, best_b, best_e);
-    out.source = absl::StrFormat("rest at %.1f-%.1f s (the longest quiet run)",
-                                 capture.t_s[best_b], capture.t_s[best_e - 1]);
-  } else {
-    out.accel_std = Eigen::Vector3d::Constant(std::sqrt(acc_floor / 3));
-    out.gyro_std = Eigen::Vector3d::Constant(std::sqrt(gyr_floor / 3));
-    out.source = "10th percentile of window variances (no long rest found)";
-  }
-  return out;
-}
-
-}  // namespace
-
-NoiseLevel EstimateNoise(const Capture& capture, const MotionSignal& motion) {
-  NoiseLevel noise;
-  const size_t n = capture.size();
-  if (n < motion.window) return noise;
-  // Quantised readings quieter than one step still carry a step's rounding noise.
-  noise.accel_step = GridSteps(capture.accel);
-  noise.gyro_step = GridSteps(capture.gyro);
-  noise.accel_floor = NoiseFloor(capture.accel, noise.accel_step);
-  noise.gyro_floor = NoiseFloor(capture.gyro, noise.gyro_step);
-  const NoiseLevel::Segment all = SegmentNoise(capture, motion, 0, n);
-  noise.accel_std = all.accel_std.cwiseMax(noise.accel_floor);
-  noise.gyro_std = all.gyro_std.cwiseMax(noise.gyro_floor);
-  noise.source = all.source;
-  std::vector<size_t> bounds = {0};
-  for (size_t start : capture.FileStarts())
-    if (start > bounds.back() && start < n) bounds.push_back(start);
-  bounds.push_back(n);
-  for (size_t k = 0; k + 1 < bounds.size(); ++k) {
-    NoiseLevel::Segment seg = bounds.size() == 2
-                                  ? all
-                                  : SegmentNoise(capture, motion, bounds[k], bounds[k + 1]);
-    seg.begin = bounds[k];
-    seg.end = bounds[k + 1];
-    // A file too short to measure (under one window of finite variances) takes the capture's.
-    if (seg.source.empty()) {
-      seg.accel_std = noise.accel_std;
-      seg.gyro_std = noise.gyro_std;
-      seg.source = "the capture's (the file is too short to measure its own)";
-    }
-    seg.accel_std = seg.accel_std.cwiseMax(noise.accel_floor);
-    seg.gyro_std = seg.gyro_std.cwiseMax(noise.gyro_floor);
-    noise.segments.push_back(std::move(seg));
-  }
-  if (noise.segments.size() > 1) {
-    absl::StrAppend(&noise.source, "; the still thresholds are learnt per file");
-  }
-  return noise;
 }
 
 StaticInterval SummariseInterval(const Capture& capture, size_t begin, size_t end) {
@@ -673,7 +506,13 @@ std::vector<StaticInterval> DetectStatic(const Capture& capture, const MotionSig
                                          const StaticDetectorOptions& options) {
   RestContext ctx;
   ctx.options = &options;
-  ctx.integral = GyroIntegral(capture);
+  // A motion signal made by hand (not by ComputeMotionSignal) has no integral yet.
+  GyroIntegral own;
+  ctx.integral = &motion.integral;
+  if (motion.integral.time_s.size() != capture.size() + 1) {
+    own = GyroIntegral(capture);
+    ctx.integral = &own;
+  }
   std::vector<NoiseLevel::Segment> segments = noise.segments;
   if (segments.empty()) {
     segments.push_back({0, capture.size(), noise.accel_std, noise.gyro_std, noise.source});
@@ -691,7 +530,7 @@ std::vector<StaticInterval> DetectStatic(const Capture& capture, const MotionSig
   // (the runs that held a turn no longer pull them).
   for (size_t f = 0; f < ctx.files.size(); ++f) SplitAtTurns(motion, &ctx, f);
   SetRestRates(capture, options, &ctx);
-  const double dt = ctx.integral.median_dt_s;
+  const double dt = ctx.integral->median_dt_s;
   const size_t trim = dt > 0 ? static_cast<size_t>(std::lround(options.trim_s / dt)) : 0;
   std::vector<StaticInterval> out;
   for (size_t f = 0; f < ctx.files.size(); ++f) {

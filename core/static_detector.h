@@ -21,6 +21,7 @@
 #include "Eigen/Core"
 #include "absl/status/statusor.h"
 #include "core/capture.h"
+#include "core/rest_rotation.h"
 
 namespace imucal::core {
 
@@ -127,6 +128,9 @@ struct MotionSignal {
   // Per axis, the samples that read its extreme, in order: an interval's count of them is two
   // binary searches, not a pass over its samples at every threshold the sweep tries.
   std::array<std::vector<uint32_t>, 3> accel_at_rail, gyro_at_rail;
+  // The gyroscope's prefix integral (core/rest_rotation.h), for the rotation test at every
+  // threshold the sweep tries: computed once per capture.
+  GyroIntegral integral;
 };
 
 // MotionSignal::mean_shift at or under this is still (4: a rest's |N(0,1)| on any of six axes
