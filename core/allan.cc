@@ -8,6 +8,7 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "boost/math/distributions/chi_squared.hpp"
+#include "core/math_guard.h"
 #include "util/str_util.h"
 
 namespace imucal::core {
@@ -293,10 +294,10 @@ AxisReadings ReadAllanFigures(const std::vector<double>& tau_s, const std::vecto
   auto interval = [&](AllanNoise noise, double tau) -> std::pair<double, double> {
     const auto m = static_cast<size_t>(std::max(1.0, std::round(tau * rate_hz)));
     const double edf = AllanEdf(noise, n, m);
-    if (!(edf > 0)) return {kNaN, kNaN};
+    if (!(edf > 0) || !std::isfinite(edf)) return {kNaN, kNaN};
     const boost::math::chi_squared chi2(edf);
-    return {std::sqrt(edf / boost::math::quantile(chi2, 0.975)),
-            std::sqrt(edf / boost::math::quantile(chi2, 0.025))};
+    return {std::sqrt(edf / MathOr(kNaN, [&] { return boost::math::quantile(chi2, 0.975); })),
+            std::sqrt(edf / MathOr(kNaN, [&] { return boost::math::quantile(chi2, 0.025); }))};
   };
   auto read = [&](double value, double tau, double (*factor)(double), AllanNoise noise,
                   AllanReading* out) {

@@ -21,6 +21,7 @@
 #include "boost/math/distributions/non_central_chi_squared.hpp"
 #include "core/effects/common.h"
 #include "core/effects/move_model.h"
+#include "core/math_guard.h"
 #include "core/so3.h"
 
 namespace imucal::core::effects {
@@ -569,8 +570,10 @@ double DetectableNoncentrality(int df, double threshold, double power) {
   if (!(threshold > 0) || !std::isfinite(threshold) || df < 1)
     return std::numeric_limits<double>::infinity();
   // The noncentrality at which P(chi2'(df, lambda) <= threshold) = 1 - power.
-  return boost::math::non_central_chi_squared_distribution<double>::find_non_centrality(
-      static_cast<double>(df), threshold, 1 - power);
+  return MathOr(std::numeric_limits<double>::infinity(), [&] {
+    return boost::math::non_central_chi_squared_distribution<double>::find_non_centrality(
+        static_cast<double>(df), threshold, 1 - power);
+  });
 }
 
 absl::StatusOr<MoveSearchResult> SearchMoveEffects(const MoveSearchInput& in,

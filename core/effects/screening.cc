@@ -14,6 +14,7 @@
 #include "Eigen/Dense"
 #include "boost/math/distributions/fisher_f.hpp"
 #include "core/effects/search.h"
+#include "core/math_guard.h"
 
 namespace imucal::core::effects {
 namespace {
@@ -113,9 +114,11 @@ Eigen::MatrixXd Scorer::Padded(const Eigen::MatrixXd& pose_cols) const {
 
 double FThreshold(double alpha, int tests, Eigen::Index dof, int df1) {
   if (dof < 1 || tests < 1) return std::numeric_limits<double>::infinity();
-  const boost::math::fisher_f_distribution<double> f(static_cast<double>(df1),
-                                                     static_cast<double>(dof));
-  return boost::math::quantile(boost::math::complement(f, alpha / tests));
+  return MathOr(std::numeric_limits<double>::infinity(), [&] {
+    const boost::math::fisher_f_distribution<double> f(static_cast<double>(df1),
+                                                       static_cast<double>(dof));
+    return boost::math::quantile(boost::math::complement(f, alpha / tests));
+  });
 }
 
 Eigen::Index Search::DofAfter(const State& st, Sensor sensor, int axis) const {

@@ -12,6 +12,7 @@
 
 #include "boost/math/distributions/students_t.hpp"
 #include "core/effects/search.h"
+#include "core/math_guard.h"
 
 namespace imucal::core::effects {
 
@@ -72,8 +73,10 @@ double MovePairedT(const RoundCandidate& a, const RoundCandidate& b) {
 // The one-sided t quantile for `tests` comparisons over `moves` moves at the family alpha.
 double Search::MoveTThreshold(int tests, size_t moves) const {
   if (tests < 1 || moves < 3) return std::numeric_limits<double>::infinity();
-  const boost::math::students_t t(static_cast<double>(moves - 1));
-  return boost::math::quantile(boost::math::complement(t, opt_.family_alpha / tests));
+  return MathOr(std::numeric_limits<double>::infinity(), [&] {
+    const boost::math::students_t t(static_cast<double>(moves - 1));
+    return boost::math::quantile(boost::math::complement(t, opt_.family_alpha / tests));
+  });
 }
 
 // The specific-force direction of every pose (unit, body frame) with the state's

@@ -14,6 +14,7 @@
 #include "absl/strings/str_format.h"
 #include "core/calibrate/calibrate.h"
 #include "core/correction.h"
+#include "core/effects/common.h"
 #include "core/simulator.h"
 #include "tests/core/effect_scenarios.h"
 
@@ -165,6 +166,26 @@ TEST(MoveEffectsTest, CleanCapturesStayClean) {
         ++alarms, which += e.regressor + " ";
   }
   EXPECT_EQ(alarms, 0) << which;
+}
+
+// The detection thresholds take Boost.Math's distributions at the edges of their domains (a power
+// of 1 or 0, a threshold no noncentrality reaches, a family alpha of 0): each gives infinity
+// ("nothing is detectable") or a number, never an exception that would end a server's process.
+TEST(MoveEffectsTest, DetectionThresholdsAtTheEdgesOfTheirDomainsAreNumbersNotExceptions) {
+  for (double power : {0.0, 1.0, 0.9}) {
+    for (double threshold : {1e-300, 3.84, 1e3}) {
+      double lambda = 0;
+      EXPECT_NO_THROW(lambda = DetectableNoncentrality(1, threshold, power))
+          << "power " << power << " threshold " << threshold;
+      EXPECT_FALSE(std::isnan(lambda)) << "power " << power << " threshold " << threshold;
+    }
+  }
+  EXPECT_GT(DetectableNoncentrality(1, 3.84), 5.0);  // about 10.5 for 90% power at 5%
+  double f = 0;
+  EXPECT_NO_THROW(f = effects::FThreshold(0.0, 1, 10));
+  EXPECT_FALSE(std::isnan(f));
+  EXPECT_NO_THROW(f = effects::FThreshold(1e-320, 1000, 1));
+  EXPECT_FALSE(std::isnan(f));
 }
 
 }  // namespace
