@@ -19,6 +19,7 @@
 #include "importers/registry.h"
 #include "importers/text_scan.h"
 #include "importers/unit_inference.h"
+#include "util/parallel.h"
 #include "util/str_util.h"
 
 namespace imucal::importers {
@@ -231,9 +232,13 @@ absl::StatusOr<core::Capture> ParseImuTkPair(std::string_view accel_text,
                                              const ImportOptions& options,
                                              std::vector<std::string>* notes) {
   if (absl::Status s = CheckImportOptions(options); !s.ok()) return s;
-  absl::StatusOr<ImuTkSeries> accel = ParseImuTkText(accel_text, accel_name);
+  // The two files are parsed side by side (options.threads); the accelerometer's error first.
+  absl::StatusOr<ImuTkSeries> accel, gyro;
+  ParallelFor(2, options.threads, [&](size_t i) {
+    if (i == 0) accel = ParseImuTkText(accel_text, accel_name);
+    if (i == 1) gyro = ParseImuTkText(gyro_text, gyro_name);
+  });
   if (!accel.ok()) return accel.status();
-  absl::StatusOr<ImuTkSeries> gyro = ParseImuTkText(gyro_text, gyro_name);
   if (!gyro.ok()) return gyro.status();
   if (absl::Status s = CheckImuTkPairAligned(*accel, accel_name, *gyro, gyro_name); !s.ok()) {
     return s;

@@ -68,6 +68,9 @@ struct ImportOptions {
   ColumnCsvOptions columns;
   // ROS 2 bag: the sensor_msgs/msg/Imu topic to read; empty: the bag's only Imu topic.
   std::string topic;
+  // Threads an import may use (an IMU-TK pair's two files are parsed side by side); 1 in the
+  // server.
+  int threads = 1;
 };
 
 // What an import decided on its own, for the CLI to show the user.

@@ -36,6 +36,7 @@
 #include "importers/imucal_csv.h"
 #include "importers/registry.h"
 #include "util/file.h"
+#include "util/parallel.h"
 #include "util/units.h"
 
 namespace imucal::cli {
@@ -361,6 +362,8 @@ int RunCalibrate(const std::vector<std::string>& argv) {
   co.heldout = !a->Has("no-heldout");
   co.effects.enabled = !a->Has("no-effects");
   co.effects.apply_time_effects = a->Has("apply-time-effects");
+  // The independent steps (a pair's two files, the threshold sweep) on the machine's cores.
+  io->threads = co.threads = DefaultThreads();
 
   importers::ImportReport import;
   auto capture = importers::ImportCapture(a->positional(), *io, &import);

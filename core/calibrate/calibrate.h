@@ -45,6 +45,9 @@ namespace imucal::core {
 struct CalibrateOptions {
   ProtocolKind protocol = ProtocolKind::kAuto;
   uint64_t seed = 1;  // BSAS's random seed: the same capture and seed give the same result
+  // Threads the independent steps may use (the still-threshold sweep's multipliers); the result
+  // is the same for any count. 1 in the server, whose solve pool runs solves side by side.
+  int threads = 1;
   bool use_bsas = true;
   bool heldout = true;  // leave-one-pose-out accelerometer refits (the held-out figures)
   StaticDetectorOptions detector;

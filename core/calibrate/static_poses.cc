@@ -11,6 +11,7 @@
 #include "core/calibrate/orientations.h"
 #include "core/protocol.h"
 #include "core/quantisation.h"
+#include "util/parallel.h"
 
 namespace imucal::core::pipeline {
 namespace {
@@ -89,8 +90,12 @@ SweepResult SweepThreshold(const Capture& cap, const MotionSignal& motion, const
                            const CalibrateOptions& opt, size_t* most_poses) {
   SweepResult best;
   auto consider = [&](const std::vector<double>& multipliers, bool escalated) {
-    for (double m : multipliers) {
-      SweepResult r = ScoreMultiplier(cap, motion, noise, opt, m);
+    // Each multiplier is scored on its own (on up to opt.threads threads), then judged in order.
+    std::vector<SweepResult> scored(multipliers.size());
+    ParallelFor(multipliers.size(), opt.threads, [&](size_t i) {
+      scored[i] = ScoreMultiplier(cap, motion, noise, opt, multipliers[i]);
+    });
+    for (SweepResult& r : scored) {
       *most_poses = std::max(*most_poses, r.poses);
       r.escalated = escalated;
       if (r.tier > best.tier ||
