@@ -260,6 +260,26 @@ TEST(CalibrateTest, SameSeedGivesBitIdenticalParameters) {
   EXPECT_EQ(a.threshold_multiplier, b.threshold_multiplier);
 }
 
+// The threshold sweep's multipliers are scored on several threads and judged in order: the
+// result is the one thread's, bit for bit, whatever the count.
+TEST(CalibrateTest, ThreadsGiveBitIdenticalResults) {
+  const SimResult sim = MustSimulate(Scenario(23));
+  CalibrateOptions options;
+  options.heldout = false;
+  const CalibrationReport one = MustCalibrate(sim.capture, options);
+  for (int threads : {2, 3, 16}) {
+    options.threads = threads;
+    const CalibrationReport many = MustCalibrate(sim.capture, options);
+    ExpectIdentical(one.params, many.params);
+    EXPECT_EQ(one.threshold_multiplier, many.threshold_multiplier) << threads << " threads";
+    ASSERT_EQ(one.poses.size(), many.poses.size()) << threads << " threads";
+    for (size_t i = 0; i < one.poses.size(); ++i) {
+      EXPECT_EQ(one.poses[i].interval.begin, many.poses[i].interval.begin) << "pose " << i;
+      EXPECT_EQ(one.poses[i].interval.end, many.poses[i].interval.end) << "pose " << i;
+    }
+  }
+}
+
 TEST(CalibrateTest, OtherBsasSeedsStayWithinTolerance) {
   const SimOptions scenario = Scenario(22);
   const SimResult sim = MustSimulate(scenario);
