@@ -64,6 +64,84 @@ absl::StatusOr<pb::SessionState> ParseState(const std::string& name) {
   return absl::InvalidArgumentError(absl::StrCat("--state: unknown state '", name, "'"));
 }
 
+// `session start`: opens a session for --device.
+int StartSession(const Args& a, const Server& server, bool as_json) {
+  auto device = a.Get("device");
+  if (!device) return UsageError("session start needs --device", kSessionHelp);
+  auto protocol = ParseProtocol(a.Get("protocol").value_or("auto"));
+  if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kSessionHelp);
+  auto gravity = a.GetDouble("gravity", 0.0);
+  if (!gravity.ok()) return UsageError(std::string(gravity.status().message()), kSessionHelp);
+  pb::Session s;
+  if (grpc::Status st = CreateSession(server, *device, *protocol, *gravity, &s); !st.ok())
+    return RpcError(server, st);
+  if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
+  std::printf("session %s opened for %s (protocol %s)\n", s.id().c_str(), s.device_id().c_str(),
+              ProtocolName(s.protocol()).c_str());
+  return kExitOk;
+}
+
+// `session list`: every page of the sessions, filtered by --device and --state.
+int ListSessions(const Args& a, const Server& server, bool as_json) {
+  pb::ListSessionsResponse all;
+  pb::ListSessionsRequest req;
+  req.set_device_id(a.Get("device").value_or(""));
+  if (auto st = a.Get("state")) {
+    auto state = ParseState(*st);
+    if (!state.ok()) return UsageError(std::string(state.status().message()), kSessionHelp);
+    req.set_state(*state);
+  }
+  req.set_page_size(1000);
+  do {
+    pb::ListSessionsResponse page;
+    auto ctx = CallContext();
+    if (grpc::Status st = server.sessions->ListSessions(ctx.get(), req, &page); !st.ok())
+      return RpcError(server, st);
+    for (auto& s : *page.mutable_sessions()) *all.add_sessions() = std::move(s);
+    req.set_page_token(page.next_page_token());
+  } while (!req.page_token().empty());
+  if (as_json) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
+  if (all.sessions().empty()) std::printf("no sessions\n");
+  for (const auto& s : all.sessions()) PrintSession(s);
+  return kExitOk;
+}
+
+// `session poses ID`.
+int ShowPoses(const Server& server, const std::string& session_id, bool as_json) {
+  pb::ListPosesResponse poses;
+  if (grpc::Status st = ListPoses(server, session_id, &poses); !st.ok())
+    return RpcError(server, st);
+  if (as_json) return std::printf("%s\n", ProtoJson(poses).c_str()), kExitOk;
+  if (poses.poses().empty()) std::printf("no poses yet\n");
+  PrintPoses(poses);
+  return kExitOk;
+}
+
+// `session show ID` (the session and its poses) or `session cancel ID`.
+int ShowOrCancel(const Server& server, const std::string& verb, const std::string& session_id,
+                 bool as_json) {
+  pb::Session s;
+  grpc::Status st;
+  if (verb == "show") {
+    st = GetSession(server, session_id, &s);
+  } else {
+    pb::CancelSessionRequest req;
+    req.set_session_id(session_id);
+    st = server.sessions->CancelSession(CallContext().get(), req, &s);
+  }
+  if (!st.ok()) return RpcError(server, st);
+  if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
+  if (verb == "cancel") std::printf("cancelled session %s\n", s.id().c_str());
+  PrintSession(s);
+  if (verb == "show") {
+    pb::ListPosesResponse poses;
+    if (grpc::Status ps = ListPoses(server, session_id, &poses); !ps.ok())
+      return RpcError(server, ps);
+    PrintPoses(poses);
+  }
+  return kExitOk;
+}
+
 }  // namespace
 
 int RunSession(const std::vector<std::string>& argv) {
@@ -75,74 +153,11 @@ int RunSession(const std::vector<std::string>& argv) {
     return UsageError("session needs start, list, show, poses or cancel", kSessionHelp);
   Server server = Connect(*a);
   const bool as_json = a->Has("json");
-  if (pos[0] == "start" && pos.size() == 1) {
-    auto device = a->Get("device");
-    if (!device) return UsageError("session start needs --device", kSessionHelp);
-    auto protocol = ParseProtocol(a->Get("protocol").value_or("auto"));
-    if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kSessionHelp);
-    auto gravity = a->GetDouble("gravity", 0.0);
-    if (!gravity.ok()) return UsageError(std::string(gravity.status().message()), kSessionHelp);
-    pb::Session s;
-    if (grpc::Status st = CreateSession(server, *device, *protocol, *gravity, &s); !st.ok())
-      return RpcError(server, st);
-    if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
-    std::printf("session %s opened for %s (protocol %s)\n", s.id().c_str(), s.device_id().c_str(),
-                ProtocolName(s.protocol()).c_str());
-    return kExitOk;
-  }
-  if (pos[0] == "list" && pos.size() == 1) {
-    pb::ListSessionsResponse all;
-    pb::ListSessionsRequest req;
-    req.set_device_id(a->Get("device").value_or(""));
-    if (auto st = a->Get("state")) {
-      auto state = ParseState(*st);
-      if (!state.ok()) return UsageError(std::string(state.status().message()), kSessionHelp);
-      req.set_state(*state);
-    }
-    req.set_page_size(1000);
-    do {
-      pb::ListSessionsResponse page;
-      auto ctx = CallContext();
-      if (grpc::Status st = server.sessions->ListSessions(ctx.get(), req, &page); !st.ok())
-        return RpcError(server, st);
-      for (auto& s : *page.mutable_sessions()) *all.add_sessions() = std::move(s);
-      req.set_page_token(page.next_page_token());
-    } while (!req.page_token().empty());
-    if (as_json) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
-    if (all.sessions().empty()) std::printf("no sessions\n");
-    for (const auto& s : all.sessions()) PrintSession(s);
-    return kExitOk;
-  }
-  if (pos[0] == "poses" && pos.size() == 2) {
-    pb::ListPosesResponse poses;
-    if (grpc::Status st = ListPoses(server, pos[1], &poses); !st.ok()) return RpcError(server, st);
-    if (as_json) return std::printf("%s\n", ProtoJson(poses).c_str()), kExitOk;
-    if (poses.poses().empty()) std::printf("no poses yet\n");
-    PrintPoses(poses);
-    return kExitOk;
-  }
-  if ((pos[0] == "show" || pos[0] == "cancel") && pos.size() == 2) {
-    pb::Session s;
-    grpc::Status st;
-    if (pos[0] == "show") {
-      st = GetSession(server, pos[1], &s);
-    } else {
-      pb::CancelSessionRequest req;
-      req.set_session_id(pos[1]);
-      st = server.sessions->CancelSession(CallContext().get(), req, &s);
-    }
-    if (!st.ok()) return RpcError(server, st);
-    if (as_json) return std::printf("%s\n", ProtoJson(s).c_str()), kExitOk;
-    if (pos[0] == "cancel") std::printf("cancelled session %s\n", s.id().c_str());
-    PrintSession(s);
-    if (pos[0] == "show") {
-      pb::ListPosesResponse poses;
-      if (grpc::Status ps = ListPoses(server, pos[1], &poses); !ps.ok())
-        return RpcError(server, ps);
-      PrintPoses(poses);
-    }
-    return kExitOk;
-  }
+  if (pos[0] == "start" && pos.size() == 1) return StartSession(*a, server, as_json);
+  if (pos[0] == "list" && pos.size() == 1) return ListSessions(*a, server, as_json);
+  if (pos[0] == "poses" && pos.size() == 2) return ShowPoses(server, pos[1], as_json);
+  if ((pos[0] == "show" || pos[0] == "cancel") && pos.size() == 2)
+    return ShowOrCancel(server, pos[0], pos[1], as_json);
   return UsageError(absl::StrCat("session: unexpected '", absl::StrJoin(pos, " "), "'"),
                     kSessionHelp);
 }

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -96,124 +97,148 @@ absl::StatusOr<importers::ImportOptions> UploadImportOptions(const Args& a) {
   return o;
 }
 
-}  // namespace
+// Upload's own flags, checked.
+struct UploadFlags {
+  int batch_samples = 2000;
+  double pace = 0;  // times real time; 0: as fast as the server takes it
+  importers::ImportOptions import;
+};
 
-int RunUpload(const std::vector<std::string>& argv) {
-  auto a = ParseCommandFlags("upload", argv);
-  if (!a.ok()) return UsageError(std::string(a.status().message()), kUploadHelp);
-  if (a->Has("help"))
-    return std::printf("%s%s%s", kUploadHelp, kImportFlagsHelp, kServerFlagHelp), kExitOk;
-  if (a->positional().empty()) return UsageError("upload needs a capture FILE", kUploadHelp);
-  auto device = a->Get("device");
-  auto session_id = a->Get("session");
-  if (!device && !session_id) return UsageError("upload needs --device or --session", kUploadHelp);
-  auto batch = a->GetInt("batch", 2000);
+// InvalidArgument with the usage message for a bad --batch, --pace or import flag.
+absl::StatusOr<UploadFlags> ParseUploadFlags(const Args& a) {
+  UploadFlags flags;
+  auto batch = a.GetInt("batch", 2000);
   if (!batch.ok() || *batch < 1 || *batch > 20000)
-    return UsageError("--batch: expected 1..20000 samples (the server's limit per batch)",
-                      kUploadHelp);
-  auto pace = a->GetDouble("pace", 0);
+    return absl::InvalidArgumentError(
+        "--batch: expected 1..20000 samples (the server's limit per batch)");
+  flags.batch_samples = static_cast<int>(*batch);
+  auto pace = a.GetDouble("pace", 0);
   if (!pace.ok() || !(*pace >= 0) || !std::isfinite(*pace))
-    return UsageError("--pace: expected a positive number (times real time)", kUploadHelp);
-  auto io = UploadImportOptions(*a);
-  if (!io.ok()) return UsageError(std::string(io.status().message()), kUploadHelp);
-  auto capture = importers::ImportCapture(a->positional(), *io);
-  if (!capture.ok()) return ReportError(capture.status());
-  if (!capture->has_gyro) {
-    std::fprintf(stderr, "imucal: %s: %s\n", a->positional().front().c_str(),
-                 sdk::kNoGyroUploadMessage);
+    return absl::InvalidArgumentError("--pace: expected a positive number (times real time)");
+  flags.pace = *pace;
+  auto io = UploadImportOptions(a);
+  if (!io.ok()) return io.status();
+  flags.import = *std::move(io);
+  return flags;
+}
+
+// The server keeps samples in the device's registered units: a capture in others is refused
+// (kExitBadInput, said on stderr). kExitOk when they match, else the exit code.
+int CheckDeviceUnits(const Server& server, const std::string& device_id,
+                     const core::Capture& capture) {
+  pb::GetDeviceRequest req;
+  req.set_device_id(device_id);
+  pb::Device d;
+  auto ctx = CallContext();
+  if (grpc::Status s = server.devices->GetDevice(ctx.get(), req, &d); !s.ok())
+    return RpcError(server, s);
+  const std::string accel(core::AccelUnitName(capture.accel_unit));
+  const std::string gyro(core::GyroUnitName(capture.gyro_unit));
+  if (d.accel_unit() != accel || d.gyro_unit() != gyro) {
+    std::fprintf(stderr,
+                 "imucal: the capture is in accel %s, gyro %s but %s is registered with accel "
+                 "%s, gyro %s (use --accel-unit/--gyro-unit if the file's units are wrong)\n",
+                 accel.c_str(), gyro.c_str(), device_id.c_str(), d.accel_unit().c_str(),
+                 d.gyro_unit().c_str());
     return kExitBadInput;
   }
+  return kExitOk;
+}
 
-  Server server = Connect(*a);
-  pb::Session session;
-  if (session_id) {
-    if (grpc::Status s = GetSession(server, *session_id, &session); !s.ok())
-      return RpcError(server, s);
-    if (device && session.device_id() != *device) {
-      std::fprintf(stderr, "imucal: session %s belongs to %s, not %s\n", session_id->c_str(),
-                   session.device_id().c_str(), device->c_str());
-      return kExitBadInput;
-    }
+// The device's open session, when there is one: the guide opened it for this capture. Only an
+// empty one is joined: the uploader resumes by batch number, so a session that already holds
+// another capture's batches would silently skip this capture's first ones. Leaves `session`
+// alone when the device has none open; kExitOk, or the exit code of a refusal.
+int JoinOpenSession(const Server& server, const std::string& device_id, bool as_json,
+                    pb::Session* session) {
+  pb::ListSessionsRequest req;
+  req.set_device_id(device_id);
+  req.set_state(pb::SESSION_STATE_OPEN);
+  pb::ListSessionsResponse open;
+  auto ctx = CallContext();
+  if (grpc::Status s = server.sessions->ListSessions(ctx.get(), req, &open); !s.ok())
+    return RpcError(server, s);
+  if (open.sessions().empty()) return kExitOk;
+  const pb::Session& found = open.sessions(0);
+  if (found.samples() > 0) {
+    std::fprintf(stderr,
+                 "imucal: %s already has an open session %s holding %lld samples: to resume "
+                 "that capture run again with --session %s; to start over, cancel it "
+                 "(imucal session cancel %s)\n",
+                 device_id.c_str(), found.id().c_str(), static_cast<long long>(found.samples()),
+                 found.id().c_str(), found.id().c_str());
+    return kExitUndetermined;  // as the server's FAILED_PRECONDITION for it
   }
-  const std::string device_id = device ? *device : session.device_id();
-  // The server keeps samples in the device's registered units: refuse a capture in others.
-  {
-    pb::GetDeviceRequest req;
-    req.set_device_id(device_id);
-    pb::Device d;
-    auto ctx = CallContext();
-    if (grpc::Status s = server.devices->GetDevice(ctx.get(), req, &d); !s.ok())
-      return RpcError(server, s);
-    const std::string accel(core::AccelUnitName(capture->accel_unit));
-    const std::string gyro(core::GyroUnitName(capture->gyro_unit));
-    if (d.accel_unit() != accel || d.gyro_unit() != gyro) {
+  *session = found;
+  if (!as_json)
+    std::printf("streaming into %s's open session %s\n", device_id.c_str(), found.id().c_str());
+  return kExitOk;
+}
+
+// A new session for the device, in --protocol, at the capture's gravity. kExitOk, or the exit
+// code (a robot's token, which may not open one, is told who can).
+int OpenSession(const Args& a, const Server& server, const std::string& device_id,
+                double gravity_m_s2, pb::Session* session) {
+  auto protocol = ParseProtocol(a.Get("protocol").value_or("auto"));
+  if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kUploadHelp);
+  if (grpc::Status s = CreateSession(server, device_id, *protocol, gravity_m_s2, session);
+      !s.ok()) {
+    const int code = RpcError(server, s);
+    // A robot's token may join the session the guide opened, not open one.
+    if (s.error_code() == grpc::StatusCode::PERMISSION_DENIED) {
       std::fprintf(stderr,
-                   "imucal: the capture is in accel %s, gyro %s but %s is registered with accel "
-                   "%s, gyro %s (use --accel-unit/--gyro-unit if the file's units are wrong)\n",
-                   accel.c_str(), gyro.c_str(), device_id.c_str(), d.accel_unit().c_str(),
-                   d.gyro_unit().c_str());
+                   "imucal: %s has no open session to stream into, and this token may not "
+                   "open one: a technician opens it (imucal guide --device %s, or imucal "
+                   "session start --device %s), then run this again\n",
+                   device_id.c_str(), device_id.c_str(), device_id.c_str());
+    }
+    return code;
+  }
+  if (!a.Has("json"))
+    std::printf("session %s opened for %s\n", session->id().c_str(), device_id.c_str());
+  return kExitOk;
+}
+
+// The session to stream into: --session's (which must be --device's, when both are given);
+// else the device's open session while it holds no samples; else a new one. The capture must
+// be in the device's units. kExitOk, or the exit code.
+int FindSession(const Args& a, const Server& server, const core::Capture& capture,
+                pb::Session* session) {
+  auto device = a.Get("device");
+  auto session_id = a.Get("session");
+  if (session_id) {
+    if (grpc::Status s = GetSession(server, *session_id, session); !s.ok())
+      return RpcError(server, s);
+    if (device && session->device_id() != *device) {
+      std::fprintf(stderr, "imucal: session %s belongs to %s, not %s\n", session_id->c_str(),
+                   session->device_id().c_str(), device->c_str());
       return kExitBadInput;
     }
   }
+  const std::string device_id = device ? *device : session->device_id();
+  if (int code = CheckDeviceUnits(server, device_id, capture); code != kExitOk) return code;
   if (!session_id) {
-    // The device's open session, when there is one: the guide opened it for this capture. Only
-    // an empty one is joined: the uploader resumes by batch number, so a session that already
-    // holds another capture's batches would silently skip this capture's first ones.
-    pb::ListSessionsRequest req;
-    req.set_device_id(device_id);
-    req.set_state(pb::SESSION_STATE_OPEN);
-    pb::ListSessionsResponse open;
-    auto ctx = CallContext();
-    if (grpc::Status s = server.sessions->ListSessions(ctx.get(), req, &open); !s.ok())
-      return RpcError(server, s);
-    if (!open.sessions().empty()) {
-      const pb::Session& found = open.sessions(0);
-      if (found.samples() > 0) {
-        std::fprintf(stderr,
-                     "imucal: %s already has an open session %s holding %lld samples: to resume "
-                     "that capture run again with --session %s; to start over, cancel it "
-                     "(imucal session cancel %s)\n",
-                     device_id.c_str(), found.id().c_str(), static_cast<long long>(found.samples()),
-                     found.id().c_str(), found.id().c_str());
-        return kExitUndetermined;  // as the server's FAILED_PRECONDITION for it
-      }
-      session = found;
-      session_id = found.id();
-      if (!a->Has("json"))
-        std::printf("streaming into %s's open session %s\n", device_id.c_str(), found.id().c_str());
-    }
-  }
-  if (!session_id) {
-    auto protocol = ParseProtocol(a->Get("protocol").value_or("auto"));
-    if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kUploadHelp);
-    if (grpc::Status s =
-            CreateSession(server, device_id, *protocol, capture->gravity_m_s2, &session);
-        !s.ok()) {
-      const int code = RpcError(server, s);
-      // A robot's token may join the session the guide opened, not open one.
-      if (s.error_code() == grpc::StatusCode::PERMISSION_DENIED) {
-        std::fprintf(stderr,
-                     "imucal: %s has no open session to stream into, and this token may not "
-                     "open one: a technician opens it (imucal guide --device %s, or imucal "
-                     "session start --device %s), then run this again\n",
-                     device_id.c_str(), device_id.c_str(), device_id.c_str());
-      }
+    if (int code = JoinOpenSession(server, device_id, a.Has("json"), session); code != kExitOk)
       return code;
-    }
-    if (!a->Has("json"))
-      std::printf("session %s opened for %s\n", session.id().c_str(), device_id.c_str());
   }
+  if (session->id().empty())
+    return OpenSession(a, server, device_id, capture.gravity_m_s2, session);
+  return kExitOk;
+}
 
+// Streams the capture through the SDK's Uploader with its retry policy (client/sdk/uploader.h):
+// a server restart is ridden out, the same way a robot's upload rides it out. Prints what was
+// uploaded (unless as_json); kExitOk, or the exit code.
+int StreamCapture(const Server& server, const pb::Session& session, const core::Capture& capture,
+                  const UploadFlags& flags, const std::vector<std::string>& files, bool as_json) {
   ProgressBar bar(::isatty(STDERR_FILENO) == 1);
-  // The SDK's Uploader with its retry policy (client/sdk/uploader.h): a server restart is
-  // ridden out, the same way a robot's upload rides it out.
   sdk::UploadOptions options;
-  options.batch_samples = static_cast<int>(*batch);
-  options.source = CaptureName(a->positional());
-  options.pace = *pace;
+  options.batch_samples = flags.batch_samples;
+  options.source = CaptureName(files);
+  options.pace = flags.pace;
   options.progress = [&bar](int64_t done, int64_t total) { bar.Update(done, total); };
   sdk::Uploader uploader(server.channel, options);
-  absl::StatusOr<sdk::UploadResult> result = uploader.Upload(session.id(), *capture);
+  absl::StatusOr<sdk::UploadResult> result = uploader.Upload(session.id(), capture);
   bar.Finish();
   if (!result.ok()) {
     const int code = RpcError(server, result.status());
@@ -223,7 +248,7 @@ int RunUpload(const std::vector<std::string>& argv) {
                    session.id().c_str());
     return code;
   }
-  if (!a->Has("json")) {
+  if (!as_json) {
     std::printf("uploaded %lld samples to session %s", static_cast<long long>(result->sent_samples),
                 session.id().c_str());
     if (result->skipped_samples > 0)
@@ -232,20 +257,53 @@ int RunUpload(const std::vector<std::string>& argv) {
     if (result->reconnects > 0) std::printf(" after %d reconnects", result->reconnects);
     std::printf("\n");
   }
-  if (!a->Has("solve")) {
-    if (a->Has("json")) {
-      if (grpc::Status s = GetSession(server, session.id(), &session); !s.ok())
+  return kExitOk;
+}
+
+// After the upload: with --solve, the solve and its verdict; else with --json the session.
+int FinishUpload(const Args& a, const Server& server, pb::Session* session) {
+  if (!a.Has("solve")) {
+    if (a.Has("json")) {
+      if (grpc::Status s = GetSession(server, session->id(), session); !s.ok())
         return RpcError(server, s);
-      std::printf("%s\n", ProtoJson(session).c_str());
+      std::printf("%s\n", ProtoJson(*session).c_str());
     }
     return kExitOk;
   }
-  auto seed = a->GetInt("seed", 0);
-  auto timeout = a->GetDouble("timeout", 600);
+  auto seed = a.GetInt("seed", 0);
+  auto timeout = a.GetDouble("timeout", 600);
   if (!seed.ok() || !timeout.ok())
     return UsageError("--seed and --timeout take numbers", kUploadHelp);
-  return SolveAndMaybeWait(server, session.id(), static_cast<uint64_t>(*seed), true, *timeout,
-                           a->Has("json"));
+  return SolveAndMaybeWait(server, session->id(), static_cast<uint64_t>(*seed), true, *timeout,
+                           a.Has("json"));
+}
+
+}  // namespace
+
+int RunUpload(const std::vector<std::string>& argv) {
+  auto a = ParseCommandFlags("upload", argv);
+  if (!a.ok()) return UsageError(std::string(a.status().message()), kUploadHelp);
+  if (a->Has("help"))
+    return std::printf("%s%s%s", kUploadHelp, kImportFlagsHelp, kServerFlagHelp), kExitOk;
+  if (a->positional().empty()) return UsageError("upload needs a capture FILE", kUploadHelp);
+  if (!a->Get("device") && !a->Get("session"))
+    return UsageError("upload needs --device or --session", kUploadHelp);
+  absl::StatusOr<UploadFlags> flags = ParseUploadFlags(*a);
+  if (!flags.ok()) return UsageError(std::string(flags.status().message()), kUploadHelp);
+  auto capture = importers::ImportCapture(a->positional(), flags->import);
+  if (!capture.ok()) return ReportError(capture.status());
+  if (!capture->has_gyro) {
+    std::fprintf(stderr, "imucal: %s: %s\n", a->positional().front().c_str(),
+                 sdk::kNoGyroUploadMessage);
+    return kExitBadInput;
+  }
+  Server server = Connect(*a);
+  pb::Session session;
+  if (int code = FindSession(*a, server, *capture, &session); code != kExitOk) return code;
+  if (int code = StreamCapture(server, session, *capture, *flags, a->positional(), a->Has("json"));
+      code != kExitOk)
+    return code;
+  return FinishUpload(*a, server, &session);
 }
 
 }  // namespace imucal::cli
