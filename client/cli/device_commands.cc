@@ -43,18 +43,12 @@ int RunDevices(const std::vector<std::string>& argv) {
   const auto& pos = a->positional();
   if (pos.empty()) {
     pb::ListDevicesResponse all;
-    std::string token;
-    do {
-      pb::ListDevicesRequest req;
-      req.set_page_size(1000);
-      req.set_page_token(token);
-      pb::ListDevicesResponse page;
-      auto ctx = CallContext();
-      if (grpc::Status s = server.devices->ListDevices(ctx.get(), req, &page); !s.ok())
-        return RpcError(server, s);
-      for (auto& d : *page.mutable_devices()) *all.add_devices() = std::move(d);
-      token = page.next_page_token();
-    } while (!token.empty());
+    grpc::Status s = ForEachPage(
+        server.devices.get(), &pb::DeviceService::Stub::ListDevices, pb::ListDevicesRequest(),
+        [&](pb::ListDevicesResponse& page) {
+          for (auto& d : *page.mutable_devices()) *all.add_devices() = std::move(d);
+        });
+    if (!s.ok()) return RpcError(server, s);
     if (a->Has("json")) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
     if (all.devices().empty()) std::printf("no devices registered\n");
     for (const auto& d : all.devices()) PrintDevice(d);

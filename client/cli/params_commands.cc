@@ -86,15 +86,12 @@ int ListParams(const Server& server, const std::string& device, bool as_json) {
   pb::ListVersionsResponse all;
   pb::ListVersionsRequest req;
   req.set_device_id(device);
-  req.set_page_size(1000);
-  do {
-    pb::ListVersionsResponse page;
-    auto page_ctx = CallContext();
-    if (grpc::Status s = server.params->ListVersions(page_ctx.get(), req, &page); !s.ok())
-      return RpcError(server, s);
-    for (auto& v : *page.mutable_versions()) *all.add_versions() = std::move(v);
-    req.set_page_token(page.next_page_token());
-  } while (!req.page_token().empty());
+  grpc::Status s = ForEachPage(
+      server.params.get(), &pb::ParameterService::Stub::ListVersions, req,
+      [&](pb::ListVersionsResponse& page) {
+        for (auto& v : *page.mutable_versions()) *all.add_versions() = std::move(v);
+      });
+  if (!s.ok()) return RpcError(server, s);
   if (as_json) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
   if (all.versions().empty()) std::printf("%s has no parameter versions\n", device.c_str());
   for (const auto& v : all.versions()) PrintParamHeader(v);

@@ -72,6 +72,25 @@ grpc::Status CreateSession(const Server& server, const std::string& device_id,
 int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t seed, bool wait,
                       double timeout_s, bool as_json, bool force = false);
 
+// Every page of a listing: (stub->*list)(context, request, &page) with CallContext()'s deadline,
+// 1000 entries a page, from the first page until one comes back without a next_page_token;
+// `take` gets each page (a Response&, to move its entries out). The first error, else OK.
+template <typename Stub, typename Request, typename Response, typename Take>
+grpc::Status ForEachPage(Stub* stub,
+                         grpc::Status (Stub::*list)(grpc::ClientContext*, const Request&,
+                                                    Response*),
+                         Request request, Take take) {
+  request.set_page_size(1000);
+  do {
+    Response page;
+    auto ctx = CallContext();
+    if (grpc::Status s = (stub->*list)(ctx.get(), request, &page); !s.ok()) return s;
+    take(page);
+    request.set_page_token(page.next_page_token());
+  } while (!request.page_token().empty());
+  return grpc::Status::OK;
+}
+
 // Prints "imucal: <the server's message>" (for an unreachable server: which address; for a
 // server whose database is unavailable: that the server is up, and that) to stderr
 // and returns the exit code: kExitUnavailable for UNAVAILABLE / DEADLINE_EXCEEDED, kExitBadInput

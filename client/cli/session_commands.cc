@@ -91,15 +91,12 @@ int ListSessions(const Args& a, const Server& server, bool as_json) {
     if (!state.ok()) return UsageError(std::string(state.status().message()), kSessionHelp);
     req.set_state(*state);
   }
-  req.set_page_size(1000);
-  do {
-    pb::ListSessionsResponse page;
-    auto ctx = CallContext();
-    if (grpc::Status st = server.sessions->ListSessions(ctx.get(), req, &page); !st.ok())
-      return RpcError(server, st);
-    for (auto& s : *page.mutable_sessions()) *all.add_sessions() = std::move(s);
-    req.set_page_token(page.next_page_token());
-  } while (!req.page_token().empty());
+  grpc::Status st = ForEachPage(
+      server.sessions.get(), &pb::SessionService::Stub::ListSessions, req,
+      [&](pb::ListSessionsResponse& page) {
+        for (auto& s : *page.mutable_sessions()) *all.add_sessions() = std::move(s);
+      });
+  if (!st.ok()) return RpcError(server, st);
   if (as_json) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
   if (all.sessions().empty()) std::printf("no sessions\n");
   for (const auto& s : all.sessions()) PrintSession(s);
