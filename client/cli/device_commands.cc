@@ -43,11 +43,11 @@ int RunDevices(const std::vector<std::string>& argv) {
   const auto& pos = a->positional();
   if (pos.empty()) {
     pb::ListDevicesResponse all;
-    grpc::Status s = ForEachPage(
-        server.devices.get(), &pb::DeviceService::Stub::ListDevices, pb::ListDevicesRequest(),
-        [&](pb::ListDevicesResponse& page) {
-          for (auto& d : *page.mutable_devices()) *all.add_devices() = std::move(d);
-        });
+    grpc::Status s = ForEachPage(server.devices.get(), &pb::DeviceService::Stub::ListDevices,
+                                 pb::ListDevicesRequest(), [&](pb::ListDevicesResponse& page) {
+                                   for (auto& d : *page.mutable_devices())
+                                     *all.add_devices() = std::move(d);
+                                 });
     if (!s.ok()) return RpcError(server, s);
     if (a->Has("json")) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
     if (all.devices().empty()) std::printf("no devices registered\n");

@@ -86,11 +86,11 @@ int ListParams(const Server& server, const std::string& device, bool as_json) {
   pb::ListVersionsResponse all;
   pb::ListVersionsRequest req;
   req.set_device_id(device);
-  grpc::Status s = ForEachPage(
-      server.params.get(), &pb::ParameterService::Stub::ListVersions, req,
-      [&](pb::ListVersionsResponse& page) {
-        for (auto& v : *page.mutable_versions()) *all.add_versions() = std::move(v);
-      });
+  grpc::Status s = ForEachPage(server.params.get(), &pb::ParameterService::Stub::ListVersions, req,
+                               [&](pb::ListVersionsResponse& page) {
+                                 for (auto& v : *page.mutable_versions())
+                                   *all.add_versions() = std::move(v);
+                               });
   if (!s.ok()) return RpcError(server, s);
   if (as_json) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
   if (all.versions().empty()) std::printf("%s has no parameter versions\n", device.c_str());

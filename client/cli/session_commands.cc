@@ -91,11 +91,11 @@ int ListSessions(const Args& a, const Server& server, bool as_json) {
     if (!state.ok()) return UsageError(std::string(state.status().message()), kSessionHelp);
     req.set_state(*state);
   }
-  grpc::Status st = ForEachPage(
-      server.sessions.get(), &pb::SessionService::Stub::ListSessions, req,
-      [&](pb::ListSessionsResponse& page) {
-        for (auto& s : *page.mutable_sessions()) *all.add_sessions() = std::move(s);
-      });
+  grpc::Status st = ForEachPage(server.sessions.get(), &pb::SessionService::Stub::ListSessions, req,
+                                [&](pb::ListSessionsResponse& page) {
+                                  for (auto& s : *page.mutable_sessions())
+                                    *all.add_sessions() = std::move(s);
+                                });
   if (!st.ok()) return RpcError(server, st);
   if (as_json) return std::printf("%s\n", ProtoJson(all).c_str()), kExitOk;
   if (all.sessions().empty()) std::printf("no sessions\n");
