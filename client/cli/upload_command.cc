@@ -78,21 +78,11 @@ std::string CaptureName(const std::vector<std::string>& files) {
   return absl::StrJoin(names, "+");
 }
 
+// The capture's import options: --format, the units, the importer flags (not calibrate's
+// --gravity and --device: upload's --device is the server's).
 absl::StatusOr<importers::ImportOptions> UploadImportOptions(const Args& a) {
   importers::ImportOptions o;
-  if (auto f = a.Get("format")) o.format = *f;
-  if (auto u = a.Get("accel-unit")) {
-    auto p = core::ParseAccelUnit(*u);
-    if (!p.ok())
-      return absl::InvalidArgumentError(absl::StrCat("--accel-unit: ", p.status().message()));
-    o.accel_unit = *p;
-  }
-  if (auto u = a.Get("gyro-unit")) {
-    auto p = core::ParseGyroUnit(*u);
-    if (!p.ok())
-      return absl::InvalidArgumentError(absl::StrCat("--gyro-unit: ", p.status().message()));
-    o.gyro_unit = *p;
-  }
+  if (absl::Status s = ApplyFormatAndUnitFlags(a, &o); !s.ok()) return s;
   if (absl::Status s = ApplyImportFlags(a, &o); !s.ok()) return s;
   return o;
 }
