@@ -203,11 +203,8 @@ void Wander(int seeds) {
   }
 }
 
-int Main(int seeds, const Only& only) {
-  if (only.name == "Wander") {  // the wandering bias's rows alone
-    Wander(seeds);
-    return 0;
-  }
+// The table's header lines.
+void PrintTableHeader(int seeds) {
   std::printf(
       "effects_bench: %d seeds per row; six-face + 24 extra poses, 200 Hz, 2 mg noise, units "
       "with second-order terms from the wide prior; calibrated on a warm-up, a ramp, a cool-down "
@@ -221,165 +218,203 @@ int Main(int seeds, const Only& only) {
       "%-30s %9s %9s %6s %9s %9s | %7s %7s %7s   | %8s %8s %8s   | %7s %7s %7s | %7s %7s %6s\n", "",
       "", "", "", "", "", "before", "after", "floor", "before", "after", "floor", "before", "after",
       "floor", "found", "ref", "ratio");
+}
+
+// What the rows share: the effect search's times, and the lines printed after the table.
+struct Totals {
   std::vector<double> search_ms, base_ms;
   std::string misses, matrix_rows;
-  std::vector<EffectCase> cases(std::begin(kEffectCases), std::end(kEffectCases));
-  cases.insert(cases.end(), std::begin(kHarderCases), std::end(kHarderCases));
-  cases.insert(cases.end(), std::begin(kRateCases), std::end(kRateCases));
-  std::string history_rows;
-  for (const EffectCase& c : cases) {
-    if (!only.name.empty() && c.name != only.name) continue;
-    if (only.no_temperature && UsesTemperature(c)) continue;  // needs the channel
-    const bool temperature = !only.no_temperature;
-    int found = 0, within = 0, other = 0, detectable = 0, missed = 0;
-    std::vector<double> ab, aa, af, gb, ga, gf, mb, ma, vb, va, vf;
-    // Per seed and other history: the found model's and the reference fit's validation error on
-    // the sensor(s) the truth acts on, each in units of that sensor's floor (so sensors add).
-    std::vector<double> hist_found, hist_ref;
-    // The sensor(s) the truth acts on; a rate term shows on the moves, not the holds.
-    bool on_accel = false, on_gyro = false, on_moves = false;
-    for (const SimEffect& e : c.effects)
-      (e.sensor == Sensor::kAccel ? on_accel : ReadsRate(e.regressor) ? on_moves : on_gyro) = true;
-    const double move_s = CaseMoveSeconds(c);
-    for (int seed = 1; seed <= seeds; ++seed) {
-      if (only.seed > 0 && seed != only.seed) continue;
-      const std::vector<SimEffect> effects = EffectsFor(c, static_cast<uint64_t>(seed));
-      const History calibrated_on = kHistories[static_cast<size_t>(seed) % 4];
-      absl::StatusOr<SimResult> sim = Simulate(
-          temperature ? HistoryScenario(static_cast<uint64_t>(seed), effects, calibrated_on, move_s)
-                      : EffectScenario(static_cast<uint64_t>(seed), effects, temperature, move_s));
-      if (!sim.ok()) return 1;
-      bool time = false;
-      for (const SimEffect& e : c.effects) time |= e.regressor.find("time") != std::string::npos;
-      const Run run = CalibrateTimed(sim->capture, true, time);
-      search_ms.push_back(run.ms);
-      if (only.seed > 0)  // one capture looked at: what the search said
-        for (const std::string& n : run.report.effect_diagnostics.notes)
-          std::printf("  note: %s\n", n.c_str());
-      bool all = true, all3 = true, can = true;
-      std::string bounds;  // the truths not found, with the bound stated for them
-      for (const SimEffect& want : effects) {
-        const Effect* got = nullptr;
-        for (const Effect& e : run.report.params.effects)
-          if (Same(e, want)) got = &e;
-        all &= got != nullptr;
-        if (got == nullptr) {
-          const double bound = BoundFor(run.report, want);
-          const bool ambiguous = NamedAmbiguous(run.report, want);
-          // NaN (no bound): detectable, unless the report names it as one it cannot tell apart.
-          can &= !(std::abs(want.coefficient) <= bound) && !ambiguous;
-          bounds +=
-              absl::StrFormat(" [%s: truth %.3g, bound %.3g%s]", want.regressor, want.coefficient,
-                              bound, ambiguous ? ", named as ambiguous" : "");
-        }
-        all3 &=
-            got != nullptr && std::abs(got->coefficient - want.coefficient) < 3 * got->std_error;
-        if (got != nullptr && std::abs(got->coefficient - want.coefficient) >= 3 * got->std_error)
-          misses += absl::StrFormat("  %s seed %d: %s %.4g +- %.2g, truth %.4g (%.1f se off)\n",
-                                    c.name, seed, want.regressor, got->coefficient, got->std_error,
-                                    want.coefficient,
-                                    std::abs(got->coefficient - want.coefficient) / got->std_error);
-      }
-      found += all;
-      within += all3;
-      detectable += can;
-      missed += can && !all;
-      // Other effects: main effects found (not a lower power entered with a higher one) that are
-      // none of the truth's.
-      bool extra = false;
-      for (const Effect& e : run.report.params.effects) {
-        bool truth = false;
-        for (const SimEffect& want : effects) truth |= Same(e, want);
-        extra |= !truth && !IsLowerPower(e, run.report.params.effects);
-      }
-      other += extra;
-      if (!all || extra) {  // what was found instead, to read beside the table
-        std::string got;
-        for (const Effect& e : run.report.params.effects)
-          got += absl::StrFormat(" %s %c~%s", e.sensor == Sensor::kAccel ? "accel" : "gyro",
-                                 "xyz"[e.axis], e.regressor);
-        misses += absl::StrFormat("  %s seed %d (%s):%s%s\n", c.name, seed,
-                                  temperature ? HistoryName(calibrated_on) : "no temperature",
-                                  got.empty() ? " nothing" : got, bounds);
-      }
-      absl::StatusOr<SimResult> val =
-          Simulate(EffectScenario(static_cast<uint64_t>(seed) + 500, effects, temperature, move_s),
-                   sim->truth);
-      if (!val.ok()) return 1;
-      if (temperature) {
-        const Run reference = CalibrateTimed(sim->capture, true, time, &effects);
-        for (History h : kHistories) {
-          if (h == calibrated_on) continue;
-          absl::StatusOr<SimResult> history = Simulate(
-              HistoryScenario(static_cast<uint64_t>(seed) + 700, effects, h, move_s), sim->truth);
-          if (!history.ok()) return 1;
-          const HoldError fo = ErrorOn(*history, run.report.params),
-                          re = ErrorOn(*history, reference.report.params),
-                          fl = ErrorOn(*history, TruthParams(*history));
-          const double mo = on_moves ? MoveErrorOn(*history, run.report.params) : 0,
-                       mr = on_moves ? MoveErrorOn(*history, reference.report.params) : 0,
-                       mf = on_moves ? MoveErrorOn(*history, TruthParams(*history)) : 1;
-          // Relative to the floor, so a two-sensor case sums like with like.
-          const auto rel = [&](const HoldError& e, double moves) {
-            return (on_accel ? e.accel_m_s2 / fl.accel_m_s2 : 0.0) +
-                   (on_gyro ? e.gyro_rad_s / fl.gyro_rad_s : 0.0) + (on_moves ? moves / mf : 0.0);
-          };
-          hist_found.push_back(rel(fo, mo));
-          hist_ref.push_back(rel(re, mr));
-          if (only.seed > 0)
-            std::printf(
-                "  %s seed %d %s: accel %.3f / %.3f mg, gyro %.4f / %.4f deg/s (found / "
-                "reference), floor %.3f mg %.4f deg/s\n",
-                c.name.c_str(), seed, HistoryName(h), fo.accel_m_s2 / kMg, re.accel_m_s2 / kMg,
-                fo.gyro_rad_s / kDegS, re.gyro_rad_s / kDegS, fl.accel_m_s2 / kMg,
-                fl.gyro_rad_s / kDegS);
-        }
-      }
-      const Run plain = CalibrateTimed(sim->capture, false, false);
-      mb.push_back(MatrixErrorPpm(plain.report.params, sim->truth));
-      ma.push_back(MatrixErrorPpm(run.report.params, sim->truth));
-      ParamSet without = run.report.params;
-      without.effects.clear();
-      const HoldError b = ErrorOn(*val, without), a = ErrorOn(*val, run.report.params),
-                      f = ErrorOn(*val, TruthParams(*val));
-      ab.push_back(b.accel_m_s2 / kMg), aa.push_back(a.accel_m_s2 / kMg),
-          af.push_back(f.accel_m_s2 / kMg);
-      gb.push_back(b.gyro_rad_s / kDegS), ga.push_back(a.gyro_rad_s / kDegS),
-          gf.push_back(f.gyro_rad_s / kDegS);
-      vb.push_back(MoveErrorOn(*val, without) / kDegS);
-      va.push_back(MoveErrorOn(*val, run.report.params) / kDegS);
-      vf.push_back(MoveErrorOn(*val, TruthParams(*val)) / kDegS);
+};
+
+// One case's columns, over its seeds.
+struct CaseTally {
+  int found = 0, within = 0, other = 0, detectable = 0, missed = 0;
+  // Validation errors before / after / floor: accel (mg), gyro (deg/s), moves (deg); the gyro
+  // matrix's error (ppm) without / with the effect search.
+  std::vector<double> ab, aa, af, gb, ga, gf, mb, ma, vb, va, vf;
+  // Per seed and other history: the found model's and the reference fit's validation error on
+  // the sensor(s) the truth acts on, each in units of that sensor's floor (so sensors add).
+  std::vector<double> hist_found, hist_ref;
+};
+
+// The sensor(s) a case's truth acts on; a rate term shows on the moves, not the holds.
+struct ActsOn {
+  bool accel = false, gyro = false, moves = false;
+};
+
+// Were the truth's effects found (and within 3 standard errors), could they have been, and did
+// the search add others? Tallies one seed's calibration; what it missed goes to `misses`.
+void ScoreDetection(const EffectCase& c, int seed, const std::string& capture_name,
+                    const std::vector<SimEffect>& effects, const Run& run, CaseTally* t,
+                    std::string* misses) {
+  bool all = true, all3 = true, can = true;
+  std::string bounds;  // the truths not found, with the bound stated for them
+  for (const SimEffect& want : effects) {
+    const Effect* got = nullptr;
+    for (const Effect& e : run.report.params.effects)
+      if (Same(e, want)) got = &e;
+    all &= got != nullptr;
+    if (got == nullptr) {
+      const double bound = BoundFor(run.report, want);
+      const bool ambiguous = NamedAmbiguous(run.report, want);
+      // NaN (no bound): detectable, unless the report names it as one it cannot tell apart.
+      can &= !(std::abs(want.coefficient) <= bound) && !ambiguous;
+      bounds += absl::StrFormat(" [%s: truth %.3g, bound %.3g%s]", want.regressor, want.coefficient,
+                                bound, ambiguous ? ", named as ambiguous" : "");
     }
-    std::string truth;
-    for (const SimEffect& e : EffectsFor(c, 1))
-      truth += absl::StrFormat("%s%s %c~%s", truth.empty() ? "" : " + ",
-                               e.sensor == Sensor::kAccel ? "accel" : "gyro", "xyz"[e.axis],
-                               e.regressor);
-    if (c.name.find("Turnover") != std::string::npos) truth += " (T0 per seed)";
-    const int runs = only.seed > 0 ? 1 : seeds;
-    if (move_s != 2.5) truth += absl::StrFormat(" (%.0f s moves)", move_s);
-    std::printf(
-        "%-30s %4d/%-4d %4d/%-4d %6d %4d/%-4d %4d/%-4d | %7.3f %7.3f %7.3f   | %8.4f %8.4f %8.4f   "
-        "| %7.4f %7.4f %7.4f | %7.2f %7.2f %6.2f\n",
-        truth.c_str(), found, runs, detectable, runs, missed, within, runs, other, runs, Median(ab),
-        Median(aa), Median(af), Median(gb), Median(ga), Median(gf), Median(vb), Median(va),
-        Median(vf), Median(hist_found), Median(hist_ref), Median(hist_found) / Median(hist_ref));
-    matrix_rows += absl::StrFormat("%-30s %8.0f %8.0f\n", truth, Median(mb), Median(ma));
+    all3 &= got != nullptr && std::abs(got->coefficient - want.coefficient) < 3 * got->std_error;
+    if (got != nullptr && std::abs(got->coefficient - want.coefficient) >= 3 * got->std_error)
+      *misses +=
+          absl::StrFormat("  %s seed %d: %s %.4g +- %.2g, truth %.4g (%.1f se off)\n", c.name, seed,
+                          want.regressor, got->coefficient, got->std_error, want.coefficient,
+                          std::abs(got->coefficient - want.coefficient) / got->std_error);
   }
+  t->found += all;
+  t->within += all3;
+  t->detectable += can;
+  t->missed += can && !all;
+  // Other effects: main effects found (not a lower power entered with a higher one) that are
+  // none of the truth's.
+  bool extra = false;
+  for (const Effect& e : run.report.params.effects) {
+    bool truth = false;
+    for (const SimEffect& want : effects) truth |= Same(e, want);
+    extra |= !truth && !IsLowerPower(e, run.report.params.effects);
+  }
+  t->other += extra;
+  if (!all || extra) {  // what was found instead, to read beside the table
+    std::string got;
+    for (const Effect& e : run.report.params.effects)
+      got += absl::StrFormat(" %s %c~%s", e.sensor == Sensor::kAccel ? "accel" : "gyro",
+                             "xyz"[e.axis], e.regressor);
+    *misses += absl::StrFormat("  %s seed %d (%s):%s%s\n", c.name, seed, capture_name,
+                               got.empty() ? " nothing" : got, bounds);
+  }
+}
+
+// The other temperature histories of the unit: the found model's and a reference fit's error
+// (the true forms given) relative to the floor. False when a simulation failed.
+bool ScoreHistories(const EffectCase& c, int seed, bool one_seed, History calibrated_on,
+                    const std::vector<SimEffect>& effects, const SimResult& sim, const Run& run,
+                    bool time, double move_s, ActsOn on, CaseTally* t) {
+  const Run reference = CalibrateTimed(sim.capture, true, time, &effects);
+  for (History h : kHistories) {
+    if (h == calibrated_on) continue;
+    absl::StatusOr<SimResult> history =
+        Simulate(HistoryScenario(static_cast<uint64_t>(seed) + 700, effects, h, move_s), sim.truth);
+    if (!history.ok()) return false;
+    const HoldError fo = ErrorOn(*history, run.report.params),
+                    re = ErrorOn(*history, reference.report.params),
+                    fl = ErrorOn(*history, TruthParams(*history));
+    const double mo = on.moves ? MoveErrorOn(*history, run.report.params) : 0,
+                 mr = on.moves ? MoveErrorOn(*history, reference.report.params) : 0,
+                 mf = on.moves ? MoveErrorOn(*history, TruthParams(*history)) : 1;
+    // Relative to the floor, so a two-sensor case sums like with like.
+    const auto rel = [&](const HoldError& e, double moves) {
+      return (on.accel ? e.accel_m_s2 / fl.accel_m_s2 : 0.0) +
+             (on.gyro ? e.gyro_rad_s / fl.gyro_rad_s : 0.0) + (on.moves ? moves / mf : 0.0);
+    };
+    t->hist_found.push_back(rel(fo, mo));
+    t->hist_ref.push_back(rel(re, mr));
+    if (one_seed)
+      std::printf(
+          "  %s seed %d %s: accel %.3f / %.3f mg, gyro %.4f / %.4f deg/s (found / "
+          "reference), floor %.3f mg %.4f deg/s\n",
+          c.name.c_str(), seed, HistoryName(h), fo.accel_m_s2 / kMg, re.accel_m_s2 / kMg,
+          fo.gyro_rad_s / kDegS, re.gyro_rad_s / kDegS, fl.accel_m_s2 / kMg, fl.gyro_rad_s / kDegS);
+  }
+  return true;
+}
+
+// The gyro matrix against the truth without and with the search, and the validation capture's
+// errors before (the effects left out) and after, next to its floor.
+void ScoreValidation(const SimResult& sim, const SimResult& val, const Run& run, CaseTally* t) {
+  const Run plain = CalibrateTimed(sim.capture, false, false);
+  t->mb.push_back(MatrixErrorPpm(plain.report.params, sim.truth));
+  t->ma.push_back(MatrixErrorPpm(run.report.params, sim.truth));
+  ParamSet without = run.report.params;
+  without.effects.clear();
+  const HoldError b = ErrorOn(val, without), a = ErrorOn(val, run.report.params),
+                  f = ErrorOn(val, TruthParams(val));
+  t->ab.push_back(b.accel_m_s2 / kMg), t->aa.push_back(a.accel_m_s2 / kMg),
+      t->af.push_back(f.accel_m_s2 / kMg);
+  t->gb.push_back(b.gyro_rad_s / kDegS), t->ga.push_back(a.gyro_rad_s / kDegS),
+      t->gf.push_back(f.gyro_rad_s / kDegS);
+  t->vb.push_back(MoveErrorOn(val, without) / kDegS);
+  t->va.push_back(MoveErrorOn(val, run.report.params) / kDegS);
+  t->vf.push_back(MoveErrorOn(val, TruthParams(val)) / kDegS);
+}
+
+// One seed of a case: the calibration capture, its calibration, and every score. False when a
+// simulation failed.
+bool RunCaseSeed(const EffectCase& c, int seed, const Only& only, double move_s, ActsOn on,
+                 CaseTally* t, Totals* totals) {
+  const bool temperature = !only.no_temperature;
+  const std::vector<SimEffect> effects = EffectsFor(c, static_cast<uint64_t>(seed));
+  const History calibrated_on = kHistories[static_cast<size_t>(seed) % 4];
+  absl::StatusOr<SimResult> sim = Simulate(
+      temperature ? HistoryScenario(static_cast<uint64_t>(seed), effects, calibrated_on, move_s)
+                  : EffectScenario(static_cast<uint64_t>(seed), effects, temperature, move_s));
+  if (!sim.ok()) return false;
+  bool time = false;
+  for (const SimEffect& e : c.effects) time |= e.regressor.find("time") != std::string::npos;
+  const Run run = CalibrateTimed(sim->capture, true, time);
+  totals->search_ms.push_back(run.ms);
+  if (only.seed > 0)  // one capture looked at: what the search said
+    for (const std::string& n : run.report.effect_diagnostics.notes)
+      std::printf("  note: %s\n", n.c_str());
+  ScoreDetection(c, seed, temperature ? HistoryName(calibrated_on) : "no temperature", effects, run,
+                 t, &totals->misses);
+  absl::StatusOr<SimResult> val = Simulate(
+      EffectScenario(static_cast<uint64_t>(seed) + 500, effects, temperature, move_s), sim->truth);
+  if (!val.ok()) return false;
+  if (temperature && !ScoreHistories(c, seed, only.seed > 0, calibrated_on, effects, *sim, run,
+                                     time, move_s, on, t))
+    return false;
+  ScoreValidation(*sim, *val, run, t);
+  return true;
+}
+
+// A case's row of the table (and its line of the gyro matrix's table, kept for after it).
+void PrintCaseRow(const EffectCase& c, const CaseTally& t, int runs, double move_s,
+                  std::string* matrix_rows) {
+  std::string truth;
+  for (const SimEffect& e : EffectsFor(c, 1))
+    truth +=
+        absl::StrFormat("%s%s %c~%s", truth.empty() ? "" : " + ",
+                        e.sensor == Sensor::kAccel ? "accel" : "gyro", "xyz"[e.axis], e.regressor);
+  if (c.name.find("Turnover") != std::string::npos) truth += " (T0 per seed)";
+  if (move_s != 2.5) truth += absl::StrFormat(" (%.0f s moves)", move_s);
   std::printf(
-      "\ngyro matrix against the truth (RMS of its 9 entries, ppm, median over seeds): calibrated "
-      "without the\neffect search, and with it (its frame and matrix refitted to the directions "
-      "the accelerometer effects correct)\n%-30s %8s %8s\n%s",
-      "effect (truth)", "without", "with", matrix_rows.c_str());
-  if (!misses.empty())
-    std::printf("\nnot found as simulated, found with more, or beyond 3 standard errors:\n%s",
-                misses.c_str());
-  // One scenario looked at: no summary.
-  if (!only.name.empty() || only.seed > 0 || only.no_temperature) return 0;
+      "%-30s %4d/%-4d %4d/%-4d %6d %4d/%-4d %4d/%-4d | %7.3f %7.3f %7.3f   | %8.4f %8.4f %8.4f   "
+      "| %7.4f %7.4f %7.4f | %7.2f %7.2f %6.2f\n",
+      truth.c_str(), t.found, runs, t.detectable, runs, t.missed, t.within, runs, t.other, runs,
+      Median(t.ab), Median(t.aa), Median(t.af), Median(t.gb), Median(t.ga), Median(t.gf),
+      Median(t.vb), Median(t.va), Median(t.vf), Median(t.hist_found), Median(t.hist_ref),
+      Median(t.hist_found) / Median(t.hist_ref));
+  *matrix_rows += absl::StrFormat("%-30s %8.0f %8.0f\n", truth, Median(t.mb), Median(t.ma));
+}
+
+// A case over its seeds, and its row. False when a simulation failed.
+bool RunCase(const EffectCase& c, int seeds, const Only& only, Totals* totals) {
+  CaseTally t;
+  ActsOn on;
+  for (const SimEffect& e : c.effects)
+    (e.sensor == Sensor::kAccel ? on.accel : ReadsRate(e.regressor) ? on.moves : on.gyro) = true;
+  const double move_s = CaseMoveSeconds(c);
+  for (int seed = 1; seed <= seeds; ++seed) {
+    if (only.seed > 0 && seed != only.seed) continue;
+    if (!RunCaseSeed(c, seed, only, move_s, on, &t, totals)) return false;
+  }
+  PrintCaseRow(c, t, only.seed > 0 ? 1 : seeds, move_s, &totals->matrix_rows);
+  return true;
+}
+
+// The false alarms on clean captures (no effect simulated): with and without a temperature
+// channel, and (with one) moves at a hand's pace, where a rate-dependent gyroscope term would
+// show. False when a simulation failed.
+bool CleanRows(int clean, Totals* totals) {
   std::printf("\nclean captures (no effect simulated): captures with any effect added\n");
-  const int clean = only.clean_seeds > 0 ? only.clean_seeds : seeds;
-  // With and without a temperature channel, and (with one) moves at a hand's pace, where a
-  // rate-dependent gyroscope term would show.
   struct Clean {
     bool temperature;
     double move_s;
@@ -397,11 +432,11 @@ int Main(int seeds, const Only& only) {
           temperature ? HistoryScenario(clean_seed, {}, kHistories[static_cast<size_t>(seed) % 4],
                                         row.move_s)
                       : EffectScenario(clean_seed, {}, temperature, row.move_s));
-      if (!sim.ok()) return 1;
+      if (!sim.ok()) return false;
       const Run with = CalibrateTimed(sim->capture, true, false);
       const Run without = CalibrateTimed(sim->capture, false, false);
-      search_ms.push_back(with.ms);
-      base_ms.push_back(without.ms);
+      totals->search_ms.push_back(with.ms);
+      totals->base_ms.push_back(without.ms);
       if (!with.report.params.effects.empty()) {
         ++alarms;
         for (const Effect& e : with.report.params.effects)
@@ -413,9 +448,39 @@ int Main(int seeds, const Only& only) {
     std::printf("  %-22s %d/%d false alarms (%.0f%% clean)%s\n", row.label, alarms, clean,
                 100.0 * (clean - alarms) / clean, which.c_str());
   }
+  return true;
+}
+
+int Main(int seeds, const Only& only) {
+  if (only.name == "Wander") {  // the wandering bias's rows alone
+    Wander(seeds);
+    return 0;
+  }
+  PrintTableHeader(seeds);
+  Totals totals;
+  std::vector<EffectCase> cases(std::begin(kEffectCases), std::end(kEffectCases));
+  cases.insert(cases.end(), std::begin(kHarderCases), std::end(kHarderCases));
+  cases.insert(cases.end(), std::begin(kRateCases), std::end(kRateCases));
+  for (const EffectCase& c : cases) {
+    if (!only.name.empty() && c.name != only.name) continue;
+    if (only.no_temperature && UsesTemperature(c)) continue;  // needs the channel
+    if (!RunCase(c, seeds, only, &totals)) return 1;
+  }
+  std::printf(
+      "\ngyro matrix against the truth (RMS of its 9 entries, ppm, median over seeds): calibrated "
+      "without the\neffect search, and with it (its frame and matrix refitted to the directions "
+      "the accelerometer effects correct)\n%-30s %8s %8s\n%s",
+      "effect (truth)", "without", "with", totals.matrix_rows.c_str());
+  if (!totals.misses.empty())
+    std::printf("\nnot found as simulated, found with more, or beyond 3 standard errors:\n%s",
+                totals.misses.c_str());
+  // One scenario looked at: no summary.
+  if (!only.name.empty() || only.seed > 0 || only.no_temperature) return 0;
+  const int clean = only.clean_seeds > 0 ? only.clean_seeds : seeds;
+  if (!CleanRows(clean, &totals)) return 1;
   std::printf(
       "\ncalibrate median %.1f ms with the effect search, %.1f ms without (clean captures)\n",
-      Median(search_ms), Median(base_ms));
+      Median(totals.search_ms), Median(totals.base_ms));
   Wander(clean);
   return 0;
 }

@@ -210,13 +210,9 @@ void Populate(const Flags& flags, const std::string& path) {
   const Clock::time_point t0 = Clock::now();
   size_t json_bytes = 0;
   for (int i = 0; i < flags.devices; ++i) {
-    imucal::storage::Device d;
-    d.id = DeviceId(i);
-    d.sensor_model = "MPU-6050";
-    d.nominal_rate_hz = 200;
-    d.accel_unit = "m/s^2";
-    d.gyro_unit = "rad/s";
-    if (absl::StatusOr<imucal::storage::Device> s = store->CreateDevice(d, "bench"); !s.ok()) {
+    if (absl::StatusOr<imucal::storage::Device> s =
+            store->CreateDevice(BenchDevice(DeviceId(i)), "bench");
+        !s.ok()) {
       std::fprintf(stderr, "CreateDevice: %s\n", std::string(s.status().message()).c_str());
       std::exit(1);
     }
@@ -351,11 +347,9 @@ void PrintRow(const char* what, int callers, std::vector<double>& lat, double wa
   std::fflush(stdout);
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  const Flags flags = ParseFlags(argc, argv);
-  std::string dir;
+// The database to fetch from: --db as it is, or populated first (a fresh SQLite file in a temp
+// directory, `*dir`, when --db is empty). Prints what it is.
+std::string PrepareDb(const Flags& flags, std::string* dir) {
   std::string db = flags.db;
   const bool pg = imucal::storage::IsPostgresUrl(db);
   const bool populate =
@@ -363,9 +357,9 @@ int main(int argc, char** argv) {
   if (populate) {
     if (db.empty()) {
       char tmpl[] = "/tmp/imucal-fetch-bench-XXXXXX";
-      if (mkdtemp(tmpl) == nullptr) return 1;
-      dir = tmpl;
-      db = dir + "/fetch.db";
+      if (mkdtemp(tmpl) == nullptr) std::exit(1);
+      *dir = tmpl;
+      db = *dir + "/fetch.db";
     }
     std::printf("populating %s (load %s)\n", DescribeDb(db).c_str(), LoadAvg().c_str());
     std::fflush(stdout);  // before Populate's progress lines on stderr
@@ -377,117 +371,149 @@ int main(int argc, char** argv) {
   if (!pg)
     std::printf("db size %.1f MB\n", static_cast<double>(std::filesystem::file_size(db, ec)) / 1e6);
   std::printf("\n");
+  return db;
+}
 
+// Each server's cache (channel s goes to server s): connect, and one call per 10th device
+// (touches a share of the pages), or every device with --warm. False when a call failed.
+bool WarmUp(const Flags& flags, size_t servers,
+            const std::vector<std::unique_ptr<v1::ParameterService::Stub>>& stubs) {
+  for (size_t server = 0; server < servers; ++server) {
+    for (int i = 0; i < flags.devices; i += flags.warm ? 1 : 10) {
+      v1::GetActiveParametersRequest req;
+      req.set_device_id(DeviceId(i));
+      v1::ParameterSet out;
+      grpc::ClientContext c;
+      grpc::Status s = stubs[server]->GetActiveParameters(&c, req, &out);
+      if (!s.ok()) {
+        std::fprintf(stderr, "warm-up %s on server %zu: %s\n", req.device_id().c_str(), server + 1,
+                     s.error_message().c_str());
+        return false;
+      }
+    }
+  }
+  return true;
+}
+
+// The CPU meters of a row: this client, each server, the database's cluster (when local).
+struct CpuMeters {
+  const std::vector<Child>* servers;
+  const std::optional<PostgresCpu>* pg_cpu;
+  bool db_measured() const { return pg_cpu->has_value(); }
+  double DbCpuS() const { return db_measured() ? (*pg_cpu)->CpuS() : 0.0; }
+};
+
+// One row of RPCs: `callers` chains for --seconds, asking for the full document or (if_not)
+// with if_not_version set to the active one. Returns its errors.
+int64_t RpcRow(const Flags& flags, const CpuMeters& cpu, bool if_not, int callers,
+               const std::vector<std::unique_ptr<v1::ParameterService::Stub>>& stubs) {
+  Run run;
+  run.devices = flags.devices;
+  run.if_not_version = if_not;
   // The active version per device (the last one added): what every answer must carry, and the
   // if_not_version of the "unchanged" rows.
-  std::vector<int> active(static_cast<size_t>(flags.devices), flags.versions);
+  run.active_version.assign(static_cast<size_t>(flags.devices), flags.versions);
+  run.running = callers;
+  std::vector<std::unique_ptr<Chain>> chains;
+  for (int i = 0; i < callers; ++i) {
+    chains.push_back(std::make_unique<Chain>(&run, 1000 + i,
+                                             stubs[static_cast<size_t>(i) % stubs.size()].get()));
+  }
+  const std::string load = LoadAvg();
+  const double cli0 = SelfCpuS(), db0 = cpu.DbCpuS();
+  const std::vector<double> srv0 = ServersCpuS(*cpu.servers);
+  const Clock::time_point t0 = Clock::now();
+  run.deadline = t0 + std::chrono::microseconds(static_cast<int64_t>(flags.seconds * 1e6));
+  for (auto& chain : chains) chain->Next();
+  {
+    std::unique_lock lock(run.mu);
+    run.cv.wait(lock, [&] { return run.running == 0; });
+  }
+  const double wall = Seconds(Clock::now() - t0);
+  std::vector<double> srv = ServersCpuS(*cpu.servers);
+  for (size_t i = 0; i < srv.size(); ++i) srv[i] -= srv0[i];
+  PrintRow(if_not ? "GetActive (unchanged)" : "GetActive (full)", callers, run.latencies_us, wall,
+           run.errors, SelfCpuS() - cli0, Sum(srv), cpu.db_measured() ? cpu.DbCpuS() - db0 : -1,
+           load, srv);
+  if (run.errors > 0) std::fprintf(stderr, "  first error: %s\n", run.first_error.c_str());
+  return run.errors;
+}
 
+// The rows through the servers; their errors, or -1 when the warm-up failed.
+int64_t RpcRows(const Flags& flags, const std::string& db, const CpuMeters& cpu) {
+  const std::vector<Child>& servers = *cpu.servers;
+  const std::vector<std::shared_ptr<grpc::Channel>> channels =
+      RoundRobinChannels(servers, flags.channels);
+  std::vector<std::unique_ptr<v1::ParameterService::Stub>> stubs;
+  for (const auto& channel : channels) stubs.push_back(v1::ParameterService::NewStub(channel));
+  if (!WarmUp(flags, servers.size(), stubs)) return -1;
+  std::string pids;
+  for (const Child& child : servers) absl::StrAppend(&pids, pids.empty() ? "" : ",", child.pid);
+  const bool pg = imucal::storage::IsPostgresUrl(db);
+  std::printf(
+      "GetActiveParameters, random device of %d, %.1f s per row, %d server(s) (pid %s) on %s, "
+      "%d channel(s) per server, %s, server cpu %d, client cpu %d (-1: any)%s:\n",
+      flags.devices, flags.seconds, static_cast<int>(servers.size()), pids.c_str(),
+      DescribeDb(db).c_str(), flags.channels,
+      flags.warm ? "every device fetched once before" : "a tenth fetched before", flags.server_cpu,
+      flags.client_cpu,
+      !pg                 ? ""
+      : cpu.db_measured() ? "; db_cpu = the PostgreSQL cluster's"
+                          : "; PostgreSQL not local: no db_cpu");
+  std::printf("%-25s %7s %9s %10s %8s %8s %8s %8s %6s %8s %8s %7s  %s\n", "call", "callers",
+              "calls", "calls/s", "p50_ms", "p99_ms", "p999_ms", "max_ms", "errors", "cli_cpu",
+              "srv_cpu", "db_cpu", "loadavg(before)");
+  int64_t errors = 0;  // failed calls and wrong answers, over the rows
+  for (int if_not : {0, 1}) {
+    for (int c : flags.callers) errors += RpcRow(flags, cpu, if_not != 0, c, stubs);
+  }
+  if (errors > 0)
+    std::printf("errors: %lld (first errors on stderr)\n", static_cast<long long>(errors));
+  return errors;
+}
+
+// The database's part alone: Store::GetActive in this process, one thread (SQLite in this
+// process; PostgreSQL a round trip to its backend).
+void StoreRow(const Flags& flags, const std::string& db, const CpuMeters& cpu) {
+  absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store = imucal::storage::Store::Open(db);
+  if (!store.ok()) return;
+  std::mt19937_64 rng(5);
+  std::vector<double> lat;
+  const std::string load = LoadAvg();
+  const double cli0 = SelfCpuS(), db0 = cpu.DbCpuS();
+  const Clock::time_point t0 = Clock::now();
+  while (Seconds(Clock::now() - t0) < flags.seconds) {
+    const std::string id = DeviceId(static_cast<int>(rng() % flags.devices));
+    const Clock::time_point s = Clock::now();
+    absl::StatusOr<imucal::storage::ParamVersion> v = (*store)->GetActive(id);
+    lat.push_back(1e6 * Seconds(Clock::now() - s));
+    if (!v.ok()) {
+      std::fprintf(stderr, "GetActive: %s\n", std::string(v.status().message()).c_str());
+      break;
+    }
+  }
+  const double wall = Seconds(Clock::now() - t0);
+  PrintRow("Store::GetActive (no rpc)", 1, lat, wall, 0, SelfCpuS() - cli0, 0,
+           cpu.db_measured() ? cpu.DbCpuS() - db0 : -1, load);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const Flags flags = ParseFlags(argc, argv);
+  std::string dir;
+  const std::string db = PrepareDb(flags, &dir);
+  const bool pg = imucal::storage::IsPostgresUrl(db);
   std::vector<Child> servers =
       ForkServers(db, flags.replicas, flags.server_cpu, flags.metrics ? "127.0.0.1:0" : "");
   PinToCpu(flags.client_cpu);  // after the fork: the servers keep their own core
   const std::optional<PostgresCpu> pg_cpu = pg ? PostgresCpu::Find(db) : std::nullopt;
-  auto db_cpu_s = [&] { return pg_cpu ? pg_cpu->CpuS() : 0.0; };
-  int64_t errors = 0;  // failed calls and wrong answers, over the rows
-  {
-    const std::vector<std::shared_ptr<grpc::Channel>> channels =
-        RoundRobinChannels(servers, flags.channels);
-    std::vector<std::unique_ptr<v1::ParameterService::Stub>> stubs;
-    for (const auto& channel : channels) stubs.push_back(v1::ParameterService::NewStub(channel));
-    // Warm-up, each server's cache (channel s goes to server s): connect, and one call per 10th
-    // device (touches a share of the pages), or every device with --warm.
-    for (size_t server = 0; server < servers.size(); ++server) {
-      for (int i = 0; i < flags.devices; i += flags.warm ? 1 : 10) {
-        v1::GetActiveParametersRequest req;
-        req.set_device_id(DeviceId(i));
-        v1::ParameterSet out;
-        grpc::ClientContext c;
-        grpc::Status s = stubs[server]->GetActiveParameters(&c, req, &out);
-        if (!s.ok()) {
-          std::fprintf(stderr, "warm-up %s on server %zu: %s\n", req.device_id().c_str(),
-                       server + 1, s.error_message().c_str());
-          StopServers(servers);
-          return 1;
-        }
-      }
-    }
-    std::string pids;
-    for (const Child& child : servers) absl::StrAppend(&pids, pids.empty() ? "" : ",", child.pid);
-    std::printf(
-        "GetActiveParameters, random device of %d, %.1f s per row, %d server(s) (pid %s) on %s, "
-        "%d channel(s) per server, %s, server cpu %d, client cpu %d (-1: any)%s:\n",
-        flags.devices, flags.seconds, static_cast<int>(servers.size()), pids.c_str(),
-        DescribeDb(db).c_str(), flags.channels,
-        flags.warm ? "every device fetched once before" : "a tenth fetched before",
-        flags.server_cpu, flags.client_cpu,
-        !pg      ? ""
-        : pg_cpu ? "; db_cpu = the PostgreSQL cluster's"
-                 : "; PostgreSQL not local: no db_cpu");
-    std::printf("%-25s %7s %9s %10s %8s %8s %8s %8s %6s %8s %8s %7s  %s\n", "call", "callers",
-                "calls", "calls/s", "p50_ms", "p99_ms", "p999_ms", "max_ms", "errors", "cli_cpu",
-                "srv_cpu", "db_cpu", "loadavg(before)");
-    for (int if_not : {0, 1}) {
-      for (int c : flags.callers) {
-        Run run;
-        run.devices = flags.devices;
-        run.if_not_version = if_not != 0;
-        run.active_version = active;
-        run.running = c;
-        std::vector<std::unique_ptr<Chain>> chains;
-        for (int i = 0; i < c; ++i) {
-          chains.push_back(std::make_unique<Chain>(
-              &run, 1000 + i, stubs[static_cast<size_t>(i) % stubs.size()].get()));
-        }
-        const std::string load = LoadAvg();
-        const double cli0 = SelfCpuS(), db0 = db_cpu_s();
-        const std::vector<double> srv0 = ServersCpuS(servers);
-        const Clock::time_point t0 = Clock::now();
-        run.deadline = t0 + std::chrono::microseconds(static_cast<int64_t>(flags.seconds * 1e6));
-        for (auto& chain : chains) chain->Next();
-        {
-          std::unique_lock lock(run.mu);
-          run.cv.wait(lock, [&] { return run.running == 0; });
-        }
-        const double wall = Seconds(Clock::now() - t0);
-        std::vector<double> srv = ServersCpuS(servers);
-        for (size_t i = 0; i < srv.size(); ++i) srv[i] -= srv0[i];
-        PrintRow(if_not ? "GetActive (unchanged)" : "GetActive (full)", c, run.latencies_us, wall,
-                 run.errors, SelfCpuS() - cli0, Sum(srv), pg_cpu ? db_cpu_s() - db0 : -1, load,
-                 srv);
-        if (run.errors > 0) std::fprintf(stderr, "  first error: %s\n", run.first_error.c_str());
-        errors += run.errors;
-      }
-    }
-    if (errors > 0)
-      std::printf("errors: %lld (first errors on stderr)\n", static_cast<long long>(errors));
-  }
+  const CpuMeters cpu{&servers, &pg_cpu};
+  const int64_t errors = RpcRows(flags, db, cpu);
   StopServers(servers);
-
-  // The database's part alone: Store::GetActive in this process, one thread (SQLite in this
-  // process; PostgreSQL a round trip to its backend).
-  {
-    absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store =
-        imucal::storage::Store::Open(db);
-    if (store.ok()) {
-      std::mt19937_64 rng(5);
-      std::vector<double> lat;
-      const std::string load = LoadAvg();
-      const double cli0 = SelfCpuS(), db0 = db_cpu_s();
-      const Clock::time_point t0 = Clock::now();
-      while (Seconds(Clock::now() - t0) < flags.seconds) {
-        const std::string id = DeviceId(static_cast<int>(rng() % flags.devices));
-        const Clock::time_point s = Clock::now();
-        absl::StatusOr<imucal::storage::ParamVersion> v = (*store)->GetActive(id);
-        lat.push_back(1e6 * Seconds(Clock::now() - s));
-        if (!v.ok()) {
-          std::fprintf(stderr, "GetActive: %s\n", std::string(v.status().message()).c_str());
-          break;
-        }
-      }
-      const double wall = Seconds(Clock::now() - t0);
-      PrintRow("Store::GetActive (no rpc)", 1, lat, wall, 0, SelfCpuS() - cli0, 0,
-               pg_cpu ? db_cpu_s() - db0 : -1, load);
-    }
-  }
+  if (errors < 0) return 1;
+  StoreRow(flags, db, cpu);
+  std::error_code ec;
   if (!dir.empty() && !flags.keep)
     std::filesystem::remove_all(dir, ec);
   else if (!dir.empty())

@@ -339,48 +339,52 @@ struct RoundResult {
   std::string load;
 };
 
+// Setup of a round (not timed): a device and an open session per robot, through the server
+// (channel) its stream will go to; the sessions' ids.
+std::vector<std::string> OpenSessions(std::vector<std::shared_ptr<grpc::Channel>>& channels, int n,
+                                      int round) {
+  std::vector<std::string> sessions;
+  std::vector<std::unique_ptr<v1::DeviceService::Stub>> device_stubs;
+  std::vector<std::unique_ptr<v1::SessionService::Stub>> session_stubs;
+  for (auto& ch : channels) {
+    device_stubs.push_back(v1::DeviceService::NewStub(ch));
+    session_stubs.push_back(v1::SessionService::NewStub(ch));
+  }
+  for (int i = 0; i < n; ++i) {
+    const size_t k = static_cast<size_t>(i) % channels.size();
+    auto& devices = device_stubs[k];
+    auto& session_stub = session_stubs[k];
+    v1::RegisterDeviceRequest req;
+    v1::Device* d = req.mutable_device();
+    d->set_id(absl::StrCat("bench-", RunTag(), "-r", round, "-n", n, "-", i));
+    d->set_sensor_model("MPU-6050");
+    d->set_nominal_rate_hz(200);
+    d->set_accel_unit("m/s^2");
+    d->set_gyro_unit("rad/s");
+    v1::Device out;
+    grpc::ClientContext c1;
+    grpc::Status s = devices->RegisterDevice(&c1, req, &out);
+    v1::CreateSessionRequest sreq;
+    sreq.set_device_id(d->id());
+    sreq.set_protocol(v1::PROTOCOL_SIX_FACE);
+    v1::Session session;
+    grpc::ClientContext c2;
+    if (s.ok()) s = session_stub->CreateSession(&c2, sreq, &session);
+    if (!s.ok()) {
+      std::fprintf(stderr, "setup: %s\n", s.error_message().c_str());
+      std::exit(1);
+    }
+    sessions.push_back(session.id());
+  }
+  return sessions;
+}
+
 RoundResult RunRound(const Flags& flags, const Columns& col, const std::vector<Child>& servers,
                      const std::optional<PostgresCpu>& pg_cpu, imucal::storage::Store& store,
                      std::vector<std::shared_ptr<grpc::Channel>>& channels, int n, int round) {
   RoundResult r;
   r.n = n;
-  // Setup (not timed): a device and an open session per robot, through the server (channel)
-  // its stream will go to.
-  std::vector<std::string> sessions;
-  {
-    std::vector<std::unique_ptr<v1::DeviceService::Stub>> device_stubs;
-    std::vector<std::unique_ptr<v1::SessionService::Stub>> session_stubs;
-    for (auto& ch : channels) {
-      device_stubs.push_back(v1::DeviceService::NewStub(ch));
-      session_stubs.push_back(v1::SessionService::NewStub(ch));
-    }
-    for (int i = 0; i < n; ++i) {
-      const size_t k = static_cast<size_t>(i) % channels.size();
-      auto& devices = device_stubs[k];
-      auto& session_stub = session_stubs[k];
-      v1::RegisterDeviceRequest req;
-      v1::Device* d = req.mutable_device();
-      d->set_id(absl::StrCat("bench-", RunTag(), "-r", round, "-n", n, "-", i));
-      d->set_sensor_model("MPU-6050");
-      d->set_nominal_rate_hz(200);
-      d->set_accel_unit("m/s^2");
-      d->set_gyro_unit("rad/s");
-      v1::Device out;
-      grpc::ClientContext c1;
-      grpc::Status s = devices->RegisterDevice(&c1, req, &out);
-      v1::CreateSessionRequest sreq;
-      sreq.set_device_id(d->id());
-      sreq.set_protocol(v1::PROTOCOL_SIX_FACE);
-      v1::Session session;
-      grpc::ClientContext c2;
-      if (s.ok()) s = session_stub->CreateSession(&c2, sreq, &session);
-      if (!s.ok()) {
-        std::fprintf(stderr, "setup: %s\n", s.error_message().c_str());
-        std::exit(1);
-      }
-      sessions.push_back(session.id());
-    }
-  }
+  const std::vector<std::string> sessions = OpenSessions(channels, n, round);
   std::vector<std::unique_ptr<v1::SessionService::Stub>> stubs;
   for (auto& ch : channels) stubs.push_back(v1::SessionService::NewStub(ch));
 
@@ -442,77 +446,72 @@ double ThreadCpuS() {
 }
 
 // ---- Breakdown: the pieces of one batch, single-threaded, no gRPC.
-void Breakdown(const Flags& flags, const Columns& col, const std::string& db) {
-  std::printf("\nBreakdown (one thread, no gRPC), batch = %d samples:\n", flags.batch);
-  const int per = flags.batch;
-  auto report = [&](const char* what, int64_t batches, double s) {
-    std::printf("  %-52s %9.1f us/batch %8.0f batches/s %10.0f samples/s\n", what,
-                1e6 * s / static_cast<double>(batches), static_cast<double>(batches) / s,
-                static_cast<double>(batches * per) / s);
-  };
-  // Protobuf: fill + serialize (client side), parse (server side).
-  {
-    v1::SampleBatch b;
-    std::string wire;
-    const int k = 20000;
-    Clock::time_point t0 = Clock::now();
-    for (int i = 1; i <= k; ++i) {
-      FillBatch(col, per, i, &b);
-      wire.clear();
-      b.SerializeToString(&wire);
+
+// One line of the breakdown: `batches` batches of `per` samples in `s` seconds.
+void PrintPerBatch(const char* what, int64_t batches, double s, int per) {
+  std::printf("  %-52s %9.1f us/batch %8.0f batches/s %10.0f samples/s\n", what,
+              1e6 * s / static_cast<double>(batches), static_cast<double>(batches) / s,
+              static_cast<double>(batches * per) / s);
+}
+
+// A bench device and an open six-face session for it, straight in the store; the session's id.
+std::string NewStoredSession(imucal::storage::Store& store, const std::string& id) {
+  (void)store.CreateDevice(BenchDevice(id), "bench");
+  imucal::storage::Session s;
+  s.device_id = id;
+  s.protocol = "six-face";
+  return store.CreateSession(s, "bench")->id;
+}
+
+// Protobuf: fill + serialize (client side), parse (server side).
+void BreakdownProtobuf(const Columns& col, int per) {
+  v1::SampleBatch b;
+  std::string wire;
+  const int k = 20000;
+  Clock::time_point t0 = Clock::now();
+  for (int i = 1; i <= k; ++i) {
+    FillBatch(col, per, i, &b);
+    wire.clear();
+    b.SerializeToString(&wire);
+  }
+  PrintPerBatch("client: fill columns + proto serialize", k, Seconds(Clock::now() - t0), per);
+  v1::SampleBatch parsed;
+  t0 = Clock::now();
+  for (int i = 1; i <= k; ++i) parsed.ParseFromString(wire);
+  PrintPerBatch("server: proto parse", k, Seconds(Clock::now() - t0), per);
+  std::printf("  (wire size %zu bytes per batch, %.1f bytes/sample)\n", wire.size(),
+              static_cast<double>(wire.size()) / per);
+}
+
+// IngestBatch: the server's whole per-batch work bar gRPC (validate, encode, commit, segment),
+// for 2 s. False when it failed.
+bool BreakdownIngest(imucal::storage::Store& store, const Columns& col, int per) {
+  const std::string sid = NewStoredSession(store, absl::StrCat("breakdown-", RunTag(), "-ingest"));
+  imucal::server::SessionHub hub(&store);
+  std::shared_ptr<imucal::server::LiveSession> live = *hub.Get(sid);
+  v1::SampleBatch b;
+  int64_t k = 0;
+  double fill_s = 0;
+  const Clock::time_point t0 = Clock::now();
+  while (Seconds(Clock::now() - t0) < 2.0) {
+    const Clock::time_point f0 = Clock::now();
+    FillBatch(col, per, k + 1, &b);
+    fill_s += Seconds(Clock::now() - f0);
+    std::lock_guard lock(live->mu);
+    absl::StatusOr<imucal::server::IngestResult> res = imucal::server::IngestBatch(store, *live, b);
+    if (!res.ok()) {
+      std::fprintf(stderr, "IngestBatch: %s\n", std::string(res.status().message()).c_str());
+      return false;
     }
-    report("client: fill columns + proto serialize", k, Seconds(Clock::now() - t0));
-    v1::SampleBatch parsed;
-    t0 = Clock::now();
-    for (int i = 1; i <= k; ++i) parsed.ParseFromString(wire);
-    report("server: proto parse", k, Seconds(Clock::now() - t0));
-    std::printf("  (wire size %zu bytes per batch, %.1f bytes/sample)\n", wire.size(),
-                static_cast<double>(wire.size()) / per);
+    ++k;
   }
-  absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store = imucal::storage::Store::Open(db);
-  if (!store.ok()) {
-    std::fprintf(stderr, "breakdown store: %s\n", std::string(store.status().message()).c_str());
-    return;
-  }
-  auto new_session = [&](const std::string& id) {
-    imucal::storage::Device d;
-    d.id = id;
-    d.sensor_model = "MPU-6050";
-    d.nominal_rate_hz = 200;
-    d.accel_unit = "m/s^2";
-    d.gyro_unit = "rad/s";
-    (void)(*store)->CreateDevice(d, "bench");
-    imucal::storage::Session s;
-    s.device_id = id;
-    s.protocol = "six-face";
-    return (*store)->CreateSession(s, "bench")->id;
-  };
-  // IngestBatch: the server's whole per-batch work bar gRPC (validate, encode, commit, segment).
-  {
-    const std::string sid = new_session(absl::StrCat("breakdown-", RunTag(), "-ingest"));
-    imucal::server::SessionHub hub(store->get());
-    std::shared_ptr<imucal::server::LiveSession> live = *hub.Get(sid);
-    v1::SampleBatch b;
-    int64_t k = 0;
-    double fill_s = 0;
-    const Clock::time_point t0 = Clock::now();
-    while (Seconds(Clock::now() - t0) < 2.0) {
-      const Clock::time_point f0 = Clock::now();
-      FillBatch(col, per, k + 1, &b);
-      fill_s += Seconds(Clock::now() - f0);
-      std::lock_guard lock(live->mu);
-      absl::StatusOr<imucal::server::IngestResult> res =
-          imucal::server::IngestBatch(**store, *live, b);
-      if (!res.ok()) {
-        std::fprintf(stderr, "IngestBatch: %s\n", std::string(res.status().message()).c_str());
-        return;
-      }
-      ++k;
-    }
-    report("server: IngestBatch (validate+encode+commit+segment)", k,
-           Seconds(Clock::now() - t0) - fill_s);
-  }
-  // The parts of IngestBatch: validation + ToSamples + EncodeSamples; segmenter; commit alone.
+  PrintPerBatch("server: IngestBatch (validate+encode+commit+segment)", k,
+                Seconds(Clock::now() - t0) - fill_s, per);
+  return true;
+}
+
+// The parts of IngestBatch bar the commit: validation + ToSamples + EncodeSamples; segmenter.
+void BreakdownIngestParts(const Columns& col, int per) {
   {
     v1::SampleBatch b;
     FillBatch(col, per, 1, &b);
@@ -525,69 +524,115 @@ void Breakdown(const Flags& flags, const Columns& col, const std::string& db) {
       std::vector<imucal::storage::ImuSample> s = imucal::server::ToSamples(b);
       bytes += imucal::storage::EncodeSamples(s)->size();
     }
-    report("  of which validate + ToSamples + EncodeSamples", k, Seconds(Clock::now() - t0));
+    PrintPerBatch("  of which validate + ToSamples + EncodeSamples", k, Seconds(Clock::now() - t0),
+                  per);
     std::printf("  (stored payload %.1f bytes/sample)\n",
                 static_cast<double>(bytes) / (static_cast<double>(k) * per));
   }
-  {
-    imucal::storage::Device d;
-    d.id = "seg";
-    d.sensor_model = "MPU-6050";
-    d.nominal_rate_hz = 200;
-    d.accel_unit = "m/s^2";
-    d.gyro_unit = "rad/s";
-    imucal::core::OnlineSegmenter seg(
-        imucal::server::SegmenterOptionsFor(d, v1::PROTOCOL_SIX_FACE));
-    std::vector<imucal::core::SegmenterEvent> events;
-    const int64_t k = static_cast<int64_t>(col.n) / per;
-    Clock::time_point t0 = Clock::now();
-    for (int64_t i = 0; i < k * per; ++i) {
-      const size_t j = static_cast<size_t>(i);
-      seg.Add(col.t[j],
-              Eigen::Vector3d(col.accel[3 * j], col.accel[3 * j + 1], col.accel[3 * j + 2]),
-              Eigen::Vector3d(col.gyro[3 * j], col.gyro[3 * j + 1], col.gyro[3 * j + 2]), &events);
-    }
-    report("  of which online segmenter", k, Seconds(Clock::now() - t0));
+  imucal::core::OnlineSegmenter seg(
+      imucal::server::SegmenterOptionsFor(BenchDevice("seg"), v1::PROTOCOL_SIX_FACE));
+  std::vector<imucal::core::SegmenterEvent> events;
+  const int64_t k = static_cast<int64_t>(col.n) / per;
+  Clock::time_point t0 = Clock::now();
+  for (int64_t i = 0; i < k * per; ++i) {
+    const size_t j = static_cast<size_t>(i);
+    seg.Add(col.t[j], Eigen::Vector3d(col.accel[3 * j], col.accel[3 * j + 1], col.accel[3 * j + 2]),
+            Eigen::Vector3d(col.gyro[3 * j], col.gyro[3 * j + 1], col.gyro[3 * j + 2]), &events);
   }
-  {
-    const std::string sid = new_session(absl::StrCat("breakdown-", RunTag(), "-append"));
-    std::vector<std::string> payloads;
-    v1::SampleBatch b;
-    const int64_t k_max = 200000;
-    int64_t k = 0;
-    double encode_s = 0;
-    std::vector<double> lat_us;
-    const double cpu0 = ThreadCpuS();
-    const Clock::time_point t0 = Clock::now();
-    while (k < k_max && Seconds(Clock::now() - t0) < 2.0) {
-      const Clock::time_point e0 = Clock::now();
-      FillBatch(col, per, k + 1, &b);
-      std::string payload = *imucal::storage::EncodeSamples(imucal::server::ToSamples(b));
-      const Clock::time_point a0 = Clock::now();
-      encode_s += Seconds(a0 - e0);
-      absl::StatusOr<imucal::storage::BatchAck> ack = (*store)->AppendBatch(sid, k + 1, payload);
-      lat_us.push_back(1e6 * Seconds(Clock::now() - a0));
-      if (!ack.ok()) {
-        std::fprintf(stderr, "AppendBatch: %s\n", std::string(ack.status().message()).c_str());
-        return;
-      }
-      ++k;
+  PrintPerBatch("  of which online segmenter", k, Seconds(Clock::now() - t0), per);
+}
+
+// Store::AppendBatch alone (the commit), for 2 s or 200,000 batches, and its latency per call.
+void BreakdownAppend(imucal::storage::Store& store, const Columns& col, int per) {
+  const std::string sid = NewStoredSession(store, absl::StrCat("breakdown-", RunTag(), "-append"));
+  v1::SampleBatch b;
+  const int64_t k_max = 200000;
+  int64_t k = 0;
+  double encode_s = 0;
+  std::vector<double> lat_us;
+  const double cpu0 = ThreadCpuS();
+  const Clock::time_point t0 = Clock::now();
+  while (k < k_max && Seconds(Clock::now() - t0) < 2.0) {
+    const Clock::time_point e0 = Clock::now();
+    FillBatch(col, per, k + 1, &b);
+    std::string payload = *imucal::storage::EncodeSamples(imucal::server::ToSamples(b));
+    const Clock::time_point a0 = Clock::now();
+    encode_s += Seconds(a0 - e0);
+    absl::StatusOr<imucal::storage::BatchAck> ack = store.AppendBatch(sid, k + 1, payload);
+    lat_us.push_back(1e6 * Seconds(Clock::now() - a0));
+    if (!ack.ok()) {
+      std::fprintf(stderr, "AppendBatch: %s\n", std::string(ack.status().message()).c_str());
+      return;
     }
-    const double wall = Seconds(Clock::now() - t0), cpu = ThreadCpuS() - cpu0;
-    report("  of which Store::AppendBatch (one commit per batch)", k, wall - encode_s);
-    double sum = 0;
-    for (double x : lat_us) sum += x;
-    const double mean = sum / static_cast<double>(lat_us.size());
-    const double p50 = Percentile(lat_us, 0.5), p99 = Percentile(lat_us, 0.99),
-                 p999 = Percentile(lat_us, 0.999);
-    std::sort(lat_us.begin(), lat_us.end());
-    double slow = 0;  // time spent in calls over 1 ms (WAL checkpoints: write + fsync)
-    for (double x : lat_us)
-      if (x > 1000) slow += x;
-    std::printf(
-        "    AppendBatch per call: mean %.0f us, p50 %.0f us, p99 %.0f us, p99.9 %.0f us, "
-        "max %.1f ms; calls > 1 ms take %.0f%% of the time; thread cpu %.0f%% of wall\n",
-        mean, p50, p99, p999, lat_us.back() / 1e3, 100 * slow / sum, 100 * cpu / wall);
+    ++k;
+  }
+  const double wall = Seconds(Clock::now() - t0), cpu = ThreadCpuS() - cpu0;
+  PrintPerBatch("  of which Store::AppendBatch (one commit per batch)", k, wall - encode_s, per);
+  double sum = 0;
+  for (double x : lat_us) sum += x;
+  const double mean = sum / static_cast<double>(lat_us.size());
+  const double p50 = Percentile(lat_us, 0.5), p99 = Percentile(lat_us, 0.99),
+               p999 = Percentile(lat_us, 0.999);
+  std::sort(lat_us.begin(), lat_us.end());
+  double slow = 0;  // time spent in calls over 1 ms (WAL checkpoints: write + fsync)
+  for (double x : lat_us)
+    if (x > 1000) slow += x;
+  std::printf(
+      "    AppendBatch per call: mean %.0f us, p50 %.0f us, p99 %.0f us, p99.9 %.0f us, "
+      "max %.1f ms; calls > 1 ms take %.0f%% of the time; thread cpu %.0f%% of wall\n",
+      mean, p50, p99, p999, lat_us.back() / 1e3, 100 * slow / sum, 100 * cpu / wall);
+}
+
+void Breakdown(const Flags& flags, const Columns& col, const std::string& db) {
+  std::printf("\nBreakdown (one thread, no gRPC), batch = %d samples:\n", flags.batch);
+  BreakdownProtobuf(col, flags.batch);
+  absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store = imucal::storage::Store::Open(db);
+  if (!store.ok()) {
+    std::fprintf(stderr, "breakdown store: %s\n", std::string(store.status().message()).c_str());
+    return;
+  }
+  if (!BreakdownIngest(**store, col, flags.batch)) return;
+  BreakdownIngestParts(col, flags.batch);
+  BreakdownAppend(**store, col, flags.batch);
+}
+
+// The header lines: the servers, the database, the batch and round settings.
+void PrintSetup(const Flags& flags, const std::vector<Child>& servers, const std::string& db,
+                bool sqlite_file, const std::optional<PostgresCpu>& pg_cpu) {
+  std::printf("imucal ingest bench: %d server(s) on %s (%s)\n", static_cast<int>(servers.size()),
+              DescribeDb(db).c_str(),
+              sqlite_file ? "WAL, synchronous=FULL: the Store default"
+                          : "synchronous_commit=on: the server's own fsync setting applies");
+  for (const Child& child : servers)
+    std::printf("  server pid %d on 127.0.0.1:%d\n", static_cast<int>(child.pid), child.port);
+  if (!sqlite_file) {
+    if (pg_cpu)
+      std::printf("  PostgreSQL postmaster pid %d (db_cpu: it and every process under it)\n",
+                  static_cast<int>(pg_cpu->postmaster()));
+    else
+      std::printf("  PostgreSQL not on this machine (or unreachable): db_cpu not measured\n");
+  }
+  std::printf(
+      "batch %d samples (t, accel[3], gyro[3], temp per sample), window %d batch(es) "
+      "per stream, %d channel(s) per server, %.1f s per round, %ld cores\n\n",
+      flags.batch, flags.window, flags.channels, flags.seconds, sysconf(_SC_NPROCESSORS_ONLN));
+}
+
+// A round's row (and each server's CPU below it when there are several).
+void PrintRound(const RoundResult& r, size_t servers) {
+  const std::string db_cpu =
+      r.db_cpu_s < 0 ? "-" : absl::StrFormat("%.0f%%", 100 * r.db_cpu_s / r.wall_s);
+  std::printf(
+      "%6d %8.2f %11lld %12.0f %10.0f %9.2f %9.2f %9.2f %7.0f%% %7.0f%% %8s %6d %5d %5d  %s\n", r.n,
+      r.wall_s, static_cast<long long>(r.samples), r.samples_per_s, r.batches_per_s, r.p50_us / 1e3,
+      r.p99_us / 1e3, r.max_us / 1e3, 100 * r.client_cpu_s / r.wall_s,
+      100 * r.server_cpu_s / r.wall_s, db_cpu.c_str(), r.failed, r.check.lost, r.check.extra,
+      r.load.c_str());
+  if (servers > 1) {
+    std::string split;
+    for (double cpu : r.replica_cpu_s)
+      absl::StrAppend(&split, " ", absl::StrFormat("%.0f%%", 100 * cpu / r.wall_s));
+    std::printf("%6s srv_cpu per server:%s\n", "", split.c_str());
   }
 }
 
@@ -617,23 +662,7 @@ int main(int argc, char** argv) {
     StopServers(servers);
     return 1;
   }
-  std::printf("imucal ingest bench: %d server(s) on %s (%s)\n", static_cast<int>(servers.size()),
-              DescribeDb(db).c_str(),
-              sqlite_file ? "WAL, synchronous=FULL: the Store default"
-                          : "synchronous_commit=on: the server's own fsync setting applies");
-  for (const Child& child : servers)
-    std::printf("  server pid %d on 127.0.0.1:%d\n", static_cast<int>(child.pid), child.port);
-  if (!sqlite_file) {
-    if (pg_cpu)
-      std::printf("  PostgreSQL postmaster pid %d (db_cpu: it and every process under it)\n",
-                  static_cast<int>(pg_cpu->postmaster()));
-    else
-      std::printf("  PostgreSQL not on this machine (or unreachable): db_cpu not measured\n");
-  }
-  std::printf(
-      "batch %d samples (t, accel[3], gyro[3], temp per sample), window %d batch(es) "
-      "per stream, %d channel(s) per server, %.1f s per round, %ld cores\n\n",
-      flags.batch, flags.window, flags.channels, flags.seconds, sysconf(_SC_NPROCESSORS_ONLN));
+  PrintSetup(flags, servers, db, sqlite_file, pg_cpu);
 
   std::vector<std::shared_ptr<grpc::Channel>> channels =
       RoundRobinChannels(servers, flags.channels);
@@ -645,20 +674,7 @@ int main(int argc, char** argv) {
   int problems = 0;
   for (int n : flags.ns) {
     RoundResult r = RunRound(flags, col, servers, pg_cpu, **store, channels, n, round++);
-    const std::string db_cpu =
-        r.db_cpu_s < 0 ? "-" : absl::StrFormat("%.0f%%", 100 * r.db_cpu_s / r.wall_s);
-    std::printf(
-        "%6d %8.2f %11lld %12.0f %10.0f %9.2f %9.2f %9.2f %7.0f%% %7.0f%% %8s %6d %5d %5d  %s\n",
-        r.n, r.wall_s, static_cast<long long>(r.samples), r.samples_per_s, r.batches_per_s,
-        r.p50_us / 1e3, r.p99_us / 1e3, r.max_us / 1e3, 100 * r.client_cpu_s / r.wall_s,
-        100 * r.server_cpu_s / r.wall_s, db_cpu.c_str(), r.failed, r.check.lost, r.check.extra,
-        r.load.c_str());
-    if (servers.size() > 1) {
-      std::string split;
-      for (double cpu : r.replica_cpu_s)
-        absl::StrAppend(&split, " ", absl::StrFormat("%.0f%%", 100 * cpu / r.wall_s));
-      std::printf("%6s srv_cpu per server:%s\n", "", split.c_str());
-    }
+    PrintRound(r, servers.size());
     std::fflush(stdout);
     problems += r.failed + r.check.lost + r.check.extra;
   }

@@ -37,6 +37,8 @@
 //
 // "Kept up": every batch acknowledged, no errors, ack p99 under one batch period and no
 // robot fell behind its schedule by more than one batch.
+//
+// The clients (robots, watchers, fetches: gRPC callback reactors) are in load_bench_clients.h.
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -55,6 +57,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <string>
@@ -66,6 +69,7 @@
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
 #include "bench/bench_flags.h"
+#include "bench/load_bench_clients.h"
 #include "bench/service_bench_util.h"
 #include "core/params.h"
 #include "core/simulator.h"
@@ -150,243 +154,6 @@ Columns RobotColumns(double rate_hz) {
   return MakeColumns(o);
 }
 
-// Batch `seq` (1-based) of `per` samples: samples [(seq-1)*per, seq*per) of the replayed
-// capture, started at `offset` samples (robots start at different points of the capture).
-void FillBatch(const Columns& col, int per, int64_t seq, int64_t offset, v1::SampleBatch* b) {
-  b->clear_t_s();
-  b->clear_accel();
-  b->clear_gyro();
-  b->clear_temp_c();
-  b->set_seq(seq);
-  const int64_t first = offset + (seq - 1) * per;
-  for (int j = 0; j < per; ++j) {
-    const int64_t g = first + j;
-    const size_t i = static_cast<size_t>(g % static_cast<int64_t>(col.n));
-    const double shift = static_cast<double>(g / static_cast<int64_t>(col.n)) * col.lap_s;
-    b->add_t_s(col.t[i] + shift);
-    b->add_temp_c(col.temp[i]);
-    for (int k = 0; k < 3; ++k) {
-      b->add_accel(col.accel[3 * i + k]);
-      b->add_gyro(col.gyro[3 * i + k]);
-    }
-  }
-}
-
-// ---- Results shared by every reactor.
-struct Stats {
-  std::mutex mu;
-  std::condition_variable cv;
-  std::vector<double> ack_us, fetch_us, event_us;  // guarded by mu
-  std::map<std::string, int64_t> errors;           // "what CODE" -> count; guarded by mu
-  std::string first_error;                         // guarded by mu
-  int64_t acked_batches = 0, acked_samples = 0, sent_batches = 0, late_sends = 0;
-  int64_t max_behind = 0;  // most batches a robot was behind its schedule
-  int64_t events = 0, fetches_sent = 0, fetches_done = 0, fetch_bytes = 0;
-  int robots_running = 0, watchers_running = 0, fetches_in_flight = 0;  // guarded by mu
-
-  void Error(const std::string& what, const grpc::Status& s) {
-    errors[absl::StrCat(what, " ", std::string(imucal::server::CodeName(s.error_code())))]++;
-    if (first_error.empty()) first_error = absl::StrCat(what, ": ", s.error_message());
-  }
-};
-
-// One robot: a StreamSamples stream; Due() (from the pacer) queues the next batch, written
-// as soon as the previous write is done. Latency: StartWrite of seq -> the ack covering seq.
-class Robot final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::SampleAck> {
- public:
-  Robot(Stats* stats, const Columns* col, int per, v1::SessionService::Stub* stub,
-        std::string session_id, int64_t offset)
-      : stats_(stats),
-        col_(col),
-        per_(per),
-        stub_(stub),
-        session_id_(std::move(session_id)),
-        offset_(offset) {
-    ack_us_.reserve(1 << 12);
-  }
-
-  void Start() {
-    stub_->async()->StreamSamples(&context_, this);
-    StartRead(&ack_);
-    StartCall();
-  }
-
-  // The pacer's tick for this robot: one more batch is due.
-  void Due() {
-    std::lock_guard lock(mu_);
-    if (stopping_) return;
-    ++due_;
-    if (writing_) ++late_;
-    max_behind_ = std::max(max_behind_, due_);
-    MaybeWriteLocked();
-  }
-
-  // At the deadline: no more batches; half-close once the last write is done.
-  void Stop() {
-    std::lock_guard lock(mu_);
-    stopping_ = true;
-    due_ = 0;
-    MaybeWriteLocked();
-  }
-
-  void OnWriteDone(bool ok) override {
-    std::lock_guard lock(mu_);
-    writing_ = false;
-    if (ok) MaybeWriteLocked();
-  }
-
-  void OnReadDone(bool ok) override {
-    if (!ok) return;  // the server finished: OnDone follows
-    const Clock::time_point now = Clock::now();
-    {
-      std::lock_guard lock(mu_);
-      while (!sent_at_.empty() && first_unacked_ <= ack_.last_acked_seq()) {
-        ack_us_.push_back(1e6 * Seconds(now - sent_at_.front()));
-        sent_at_.pop_front();
-        ++first_unacked_;
-        ++acked_batches_;
-      }
-      acked_samples_ = ack_.samples();
-    }
-    StartRead(&ack_);
-  }
-
-  void OnDone(const grpc::Status& status) override {
-    std::lock_guard lock(stats_->mu);
-    if (!status.ok()) stats_->Error("StreamSamples", status);
-    stats_->ack_us.insert(stats_->ack_us.end(), ack_us_.begin(), ack_us_.end());
-    stats_->acked_batches += acked_batches_;
-    stats_->acked_samples += acked_samples_;
-    stats_->sent_batches += next_seq_ - 1;
-    stats_->late_sends += late_;
-    stats_->max_behind = std::max(stats_->max_behind, max_behind_);
-    --stats_->robots_running;
-    stats_->cv.notify_all();
-  }
-
- private:
-  void MaybeWriteLocked() {
-    if (writing_ || writes_done_) return;
-    if (due_ == 0) {
-      if (stopping_) {
-        writes_done_ = true;
-        StartWritesDone();
-      }
-      return;
-    }
-    --due_;
-    if (next_seq_ == 1)
-      batch_.set_session_id(session_id_);
-    else
-      batch_.clear_session_id();
-    FillBatch(*col_, per_, next_seq_, offset_, &batch_);
-    sent_at_.push_back(Clock::now());
-    ++next_seq_;
-    writing_ = true;
-    StartWrite(&batch_);
-  }
-
-  Stats* stats_;
-  const Columns* col_;
-  int per_;
-  v1::SessionService::Stub* stub_;
-  std::string session_id_;
-  int64_t offset_;
-  grpc::ClientContext context_;
-  v1::SampleAck ack_;  // the read path only
-
-  std::mutex mu_;
-  v1::SampleBatch batch_;  // guarded by mu_; untouched while a write is in flight
-  bool writing_ = false, writes_done_ = false, stopping_ = false;
-  int64_t due_ = 0, late_ = 0, max_behind_ = 0;
-  int64_t next_seq_ = 1, first_unacked_ = 1;
-  std::deque<Clock::time_point> sent_at_;  // batches first_unacked_, first_unacked_ + 1, ...
-  int64_t acked_batches_ = 0, acked_samples_ = 0;
-  std::vector<double> ack_us_;
-};
-
-// A technician following a session: WatchSession until cancelled at the end.
-class Watcher final : public grpc::ClientReadReactor<v1::SessionEvent> {
- public:
-  Watcher(Stats* stats, v1::SessionService::Stub* stub, const std::string& session_id)
-      : stats_(stats) {
-    request_.set_session_id(session_id);
-    stub->async()->WatchSession(&context_, &request_, this);
-  }
-  void Start() {
-    StartRead(&event_);
-    StartCall();
-  }
-  void Stop() {
-    stopped_ = true;
-    context_.TryCancel();
-  }
-
-  void OnReadDone(bool ok) override {
-    if (!ok) return;
-    const absl::Time sent =
-        absl::FromUnixSeconds(event_.time().seconds()) + absl::Nanoseconds(event_.time().nanos());
-    delays_us_.push_back(absl::ToDoubleMicroseconds(absl::Now() - sent));
-    StartRead(&event_);
-  }
-
-  void OnDone(const grpc::Status& status) override {
-    std::lock_guard lock(stats_->mu);
-    if (!status.ok() && !(stopped_ && status.error_code() == grpc::StatusCode::CANCELLED))
-      stats_->Error("WatchSession", status);
-    stats_->events += static_cast<int64_t>(delays_us_.size());
-    stats_->event_us.insert(stats_->event_us.end(), delays_us_.begin(), delays_us_.end());
-    --stats_->watchers_running;
-    stats_->cv.notify_all();
-  }
-
- private:
-  Stats* stats_;
-  grpc::ClientContext context_;
-  v1::WatchSessionRequest request_;
-  v1::SessionEvent event_;
-  std::atomic<bool> stopped_{false};
-  std::vector<double> delays_us_;  // the reactor's reads are serialised
-};
-
-// One robot's startup fetch: GetActiveParameters, deletes itself when done.
-class Fetch {
- public:
-  static void Send(Stats* stats, v1::ParameterService::Stub* stub, const std::string& device) {
-    auto* f = new Fetch(stats);
-    f->request_.set_device_id(device);
-    f->context_.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
-    f->start_ = Clock::now();
-    stub->async()->GetActiveParameters(&f->context_, &f->request_, &f->response_,
-                                       [f](grpc::Status s) { f->Done(s); });
-  }
-
- private:
-  explicit Fetch(Stats* stats) : stats_(stats) {}
-  void Done(const grpc::Status& status) {
-    const double us = 1e6 * Seconds(Clock::now() - start_);
-    {
-      std::lock_guard lock(stats_->mu);
-      if (status.ok()) {
-        stats_->fetch_us.push_back(us);
-        stats_->fetch_bytes += static_cast<int64_t>(response_.json().size());
-      } else {
-        stats_->Error("GetActiveParameters", status);
-      }
-      ++stats_->fetches_done;
-      --stats_->fetches_in_flight;
-      stats_->cv.notify_all();
-    }
-    delete this;
-  }
-
-  Stats* stats_;
-  grpc::ClientContext context_;
-  v1::GetActiveParametersRequest request_;
-  v1::ParameterSet response_;
-  Clock::time_point start_;
-};
-
 // ---- Setup: robots' devices and sessions, the fleet's devices with an active version each.
 std::vector<std::string> Populate(const Flags& flags, const std::string& path) {
   imucal::storage::StoreOptions options;
@@ -397,15 +164,6 @@ std::vector<std::string> Populate(const Flags& flags, const std::string& path) {
     std::fprintf(stderr, "open: %s\n", std::string(store.status().message()).c_str());
     std::exit(1);
   }
-  auto device = [](const std::string& id) {
-    imucal::storage::Device d;
-    d.id = id;
-    d.sensor_model = "MPU-6050";
-    d.nominal_rate_hz = 200;
-    d.accel_unit = "m/s^2";
-    d.gyro_unit = "rad/s";
-    return d;
-  };
   auto check = [](const absl::Status& s, const char* what) {
     if (s.ok()) return;
     std::fprintf(stderr, "%s: %s\n", what, std::string(s.message()).c_str());
@@ -413,7 +171,7 @@ std::vector<std::string> Populate(const Flags& flags, const std::string& path) {
   };
   std::vector<std::string> sessions;
   for (int i = 0; i < flags.robots; ++i) {
-    check((*store)->CreateDevice(device(RobotId(i)), "bench").status(), "CreateDevice");
+    check((*store)->CreateDevice(BenchDevice(RobotId(i)), "bench").status(), "CreateDevice");
     imucal::storage::Session s;
     s.device_id = RobotId(i);
     s.protocol = "six-face";
@@ -432,7 +190,7 @@ std::vector<std::string> Populate(const Flags& flags, const std::string& path) {
   p.stderrs.gyro_bias = Eigen::Vector3d::Constant(1e-5);
   p.software = "imucal (load bench)";
   for (int i = 0; i < flags.devices; ++i) {
-    check((*store)->CreateDevice(device(FleetId(i)), "bench").status(), "CreateDevice");
+    check((*store)->CreateDevice(BenchDevice(FleetId(i)), "bench").status(), "CreateDevice");
     p.device = FleetId(i);
     p.version = 1;
     imucal::storage::ParamVersion v;
@@ -477,6 +235,267 @@ void PrintLatency(const char* what, std::vector<double>& us) {
               p99 / 1e3, mx / 1e3);
 }
 
+// imucald's flags besides --listen and --db. --tls: a certificate for 127.0.0.1 and the flags
+// to serve it (replacing --insecure); every simulated robot and watcher shares the one admin
+// token, so the per-token stream cap is raised to hold them all (a fleet gives each robot its
+// own token). nullopt when the openssl CLI could not make the certificate.
+std::optional<std::vector<std::string>> ServerArgs(const Flags& flags, const std::string& dir) {
+  std::vector<std::string> args = flags.server_args;
+  if (!flags.tls) return args;
+  const std::vector<std::string> tls = TlsServerArgs(dir, dir + "/admin-token");
+  if (tls.empty()) {
+    std::fprintf(stderr, "--tls: the openssl CLI could not make a certificate\n");
+    return std::nullopt;
+  }
+  std::erase(args, std::string("--insecure"));
+  args.insert(args.end(), tls.begin(), tls.end());
+  args.push_back(absl::StrCat("--max-streams-per-token=", flags.robots + flags.watchers));
+  return args;
+}
+
+// The credentials of every call: plaintext, or with --tls the certificate's and imucald's first
+// admin token. nullptr when imucald did not come up with the token.
+std::shared_ptr<grpc::ChannelCredentials> CallCredentials(const Flags& flags,
+                                                          const std::string& dir,
+                                                          const std::string& listen) {
+  if (!flags.tls) return grpc::InsecureChannelCredentials();
+  const std::string token_file = dir + "/admin-token";
+  const grpc::SslCredentialsOptions ssl = TrustBenchCertificate(dir);
+  const std::optional<std::string> token = AwaitAdminToken(listen, ssl, token_file);
+  if (!token || token->empty()) {
+    std::fprintf(stderr, "--tls: imucald did not come up with an admin token in %s\n",
+                 token_file.c_str());
+    return nullptr;
+  }
+  return grpc::CompositeChannelCredentials(grpc::SslCredentials(ssl),
+                                           grpc::AccessTokenCredentials(*token));
+}
+
+// `flags.channels` connections to imucald at `listen`, each connected; empty when it did not
+// listen within 60 s.
+std::vector<std::shared_ptr<grpc::Channel>> ConnectChannels(
+    const Flags& flags, const std::string& listen,
+    const std::shared_ptr<grpc::ChannelCredentials>& credentials) {
+  std::vector<std::shared_ptr<grpc::Channel>> channels;
+  for (int i = 0; i < flags.channels; ++i) channels.push_back(BenchChannel(listen, credentials, i));
+  for (auto& ch : channels) {
+    if (!ch->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60))) {
+      std::fprintf(stderr, "imucald did not listen on %s\n", listen.c_str());
+      return {};
+    }
+  }
+  return channels;
+}
+
+void KillImucald(pid_t server) {
+  kill(server, SIGKILL);
+  waitpid(server, nullptr, 0);
+}
+
+// The clients: one robot per session, watchers on the first robots' sessions, and the fleet's
+// fetches; spread over the channels.
+struct Clients {
+  std::vector<std::unique_ptr<v1::SessionService::Stub>> session_stubs;
+  std::vector<std::unique_ptr<v1::ParameterService::Stub>> param_stubs;
+  std::vector<std::unique_ptr<Robot>> robots;
+  std::vector<std::unique_ptr<Watcher>> watchers;
+};
+
+Clients MakeClients(const Flags& flags, int per, const Columns& col,
+                    const std::vector<std::string>& sessions,
+                    const std::vector<std::shared_ptr<grpc::Channel>>& channels, Stats* stats) {
+  Clients c;
+  for (auto& ch : channels) {
+    c.session_stubs.push_back(v1::SessionService::NewStub(ch));
+    c.param_stubs.push_back(v1::ParameterService::NewStub(ch));
+  }
+  std::mt19937_64 rng(1);
+  for (int i = 0; i < flags.robots; ++i) {
+    c.robots.push_back(std::make_unique<Robot>(
+        stats, &col, per, c.session_stubs[static_cast<size_t>(i) % channels.size()].get(),
+        sessions[static_cast<size_t>(i)], static_cast<int64_t>(rng() % col.n)));
+  }
+  for (int i = 0; i < flags.watchers; ++i) {
+    c.watchers.push_back(std::make_unique<Watcher>(
+        stats, c.session_stubs[static_cast<size_t>(i) % channels.size()].get(),
+        sessions[static_cast<size_t>(i)]));
+  }
+  stats->robots_running = flags.robots;
+  stats->watchers_running = flags.watchers;
+  return c;
+}
+
+constexpr int kMaxFetchesInFlight = 5000;
+
+// What the pacer saw of itself and of imucald.
+struct PacerFigures {
+  int64_t peak_rss_kb = 0;
+  int64_t fetches_skipped = 0;
+  double late_ms = 0;  // the most a tick started after its time
+};
+
+// The pacer: a 1 ms tick from t0 for --seconds. Robot i is due at t0 + (i mod batch_ms) ms +
+// k * batch_ms (phases spread over the period); fetches go out at fetch_rate, device after
+// device. Samples imucald's RSS every 250 ms.
+PacerFigures Pace(const Flags& flags, Clock::time_point t0, Clients& clients, Stats* stats,
+                  pid_t server) {
+  PacerFigures f;
+  int64_t fetch_index = 0;
+  const int64_t ticks = static_cast<int64_t>(flags.seconds * 1000);
+  for (int64_t tick = 0; tick < ticks; ++tick) {
+    const Clock::time_point at = t0 + std::chrono::milliseconds(tick);
+    std::this_thread::sleep_until(at);  // the schedule itself
+    f.late_ms = std::max(f.late_ms, 1e3 * Seconds(Clock::now() - at));
+    for (int i = static_cast<int>(tick % flags.batch_ms); i < flags.robots; i += flags.batch_ms)
+      clients.robots[static_cast<size_t>(i)]->Due();
+    const int64_t fetch_due = static_cast<int64_t>(flags.fetch_rate * (tick + 1) / 1000.0);
+    for (; flags.devices > 0 && fetch_index < fetch_due; ++fetch_index) {
+      {
+        std::lock_guard lock(stats->mu);
+        if (stats->fetches_in_flight >= kMaxFetchesInFlight) {
+          ++f.fetches_skipped;
+          continue;
+        }
+        ++stats->fetches_in_flight;
+        ++stats->fetches_sent;
+      }
+      Fetch::Send(
+          stats,
+          clients.param_stubs[static_cast<size_t>(fetch_index) % clients.param_stubs.size()].get(),
+          FleetId(static_cast<int>(fetch_index % flags.devices)));
+    }
+    if (tick % 250 == 0) f.peak_rss_kb = std::max(f.peak_rss_kb, ProcStatusKb(server, "VmRSS"));
+  }
+  return f;
+}
+
+// A run's figures besides Stats.
+struct RunFigures {
+  PacerFigures pacer;
+  std::string load_before;
+  double drain_s = 0, wall_s = 0, cli_cpu_s = 0, srv_cpu_s = 0;
+  std::map<std::string, ThreadTimes> threads0, threads1;
+  int64_t hwm_kb = 0;
+};
+
+// The load from start to the drain: robots and watchers started, paced for --seconds, robots
+// half-closed at the deadline and their last acks (and the fetches in flight) waited for, then
+// the watchers cancelled.
+RunFigures RunLoad(const Flags& flags, Clients& clients, Stats* stats, pid_t server) {
+  RunFigures r;
+  r.load_before = LoadAvg();
+  const double cli0 = SelfCpuS(), srv0 = ProcCpuS(server);
+  r.threads0 = ThreadCpuS(server);
+  const Clock::time_point t0 = Clock::now();
+  for (auto& w : clients.watchers) w->Start();
+  for (auto& robot : clients.robots) robot->Start();
+  r.pacer = Pace(flags, t0, clients, stats, server);
+  const Clock::time_point t_end = Clock::now();
+  for (auto& robot : clients.robots) robot->Stop();
+  {
+    std::unique_lock lock(stats->mu);
+    stats->cv.wait(lock,
+                   [&] { return stats->robots_running == 0 && stats->fetches_in_flight == 0; });
+  }
+  r.drain_s = Seconds(Clock::now() - t_end);
+  for (auto& w : clients.watchers) w->Stop();
+  {
+    std::unique_lock lock(stats->mu);
+    stats->cv.wait(lock, [&] { return stats->watchers_running == 0; });
+  }
+  r.wall_s = Seconds(Clock::now() - t0);
+  r.cli_cpu_s = SelfCpuS() - cli0;
+  r.srv_cpu_s = ProcCpuS(server) - srv0;
+  r.threads1 = ThreadCpuS(server);
+  r.hwm_kb = ProcStatusKb(server, "VmHWM");
+  r.pacer.peak_rss_kb = std::max(r.pacer.peak_rss_kb, ProcStatusKb(server, "VmRSS"));
+  return r;
+}
+
+// The traffic's lines: ingest, fetches, watches, errors.
+void PrintTraffic(const Flags& flags, Stats& stats, const RunFigures& r, int64_t offered_batches) {
+  const double run_s = flags.seconds;
+  std::printf("\nrun %.1f s + drain %.2f s (wall %.1f s); load before %s, after %s\n", run_s,
+              r.drain_s, r.wall_s, r.load_before.c_str(), LoadAvg().c_str());
+  std::printf(
+      "ingest: %lld batches sent of %lld scheduled, %lld acknowledged (%lld samples): "
+      "%.0f batches/s, %.0f samples/s\n",
+      static_cast<long long>(stats.sent_batches), static_cast<long long>(offered_batches),
+      static_cast<long long>(stats.acked_batches), static_cast<long long>(stats.acked_samples),
+      stats.acked_batches / run_s, stats.acked_samples / run_s);
+  std::printf(
+      "  late sends (previous batch still being written) %lld, most batches a robot "
+      "was behind %lld; pacer late by up to %.1f ms\n",
+      static_cast<long long>(stats.late_sends), static_cast<long long>(stats.max_behind),
+      r.pacer.late_ms);
+  PrintLatency("ack (send -> ack)", stats.ack_us);
+  std::printf("fetch: %lld sent (%lld skipped: %d in flight), %lld done, %.0f/s, %.1f KB avg\n",
+              static_cast<long long>(stats.fetches_sent),
+              static_cast<long long>(r.pacer.fetches_skipped), kMaxFetchesInFlight,
+              static_cast<long long>(stats.fetches_done), stats.fetches_done / run_s,
+              stats.fetch_us.empty()
+                  ? 0.0
+                  : stats.fetch_bytes / 1e3 / static_cast<double>(stats.fetch_us.size()));
+  PrintLatency("GetActiveParameters", stats.fetch_us);
+  std::printf("watch: %lld events to %d watchers\n", static_cast<long long>(stats.events),
+              flags.watchers);
+  PrintLatency("event delay (server time -> client)", stats.event_us);
+  std::printf("errors:");
+  if (stats.errors.empty()) std::printf(" none");
+  for (const auto& [what, n] : stats.errors)
+    std::printf(" %s=%lld", what.c_str(), static_cast<long long>(n));
+  std::printf("\n");
+  if (!stats.first_error.empty()) std::printf("  first: %s\n", stats.first_error.c_str());
+}
+
+// The busiest six of imucald's threads over the run.
+void PrintBusiestThreads(const RunFigures& r) {
+  struct Row {
+    double cpu_s, wait_s;
+    std::string name;
+  };
+  std::vector<Row> by_cpu;
+  for (const auto& [name, t] : r.threads1) {
+    const auto it = r.threads0.find(name);
+    const ThreadTimes t0_times = it == r.threads0.end() ? ThreadTimes() : it->second;
+    by_cpu.push_back({t.cpu_s - t0_times.cpu_s, t.wait_s - t0_times.wait_s, name});
+  }
+  std::sort(by_cpu.begin(), by_cpu.end(),
+            [](const Row& a, const Row& b) { return a.cpu_s > b.cpu_s; });
+  std::printf(
+      "  busiest server threads (name/tid: %% of the run on a CPU, %% runnable but "
+      "waiting for a CPU):\n   ");
+  for (size_t i = 0; i < by_cpu.size() && i < 6; ++i)
+    std::printf(" %s %.0f%% (+%.0f%% waiting)", by_cpu[i].name.c_str(),
+                100 * by_cpu[i].cpu_s / r.wall_s, 100 * by_cpu[i].wait_s / r.wall_s);
+  std::printf("\n");
+}
+
+// Prints the results and whether imucald kept up (see the header comment).
+bool Report(const Flags& flags, Stats& stats, const RunFigures& r, pid_t server,
+            int64_t rss_idle_kb, int exit_status) {
+  const int64_t offered_batches = static_cast<int64_t>(flags.robots) *
+                                  static_cast<int64_t>(flags.seconds * 1000 / flags.batch_ms);
+  PrintTraffic(flags, stats, r, offered_batches);
+  std::printf(
+      "imucald pid %d: cpu %.0f%% of one core (client %.0f%%), memory VmHWM %.1f MB "
+      "(RSS idle %.1f MB, peak sampled %.1f MB); exit status %d\n",
+      static_cast<int>(server), 100 * r.srv_cpu_s / r.wall_s, 100 * r.cli_cpu_s / r.wall_s,
+      r.hwm_kb / 1e3, rss_idle_kb / 1e3, r.pacer.peak_rss_kb / 1e3,
+      WIFEXITED(exit_status) ? WEXITSTATUS(exit_status) : -1);
+  PrintBusiestThreads(r);
+  std::vector<double> acks = stats.ack_us;
+  const double ack_p99_ms = Percentile(acks, 0.99) / 1e3;
+  const bool kept_up = stats.errors.empty() && stats.acked_batches == stats.sent_batches &&
+                       stats.sent_batches >= offered_batches - flags.robots &&
+                       ack_p99_ms < flags.batch_ms && stats.max_behind <= 1;
+  std::printf(
+      "kept up: %s (every batch acknowledged, no errors, ack p99 %.1f ms < %d ms, no "
+      "robot behind by more than one batch)\n",
+      kept_up ? "yes" : "NO", ack_p99_ms, flags.batch_ms);
+  return kept_up;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -498,223 +517,30 @@ int main(int argc, char** argv) {
   const Columns col = RobotColumns(flags.rate_hz);
   std::printf("setup: %zu sessions, %d devices with an active version in %.1f s; load %s\n",
               sessions.size(), flags.devices, Seconds(Clock::now() - setup0), LoadAvg().c_str());
-
-  // --tls: a certificate for 127.0.0.1 and imucald's flags to serve it (replacing --insecure).
-  // Every simulated robot and watcher shares the one admin token: the per-token stream cap is
-  // raised to hold them all (a fleet gives each robot its own token).
-  Flags run_flags = flags;
-  const std::string cert = dir + "/server.crt";
-  const std::string token_file = dir + "/admin-token";
-  if (flags.tls) {
-    const std::vector<std::string> tls = TlsServerArgs(dir, token_file);
-    if (tls.empty()) {
-      std::fprintf(stderr, "--tls: the openssl CLI could not make a certificate\n");
-      return 1;
-    }
-    std::erase(run_flags.server_args, std::string("--insecure"));
-    run_flags.server_args.insert(run_flags.server_args.end(), tls.begin(), tls.end());
-    run_flags.server_args.push_back(
-        absl::StrCat("--max-streams-per-token=", flags.robots + flags.watchers));
-  }
+  const std::optional<std::vector<std::string>> server_args = ServerArgs(flags, dir);
+  if (!server_args) return 1;
 
   // Fork before any gRPC object exists in this process.
   const std::string listen = absl::StrCat("127.0.0.1:", FreeLoopbackPort());
-  const pid_t server =
-      StartImucald(run_flags.imucald, db, listen, run_flags.server_args, flags.server_cpu);
+  const pid_t server = StartImucald(flags.imucald, db, listen, *server_args, flags.server_cpu);
   PinToCpu(flags.client_cpu);
-  // imucald writes its first admin token before it listens: once a TLS connection (without
-  // the token, which is a per-call credential) is up, the file is there.
-  std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
-  if (flags.tls) {
-    std::ifstream cert_in(cert);
-    grpc::SslCredentialsOptions ssl;
-    ssl.pem_root_certs.assign(std::istreambuf_iterator<char>(cert_in),
-                              std::istreambuf_iterator<char>());
-    auto probe = grpc::CreateChannel(listen, grpc::SslCredentials(ssl));
-    std::string token;
-    if (probe->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60))) {
-      std::ifstream in(token_file);
-      std::getline(in, token);
-    }
-    if (token.empty()) {
-      std::fprintf(stderr, "--tls: imucald did not come up with an admin token in %s\n",
-                   token_file.c_str());
-      kill(server, SIGKILL);
-      waitpid(server, nullptr, 0);
-      return 1;
-    }
-    credentials = grpc::CompositeChannelCredentials(grpc::SslCredentials(ssl),
-                                                    grpc::AccessTokenCredentials(token));
-  }
-  std::vector<std::shared_ptr<grpc::Channel>> channels;
-  for (int i = 0; i < flags.channels; ++i) {
-    grpc::ChannelArguments args;
-    args.SetInt("imucal.bench.channel", i);  // distinct args: a connection per channel
-    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-    channels.push_back(grpc::CreateCustomChannel(listen, credentials, args));
-  }
-  for (auto& ch : channels) {
-    if (!ch->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60))) {
-      std::fprintf(stderr, "imucald did not listen on %s\n", listen.c_str());
-      kill(server, SIGKILL);
-      waitpid(server, nullptr, 0);
-      return 1;
-    }
-  }
+  const std::shared_ptr<grpc::ChannelCredentials> credentials = CallCredentials(flags, dir, listen);
+  if (credentials == nullptr) return KillImucald(server), 1;
+  std::vector<std::shared_ptr<grpc::Channel>> channels =
+      ConnectChannels(flags, listen, credentials);
+  if (channels.empty()) return KillImucald(server), 1;
   const int64_t rss_idle_kb = ProcStatusKb(server, "VmRSS");
-  std::vector<std::unique_ptr<v1::SessionService::Stub>> session_stubs;
-  std::vector<std::unique_ptr<v1::ParameterService::Stub>> param_stubs;
-  for (auto& ch : channels) {
-    session_stubs.push_back(v1::SessionService::NewStub(ch));
-    param_stubs.push_back(v1::ParameterService::NewStub(ch));
-  }
 
   Stats stats;
-  std::vector<std::unique_ptr<Robot>> robots;
-  std::mt19937_64 rng(1);
-  for (int i = 0; i < flags.robots; ++i) {
-    robots.push_back(std::make_unique<Robot>(
-        &stats, &col, per, session_stubs[static_cast<size_t>(i) % channels.size()].get(),
-        sessions[static_cast<size_t>(i)], static_cast<int64_t>(rng() % col.n)));
-  }
-  std::vector<std::unique_ptr<Watcher>> watchers;
-  for (int i = 0; i < flags.watchers; ++i) {
-    watchers.push_back(std::make_unique<Watcher>(
-        &stats, session_stubs[static_cast<size_t>(i) % channels.size()].get(),
-        sessions[static_cast<size_t>(i)]));
-  }
-  stats.robots_running = flags.robots;
-  stats.watchers_running = flags.watchers;
-
-  const std::string load_before = LoadAvg();
-  const double cli0 = SelfCpuS(), srv0 = ProcCpuS(server);
-  const std::map<std::string, ThreadTimes> threads0 = ThreadCpuS(server);
-  const Clock::time_point t0 = Clock::now();
-  for (auto& w : watchers) w->Start();
-  for (auto& r : robots) r->Start();
-
-  // The pacer: a 1 ms tick. Robot i is due at t0 + (i mod batch_ms) ms + k * batch_ms (phases
-  // spread over the period); fetches go out at fetch_rate, device after device.
-  int64_t peak_rss_kb = 0;
-  int64_t fetch_index = 0, fetches_skipped = 0;
-  const int64_t ticks = static_cast<int64_t>(flags.seconds * 1000);
-  constexpr int kMaxFetchesInFlight = 5000;
-  double pacer_late_ms = 0;
-  for (int64_t tick = 0; tick < ticks; ++tick) {
-    const Clock::time_point at = t0 + std::chrono::milliseconds(tick);
-    std::this_thread::sleep_until(at);  // the schedule itself
-    pacer_late_ms = std::max(pacer_late_ms, 1e3 * Seconds(Clock::now() - at));
-    for (int i = static_cast<int>(tick % flags.batch_ms); i < flags.robots; i += flags.batch_ms)
-      robots[static_cast<size_t>(i)]->Due();
-    const int64_t fetch_due = static_cast<int64_t>(flags.fetch_rate * (tick + 1) / 1000.0);
-    for (; flags.devices > 0 && fetch_index < fetch_due; ++fetch_index) {
-      {
-        std::lock_guard lock(stats.mu);
-        if (stats.fetches_in_flight >= kMaxFetchesInFlight) {
-          ++fetches_skipped;
-          continue;
-        }
-        ++stats.fetches_in_flight;
-        ++stats.fetches_sent;
-      }
-      Fetch::Send(&stats, param_stubs[static_cast<size_t>(fetch_index) % param_stubs.size()].get(),
-                  FleetId(static_cast<int>(fetch_index % flags.devices)));
-    }
-    if (tick % 250 == 0) peak_rss_kb = std::max(peak_rss_kb, ProcStatusKb(server, "VmRSS"));
-  }
-  const Clock::time_point t_end = Clock::now();
-  for (auto& r : robots) r->Stop();
-  {
-    std::unique_lock lock(stats.mu);
-    stats.cv.wait(lock, [&] { return stats.robots_running == 0 && stats.fetches_in_flight == 0; });
-  }
-  const double drain_s = Seconds(Clock::now() - t_end);
-  for (auto& w : watchers) w->Stop();
-  {
-    std::unique_lock lock(stats.mu);
-    stats.cv.wait(lock, [&] { return stats.watchers_running == 0; });
-  }
-  const double wall = Seconds(Clock::now() - t0);
-  const double cli_cpu = SelfCpuS() - cli0, srv_cpu = ProcCpuS(server) - srv0;
-  const std::map<std::string, ThreadTimes> threads1 = ThreadCpuS(server);
-  const int64_t hwm_kb = ProcStatusKb(server, "VmHWM");
-  peak_rss_kb = std::max(peak_rss_kb, ProcStatusKb(server, "VmRSS"));
-  robots.clear();
-  watchers.clear();
-  session_stubs.clear();
-  param_stubs.clear();
+  Clients clients = MakeClients(flags, per, col, sessions, channels, &stats);
+  const RunFigures run = RunLoad(flags, clients, &stats, server);
+  clients = Clients();
   channels.clear();
   kill(server, SIGTERM);
   int status = 0;
   waitpid(server, &status, 0);
 
-  const double run_s = flags.seconds;
-  const int64_t offered_batches =
-      static_cast<int64_t>(flags.robots) * static_cast<int64_t>(run_s * 1000 / flags.batch_ms);
-  std::printf("\nrun %.1f s + drain %.2f s (wall %.1f s); load before %s, after %s\n", run_s,
-              drain_s, wall, load_before.c_str(), LoadAvg().c_str());
-  std::printf(
-      "ingest: %lld batches sent of %lld scheduled, %lld acknowledged (%lld samples): "
-      "%.0f batches/s, %.0f samples/s\n",
-      static_cast<long long>(stats.sent_batches), static_cast<long long>(offered_batches),
-      static_cast<long long>(stats.acked_batches), static_cast<long long>(stats.acked_samples),
-      stats.acked_batches / run_s, stats.acked_samples / run_s);
-  std::printf(
-      "  late sends (previous batch still being written) %lld, most batches a robot "
-      "was behind %lld; pacer late by up to %.1f ms\n",
-      static_cast<long long>(stats.late_sends), static_cast<long long>(stats.max_behind),
-      pacer_late_ms);
-  PrintLatency("ack (send -> ack)", stats.ack_us);
-  std::printf("fetch: %lld sent (%lld skipped: %d in flight), %lld done, %.0f/s, %.1f KB avg\n",
-              static_cast<long long>(stats.fetches_sent), static_cast<long long>(fetches_skipped),
-              kMaxFetchesInFlight, static_cast<long long>(stats.fetches_done),
-              stats.fetches_done / run_s,
-              stats.fetch_us.empty()
-                  ? 0.0
-                  : stats.fetch_bytes / 1e3 / static_cast<double>(stats.fetch_us.size()));
-  PrintLatency("GetActiveParameters", stats.fetch_us);
-  std::printf("watch: %lld events to %d watchers\n", static_cast<long long>(stats.events),
-              flags.watchers);
-  PrintLatency("event delay (server time -> client)", stats.event_us);
-  std::printf("errors:");
-  if (stats.errors.empty()) std::printf(" none");
-  for (const auto& [what, n] : stats.errors)
-    std::printf(" %s=%lld", what.c_str(), static_cast<long long>(n));
-  std::printf("\n");
-  if (!stats.first_error.empty()) std::printf("  first: %s\n", stats.first_error.c_str());
-  std::printf(
-      "imucald pid %d: cpu %.0f%% of one core (client %.0f%%), memory VmHWM %.1f MB "
-      "(RSS idle %.1f MB, peak sampled %.1f MB); exit status %d\n",
-      static_cast<int>(server), 100 * srv_cpu / wall, 100 * cli_cpu / wall, hwm_kb / 1e3,
-      rss_idle_kb / 1e3, peak_rss_kb / 1e3, WIFEXITED(status) ? WEXITSTATUS(status) : -1);
-  struct Row {
-    double cpu_s, wait_s;
-    std::string name;
-  };
-  std::vector<Row> by_cpu;
-  for (const auto& [name, t] : threads1) {
-    const auto it = threads0.find(name);
-    const ThreadTimes t0_times = it == threads0.end() ? ThreadTimes() : it->second;
-    by_cpu.push_back({t.cpu_s - t0_times.cpu_s, t.wait_s - t0_times.wait_s, name});
-  }
-  std::sort(by_cpu.begin(), by_cpu.end(),
-            [](const Row& a, const Row& b) { return a.cpu_s > b.cpu_s; });
-  std::printf(
-      "  busiest server threads (name/tid: %% of the run on a CPU, %% runnable but "
-      "waiting for a CPU):\n   ");
-  for (size_t i = 0; i < by_cpu.size() && i < 6; ++i)
-    std::printf(" %s %.0f%% (+%.0f%% waiting)", by_cpu[i].name.c_str(),
-                100 * by_cpu[i].cpu_s / wall, 100 * by_cpu[i].wait_s / wall);
-  std::printf("\n");
-  std::vector<double> acks = stats.ack_us;
-  const double ack_p99_ms = Percentile(acks, 0.99) / 1e3;
-  const bool kept_up = stats.errors.empty() && stats.acked_batches == stats.sent_batches &&
-                       stats.sent_batches >= offered_batches - flags.robots &&
-                       ack_p99_ms < flags.batch_ms && stats.max_behind <= 1;
-  std::printf(
-      "kept up: %s (every batch acknowledged, no errors, ack p99 %.1f ms < %d ms, no "
-      "robot behind by more than one batch)\n",
-      kept_up ? "yes" : "NO", ack_p99_ms, flags.batch_ms);
+  const bool kept_up = Report(flags, stats, run, server, rss_idle_kb, status);
   std::error_code ec;
   if (flags.keep) {
     std::printf("kept %s\n", dir.c_str());

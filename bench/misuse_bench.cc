@@ -39,6 +39,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -107,15 +108,6 @@ void Die(const std::string& what, pid_t server) {
   std::exit(1);
 }
 
-std::shared_ptr<grpc::Channel> Channel(const std::string& target,
-                                       const std::shared_ptr<grpc::ChannelCredentials>& creds,
-                                       int index) {
-  grpc::ChannelArguments args;
-  args.SetInt("imucal.bench.channel", index);  // distinct args: a connection per channel
-  args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-  return grpc::CreateCustomChannel(target, creds, args);
-}
-
 // ---- silent streams ----------------------------------------------------------------------
 
 // A sample stream that never sends: it only waits to hear how it ends.
@@ -152,27 +144,30 @@ class SilentStream final : public grpc::ClientBidiReactor<v1::SampleBatch, v1::S
   v1::SampleAck ack_;
 };
 
-int SilentStreams(const Flags& flags, const std::string& dir) {
+// imucald with TLS on a fresh database in `dir`, and the fleet's side of it: `flags.tokens`
+// robot tokens (made with its admin token), which go with each call, and `flags.channels`
+// connections the robots share.
+struct TlsFleet {
+  pid_t server = -1;
+  std::vector<std::shared_ptr<grpc::CallCredentials>> tokens;
+  std::vector<std::shared_ptr<grpc::Channel>> channels;
+  std::vector<std::unique_ptr<v1::SessionService::Stub>> stubs;
+};
+
+TlsFleet StartTlsFleet(const Flags& flags, const std::string& dir) {
   const std::string db = dir + "/silent.db", token_file = dir + "/admin-token";
   const std::vector<std::string> tls = TlsServerArgs(dir, token_file);
   if (tls.empty()) Die("the openssl CLI could not make a certificate", -1);
   const int port = FreeLoopbackPort();
   const std::string listen = absl::StrCat("127.0.0.1:", port);
-  const pid_t server = StartImucald(flags.imucald, db, listen, tls, -1, dir + "/imucald.log");
-  std::ifstream cert_in(dir + "/server.crt");
-  grpc::SslCredentialsOptions ssl;
-  ssl.pem_root_certs.assign(std::istreambuf_iterator<char>(cert_in),
-                            std::istreambuf_iterator<char>());
-  auto probe = grpc::CreateChannel(listen, grpc::SslCredentials(ssl));
-  if (!probe->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60)))
-    Die("imucald did not come up", server);
-  std::string admin;
-  std::getline(std::ifstream(token_file), admin);
+  TlsFleet fleet;
+  fleet.server = StartImucald(flags.imucald, db, listen, tls, -1, dir + "/imucald.log");
+  const grpc::SslCredentialsOptions ssl = TrustBenchCertificate(dir);
+  const std::optional<std::string> admin = AwaitAdminToken(listen, ssl, token_file);
+  if (!admin) Die("imucald did not come up", fleet.server);
   auto admin_stub = v1::AdminService::NewStub(grpc::CreateChannel(
       listen, grpc::CompositeChannelCredentials(grpc::SslCredentials(ssl),
-                                                grpc::AccessTokenCredentials(admin))));
-  // The robots' tokens go with each call: the connections are the fleet's, shared.
-  std::vector<std::shared_ptr<grpc::CallCredentials>> tokens;
+                                                grpc::AccessTokenCredentials(*admin))));
   for (int t = 0; t < flags.tokens; ++t) {
     v1::CreateTokenRequest create;
     create.set_role(v1::ROLE_ROBOT);
@@ -181,48 +176,76 @@ int SilentStreams(const Flags& flags, const std::string& dir) {
     v1::CreateTokenResponse robot;
     grpc::ClientContext ctx;
     if (grpc::Status s = admin_stub->CreateToken(&ctx, create, &robot); !s.ok())
-      Die("CreateToken: " + s.error_message(), server);
-    tokens.push_back(grpc::AccessTokenCredentials(robot.secret()));
+      Die("CreateToken: " + s.error_message(), fleet.server);
+    fleet.tokens.push_back(grpc::AccessTokenCredentials(robot.secret()));
   }
   auto robot_creds = grpc::SslCredentials(ssl);
-  std::vector<std::shared_ptr<grpc::Channel>> channels;
-  std::vector<std::unique_ptr<v1::SessionService::Stub>> stubs;
   for (int i = 0; i < flags.channels; ++i) {
-    channels.push_back(Channel(listen, robot_creds, i));
-    if (!channels.back()->WaitForConnected(std::chrono::system_clock::now() +
-                                           std::chrono::seconds(30)))
-      Die("a robot channel did not connect", server);
-    stubs.push_back(v1::SessionService::NewStub(channels.back()));
+    fleet.channels.push_back(BenchChannel(listen, robot_creds, i));
+    if (!fleet.channels.back()->WaitForConnected(std::chrono::system_clock::now() +
+                                                 std::chrono::seconds(30)))
+      Die("a robot channel did not connect", fleet.server);
+    fleet.stubs.push_back(v1::SessionService::NewStub(fleet.channels.back()));
   }
-  const int64_t rss_idle = ProcStatusKb(server, "VmRSS");
+  return fleet;
+}
+
+// What SilentStreams measured; memory in kB.
+struct SilentFigures {
+  double open_s = 0;
+  int64_t rss_idle = 0, peak = 0, rss_after_wait = 0, rss_after_hangup = 0, rss_settled = 0;
+  int64_t hwm = 0;
+  int refused_early = -1;
+  std::map<grpc::StatusCode, int> by_server;  // the streams the server ended, by code
+  int ended_by_server = 0;
+};
+
+void PrintSilentStreams(const Flags& flags, const SilentFigures& f) {
+  std::printf("silent streams: %d opened in %.1f s by %d robot token(s) over %d connections (%s)\n",
+              flags.streams, f.open_s, flags.tokens, flags.channels, flags.imucald.c_str());
+  std::printf("  imucald RSS idle %.1f MB, peak with the streams %.1f MB (VmHWM %.1f MB)\n",
+              Mb(f.rss_idle), Mb(f.peak), Mb(f.hwm));
+  std::printf("  refused at once (RESOURCE_EXHAUSTED): %d\n", std::max(f.refused_early, 0));
+  std::printf("  ended by the server within %.0f s:", flags.wait_s);
+  if (f.by_server.empty()) std::printf(" none");
+  for (const auto& [code, n] : f.by_server)
+    std::printf(" %s=%d", std::string(imucal::server::CodeName(code)).c_str(), n);
+  std::printf(" (%d of %d)\n", f.ended_by_server, flags.streams);
+  std::printf("  imucald RSS after %.0f s %.1f MB; after the client hung up on the rest %.1f MB\n",
+              flags.wait_s, Mb(f.rss_after_wait), Mb(f.rss_after_hangup));
+  std::printf("  imucald RSS after the flood, no stream open: %.1f MB (%.0f s after the hang-up)\n",
+              Mb(f.rss_settled), flags.settle_s);
+}
+
+int SilentStreams(const Flags& flags, const std::string& dir) {
+  TlsFleet fleet = StartTlsFleet(flags, dir);
+  const pid_t server = fleet.server;
+  SilentFigures f;
+  f.rss_idle = ProcStatusKb(server, "VmRSS");
 
   SilentStream::Tally tally;
   std::vector<std::unique_ptr<SilentStream>> streams;
   const Clock::time_point t0 = Clock::now();
   for (int i = 0; i < flags.streams; ++i)
-    streams.push_back(
-        std::make_unique<SilentStream>(stubs[static_cast<size_t>(i) % stubs.size()].get(),
-                                       tokens[static_cast<size_t>(i) % tokens.size()], &tally));
-  const double open_s = Seconds(Clock::now() - t0);
-  int64_t peak = 0;
-  int refused_early = -1;
+    streams.push_back(std::make_unique<SilentStream>(
+        fleet.stubs[static_cast<size_t>(i) % fleet.stubs.size()].get(),
+        fleet.tokens[static_cast<size_t>(i) % fleet.tokens.size()], &tally));
+  f.open_s = Seconds(Clock::now() - t0);
   while (Seconds(Clock::now() - t0) < flags.wait_s) {
     std::this_thread::sleep_for(std::chrono::milliseconds(250));  // the sampling period
-    peak = std::max(peak, ProcStatusKb(server, "VmRSS"));
-    if (refused_early < 0 && Seconds(Clock::now() - t0) > open_s + 5) {
+    f.peak = std::max(f.peak, ProcStatusKb(server, "VmRSS"));
+    if (f.refused_early < 0 && Seconds(Clock::now() - t0) > f.open_s + 5) {
       std::lock_guard lock(tally.mu);
       const auto it = tally.ended.find(grpc::StatusCode::RESOURCE_EXHAUSTED);
-      refused_early = it == tally.ended.end() ? 0 : it->second;
+      f.refused_early = it == tally.ended.end() ? 0 : it->second;
     }
   }
-  const int64_t rss_after_wait = ProcStatusKb(server, "VmRSS");
-  std::map<grpc::StatusCode, int> by_server;
+  f.rss_after_wait = ProcStatusKb(server, "VmRSS");
   {
     std::lock_guard lock(tally.mu);
-    by_server = tally.ended;
+    f.by_server = tally.ended;
   }
-  int ended_by_server = 0;
-  for (const auto& [code, n] : by_server) ended_by_server += n;
+  for (const auto& [code, n] : f.by_server) f.ended_by_server += n;
   for (auto& s : streams) s->HangUp();
   {
     std::unique_lock lock(tally.mu);
@@ -230,31 +253,17 @@ int SilentStreams(const Flags& flags, const std::string& dir) {
   }
   const Clock::time_point hung_up = Clock::now();
   std::this_thread::sleep_for(std::chrono::seconds(2));  // lets imucald free what it held
-  const int64_t rss_after_hangup = ProcStatusKb(server, "VmRSS");
+  f.rss_after_hangup = ProcStatusKb(server, "VmRSS");
   std::this_thread::sleep_for(std::chrono::duration<double>(
       std::max(0.0, flags.settle_s - Seconds(Clock::now() - hung_up))));
-  const int64_t rss_settled = ProcStatusKb(server, "VmRSS");
-  const int64_t hwm = ProcStatusKb(server, "VmHWM");
+  f.rss_settled = ProcStatusKb(server, "VmRSS");
+  f.hwm = ProcStatusKb(server, "VmHWM");
   streams.clear();
-  stubs.clear();
-  channels.clear();
+  fleet.stubs.clear();
+  fleet.channels.clear();
   kill(server, SIGTERM);
   waitpid(server, nullptr, 0);
-
-  std::printf("silent streams: %d opened in %.1f s by %d robot token(s) over %d connections (%s)\n",
-              flags.streams, open_s, flags.tokens, flags.channels, flags.imucald.c_str());
-  std::printf("  imucald RSS idle %.1f MB, peak with the streams %.1f MB (VmHWM %.1f MB)\n",
-              Mb(rss_idle), Mb(peak), Mb(hwm));
-  std::printf("  refused at once (RESOURCE_EXHAUSTED): %d\n", std::max(refused_early, 0));
-  std::printf("  ended by the server within %.0f s:", flags.wait_s);
-  if (by_server.empty()) std::printf(" none");
-  for (const auto& [code, n] : by_server)
-    std::printf(" %s=%d", std::string(imucal::server::CodeName(code)).c_str(), n);
-  std::printf(" (%d of %d)\n", ended_by_server, flags.streams);
-  std::printf("  imucald RSS after %.0f s %.1f MB; after the client hung up on the rest %.1f MB\n",
-              flags.wait_s, Mb(rss_after_wait), Mb(rss_after_hangup));
-  std::printf("  imucald RSS after the flood, no stream open: %.1f MB (%.0f s after the hang-up)\n",
-              Mb(rss_settled), flags.settle_s);
+  PrintSilentStreams(flags, f);
   return 0;
 }
 

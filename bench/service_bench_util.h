@@ -1,7 +1,8 @@
 // What the service benchmarks share: a real imucald server in a forked child (ingest_bench,
 // fetch_bench; several of them on one database with --replicas) or the imucald binary in a
 // process of its own (load_bench, misuse_bench, outage_bench), so client and server CPU and
-// memory are measured apart; CPU and load accounting (a local PostgreSQL's too), percentiles.
+// memory are measured apart; CPU and load accounting (a local PostgreSQL's too), percentiles;
+// connections of their own, the TLS set-up's certificate and admin token, the bench device.
 #ifndef IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
 #define IMUCAL_BENCH_SERVICE_BENCH_UTIL_H_
 
@@ -22,6 +23,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <memory>
 #include <optional>
 #include <sstream>
@@ -35,6 +37,7 @@
 #include "server/server.h"
 #include "storage/db.h"
 #include "storage/pg_db.h"
+#include "storage/types.h"
 
 namespace imucal::bench {
 
@@ -229,6 +232,17 @@ inline double Sum(const std::vector<double>& v) {
   return sum;
 }
 
+// A channel to `target` on a connection of its own: distinct channel args (its `index`) and a
+// local subchannel pool keep gRPC from sharing one connection between channels.
+inline std::shared_ptr<grpc::Channel> BenchChannel(
+    const std::string& target, const std::shared_ptr<grpc::ChannelCredentials>& credentials,
+    int index) {
+  grpc::ChannelArguments args;
+  args.SetInt("imucal.bench.channel", index);
+  args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+  return grpc::CreateCustomChannel(target, credentials, args);
+}
+
 // `per_server` HTTP/2 connections (at least 1) to each of `servers` on loopback, round robin:
 // connection k goes to server k % servers.size(), so a client that spreads its calls or streams
 // over the connections in turn spreads them evenly over the servers.
@@ -237,12 +251,9 @@ inline std::vector<std::shared_ptr<grpc::Channel>> RoundRobinChannels(
   std::vector<std::shared_ptr<grpc::Channel>> channels;
   const int total = std::max(1, per_server) * static_cast<int>(servers.size());
   for (int k = 0; k < total; ++k) {
-    grpc::ChannelArguments args;
-    args.SetInt("imucal.bench.channel", k);  // distinct args: a connection per channel
-    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-    channels.push_back(grpc::CreateCustomChannel(
+    channels.push_back(BenchChannel(
         absl::StrCat("127.0.0.1:", servers[static_cast<size_t>(k) % servers.size()].port),
-        grpc::InsecureChannelCredentials(), args));
+        grpc::InsecureChannelCredentials(), k));
   }
   return channels;
 }
@@ -373,6 +384,41 @@ inline std::vector<std::string> TlsServerArgs(const std::string& dir,
       key + "' -out '" + cert + "' 2>/dev/null";
   if (std::system(openssl.c_str()) != 0) return {};
   return {"--tls-cert", cert, "--tls-key", key, "--admin-token-file", token_file};
+}
+
+// The SSL options that trust the certificate TlsServerArgs(dir, ...) made (dir/server.crt).
+inline grpc::SslCredentialsOptions TrustBenchCertificate(const std::string& dir) {
+  std::ifstream cert_in(dir + "/server.crt");
+  grpc::SslCredentialsOptions ssl;
+  ssl.pem_root_certs.assign(std::istreambuf_iterator<char>(cert_in),
+                            std::istreambuf_iterator<char>());
+  return ssl;
+}
+
+// imucald started with TlsServerArgs writes its first admin token before it listens: waits up
+// to 60 s for a TLS connection to `listen` (without the token, which is a per-call credential)
+// and then reads the token's file (its first line, empty if it has none). nullopt when imucald
+// did not come up.
+inline std::optional<std::string> AwaitAdminToken(const std::string& listen,
+                                                  const grpc::SslCredentialsOptions& ssl,
+                                                  const std::string& token_file) {
+  auto probe = grpc::CreateChannel(listen, grpc::SslCredentials(ssl));
+  if (!probe->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60)))
+    return std::nullopt;
+  std::string token;
+  std::getline(std::ifstream(token_file), token);
+  return token;
+}
+
+// A storage device as the benches register them: an MPU-6050 at 200 Hz, in m/s^2 and rad/s.
+inline storage::Device BenchDevice(const std::string& id) {
+  storage::Device d;
+  d.id = id;
+  d.sensor_model = "MPU-6050";
+  d.nominal_rate_hz = 200;
+  d.accel_unit = "m/s^2";
+  d.gyro_unit = "rad/s";
+  return d;
 }
 
 }  // namespace imucal::bench

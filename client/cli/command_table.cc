@@ -2,6 +2,7 @@
 
 #include <cstdio>
 #include <cstdlib>
+#include <iterator>
 #include <map>
 
 #include "client/cli/export_flags.h"
@@ -11,16 +12,18 @@
 namespace imucal::cli {
 namespace {
 
-std::vector<CommandSpec> BuildTable() {
+// The words that work without a server (calibrate, apply, simulate, noise, demo, export), with
+// the server's twins of `demo` and `export`, in the order `imucal help` lists them.
+std::vector<CommandSpec> OfflineCommandSpecs() {
   const std::set<std::string> help = {"help"};
   return {
       {.id = "calibrate",
        .word = "calibrate",
        .summary = "calibrate accelerometer and gyroscope from a capture",
        .positional_files = true,
-       .valued = WithImportValuedFlags({"format", "protocol", "gravity", "accel-unit",
-                                        "gyro-unit", "device", "seed", "out", "params-out",
-                                        "plots", "sensor-class"}),
+       .valued =
+           WithImportValuedFlags({"format", "protocol", "gravity", "accel-unit", "gyro-unit",
+                                  "device", "seed", "out", "params-out", "plots", "sensor-class"}),
        .switches = WithImportSwitches(
            {"json", "no-bsas", "no-heldout", "no-effects", "apply-time-effects", "help"})},
       {.id = "apply",
@@ -33,8 +36,8 @@ std::vector<CommandSpec> BuildTable() {
        .word = "simulate",
        .summary = "write a simulated capture with known truth",
        .valued = {"out", "protocol", "seed", "rate", "extra-poses", "free-poses", "accel-noise",
-                  "gyro-noise", "accel-step", "gyro-step", "accel-unit", "gyro-unit",
-                  "floor-tilt", "turn-error", "effect", "truth"},
+                  "gyro-noise", "accel-step", "gyro-step", "accel-unit", "gyro-unit", "floor-tilt",
+                  "turn-error", "effect", "truth"},
        .switches = {"no-temperature", "botch-turn", "help"}},
       {.id = "noise",
        .word = "noise",
@@ -66,6 +69,12 @@ std::vector<CommandSpec> BuildTable() {
        .server = true,
        .valued = WithExportValuedFlags({"server", "device", "version", "format", "out"}),
        .switches = help},
+  };
+}
+
+// The words that need the server, in the order `imucal help` lists them.
+std::vector<CommandSpec> ServerCommandSpecs() {
+  return {
       {.id = "devices",
        .word = "devices",
        .summary = "list, register or show devices",
@@ -85,9 +94,9 @@ std::vector<CommandSpec> BuildTable() {
        .summary = "stream a capture into a session (resumes)",
        .positional_files = true,
        .server = true,
-       .valued = WithImportValuedFlags({"server", "device", "session", "protocol", "format",
-                                        "accel-unit", "gyro-unit", "batch", "pace", "seed",
-                                        "timeout"}),
+       .valued =
+           WithImportValuedFlags({"server", "device", "session", "protocol", "format", "accel-unit",
+                                  "gyro-unit", "batch", "pace", "seed", "timeout"}),
        .switches = WithImportSwitches({"solve", "json", "help"})},
       {.id = "guide",
        .word = "guide",
@@ -122,6 +131,14 @@ std::vector<CommandSpec> BuildTable() {
        .valued = {"server", "role", "device", "label", "out"},
        .switches = {"json", "all", "help"}},
   };
+}
+
+std::vector<CommandSpec> BuildTable() {
+  std::vector<CommandSpec> table = OfflineCommandSpecs();
+  std::vector<CommandSpec> server = ServerCommandSpecs();
+  table.insert(table.end(), std::make_move_iterator(server.begin()),
+               std::make_move_iterator(server.end()));
+  return table;
 }
 
 // What the shell offers for one command word: the union over the ids that share it.

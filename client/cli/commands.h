@@ -48,8 +48,9 @@ int RunExportFile(const std::vector<std::string>& args);
 // The main job through the service: guide + simulated robot + solve + SDK fetch and apply.
 int RunServerDemo(const std::vector<std::string>& args);
 
-// Server commands (server_commands.cc, guide.cc). Each accepts --server ADDR (else
-// $IMUCAL_SERVER, else 127.0.0.1:50051). A server error prints the server's message; the exit
+// Server commands (device_commands.cc, session_commands.cc, upload_command.cc, solve_command.cc,
+// report_command.cc, params_commands.cc, export_command.cc, guide.cc). Each accepts --server ADDR
+// (else $IMUCAL_SERVER, else 127.0.0.1:50051). A server error prints the server's message; the exit
 // code is kExitUnavailable when the server is unreachable, kExitBadInput for an invalid
 // argument or an unknown id, kExitUndetermined for a state that forbids the call.
 int RunDevices(const std::vector<std::string>& args);

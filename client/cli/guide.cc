@@ -168,32 +168,88 @@ class SolveWhenUploaded {
   std::thread thread_;
 };
 
+// The session to guide: --session's, else a new one for --device. kExitOk, or the exit code.
+int OpenOrFollowSession(const Args& a, const Server& server, pb::Session* session) {
+  if (auto session_id = a.Get("session")) {
+    if (grpc::Status s = GetSession(server, *session_id, session); !s.ok())
+      return RpcError(server, s);
+    return kExitOk;
+  }
+  // six-face unless told: a guide must know what to ask for (auto sets no target).
+  auto protocol = ParseProtocol(a.Get("protocol").value_or("six-face"));
+  if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kGuideHelp);
+  if (grpc::Status s = CreateSession(server, *a.Get("device"), *protocol, 0.0, session); !s.ok())
+    return RpcError(server, s);
+  return kExitOk;
+}
+
+// Shows the session's events (WatchSession) until the view says the session is done or the
+// server ends the stream (OK), re-opening a dropped watch up to `reconnects` times in a row (else
+// its error). Begins `solver` once the protocol is complete, when `solve`.
+grpc::Status FollowEvents(const Server& server, const std::string& session_id, int64_t reconnects,
+                          bool solve, GuideView* view, std::mutex* view_mu,
+                          SolveWhenUploaded* solver) {
+  bool done = false;
+  int drops = 0;
+  while (!done) {
+    grpc::ClientContext context;
+    // Every call has a deadline: a watch is re-opened (with a fresh snapshot) after an hour.
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::hours(1));
+    pb::WatchSessionRequest req;
+    req.set_session_id(session_id);
+    auto stream = server.sessions->WatchSession(&context, req);
+    pb::SessionEvent event;
+    bool got_event = false;
+    while (!done && stream->Read(&event)) {
+      got_event = true;
+      std::lock_guard lock(*view_mu);
+      done = view->OnEvent(event);
+      if (!done && view->ReadyToSolve() && solve) solver->Begin();
+    }
+    if (done) context.TryCancel();
+    const grpc::Status status = stream->Finish();
+    if (done || status.ok()) break;  // status OK: the server ended the stream (session closed)
+    if (got_event) drops = 0;
+    if (!sdk::IsUnreachable(sdk::FromGrpcStatus(status)) || ++drops > reconnects) return status;
+    {
+      std::lock_guard lock(*view_mu);
+      view->Line(absl::StrCat("connection lost (", status.error_message(), "), reconnecting..."));
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(200 << std::min(drops, 5)));
+  }
+  return grpc::Status::OK;
+}
+
+// Polls solve job `job_id` until it is done or failed, into `job`.
+grpc::Status AwaitSolveJob(const Server& server, const std::string& job_id, pb::SolveJob* job) {
+  auto interval = std::chrono::milliseconds(50);
+  for (;;) {
+    pb::GetSolveJobRequest req;
+    req.set_job_id(job_id);
+    auto ctx = CallContext();
+    if (grpc::Status s = server.sessions->GetSolveJob(ctx.get(), req, job); !s.ok()) return s;
+    if (job->state() == pb::JOB_STATE_DONE || job->state() == pb::JOB_STATE_FAILED)
+      return grpc::Status::OK;
+    std::this_thread::sleep_for(interval);
+    interval = std::min(interval * 2, std::chrono::milliseconds(1000));
+  }
+}
+
 }  // namespace
 
 int RunGuide(const std::vector<std::string>& argv) {
   auto a = ParseCommandFlags("guide", argv);
   if (!a.ok()) return UsageError(std::string(a.status().message()), kGuideHelp);
   if (a->Has("help")) return std::printf("%s", kGuideHelp), kExitOk;
-  auto device = a->Get("device");
-  auto session_id = a->Get("session");
-  if (!device && !session_id) return UsageError("guide needs --device or --session", kGuideHelp);
+  if (!a->Get("device") && !a->Get("session"))
+    return UsageError("guide needs --device or --session", kGuideHelp);
   auto seed = a->GetInt("seed", 0);
   auto reconnects = a->GetInt("reconnects", 5);
   if (!seed.ok() || !reconnects.ok())
     return UsageError("--seed and --reconnects take numbers", kGuideHelp);
   Server server = Connect(*a);
-
   pb::Session session;
-  if (session_id) {
-    if (grpc::Status s = GetSession(server, *session_id, &session); !s.ok())
-      return RpcError(server, s);
-  } else {
-    // six-face unless told: a guide must know what to ask for (auto sets no target).
-    auto protocol = ParseProtocol(a->Get("protocol").value_or("six-face"));
-    if (!protocol.ok()) return UsageError(std::string(protocol.status().message()), kGuideHelp);
-    if (grpc::Status s = CreateSession(server, *device, *protocol, 0.0, &session); !s.ok())
-      return RpcError(server, s);
-  }
+  if (int code = OpenOrFollowSession(*a, server, &session); code != kExitOk) return code;
 
   GuideView view(::isatty(STDOUT_FILENO) == 1, [](const std::string& text) {
     std::fputs(text.c_str(), stdout);
@@ -206,39 +262,13 @@ int RunGuide(const std::vector<std::string>& argv) {
                       "(e.g. imucal upload FILE --session %s).",
                       session.id(), session.id()));
 
-  std::mutex view_mu;  // the view is written by this loop and by the solver's thread
+  std::mutex view_mu;  // the view is written by the event loop and by the solver's thread
   SolveWhenUploaded solver(server, session.id(), static_cast<uint64_t>(*seed), &view, &view_mu);
-  bool done = false;
-  int drops = 0;
-  while (!done) {
-    grpc::ClientContext context;
-    // Every call has a deadline: a watch is re-opened (with a fresh snapshot) after an hour.
-    context.set_deadline(std::chrono::system_clock::now() + std::chrono::hours(1));
-    pb::WatchSessionRequest req;
-    req.set_session_id(session.id());
-    auto stream = server.sessions->WatchSession(&context, req);
-    pb::SessionEvent event;
-    bool got_event = false;
-    while (!done && stream->Read(&event)) {
-      got_event = true;
-      std::lock_guard lock(view_mu);
-      done = view.OnEvent(event);
-      if (!done && view.ReadyToSolve() && !a->Has("no-solve")) solver.Begin();
-    }
-    if (done) context.TryCancel();
-    const grpc::Status status = stream->Finish();
-    if (done) break;
-    if (status.ok()) break;  // the server ended the stream: the session is closed
-    if (got_event) drops = 0;
-    if (!sdk::IsUnreachable(sdk::FromGrpcStatus(status)) || ++drops > *reconnects) {
-      solver.Stop();
-      return RpcError(server, status);
-    }
-    {
-      std::lock_guard lock(view_mu);
-      view.Line(absl::StrCat("connection lost (", status.error_message(), "), reconnecting..."));
-    }
-    std::this_thread::sleep_for(std::chrono::milliseconds(200 << std::min(drops, 5)));
+  if (grpc::Status s = FollowEvents(server, session.id(), *reconnects, !a->Has("no-solve"), &view,
+                                    &view_mu, &solver);
+      !s.ok()) {
+    solver.Stop();
+    return RpcError(server, s);
   }
   solver.Stop();
   const std::string job_id = solver.job_id();
@@ -247,17 +277,7 @@ int RunGuide(const std::vector<std::string>& argv) {
   pb::SolveJob job = view.final_job();
   if (job.id().empty() && !job_id.empty()) {
     job.set_id(job_id);
-    auto interval = std::chrono::milliseconds(50);
-    for (;;) {
-      pb::GetSolveJobRequest req;
-      req.set_job_id(job_id);
-      auto ctx = CallContext();
-      if (grpc::Status s = server.sessions->GetSolveJob(ctx.get(), req, &job); !s.ok())
-        return RpcError(server, s);
-      if (job.state() == pb::JOB_STATE_DONE || job.state() == pb::JOB_STATE_FAILED) break;
-      std::this_thread::sleep_for(interval);
-      interval = std::min(interval * 2, std::chrono::milliseconds(1000));
-    }
+    if (grpc::Status s = AwaitSolveJob(server, job_id, &job); !s.ok()) return RpcError(server, s);
     pb::SessionEvent result;
     *result.mutable_solve() = job;
     view.OnEvent(result);

@@ -53,6 +53,23 @@ std::set<std::string> WithImportSwitches(std::set<std::string> switches) {
   return switches;
 }
 
+absl::Status ApplyFormatAndUnitFlags(const Args& a, importers::ImportOptions* o) {
+  if (auto f = a.Get("format")) o->format = *f;
+  if (auto u = a.Get("accel-unit")) {
+    auto p = core::ParseAccelUnit(*u);
+    if (!p.ok())
+      return absl::InvalidArgumentError(absl::StrCat("--accel-unit: ", p.status().message()));
+    o->accel_unit = *p;
+  }
+  if (auto u = a.Get("gyro-unit")) {
+    auto p = core::ParseGyroUnit(*u);
+    if (!p.ok())
+      return absl::InvalidArgumentError(absl::StrCat("--gyro-unit: ", p.status().message()));
+    o->gyro_unit = *p;
+  }
+  return absl::OkStatus();
+}
+
 absl::Status ApplyImportFlags(const Args& a, importers::ImportOptions* o) {
   if (auto topic = a.Get("topic")) o->topic = *topic;
   const auto columns = a.Get("columns");

@@ -25,6 +25,10 @@ std::set<std::string> WithImportSwitches(std::set<std::string> switches);
 // InvalidArgument naming the flag (a usage error).
 absl::Status ApplyImportFlags(const Args& args, importers::ImportOptions* options);
 
+// Reads --format, --accel-unit and --gyro-unit into `options`. A unit it does not know is
+// InvalidArgument naming the flag.
+absl::Status ApplyFormatAndUnitFlags(const Args& args, importers::ImportOptions* options);
+
 // The import options of a command's flags: --format, --accel-unit, --gyro-unit, --gravity,
 // --device and the importer flags (ApplyImportFlags). InvalidArgument naming the flag.
 absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& args);

@@ -195,19 +195,7 @@ core::ParamSet TruthParams(const core::SimResult& sim) {
 
 absl::StatusOr<importers::ImportOptions> ImportOptionsFrom(const Args& a) {
   importers::ImportOptions o;
-  if (auto f = a.Get("format")) o.format = *f;
-  if (auto u = a.Get("accel-unit")) {
-    auto p = core::ParseAccelUnit(*u);
-    if (!p.ok())
-      return absl::InvalidArgumentError("--accel-unit: " + std::string(p.status().message()));
-    o.accel_unit = *p;
-  }
-  if (auto u = a.Get("gyro-unit")) {
-    auto p = core::ParseGyroUnit(*u);
-    if (!p.ok())
-      return absl::InvalidArgumentError("--gyro-unit: " + std::string(p.status().message()));
-    o.gyro_unit = *p;
-  }
+  if (absl::Status s = ApplyFormatAndUnitFlags(a, &o); !s.ok()) return s;
   if (a.Get("gravity")) {
     auto g = a.GetDouble("gravity", 0);
     if (!g.ok()) return g.status();

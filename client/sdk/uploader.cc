@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <condition_variable>
+#include <mutex>
 #include <thread>
 #include <utility>
 
@@ -65,6 +67,61 @@ pb::SampleBatch MakeBatch(const std::string& session_id, const SampleColumns& s,
   b.mutable_gyro()->Add(s.gyro.begin() + 3 * begin, s.gyro.begin() + 3 * end);
   if (!s.temp_c.empty()) b.mutable_temp_c()->Add(s.temp_c.begin() + begin, s.temp_c.begin() + end);
   return b;
+}
+
+// One stream's share of the upload: samples [first_sample, total) as batches first_seq ..
+// last_seq of batch_samples each (the last one may be shorter).
+struct StreamPlan {
+  int64_t total = 0;
+  int64_t batch_samples = 0;
+  int64_t first_sample = 0;
+  int64_t first_seq = 0;
+  int64_t batches = 0;
+  int64_t last_seq = 0;
+};
+
+// What the writer thread and the reading thread of one stream share.
+struct StreamWindow {
+  std::mutex mu;
+  std::condition_variable cv;
+  int64_t acked_seq = 0;      // guarded by mu
+  bool reading_done = false;  // guarded by mu
+};
+
+// The writer thread of a stream: sends the plan's batches, each up to options.max_in_flight
+// ahead of the acks and (options.pace > 0) no earlier than its last sample was captured,
+// counted from `started`; then WritesDone. Stops early when the reading side is done or a
+// write fails. The first batch carries `resume_sha256` and the capture's source.
+void WriteBatches(grpc::ClientReaderWriter<pb::SampleBatch, pb::SampleAck>* stream,
+                  const std::string& session_id, const SampleColumns& samples,
+                  const StreamPlan& plan, const UploadOptions& options,
+                  const std::string& resume_sha256, absl::Time started, StreamWindow* window) {
+  for (int64_t k = 0; k < plan.batches; ++k) {
+    const int64_t seq = plan.first_seq + k;
+    const int64_t begin = plan.first_sample + k * plan.batch_samples;
+    const int64_t end = std::min(plan.total, begin + plan.batch_samples);
+    {
+      std::unique_lock<std::mutex> lock(window->mu);
+      window->cv.wait(lock, [&] {
+        return window->reading_done || seq - window->acked_seq <= options.max_in_flight;
+      });
+      if (options.pace > 0) {  // the batch's last sample has been captured
+        const double capture_s = samples.t_s[static_cast<size_t>(end - 1)] -
+                                 samples.t_s[static_cast<size_t>(plan.first_sample)];
+        window->cv.wait_until(lock,
+                              absl::ToChronoTime(started + absl::Seconds(capture_s / options.pace)),
+                              [&] { return window->reading_done; });
+      }
+      if (window->reading_done) return;
+    }
+    pb::SampleBatch batch = MakeBatch(session_id, samples, begin, end, seq);
+    if (k == 0) {
+      batch.set_resume_sha256(resume_sha256);
+      batch.set_source(options.source);
+    }
+    if (!stream->Write(batch)) return;
+  }
+  stream->WritesDone();
 }
 
 }  // namespace
@@ -133,6 +190,81 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
   return Upload(session_id, ColumnsFromCapture(capture));
 }
 
+// What Upload carries from one attempt to the next.
+struct Uploader::Attempt {
+  explicit Attempt(const UploadOptions& options)
+      : backoff(options.initial_backoff), last_progress(absl::Now()) {}
+  bool first = true;
+  absl::Duration backoff;
+  absl::Time last_progress;  // of the last attempt that stored something, or the start
+  // The digest of this capture's first `digested` samples: what the session must hold to be
+  // continued.
+  SampleDigest digest;
+  int64_t digested = 0;
+};
+
+bool Uploader::Cancelled() {
+  std::lock_guard<std::mutex> lock(mu_);
+  return cancelled_;
+}
+
+absl::StatusOr<bool> Uploader::CatchUp(const std::string& session_id, const pb::Session& session,
+                                       const SampleColumns& samples, Attempt* attempt,
+                                       UploadResult* result) {
+  const int64_t stored = session.samples();
+  if (stored > samples.size()) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("session %s already holds %d samples, more than the %d of this capture",
+                        session_id, stored, samples.size()));
+  }
+  if (stored < attempt->digested) {  // never in practice: what the server holds only grows
+    attempt->digest = SampleDigest();
+    attempt->digested = 0;
+  }
+  if (stored > attempt->digested) {
+    AddToDigest(samples, attempt->digested, stored, &attempt->digest);
+    attempt->digested = stored;
+  }
+  if (attempt->first) result->skipped_samples = stored;
+  attempt->first = false;
+  result->last_acked_seq = session.last_acked_seq();
+  if (stored == samples.size()) {
+    if (options_.progress) options_.progress(stored, samples.size());
+    return true;
+  }
+  if (session.state() != pb::SESSION_STATE_OPEN) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("session %s is %s and takes no more samples", session_id,
+                        absl::AsciiStrToLower(pb::SessionState_Name(session.state()).substr(14))));
+  }
+  return false;
+}
+
+absl::Status Uploader::BackOff(const std::string& session_id, const absl::Status& failed,
+                               bool stored_some, Attempt* attempt, UploadResult* result) {
+  if (Cancelled()) return absl::CancelledError("upload cancelled");
+  if (!IsRetryable(failed)) return failed;
+  const absl::Time now = absl::Now();
+  if (stored_some) {
+    attempt->last_progress = now;
+    attempt->backoff = options_.initial_backoff;
+  }
+  if (now - attempt->last_progress >= options_.retry_for) {
+    return absl::Status(
+        failed.code(),
+        absl::StrFormat("upload to session %s gave up after %s without an acknowledgement (%d "
+                        "attempts): %s",
+                        session_id, absl::FormatDuration(options_.retry_for),
+                        result->reconnects + 1, failed.message()));
+  }
+  const absl::Duration wait =
+      std::min(Jittered(attempt->backoff), attempt->last_progress + options_.retry_for - now);
+  if (!WaitBackoff(wait)) return absl::CancelledError("upload cancelled");
+  attempt->backoff = std::min(attempt->backoff * 2, options_.max_backoff);
+  ++result->reconnects;
+  return absl::OkStatus();
+}
+
 absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
                                               const SampleColumns& samples) {
   if (absl::Status s = CheckColumns(samples); !s.ok()) return s;
@@ -143,89 +275,41 @@ absl::StatusOr<UploadResult> Uploader::Upload(const std::string& session_id,
   }
   UploadResult result;
   result.total_samples = samples.size();
-  bool first = true;
-  absl::Duration backoff = options_.initial_backoff;
-  absl::Time last_progress = absl::Now();
-  // The digest of this capture's first `digested` samples: what the session must hold to be
-  // continued.
-  SampleDigest digest;
-  int64_t digested = 0;
+  Attempt attempt(options_);
   for (;;) {
-    {
-      std::lock_guard<std::mutex> lock(mu_);
-      if (cancelled_) return absl::CancelledError("upload cancelled");
-    }
-    absl::Status attempt_status;
+    if (Cancelled()) return absl::CancelledError("upload cancelled");
     const int64_t sent_before = result.sent_samples;
-    absl::StatusOr<pb::Session> session = GetSession(session_id);
-    if (!session.ok()) {
-      attempt_status = session.status();
+    absl::Status failed;
+    if (absl::StatusOr<pb::Session> session = GetSession(session_id); !session.ok()) {
+      failed = session.status();
     } else {
+      absl::StatusOr<bool> complete = CatchUp(session_id, *session, samples, &attempt, &result);
+      if (!complete.ok()) return complete.status();
+      if (*complete) return result;
       const int64_t stored = session->samples();
-      if (stored > samples.size()) {
-        return absl::FailedPreconditionError(
-            absl::StrFormat("session %s already holds %d samples, more than the %d of this capture",
-                            session_id, stored, samples.size()));
-      }
-      if (stored < digested) {  // never in practice: what the server holds only grows
-        digest = SampleDigest();
-        digested = 0;
-      }
-      if (stored > digested) {
-        AddToDigest(samples, digested, stored, &digest);
-        digested = stored;
-      }
       // The proof that this capture is the one the session holds (the server checks it).
-      const std::string resume = stored > 0 ? digest.Sha256() : std::string();
-      if (first) result.skipped_samples = stored;
-      first = false;
-      result.last_acked_seq = session->last_acked_seq();
-      if (stored == samples.size()) {
-        if (options_.progress) options_.progress(stored, samples.size());
-        return result;
-      }
-      if (session->state() != pb::SESSION_STATE_OPEN) {
-        return absl::FailedPreconditionError(absl::StrFormat(
-            "session %s is %s and takes no more samples", session_id,
-            absl::AsciiStrToLower(pb::SessionState_Name(session->state()).substr(14))));
-      }
-      attempt_status =
+      const std::string resume = stored > 0 ? attempt.digest.Sha256() : std::string();
+      failed =
           StreamOnce(session_id, samples, stored, session->last_acked_seq() + 1, resume, &result);
-      if (attempt_status.ok()) return result;
+      if (failed.ok()) return result;
     }
-    {
-      std::lock_guard<std::mutex> lock(mu_);
-      if (cancelled_) return absl::CancelledError("upload cancelled");
-    }
-    if (!IsRetryable(attempt_status)) return attempt_status;
-    const absl::Time now = absl::Now();
-    if (result.sent_samples > sent_before) {
-      last_progress = now;
-      backoff = options_.initial_backoff;
-    }
-    if (now - last_progress >= options_.retry_for) {
-      return absl::Status(
-          attempt_status.code(),
-          absl::StrFormat("upload to session %s gave up after %s without an acknowledgement (%d "
-                          "attempts): %s",
-                          session_id, absl::FormatDuration(options_.retry_for),
-                          result.reconnects + 1, attempt_status.message()));
-    }
-    const absl::Duration wait =
-        std::min(Jittered(backoff), last_progress + options_.retry_for - now);
-    if (!WaitBackoff(wait)) return absl::CancelledError("upload cancelled");
-    backoff = std::min(backoff * 2, options_.max_backoff);
-    ++result.reconnects;
+    if (absl::Status s =
+            BackOff(session_id, failed, result.sent_samples > sent_before, &attempt, &result);
+        !s.ok())
+      return s;
   }
 }
 
 absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleColumns& samples,
                                   int64_t first_sample, int64_t first_seq,
                                   const std::string& resume_sha256, UploadResult* result) {
-  const int64_t total = samples.size();
-  const int64_t n = options_.batch_samples;
-  const int64_t batches = (total - first_sample + n - 1) / n;
-  const int64_t last_seq = first_seq + batches - 1;
+  StreamPlan plan;
+  plan.total = samples.size();
+  plan.batch_samples = options_.batch_samples;
+  plan.first_sample = first_sample;
+  plan.first_seq = first_seq;
+  plan.batches = (plan.total - first_sample + plan.batch_samples - 1) / plan.batch_samples;
+  plan.last_seq = first_seq + plan.batches - 1;
 
   grpc::ClientContext context;
   {
@@ -237,60 +321,34 @@ absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleCol
   context.set_deadline(absl::ToChronoTime(absl::Now() + options_.stream_deadline));
   auto stream = stub_->StreamSamples(&context);
 
-  // Window shared by the writer thread and this (reading) thread.
-  std::mutex window_mu;
-  std::condition_variable window_cv;
-  int64_t acked_seq = first_seq - 1;  // guarded by window_mu
-  bool reading_done = false;          // guarded by window_mu
-
+  StreamWindow window;
+  window.acked_seq = first_seq - 1;
   const absl::Time started = absl::Now();
   std::thread writer([&] {
-    for (int64_t k = 0; k < batches; ++k) {
-      const int64_t seq = first_seq + k;
-      const int64_t begin = first_sample + k * n;
-      const int64_t end = std::min(total, begin + n);
-      {
-        std::unique_lock<std::mutex> lock(window_mu);
-        window_cv.wait(lock,
-                       [&] { return reading_done || seq - acked_seq <= options_.max_in_flight; });
-        if (options_.pace > 0) {  // the batch's last sample has been captured
-          const double capture_s = samples.t_s[static_cast<size_t>(end - 1)] -
-                                   samples.t_s[static_cast<size_t>(first_sample)];
-          window_cv.wait_until(
-              lock, absl::ToChronoTime(started + absl::Seconds(capture_s / options_.pace)),
-              [&] { return reading_done; });
-        }
-        if (reading_done) return;
-      }
-      pb::SampleBatch batch = MakeBatch(session_id, samples, begin, end, seq);
-      if (k == 0) {
-        batch.set_resume_sha256(resume_sha256);
-        batch.set_source(options_.source);
-      }
-      if (!stream->Write(batch)) return;
-    }
-    stream->WritesDone();
+    WriteBatches(stream.get(), session_id, samples, plan, options_, resume_sha256, started,
+                 &window);
   });
 
   pb::SampleAck ack;
   while (stream->Read(&ack)) {
-    const int64_t seq = std::min(ack.last_acked_seq(), last_seq);
-    const int64_t acked_samples = std::min(total, first_sample + (seq - first_seq + 1) * n);
+    const int64_t seq = std::min(ack.last_acked_seq(), plan.last_seq);
+    const int64_t acked_samples =
+        std::min(plan.total, first_sample + (seq - first_seq + 1) * plan.batch_samples);
     {
-      std::lock_guard<std::mutex> lock(window_mu);
-      if (seq <= acked_seq) continue;
-      acked_seq = seq;
+      std::lock_guard<std::mutex> lock(window.mu);
+      if (seq <= window.acked_seq) continue;
+      window.acked_seq = seq;
     }
-    window_cv.notify_all();
+    window.cv.notify_all();
     result->sent_samples = acked_samples - result->skipped_samples;
     result->last_acked_seq = seq;
-    if (options_.progress) options_.progress(acked_samples, total);
+    if (options_.progress) options_.progress(acked_samples, plan.total);
   }
   {
-    std::lock_guard<std::mutex> lock(window_mu);
-    reading_done = true;
+    std::lock_guard<std::mutex> lock(window.mu);
+    window.reading_done = true;
   }
-  window_cv.notify_all();
+  window.cv.notify_all();
   writer.join();
   const grpc::Status finish = stream->Finish();
   {
@@ -298,11 +356,10 @@ absl::Status Uploader::StreamOnce(const std::string& session_id, const SampleCol
     stream_context_ = nullptr;
   }
   if (!finish.ok()) return FromGrpcStatus(finish);
-  if (acked_seq < last_seq) {
-    return absl::UnavailableError(
-        absl::StrFormat("the stream ended with batch %d of %d acknowledged", acked_seq, last_seq));
+  if (window.acked_seq < plan.last_seq) {
+    return absl::UnavailableError(absl::StrFormat(
+        "the stream ended with batch %d of %d acknowledged", window.acked_seq, plan.last_seq));
   }
   return absl::OkStatus();
 }
-
 }  // namespace imucal::sdk

@@ -129,7 +129,19 @@ class Uploader {
   void DropStream();
 
  private:
-  struct Attempt;
+  struct Attempt;  // uploader.cc: what Upload carries from one attempt to the next
+  bool Cancelled();
+  // Where `session` (just read) stands for this capture: updates the resume digest and the
+  // result's counts. True when it holds every sample already; FailedPrecondition when it cannot
+  // take the rest (it holds more than this capture, or it is not open).
+  absl::StatusOr<bool> CatchUp(const std::string& session_id, const imucal::v1::Session& session,
+                               const SampleColumns& samples, Attempt* attempt,
+                               UploadResult* result);
+  // After an attempt that failed with `failed`: OK once the backoff has been waited (the next
+  // attempt may go), else what Upload returns (Cancelled, a status no retry cures, or the give-up
+  // after retry_for without an acknowledgement).
+  absl::Status BackOff(const std::string& session_id, const absl::Status& failed, bool stored_some,
+                       Attempt* attempt, UploadResult* result);
   // One stream: samples [first_sample, total) as batches first_seq, ...; the first batch
   // carries `resume_sha256` (empty when the session holds nothing).
   absl::Status StreamOnce(const std::string& session_id, const SampleColumns& samples,
