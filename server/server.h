@@ -1,6 +1,7 @@
-// imucald's gRPC server: the three services, the health service and reflection over one
-// Store. Start() binds and serves; Shutdown() stops accepting calls, lets in-flight calls and
-// queued solves finish (up to `drain_deadline`), and returns.
+// imucald's gRPC server: the four services (devices, sessions, parameters, admin), the health
+// service and reflection over one Store (SQLite or PostgreSQL). Start() binds and serves;
+// Shutdown() stops accepting calls, lets in-flight calls and queued solves finish (up to
+// `drain_deadline`), and returns.
 #ifndef IMUCAL_SERVER_SERVER_H_
 #define IMUCAL_SERVER_SERVER_H_
 
@@ -16,8 +17,10 @@
 #include "server/admin_service.h"
 #include "server/auth.h"
 #include "server/database_health.h"
+#include "server/device_service.h"
 #include "server/metrics.h"
-#include "server/services.h"
+#include "server/parameter_service.h"
+#include "server/session_service.h"
 #include "server/tls.h"
 #include "server/token_watch.h"
 #include "storage/store.h"

@@ -1,3 +1,5 @@
+#include "server/session_service.h"
+
 #include <algorithm>
 #include <cmath>
 #include <optional>
@@ -17,7 +19,6 @@
 #include "formats/report_json.h"
 #include "server/convert.h"
 #include "server/log.h"
-#include "server/services.h"
 #include "server/unary.h"
 #include "storage/sample_codec.h"
 #include "util/str_util.h"

@@ -27,7 +27,7 @@
 #include "absl/time/clock.h"
 #include "formats/sample_digest.h"
 #include "server/ingest.h"
-#include "server/services.h"
+#include "server/session_service.h"
 #include "server/status_util.h"
 #include "storage/sample_codec.h"
 #include "util/text_check.h"

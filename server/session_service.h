@@ -1,8 +1,10 @@
-// The three gRPC services of imucal/v1/imucal.proto on the callback API. Handlers read
-// validate -> convert -> call -> convert -> finish; store calls are short SQLite transactions
-// run inline, solves run in the SolvePool, streams are reactors (no thread per stream).
-#ifndef IMUCAL_SERVER_SERVICES_H_
-#define IMUCAL_SERVER_SERVICES_H_
+// SessionService of imucal/v1/imucal.proto on the callback API: a robot's calibration
+// sessions, from creation through the sample stream to the solve. Unary handlers validate ->
+// convert -> call -> convert -> finish, with short store transactions (SQLite or PostgreSQL,
+// storage/store.h) run inline; a session's live state is loaded off the RPC threads; solves
+// run in the SolvePool; the three streaming calls are reactors (no thread per stream).
+#ifndef IMUCAL_SERVER_SESSION_SERVICE_H_
+#define IMUCAL_SERVER_SESSION_SERVICE_H_
 
 #include <cstdint>
 #include <deque>
@@ -11,148 +13,22 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <utility>
 
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
-#include "server/active_cache.h"
 #include "server/auth.h"
-#include "server/convert.h"
-#include "server/database_health.h"
 #include "server/metrics.h"
 #include "server/session_hub.h"
+#include "server/session_options.h"
 #include "server/solve_pool.h"
 #include "server/stream_claims.h"
 #include "server/stream_registry.h"
 #include "server/stream_slots.h"
-#include "server/validate.h"
 #include "storage/store.h"
 
 namespace imucal::server {
-
-// Every service checks its caller with an Authorizer (server/auth.h): not owned, outlives it.
-
-// Pages are by key (the store's paging): the token is the key of a page's last item. Returns
-// the page size to use (0 means 100; at most `max_page_size`).
-absl::StatusOr<int> PageSize(int page_size, int max_page_size);
-
-class DeviceServiceImpl final : public v1::DeviceService::CallbackService {
- public:
-  DeviceServiceImpl(storage::Store* store, Authorizer* auth) : store_(store), auth_(auth) {}
-  grpc::ServerUnaryReactor* RegisterDevice(grpc::CallbackServerContext* context,
-                                           const v1::RegisterDeviceRequest* request,
-                                           v1::Device* response) override;
-  grpc::ServerUnaryReactor* GetDevice(grpc::CallbackServerContext* context,
-                                      const v1::GetDeviceRequest* request,
-                                      v1::Device* response) override;
-  grpc::ServerUnaryReactor* ListDevices(grpc::CallbackServerContext* context,
-                                        const v1::ListDevicesRequest* request,
-                                        v1::ListDevicesResponse* response) override;
-
- private:
-  absl::Status DoRegister(const grpc::CallbackServerContext& context,
-                          const v1::RegisterDeviceRequest& request, v1::Device* response);
-  storage::Store* store_;
-  Authorizer* auth_;
-};
-
-// GetActiveParameters, the hot path, is a raw method: its responses come pre-serialised from
-// the ActiveParamCache; the other methods are ordinary callback methods.
-using ParameterServiceBase = v1::ParameterService::WithRawCallbackMethod_GetActiveParameters<
-    v1::ParameterService::WithCallbackMethod_GetParameters<
-        v1::ParameterService::WithCallbackMethod_ListVersions<
-            v1::ParameterService::WithCallbackMethod_Promote<
-                v1::ParameterService::WithCallbackMethod_Rollback<
-                    v1::ParameterService::WithCallbackMethod_Export<
-                        v1::ParameterService::Service>>>>>>;
-
-class ParameterServiceImpl final : public ParameterServiceBase {
- public:
-  // `cache` (not owned, outlives the service) is invalidated by the store's on_active_change.
-  // `database` (optional, outlives the service): while it says the database is down,
-  // GetActiveParameters answers from the cache, marked served_from_cache.
-  ParameterServiceImpl(storage::Store* store, ActiveParamCache* cache, Authorizer* auth,
-                       const DatabaseHealth* database = nullptr)
-      : store_(store), cache_(cache), auth_(auth), database_(database) {}
-  grpc::ServerUnaryReactor* GetActiveParameters(grpc::CallbackServerContext* context,
-                                                const grpc::ByteBuffer* request,
-                                                grpc::ByteBuffer* response) override;
-  grpc::ServerUnaryReactor* GetParameters(grpc::CallbackServerContext* context,
-                                          const v1::GetParametersRequest* request,
-                                          v1::ParameterSet* response) override;
-  grpc::ServerUnaryReactor* ListVersions(grpc::CallbackServerContext* context,
-                                         const v1::ListVersionsRequest* request,
-                                         v1::ListVersionsResponse* response) override;
-  grpc::ServerUnaryReactor* Promote(grpc::CallbackServerContext* context,
-                                    const v1::PromoteRequest* request,
-                                    v1::ParameterSet* response) override;
-  grpc::ServerUnaryReactor* Rollback(grpc::CallbackServerContext* context,
-                                     const v1::RollbackRequest* request,
-                                     v1::ParameterSet* response) override;
-  grpc::ServerUnaryReactor* Export(grpc::CallbackServerContext* context,
-                                   const v1::ExportRequest* request,
-                                   v1::ExportResponse* response) override;
-
- private:
-  absl::Status DoExport(const v1::ExportRequest& request, v1::ExportResponse* response);
-  // The cached responses of the device's active version, filled from the store on a miss; the
-  // last known ones (`from_cache` set) when the database cannot be reached.
-  absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> ActiveEntry(
-      const std::string& device_id, bool* from_cache);
-  storage::Store* store_;
-  ActiveParamCache* cache_;
-  Authorizer* auth_;
-  const DatabaseHealth* database_;
-  ParamCrcCache crc_cache_;  // the CRC, once per version
-};
-
-struct SessionServiceOptions {
-  // Several servers may share one database: each claims the solves it runs as `replica_id`
-  // (Server::Start fills it in when empty: the host name and the listen address) and renews
-  // the claim every solve_lease / 3; a solve whose claim lapses is an orphan that any of them
-  // ends (storage/store.h "Solves"). Servers sharing a database need distinct ids.
-  // A solve whose server stopped is claimed and run again by another (or by the same server
-  // once restarted), with its seed, up to max_solve_attempts starts in all; then it is failed
-  // and its session reopened, so that a solve that stops every server that runs it is not
-  // passed on for ever (ResumeLapsedSolves).
-  std::string replica_id;
-  absl::Duration solve_lease = absl::Seconds(30);
-  int max_solve_attempts = 3;
-  int solve_threads = 2;
-  size_t solve_queue_limit = 16;  // solves waiting for a worker; RESOURCE_EXHAUSTED beyond
-  IngestLimits ingest;            // samples per batch and per session (server/validate.h)
-  // Concurrent StreamSamples per device (RESOURCE_EXHAUSTED beyond); a stream holds its slot
-  // from its first batch until it ends (a dead peer is found by keepalive, see ServerOptions).
-  int max_streams_per_device = 1;
-  // Across the servers sharing the database, a device's streams are on one server at a time:
-  // the first takes the device's claim in the database, renewed every stream_lease / 3 while
-  // its streams are open (server/stream_claims.h). A killed server's claim lapses after
-  // stream_lease; until then its device's robot is refused elsewhere (its uploader retries).
-  absl::Duration stream_lease = absl::Seconds(10);
-  int max_watchers_per_session = 16;  // concurrent WatchSession streams (RESOURCE_EXHAUSTED)
-
-  // Calls that hold a place without using it (server/stream_registry.h). A StreamSamples stream
-  // sends its first batch within first_batch_timeout of opening and each next one within
-  // stream_idle_timeout of the previous ack (a robot batches every 0.1-1 s), else the server
-  // ends it DEADLINE_EXCEEDED; one whose ack is not read for stream_idle_timeout, or a watch
-  // whose event is not read for watch_stall_timeout (its client stopped reading), or a
-  // ReadSamples whose message is not read for stream_idle_timeout, is cancelled. Counted from
-  // the moment they open: at most max_streams StreamSamples, WatchSession and ReadSamples
-  // calls on the server (about 13 kB each while silent, so 10000 cost ~130 MB; a ReadSamples
-  // also holds its page, at most ~2.5 MB at the default max_batch_samples)
-  // and max_streams_per_token per token or robot client certificate (RESOURCE_EXHAUSTED
-  // beyond; a robot needs one stream, a technician's laptop a few).
-  absl::Duration first_batch_timeout = absl::Seconds(30);
-  absl::Duration stream_idle_timeout = absl::Seconds(60);
-  absl::Duration watch_stall_timeout = absl::Seconds(60);
-  int max_streams = 10000;
-  int max_streams_per_token = 16;
-
-  // GetSolveJob answers from memory for jobs queued, running, or finished within
-  // finished_job_ttl, the newest finished_jobs_kept of them; older ones from storage.
-  size_t finished_jobs_kept = 1000;
-  absl::Duration finished_job_ttl = absl::Minutes(10);
-};
 
 // What the stream reactors of session_streams.cc use of the service.
 struct StreamEnv {
@@ -161,9 +37,9 @@ struct StreamEnv {
   const SessionServiceOptions* options = nullptr;
   Authorizer* auth = nullptr;
   StreamRegistry* registry = nullptr;
-  StreamSlots* device_slots = nullptr;   // StreamSamples per device
-  StreamClaims* device_claims = nullptr;  // StreamSamples per device across servers
-  StreamSlots* watcher_slots = nullptr;  // WatchSession per session
+  StreamSlots* device_slots = nullptr;     // StreamSamples per device
+  StreamClaims* device_claims = nullptr;   // StreamSamples per device across servers
+  StreamSlots* watcher_slots = nullptr;    // WatchSession per session
   StreamSlots* session_streams = nullptr;  // StreamSamples per session (OpenStreams)
   // Runs `work` on the session loaders, off the RPC threads; false when their queue is full.
   std::function<bool(std::function<void()> work)> defer;
@@ -190,6 +66,7 @@ using SessionServiceBase = v1::SessionService::WithRawCallbackMethod_StreamSampl
 
 class SessionServiceImpl final : public SessionServiceBase {
  public:
+  // `auth` checks each caller (server/auth.h): not owned, outlives the service.
   SessionServiceImpl(storage::Store* store, SessionServiceOptions options, Authorizer* auth);
   ~SessionServiceImpl() override;
   size_t live_sessions() { return hub_.LiveSessions(); }  // SessionHub::LiveSessions
@@ -302,9 +179,9 @@ class SessionServiceImpl final : public SessionServiceBase {
   Authorizer* auth_;
   const SessionServiceOptions options_;
   SessionHub hub_;
-  StreamSlots stream_slots_;   // StreamSamples per device
-  StreamClaims stream_claims_;  // ...and across the servers sharing the database
-  StreamSlots watcher_slots_;  // WatchSession per session
+  StreamSlots stream_slots_;     // StreamSamples per device
+  StreamClaims stream_claims_;   // ...and across the servers sharing the database
+  StreamSlots watcher_slots_;    // WatchSession per session
   StreamSlots session_streams_;  // StreamSamples per session: OpenStreams
   std::mutex jobs_mu_;
   std::map<std::string, v1::SolveJob> jobs_;  // guarded by jobs_mu_
@@ -318,4 +195,4 @@ class SessionServiceImpl final : public SessionServiceBase {
 
 }  // namespace imucal::server
 
-#endif  // IMUCAL_SERVER_SERVICES_H_
+#endif  // IMUCAL_SERVER_SESSION_SERVICE_H_
