@@ -19,6 +19,7 @@
 #include "formats/report_json.h"
 #include "server/convert.h"
 #include "server/log.h"
+#include "server/session_streams.h"
 #include "server/unary.h"
 #include "storage/sample_codec.h"
 #include "util/str_util.h"
@@ -872,6 +873,21 @@ grpc::ServerUnaryReactor* SessionServiceImpl::GetReport(grpc::CallbackServerCont
   if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetReport); !who.ok())
     return FinishUnary(context, who.status());
   return FinishUnary(context, DoGetReport(*request, response));
+}
+
+grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* SessionServiceImpl::StreamSamples(
+    grpc::CallbackServerContext* context) {
+  return StartStreamSamples(env_, context);
+}
+
+grpc::ServerWriteReactor<v1::SessionEvent>* SessionServiceImpl::WatchSession(
+    grpc::CallbackServerContext* context, const v1::WatchSessionRequest* request) {
+  return StartWatchSession(env_, context, *request);
+}
+
+grpc::ServerWriteReactor<v1::SampleBatch>* SessionServiceImpl::ReadSamples(
+    grpc::CallbackServerContext* context, const v1::ReadSamplesRequest* request) {
+  return StartReadSamples(env_, context, *request);
 }
 
 }  // namespace imucal::server

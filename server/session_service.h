@@ -24,29 +24,12 @@
 #include "server/session_options.h"
 #include "server/solve_pool.h"
 #include "server/stream_claims.h"
+#include "server/stream_reactor.h"
 #include "server/stream_registry.h"
 #include "server/stream_slots.h"
 #include "storage/store.h"
 
 namespace imucal::server {
-
-// What the stream reactors of session_streams.cc use of the service.
-struct StreamEnv {
-  storage::Store* store = nullptr;
-  SessionHub* hub = nullptr;
-  const SessionServiceOptions* options = nullptr;
-  Authorizer* auth = nullptr;
-  StreamRegistry* registry = nullptr;
-  StreamSlots* device_slots = nullptr;     // StreamSamples per device
-  StreamClaims* device_claims = nullptr;   // StreamSamples per device across servers
-  StreamSlots* watcher_slots = nullptr;    // WatchSession per session
-  StreamSlots* session_streams = nullptr;  // StreamSamples per session (OpenStreams)
-  // Runs `work` on the session loaders, off the RPC threads; false when their queue is full.
-  std::function<bool(std::function<void()> work)> defer;
-  // The session as GetSession answers it, without loading it (SessionServiceImpl).
-  std::function<absl::StatusOr<v1::Session>(const std::string& session_id)> session_proto;
-  Metrics* metrics = nullptr;  // null: none kept
-};
 
 // StreamSamples is a raw method (ByteBuffers in and out): a batch that is not a SampleBatch
 // then gets INVALID_ARGUMENT, where the generated reader would end the stream as if the robot
@@ -112,7 +95,7 @@ class SessionServiceImpl final : public SessionServiceBase {
   grpc::ServerUnaryReactor* GetReport(grpc::CallbackServerContext* context,
                                       const v1::GetReportRequest* request,
                                       v1::Report* response) override;
-  // session_streams.cc: pages the stored batches out of storage, one message at a time.
+  // Pages the stored batches out of storage, one message at a time (read_reactor.cc).
   grpc::ServerWriteReactor<v1::SampleBatch>* ReadSamples(
       grpc::CallbackServerContext* context, const v1::ReadSamplesRequest* request) override;
 
