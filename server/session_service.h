@@ -1,15 +1,14 @@
 // SessionService of imucal/v1/imucal.proto on the callback API: a robot's calibration
 // sessions, from creation through the sample stream to the solve. Unary handlers validate ->
 // convert -> call -> convert -> finish, with short store transactions (SQLite or PostgreSQL,
-// storage/store.h) run inline; a session's live state is loaded off the RPC threads; solves
-// run in the SolvePool; the three streaming calls are reactors (no thread per stream).
+// storage/store.h) run inline; a session's live state is loaded off the RPC threads; solves are
+// SolveJobs' (server/solve_jobs.h); the three streaming calls are reactors (no thread per
+// stream, server/stream_reactor.h).
 #ifndef IMUCAL_SERVER_SESSION_SERVICE_H_
 #define IMUCAL_SERVER_SESSION_SERVICE_H_
 
 #include <cstdint>
-#include <deque>
 #include <functional>
-#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -22,6 +21,7 @@
 #include "server/metrics.h"
 #include "server/session_hub.h"
 #include "server/session_options.h"
+#include "server/solve_jobs.h"
 #include "server/solve_pool.h"
 #include "server/stream_claims.h"
 #include "server/stream_reactor.h"
@@ -59,7 +59,7 @@ class SessionServiceImpl final : public SessionServiceBase {
   // the device's stream claim for the session. The one place that says it: a solve waits on it
   // (SolveSession).
   int OpenStreams(const std::string& session_id, const std::string& device_id);
-  size_t solve_jobs_in_memory();
+  size_t solve_jobs_in_memory() { return solves_.in_memory(); }
   // Counts samples and solves into `metrics` (which must outlive the service) and gives it
   // the sessions', streams' and queue's gauges. Called before serving.
   void SetMetrics(Metrics* metrics);
@@ -103,7 +103,9 @@ class SessionServiceImpl final : public SessionServiceBase {
   // previous life's too) and queues them to run again, while the solve queue has room; fails
   // one started max_solve_attempts times already. Returns how many it queued. The server calls
   // it at start and with every lease renewal.
-  absl::StatusOr<int> ResumeLapsedSolves(std::string_view restarted = "");
+  absl::StatusOr<int> ResumeLapsedSolves(std::string_view restarted = "") {
+    return solves_.ResumeLapsed(restarted);
+  }
 
   // Another server sharing the database stored a batch of the session or changed its state
   // (Store::ListenForChanges; called on the listener's thread, so quick). When the session is
@@ -118,17 +120,10 @@ class SessionServiceImpl final : public SessionServiceBase {
   // Stops taking solves and finishes the queued ones (graceful shutdown, after the server's).
   void DrainSolves() {
     loaders_.Shutdown();
-    pool_.Shutdown();
+    solves_.Shutdown();
   }
 
  private:
-  struct SolveTask {
-    int64_t solve_id = 0;
-    std::string job_id;
-    std::string session_id;
-    uint64_t seed = 1;
-    std::string actor;
-  };
   // Runs `work` with the session's live state and finishes the call with its status: at once
   // when the session is in memory, else on the session loaders after loading it (decoding and
   // replaying every stored batch: seconds for millions of samples, never on an RPC thread).
@@ -136,25 +131,11 @@ class SessionServiceImpl final : public SessionServiceBase {
       grpc::CallbackServerContext* context, const std::string& session_id,
       std::function<absl::Status(const std::shared_ptr<LiveSession>& live)> work);
   bool Defer(std::function<void()> work);  // on the session loaders; false when full
-  absl::Status DoSolve(const std::string& actor, const std::shared_ptr<LiveSession>& live,
-                       const v1::SolveSessionRequest& request, v1::SolveJob* response);
   absl::Status DoCancel(const std::string& actor, const std::shared_ptr<LiveSession>& live,
                         v1::Session* response);
-  absl::Status DoGetSolveJob(const v1::GetSolveJobRequest& request, v1::SolveJob* response);
-  // A solve as GetSolveJob reports it, from storage.
-  absl::Status JobFromStore(const storage::Solve& solve, v1::SolveJob* job);
   void Refresh(const std::shared_ptr<LiveSession>& live);  // SessionChangedElsewhere's work
   absl::Status DoGetReport(const v1::GetReportRequest& request, v1::Report* response);
   absl::Status DoListPoses(const v1::ListPosesRequest& request, v1::ListPosesResponse* response);
-  // Announces the job queued (to GetSolveJob and the session's watchers) and submits it on a
-  // reservation of pool_.
-  v1::SolveJob Queue(const SolveTask& task, LiveSession& live);
-  void RunSolve(const SolveTask& task);
-  // Fails a solve this server has claimed and reopens its session (failed, when the device has
-  // another open session).
-  absl::Status FailAndReopen(int64_t solve_id, const std::string& error);
-  // Records a job's new state and tells the session's watchers.
-  void UpdateJob(const v1::SolveJob& job);
   absl::StatusOr<v1::Session> SessionProto(const std::string& session_id);
   absl::StatusOr<v1::Session> SessionProtoWithoutJob(const std::string& session_id);
 
@@ -166,13 +147,9 @@ class SessionServiceImpl final : public SessionServiceBase {
   StreamClaims stream_claims_;   // ...and across the servers sharing the database
   StreamSlots watcher_slots_;    // WatchSession per session
   StreamSlots session_streams_;  // StreamSamples per session: OpenStreams
-  std::mutex jobs_mu_;
-  std::map<std::string, v1::SolveJob> jobs_;  // guarded by jobs_mu_
-  // Finished jobs in jobs_, oldest first, with when they finished; guarded by jobs_mu_.
-  std::deque<std::pair<std::string, absl::Time>> finished_jobs_;
   StreamRegistry registry_;  // every open StreamSamples, WatchSession and ReadSamples
   StreamEnv env_;
-  SolvePool pool_;     // its workers use the members above
+  SolveJobs solves_;   // its solve threads use the members above
   SolvePool loaders_;  // last: loads sessions off the RPC threads (WithLiveSession, streams)
 };
 

@@ -116,8 +116,7 @@ class WatchReactor final : public SessionWriter<WatchReactor, v1::SessionEvent>,
   }
 
   static v1::SessionEvent SnapshotEvent(v1::Session snapshot) {
-    v1::SessionEvent e;
-    ToTimestamp(absl::Now(), e.mutable_time());
+    v1::SessionEvent e = Stamped();
     *e.mutable_session() = std::move(snapshot);
     return e;
   }
