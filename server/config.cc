@@ -5,6 +5,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <set>
 #include <utility>
@@ -148,11 +149,13 @@ absl::StatusOr<storage::Durability> ParseDurability(std::string_view text) {
 }
 
 // ---- THE OPTION TABLE. To add an option: give ServerOptions (or DaemonConfig) a field, then
-// append one entry here with a builder above (StringOption, IntegerOption, DurationOption,
-// BoolOption, ChoiceOption): the TOML key, the flag (--key-with-dashes), the environment
-// variable, --help, deploy/imucald.toml and the errors all follow from it. Keep the help one
-// line and say the default; add the key, commented, to deploy/imucald.toml.
-std::vector<ConfigOption> BuildOptions() {
+// append one entry to its group below with a builder above (StringOption, IntegerOption,
+// DurationOption, BoolOption, ChoiceOption): the TOML key, the flag (--key-with-dashes), the
+// environment variable, --help, deploy/imucald.toml and the errors all follow from it. Keep the
+// help one line and say the default; add the key, commented, to deploy/imucald.toml.
+
+// Where the server listens and keeps its state.
+std::vector<ConfigOption> ServeOptions() {
   return {
       StringOption("listen", "IMUCALD_LISTEN", "HOST:PORT",
                    "address to serve gRPC on; port 0 picks a free one (default 127.0.0.1:50051)",
@@ -172,6 +175,12 @@ std::vector<ConfigOption> BuildOptions() {
           "a killed process only (default full)",
           &ParseDurability,
           [](DaemonConfig& c) -> storage::Durability& { return c.server.durability; }),
+  };
+}
+
+// The solves, and the servers that share a database.
+std::vector<ConfigOption> SolveOptions() {
+  return {
       IntegerOption<int>("solve_threads", "IMUCALD_SOLVE_THREADS",
                          "threads that run calibration solves (default 2)", 1, 256,
                          [](DaemonConfig& c) -> int& { return c.server.sessions.solve_threads; }),
@@ -204,14 +213,19 @@ std::vector<ConfigOption> BuildOptions() {
           "again by another, or by the same one restarted, until this many have; then it is "
           "failed and its session reopened (default 3)",
           1, 100, [](DaemonConfig& c) -> int& { return c.server.sessions.max_solve_attempts; }),
+  };
+}
+
+// The server at work: other servers' changes, the database's pings, shutdown, logs and
+// connections.
+std::vector<ConfigOption> RunOptions() {
+  return {
       DurationOption("active_cache_sync", "IMUCALD_ACTIVE_CACHE_SYNC",
                      "SQLite shared by several servers: how often the database is read for the "
                      "others' promotes and rollbacks (the bound on a stale fetch from this "
                      "server); 0s: never, when it is alone on its database (default 250ms). "
                      "PostgreSQL: not used (changes are heard as they commit)",
-                     [](DaemonConfig& c) -> absl::Duration& {
-                       return c.server.active_cache_sync;
-                     }),
+                     [](DaemonConfig& c) -> absl::Duration& { return c.server.active_cache_sync; }),
       DurationOption("database_ping", "IMUCALD_DATABASE_PING",
                      "how often the database is pinged: health answers NOT_SERVING from the "
                      "first ping that cannot reach it until one does again, parameter fetches "
@@ -243,7 +257,12 @@ std::vector<ConfigOption> BuildOptions() {
       DurationOption("keepalive_timeout", "IMUCALD_KEEPALIVE_TIMEOUT",
                      "close a connection whose ping is not answered within this (default 10s)",
                      [](DaemonConfig& c) -> absl::Duration& { return c.server.keepalive_timeout; }),
-      // Transport security and tokens (server/tls.h, server/auth.h; README "Security").
+  };
+}
+
+// Transport security and tokens (server/tls.h, server/auth.h; README "Security").
+std::vector<ConfigOption> SecurityOptions() {
+  return {
       StringOption("tls_cert", "IMUCALD_TLS_CERT", "PATH",
                    "PEM certificate (chain) the server presents; required unless insecure",
                    [](DaemonConfig& c) -> std::string& { return c.server.security.tls_cert_path; }),
@@ -263,7 +282,13 @@ std::vector<ConfigOption> BuildOptions() {
                    "where the first admin token is written (mode 0600) when the token table is "
                    "empty (default <db>.admin-token)",
                    [](DaemonConfig& c) -> std::string& { return c.server.admin_token_file; }),
-      // Limits (README "## Robustness"; server/validate.h, SessionServiceOptions).
+  };
+}
+
+// Limits (README "## Robustness"; server/validate.h, SessionServiceOptions), and streams that
+// hold a place without using it (SessionServiceOptions, stream_registry.h).
+std::vector<ConfigOption> LimitOptions() {
+  return {
       IntegerOption<int64_t>(
           "max_batch_samples", "IMUCALD_MAX_BATCH_SAMPLES",
           "samples in one SampleBatch; more are refused with RESOURCE_EXHAUSTED (default 20000)", 1,
@@ -318,6 +343,17 @@ std::vector<ConfigOption> BuildOptions() {
           "slot freed (default 1m)",
           [](DaemonConfig& c) -> absl::Duration& { return c.server.sessions.watch_stall_timeout; }),
   };
+}
+
+// The table, in the order --help lists it: the groups above, one after the other.
+std::vector<ConfigOption> BuildOptions() {
+  std::vector<ConfigOption> options;
+  for (std::vector<ConfigOption> group :
+       {ServeOptions(), SolveOptions(), RunOptions(), SecurityOptions(), LimitOptions()}) {
+    options.insert(options.end(), std::make_move_iterator(group.begin()),
+                   std::make_move_iterator(group.end()));
+  }
+  return options;
 }
 
 std::string FlagOf(std::string_view key) {

@@ -128,7 +128,7 @@ storage::Verdict ToStorage(core::Verdict verdict) {
     case core::Verdict::kWarn:
       return storage::Verdict::kWarn;
     case core::Verdict::kFail:
-    // A refused calibration never becomes a version (SessionServiceImpl::RunSolve): no case of
+    // A refused calibration never becomes a version (SolveJobs::Solve): no case of
     // its own in storage.
     case core::Verdict::kRefused:
       return storage::Verdict::kFail;

@@ -1,13 +1,13 @@
+#include "server/device_service.h"
+
 #include <optional>
 #include <regex>
 #include <string>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "absl/strings/str_format.h"
 #include "core/capture.h"
 #include "server/convert.h"
-#include "server/services.h"
 #include "server/unary.h"
 #include "util/text_check.h"
 
@@ -34,12 +34,6 @@ absl::Status ValidateDevice(const v1::Device& device) {
 }
 
 }  // namespace
-
-absl::StatusOr<int> PageSize(int page_size, int max_page_size) {
-  if (page_size < 0 || page_size > max_page_size)
-    return absl::InvalidArgumentError(absl::StrFormat("page_size: must be 0..%d", max_page_size));
-  return page_size == 0 ? 100 : page_size;
-}
 
 absl::Status DeviceServiceImpl::DoRegister(const grpc::CallbackServerContext& context,
                                            const v1::RegisterDeviceRequest& request,

@@ -1,3 +1,5 @@
+#include "server/parameter_service.h"
+
 #include <cmath>
 #include <optional>
 #include <string>
@@ -7,7 +9,6 @@
 #include "core/export.h"
 #include "formats/params_json.h"
 #include "server/convert.h"
-#include "server/services.h"
 #include "server/unary.h"
 #include "util/text_check.h"
 

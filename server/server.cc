@@ -104,6 +104,37 @@ absl::Status CheckStreamLimits(const SessionServiceOptions& o) {
   return absl::OkStatus();
 }
 
+// The store, telling the fetch cache of every change of a device's active version, whichever
+// service made it, and timing its transactions into `metrics` (null: none kept).
+absl::StatusOr<std::unique_ptr<storage::Store>> OpenStore(
+    const ServerOptions& options, const std::shared_ptr<ActiveParamCache>& cache,
+    Metrics* metrics) {
+  storage::StoreOptions store_options;
+  store_options.durability = options.durability;
+  store_options.on_active_change = [cache](std::string_view device_id) {
+    cache->Invalidate(device_id);
+  };
+  if (metrics != nullptr) {
+    store_options.on_transaction = [metrics](std::string_view op, absl::Duration took) {
+      metrics->ObserveDbTransaction(op, took);
+    };
+  }
+  return storage::Store::Open(options.db_path, store_options);
+}
+
+// The solves' and streams' leases, and the database's pings.
+absl::Status CheckLeases(const SessionServiceOptions& sessions, const ServerOptions& options) {
+  if (sessions.solve_lease <= absl::ZeroDuration())
+    return absl::InvalidArgumentError("solve_lease: must be positive");
+  if (sessions.stream_lease < absl::Milliseconds(30))
+    return absl::InvalidArgumentError("stream_lease: must be at least 30ms");
+  if (sessions.max_solve_attempts < 1)
+    return absl::InvalidArgumentError("max_solve_attempts: must be at least 1");
+  if (options.database_ping <= absl::ZeroDuration())
+    return absl::InvalidArgumentError("database_ping: must be longer than 0");
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& options) {
@@ -118,8 +149,6 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> credentials =
       ListenerCredentials(options.listen, options.security);
   if (!credentials.ok()) return credentials.status();
-  // The fetch cache hears of every change of a device's active version from the store itself,
-  // whichever service made it.
   auto cache = std::make_shared<ActiveParamCache>();
   std::unique_ptr<Metrics> metrics;
   if (!options.metrics_listen.empty()) {
@@ -127,29 +156,11 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
     if (!started.ok()) return started.status();
     metrics = *std::move(started);
   }
-  storage::StoreOptions store_options;
-  store_options.durability = options.durability;
-  store_options.on_active_change = [cache](std::string_view device_id) {
-    cache->Invalidate(device_id);
-  };
-  if (metrics != nullptr) {
-    store_options.on_transaction = [m = metrics.get()](std::string_view op, absl::Duration took) {
-      m->ObserveDbTransaction(op, took);
-    };
-  }
-  absl::StatusOr<std::unique_ptr<storage::Store>> store =
-      storage::Store::Open(options.db_path, store_options);
+  absl::StatusOr<std::unique_ptr<storage::Store>> store = OpenStore(options, cache, metrics.get());
   if (!store.ok()) return store.status();
   SessionServiceOptions sessions = options.sessions;
   if (sessions.replica_id.empty()) sessions.replica_id = DefaultReplicaId(options.listen);
-  if (sessions.solve_lease <= absl::ZeroDuration())
-    return absl::InvalidArgumentError("solve_lease: must be positive");
-  if (sessions.stream_lease < absl::Milliseconds(30))
-    return absl::InvalidArgumentError("stream_lease: must be at least 30ms");
-  if (sessions.max_solve_attempts < 1)
-    return absl::InvalidArgumentError("max_solve_attempts: must be at least 1");
-  if (options.database_ping <= absl::ZeroDuration())
-    return absl::InvalidArgumentError("database_ping: must be longer than 0");
+  if (absl::Status s = CheckLeases(sessions, options); !s.ok()) return s;
 
   std::unique_ptr<Server> s(new Server());
   s->host_ = options.listen.substr(0, colon);
@@ -157,21 +168,44 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->metrics_ = std::move(metrics);
   s->active_cache_ = std::move(cache);
   s->store_ = *std::move(store);
+  absl::StatusOr<absl::Duration> cache_sync = s->StartCacheSync(options.active_cache_sync);
+  if (!cache_sync.ok()) return cache_sync.status();
+  if (absl::Status st = s->StartAuth(options); !st.ok()) return st;
+  if (absl::Status st = s->StartServices(options, sessions); !st.ok()) return st;
+
+  // Solves this server was running when it stopped (killed, crashed), and those of servers
+  // sharing the database whose claim has lapsed, are queued to run again before the first call
+  // is taken: a client that finds the server up finds them claimed (or, out of attempts, failed).
+  absl::StatusOr<int> resumed = s->sessions_->ResumeLapsedSolves(sessions.replica_id);
+  if (!resumed.ok()) return resumed.status();
+  if (*resumed > 0)
+    Log(LogLevel::kInfo, "solves_resumed",
+        {{"replica_id", sessions.replica_id}, {"solves", *resumed}});
+
+  if (absl::Status st = s->Serve(options, *credentials); !st.ok()) return st;
+  s->database_->Start();
+  s->background_ =
+      std::thread([server = s.get(), id = sessions.replica_id, lease = sessions.solve_lease,
+                   sync = *cache_sync] { server->Background(id, lease, sync); });
+  return s;
+}
+
+absl::StatusOr<absl::Duration> Server::StartCacheSync(absl::Duration sync) {
   // Other servers' changes from now on, heard before anything can be fetched into the cache, so
   // that a change committed between a fill and the first sync is not missed. PostgreSQL tells
   // every server of each commit as it happens (LISTEN/NOTIFY); on SQLite each server reads the
   // audit log every active_cache_sync (SQLite's commits are serial, so its ids follow commit
   // order; PostgreSQL's do not, which is why it is not polled).
-  // (PostgreSQL: the listener starts below, once the session service that it also tells exists,
-  // still before the server takes its first call.)
-  absl::Duration cache_sync = options.active_cache_sync;
-  if (s->store_->dialect() == storage::Dialect::kPostgres) {
-    cache_sync = absl::ZeroDuration();
-  } else {
-    absl::StatusOr<storage::Store::ActiveChanges> synced = s->store_->ActiveChangesSince(-1);
-    if (!synced.ok()) return synced.status();
-    s->synced_audit_id_ = synced->last_id;
-  }
+  // (PostgreSQL: the listener starts in StartServices, once the session service that it also
+  // tells exists, still before the server takes its first call.)
+  if (store_->dialect() == storage::Dialect::kPostgres) return absl::ZeroDuration();
+  absl::StatusOr<storage::Store::ActiveChanges> synced = store_->ActiveChangesSince(-1);
+  if (!synced.ok()) return synced.status();
+  synced_audit_id_ = synced->last_id;
+  return sync;
+}
+
+absl::Status Server::StartAuth(const ServerOptions& options) {
   // Who may do what (server/auth.h). Insecure mode checks nothing: it is loopback-only.
   AuthorizerOptions auth_options;
   auth_options.enforce = !options.security.insecure;
@@ -181,86 +215,88 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
     absl::StatusOr<std::unique_ptr<storage::TokenStore>> tokens =
         storage::TokenStore::Open(options.db_path);
     if (!tokens.ok()) return tokens.status();
-    s->tokens_ = *std::move(tokens);
-    absl::StatusOr<std::string> written = BootstrapAdminToken(*s->tokens_, options);
+    tokens_ = *std::move(tokens);
+    absl::StatusOr<std::string> written = BootstrapAdminToken(*tokens_, options);
     if (!written.ok()) return written.status();
-    s->admin_token_written_ = *std::move(written);
+    admin_token_written_ = *std::move(written);
   } else {
     Log(LogLevel::kWarning, "insecure_listener",
         {{"listen", options.listen},
          {"note", "plaintext and no authentication: every caller is the local admin"}});
   }
-  s->auth_ = std::make_unique<Authorizer>(s->store_.get(), s->tokens_.get(), auth_options);
-  s->admin_ = std::make_unique<AdminServiceImpl>(s->auth_.get());
-  s->devices_ = std::make_unique<DeviceServiceImpl>(s->store_.get(), s->auth_.get());
-  s->sessions_ =
-      std::make_unique<SessionServiceImpl>(s->store_.get(), sessions, s->auth_.get());
-  if (s->metrics_ != nullptr) s->sessions_->SetMetrics(s->metrics_.get());
+  auth_ = std::make_unique<Authorizer>(store_.get(), tokens_.get(), auth_options);
+  return absl::OkStatus();
+}
+
+absl::Status Server::StartServices(const ServerOptions& options,
+                                   const SessionServiceOptions& sessions) {
+  admin_ = std::make_unique<AdminServiceImpl>(auth_.get());
+  devices_ = std::make_unique<DeviceServiceImpl>(store_.get(), auth_.get());
+  sessions_ = std::make_unique<SessionServiceImpl>(store_.get(), sessions, auth_.get());
+  if (metrics_ != nullptr) sessions_->SetMetrics(metrics_.get());
   // A revoked token's open streams and watches end at once, not at their next message.
-  s->auth_->SetRevocationListener(
-      [sessions = s->sessions_.get()](int64_t id, const std::string& why) {
-        sessions->RevokeStreams(id, why);
-      });
+  auth_->SetRevocationListener([sessions = sessions_.get()](int64_t id, const std::string& why) {
+    sessions->RevokeStreams(id, why);
+  });
   // Tokens changed elsewhere (another server, a tool, SQL by hand): PostgreSQL's trigger tells
   // the listener below; on SQLite the change log is read every kTokenPoll.
-  if (s->tokens_ != nullptr) {
-    const bool postgres = s->store_->dialect() == storage::Dialect::kPostgres;
-    absl::StatusOr<std::unique_ptr<TokenWatch>> watch = TokenWatch::Start(
-        s->auth_.get(), s->tokens_.get(), postgres ? absl::ZeroDuration() : kTokenPoll);
+  if (tokens_ != nullptr) {
+    const bool postgres = store_->dialect() == storage::Dialect::kPostgres;
+    absl::StatusOr<std::unique_ptr<TokenWatch>> watch =
+        TokenWatch::Start(auth_.get(), tokens_.get(), postgres ? absl::ZeroDuration() : kTokenPoll);
     if (!watch.ok()) return watch.status();
-    s->token_watch_ = *std::move(watch);
+    token_watch_ = *std::move(watch);
   }
-  if (s->store_->dialect() == storage::Dialect::kPostgres) {
-    // Other replicas' commits: promotes and rollbacks empty the fetch cache's entry; a batch or
-    // a state change of a session that someone watches here is told to its watchers.
-    ActiveParamCache* c = s->active_cache_.get();
-    SessionServiceImpl* live = s->sessions_.get();
-    storage::Store::ChangeHandlers handlers;
-    handlers.on_active = [c](std::string_view device_id) { c->Invalidate(device_id); };
-    handlers.on_session = [live](std::string_view session_id) {
-      live->SessionChangedElsewhere(session_id);
-    };
-    TokenWatch* tokens = s->token_watch_.get();  // null in insecure mode
-    handlers.on_token = [tokens](int64_t id) {
-      if (tokens != nullptr) tokens->Changed(id);
-    };
-    handlers.on_gap = [c, live, tokens] {
-      c->Clear();
-      live->RefreshWatchedSessions();
-      if (tokens != nullptr) tokens->Gap();
-      Log(LogLevel::kWarning, "change_notifications_gap",
-          {{"note", "the database's change notifications were interrupted: fetch cache emptied, "
-                    "watched sessions read again"}});
-    };
-    if (absl::Status listening = s->store_->ListenForChanges(std::move(handlers));
-        !listening.ok())
-      return listening;
+  if (store_->dialect() == storage::Dialect::kPostgres) {
+    if (absl::Status listening = ListenForChanges(); !listening.ok()) return listening;
   }
   // The database's reachability: the server's health follows it (set once the server runs).
-  s->database_ = std::make_shared<DatabaseHealth>(
-      [store = s->store_.get()] { return store->Ping(); },
-      [server = s.get()](bool up) { server->SetServing(up); }, options.database_ping);
-  if (s->metrics_ != nullptr) {
-    s->metrics_->SetGauge("imucal_database_up",
-                          "1 while the server reaches its database (its pings answer), 0 while "
-                          "it cannot (health NOT_SERVING, fetches answered from the cache)",
-                          [database = s->database_] { return database->up() ? 1.0 : 0.0; });
+  database_ =
+      std::make_shared<DatabaseHealth>([store = store_.get()] { return store->Ping(); },
+                                       [this](bool up) { SetServing(up); }, options.database_ping);
+  if (metrics_ != nullptr) {
+    metrics_->SetGauge("imucal_database_up",
+                       "1 while the server reaches its database (its pings answer), 0 while "
+                       "it cannot (health NOT_SERVING, fetches answered from the cache)",
+                       [database = database_] { return database->up() ? 1.0 : 0.0; });
   }
-  s->parameters_ = std::make_unique<ParameterServiceImpl>(s->store_.get(), s->active_cache_.get(),
-                                                          s->auth_.get(), s->database_.get());
+  parameters_ = std::make_unique<ParameterServiceImpl>(store_.get(), active_cache_.get(),
+                                                       auth_.get(), database_.get());
+  return absl::OkStatus();
+}
 
-  // Solves this server was running when it stopped (killed, crashed), and those of servers
-  // sharing the database whose claim has lapsed, are queued to run again before the first call
-  // is taken: a client that finds the server up finds them claimed (or, out of attempts, failed).
-  absl::StatusOr<int> resumed = s->sessions_->ResumeLapsedSolves(sessions.replica_id);
-  if (!resumed.ok()) return resumed.status();
-  if (*resumed > 0)
-    Log(LogLevel::kInfo, "solves_resumed", {{"replica_id", sessions.replica_id}, {"solves", *resumed}});
+absl::Status Server::ListenForChanges() {
+  // Other replicas' commits: promotes and rollbacks empty the fetch cache's entry; a batch or
+  // a state change of a session that someone watches here is told to its watchers.
+  ActiveParamCache* c = active_cache_.get();
+  SessionServiceImpl* live = sessions_.get();
+  storage::Store::ChangeHandlers handlers;
+  handlers.on_active = [c](std::string_view device_id) { c->Invalidate(device_id); };
+  handlers.on_session = [live](std::string_view session_id) {
+    live->SessionChangedElsewhere(session_id);
+  };
+  TokenWatch* tokens = token_watch_.get();  // null in insecure mode
+  handlers.on_token = [tokens](int64_t id) {
+    if (tokens != nullptr) tokens->Changed(id);
+  };
+  handlers.on_gap = [c, live, tokens] {
+    c->Clear();
+    live->RefreshWatchedSessions();
+    if (tokens != nullptr) tokens->Gap();
+    Log(LogLevel::kWarning, "change_notifications_gap",
+        {{"note",
+          "the database's change notifications were interrupted: fetch cache emptied, "
+          "watched sessions read again"}});
+  };
+  return store_->ListenForChanges(std::move(handlers));
+}
 
+absl::Status Server::Serve(const ServerOptions& options,
+                           const std::shared_ptr<grpc::ServerCredentials>& credentials) {
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
-  builder.AddListeningPort(options.listen, *credentials, &s->port_);
+  builder.AddListeningPort(options.listen, credentials, &port_);
   builder.SetMaxReceiveMessageSize(options.max_receive_message_bytes);
   builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIME_MS,
                              static_cast<int>(absl::ToInt64Milliseconds(options.keepalive_time)));
@@ -271,24 +307,19 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   // Keep pinging a stream that carries no data (a robot silent between batches): gRPC stops
   // after 2 pings without data by default, and a dead peer would then go unnoticed.
   builder.AddChannelArgument(GRPC_ARG_HTTP2_MAX_PINGS_WITHOUT_DATA, 0);
-  builder.RegisterService(s->devices_.get());
-  builder.RegisterService(s->sessions_.get());
-  builder.RegisterService(s->parameters_.get());
-  builder.RegisterService(s->admin_.get());
+  builder.RegisterService(devices_.get());
+  builder.RegisterService(sessions_.get());
+  builder.RegisterService(parameters_.get());
+  builder.RegisterService(admin_.get());
   std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> creators;
   if (options.log_rpcs) creators.push_back(NewRpcLogInterceptorFactory());
-  if (s->metrics_ != nullptr) creators.push_back(s->metrics_->NewInterceptorFactory());
+  if (metrics_ != nullptr) creators.push_back(metrics_->NewInterceptorFactory());
   if (!creators.empty()) builder.experimental().SetInterceptorCreators(std::move(creators));
-  s->server_ = builder.BuildAndStart();
-  if (s->server_ == nullptr || s->port_ == 0) {
+  server_ = builder.BuildAndStart();
+  if (server_ == nullptr || port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
   }
-  s->database_->Start();
-  s->background_ = std::thread([server = s.get(), id = sessions.replica_id,
-                                lease = sessions.solve_lease, sync = cache_sync] {
-    server->Background(id, lease, sync);
-  });
-  return s;
+  return absl::OkStatus();
 }
 
 void Server::Background(const std::string& replica_id, absl::Duration lease,

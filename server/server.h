@@ -1,6 +1,7 @@
-// imucald's gRPC server: the three services, the health service and reflection over one
-// Store. Start() binds and serves; Shutdown() stops accepting calls, lets in-flight calls and
-// queued solves finish (up to `drain_deadline`), and returns.
+// imucald's gRPC server: the four services (devices, sessions, parameters, admin), the health
+// service and reflection over one Store (SQLite or PostgreSQL). Start() binds and serves;
+// Shutdown() stops accepting calls, lets in-flight calls and queued solves finish (up to
+// `drain_deadline`), and returns.
 #ifndef IMUCAL_SERVER_SERVER_H_
 #define IMUCAL_SERVER_SERVER_H_
 
@@ -16,8 +17,10 @@
 #include "server/admin_service.h"
 #include "server/auth.h"
 #include "server/database_health.h"
+#include "server/device_service.h"
 #include "server/metrics.h"
-#include "server/services.h"
+#include "server/parameter_service.h"
+#include "server/session_service.h"
 #include "server/tls.h"
 #include "server/token_watch.h"
 #include "storage/store.h"
@@ -98,6 +101,19 @@ class Server {
   // The health service's answer for every service (DatabaseHealth's changes).
   void SetServing(bool serving);
   void RenewLeases(const std::string& replica_id, absl::Duration lease);
+  // Start's steps, in its order. The active_cache_sync to poll with (zero on PostgreSQL, which
+  // tells of changes as they commit), from the audit log's present end.
+  absl::StatusOr<absl::Duration> StartCacheSync(absl::Duration sync);
+  // The token store (with TLS; the first admin token on a new database) and the Authorizer.
+  absl::Status StartAuth(const ServerOptions& options);
+  // The four services, the token watch, PostgreSQL's change listener and the database's health.
+  absl::Status StartServices(const ServerOptions& options, const SessionServiceOptions& sessions);
+  // PostgreSQL: other replicas' commits, told to the fetch cache, the watched sessions and the
+  // token watch.
+  absl::Status ListenForChanges();
+  // Binds the listener and serves the services.
+  absl::Status Serve(const ServerOptions& options,
+                     const std::shared_ptr<grpc::ServerCredentials>& credentials);
 
  public:
   // Drops from the fetch cache the devices whose active version changed in the database since

@@ -10,15 +10,12 @@
 #include "util/str_util.h"
 
 namespace imucal::server {
-namespace {
 
 v1::SessionEvent Stamped() {
   v1::SessionEvent e;
   ToTimestamp(absl::Now(), e.mutable_time());
   return e;
 }
-
-}  // namespace
 
 core::OnlineSegmenterOptions SegmenterOptionsFor(const storage::Device& device,
                                                  v1::Protocol protocol) {

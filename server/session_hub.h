@@ -114,6 +114,9 @@ const LiveSession::Proof* ProofAfter(const LiveSession& session, int64_t seq);
 void ToRows(const std::vector<LiveEvent>& events, std::vector<storage::Pose>* poses,
             std::vector<storage::PosePair>* pairs);
 
+// An event stamped now (SessionEvent.time), for the caller to say what happened.
+v1::SessionEvent Stamped();
+
 class SessionHub {
  public:
   explicit SessionHub(storage::Store* store) : store_(store) {}

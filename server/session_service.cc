@@ -1,60 +1,27 @@
+#include "server/session_service.h"
+
 #include <algorithm>
-#include <cmath>
 #include <optional>
 #include <string>
 #include <utility>
 #include <vector>
 
-#include "absl/strings/escaping.h"
-#include "absl/strings/match.h"
-#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "absl/strings/str_format.h"
-#include "absl/strings/strip.h"
 #include "absl/time/clock.h"
-#include "core/calibrate/calibrate.h"
-#include "formats/params_json.h"
-#include "formats/report_json.h"
+#include "core/capture.h"
 #include "server/convert.h"
 #include "server/log.h"
-#include "server/services.h"
+#include "server/session_streams.h"
 #include "server/unary.h"
-#include "storage/sample_codec.h"
-#include "util/str_util.h"
 
 namespace imucal::server {
 namespace {
-
-constexpr char kJobPrefix[] = "solve-";
-constexpr char kServerActor[] = "imucald";  // the audit's actor for what the server does itself
 
 // Sessions are loaded (every stored batch decoded and replayed) on threads of their own, off
 // gRPC's: two, as many as this machine's cores, since a load is CPU work. Waiting loads are
 // bounded; beyond, the call is RESOURCE_EXHAUSTED.
 constexpr int kLoaderThreads = 2;
 constexpr size_t kLoaderQueueLimit = 4096;
-
-// A SolveJob.id: "solve-<n>", n the solve's id as the server writes it, a positive decimal
-// integer without sign, spaces or leading zeros (absl::SimpleAtoi alone took "solve--1" and
-// "solve- 7", which then went to storage and came back NOT_FOUND). At most 18 digits: int64.
-absl::StatusOr<int64_t> ParseJobId(const std::string& job_id) {
-  if (job_id.empty()) return absl::InvalidArgumentError("job_id: required");
-  absl::string_view digits = job_id;
-  const bool well_formed =
-      absl::ConsumePrefix(&digits, kJobPrefix) && !digits.empty() && digits.size() <= 18 &&
-      digits[0] != '0' &&
-      std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; });
-  int64_t id = 0;
-  if (!well_formed || !absl::SimpleAtoi(digits, &id)) {
-    // The id as sent, escaped (it may hold anything) and cut to a readable length.
-    const std::string shown = absl::CHexEscape(job_id.substr(0, 64));
-    return EchoesRequest(absl::InvalidArgumentError(
-        absl::StrCat("job_id: '", shown, job_id.size() > 64 ? "...' " : "' ",
-                     "is not a solve job id (\"solve-<n>\", n a positive integer, as SolveSession "
-                     "returns it)")));
-  }
-  return id;
-}
 
 absl::Status LoadersFull() {
   return absl::ResourceExhaustedError("too many sessions are being loaded; retry in a moment");
@@ -71,79 +38,8 @@ StreamRegistry::Options RegistryOptions(const SessionServiceOptions& o) {
   return r;
 }
 
-// A refused solve's error: the refusal's name (core/calibrate/report.h) and core's description
-// of the capture and of what to record.
-std::string RefusalMessage(const core::CalibrationReport& report) {
-  if (!report.refusal) return "the capture cannot support a calibration";
-  return Cat("the capture cannot support a calibration (",
-             core::RefusalReasonName(report.refusal->reason), "): ", report.refusal->message);
-}
-
 absl::Status RequireSession(const std::string& session_id) {
   return session_id.empty() ? absl::InvalidArgumentError("session_id: required") : absl::OkStatus();
-}
-
-v1::SessionEvent Stamped() {
-  v1::SessionEvent e;
-  ToTimestamp(absl::Now(), e.mutable_time());
-  return e;
-}
-
-// The session's stored batches as a core::Capture in the device's units. What the capture
-// had to leave out is said in `warnings` (it goes into the report).
-absl::StatusOr<core::Capture> LoadCapture(storage::Store& store, const LiveSession& live,
-                                          std::vector<std::string>* warnings) {
-  absl::StatusOr<std::vector<storage::SampleBatch>> batches = store.ReadBatches(live.id);
-  if (!batches.ok()) return batches.status();
-  std::vector<storage::ImuSample> samples;
-  for (const storage::SampleBatch& b : *batches)
-    if (absl::Status s = storage::DecodeSamplesInto(b.payload, &samples); !s.ok()) return s;
-  core::Capture cap;
-  cap.device = live.device.id;
-  absl::StatusOr<core::AccelUnit> au = core::ParseAccelUnit(live.device.accel_unit);
-  absl::StatusOr<core::GyroUnit> gu = core::ParseGyroUnit(live.device.gyro_unit);
-  if (!au.ok()) return au.status();
-  if (!gu.ok()) return gu.status();
-  cap.accel_unit = *au;
-  cap.gyro_unit = *gu;
-  cap.gravity_m_s2 = live.gravity_m_s2;
-  cap.rate_hz = live.device.nominal_rate_hz;
-  const bool has_temp = !samples.empty() && !std::isnan(samples.front().temp);
-  cap.t_s.reserve(samples.size());
-  cap.accel.reserve(samples.size());
-  cap.gyro.reserve(samples.size());
-  for (const storage::ImuSample& x : samples) {
-    cap.t_s.push_back(x.t_s);
-    cap.accel.emplace_back(x.accel[0], x.accel[1], x.accel[2]);
-    cap.gyro.emplace_back(x.gyro[0], x.gyro[1], x.gyro[2]);
-    if (has_temp) cap.temp.push_back(std::isnan(x.temp) ? 0.0 : x.temp);
-  }
-  // Batches with and without temperature may mix (a robot whose sensor driver dropped the
-  // channel for a while): then the capture has none, and the report says so, since temperature
-  // effects can then not be tested.
-  size_t without = 0;
-  for (const storage::ImuSample& x : samples) without += std::isnan(x.temp) ? 1 : 0;
-  if (without > 0 && without < samples.size()) {
-    cap.temp.clear();
-    warnings->push_back(absl::StrFormat(
-        "temperature left out of the solve: %d of the session's %d samples came in batches "
-        "without temp_c, and a capture has temperature for every sample or none; temperature "
-        "effects were not tested. Send temp_c in every batch (or in none)",
-        static_cast<int>(without), static_cast<int>(samples.size())));
-  }
-  return cap;
-}
-
-v1::JobState ToJobState(storage::SolveState state) {
-  switch (state) {
-    case storage::SolveState::kRunning:
-      return v1::JOB_STATE_RUNNING;
-    case storage::SolveState::kSucceeded:
-      return v1::JOB_STATE_DONE;
-    case storage::SolveState::kFailed:
-      return v1::JOB_STATE_FAILED;
-  }
-  return v1::JOB_STATE_UNSPECIFIED;
 }
 
 }  // namespace
@@ -156,7 +52,11 @@ SessionServiceImpl::SessionServiceImpl(storage::Store* store, SessionServiceOpti
       hub_(store),
       stream_claims_(store, options.replica_id, options.stream_lease),
       registry_(RegistryOptions(options)),
-      pool_(options.solve_threads, options.solve_queue_limit),
+      solves_(
+          store, &hub_, options_, [this](const std::string& id) { return SessionProto(id); },
+          [this](const std::string& session_id, const std::string& device_id) {
+            return OpenStreams(session_id, device_id);
+          }),
       loaders_(kLoaderThreads, kLoaderQueueLimit) {
   env_.store = store_;
   env_.hub = &hub_;
@@ -173,12 +73,7 @@ SessionServiceImpl::SessionServiceImpl(storage::Store* store, SessionServiceOpti
 
 SessionServiceImpl::~SessionServiceImpl() {
   loaders_.Shutdown();
-  pool_.Shutdown();
-}
-
-size_t SessionServiceImpl::solve_jobs_in_memory() {
-  std::lock_guard lock(jobs_mu_);
-  return jobs_.size();
+  solves_.Shutdown();
 }
 
 int SessionServiceImpl::OpenStreams(const std::string& session_id, const std::string& device_id) {
@@ -224,7 +119,7 @@ absl::StatusOr<v1::Session> SessionServiceImpl::SessionProto(const std::string& 
   if (!solves.ok()) return solves.status();
   for (const storage::Solve& solve : *solves)
     if (solve.state == storage::SolveState::kRunning)
-      out->set_solve_job_id(absl::StrCat(kJobPrefix, solve.id));
+      out->set_solve_job_id(SolveJobs::JobId(solve.id));
   return out;
 }
 
@@ -440,159 +335,9 @@ grpc::ServerUnaryReactor* SessionServiceImpl::ListPoses(grpc::CallbackServerCont
   return FinishUnary(context, DoListPoses(*request, response));
 }
 
-// ---- Solves.
-
-absl::Status SessionServiceImpl::DoSolve(const std::string& actor,
-                                         const std::shared_ptr<LiveSession>& live,
-                                         const v1::SolveSessionRequest& request,
-                                         v1::SolveJob* response) {
-  if (!pool_.Reserve()) {
-    return absl::ResourceExhaustedError(
-        "the solve queue is full; retry in a minute (GetSolveJob shows running jobs)");
-  }
-  // A robot still uploading into the session: solving now would end its stream and leave the
-  // rest of its capture unstored (the guide waits for Session.open_streams to fall to 0).
-  if (const int open = OpenStreams(request.session_id(), live->device.id);
-      open > 0 && !request.force()) {
-    pool_.Release();
-    return absl::FailedPreconditionError(absl::StrCat(
-        "session ", request.session_id(), " has ", open, " sample stream", open == 1 ? "" : "s",
-        " open (device ", live->device.id,
-        " is still uploading into it): a solve now would end the upload and leave the rest of "
-        "the capture unstored; solve once the stream has ended (Session.open_streams is 0), or "
-        "force the solve (SolveSessionRequest.force, imucal solve --force)"));
-  }
-  absl::StatusOr<storage::Solve> solve;
-  std::vector<LiveEvent> last_pose;
-  {
-    std::lock_guard lock(live->mu);  // no batch lands after the solve has started
-    solve = store_->StartSolve(request.session_id(), actor,
-                               {options_.replica_id, absl::Now() + options_.solve_lease},
-                               request.seed() == 0 ? 1 : request.seed());
-    if (solve.ok()) {
-      FlushSegment(*live, &last_pose);  // the final hold is a pose
-      std::vector<storage::Pose> poses;
-      std::vector<storage::PosePair> pairs;
-      ToRows(last_pose, &poses, &pairs);
-      store_->SavePoses(request.session_id(), poses, pairs).IgnoreError();  // as in IngestBatch
-    }
-  }
-  if (!solve.ok()) {
-    pool_.Release();
-    return solve.status();
-  }
-  hub_.Reopen(live);
-  for (const v1::SessionEvent& e : SessionHub::ToEvents(last_pose)) hub_.Publish(*live, e);
-  SolveTask task;
-  task.solve_id = solve->id;
-  task.job_id = absl::StrCat(kJobPrefix, solve->id);
-  task.session_id = request.session_id();
-  task.seed = solve->seed;
-  task.actor = actor;
-  *response = Queue(task, *live);
-  return absl::OkStatus();
-}
-
-v1::SolveJob SessionServiceImpl::Queue(const SolveTask& task, LiveSession& live) {
-  v1::SolveJob job;
-  job.set_id(task.job_id);
-  job.set_session_id(task.session_id);
-  job.set_state(v1::JOB_STATE_QUEUED);
-  UpdateJob(job);
-  if (absl::StatusOr<v1::Session> s = SessionProto(task.session_id); s.ok()) {
-    v1::SessionEvent e = Stamped();
-    *e.mutable_session() = *std::move(s);
-    hub_.Publish(live, e);
-  }
-  pool_.Submit([this, task] { RunSolve(task); });
-  return job;
-}
-
-absl::StatusOr<int> SessionServiceImpl::ResumeLapsedSolves(std::string_view restarted) {
-  if (!restarted.empty()) {
-    if (absl::Status s = store_->ReleaseSolveClaims(restarted).status(); !s.ok()) return s;
-  }
-  int resumed = 0;
-  while (pool_.Reserve()) {
-    const absl::Time now = absl::Now();
-    absl::StatusOr<std::optional<storage::Solve>> claimed =
-        store_->ClaimLapsedSolve(now, {options_.replica_id, now + options_.solve_lease});
-    if (!claimed.ok() || !claimed->has_value()) {
-      pool_.Release();
-      if (!claimed.ok()) return claimed.status();
-      return resumed;
-    }
-    const storage::Solve& solve = **claimed;
-    absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(solve.session_id);
-    if (solve.attempts > options_.max_solve_attempts || !live.ok()) {
-      pool_.Release();
-      const std::string error =
-          live.ok() ? Cat("the solve was started ", solve.attempts - 1,
-                          " times and each time its server stopped before it ended; solve the "
-                          "session again (the server's log may say why)")
-                    : Cat("the session cannot be loaded to solve it again: ",
-                          ClientMessage(live.status()));
-      if (absl::Status s = FailAndReopen(solve.id, error); !s.ok()) return s;
-      if (live.ok()) hub_.CloseSession(**live);
-      if (env_.metrics != nullptr) env_.metrics->CountSolveTakenOver("given_up");
-      continue;
-    }
-    Log(LogLevel::kInfo, "solve_resumed",
-        {{"solve", solve.id}, {"session", solve.session_id}, {"attempt", solve.attempts}});
-    hub_.Reopen(*live);
-    SolveTask task;
-    task.solve_id = solve.id;
-    task.job_id = absl::StrCat(kJobPrefix, solve.id);
-    task.session_id = solve.session_id;
-    task.seed = solve.seed;
-    task.actor = solve.actor;
-    Queue(task, **live);
-    if (env_.metrics != nullptr) env_.metrics->CountSolveTakenOver("rerun");
-    ++resumed;
-  }
-  return resumed;
-}
-
-absl::Status SessionServiceImpl::FailAndReopen(int64_t solve_id, const std::string& error) {
-  // Open again, so that the technician can solve it again; a session whose device has opened
-  // its next session meanwhile cannot reopen (one open session per device): it is left failed,
-  // from where it can be solved again too.
-  absl::StatusOr<storage::Solve> failed =
-      store_->FailSolve(solve_id, error, /*report_json=*/"", kServerActor,
-                        storage::SessionState::kOpen, options_.replica_id);
-  if (absl::IsFailedPrecondition(failed.status())) {
-    failed = store_->FailSolve(solve_id, error, /*report_json=*/"", kServerActor,
-                               storage::SessionState::kFailed, options_.replica_id);
-  }
-  return failed.status();
-}
-
-void SessionServiceImpl::UpdateJob(const v1::SolveJob& job) {
-  {
-    std::lock_guard lock(jobs_mu_);
-    jobs_[job.id()] = job;
-    // Finished jobs stay a while for GetSolveJob, within bounds; storage answers after.
-    if (job.state() == v1::JOB_STATE_DONE || job.state() == v1::JOB_STATE_FAILED) {
-      const absl::Time now = absl::Now();
-      finished_jobs_.emplace_back(job.id(), now);
-      while (!finished_jobs_.empty() &&
-             (finished_jobs_.size() > options_.finished_jobs_kept ||
-              finished_jobs_.front().second < now - options_.finished_job_ttl)) {
-        jobs_.erase(finished_jobs_.front().first);
-        finished_jobs_.pop_front();
-      }
-    }
-  }
-  // Only watchers of a session in memory can hear of it: nothing is loaded to tell them.
-  std::shared_ptr<LiveSession> live = hub_.Find(job.session_id());
-  if (live == nullptr) return;
-  v1::SessionEvent e = Stamped();
-  *e.mutable_solve() = job;
-  hub_.Publish(*live, e);
-}
-
 void SessionServiceImpl::SetMetrics(Metrics* metrics) {
   env_.metrics = metrics;
+  solves_.SetMetrics(metrics);
   metrics->SetGauge("imucal_sessions_in_memory",
                     "sessions whose live state (segmentation, pairs) this server holds",
                     [this] { return static_cast<double>(hub_.LiveSessions()); });
@@ -604,110 +349,10 @@ void SessionServiceImpl::SetMetrics(Metrics* metrics) {
   metrics->SetGauge("imucal_watchers_open", "WatchSession calls holding a session's slot",
                     [this] { return static_cast<double>(watcher_slots_.Total()); });
   metrics->SetGauge("imucal_solve_queue_depth", "solves waiting for a solve thread",
-                    [this] { return static_cast<double>(pool_.queued()); });
+                    [this] { return static_cast<double>(solves_.queued()); });
   metrics->SetGauge("imucal_session_loads_queued",
                     "sessions waiting to be loaded (their stored batches replayed)",
                     [this] { return static_cast<double>(loaders_.queued()); });
-}
-
-void SessionServiceImpl::RunSolve(const SolveTask& task) {
-  const absl::Time started = absl::Now();
-  v1::SolveJob job;
-  job.set_id(task.job_id);
-  job.set_session_id(task.session_id);
-  job.set_state(v1::JOB_STATE_RUNNING);
-  UpdateJob(job);
-  absl::StatusOr<std::shared_ptr<LiveSession>> live = hub_.Get(task.session_id);
-  absl::Status failure = live.status();
-  if (failure.ok()) {
-    // read -> decode -> calibrate -> JSON -> store (the version becomes active if it passes).
-    std::vector<std::string> load_warnings;
-    absl::StatusOr<core::Capture> capture = LoadCapture(*store_, **live, &load_warnings);
-    core::CalibrateOptions options;
-    options.protocol = ToProtocolKind((*live)->protocol);
-    options.seed = task.seed;
-    absl::StatusOr<core::CalibrationReport> report =
-        capture.ok() ? core::Calibrate(*capture, options)
-                     : absl::StatusOr<core::CalibrationReport>(capture.status());
-    if (report.ok() && report->verdict == core::Verdict::kRefused) {
-      // The capture cannot determine even bias and scale: no version. The report (the poses
-      // found, why each interval is unusable) is kept with the failed solve, and the session
-      // goes back to open, its samples untouched, so that more poses can be recorded into it.
-      for (std::string& w : load_warnings) report->warnings.push_back(std::move(w));
-      report->device = (*live)->device.id;
-      const std::string error = RefusalMessage(*report);
-      absl::StatusOr<storage::Solve> failed =
-          store_->FailSolve(task.solve_id, error, formats::ReportToJson(*report), task.actor,
-                            storage::SessionState::kOpen, options_.replica_id);
-      if (failed.ok()) {
-        job.set_state(v1::JOB_STATE_FAILED);
-        job.set_error(ScrubMessage(error));
-        job.set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
-      } else {
-        failure = failed.status();
-      }
-    } else if (report.ok()) {
-      for (std::string& w : load_warnings) report->warnings.push_back(std::move(w));
-      report->device = (*live)->device.id;
-      report->params.device = (*live)->device.id;
-      report->params.source_session = task.session_id;
-      report->params.software = "imucald " IMUCAL_VERSION;
-      storage::ParamVersion version;
-      version.device_id = (*live)->device.id;
-      version.session_id = task.session_id;
-      version.verdict = ToStorage(report->verdict);
-      version.accel_rms = report->residual.accel_rms_m_s2;
-      // The quality gate: only a passing solve becomes active on its own.
-      version.state = report->verdict == core::Verdict::kPass ? storage::VersionState::kActive
-                                                              : storage::VersionState::kCandidate;
-      version.provenance = absl::StrFormat("imucald %s; protocol %s; seed %d", IMUCAL_VERSION,
-                                           core::ProtocolKindName(options.protocol), options.seed);
-      // The number is the store's, assigned in the transaction that writes the version: the
-      // documents are written there, so another server on the same database cannot take it.
-      absl::StatusOr<storage::ParamVersion> stored = store_->FinishSolve(
-          task.solve_id, version, task.actor,
-          [&](int number, std::string* params_json, std::string* report_json) {
-            report->params.version = number;
-            *params_json = formats::ParamSetToJson(report->params);
-            *report_json = formats::ReportToJson(*report);
-            return absl::OkStatus();
-          },
-          options_.replica_id);
-      if (stored.ok()) {
-        job.set_state(v1::JOB_STATE_DONE);
-        job.set_version(stored->version);
-        job.set_verdict(std::string(core::VerdictName(report->verdict)));
-        job.set_activated(stored->state == storage::VersionState::kActive);
-      } else {
-        failure = stored.status();
-      }
-    } else {
-      failure = report.status();
-    }
-  }
-  if (job.state() != v1::JOB_STATE_DONE && job.state() != v1::JOB_STATE_FAILED) {
-    if (failure.ok()) failure = absl::InternalError("solve ended without a result");
-    job.set_state(v1::JOB_STATE_FAILED);
-    job.set_error(ClientMessage(failure));
-    store_->FailSolve(task.solve_id, job.error(), /*report_json=*/"", task.actor,
-                      storage::SessionState::kFailed, options_.replica_id)
-        .IgnoreError();
-  }
-  UpdateJob(job);
-  if (env_.metrics != nullptr) {
-    env_.metrics->ObserveSolve(job.state() == v1::JOB_STATE_DONE ? "done"
-                               : job.verdict() == core::VerdictName(core::Verdict::kRefused)
-                                   ? "refused"
-                                   : "failed",
-                               absl::Now() - started);
-  }
-  if (!live.ok()) return;
-  if (absl::StatusOr<v1::Session> s = SessionProto(task.session_id); s.ok()) {
-    v1::SessionEvent e = Stamped();
-    *e.mutable_session() = *std::move(s);
-    hub_.Publish(**live, e);
-  }
-  hub_.CloseSession(**live);
 }
 
 grpc::ServerUnaryReactor* SessionServiceImpl::SolveSession(grpc::CallbackServerContext* context,
@@ -735,45 +380,10 @@ grpc::ServerUnaryReactor* SessionServiceImpl::SolveSession(grpc::CallbackServerC
   return WithLiveSession(
       context, stored->id,
       [this, actor, request, response](const std::shared_ptr<LiveSession>& live) {
-        return DoSolve(actor, live, *request, response);
+        absl::StatusOr<v1::SolveJob> job = solves_.Start(actor, live, *request);
+        if (job.ok()) *response = *std::move(job);
+        return job.status();
       });
-}
-
-absl::Status SessionServiceImpl::DoGetSolveJob(const v1::GetSolveJobRequest& request,
-                                               v1::SolveJob* response) {
-  absl::StatusOr<int64_t> solve_id = ParseJobId(request.job_id());
-  if (!solve_id.ok()) return solve_id.status();
-  {
-    std::lock_guard lock(jobs_mu_);
-    if (auto it = jobs_.find(request.job_id()); it != jobs_.end()) {
-      *response = it->second;
-      return absl::OkStatus();
-    }
-  }
-  // A job of an earlier server run, or of another server's: from storage.
-  absl::StatusOr<storage::Solve> solve = store_->GetSolve(*solve_id);
-  if (!solve.ok()) return solve.status();
-  return JobFromStore(*solve, response);
-}
-
-absl::Status SessionServiceImpl::JobFromStore(const storage::Solve& solve, v1::SolveJob* job) {
-  job->set_id(absl::StrCat(kJobPrefix, solve.id));
-  job->set_session_id(solve.session_id);
-  job->set_state(ToJobState(solve.state));
-  job->set_error(ScrubMessage(solve.error));
-  job->set_version(solve.version);
-  if (solve.version > 0) {
-    absl::StatusOr<storage::Session> session = store_->GetSession(solve.session_id);
-    if (!session.ok()) return session.status();
-    absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, solve.version);
-    if (!v.ok()) return v.status();
-    job->set_verdict(std::string(storage::VerdictName(v->verdict)));
-    job->set_activated(v->state != storage::VersionState::kCandidate);
-  } else if (solve.state == storage::SolveState::kFailed && !solve.report_json.empty()) {
-    // Only a refusal keeps a report with a failed solve (RunSolve).
-    job->set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
-  }
-  return absl::OkStatus();
 }
 
 void SessionServiceImpl::SessionChangedElsewhere(std::string_view session_id) {
@@ -819,7 +429,7 @@ void SessionServiceImpl::Refresh(const std::shared_ptr<LiveSession>& live) {
   if (state != v1::SESSION_STATE_OPEN) {  // a solve began or ended there: its job
     absl::StatusOr<std::vector<storage::Solve>> solves = store_->ListSolves(live->id);
     v1::SolveJob job;
-    if (solves.ok() && !solves->empty() && JobFromStore(solves->back(), &job).ok()) {
+    if (solves.ok() && !solves->empty() && solves_.FromStore(solves->back(), &job).ok()) {
       v1::SessionEvent e = Stamped();
       *e.mutable_solve() = job;
       hub_.Publish(*live, e);
@@ -837,7 +447,7 @@ grpc::ServerUnaryReactor* SessionServiceImpl::GetSolveJob(grpc::CallbackServerCo
                                                           v1::SolveJob* response) {
   if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetSolveJob); !who.ok())
     return FinishUnary(context, who.status());
-  return FinishUnary(context, DoGetSolveJob(*request, response));
+  return FinishUnary(context, solves_.Get(request->job_id(), response));
 }
 
 absl::Status SessionServiceImpl::DoGetReport(const v1::GetReportRequest& request,
@@ -871,6 +481,21 @@ grpc::ServerUnaryReactor* SessionServiceImpl::GetReport(grpc::CallbackServerCont
   if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kGetReport); !who.ok())
     return FinishUnary(context, who.status());
   return FinishUnary(context, DoGetReport(*request, response));
+}
+
+grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* SessionServiceImpl::StreamSamples(
+    grpc::CallbackServerContext* context) {
+  return StartStreamSamples(env_, context);
+}
+
+grpc::ServerWriteReactor<v1::SessionEvent>* SessionServiceImpl::WatchSession(
+    grpc::CallbackServerContext* context, const v1::WatchSessionRequest* request) {
+  return StartWatchSession(env_, context, *request);
+}
+
+grpc::ServerWriteReactor<v1::SampleBatch>* SessionServiceImpl::ReadSamples(
+    grpc::CallbackServerContext* context, const v1::ReadSamplesRequest* request) {
+  return StartReadSamples(env_, context, *request);
 }
 
 }  // namespace imucal::server

@@ -150,7 +150,7 @@ PRAGMA user_version = 3;
 
 // Version 4: a session's source, the name of the capture it holds (a file the CLI uploaded, a
 // robot's capture label), so that a stream that tries to continue it with another capture is
-// refused naming both (server/session_streams.cc).
+// refused naming both (server/ingest_reactor.cc).
 constexpr char kSchemaV4[] = R"sql(
 ALTER TABLE sessions ADD COLUMN source TEXT NOT NULL DEFAULT '';
 PRAGMA user_version = 4;
