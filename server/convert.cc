@@ -136,6 +136,32 @@ storage::Verdict ToStorage(core::Verdict verdict) {
   return storage::Verdict::kFail;
 }
 
+core::Verdict ToCore(storage::Verdict verdict) {
+  switch (verdict) {
+    case storage::Verdict::kPass:
+      return core::Verdict::kPass;
+    case storage::Verdict::kWarn:
+      return core::Verdict::kWarn;
+    case storage::Verdict::kFail:
+      return core::Verdict::kFail;
+  }
+  return core::Verdict::kFail;
+}
+
+v1::Verdict ToProto(core::Verdict verdict) {
+  switch (verdict) {
+    case core::Verdict::kPass:
+      return v1::VERDICT_PASS;
+    case core::Verdict::kWarn:
+      return v1::VERDICT_WARN;
+    case core::Verdict::kFail:
+      return v1::VERDICT_FAIL;
+    case core::Verdict::kRefused:
+      return v1::VERDICT_REFUSED;
+  }
+  return v1::VERDICT_UNSPECIFIED;
+}
+
 v1::VersionState ToProto(storage::VersionState state) {
   switch (state) {
     case storage::VersionState::kCandidate:
@@ -159,7 +185,7 @@ v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json,
   out.set_state(ToProto(version.state));
   ToTimestamp(version.created_at, out.mutable_created_at());
   out.set_session_id(version.session_id);
-  out.set_verdict(std::string(storage::VerdictName(version.verdict)));
+  SetVerdict(ToCore(version.verdict), &out);
   out.set_accel_rms_m_s2(version.accel_rms);
   out.set_crc32c(crc_cache != nullptr ? crc_cache->Get(version)
                                       : formats::Crc32c(version.params_json));

@@ -65,8 +65,16 @@ class ParamCrcCache {
 v1::ParameterSet ToProto(const storage::ParamVersion& version, bool with_json,
                          ParamCrcCache* crc_cache = nullptr);
 v1::VersionState ToProto(storage::VersionState state);
-// The calibration's verdict as stored.
+// The calibration's verdict as stored, and back.
 storage::Verdict ToStorage(core::Verdict verdict);
+core::Verdict ToCore(storage::Verdict verdict);
+v1::Verdict ToProto(core::Verdict verdict);
+// Sets a message's verdict (SolveJob, ParameterSet): the enum and its text, always together.
+template <typename Message>
+void SetVerdict(core::Verdict verdict, Message* message) {
+  message->set_verdict(std::string(core::VerdictName(verdict)));
+  message->set_verdict_kind(ToProto(verdict));
+}
 
 }  // namespace imucal::server
 

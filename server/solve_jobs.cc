@@ -255,7 +255,7 @@ absl::Status SolveJobs::StoreRefusal(const Task& task, const core::CalibrationRe
   if (!failed.ok()) return failed.status();
   job->set_state(v1::JOB_STATE_FAILED);
   job->set_error(ScrubMessage(error));
-  job->set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
+  SetVerdict(core::Verdict::kRefused, job);
   return absl::OkStatus();
 }
 
@@ -287,16 +287,16 @@ absl::Status SolveJobs::StoreVersion(const Task& task, const LiveSession& live,
   if (!stored.ok()) return stored.status();
   job->set_state(v1::JOB_STATE_DONE);
   job->set_version(stored->version);
-  job->set_verdict(std::string(core::VerdictName(report.verdict)));
+  SetVerdict(report.verdict, job);
   job->set_activated(stored->state == storage::VersionState::kActive);
   return absl::OkStatus();
 }
 
 void SolveJobs::CountSolve(const v1::SolveJob& job, absl::Duration took) {
   if (metrics_ == nullptr) return;
-  metrics_->ObserveSolve(job.state() == v1::JOB_STATE_DONE                             ? "done"
-                         : job.verdict() == core::VerdictName(core::Verdict::kRefused) ? "refused"
-                                                                                       : "failed",
+  metrics_->ObserveSolve(job.state() == v1::JOB_STATE_DONE           ? "done"
+                         : job.verdict_kind() == v1::VERDICT_REFUSED ? "refused"
+                                                                     : "failed",
                          took);
 }
 
@@ -335,11 +335,11 @@ absl::Status SolveJobs::FromStore(const storage::Solve& solve, v1::SolveJob* job
     if (!session.ok()) return session.status();
     absl::StatusOr<storage::ParamVersion> v = store_->GetVersion(session->device_id, solve.version);
     if (!v.ok()) return v.status();
-    job->set_verdict(std::string(storage::VerdictName(v->verdict)));
+    SetVerdict(ToCore(v->verdict), job);
     job->set_activated(v->state != storage::VersionState::kCandidate);
   } else if (solve.state == storage::SolveState::kFailed && !solve.report_json.empty()) {
     // Only a refusal keeps a report with a failed solve (StoreRefusal).
-    job->set_verdict(std::string(core::VerdictName(core::Verdict::kRefused)));
+    SetVerdict(core::Verdict::kRefused, job);
   }
   return absl::OkStatus();
 }

@@ -2,6 +2,7 @@
 #ifndef IMUCAL_CLIENT_CLI_COMMANDS_H_
 #define IMUCAL_CLIENT_CLI_COMMANDS_H_
 
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -21,14 +22,12 @@ inline constexpr int kExitInternal = 5;
 inline constexpr int kExitUnavailable = 6;  // the server could not be reached (or timed out)
 inline constexpr int kExitDenied = 7;       // the server refused the token or the role
 
-// The exit code of a finished calibration by its verdict: kExitVerdictFail for "fail" (and for a
-// name this client does not know: it cannot vouch for it), else kExitOk.
-inline int ExitForVerdict(core::Verdict verdict) {
+// The exit code of a finished calibration by its verdict: kExitVerdictFail for "fail" (and for
+// none this client knows: it cannot vouch for it), else kExitOk.
+inline int ExitForVerdict(std::optional<core::Verdict> verdict) {
   if (verdict == core::Verdict::kRefused) return kExitUndetermined;  // a report, no parameters
-  return verdict == core::Verdict::kFail ? kExitVerdictFail : kExitOk;
-}
-inline int ExitForVerdict(std::string_view name) {
-  return ExitForVerdict(core::ParseVerdict(name).value_or(core::Verdict::kFail));
+  return verdict.value_or(core::Verdict::kFail) == core::Verdict::kFail ? kExitVerdictFail
+                                                                        : kExitOk;
 }
 
 // Prints "imucal: <message>" to stderr and maps the status to an exit code.

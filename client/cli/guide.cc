@@ -49,7 +49,7 @@ constexpr char kGuideHelp[] =
 
 int ExitFor(const pb::SolveJob& job) {
   if (job.state() == pb::JOB_STATE_FAILED) return kExitUndetermined;
-  return ExitForVerdict(job.verdict());
+  return ExitForVerdict(VerdictOf(job.verdict_kind(), job.verdict()));
 }
 
 // Starts the session's solve once the protocol is complete and no stream of the session is open

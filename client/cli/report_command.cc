@@ -147,7 +147,7 @@ int RunReport(const std::vector<std::string>& argv) {
     if (!written.ok()) return ReportError(written.status());
     for (const auto& p : *written) std::fprintf(stderr, "imucal: wrote %s\n", p.c_str());
   }
-  return ExitForVerdict(JsonString(r, "verdict"));
+  return ExitForVerdict(core::ParseVerdict(JsonString(r, "verdict")));
 }
 
 }  // namespace imucal::cli

@@ -224,6 +224,21 @@ std::string VersionStateName(pb::VersionState state) {
   return EnumWord(pb::VersionState_Name(state), sizeof("VERSION_STATE_") - 1);
 }
 
+std::optional<core::Verdict> VerdictOf(pb::Verdict kind, std::string_view text) {
+  switch (kind) {
+    case pb::VERDICT_PASS:
+      return core::Verdict::kPass;
+    case pb::VERDICT_WARN:
+      return core::Verdict::kWarn;
+    case pb::VERDICT_FAIL:
+      return core::Verdict::kFail;
+    case pb::VERDICT_REFUSED:
+      return core::Verdict::kRefused;
+    default:
+      return core::ParseVerdict(text);
+  }
+}
+
 std::string TimeText(const google::protobuf::Timestamp& t) {
   if (t.seconds() == 0 && t.nanos() == 0) return "-";
   return google::protobuf::util::TimeUtil::ToString(t);

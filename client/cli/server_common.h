@@ -10,10 +10,12 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 
 #include "absl/status/statusor.h"
 #include "client/cli/args.h"
 #include "client/sdk/client.h"
+#include "core/calibrate/verdict.h"
 #include "google/protobuf/timestamp.pb.h"
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
@@ -109,6 +111,9 @@ absl::StatusOr<imucal::v1::Protocol> ParseProtocol(const std::string& name);
 std::string SessionStateName(imucal::v1::SessionState state);  // "open", "solving", ...
 std::string JobStateName(imucal::v1::JobState state);
 std::string VersionStateName(imucal::v1::VersionState state);
+// A job's or version's verdict: its verdict_kind, else (a server from before that field) its
+// text; nullopt when neither names one.
+std::optional<core::Verdict> VerdictOf(imucal::v1::Verdict kind, std::string_view text);
 std::string TimeText(const google::protobuf::Timestamp& t);  // RFC 3339, "-" when unset
 // A message as JSON with the .proto field names (for --json of listings).
 std::string ProtoJson(const google::protobuf::Message& message);

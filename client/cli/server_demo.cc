@@ -99,7 +99,7 @@ int PromoteIfWarn(const Server& server, const std::string& device, const std::st
   if (grpc::Status s = server.params->GetParameters(CallContext().get(), get, &version); !s.ok())
     return RpcError(server, s);
   if (version.state() != pb::VERSION_STATE_CANDIDATE ||
-      core::ParseVerdict(version.verdict()) != core::Verdict::kWarn)
+      VerdictOf(version.verdict_kind(), version.verdict()) != core::Verdict::kWarn)
     return kExitOk;
   std::printf("== 2b. verdict warn: the technician reviews the report and promotes version %d\n",
               version.version());

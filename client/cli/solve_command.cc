@@ -107,7 +107,7 @@ int SolveAndMaybeWait(const Server& server, const std::string& session, uint64_t
   }
   if (!wait) return kExitOk;
   if (job.state() == pb::JOB_STATE_FAILED) return kExitUndetermined;
-  return ExitForVerdict(job.verdict());
+  return ExitForVerdict(VerdictOf(job.verdict_kind(), job.verdict()));
 }
 
 int RunSolve(const std::vector<std::string>& argv) {

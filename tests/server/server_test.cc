@@ -699,6 +699,7 @@ TEST_F(ServerTest, WatchGuidesSolveActivatesAndMatchesOfflineCalibrate) {
   ASSERT_EQ(job.state(), v1::JOB_STATE_DONE) << job.error();
   EXPECT_EQ(job.version(), 1);
   EXPECT_EQ(job.verdict(), "pass") << ReportOf(session.id());
+  EXPECT_EQ(job.verdict_kind(), v1::VERDICT_PASS);
   EXPECT_TRUE(job.activated());
   EXPECT_EQ(GetSession(session.id()).state(), v1::SESSION_STATE_SOLVED);
 
@@ -708,6 +709,8 @@ TEST_F(ServerTest, WatchGuidesSolveActivatesAndMatchesOfflineCalibrate) {
   ASSERT_TRUE(params_->GetActiveParameters(Ctx().get(), active, &ps).ok());
   EXPECT_EQ(ps.version(), 1);
   EXPECT_EQ(ps.state(), v1::VERSION_STATE_ACTIVE);
+  EXPECT_EQ(ps.verdict_kind(), v1::VERDICT_PASS);  // from the pre-serialised cache
+  EXPECT_EQ(ps.verdict(), "pass");
   auto served = formats::ParamSetFromJson(ps.json());
   ASSERT_TRUE(served.ok()) << served.status();
 
@@ -1123,6 +1126,7 @@ TEST_F(ServerTest, ARefusedCalibrationKeepsItsReportAndTheSessionMakesNoVersion)
     ASSERT_TRUE(sessions_->GetSolveJob(Ctx().get(), get, &job).ok());
     EXPECT_EQ(job.state(), v1::JOB_STATE_FAILED);
     EXPECT_EQ(job.verdict(), "refused");
+    EXPECT_EQ(job.verdict_kind(), v1::VERDICT_REFUSED);  // also when read back after a restart
     EXPECT_EQ(job.version(), 0);
     EXPECT_EQ(job.error().rfind("the capture cannot support a calibration (", 0), 0u)
         << job.error();
