@@ -51,13 +51,15 @@ std::vector<double> SortedDistinct(const std::vector<Eigen::Vector3d>& x, int j,
   return v;
 }
 
-// Whether every `stride`-th reading of axis `j` sits on the grid origin + k step (to 1e-6 of a
-// step per step from the origin, SortedGridStep's tolerance).
+// Whether every `stride`-th reading of axis `j` sits on the grid origin + k step, each within
+// half of SortedGridStep's tolerance for one step (so any two neighbours pass its test: a grid
+// accepted here is one the full sort accepts, never a looser one).
 bool OnGrid(const std::vector<Eigen::Vector3d>& x, int j, size_t stride, double origin, double step,
             double tiny) {
+  const double tolerance = 0.5 * (1e-6 + tiny / step);
   for (size_t i = 0; i < x.size(); i += stride) {
     const double k = (x[i](j) - origin) / step;
-    if (std::abs(k - std::round(k)) > 1e-6 * std::max(1.0, std::abs(k)) + tiny / step) {
+    if (std::abs(k - std::round(k)) > tolerance) {
       return false;
     }
   }
