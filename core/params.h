@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "core/capture.h"
+#include "core/dynamic_gyro.h"
 #include "core/model.h"
 #include "core/regressor.h"
 
@@ -153,6 +154,9 @@ struct ParamSet {
   std::optional<NoiseFigures> noise;
   // The priors the estimate was made with (absent in parameter sets made before issue 25).
   std::optional<TermPriors> term_priors;
+  // The gyroscope's learnt dynamic block (core/dynamic_gyro.h, `imucal learn`); absent in a
+  // parameter set from a static capture.
+  std::optional<DynamicGyro> dynamic_gyro;
 };
 
 // The model text stored in every parameter set and export, so a reader never guesses (the
