@@ -178,7 +178,7 @@ imucal::core::ParamSet RandomParams(std::mt19937_64& rng, const std::string& dev
 std::unique_ptr<imucal::storage::Store> OpenStore(const std::string& db) {
   absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store = imucal::storage::Store::Open(db);
   if (!store.ok()) {
-    std::fprintf(stderr, "open %s: %s\n", imucal::storage::RedactedLocation(db).c_str(),
+    std::fprintf(stderr, "open %s: %s\n", imucal::sql::RedactedLocation(db).c_str(),
                  std::string(store.status().message()).c_str());
     std::exit(1);
   }
@@ -196,7 +196,7 @@ bool PostgresNeedsFleet(const Flags& flags, const std::string& url) {
   std::fprintf(stderr,
                "%s holds devices, but not this fleet (%s with version %d active): use an empty "
                "database, or the --devices and --versions it was populated with\n",
-               imucal::storage::RedactedLocation(url).c_str(), DeviceId(flags.devices - 1).c_str(),
+               imucal::sql::RedactedLocation(url).c_str(), DeviceId(flags.devices - 1).c_str(),
                flags.versions);
   std::exit(1);
 }
@@ -351,7 +351,7 @@ void PrintRow(const char* what, int callers, std::vector<double>& lat, double wa
 // directory, `*dir`, when --db is empty). Prints what it is.
 std::string PrepareDb(const Flags& flags, std::string* dir) {
   std::string db = flags.db;
-  const bool pg = imucal::storage::IsPostgresUrl(db);
+  const bool pg = imucal::sql::IsPostgresUrl(db);
   const bool populate =
       pg ? PostgresNeedsFleet(flags, db) : db.empty() || !std::filesystem::exists(db);
   if (populate) {
@@ -449,7 +449,7 @@ int64_t RpcRows(const Flags& flags, const std::string& db, const CpuMeters& cpu)
   if (!WarmUp(flags, servers.size(), stubs)) return -1;
   std::string pids;
   for (const Child& child : servers) absl::StrAppend(&pids, pids.empty() ? "" : ",", child.pid);
-  const bool pg = imucal::storage::IsPostgresUrl(db);
+  const bool pg = imucal::sql::IsPostgresUrl(db);
   std::printf(
       "GetActiveParameters, random device of %d, %.1f s per row, %d server(s) (pid %s) on %s, "
       "%d channel(s) per server, %s, server cpu %d, client cpu %d (-1: any)%s:\n",
@@ -503,7 +503,7 @@ int main(int argc, char** argv) {
   const Flags flags = ParseFlags(argc, argv);
   std::string dir;
   const std::string db = PrepareDb(flags, &dir);
-  const bool pg = imucal::storage::IsPostgresUrl(db);
+  const bool pg = imucal::sql::IsPostgresUrl(db);
   std::vector<Child> servers =
       ForkServers(db, flags.replicas, flags.server_cpu, flags.metrics ? "127.0.0.1:0" : "");
   PinToCpu(flags.client_cpu);  // after the fork: the servers keep their own core

@@ -647,7 +647,7 @@ int main(int argc, char** argv) {
   }
   const std::string dir = tmpl;
   const std::string db = flags.db.empty() ? dir + "/ingest.db" : flags.db;
-  const bool sqlite_file = !imucal::storage::IsPostgresUrl(db);
+  const bool sqlite_file = !imucal::sql::IsPostgresUrl(db);
   const Columns col = SixFaceColumns();
 
   // Fork before any gRPC object exists in this process.
@@ -657,7 +657,7 @@ int main(int argc, char** argv) {
   // For the check after each round: the database read directly, not through a server.
   absl::StatusOr<std::unique_ptr<imucal::storage::Store>> store = imucal::storage::Store::Open(db);
   if (!store.ok()) {
-    std::fprintf(stderr, "open %s: %s\n", imucal::storage::RedactedLocation(db).c_str(),
+    std::fprintf(stderr, "open %s: %s\n", imucal::sql::RedactedLocation(db).c_str(),
                  std::string(store.status().message()).c_str());
     StopServers(servers);
     return 1;

@@ -35,9 +35,9 @@
 #include "core/simulator.h"
 #include "grpcpp/grpcpp.h"
 #include "server/server.h"
-#include "storage/db.h"
 #include "storage/pg_db.h"
 #include "storage/types.h"
+#include "util/db.h"
 
 namespace imucal::bench {
 
@@ -260,8 +260,7 @@ inline std::vector<std::shared_ptr<grpc::Channel>> RoundRobinChannels(
 
 // "SQLite file PATH" or "PostgreSQL URL" (without its password), for the bench's header line.
 inline std::string DescribeDb(const std::string& db) {
-  return storage::IsPostgresUrl(db) ? "PostgreSQL " + storage::RedactedLocation(db)
-                                    : "SQLite file " + db;
+  return sql::IsPostgresUrl(db) ? "PostgreSQL " + sql::RedactedLocation(db) : "SQLite file " + db;
 }
 
 // The CPU of a PostgreSQL cluster on this machine, for the database's share of a run: its
@@ -276,8 +275,8 @@ class PostgresCpu {
     absl::StatusOr<std::unique_ptr<storage::PgConnection>> conn =
         storage::PgConnection::Open(url, {});
     if (!conn.ok()) return std::nullopt;
-    absl::StatusOr<std::optional<int64_t>> backend = storage::ReadRow(
-        **conn, "SELECT CAST(pg_backend_pid() AS BIGINT)", storage::FirstColumnInt64);
+    absl::StatusOr<std::optional<int64_t>> backend =
+        sql::ReadRow(**conn, "SELECT CAST(pg_backend_pid() AS BIGINT)", storage::FirstColumnInt64);
     if (!backend.ok() || !backend->has_value()) return std::nullopt;
     const std::vector<std::string> f = ProcStatFields(static_cast<pid_t>(**backend));
     if (f.size() < 2) return std::nullopt;  // not a process of this machine

@@ -20,17 +20,17 @@
 #include "importers/registry.h"
 #include "importers/ros_imu.h"
 #include "importers/text_scan.h"
-#include "storage/sqlite_db.h"
+#include "util/sqlite_db.h"
 #include "util/str_util.h"
 
 namespace imucal::importers {
 namespace {
 
-// storage/sqlite_db.h: the RAII layer over the SQLite C API.
-using storage::Connection;
-using storage::SqliteConnection;
-using storage::ConnectionOptions;
-using storage::ScopedStatement;
+// util/sqlite_db.h: the RAII layer over the SQLite C API.
+using sql::Connection;
+using sql::ConnectionOptions;
+using sql::ScopedStatement;
+using sql::SqliteConnection;
 
 constexpr std::string_view kMetadataFile = "metadata.yaml";
 constexpr std::string_view kSqliteMagic = std::string_view("SQLite format 3\0", 16);
@@ -108,22 +108,23 @@ absl::StatusOr<BagFileList> BagFiles(const std::string& path) {
   return list;
 }
 
-absl::StatusOr<std::unique_ptr<SqliteConnection>> OpenBagFile(const std::string& file) {
+absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> OpenBagFile(const std::string& file) {
   struct stat info;
   if (::stat(file.c_str(), &info) != 0) {
     return absl::ErrnoToStatus(errno, Cat(file, ": cannot open"));
   }
-  ConnectionOptions options;
+  sql::ConnectionOptions options;
   options.read_only = true;
-  absl::StatusOr<std::unique_ptr<SqliteConnection>> connection = SqliteConnection::Open(file, options);
+  absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> connection =
+      sql::SqliteConnection::Open(file, options);
   if (!connection.ok()) {
     return absl::Status(connection.status().code(), Cat(file, ": ", connection.status().message()));
   }
   return connection;
 }
 
-absl::StatusOr<std::vector<Topic>> ReadTopics(Connection& db, const std::string& file) {
-  absl::StatusOr<ScopedStatement> select =
+absl::StatusOr<std::vector<Topic>> ReadTopics(sql::Connection& db, const std::string& file) {
+  absl::StatusOr<sql::ScopedStatement> select =
       db.Prepare("SELECT id, name, type, serialization_format FROM topics ORDER BY id");
   if (!select.ok()) {
     return absl::InvalidArgumentError(
@@ -142,9 +143,9 @@ absl::StatusOr<std::vector<Topic>> ReadTopics(Connection& db, const std::string&
   return topics;
 }
 
-absl::Status ReadMessages(Connection& db, const std::string& file, const Topic& topic,
+absl::Status ReadMessages(sql::Connection& db, const std::string& file, const Topic& topic,
                           ImuMessages* messages) {
-  absl::StatusOr<ScopedStatement> select =
+  absl::StatusOr<sql::ScopedStatement> select =
       db.Prepare("SELECT timestamp, data FROM messages WHERE topic_id = ?1 ORDER BY timestamp, id");
   if (!select.ok()) {
     return absl::InvalidArgumentError(
@@ -172,7 +173,7 @@ absl::StatusOr<core::Capture> ReadSqliteBag(const std::string& path,
   std::string topic_name = options.topic;
   ImuMessages messages;
   for (const std::string& file : files) {
-    absl::StatusOr<std::unique_ptr<SqliteConnection>> db = OpenBagFile(file);
+    absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> db = OpenBagFile(file);
     if (!db.ok()) return db.status();
     absl::StatusOr<std::vector<Topic>> topics = ReadTopics(**db, file);
     if (!topics.ok()) return topics.status();

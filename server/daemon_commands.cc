@@ -22,7 +22,7 @@
 #include "server/config.h"
 #include "storage/backup.h"
 #include "storage/copy.h"
-#include "storage/db.h"
+#include "util/db.h"
 #include "util/flags.h"
 #include "util/str_util.h"
 
@@ -326,7 +326,7 @@ struct MigrateArgs {
 absl::StatusOr<MigrateArgs> MigrateArgsOf(const flags::Args& flags) {
   if (!flags.positional().empty()) {
     return absl::InvalidArgumentError(
-        Cat("unexpected '", storage::RedactedLocation(flags.positional()[0]), "'"));
+        Cat("unexpected '", sql::RedactedLocation(flags.positional()[0]), "'"));
   }
   const std::optional<std::string> from = flags.Get("from");
   if (!from) return absl::InvalidArgumentError("--from sqlite:PATH is required (the file to copy)");
@@ -338,17 +338,17 @@ absl::StatusOr<MigrateArgs> MigrateArgsOf(const flags::Args& flags) {
     return absl::InvalidArgumentError(
         Cat("--from: expected sqlite:PATH (the SQLite file to copy, e.g. "
             "sqlite:/var/lib/imucald/imucal.db), got '",
-            storage::RedactedLocation(*from), "'"));
+            sql::RedactedLocation(*from), "'"));
   }
   const std::optional<std::string> to = flags.Get("to");
   if (!to) {
     return absl::InvalidArgumentError(
         "--to postgresql://... is required (the database to copy into)");
   }
-  if (!storage::IsPostgresUrl(*to)) {
+  if (!sql::IsPostgresUrl(*to)) {
     return absl::InvalidArgumentError(
         Cat("--to: expected a postgresql:// URL (the database to copy into), got '",
-            storage::RedactedLocation(*to), "'"));
+            sql::RedactedLocation(*to), "'"));
   }
   args.pg_url = *to;
   return args;
@@ -362,7 +362,7 @@ int RunMigrateCommand(std::span<const std::string> args) {
   if (flags->Has("help")) return Help(kUsage);
   absl::StatusOr<MigrateArgs> migrate = MigrateArgsOf(*flags);
   if (!migrate.ok()) return UsageError("migrate", migrate.status(), kUsage);
-  const std::string dest = storage::RedactedLocation(migrate->pg_url);
+  const std::string dest = sql::RedactedLocation(migrate->pg_url);
   std::printf(
       "migrate: sqlite:%s -> %s\n"
       "migrate: the copy is one consistent snapshot (one read transaction on the file): what "

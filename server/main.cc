@@ -49,23 +49,25 @@ int Serve(const imucal::server::DaemonConfig& config) {
   auto server = imucal::server::Server::Start(config.server);
   if (!server.ok()) {
     Log(LogLevel::kError, "server_start_failed",
-        {{"db", imucal::storage::RedactedLocation(config.server.db_path)}, {"error", server.status().message()}});
+        {{"db", imucal::sql::RedactedLocation(config.server.db_path)},
+         {"error", server.status().message()}});
     return 1;
   }
   const int schema_version = imucal::storage::LatestSchemaVersion();
   Log(LogLevel::kInfo, "server_start",
       {{"address", (*server)->address()},
-       {"db", imucal::storage::RedactedLocation(config.server.db_path)},
+       {"db", imucal::sql::RedactedLocation(config.server.db_path)},
        {"config", config.config_path},
        {"version", IMUCAL_VERSION},
        {"schema_version", schema_version},
        {"migrations_applied", before.ok() ? schema_version - *before : -1},
        {"solve_threads", config.server.sessions.solve_threads},
-       {"metrics", (*server)->metrics_port() == 0
-                       ? std::string("off")
-                       : absl::StrCat("http://", (*server)->address().substr(
-                                                     0, (*server)->address().rfind(':')),
-                                      ":", (*server)->metrics_port(), "/metrics")},
+       {"metrics",
+        (*server)->metrics_port() == 0
+            ? std::string("off")
+            : absl::StrCat("http://",
+                           (*server)->address().substr(0, (*server)->address().rfind(':')), ":",
+                           (*server)->metrics_port(), "/metrics")},
        {"startup_ms", absl::ToDoubleMilliseconds(absl::Now() - start)}});
   WaitForStopSignal();
   Log(LogLevel::kInfo, "shutdown_begin",

@@ -61,7 +61,7 @@ absl::Status WriteSecretFile(const std::string& path, const std::string& secret)
 // revoked again.
 absl::StatusOr<std::string> BootstrapAdminToken(storage::TokenStore& tokens,
                                                 const ServerOptions& options) {
-  if (options.admin_token_file.empty() && storage::IsPostgresUrl(options.db_path)) {
+  if (options.admin_token_file.empty() && sql::IsPostgresUrl(options.db_path)) {
     // No file beside a PostgreSQL database: unless an admin token exists, the operator names
     // one (several replicas share the database; the first to start writes the token).
     absl::StatusOr<std::vector<storage::Token>> valid = tokens.List(/*include_revoked=*/false);
@@ -198,7 +198,7 @@ absl::StatusOr<absl::Duration> Server::StartCacheSync(absl::Duration sync) {
   // order; PostgreSQL's do not, which is why it is not polled).
   // (PostgreSQL: the listener starts in StartServices, once the session service that it also
   // tells exists, still before the server takes its first call.)
-  if (store_->dialect() == storage::Dialect::kPostgres) return absl::ZeroDuration();
+  if (store_->dialect() == sql::Dialect::kPostgres) return absl::ZeroDuration();
   absl::StatusOr<storage::Store::ActiveChanges> synced = store_->ActiveChangesSince(-1);
   if (!synced.ok()) return synced.status();
   synced_audit_id_ = synced->last_id;
@@ -241,13 +241,13 @@ absl::Status Server::StartServices(const ServerOptions& options,
   // Tokens changed elsewhere (another server, a tool, SQL by hand): PostgreSQL's trigger tells
   // the listener below; on SQLite the change log is read every kTokenPoll.
   if (tokens_ != nullptr) {
-    const bool postgres = store_->dialect() == storage::Dialect::kPostgres;
+    const bool postgres = store_->dialect() == sql::Dialect::kPostgres;
     absl::StatusOr<std::unique_ptr<TokenWatch>> watch =
         TokenWatch::Start(auth_.get(), tokens_.get(), postgres ? absl::ZeroDuration() : kTokenPoll);
     if (!watch.ok()) return watch.status();
     token_watch_ = *std::move(watch);
   }
-  if (store_->dialect() == storage::Dialect::kPostgres) {
+  if (store_->dialect() == sql::Dialect::kPostgres) {
     if (absl::Status listening = ListenForChanges(); !listening.ok()) return listening;
   }
   // The database's reachability: the server's health follows it (set once the server runs).

@@ -13,8 +13,8 @@
 #include "absl/strings/str_split.h"
 #include "absl/time/clock.h"
 #include "server/log.h"
-#include "storage/db.h"
 #include "storage/types.h"
+#include "util/db.h"
 
 namespace imucal::server {
 namespace {
@@ -124,7 +124,7 @@ std::string DatabaseErrorMessage(absl::StatusCode code) {
 }
 
 std::string ClientMessage(const absl::Status& status) {
-  if (storage::IsFromDatabase(status)) {
+  if (sql::IsFromDatabase(status)) {
     LogDatabaseError(status);
     return DatabaseErrorMessage(status.code());
   }
@@ -135,7 +135,7 @@ std::string ClientMessage(const absl::Status& status) {
 
 grpc::Status ToGrpcStatus(const absl::Status& status) {
   if (status.ok()) return grpc::Status::OK;
-  if (storage::IsFromDatabase(status))
+  if (sql::IsFromDatabase(status))
     return grpc::Status(ToGrpcCode(status.code()), ClientMessage(status));
   switch (status.code()) {
     case absl::StatusCode::kInternal:

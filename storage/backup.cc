@@ -14,9 +14,9 @@
 
 #include "storage/migrations.h"
 #include "storage/pg_db.h"
-#include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "util/file.h"
+#include "util/sqlite_db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -34,33 +34,34 @@ constexpr const char* kRequiredTables[] = {"devices", "sessions", "sample_batche
                                            "param_versions"};
 
 // The first column of the first row of a constant query.
-absl::StatusOr<int64_t> QueryInt(Connection& conn, std::string_view sql) {
-  IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> value, ReadRow(conn, sql, FirstColumnInt64));
+absl::StatusOr<int64_t> QueryInt(sql::Connection& conn, std::string_view sql) {
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> value,
+                          sql::ReadRow(conn, sql, sql::FirstColumnInt64));
   if (!value) return absl::InternalError(Cat("no row from ", sql));
   return *value;
 }
 
 // PRAGMA integrity_check: "ok", or up to three of its complaints.
-absl::Status CheckIntegrity(Connection& conn) {
+absl::Status CheckIntegrity(sql::Connection& conn) {
   IMUCAL_ASSIGN_OR_RETURN(std::vector<std::string> lines,
-                          ReadRows(conn, "PRAGMA integrity_check(3)", FirstColumnText));
+                          sql::ReadRows(conn, "PRAGMA integrity_check(3)", sql::FirstColumnText));
   if (lines.size() == 1 && lines[0] == "ok") return absl::OkStatus();
   return absl::DataLossError(Cat("integrity_check failed: ", Join(lines, "; ")));
 }
 
-absl::StatusOr<int64_t> CountTables(Connection& conn) {
+absl::StatusOr<int64_t> CountTables(sql::Connection& conn) {
   int64_t found = 0;
   for (const char* table : kRequiredTables) {
     IMUCAL_ASSIGN_OR_RETURN(
         std::optional<int64_t> count,
-        ReadRow(conn, "SELECT count(*) FROM sqlite_schema WHERE type = 'table' AND name = ?1",
-                FirstColumnInt64, table));
+        sql::ReadRow(conn, "SELECT count(*) FROM sqlite_schema WHERE type = 'table' AND name = ?1",
+                     sql::FirstColumnInt64, table));
     found += count.value_or(0);
   }
   return found;
 }
 
-absl::StatusOr<DatabaseInfo> Inspect(Connection& conn, bool check_integrity) {
+absl::StatusOr<DatabaseInfo> Inspect(sql::Connection& conn, bool check_integrity) {
   DatabaseInfo info;
   // The first read of the file: a file that is not SQLite fails here with NOTADB (DataLoss).
   IMUCAL_ASSIGN_OR_RETURN(info.schema_version, SchemaVersion(conn));
@@ -97,19 +98,20 @@ absl::Status CheckExists(const std::string& path) {
 }
 
 // Copies every page of `src` into `dest` in one step (one read transaction on `src`).
-absl::Status CopyPages(SqliteConnection& src, SqliteConnection& dest, std::string_view what) {
+absl::Status CopyPages(sql::SqliteConnection& src, sql::SqliteConnection& dest,
+                       std::string_view what) {
   sqlite3_backup* backup = sqlite3_backup_init(dest.db(), "main", src.db(), "main");
   if (backup == nullptr) {
-    return SqliteStatus(sqlite3_extended_errcode(dest.db()), what, dest.db());
+    return sql::SqliteStatus(sqlite3_extended_errcode(dest.db()), what, dest.db());
   }
   const int step_rc = sqlite3_backup_step(backup, -1);
   const int finish_rc = sqlite3_backup_finish(backup);
   if (step_rc != SQLITE_DONE) {
     // READONLY here means the page sizes differ and the destination is in WAL mode.
-    return SqliteStatus(step_rc, what,
-                        step_rc == SQLITE_BUSY || step_rc == SQLITE_LOCKED ? src.db() : dest.db());
+    return sql::SqliteStatus(
+        step_rc, what, step_rc == SQLITE_BUSY || step_rc == SQLITE_LOCKED ? src.db() : dest.db());
   }
-  if (finish_rc != SQLITE_OK) return SqliteStatus(finish_rc, what, dest.db());
+  if (finish_rc != SQLITE_OK) return sql::SqliteStatus(finish_rc, what, dest.db());
   return absl::OkStatus();
 }
 
@@ -127,25 +129,27 @@ absl::Status CheckDirectoryOf(const std::string& path) {
 
 // Makes a standalone copy of `src` at `path` (replacing it), in rollback-journal mode so that
 // it is one file; verifies it and makes it durable.
-absl::Status WriteStandaloneCopy(SqliteConnection& src, const std::string& path) {
+absl::Status WriteStandaloneCopy(sql::SqliteConnection& src, const std::string& path) {
   const std::string tmp = Cat(path, ".tmp");
   std::error_code ec;
   std::filesystem::remove(tmp, ec);
   {
-    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> dest,
-                            SqliteConnection::Open(tmp, ConnectionOptions{}));
+    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<sql::SqliteConnection> dest,
+                            sql::SqliteConnection::Open(tmp, sql::ConnectionOptions{}));
     IMUCAL_RETURN_IF_ERROR(CopyPages(src, *dest, Cat("copy to ", tmp)));
     // The pages came from a WAL database and say so in their header: make the copy a plain
     // rollback-journal database, so that it is complete without a -wal beside it.
-    IMUCAL_ASSIGN_OR_RETURN(std::optional<std::string> mode,
-                            ReadRow(*dest, "PRAGMA journal_mode = DELETE", FirstColumnText));
+    IMUCAL_ASSIGN_OR_RETURN(
+        std::optional<std::string> mode,
+        sql::ReadRow(*dest, "PRAGMA journal_mode = DELETE", sql::FirstColumnText));
     if (mode.value_or("") != "delete") {
       return absl::InternalError(Cat(tmp, ": cannot leave WAL mode"));
     }
   }
   {
-    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> check,
-                            SqliteConnection::Open(tmp, ConnectionOptions{.read_only = true}));
+    IMUCAL_ASSIGN_OR_RETURN(
+        std::unique_ptr<sql::SqliteConnection> check,
+        sql::SqliteConnection::Open(tmp, sql::ConnectionOptions{.read_only = true}));
     IMUCAL_RETURN_IF_ERROR(Annotate(tmp, Inspect(*check, /*check_integrity=*/true).status()));
   }
   IMUCAL_RETURN_IF_ERROR(FsyncPath(tmp, /*directory=*/false));
@@ -158,8 +162,8 @@ absl::Status WriteStandaloneCopy(SqliteConnection& src, const std::string& path)
 
 absl::StatusOr<DatabaseInfo> InspectDatabase(const std::string& path, bool check_integrity) {
   IMUCAL_RETURN_IF_ERROR(CheckExists(path));
-  absl::StatusOr<std::unique_ptr<SqliteConnection>> conn =
-      SqliteConnection::Open(path, ConnectionOptions{.read_only = true});
+  absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> conn =
+      sql::SqliteConnection::Open(path, sql::ConnectionOptions{.read_only = true});
   if (!conn.ok()) return Annotate(path, conn.status());
   absl::StatusOr<DatabaseInfo> info = Inspect(**conn, check_integrity);
   if (!info.ok()) return Annotate(path, info.status());
@@ -167,16 +171,16 @@ absl::StatusOr<DatabaseInfo> InspectDatabase(const std::string& path, bool check
 }
 
 absl::StatusOr<int> SchemaVersionOf(const std::string& path) {
-  if (IsPostgresUrl(path)) {
+  if (sql::IsPostgresUrl(path)) {
     absl::StatusOr<std::unique_ptr<PgConnection>> pg =
-        PgConnection::Open(path, ConnectionOptions{.read_only = true});
+        PgConnection::Open(path, sql::ConnectionOptions{.read_only = true});
     if (!pg.ok()) return pg.status();
     return SchemaVersion(**pg);
   }
   std::error_code ec;
   if (!std::filesystem::exists(path, ec)) return 0;
-  absl::StatusOr<std::unique_ptr<SqliteConnection>> conn =
-      SqliteConnection::Open(path, ConnectionOptions{.read_only = true});
+  absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> conn =
+      sql::SqliteConnection::Open(path, sql::ConnectionOptions{.read_only = true});
   if (!conn.ok()) return Annotate(path, conn.status());
   absl::StatusOr<int> version = SchemaVersion(**conn);
   if (!version.ok()) return Annotate(path, version.status());
@@ -185,13 +189,13 @@ absl::StatusOr<int> SchemaVersionOf(const std::string& path) {
 
 absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path,
                                             const std::string& out_path) {
-  if (IsPostgresUrl(db_path)) return NotForPostgres("backup", "pg_dump --format=custom");
+  if (sql::IsPostgresUrl(db_path)) return NotForPostgres("backup", "pg_dump --format=custom");
   if (out_path.empty()) return absl::InvalidArgumentError("backup: empty output path");
   IMUCAL_RETURN_IF_ERROR(CheckExists(db_path));
   IMUCAL_RETURN_IF_ERROR(CheckDirectoryOf(out_path));
   // Read-only: the backup never writes the live database (nor checkpoints its WAL).
-  absl::StatusOr<std::unique_ptr<SqliteConnection>> src =
-      SqliteConnection::Open(db_path, ConnectionOptions{.read_only = true});
+  absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> src =
+      sql::SqliteConnection::Open(db_path, sql::ConnectionOptions{.read_only = true});
   if (!src.ok()) return Annotate(db_path, src.status());
   if (absl::Status s = Annotate(db_path, Inspect(**src, false).status()); !s.ok()) return s;
   IMUCAL_RETURN_IF_ERROR(WriteStandaloneCopy(**src, out_path));
@@ -200,7 +204,7 @@ absl::StatusOr<DatabaseInfo> BackupDatabase(const std::string& db_path,
 
 absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
                                              const std::string& db_path) {
-  if (IsPostgresUrl(db_path)) return NotForPostgres("restore", "pg_restore");
+  if (sql::IsPostgresUrl(db_path)) return NotForPostgres("restore", "pg_restore");
   absl::StatusOr<DatabaseInfo> source = InspectDatabase(backup_path, /*check_integrity=*/true);
   if (!source.ok()) {
     return absl::Status(source.status().code(),
@@ -214,9 +218,10 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
     // and keeps it until the connection closes. Every other connection, even an idle one of a
     // running imucald (WAL connections hold a SHARED lock while open), makes that fail at once
     // (busy timeout 0): restore never changes a database under a live server.
-    ConnectionOptions options;
+    sql::ConnectionOptions options;
     options.busy_timeout = absl::ZeroDuration();
-    absl::StatusOr<std::unique_ptr<SqliteConnection>> dest = SqliteConnection::Open(db_path, options);
+    absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> dest =
+        sql::SqliteConnection::Open(db_path, options);
     if (!dest.ok()) return Annotate(db_path, dest.status());
     IMUCAL_RETURN_IF_ERROR((*dest)->Exec("PRAGMA locking_mode = EXCLUSIVE"));
     if (absl::Status s = (*dest)->Exec("BEGIN EXCLUSIVE; COMMIT"); !s.ok()) {
@@ -230,8 +235,8 @@ absl::StatusOr<DatabaseInfo> RestoreDatabase(const std::string& backup_path,
       // Keep what was there: a restore of the wrong file can itself be undone.
       IMUCAL_RETURN_IF_ERROR(WriteStandaloneCopy(**dest, Cat(db_path, ".pre-restore")));
     }
-    absl::StatusOr<std::unique_ptr<SqliteConnection>> src =
-        SqliteConnection::Open(backup_path, ConnectionOptions{.read_only = true});
+    absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> src =
+        sql::SqliteConnection::Open(backup_path, sql::ConnectionOptions{.read_only = true});
     if (!src.ok()) return Annotate(backup_path, src.status());
     IMUCAL_RETURN_IF_ERROR(CopyPages(**src, **dest, Cat("restore into ", db_path)));
   }

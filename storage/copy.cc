@@ -15,8 +15,8 @@
 #include "storage/backup.h"
 #include "storage/migrations.h"
 #include "storage/pg_db.h"
-#include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
+#include "util/sqlite_db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -199,7 +199,7 @@ class RowHash {
   RowHash() : ctx_(EVP_MD_CTX_new()) { EVP_DigestInit_ex(ctx_.get(), EVP_sha256(), nullptr); }
 
   // Hashes the current row of `st`; returns its values' bytes (see TableCopyReport).
-  int64_t Add(const Statement& st, const CopyTable& table) {
+  int64_t Add(const sql::Statement& st, const CopyTable& table) {
     int64_t bytes = 0;
     for (size_t i = 0; i < table.columns.size(); ++i) {
       const int c = static_cast<int>(i);
@@ -263,8 +263,8 @@ class RowHash {
 // SQLite keeps any value in any column; a value whose storage class is not its column's (text
 // in an INTEGER column, a blob in a TEXT one) would be converted on the way and so arrive
 // changed. Only a file written outside imucal holds one: it is refused, naming it.
-absl::Status CheckStorageClasses(const Statement& st, const CopyTable& table) {
-  const auto* lite = dynamic_cast<const SqliteStatement*>(&st);
+absl::Status CheckStorageClasses(const sql::Statement& st, const CopyTable& table) {
+  const auto* lite = dynamic_cast<const sql::SqliteStatement*>(&st);
   if (lite == nullptr) return absl::OkStatus();
   for (size_t i = 0; i < table.columns.size(); ++i) {
     const int type = sqlite3_column_type(lite->get(), static_cast<int>(i));
@@ -295,7 +295,7 @@ absl::Status CheckStorageClasses(const Statement& st, const CopyTable& table) {
 }
 
 // The key of the current row, for messages: "(S1, 3)".
-std::string KeyOf(const Statement& st, const CopyTable& table) {
+std::string KeyOf(const sql::Statement& st, const CopyTable& table) {
   std::vector<std::string> parts;
   for (int i = 0; i < table.key_columns; ++i) {
     parts.push_back(table.columns[static_cast<size_t>(i)].type == T::kInteger
@@ -306,7 +306,7 @@ std::string KeyOf(const Statement& st, const CopyTable& table) {
 }
 
 // Binds the current row of `row` as the parameters of `insert`, value for value.
-void BindRow(const Statement& row, const CopyTable& table, Statement& insert) {
+void BindRow(const sql::Statement& row, const CopyTable& table, sql::Statement& insert) {
   for (size_t i = 0; i < table.columns.size(); ++i) {
     const int c = static_cast<int>(i);
     if (row.ColumnIsNull(c)) {
@@ -333,7 +333,7 @@ void BindRow(const Statement& row, const CopyTable& table, Statement& insert) {
 // Calls `on_row` with every row of `table` on `conn`, in key order, a page at a time (see
 // kPageBytes), and `on_page` with the rows read so far after each page.
 template <typename OnRow, typename OnPage>
-absl::Status ForEachRow(Connection& conn, const CopyTable& table, OnRow&& on_row,
+absl::Status ForEachRow(sql::Connection& conn, const CopyTable& table, OnRow&& on_row,
                         OnPage&& on_page) {
   const size_t k = static_cast<size_t>(table.key_columns);
   // Before the first row: below every integer and every non-empty text (no key is empty; one
@@ -346,7 +346,7 @@ absl::Status ForEachRow(Connection& conn, const CopyTable& table, OnRow&& on_row
     int64_t rows = 0;
     int64_t bytes = 0;
     {
-      IMUCAL_ASSIGN_OR_RETURN(ScopedStatement st, conn.Prepare(table.select_page));
+      IMUCAL_ASSIGN_OR_RETURN(sql::ScopedStatement st, conn.Prepare(table.select_page));
       for (size_t i = 0; i < k; ++i) {
         if (table.columns[i].type == T::kInteger) {
           st->BindInt64(static_cast<int>(i) + 1, key_int[i]);
@@ -380,21 +380,21 @@ absl::Status ForEachRow(Connection& conn, const CopyTable& table, OnRow&& on_row
 
 // ---- Checks ----------------------------------------------------------------------------------
 
-absl::StatusOr<std::set<std::string>> TextSet(Connection& conn, const char* sql,
+absl::StatusOr<std::set<std::string>> TextSet(sql::Connection& conn, const char* sql,
                                               std::string_view param) {
   IMUCAL_ASSIGN_OR_RETURN(std::vector<std::string> names,
-                          ReadRows(conn, sql, FirstColumnText, param));
+                          sql::ReadRows(conn, sql, sql::FirstColumnText, param));
   return std::set<std::string>(names.begin(), names.end());
 }
 
 // This file's tables and columns are the schema's, on `conn`'s side: a migration that adds a
 // table or a column and forgets this copy fails here, before anything is copied.
-absl::Status CheckCoversSchema(Connection& conn) {
-  const bool lite = conn.dialect() == Dialect::kSqlite;
+absl::Status CheckCoversSchema(sql::Connection& conn) {
+  const bool lite = conn.dialect() == sql::Dialect::kSqlite;
   const std::string_view side = lite ? "the SQLite file" : "the PostgreSQL database";
   if (lite) {
     IMUCAL_ASSIGN_OR_RETURN(std::vector<std::string> tables,
-                            ReadRows(conn, kSqliteTables, FirstColumnText));
+                            sql::ReadRows(conn, kSqliteTables, sql::FirstColumnText));
     std::set<std::string> known(std::begin(kNotCopied), std::end(kNotCopied));
     for (const CopyTable& t : kTables) known.insert(t.name);
     for (const std::string& table : tables) {
@@ -421,18 +421,19 @@ absl::Status CheckCoversSchema(Connection& conn) {
   return absl::OkStatus();
 }
 
-absl::StatusOr<int64_t> Count(Connection& conn, const CopyTable& table) {
-  IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> n, ReadRow(conn, table.count, FirstColumnInt64));
+absl::StatusOr<int64_t> Count(sql::Connection& conn, const CopyTable& table) {
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> n,
+                          sql::ReadRow(conn, table.count, sql::FirstColumnInt64));
   return n.value_or(0);
 }
 
 // FailedPrecondition naming every table of imucal's that holds rows on `conn`; those that do
 // not exist yet (an older schema) hold none.
-absl::Status CheckEmpty(Connection& conn, std::string_view where) {
+absl::Status CheckEmpty(sql::Connection& conn, std::string_view where) {
   std::vector<std::string> full;
   for (const CopyTable& t : kTables) {
     IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> exists,
-                            ReadRow(conn, kPgTableExists, FirstColumnInt64, t.name));
+                            sql::ReadRow(conn, kPgTableExists, sql::FirstColumnInt64, t.name));
     if (exists.value_or(0) == 0) continue;
     IMUCAL_ASSIGN_OR_RETURN(int64_t rows, Count(conn, t));
     if (rows > 0) full.push_back(Cat(t.name, " (", rows, rows == 1 ? " row)" : " rows)"));
@@ -461,7 +462,7 @@ absl::Status CheckSource(const std::string& path) {
 // A read transaction on the source: every table read inside it comes from one snapshot.
 class ReadSnapshot {
  public:
-  static absl::StatusOr<ReadSnapshot> Begin(Connection& conn) {
+  static absl::StatusOr<ReadSnapshot> Begin(sql::Connection& conn) {
     IMUCAL_RETURN_IF_ERROR(conn.Exec("BEGIN DEFERRED"));
     return ReadSnapshot(&conn);
   }
@@ -471,8 +472,8 @@ class ReadSnapshot {
   }
 
  private:
-  explicit ReadSnapshot(Connection* conn) : conn_(conn) {}
-  Connection* conn_;
+  explicit ReadSnapshot(sql::Connection* conn) : conn_(conn) {}
+  sql::Connection* conn_;
 };
 
 // Opens the destination: refused before anything changes there if it holds rows (at whatever
@@ -480,7 +481,7 @@ class ReadSnapshot {
 absl::StatusOr<std::unique_ptr<PgConnection>> OpenDestination(const std::string& url,
                                                               const std::string& dest) {
   IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<PgConnection> pg,
-                          PgConnection::Open(url, ConnectionOptions{}));
+                          PgConnection::Open(url, sql::ConnectionOptions{}));
   IMUCAL_ASSIGN_OR_RETURN(int version, Annotate(dest, SchemaVersion(*pg)));
   if (version > 0) IMUCAL_RETURN_IF_ERROR(CheckEmpty(*pg, dest));
   IMUCAL_RETURN_IF_ERROR(Annotate(Cat("migrate ", dest), Migrate(*pg)));
@@ -489,7 +490,7 @@ absl::StatusOr<std::unique_ptr<PgConnection>> OpenDestination(const std::string&
 }
 
 // In the copy's transaction: no other writer until it ends, and still no row anywhere.
-absl::Status LockEmptyDestination(Connection& pg, const std::string& dest) {
+absl::Status LockEmptyDestination(sql::Connection& pg, const std::string& dest) {
   if (absl::Status s = pg.Exec(kLockTables); !s.ok()) {
     if (!absl::IsUnavailable(s)) return Annotate(dest, s);
     return absl::UnavailableError(Cat(dest,
@@ -501,15 +502,15 @@ absl::Status LockEmptyDestination(Connection& pg, const std::string& dest) {
 }
 
 // Copies table `t` from the snapshot on `lite` into `pg`, hashing every row read into `hash`.
-absl::StatusOr<TableCopyReport> CopyRows(Connection& lite, Connection& pg, const CopyTable& t,
-                                         int64_t snapshot_rows, RowHash& hash,
+absl::StatusOr<TableCopyReport> CopyRows(sql::Connection& lite, sql::Connection& pg,
+                                         const CopyTable& t, int64_t snapshot_rows, RowHash& hash,
                                          const CopyProgressFn& progress) {
   TableCopyReport table;
   table.table = t.name;
-  const auto copy_row = [&](const Statement& row) -> absl::StatusOr<int64_t> {
+  const auto copy_row = [&](const sql::Statement& row) -> absl::StatusOr<int64_t> {
     {
       absl::Status s = CheckStorageClasses(row, t);
-      IMUCAL_ASSIGN_OR_RETURN(ScopedStatement insert, pg.Prepare(t.insert));
+      IMUCAL_ASSIGN_OR_RETURN(sql::ScopedStatement insert, pg.Prepare(t.insert));
       if (s.ok()) {
         BindRow(row, t, *insert);
         s = insert->Run();
@@ -532,12 +533,12 @@ absl::StatusOr<TableCopyReport> CopyRows(Connection& lite, Connection& pg, const
 
 // Reads table `t` back from `pg` (in the copy's transaction) and compares it with what was
 // copied: as many rows as the snapshot's count(*) and as were copied, and the same SHA-256.
-absl::Status VerifyRows(Connection& pg, const CopyTable& t, int64_t snapshot_rows,
+absl::Status VerifyRows(sql::Connection& pg, const CopyTable& t, int64_t snapshot_rows,
                         TableCopyReport& copied, RowHash& source_hash, const std::string& dest,
                         const CopyProgressFn& progress) {
   RowHash dest_hash;
   int64_t dest_rows = 0;
-  const auto hash_row = [&](const Statement& row) -> absl::StatusOr<int64_t> {
+  const auto hash_row = [&](const sql::Statement& row) -> absl::StatusOr<int64_t> {
     ++dest_rows;
     return dest_hash.Add(row, t);
   };
@@ -579,21 +580,21 @@ absl::StatusOr<CopyReport> CopySqliteToPostgres(const std::string& sqlite_path,
                                                 const std::string& pg_url,
                                                 const CopyProgressFn& progress) {
   const absl::Time start = absl::Now();
-  if (IsPostgresUrl(sqlite_path)) {
+  if (sql::IsPostgresUrl(sqlite_path)) {
     return absl::InvalidArgumentError("the source must be a SQLite file, not a URL");
   }
-  if (!IsPostgresUrl(pg_url)) {
+  if (!sql::IsPostgresUrl(pg_url)) {
     return absl::InvalidArgumentError(
         Cat("the destination must be a postgresql:// URL, got '", RedactedLocation(pg_url), "'"));
   }
-  const std::string dest = RedactedLocation(pg_url);
+  const std::string dest = sql::RedactedLocation(pg_url);
   IMUCAL_RETURN_IF_ERROR(CheckSource(sqlite_path));
   IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<PgConnection> pg, OpenDestination(pg_url, dest));
 
   IMUCAL_ASSIGN_OR_RETURN(
-      std::unique_ptr<SqliteConnection> lite,
-      Annotate(sqlite_path,
-               SqliteConnection::Open(sqlite_path, ConnectionOptions{.read_only = true})));
+      std::unique_ptr<sql::SqliteConnection> lite,
+      Annotate(sqlite_path, sql::SqliteConnection::Open(
+                                sqlite_path, sql::ConnectionOptions{.read_only = true})));
   IMUCAL_ASSIGN_OR_RETURN(ReadSnapshot snapshot, Annotate(sqlite_path, ReadSnapshot::Begin(*lite)));
   // The snapshot begins with this first read; every read below is from it.
   IMUCAL_ASSIGN_OR_RETURN(int version, Annotate(sqlite_path, SchemaVersion(*lite)));
@@ -608,7 +609,7 @@ absl::StatusOr<CopyReport> CopySqliteToPostgres(const std::string& sqlite_path,
     snapshot_rows.push_back(rows);
   }
 
-  IMUCAL_ASSIGN_OR_RETURN(Transaction txn, Annotate(dest, Transaction::Begin(*pg)));
+  IMUCAL_ASSIGN_OR_RETURN(sql::Transaction txn, Annotate(dest, sql::Transaction::Begin(*pg)));
   IMUCAL_RETURN_IF_ERROR(LockEmptyDestination(*pg, dest));
   CopyReport report;
   report.schema_version = version;
@@ -628,8 +629,8 @@ absl::StatusOr<CopyReport> CopySqliteToPostgres(const std::string& sqlite_path,
   // New rows continue after the copied ids (an empty table's sequence stays where it is).
   for (const CopyTable& t : kTables) {
     if (t.reset_identity == nullptr) continue;
-    IMUCAL_RETURN_IF_ERROR(
-        Annotate(Cat("copy ", t.name), ReadRow(*pg, t.reset_identity, FirstColumnInt64).status()));
+    IMUCAL_RETURN_IF_ERROR(Annotate(
+        Cat("copy ", t.name), sql::ReadRow(*pg, t.reset_identity, sql::FirstColumnInt64).status()));
   }
   IMUCAL_RETURN_IF_ERROR(Annotate(Cat("commit to ", dest), txn.Commit()));
   report.took = absl::Now() - start;

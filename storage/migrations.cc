@@ -401,8 +401,8 @@ constexpr char kPgCreateVersionTable[] =
     "CREATE TABLE IF NOT EXISTS imucal_schema (version INTEGER NOT NULL); "
     "INSERT INTO imucal_schema (version) SELECT 0 WHERE NOT EXISTS (SELECT 1 FROM imucal_schema)";
 
-absl::Status ApplyOne(Connection& conn, const Migration& m) {
-  absl::StatusOr<Transaction> txn = Transaction::Begin(conn);
+absl::Status ApplyOne(sql::Connection& conn, const Migration& m) {
+  absl::StatusOr<sql::Transaction> txn = sql::Transaction::Begin(conn);
   if (!txn.ok()) return txn.status();
   // Read inside the write lock: another process may have applied it meanwhile.
   absl::StatusOr<int> current = SchemaVersion(conn);
@@ -423,34 +423,34 @@ absl::Status ApplyOne(Connection& conn, const Migration& m) {
 
 }  // namespace
 
-absl::Status MigrateLocked(Connection& conn, std::span<const Migration> migrations);
+absl::Status MigrateLocked(sql::Connection& conn, std::span<const Migration> migrations);
 
-std::span<const Migration> Migrations(Dialect dialect) {
-  if (dialect == Dialect::kPostgres) return kPgMigrations;
+std::span<const Migration> Migrations(sql::Dialect dialect) {
+  if (dialect == sql::Dialect::kPostgres) return kPgMigrations;
   return kMigrations;
 }
 
 int LatestSchemaVersion() { return Migrations().back().version; }
 
-absl::StatusOr<int> SchemaVersion(Connection& conn) {
-  if (conn.dialect() == Dialect::kPostgres) {
-    absl::StatusOr<std::optional<int64_t>> exists =
-        ReadRow(conn, "SELECT to_regclass('imucal_schema') IS NOT NULL", FirstColumnInt64);
+absl::StatusOr<int> SchemaVersion(sql::Connection& conn) {
+  if (conn.dialect() == sql::Dialect::kPostgres) {
+    absl::StatusOr<std::optional<int64_t>> exists = sql::ReadRow(
+        conn, "SELECT to_regclass('imucal_schema') IS NOT NULL", sql::FirstColumnInt64);
     if (!exists.ok()) return exists.status();
     if (exists->value_or(0) == 0) return 0;
   }
-  const char* sql = conn.dialect() == Dialect::kPostgres ? "SELECT version FROM imucal_schema"
-                                                         : "PRAGMA user_version";
-  absl::StatusOr<std::optional<int64_t>> version = ReadRow(conn, sql, FirstColumnInt64);
+  const char* sql = conn.dialect() == sql::Dialect::kPostgres ? "SELECT version FROM imucal_schema"
+                                                              : "PRAGMA user_version";
+  absl::StatusOr<std::optional<int64_t>> version = sql::ReadRow(conn, sql, sql::FirstColumnInt64);
   if (!version.ok()) return version.status();
   if (!*version) return absl::InternalError(Cat(sql, " returned no row"));
   return static_cast<int>(**version);
 }
 
-absl::Status Migrate(Connection& conn) { return Migrate(conn, Migrations(conn.dialect())); }
+absl::Status Migrate(sql::Connection& conn) { return Migrate(conn, Migrations(conn.dialect())); }
 
-absl::Status Migrate(Connection& conn, std::span<const Migration> migrations) {
-  if (conn.dialect() == Dialect::kPostgres) {
+absl::Status Migrate(sql::Connection& conn, std::span<const Migration> migrations) {
+  if (conn.dialect() == sql::Dialect::kPostgres) {
     if (absl::Status s = conn.Exec(kPgMigrateLock); !s.ok()) return s;
     absl::Status s = conn.Exec(kPgCreateVersionTable);
     if (s.ok()) s = MigrateLocked(conn, migrations);
@@ -460,7 +460,7 @@ absl::Status Migrate(Connection& conn, std::span<const Migration> migrations) {
   return MigrateLocked(conn, migrations);
 }
 
-absl::Status MigrateLocked(Connection& conn, std::span<const Migration> migrations) {
+absl::Status MigrateLocked(sql::Connection& conn, std::span<const Migration> migrations) {
   for (size_t i = 0; i < migrations.size(); ++i) {
     if (migrations[i].version != static_cast<int>(i) + 1) {
       return absl::InternalError(

@@ -11,7 +11,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "storage/db.h"
+#include "util/db.h"
 
 namespace imucal::storage {
 
@@ -23,19 +23,19 @@ struct Migration {
 };
 
 // imucal's migrations for a backend, oldest first.
-std::span<const Migration> Migrations(Dialect dialect = Dialect::kSqlite);
+std::span<const Migration> Migrations(sql::Dialect dialect = sql::Dialect::kSqlite);
 int LatestSchemaVersion();
 
 // The schema version of the connection's database (0 for a new one).
-absl::StatusOr<int> SchemaVersion(Connection& conn);
+absl::StatusOr<int> SchemaVersion(sql::Connection& conn);
 
 // Applies every migration newer than the database's version, each in its own transaction (on
 // PostgreSQL under an advisory lock held throughout), so concurrent openers apply it once and a
 // crash leaves a whole version.
 // Idempotent. FailedPrecondition if the file's version is newer than `migrations` knows (an
 // older binary on a newer database), Internal if a script does not set its own version.
-absl::Status Migrate(Connection& conn);  // the connection's backend's list
-absl::Status Migrate(Connection& conn, std::span<const Migration> migrations);
+absl::Status Migrate(sql::Connection& conn);  // the connection's backend's list
+absl::Status Migrate(sql::Connection& conn, std::span<const Migration> migrations);
 
 }  // namespace imucal::storage
 

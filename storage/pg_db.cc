@@ -86,7 +86,7 @@ struct ResultDeleter {
 };
 using Result = std::unique_ptr<PGresult, ResultDeleter>;
 
-class PgStatement final : public Statement {
+class PgStatement final : public sql::Statement {
  public:
   PgStatement(PgConnection* conn, std::string sql, Kind kind)
       : conn_(conn), sql_(std::move(sql)), kind_(kind) {}
@@ -306,16 +306,16 @@ absl::StatusCode PgCode(std::string_view sqlstate) {
 }
 
 absl::StatusOr<std::unique_ptr<PgConnection>> PgConnection::Open(
-    const std::string& url, const ConnectionOptions& options) {
+    const std::string& url, const sql::ConnectionOptions& options) {
   // dbname last: the URL's own settings override these defaults.
   const char* keywords[] = {"connect_timeout", "application_name", "dbname", nullptr};
   const char* values[] = {"10", "imucald", url.c_str(), nullptr};
   PGconn* pg = PQconnectdbParams(keywords, values, /*expand_dbname=*/1);
   if (pg == nullptr) return absl::ResourceExhaustedError("libpq could not allocate a connection");
   if (PQstatus(pg) != CONNECTION_OK) {
-    absl::Status status =
-        FromDatabase(absl::UnavailableError(Cat("cannot connect to ", RedactedLocation(url), ": ",
-                                                StripTrailingNewline(PQerrorMessage(pg)))));
+    absl::Status status = sql::FromDatabase(
+        absl::UnavailableError(Cat("cannot connect to ", sql::RedactedLocation(url), ": ",
+                                   StripTrailingNewline(PQerrorMessage(pg)))));
     PQfinish(pg);
     return status;
   }
@@ -366,12 +366,12 @@ absl::Status PgConnection::EnsureConnected() {
   if (PQstatus(conn_) == CONNECTION_OK) return absl::OkStatus();
   if (txn_open_) {
     // Never carry on in autocommit what was meant to be one transaction.
-    return FromDatabase(
+    return sql::FromDatabase(
         absl::UnavailableError("the connection to PostgreSQL broke during a transaction"));
   }
   PQreset(conn_);
   if (PQstatus(conn_) != CONNECTION_OK) {
-    return FromDatabase(absl::UnavailableError(
+    return sql::FromDatabase(absl::UnavailableError(
         Cat("cannot reconnect to PostgreSQL: ", StripTrailingNewline(PQerrorMessage(conn_)))));
   }
   ++generation_;  // the server forgot every prepared statement
@@ -385,7 +385,7 @@ absl::Status PgConnection::StatementError(std::string_view context, const char* 
   absl::StatusCode code = PgCode(state);
   if (state.empty() && PQstatus(conn_) != CONNECTION_OK) code = absl::StatusCode::kUnavailable;
   absl::Status status =
-      FromDatabase(absl::Status(code, Cat(context, ": ", StripTrailingNewline(message))));
+      sql::FromDatabase(absl::Status(code, Cat(context, ": ", StripTrailingNewline(message))));
   if (txn_open_ && txn_error_.ok()) txn_error_ = status;
   return status;
 }
@@ -402,10 +402,10 @@ absl::Status PgConnection::Exec(const char* sql) {
                         r != nullptr ? PQresultErrorMessage(r.get()) : PQerrorMessage(conn_));
 }
 
-absl::StatusOr<std::unique_ptr<Statement>> PgConnection::NewStatement(std::string_view sql) {
+absl::StatusOr<std::unique_ptr<sql::Statement>> PgConnection::NewStatement(std::string_view sql) {
   absl::StatusOr<std::string> pg_sql = DollarParameters(sql);
   if (!pg_sql.ok()) return pg_sql.status();
-  return std::unique_ptr<Statement>(new PgStatement(this, *std::move(pg_sql), KindOf(sql)));
+  return std::unique_ptr<sql::Statement>(new PgStatement(this, *std::move(pg_sql), KindOf(sql)));
 }
 
 // ---- PgListener ------------------------------------------------------------------------------
@@ -443,8 +443,8 @@ absl::Status PgListener::Connect() {
   const char* values[] = {"10", "imucald-listener", url_.c_str(), nullptr};
   conn_ = PQconnectdbParams(keywords, values, /*expand_dbname=*/1);
   if (conn_ == nullptr || PQstatus(conn_) != CONNECTION_OK) {
-    return FromDatabase(
-        absl::UnavailableError(Cat("listen: cannot connect to ", RedactedLocation(url_), ": ",
+    return sql::FromDatabase(
+        absl::UnavailableError(Cat("listen: cannot connect to ", sql::RedactedLocation(url_), ": ",
                                    StripTrailingNewline(conn_ ? PQerrorMessage(conn_) : ""))));
   }
   std::string sql;
@@ -456,7 +456,7 @@ absl::Status PgListener::Connect() {
   }
   Result r(PQexec(conn_, sql.c_str()));
   if (r == nullptr || PQresultStatus(r.get()) != PGRES_COMMAND_OK) {
-    return FromDatabase(
+    return sql::FromDatabase(
         absl::UnavailableError(Cat("listen: ", StripTrailingNewline(PQerrorMessage(conn_)))));
   }
   return absl::OkStatus();

@@ -31,7 +31,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "storage/db.h"
+#include "util/db.h"
 
 typedef struct pg_conn PGconn;
 
@@ -40,19 +40,19 @@ namespace imucal::storage {
 // The absl code for a SQLSTATE (above).
 absl::StatusCode PgCode(std::string_view sqlstate);
 
-class PgConnection final : public Connection {
+class PgConnection final : public sql::Connection {
  public:
   // Connects to `url` (a libpq connection URL) and applies the per-connection settings:
   // lock_timeout from busy_timeout, synchronous_commit on, read-only transactions if asked.
   static absl::StatusOr<std::unique_ptr<PgConnection>> Open(const std::string& url,
-                                                            const ConnectionOptions& options);
+                                                            const sql::ConnectionOptions& options);
   ~PgConnection() override;
 
-  Dialect dialect() const override { return Dialect::kPostgres; }
+  sql::Dialect dialect() const override { return sql::Dialect::kPostgres; }
   absl::Status Exec(const char* sql) override;
-  const char* BeginSql(Isolation isolation) const override {
-    return isolation == Isolation::kReadCommitted ? "BEGIN ISOLATION LEVEL READ COMMITTED"
-                                                  : "BEGIN ISOLATION LEVEL SERIALIZABLE";
+  const char* BeginSql(sql::Isolation isolation) const override {
+    return isolation == sql::Isolation::kReadCommitted ? "BEGIN ISOLATION LEVEL READ COMMITTED"
+                                                       : "BEGIN ISOLATION LEVEL SERIALIZABLE";
   }
   bool InOpenTransaction() const override;
   absl::Status CommitBlocker() const override;
@@ -75,7 +75,7 @@ class PgConnection final : public Connection {
   void NoteTransactionEnded();
 
  protected:
-  absl::StatusOr<std::unique_ptr<Statement>> NewStatement(std::string_view sql) override;
+  absl::StatusOr<std::unique_ptr<sql::Statement>> NewStatement(std::string_view sql) override;
 
  private:
   PgConnection(PGconn* conn, std::string settings, bool read_only)

@@ -10,19 +10,19 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "storage/db.h"
 #include "storage/migrations.h"
 #include "storage/pg_db.h"
-#include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "storage/store_internal.h"
+#include "util/db.h"
+#include "util/sqlite_db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
 
-Store::Store(StoreOptions options, std::unique_ptr<Connection> writer,
-             std::unique_ptr<SqliteConnection> checkpointer,
-             std::vector<std::unique_ptr<Connection>> readers)
+Store::Store(StoreOptions options, std::unique_ptr<sql::Connection> writer,
+             std::unique_ptr<sql::SqliteConnection> checkpointer,
+             std::vector<std::unique_ptr<sql::Connection>> readers)
     : options_(std::move(options)),
       writer_(std::move(writer)),
       checkpointer_(std::move(checkpointer)),
@@ -40,6 +40,12 @@ Store::~Store() {
   commit_cv_.notify_all();
   checkpoint_cv_.notify_all();
   if (committer_.joinable()) committer_.join();  // after every submitted batch
+  {
+    std::lock_guard lock(ack_mu_);
+    ack_stopping_ = true;
+  }
+  ack_cv_.notify_all();
+  if (acker_.joinable()) acker_.join();  // after every committed batch's callback
   if (checkpoint_thread_.joinable()) checkpoint_thread_.join();
   checkpointer_.reset();  // before the writer, which checkpoints as the last one out
 }
@@ -51,19 +57,19 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
   if (options.read_connections < 1) {
     return absl::InvalidArgumentError("StoreOptions::read_connections must be at least 1");
   }
-  if (absl::Status s = CheckLocation(path); !s.ok()) return s;
-  if (IsPostgresUrl(path)) return OpenPostgres(path, std::move(options));
+  if (absl::Status s = sql::CheckLocation(path); !s.ok()) return s;
+  if (sql::IsPostgresUrl(path)) return OpenPostgres(path, std::move(options));
   const std::string op = Cat("open ", path);
-  ConnectionOptions conn_options;
+  sql::ConnectionOptions conn_options;
   conn_options.synchronous_full = options.durability == Durability::kFull;
   conn_options.busy_timeout = options.busy_timeout;
-  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<Connection> writer,
-                          Annotate(op, SqliteConnection::Open(path, conn_options)));
+  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<sql::Connection> writer,
+                          Annotate(op, sql::SqliteConnection::Open(path, conn_options)));
   {
     // WAL is a property of the file: set once, kept by every later open.
     IMUCAL_ASSIGN_OR_RETURN(
         std::optional<std::string> mode,
-        Annotate(op, ReadRow(*writer, "PRAGMA journal_mode = WAL", FirstColumnText)));
+        Annotate(op, sql::ReadRow(*writer, "PRAGMA journal_mode = WAL", sql::FirstColumnText)));
     if (mode.value_or("") != "wal") {
       return absl::FailedPreconditionError(
           Cat(op, ": cannot switch to WAL (journal mode is '", mode.value_or(""), "')"));
@@ -73,13 +79,13 @@ absl::StatusOr<std::unique_ptr<Store>> Store::Open(const std::string& path, Stor
   // ingest burst grew it to.
   IMUCAL_RETURN_IF_ERROR(Annotate(op, writer->Exec("PRAGMA journal_size_limit = 67108864")));
   IMUCAL_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
-  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<SqliteConnection> checkpointer,
-                          Annotate(op, SqliteConnection::Open(path, conn_options)));
-  std::vector<std::unique_ptr<Connection>> readers;
+  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<sql::SqliteConnection> checkpointer,
+                          Annotate(op, sql::SqliteConnection::Open(path, conn_options)));
+  std::vector<std::unique_ptr<sql::Connection>> readers;
   conn_options.read_only = true;
   for (int i = 0; i < options.read_connections; ++i) {
-    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<Connection> reader,
-                            Annotate(op, SqliteConnection::Open(path, conn_options)));
+    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<sql::Connection> reader,
+                            Annotate(op, sql::SqliteConnection::Open(path, conn_options)));
     readers.push_back(std::move(reader));
   }
   std::unique_ptr<Store> store(new Store(std::move(options), std::move(writer),
@@ -105,17 +111,17 @@ absl::StatusOr<std::unique_ptr<Store>> Store::OpenPostgres(const std::string& ur
   // PostgreSQL keeps its own write-ahead log and checkpoints: no checkpointer. Commits are
   // synchronous whatever options.durability says (pg_db.h).
   // A connection's error names the URL already ("cannot connect to URL: ..."): "open" only.
-  const std::string op = Cat("open ", RedactedLocation(url));
-  ConnectionOptions conn_options;
+  const std::string op = Cat("open ", sql::RedactedLocation(url));
+  sql::ConnectionOptions conn_options;
   conn_options.busy_timeout = options.busy_timeout;
   conn_options.origin = RandomOrigin();
-  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<Connection> writer,
+  IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<sql::Connection> writer,
                           Annotate("open", PgConnection::Open(url, conn_options)));
   IMUCAL_RETURN_IF_ERROR(Annotate(op, Migrate(*writer)));
-  std::vector<std::unique_ptr<Connection>> readers;
+  std::vector<std::unique_ptr<sql::Connection>> readers;
   conn_options.read_only = true;
   for (int i = 0; i < options.read_connections; ++i) {
-    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<Connection> reader,
+    IMUCAL_ASSIGN_OR_RETURN(std::unique_ptr<sql::Connection> reader,
                             Annotate("open", PgConnection::Open(url, conn_options)));
     readers.push_back(std::move(reader));
   }
@@ -127,7 +133,7 @@ absl::StatusOr<std::unique_ptr<Store>> Store::OpenPostgres(const std::string& ur
 }
 
 absl::Status Store::ListenForChanges(ChangeHandlers handlers) {
-  if (dialect() != Dialect::kPostgres) {
+  if (dialect() != sql::Dialect::kPostgres) {
     return absl::FailedPreconditionError(
         "ListenForChanges: only on PostgreSQL (SQLite: ActiveChangesSince)");
   }
@@ -162,7 +168,7 @@ absl::Status Store::ListenForChanges(ChangeHandlers handlers) {
 
 void Store::StopListening() { listener_.reset(); }
 
-Dialect Store::dialect() const { return writer_->dialect(); }
+sql::Dialect Store::dialect() const { return writer_->dialect(); }
 
 absl::Status Store::Ping() {
   ReadLease lease = AcquireReader();
@@ -192,12 +198,12 @@ absl::Time Store::Now() const {
 Store::ReadLease Store::AcquireReader() {
   std::unique_lock lock(readers_mu_);
   reader_free_.wait(lock, [this] { return !free_readers_.empty(); });
-  Connection* conn = free_readers_.back();
+  sql::Connection* conn = free_readers_.back();
   free_readers_.pop_back();
   return ReadLease(this, conn);
 }
 
-void Store::ReleaseReader(Connection* conn) {
+void Store::ReleaseReader(sql::Connection* conn) {
   {
     std::lock_guard lock(readers_mu_);
     free_readers_.push_back(conn);
@@ -209,13 +215,14 @@ void Store::ReleaseReader(Connection* conn) {
 
 void Store::StartBackgroundThreads() {
   committer_ = std::thread([this] { CommitLoop(); });
+  acker_ = std::thread([this] { AckLoop(); });
   if (checkpointer_ == nullptr) return;  // PostgreSQL checkpoints by itself
   {
     // From now on the writer's commits no longer checkpoint (SQLite's automatic checkpoint is
     // this hook): count the WAL's pages and let CheckpointLoop do it.
     std::lock_guard lock(write_mu_);
     sqlite3_wal_hook(
-        static_cast<SqliteConnection&>(*writer_).db(),
+        static_cast<sql::SqliteConnection&>(*writer_).db(),
         [](void* arg, sqlite3*, const char*, int pages) {
           Store* store = static_cast<Store*>(arg);
           store->wal_pages_.store(pages, std::memory_order_relaxed);

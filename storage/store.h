@@ -63,13 +63,15 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
-#include "storage/db.h"
 #include "storage/types.h"
+#include "util/db.h"
+
+namespace imucal::sql {
+class SqliteConnection;  // util/sqlite_db.h: SQLite stays out of this header
+}  // namespace imucal::sql
 
 namespace imucal::storage {
 
-class Connection;        // db.h
-class SqliteConnection;  // sqlite_db.h: SQLite stays out of this header
 class PgListener;        // pg_db.h
 
 // PRAGMA synchronous in WAL mode: see the header comment.
@@ -119,7 +121,7 @@ class Store {
   static absl::StatusOr<std::unique_ptr<Store>> Open(const std::string& path,
                                                      StoreOptions options = {});
   ~Store();
-  Dialect dialect() const;  // which backend
+  sql::Dialect dialect() const;  // which backend
   // A trivial query on a reader: OK when the database answers (a PostgreSQL connection that
   // broke is opened again first), else its status (Unavailable when it cannot be reached).
   absl::Status Ping();
@@ -166,8 +168,8 @@ class Store {
   // Group commit: AppendBatch, asynchronously, with the same checks and answers. Batches
   // submitted while a commit runs are written together in the next transaction (one COMMIT, and
   // under kFull one WAL sync, for many streams). `done` runs once that transaction committed
-  // (the batch is durable, as above) or failed, on the store's committer thread (or at once, on
-  // the caller's, for a malformed batch); it must be quick and may call the store.
+  // (the batch is durable, as above) or failed, on the store's acker thread, in commit order (or at
+  // once, on the caller's, for a malformed batch); it must be quick and may call the store.
   void AppendBatchAsync(std::string session_id, int64_t seq, std::string payload,
                         std::function<void(absl::StatusOr<BatchAck>)> done);
   // The session's batches with seq > after_seq, in seq order.
@@ -328,28 +330,30 @@ class Store {
 
  private:
   class ReadLease;
-  Store(StoreOptions options, std::unique_ptr<Connection> writer,
-        std::unique_ptr<SqliteConnection> checkpointer,
-        std::vector<std::unique_ptr<Connection>> readers);
+  Store(StoreOptions options, std::unique_ptr<sql::Connection> writer,
+        std::unique_ptr<sql::SqliteConnection> checkpointer,
+        std::vector<std::unique_ptr<sql::Connection>> readers);
   static absl::StatusOr<std::unique_ptr<Store>> OpenPostgres(const std::string& url,
                                                              StoreOptions options);
 
   absl::Time Now() const;
   absl::StatusOr<ParamVersion> NotifyIfActive(absl::StatusOr<ParamVersion> version);
   ReadLease AcquireReader();
-  void ReleaseReader(Connection* conn);
+  void ReleaseReader(sql::Connection* conn);
 
   StoreOptions options_;
   std::mutex write_mu_;
-  std::unique_ptr<Connection> writer_;  // guarded by write_mu_
+  std::unique_ptr<sql::Connection> writer_;  // guarded by write_mu_
 
   // Group commit (AppendBatchAsync) and background WAL checkpoints; both threads start with
   // the first AppendBatchAsync (a store that only writes synchronously keeps SQLite's automatic
   // checkpoint) and stop in the destructor after the submitted batches.
   struct PendingAppend;
   static constexpr int kCheckpointPages = 4096;  // 16 MiB of WAL at 4 KiB pages
+  struct CommittedGroup;
   void StartBackgroundThreads();
   void CommitLoop();
+  void AckLoop();
   void CheckpointLoop();
   std::once_flag threads_started_;
   std::mutex commit_mu_;
@@ -359,15 +363,23 @@ class Store {
   bool stopping_ = false;               // guarded by commit_mu_
   std::atomic<int> wal_pages_{0};       // WAL pages written since the last checkpoint
   std::thread committer_;
+  // The committed groups' `done` callbacks run on an acker thread of their own, in commit
+  // order, so the committer starts the next group's transaction while the last one's streams
+  // are acknowledged (on 2 cores the two overlap: ingest went from 0.65 to ... M samples/s).
+  std::mutex ack_mu_;
+  std::condition_variable ack_cv_;
+  std::vector<CommittedGroup> committed_;  // guarded by ack_mu_
+  bool ack_stopping_ = false;              // guarded by ack_mu_
+  std::thread acker_;
   std::thread checkpoint_thread_;
   // Its own connection: never waits for writes. Null on PostgreSQL.
-  std::unique_ptr<SqliteConnection> checkpointer_;
+  std::unique_ptr<sql::SqliteConnection> checkpointer_;
 
   // Declared after writer_ so they close first (the writer, last out, checkpoints the WAL).
-  std::vector<std::unique_ptr<Connection>> readers_;
+  std::vector<std::unique_ptr<sql::Connection>> readers_;
   std::mutex readers_mu_;
   std::condition_variable reader_free_;
-  std::vector<Connection*> free_readers_;  // guarded by readers_mu_
+  std::vector<sql::Connection*> free_readers_;  // guarded by readers_mu_
 
   std::string location_;  // the file or URL it was opened on
   std::string origin_;    // PostgreSQL: its name in the notifications it sends (ConnectionOptions)

@@ -5,10 +5,10 @@
 #include <string>
 #include <vector>
 
-#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
+#include "util/db.h"
 
 namespace imucal::storage {
 namespace {
@@ -27,7 +27,7 @@ constexpr char kSelectAuditActions[] =
     "SELECT id, action, target FROM audit_log WHERE id > ?1 ORDER BY id LIMIT 1000";
 
 // Columns as in kSelectAudit.
-AuditEntry ReadAudit(const Statement& st) {
+AuditEntry ReadAudit(const sql::Statement& st) {
   AuditEntry e;
   e.id = st.ColumnInt64(0);
   e.time = FromMicros(st.ColumnInt64(1));
@@ -40,10 +40,10 @@ AuditEntry ReadAudit(const Statement& st) {
 
 }  // namespace
 
-absl::Status InsertAudit(Connection& conn, absl::Time time, std::string_view actor,
+absl::Status InsertAudit(sql::Connection& conn, absl::Time time, std::string_view actor,
                          std::string_view action, std::string_view target,
                          std::string_view detail) {
-  return RunStatement(conn, kInsertAudit, Micros(time), actor, action, target, detail);
+  return sql::RunStatement(conn, kInsertAudit, Micros(time), actor, action, target, detail);
 }
 
 absl::StatusOr<AuditEntry> Store::AppendAudit(const AuditEntry& entry) {
@@ -51,12 +51,12 @@ absl::StatusOr<AuditEntry> Store::AppendAudit(const AuditEntry& entry) {
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(entry.actor, "actor")));
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(entry.action, "action")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<AuditEntry> {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<AuditEntry> {
     AuditEntry e = entry;
     e.time = Now();
     IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> id,
-                            ReadRow(conn, kInsertAudit, FirstColumnInt64, Micros(e.time), e.actor,
-                                    e.action, e.target, e.detail));
+                            sql::ReadRow(conn, kInsertAudit, sql::FirstColumnInt64, Micros(e.time),
+                                         e.actor, e.action, e.target, e.detail));
     if (!id) return absl::InternalError("INSERT ... RETURNING id returned no row");
     e.id = *id;
     return e;
@@ -71,7 +71,7 @@ absl::StatusOr<Store::ActiveChanges> Store::ActiveChangesSince(int64_t after_id)
   if (after_id < 0) {
     IMUCAL_ASSIGN_OR_RETURN(
         std::optional<int64_t> last,
-        Annotate(kOp, ReadRow(lease.conn(), kSelectLastAuditId, FirstColumnInt64)));
+        Annotate(kOp, sql::ReadRow(lease.conn(), kSelectLastAuditId, sql::FirstColumnInt64)));
     out.last_id = last.value_or(0);
     return out;
   }
@@ -81,9 +81,9 @@ absl::StatusOr<Store::ActiveChanges> Store::ActiveChangesSince(int64_t after_id)
   };
   IMUCAL_ASSIGN_OR_RETURN(
       std::vector<Row> rows,
-      Annotate(kOp, ReadRows(
+      Annotate(kOp, sql::ReadRows(
                         lease.conn(), kSelectAuditActions,
-                        [](const Statement& st) {
+                        [](const sql::Statement& st) {
                           return Row{st.ColumnInt64(0), st.ColumnText(1), st.ColumnText(2)};
                         },
                         after_id)));
@@ -104,11 +104,11 @@ absl::StatusOr<std::vector<AuditEntry>> Store::ListAudit(const AuditQuery& query
   }
   ReadLease lease = AcquireReader();
   if (query.target.empty()) {
-    return Annotate("ListAudit",
-                    ReadRows(lease.conn(), kSelectAudit, ReadAudit, query.after_id, query.limit));
+    return Annotate("ListAudit", sql::ReadRows(lease.conn(), kSelectAudit, ReadAudit,
+                                               query.after_id, query.limit));
   }
-  return Annotate("ListAudit", ReadRows(lease.conn(), kSelectAuditOfTarget, ReadAudit,
-                                        query.after_id, query.limit, query.target));
+  return Annotate("ListAudit", sql::ReadRows(lease.conn(), kSelectAuditOfTarget, ReadAudit,
+                                             query.after_id, query.limit, query.target));
 }
 
 }  // namespace imucal::storage

@@ -4,10 +4,10 @@
 #include <string>
 #include <vector>
 
-#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
+#include "util/db.h"
 
 namespace imucal::storage {
 namespace {
@@ -27,7 +27,7 @@ constexpr char kReleaseClaim[] = "DELETE FROM stream_claims WHERE device_id = ?1
 constexpr char kReleaseReplicaClaims[] =
     "DELETE FROM stream_claims WHERE substr(holder, 1, length(?1)) = ?1 RETURNING device_id";
 
-StreamClaim ReadClaim(const Statement& st) {
+StreamClaim ReadClaim(const sql::Statement& st) {
   StreamClaim c;
   c.device_id = st.ColumnText(0);
   c.holder = st.ColumnText(1);
@@ -43,11 +43,11 @@ absl::StatusOr<StreamClaim> Store::ClaimStream(std::string_view device_id, std::
   constexpr std::string_view kOp = "ClaimStream";
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(holder, "holder")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<StreamClaim> {
-    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kClaimStream, device_id, holder, session_id,
-                                        Micros(until), Micros(Now())));
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<StreamClaim> {
+    IMUCAL_RETURN_IF_ERROR(sql::RunStatement(conn, kClaimStream, device_id, holder, session_id,
+                                             Micros(until), Micros(Now())));
     IMUCAL_ASSIGN_OR_RETURN(std::optional<StreamClaim> claim,
-                            ReadRow(conn, kSelectClaim, ReadClaim, device_id));
+                            sql::ReadRow(conn, kSelectClaim, ReadClaim, device_id));
     if (!claim) return absl::InternalError("the stream claim just written is not there");
     return *std::move(claim);
   });
@@ -56,7 +56,7 @@ absl::StatusOr<StreamClaim> Store::ClaimStream(std::string_view device_id, std::
 absl::StatusOr<std::optional<StreamClaim>> Store::GetStreamClaim(std::string_view device_id) {
   ReadLease lease = AcquireReader();
   absl::StatusOr<std::optional<StreamClaim>> claim =
-      ReadRow(lease.conn(), kSelectClaim, ReadClaim, device_id);
+      sql::ReadRow(lease.conn(), kSelectClaim, ReadClaim, device_id);
   if (!claim.ok()) return Annotate("GetStreamClaim", claim.status());
   if (*claim && (*claim)->lease_until < Now()) return std::nullopt;  // lapsed: nobody streams
   return claim;
@@ -67,16 +67,16 @@ absl::StatusOr<std::vector<std::string>> Store::RenewStreamClaims(std::string_vi
   constexpr std::string_view kOp = "RenewStreamClaims";
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(holder, "holder")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) {
-    return ReadRows(conn, kRenewClaims, FirstColumnText, holder, Micros(until));
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) {
+    return sql::ReadRows(conn, kRenewClaims, sql::FirstColumnText, holder, Micros(until));
   });
 }
 
 absl::Status Store::ReleaseStreamClaim(std::string_view device_id, std::string_view holder) {
   constexpr std::string_view kOp = "ReleaseStreamClaim";
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) {
-    return RunStatement(conn, kReleaseClaim, device_id, holder);
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) {
+    return sql::RunStatement(conn, kReleaseClaim, device_id, holder);
   });
 }
 
@@ -85,9 +85,10 @@ absl::StatusOr<int> Store::ReleaseStreamClaimsOfReplica(std::string_view replica
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(replica_id, "replica_id")));
   const std::string prefix = std::string(replica_id) + " ";
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int> {
-    IMUCAL_ASSIGN_OR_RETURN(std::vector<std::string> devices,
-                            ReadRows(conn, kReleaseReplicaClaims, FirstColumnText, prefix));
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<int> {
+    IMUCAL_ASSIGN_OR_RETURN(
+        std::vector<std::string> devices,
+        sql::ReadRows(conn, kReleaseReplicaClaims, sql::FirstColumnText, prefix));
     return static_cast<int>(devices.size());
   });
 }

@@ -4,10 +4,10 @@
 #include <optional>
 #include <utility>
 
-#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
+#include "util/db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -29,7 +29,7 @@ constexpr char kInsertDevice[] =
     "created_at_us) VALUES (?1, ?2, ?3, ?4, ?5, ?6)";
 
 // Columns as in kSelectDevice.
-Device ReadDevice(const Statement& st) {
+Device ReadDevice(const sql::Statement& st) {
   Device d;
   d.id = st.ColumnText(0);
   d.sensor_model = st.ColumnText(1);
@@ -41,8 +41,8 @@ Device ReadDevice(const Statement& st) {
   return d;
 }
 
-absl::StatusOr<std::optional<Device>> FindDevice(Connection& conn, std::string_view id) {
-  return ReadRow(conn, kSelectDevice, ReadDevice, id);
+absl::StatusOr<std::optional<Device>> FindDevice(sql::Connection& conn, std::string_view id) {
+  return sql::ReadRow(conn, kSelectDevice, ReadDevice, id);
 }
 
 // A device registering again (robots do at every boot) must say the same thing.
@@ -68,7 +68,7 @@ absl::Status SameRegistration(const Device& stored, const Device& again) {
 
 }  // namespace
 
-absl::StatusOr<Device> LoadDevice(Connection& conn, std::string_view id) {
+absl::StatusOr<Device> LoadDevice(sql::Connection& conn, std::string_view id) {
   IMUCAL_ASSIGN_OR_RETURN(std::optional<Device> d, FindDevice(conn, id));
   if (!d) return absl::NotFoundError(Cat("no device '", id, "'"));
   return *std::move(d);
@@ -84,7 +84,7 @@ absl::StatusOr<Device> Store::CreateDevice(const Device& device, std::string_vie
                  Cat("nominal_rate_hz ", device.nominal_rate_hz, " is not a non-negative number")));
   }
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Device> {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<Device> {
     IMUCAL_ASSIGN_OR_RETURN(std::optional<Device> existing, FindDevice(conn, device.id));
     if (existing) {
       IMUCAL_RETURN_IF_ERROR(SameRegistration(*existing, device));
@@ -92,9 +92,9 @@ absl::StatusOr<Device> Store::CreateDevice(const Device& device, std::string_vie
     }
     Device d = device;
     d.created_at = Now();
-    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kInsertDevice, d.id, d.sensor_model,
-                                        d.nominal_rate_hz, d.accel_unit, d.gyro_unit,
-                                        Micros(d.created_at)));
+    IMUCAL_RETURN_IF_ERROR(sql::RunStatement(conn, kInsertDevice, d.id, d.sensor_model,
+                                             d.nominal_rate_hz, d.accel_unit, d.gyro_unit,
+                                             Micros(d.created_at)));
     IMUCAL_RETURN_IF_ERROR(InsertAudit(conn, d.created_at, actor, "device.create",
                                        DeviceTarget(d.id),
                                        Cat("sensor ", d.sensor_model, ", ", d.nominal_rate_hz,
@@ -110,8 +110,8 @@ absl::StatusOr<Device> Store::GetDevice(std::string_view id) {
 
 absl::StatusOr<std::vector<Device>> Store::ListDevices(std::string_view after_id, int limit) {
   ReadLease lease = AcquireReader();
-  return Annotate("ListDevices",
-                  ReadRows(lease.conn(), kSelectDevices, ReadDevice, after_id, SqlLimit(limit)));
+  return Annotate("ListDevices", sql::ReadRows(lease.conn(), kSelectDevices, ReadDevice, after_id,
+                                               SqlLimit(limit)));
 }
 
 }  // namespace imucal::storage

@@ -22,10 +22,10 @@
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
 #include "storage/sample_codec.h"
-#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/types.h"
+#include "util/db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -82,9 +82,9 @@ void PauseBeforeRetry(int attempt);
 // outside is reset at its start.
 // The connection's on_transaction hears of it once, committed or not, the retries included.
 template <typename F>
-std::invoke_result_t<F, Connection&> InTransaction(
-    std::string_view op, Connection& conn, F&& body,
-    Isolation isolation = Isolation::kSerializable) {
+std::invoke_result_t<F, sql::Connection&> InTransaction(
+    std::string_view op, sql::Connection& conn, F&& body,
+    sql::Isolation isolation = sql::Isolation::kSerializable) {
   const absl::Time start = conn.on_transaction ? absl::Now() : absl::InfinitePast();
   const auto told = [&](auto result) {
     if (conn.on_transaction) conn.on_transaction(op, absl::Now() - start);
@@ -93,7 +93,7 @@ std::invoke_result_t<F, Connection&> InTransaction(
   for (int attempt = 1;; ++attempt) {
     absl::Status failed;
     {
-      absl::StatusOr<Transaction> txn = Transaction::Begin(conn, isolation);
+      absl::StatusOr<sql::Transaction> txn = sql::Transaction::Begin(conn, isolation);
       if (!txn.ok()) return told(WithContext(op, txn.status()));
       auto result = body(conn);
       if (result.ok()) {
@@ -113,7 +113,7 @@ std::invoke_result_t<F, Connection&> InTransaction(
 // ---- Shared lookups and writes, inside the caller's transaction or read lease ----------------
 
 // store_devices.cc. NotFound naming the device.
-absl::StatusOr<Device> LoadDevice(Connection& conn, std::string_view id);
+absl::StatusOr<Device> LoadDevice(sql::Connection& conn, std::string_view id);
 
 // PostgreSQL's notification channels (Store::ListenForChanges).
 inline constexpr char kActiveChannel[] = "imucal_active";
@@ -123,28 +123,28 @@ inline constexpr char kTokenChannel[] = "imucal_token";
 // PostgreSQL: tells the other servers' listeners that the session changed, when (and if) the
 // transaction commits; payload "<origin> <session id>" (ConnectionOptions::origin). Nothing on
 // SQLite. Several in one transaction arrive as one.
-absl::Status AnnounceSession(Connection& conn, std::string_view session_id);
+absl::Status AnnounceSession(sql::Connection& conn, std::string_view session_id);
 
 // store_sessions.cc. NotFound naming the session.
-absl::StatusOr<Session> LoadSession(Connection& conn, std::string_view id);
-absl::Status CheckSessionExists(Connection& conn, std::string_view id);
+absl::StatusOr<Session> LoadSession(sql::Connection& conn, std::string_view id);
+absl::Status CheckSessionExists(sql::Connection& conn, std::string_view id);
 // Moves `session` to `to` (checking the transition of types.h and the one-open-session rule)
 // and audits it.
-absl::Status ChangeSessionState(Connection& conn, const Session& session, SessionState to,
+absl::Status ChangeSessionState(sql::Connection& conn, const Session& session, SessionState to,
                                 std::string_view actor, absl::Time now);
 
 // store_solves.cc. Fails the session's running solve, if any, with `error`.
-absl::Status AbandonRunningSolve(Connection& conn, std::string_view session_id, absl::Time now,
+absl::Status AbandonRunningSolve(sql::Connection& conn, std::string_view session_id, absl::Time now,
                                  std::string_view error);
 
 // store_versions.cc. AddVersion's checks and insert (activating it if v.state is kActive),
 // the documents written by `render` (if given) once the number is assigned.
-absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion& v,
+absl::StatusOr<ParamVersion> InsertVersion(sql::Connection& conn, const ParamVersion& v,
                                            std::string_view actor, absl::Time now,
                                            const RenderVersion& render);
 
 // store_audit.cc. One audit_log row.
-absl::Status InsertAudit(Connection& conn, absl::Time time, std::string_view actor,
+absl::Status InsertAudit(sql::Connection& conn, absl::Time time, std::string_view actor,
                          std::string_view action, std::string_view target, std::string_view detail);
 
 // ---- The Store's private types ---------------------------------------------------------------
@@ -152,15 +152,15 @@ absl::Status InsertAudit(Connection& conn, absl::Time time, std::string_view act
 // A read connection from the pool, returned to it on destruction.
 class Store::ReadLease {
  public:
-  ReadLease(Store* store, Connection* conn) : store_(store), conn_(conn) {}
+  ReadLease(Store* store, sql::Connection* conn) : store_(store), conn_(conn) {}
   ReadLease(const ReadLease&) = delete;
   ReadLease& operator=(const ReadLease&) = delete;
   ~ReadLease() { store_->ReleaseReader(conn_); }
-  Connection& conn() const { return *conn_; }
+  sql::Connection& conn() const { return *conn_; }
 
  private:
   Store* store_;
-  Connection* conn_;
+  sql::Connection* conn_;
 };
 
 // A batch waiting for the committer thread (store_samples.cc), already checked (CheckBatch).
@@ -170,6 +170,13 @@ struct Store::PendingAppend {
   std::string payload;
   EncodedBatchInfo info;
   std::function<void(absl::StatusOr<BatchAck>)> done;
+};
+
+// A group the committer has committed (or failed): its batches' callbacks and answers, in
+// submission order, for the acker thread.
+struct Store::CommittedGroup {
+  std::vector<std::function<void(absl::StatusOr<BatchAck>)>> done;
+  std::vector<absl::StatusOr<BatchAck>> results;
 };
 
 }  // namespace imucal::storage

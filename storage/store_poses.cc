@@ -4,10 +4,10 @@
 #include <string>
 #include <vector>
 
-#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
+#include "util/db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -35,14 +35,14 @@ constexpr char kSelectPoses[] =
     "WHERE session_id = ?1 ORDER BY pose_index";
 
 // Writes pose `p` of `session_id` with kInsertPose or kUpsertPose (the same parameters).
-absl::Status WritePose(Connection& conn, const char* sql, std::string_view session_id,
+absl::Status WritePose(sql::Connection& conn, const char* sql, std::string_view session_id,
                        const Pose& p) {
-  return RunStatement(conn, sql, session_id, p.index, p.t_start_s, p.t_end_s, p.used, p.reason,
-                      p.detail_json, p.face);
+  return sql::RunStatement(conn, sql, session_id, p.index, p.t_start_s, p.t_end_s, p.used, p.reason,
+                           p.detail_json, p.face);
 }
 
 // Columns as in kSelectPoses, of `session_id`.
-Pose ReadPose(const Statement& st, std::string_view session_id) {
+Pose ReadPose(const sql::Statement& st, std::string_view session_id) {
   Pose p;
   p.session_id = std::string(session_id);
   p.index = static_cast<int>(st.ColumnInt64(0));
@@ -56,7 +56,7 @@ Pose ReadPose(const Statement& st, std::string_view session_id) {
 }
 
 // Columns as in kSelectPairs, of `session_id`.
-PosePair ReadPair(const Statement& st, std::string_view session_id) {
+PosePair ReadPair(const sql::Statement& st, std::string_view session_id) {
   PosePair p;
   p.session_id = std::string(session_id);
   p.pose_a = static_cast<int>(st.ColumnInt64(0));
@@ -93,9 +93,9 @@ absl::Status Store::PutPoses(std::string_view session_id, const std::vector<Pose
     used += p.used ? 1 : 0;
   }
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::Status {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::Status {
     IMUCAL_RETURN_IF_ERROR(CheckSessionExists(conn, session_id));
-    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kDeletePoses, session_id));
+    IMUCAL_RETURN_IF_ERROR(sql::RunStatement(conn, kDeletePoses, session_id));
     for (const Pose& p : poses) {
       IMUCAL_RETURN_IF_ERROR(WritePose(conn, kInsertPose, session_id, p));
     }
@@ -108,9 +108,9 @@ absl::StatusOr<std::vector<Pose>> Store::ListPoses(std::string_view session_id) 
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<Pose>> {
     IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
-    return ReadRows(
-        lease.conn(), kSelectPoses, [&](const Statement& st) { return ReadPose(st, session_id); },
-        session_id);
+    return sql::ReadRows(
+        lease.conn(), kSelectPoses,
+        [&](const sql::Statement& st) { return ReadPose(st, session_id); }, session_id);
   };
   return Annotate("ListPoses", list());
 }
@@ -135,14 +135,14 @@ absl::Status Store::SavePoses(std::string_view session_id, const std::vector<Pos
   }
   if (poses.empty() && pairs.empty()) return absl::OkStatus();
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::Status {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::Status {
     IMUCAL_RETURN_IF_ERROR(CheckSessionExists(conn, session_id));
     for (const Pose& p : poses) {
       IMUCAL_RETURN_IF_ERROR(WritePose(conn, kUpsertPose, session_id, p));
     }
     for (const PosePair& p : pairs) {
-      IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kUpsertPair, session_id, p.pose_a, p.pose_b, p.ok,
-                                          p.face, p.rotation_deg, p.tilt_deg, p.reason));
+      IMUCAL_RETURN_IF_ERROR(sql::RunStatement(conn, kUpsertPair, session_id, p.pose_a, p.pose_b,
+                                               p.ok, p.face, p.rotation_deg, p.tilt_deg, p.reason));
     }
     return absl::OkStatus();
   });
@@ -152,9 +152,9 @@ absl::StatusOr<std::vector<PosePair>> Store::ListPairs(std::string_view session_
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<PosePair>> {
     IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
-    return ReadRows(
-        lease.conn(), kSelectPairs, [&](const Statement& st) { return ReadPair(st, session_id); },
-        session_id);
+    return sql::ReadRows(
+        lease.conn(), kSelectPairs,
+        [&](const sql::Statement& st) { return ReadPair(st, session_id); }, session_id);
   };
   return Annotate("ListPairs", list());
 }

@@ -1,5 +1,5 @@
 // Store: raw sample batches (store.h "Raw samples"): AppendBatch, the group commit of
-// AppendBatchAsync (its committer thread), ReadBatches and ReadBatchPage.
+// AppendBatchAsync (its committer and acker threads), ReadBatches and ReadBatchPage.
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -7,10 +7,10 @@
 #include <vector>
 
 #include "storage/sample_codec.h"
-#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
+#include "util/db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -55,24 +55,24 @@ struct LastBatch {
 };
 
 // Columns as in kSelectLastBatch.
-LastBatch ReadLastBatch(const Statement& st) {
+LastBatch ReadLastBatch(const sql::Statement& st) {
   return LastBatch{st.ColumnInt64(0), st.ColumnDouble(1), st.ColumnInt64(2)};
 }
 
-absl::StatusOr<LastBatch> FindLastBatch(Connection& conn, std::string_view session_id) {
+absl::StatusOr<LastBatch> FindLastBatch(sql::Connection& conn, std::string_view session_id) {
   IMUCAL_ASSIGN_OR_RETURN(std::optional<LastBatch> last,
-                          ReadRow(conn, kSelectLastBatch, ReadLastBatch, session_id));
+                          sql::ReadRow(conn, kSelectLastBatch, ReadLastBatch, session_id));
   return last.value_or(LastBatch{});
 }
 
 // Columns as in kSelectSessionStateForAppend.
-absl::StatusOr<SessionState> ReadSessionState(const Statement& st) {
+absl::StatusOr<SessionState> ReadSessionState(const sql::Statement& st) {
   return FromColumn(ParseSessionState(st.ColumnText(0)));
 }
 
 // Columns as in kSelectBatches, of `session_id`. The payload is verified on the way out too: a
 // damaged file must not feed a solve silently.
-absl::StatusOr<SampleBatch> ReadBatch(const Statement& st, std::string_view session_id) {
+absl::StatusOr<SampleBatch> ReadBatch(const sql::Statement& st, std::string_view session_id) {
   SampleBatch b;
   b.session_id = std::string(session_id);
   b.seq = st.ColumnInt64(0);
@@ -93,23 +93,24 @@ absl::StatusOr<SampleBatch> ReadBatch(const Statement& st, std::string_view sess
 }
 
 // AppendBatch's checks and insert inside the caller's transaction (see store.h).
-absl::StatusOr<BatchAck> AppendOne(Connection& conn, std::string_view session_id, int64_t seq,
+absl::StatusOr<BatchAck> AppendOne(sql::Connection& conn, std::string_view session_id, int64_t seq,
                                    std::string_view payload, const EncodedBatchInfo& info) {
   IMUCAL_ASSIGN_OR_RETURN(
       std::optional<SessionState> state,
-      ReadRow(conn,
-              conn.dialect() == Dialect::kPostgres ? kLockSessionStateForAppend
-                                                   : kSelectSessionStateForAppend,
-              ReadSessionState, session_id));
+      sql::ReadRow(conn,
+                   conn.dialect() == sql::Dialect::kPostgres ? kLockSessionStateForAppend
+                                                             : kSelectSessionStateForAppend,
+                   ReadSessionState, session_id));
   if (!state) return absl::NotFoundError(Cat("no session '", session_id, "'"));
   IMUCAL_ASSIGN_OR_RETURN(const LastBatch last, FindLastBatch(conn, session_id));
   if (seq <= last.seq) {
     // A retransmission of an acknowledged batch is a no-op, if it is the same batch.
-    IMUCAL_ASSIGN_OR_RETURN(
-        std::optional<bool> same,
-        ReadRow(
-            conn, kSelectBatchPayload,
-            [&](const Statement& st) { return st.ColumnBlobView(0) == payload; }, session_id, seq));
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<bool> same, sql::ReadRow(
+                                                          conn, kSelectBatchPayload,
+                                                          [&](const sql::Statement& st) {
+                                                            return st.ColumnBlobView(0) == payload;
+                                                          },
+                                                          session_id, seq));
     if (same.value_or(false)) return BatchAck{last.seq, last.end_sample};
     return absl::InvalidArgumentError(Cat("session '", session_id, "': batch ", seq,
                                           " was already stored with different content"));
@@ -129,9 +130,10 @@ absl::StatusOr<BatchAck> AppendOne(Connection& conn, std::string_view session_id
             ", not after the last sample of batch ", last.seq, " (t_s ", last.last_t_s, ")"));
   }
   const BatchAck ack{seq, last.end_sample + info.count};
-  IMUCAL_RETURN_IF_ERROR(RunStatement(
-      conn, conn.dialect() == Dialect::kPostgres ? kInsertBatchAnnounced : kInsertBatch, session_id,
-      seq, info.first_t_s, info.last_t_s, info.count, ack.samples, SqlBlob{payload}));
+  IMUCAL_RETURN_IF_ERROR(sql::RunStatement(
+      conn, conn.dialect() == sql::Dialect::kPostgres ? kInsertBatchAnnounced : kInsertBatch,
+      session_id, seq, info.first_t_s, info.last_t_s, info.count, ack.samples,
+      sql::SqlBlob{payload}));
   return ack;
 }
 
@@ -162,8 +164,8 @@ absl::StatusOr<BatchAck> Store::AppendBatch(std::string_view session_id, int64_t
   std::lock_guard lock(write_mu_);
   return InTransaction(
       "AppendBatch", *writer_,
-      [&](Connection& conn) { return AppendOne(conn, session_id, seq, payload, *info); },
-      Isolation::kReadCommitted);
+      [&](sql::Connection& conn) { return AppendOne(conn, session_id, seq, payload, *info); },
+      sql::Isolation::kReadCommitted);
 }
 
 void Store::AppendBatchAsync(std::string session_id, int64_t seq, std::string payload,
@@ -196,17 +198,20 @@ void Store::CommitLoop() {
     results.clear();
     {
       std::lock_guard lock(write_mu_);
-      absl::Status status = InTransaction("AppendBatch", *writer_, [&](Connection& conn) {
-        results.clear();  // a conflict runs the whole group again
-        for (const PendingAppend& p : group) {
-          absl::StatusOr<BatchAck> r = AppendOne(conn, p.session_id, p.seq, p.payload, p.info);
-          // A database error (not a batch's own) ends the transaction (PostgreSQL will not run
-          // another statement in it): the whole group fails, or runs again if it conflicted.
-          if (absl::Status doomed = conn.CommitBlocker(); !doomed.ok()) return doomed;
-          results.push_back(r.ok() ? r : WithContext("AppendBatch", r.status()));
-        }
-        return absl::OkStatus();  // a batch's own error fails that batch only
-      }, Isolation::kReadCommitted);
+      absl::Status status = InTransaction(
+          "AppendBatch", *writer_,
+          [&](sql::Connection& conn) {
+            results.clear();  // a conflict runs the whole group again
+            for (const PendingAppend& p : group) {
+              absl::StatusOr<BatchAck> r = AppendOne(conn, p.session_id, p.seq, p.payload, p.info);
+              // A database error (not a batch's own) ends the transaction (PostgreSQL will not run
+              // another statement in it): the whole group fails, or runs again if it conflicted.
+              if (absl::Status doomed = conn.CommitBlocker(); !doomed.ok()) return doomed;
+              results.push_back(r.ok() ? r : WithContext("AppendBatch", r.status()));
+            }
+            return absl::OkStatus();  // a batch's own error fails that batch only
+          },
+          sql::Isolation::kReadCommitted);
       // No commit: nothing of the group is stored (each batch's own error stays its own).
       if (!status.ok()) {
         results.resize(group.size(), status);  // BEGIN failed: no batch got its own answer
@@ -214,8 +219,33 @@ void Store::CommitLoop() {
           if (r.ok()) r = status;
       }
     }
-    for (size_t i = 0; i < group.size(); ++i) group[i].done(std::move(results[i]));
+    CommittedGroup committed;
+    committed.done.reserve(group.size());
+    for (PendingAppend& p : group) committed.done.push_back(std::move(p.done));
+    committed.results = std::move(results);
+    results = {};
+    {
+      std::lock_guard lock(ack_mu_);
+      committed_.push_back(std::move(committed));
+    }
+    ack_cv_.notify_one();
     group.clear();
+  }
+}
+
+void Store::AckLoop() {
+  std::vector<CommittedGroup> groups;
+  for (;;) {
+    {
+      std::unique_lock lock(ack_mu_);
+      ack_cv_.wait(lock, [this] { return !committed_.empty() || ack_stopping_; });
+      if (committed_.empty()) return;  // stopping, and every committed group is answered
+      groups.swap(committed_);
+    }
+    for (CommittedGroup& g : groups) {
+      for (size_t i = 0; i < g.done.size(); ++i) g.done[i](std::move(g.results[i]));
+    }
+    groups.clear();
   }
 }
 
@@ -224,9 +254,9 @@ absl::StatusOr<std::vector<SampleBatch>> Store::ReadBatches(std::string_view ses
   ReadLease lease = AcquireReader();
   auto read = [&]() -> absl::StatusOr<std::vector<SampleBatch>> {
     IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
-    return ReadRows(
+    return sql::ReadRows(
         lease.conn(), kSelectBatches,
-        [&](const Statement& st) { return ReadBatch(st, session_id); }, session_id, after_seq);
+        [&](const sql::Statement& st) { return ReadBatch(st, session_id); }, session_id, after_seq);
   };
   return Annotate("ReadBatches", read());
 }
@@ -243,9 +273,9 @@ absl::StatusOr<std::vector<SampleBatch>> Store::ReadBatchPage(std::string_view s
   ReadLease lease = AcquireReader();
   auto read = [&]() -> absl::StatusOr<std::vector<SampleBatch>> {
     IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
-    return ReadRows(
+    return sql::ReadRows(
         lease.conn(), kSelectBatchPage,
-        [&](const Statement& st) { return ReadBatch(st, session_id); }, session_id, after_seq,
+        [&](const sql::Statement& st) { return ReadBatch(st, session_id); }, session_id, after_seq,
         max_batches, max_samples);
   };
   return Annotate("ReadBatchPage", read());

@@ -9,10 +9,10 @@
 #include <utility>
 
 #include "absl/strings/str_format.h"
-#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
+#include "util/db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -57,7 +57,7 @@ constexpr char kUpdateSessionSource[] =
 constexpr char kSessionExists[] = "SELECT 1 FROM sessions WHERE id = ?1";
 
 // Columns as in kSelectSession.
-absl::StatusOr<Session> ReadSession(const Statement& st) {
+absl::StatusOr<Session> ReadSession(const sql::Statement& st) {
   Session s;
   s.id = st.ColumnText(0);
   s.device_id = st.ColumnText(1);
@@ -74,9 +74,9 @@ absl::StatusOr<Session> ReadSession(const Statement& st) {
   return s;
 }
 
-absl::StatusOr<std::optional<std::string>> FindOpenSession(Connection& conn,
+absl::StatusOr<std::optional<std::string>> FindOpenSession(sql::Connection& conn,
                                                            std::string_view device_id) {
-  return ReadRow(conn, kSelectOpenSessionOfDevice, FirstColumnText, device_id);
+  return sql::ReadRow(conn, kSelectOpenSessionOfDevice, sql::FirstColumnText, device_id);
 }
 
 std::string GenerateSessionId() {
@@ -119,26 +119,28 @@ std::string AllowedFrom(SessionState from) {
 
 }  // namespace
 
-absl::StatusOr<Session> LoadSession(Connection& conn, std::string_view id) {
-  IMUCAL_ASSIGN_OR_RETURN(std::optional<Session> s, ReadRow(conn, kSelectSession, ReadSession, id));
+absl::StatusOr<Session> LoadSession(sql::Connection& conn, std::string_view id) {
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<Session> s,
+                          sql::ReadRow(conn, kSelectSession, ReadSession, id));
   if (!s) return absl::NotFoundError(Cat("no session '", id, "'"));
   return *std::move(s);
 }
 
-absl::Status CheckSessionExists(Connection& conn, std::string_view id) {
-  IMUCAL_ASSIGN_OR_RETURN(std::optional<bool> found,
-                          ReadRow(
-                              conn, kSessionExists, [](const Statement&) { return true; }, id));
+absl::Status CheckSessionExists(sql::Connection& conn, std::string_view id) {
+  IMUCAL_ASSIGN_OR_RETURN(
+      std::optional<bool> found,
+      sql::ReadRow(
+          conn, kSessionExists, [](const sql::Statement&) { return true; }, id));
   if (!found) return absl::NotFoundError(Cat("no session '", id, "'"));
   return absl::OkStatus();
 }
 
-absl::Status AnnounceSession(Connection& conn, std::string_view session_id) {
-  if (conn.dialect() != Dialect::kPostgres) return absl::OkStatus();
-  return RunStatement(conn, kAnnounceSession, session_id);
+absl::Status AnnounceSession(sql::Connection& conn, std::string_view session_id) {
+  if (conn.dialect() != sql::Dialect::kPostgres) return absl::OkStatus();
+  return sql::RunStatement(conn, kAnnounceSession, session_id);
 }
 
-absl::Status ChangeSessionState(Connection& conn, const Session& session, SessionState to,
+absl::Status ChangeSessionState(sql::Connection& conn, const Session& session, SessionState to,
                                 std::string_view actor, absl::Time now) {
   if (!TransitionAllowed(session.state, to)) {
     return absl::FailedPreconditionError(Cat(
@@ -154,7 +156,7 @@ absl::Status ChangeSessionState(Connection& conn, const Session& session, Sessio
     }
   }
   IMUCAL_RETURN_IF_ERROR(
-      RunStatement(conn, kUpdateSessionState, session.id, SessionStateName(to), Micros(now)));
+      sql::RunStatement(conn, kUpdateSessionState, session.id, SessionStateName(to), Micros(now)));
   IMUCAL_RETURN_IF_ERROR(AnnounceSession(conn, session.id));
   return InsertAudit(conn, now, actor, "session.state", SessionTarget(session.id),
                      Cat(SessionStateName(session.state), " -> ", SessionStateName(to)));
@@ -170,7 +172,7 @@ absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string
   }
   const std::string id = session.id.empty() ? GenerateSessionId() : session.id;
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Session> {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<Session> {
     IMUCAL_RETURN_IF_ERROR(LoadDevice(conn, session.device_id).status());
     IMUCAL_ASSIGN_OR_RETURN(std::optional<std::string> open,
                             FindOpenSession(conn, session.device_id));
@@ -183,8 +185,8 @@ absl::StatusOr<Session> Store::CreateSession(const Session& session, std::string
       return absl::AlreadyExistsError(Cat("session '", id, "' already exists"));
     }
     const absl::Time now = Now();
-    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kInsertSession, id, session.device_id,
-                                        session.protocol, session.gravity_m_s2, Micros(now)));
+    IMUCAL_RETURN_IF_ERROR(sql::RunStatement(conn, kInsertSession, id, session.device_id,
+                                             session.protocol, session.gravity_m_s2, Micros(now)));
     IMUCAL_RETURN_IF_ERROR(
         InsertAudit(conn, now, actor, "session.create", SessionTarget(id),
                     Cat("device ", session.device_id, ", protocol ", session.protocol)));
@@ -199,12 +201,13 @@ absl::StatusOr<Session> Store::GetSession(std::string_view id) {
 
 absl::StatusOr<std::vector<Session>> Store::ListSessions(const SessionQuery& query) {
   ReadLease lease = AcquireReader();
-  Connection& conn = lease.conn();
+  sql::Connection& conn = lease.conn();
   auto list = [&]() -> absl::StatusOr<std::vector<Session>> {
     int64_t after_rowid = 0;
     if (!query.after_id.empty()) {
-      IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> rowid,
-                              ReadRow(conn, kSelectSessionRowid, FirstColumnInt64, query.after_id));
+      IMUCAL_ASSIGN_OR_RETURN(
+          std::optional<int64_t> rowid,
+          sql::ReadRow(conn, kSelectSessionRowid, sql::FirstColumnInt64, query.after_id));
       if (!rowid) {
         return absl::InvalidArgumentError(Cat("page after unknown session '", query.after_id, "'"));
       }
@@ -214,8 +217,8 @@ absl::StatusOr<std::vector<Session>> Store::ListSessions(const SessionQuery& que
     if (of_device) IMUCAL_RETURN_IF_ERROR(LoadDevice(conn, query.device_id).status());
     std::optional<std::string_view> state;
     if (query.state) state = SessionStateName(*query.state);
-    return ReadRows(conn, of_device ? kSelectSessionsOfDevice : kSelectSessionsAll, ReadSession,
-                    query.device_id, state, after_rowid, SqlLimit(query.limit));
+    return sql::ReadRows(conn, of_device ? kSelectSessionsOfDevice : kSelectSessionsAll,
+                         ReadSession, query.device_id, state, after_rowid, SqlLimit(query.limit));
   };
   return Annotate("ListSessions", list());
 }
@@ -225,7 +228,7 @@ absl::StatusOr<Session> Store::SetSessionState(std::string_view id, SessionState
   constexpr std::string_view kOp = "SetSessionState";
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Session> {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<Session> {
     IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, id));
     const absl::Time now = Now();
     IMUCAL_RETURN_IF_ERROR(ChangeSessionState(conn, session, state, actor, now));
@@ -242,14 +245,14 @@ absl::StatusOr<Session> Store::SetSessionState(std::string_view id, SessionState
 absl::Status Store::SetSessionSource(std::string_view id, std::string_view source) {
   constexpr std::string_view kOp = "SetSessionSource";
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::Status {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::Status {
     IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, id));
     if (session.state != SessionState::kOpen || session.samples > 0) {
       return absl::FailedPreconditionError(Cat("session '", id, "' is ",
                                                SessionStateName(session.state), " and holds ",
                                                session.samples, " samples: its source is set"));
     }
-    return RunStatement(conn, kUpdateSessionSource, id, source);
+    return sql::RunStatement(conn, kUpdateSessionSource, id, source);
   });
 }
 

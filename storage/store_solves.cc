@@ -5,10 +5,10 @@
 #include <utility>
 #include <vector>
 
-#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
+#include "util/db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -65,7 +65,7 @@ absl::Time LeaseFromMicros(int64_t us) {
 }
 
 // Columns as in kSelectSolve.
-absl::StatusOr<Solve> ReadSolve(const Statement& st) {
+absl::StatusOr<Solve> ReadSolve(const sql::Statement& st) {
   Solve s;
   s.id = st.ColumnInt64(0);
   s.session_id = st.ColumnText(1);
@@ -83,8 +83,8 @@ absl::StatusOr<Solve> ReadSolve(const Statement& st) {
   return s;
 }
 
-absl::StatusOr<Solve> LoadSolve(Connection& conn, int64_t id) {
-  IMUCAL_ASSIGN_OR_RETURN(std::optional<Solve> s, ReadRow(conn, kSelectSolve, ReadSolve, id));
+absl::StatusOr<Solve> LoadSolve(sql::Connection& conn, int64_t id) {
+  IMUCAL_ASSIGN_OR_RETURN(std::optional<Solve> s, sql::ReadRow(conn, kSelectSolve, ReadSolve, id));
   if (!s) return absl::NotFoundError(Cat("no solve ", id));
   return *std::move(s);
 }
@@ -92,7 +92,7 @@ absl::StatusOr<Solve> LoadSolve(Connection& conn, int64_t id) {
 // The running solve `solve_id`: FailedPrecondition once it has finished, or when `owner` (if
 // given) no longer holds its claim (another server claimed it after the lease lapsed: only the
 // claim's holder may end it, so a version is written once).
-absl::StatusOr<Solve> LoadRunningSolve(Connection& conn, int64_t solve_id,
+absl::StatusOr<Solve> LoadRunningSolve(sql::Connection& conn, int64_t solve_id,
                                        std::string_view owner = {}) {
   IMUCAL_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, solve_id));
   if (solve.state != SolveState::kRunning) {
@@ -107,17 +107,18 @@ absl::StatusOr<Solve> LoadRunningSolve(Connection& conn, int64_t solve_id,
 }
 
 // Ends solve `solve_id` as `state` (succeeded with `version`, or failed with `error`).
-absl::Status FinishSolveRow(Connection& conn, int64_t solve_id, SolveState state, absl::Time now,
-                            int version, std::string_view error, std::string_view report_json) {
-  return RunStatement(conn, kFinishSolve, solve_id, SolveStateName(state), Micros(now), version,
-                      error, report_json);
+absl::Status FinishSolveRow(sql::Connection& conn, int64_t solve_id, SolveState state,
+                            absl::Time now, int version, std::string_view error,
+                            std::string_view report_json) {
+  return sql::RunStatement(conn, kFinishSolve, solve_id, SolveStateName(state), Micros(now),
+                           version, error, report_json);
 }
 
 }  // namespace
 
-absl::Status AbandonRunningSolve(Connection& conn, std::string_view session_id, absl::Time now,
+absl::Status AbandonRunningSolve(sql::Connection& conn, std::string_view session_id, absl::Time now,
                                  std::string_view error) {
-  return RunStatement(conn, kAbandonRunningSolves, session_id, Micros(now), error);
+  return sql::RunStatement(conn, kAbandonRunningSolves, session_id, Micros(now), error);
 }
 
 absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string_view actor,
@@ -125,14 +126,14 @@ absl::StatusOr<Solve> Store::StartSolve(std::string_view session_id, std::string
   constexpr std::string_view kOp = "StartSolve";
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Solve> {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<Solve> {
     IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, session_id));
     const absl::Time now = Now();
     IMUCAL_RETURN_IF_ERROR(ChangeSessionState(conn, session, SessionState::kSolving, actor, now));
     IMUCAL_ASSIGN_OR_RETURN(
         std::optional<int64_t> inserted,
-        ReadRow(conn, kInsertSolve, FirstColumnInt64, session_id, actor, Micros(now), claim.owner,
-                LeaseMicros(claim.lease_until), static_cast<int64_t>(seed)));
+        sql::ReadRow(conn, kInsertSolve, sql::FirstColumnInt64, session_id, actor, Micros(now),
+                     claim.owner, LeaseMicros(claim.lease_until), static_cast<int64_t>(seed)));
     if (!inserted) return absl::InternalError("INSERT ... RETURNING id returned no row");
     const int64_t id = *inserted;
     IMUCAL_RETURN_IF_ERROR(
@@ -149,7 +150,7 @@ absl::StatusOr<ParamVersion> Store::FinishSolve(int64_t solve_id, const ParamVer
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(
-      InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+      InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<ParamVersion> {
         IMUCAL_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id, owner));
         IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
         ParamVersion v = version;
@@ -184,7 +185,7 @@ absl::StatusOr<Solve> Store::FailSolve(int64_t solve_id, std::string_view error,
         kOp, ": after a failed solve a session is failed or open, not ", SessionStateName(next)));
   }
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<Solve> {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<Solve> {
     IMUCAL_ASSIGN_OR_RETURN(Solve solve, LoadRunningSolve(conn, solve_id, owner));
     IMUCAL_ASSIGN_OR_RETURN(Session session, LoadSession(conn, solve.session_id));
     const absl::Time now = Now();
@@ -206,7 +207,7 @@ absl::StatusOr<std::vector<Solve>> Store::ListSolves(std::string_view session_id
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<Solve>> {
     IMUCAL_RETURN_IF_ERROR(CheckSessionExists(lease.conn(), session_id));
-    return ReadRows(lease.conn(), kSelectSolvesOfSession, ReadSolve, session_id);
+    return sql::ReadRows(lease.conn(), kSelectSolvesOfSession, ReadSolve, session_id);
   };
   return Annotate("ListSolves", list());
 }
@@ -215,10 +216,10 @@ absl::StatusOr<int> Store::RenewSolveLeases(std::string_view owner, absl::Time u
   constexpr std::string_view kOp = "RenewSolveLeases";
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(owner, "owner")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int> {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<int> {
     IMUCAL_ASSIGN_OR_RETURN(
         std::vector<int64_t> renewed,
-        ReadRows(conn, kRenewLeases, FirstColumnInt64, owner, LeaseMicros(until)));
+        sql::ReadRows(conn, kRenewLeases, sql::FirstColumnInt64, owner, LeaseMicros(until)));
     return static_cast<int>(renewed.size());
   });
 }
@@ -226,18 +227,18 @@ absl::StatusOr<int> Store::RenewSolveLeases(std::string_view owner, absl::Time u
 absl::StatusOr<std::vector<Solve>> Store::ListOrphanedSolves(absl::Time now,
                                                              std::string_view restarted) {
   ReadLease lease = AcquireReader();
-  return Annotate("ListOrphanedSolves",
-                  ReadRows(lease.conn(), kSelectOrphanedSolves, ReadSolve, restarted, Micros(now)));
+  return Annotate("ListOrphanedSolves", sql::ReadRows(lease.conn(), kSelectOrphanedSolves,
+                                                      ReadSolve, restarted, Micros(now)));
 }
 
 absl::StatusOr<int> Store::ReleaseSolveClaims(std::string_view owner) {
   constexpr std::string_view kOp = "ReleaseSolveClaims";
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(owner, "owner")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<int> {
-    IMUCAL_ASSIGN_OR_RETURN(
-        std::vector<int64_t> ids,
-        ReadRows(conn, kReleaseClaims, FirstColumnInt64, owner, LeaseMicros(absl::InfinitePast())));
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<int> {
+    IMUCAL_ASSIGN_OR_RETURN(std::vector<int64_t> ids,
+                            sql::ReadRows(conn, kReleaseClaims, sql::FirstColumnInt64, owner,
+                                          LeaseMicros(absl::InfinitePast())));
     for (int64_t id : ids) {
       IMUCAL_ASSIGN_OR_RETURN(Solve solve, LoadSolve(conn, id));
       IMUCAL_RETURN_IF_ERROR(InsertAudit(conn, Now(), owner, "solve.release",
@@ -254,17 +255,17 @@ absl::StatusOr<std::optional<Solve>> Store::ClaimLapsedSolve(absl::Time now,
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(claim.owner, "owner")));
   std::lock_guard lock(write_mu_);
   return InTransaction(
-      kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<std::optional<Solve>> {
+      kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<std::optional<Solve>> {
         IMUCAL_ASSIGN_OR_RETURN(
             std::optional<int64_t> id,
-            ReadRow(conn,
-                    conn.dialect() == Dialect::kPostgres ? kSelectLapsedSolvePg
-                                                         : kSelectLapsedSolveSqlite,
-                    FirstColumnInt64, Micros(now)));
+            sql::ReadRow(conn,
+                         conn.dialect() == sql::Dialect::kPostgres ? kSelectLapsedSolvePg
+                                                                   : kSelectLapsedSolveSqlite,
+                         sql::FirstColumnInt64, Micros(now)));
         if (!id) return std::nullopt;
         IMUCAL_ASSIGN_OR_RETURN(Solve before, LoadSolve(conn, *id));
         IMUCAL_RETURN_IF_ERROR(
-            RunStatement(conn, kClaimSolve, *id, claim.owner, LeaseMicros(claim.lease_until)));
+            sql::RunStatement(conn, kClaimSolve, *id, claim.owner, LeaseMicros(claim.lease_until)));
         IMUCAL_RETURN_IF_ERROR(
             InsertAudit(conn, Now(), claim.owner, "solve.claim", SessionTarget(before.session_id),
                         Cat("solve ", *id, " from '", before.owner, "', whose lease lapsed")));
@@ -275,7 +276,8 @@ absl::StatusOr<std::optional<Solve>> Store::ClaimLapsedSolve(absl::Time now,
 
 absl::StatusOr<std::vector<Solve>> Store::ListRunningSolves() {
   ReadLease lease = AcquireReader();
-  return Annotate("ListRunningSolves", ReadRows(lease.conn(), kSelectRunningSolves, ReadSolve));
+  return Annotate("ListRunningSolves",
+                  sql::ReadRows(lease.conn(), kSelectRunningSolves, ReadSolve));
 }
 
 }  // namespace imucal::storage

@@ -6,10 +6,10 @@
 #include <utility>
 #include <vector>
 
-#include "storage/db.h"
 #include "storage/status_macros.h"
 #include "storage/store.h"
 #include "storage/store_internal.h"
+#include "util/db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -47,7 +47,7 @@ constexpr char kSetVersionState[] =
 enum class Documents { kNone, kParams, kBoth };
 
 // Columns as in kSelectVersion, up to what `docs` says the statement selects.
-absl::StatusOr<ParamVersion> ReadVersion(const Statement& st, Documents docs) {
+absl::StatusOr<ParamVersion> ReadVersion(const sql::Statement& st, Documents docs) {
   ParamVersion v;
   v.device_id = st.ColumnText(0);
   v.version = static_cast<int>(st.ColumnInt64(1));
@@ -64,19 +64,19 @@ absl::StatusOr<ParamVersion> ReadVersion(const Statement& st, Documents docs) {
 
 // ReadVersion as a row mapper, for statements that select `docs`.
 auto VersionWith(Documents docs) {
-  return [docs](const Statement& st) { return ReadVersion(st, docs); };
+  return [docs](const sql::Statement& st) { return ReadVersion(st, docs); };
 }
 
-absl::StatusOr<std::optional<ParamVersion>> FindActive(Connection& conn,
+absl::StatusOr<std::optional<ParamVersion>> FindActive(sql::Connection& conn,
                                                        std::string_view device_id) {
-  return ReadRow(conn, kSelectActiveVersion, VersionWith(Documents::kParams), device_id);
+  return sql::ReadRow(conn, kSelectActiveVersion, VersionWith(Documents::kParams), device_id);
 }
 
-absl::StatusOr<ParamVersion> LoadVersion(Connection& conn, std::string_view device_id,
+absl::StatusOr<ParamVersion> LoadVersion(sql::Connection& conn, std::string_view device_id,
                                          int version) {
   IMUCAL_ASSIGN_OR_RETURN(
       std::optional<ParamVersion> v,
-      ReadRow(conn, kSelectVersion, VersionWith(Documents::kBoth), device_id, version));
+      sql::ReadRow(conn, kSelectVersion, VersionWith(Documents::kBoth), device_id, version));
   if (!v) {
     IMUCAL_RETURN_IF_ERROR(LoadDevice(conn, device_id).status());
     return absl::NotFoundError(Cat("device '", device_id, "' has no version ", version));
@@ -100,20 +100,20 @@ absl::Status ValidateNewVersion(const ParamVersion& v, bool documents) {
   return absl::OkStatus();
 }
 
-absl::Status SetVersionState(Connection& conn, std::string_view device_id, int version,
+absl::Status SetVersionState(sql::Connection& conn, std::string_view device_id, int version,
                              VersionState state) {
-  return RunStatement(conn, kSetVersionState, device_id, version, VersionStateName(state));
+  return sql::RunStatement(conn, kSetVersionState, device_id, version, VersionStateName(state));
 }
 
 // Makes `version` the device's active one; returns the version it displaced (0 if none).
 // PostgreSQL: every server listening (Store::ListenForActiveChanges) hears of it when the
 // transaction commits, and not at all if it does not.
-absl::StatusOr<int> Activate(Connection& conn, std::string_view device_id, int version) {
+absl::StatusOr<int> Activate(sql::Connection& conn, std::string_view device_id, int version) {
   IMUCAL_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
-  IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kSupersedeActive, device_id));
+  IMUCAL_RETURN_IF_ERROR(sql::RunStatement(conn, kSupersedeActive, device_id));
   IMUCAL_RETURN_IF_ERROR(SetVersionState(conn, device_id, version, VersionState::kActive));
-  if (conn.dialect() == Dialect::kPostgres) {
-    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kAnnounceActive, device_id));
+  if (conn.dialect() == sql::Dialect::kPostgres) {
+    IMUCAL_RETURN_IF_ERROR(sql::RunStatement(conn, kAnnounceActive, device_id));
   }
   return active ? active->version : 0;
 }
@@ -128,7 +128,7 @@ std::string Reason(std::string_view reason) {
 
 // Promote's and Rollback's change: activates `version`, audits it as `action` ("<what> active",
 // the version it displaced, the reason) and returns it as stored.
-absl::StatusOr<ParamVersion> ActivateAudited(Connection& conn, std::string_view device_id,
+absl::StatusOr<ParamVersion> ActivateAudited(sql::Connection& conn, std::string_view device_id,
                                              int version, std::string_view action,
                                              std::string_view what, std::string_view actor,
                                              std::string_view reason, absl::Time now) {
@@ -140,7 +140,7 @@ absl::StatusOr<ParamVersion> ActivateAudited(Connection& conn, std::string_view 
 
 }  // namespace
 
-absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion& given,
+absl::StatusOr<ParamVersion> InsertVersion(sql::Connection& conn, const ParamVersion& given,
                                            std::string_view actor, absl::Time now,
                                            const RenderVersion& render) {
   ParamVersion v = given;
@@ -156,8 +156,9 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
   // SQLite: the write lock is held (BEGIN IMMEDIATE), so MAX + 1 cannot race another writer.
   // PostgreSQL: a concurrent transaction that takes the same number conflicts with this one
   // (SERIALIZABLE, and UNIQUE (device_id, version)); one of them is aborted and runs again.
-  IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> next,
-                          ReadRow(conn, kSelectNextVersion, FirstColumnInt64, v.device_id));
+  IMUCAL_ASSIGN_OR_RETURN(
+      std::optional<int64_t> next,
+      sql::ReadRow(conn, kSelectNextVersion, sql::FirstColumnInt64, v.device_id));
   if (!next) return absl::InternalError("no next version");
   const int number = static_cast<int>(*next);
   if (render) {
@@ -166,10 +167,10 @@ absl::StatusOr<ParamVersion> InsertVersion(Connection& conn, const ParamVersion&
     IMUCAL_RETURN_IF_ERROR(render(number, &v.params_json, &v.report_json));
     IMUCAL_RETURN_IF_ERROR(ValidateNewVersion(v, /*documents=*/true));
   }
-  IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kInsertVersion, v.device_id, number, Micros(now),
-                                      NullIfEmpty(v.session_id), VerdictName(v.verdict),
-                                      v.accel_rms, VersionStateName(VersionState::kCandidate),
-                                      v.provenance, v.params_json, v.report_json));
+  IMUCAL_RETURN_IF_ERROR(sql::RunStatement(conn, kInsertVersion, v.device_id, number, Micros(now),
+                                           NullIfEmpty(v.session_id), VerdictName(v.verdict),
+                                           v.accel_rms, VersionStateName(VersionState::kCandidate),
+                                           v.provenance, v.params_json, v.report_json));
   int displaced = 0;
   if (v.state == VersionState::kActive) {
     IMUCAL_ASSIGN_OR_RETURN(displaced, Activate(conn, v.device_id, number));
@@ -188,8 +189,9 @@ absl::StatusOr<ParamVersion> Store::AddVersion(const ParamVersion& version,
   constexpr std::string_view kOp = "AddVersion";
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return NotifyIfActive(InTransaction(
-      kOp, *writer_, [&](Connection& conn) { return InsertVersion(conn, version, actor, Now(), render); }));
+  return NotifyIfActive(InTransaction(kOp, *writer_, [&](sql::Connection& conn) {
+    return InsertVersion(conn, version, actor, Now(), render);
+  }));
 }
 
 absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int version,
@@ -198,7 +200,7 @@ absl::StatusOr<ParamVersion> Store::Promote(std::string_view device_id, int vers
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(
-      InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+      InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<ParamVersion> {
         IMUCAL_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
         if (v.state == VersionState::kActive) return v;
         if (v.state != VersionState::kCandidate) {
@@ -217,7 +219,7 @@ absl::StatusOr<ParamVersion> Store::Rollback(std::string_view device_id, int to_
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(
-      InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+      InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<ParamVersion> {
         IMUCAL_ASSIGN_OR_RETURN(ParamVersion target, LoadVersion(conn, device_id, to_version));
         IMUCAL_ASSIGN_OR_RETURN(std::optional<ParamVersion> active, FindActive(conn, device_id));
         if (!active) {
@@ -241,7 +243,7 @@ absl::StatusOr<ParamVersion> Store::Reject(std::string_view device_id, int versi
   constexpr std::string_view kOp = "Reject";
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
-  return InTransaction(kOp, *writer_, [&](Connection& conn) -> absl::StatusOr<ParamVersion> {
+  return InTransaction(kOp, *writer_, [&](sql::Connection& conn) -> absl::StatusOr<ParamVersion> {
     IMUCAL_ASSIGN_OR_RETURN(ParamVersion v, LoadVersion(conn, device_id, version));
     if (v.state != VersionState::kCandidate) {
       return absl::FailedPreconditionError(Cat("version ", version, " of device '", device_id,
@@ -279,10 +281,11 @@ absl::StatusOr<std::vector<ParamVersion>> Store::ListVersions(std::string_view d
   ReadLease lease = AcquireReader();
   auto list = [&]() -> absl::StatusOr<std::vector<ParamVersion>> {
     IMUCAL_RETURN_IF_ERROR(LoadDevice(lease.conn(), device_id).status());
-    return ReadRows(lease.conn(),
-                    query.with_documents ? kSelectVersionsOfDevice : kSelectVersionHeadersOfDevice,
-                    VersionWith(query.with_documents ? Documents::kBoth : Documents::kNone),
-                    device_id, query.after_version, SqlLimit(query.limit));
+    return sql::ReadRows(
+        lease.conn(),
+        query.with_documents ? kSelectVersionsOfDevice : kSelectVersionHeadersOfDevice,
+        VersionWith(query.with_documents ? Documents::kBoth : Documents::kNone), device_id,
+        query.after_version, SqlLimit(query.limit));
   };
   return Annotate("ListVersions", list());
 }

@@ -8,10 +8,10 @@
 
 #include "storage/migrations.h"
 #include "storage/pg_db.h"
-#include "storage/sqlite_db.h"
 #include "storage/status_macros.h"
 #include "storage/store_internal.h"
 #include "storage/types.h"
+#include "util/sqlite_db.h"
 #include "util/str_util.h"
 #include "util/text_check.h"
 
@@ -44,7 +44,7 @@ constexpr char kRevokeToken[] =
 // Now, to the microsecond as stored, so that a returned token equals the one read back.
 absl::Time Now() { return absl::FromUnixMicros(Micros(absl::Now())); }
 
-absl::StatusOr<Token> ReadToken(const Statement& st) {
+absl::StatusOr<Token> ReadToken(const sql::Statement& st) {
   Token t;
   t.id = st.ColumnInt64(0);
   absl::StatusOr<Role> role = ParseRole(st.ColumnText(1));
@@ -93,14 +93,14 @@ std::string_view HashView(const TokenHash& hash) {
 }
 
 // The audit entry of a change to token `token_id`, in the change's transaction.
-absl::Status AuditToken(Connection& conn, std::string_view actor, std::string_view action,
+absl::Status AuditToken(sql::Connection& conn, std::string_view actor, std::string_view action,
                         int64_t token_id, std::string_view detail) {
   return InsertAudit(conn, absl::Now(), actor, action, TokenTarget(token_id), detail);
 }
 
-absl::StatusOr<Token> SelectById(Connection& conn, int64_t id) {
+absl::StatusOr<Token> SelectById(sql::Connection& conn, int64_t id) {
   IMUCAL_ASSIGN_OR_RETURN(std::optional<Token> token,
-                          ReadRow(conn, kSelectTokenById, ReadToken, id));
+                          sql::ReadRow(conn, kSelectTokenById, ReadToken, id));
   if (!token) return absl::NotFoundError(Cat("token ", id, " does not exist"));
   return *std::move(token);
 }
@@ -136,22 +136,23 @@ TokenHash HashTokenSecret(std::string_view secret) {
 
 std::string TokenTarget(int64_t id) { return Cat("token:", id); }
 
-TokenStore::TokenStore(std::unique_ptr<Connection> conn) : conn_(std::move(conn)) {}
+TokenStore::TokenStore(std::unique_ptr<sql::Connection> conn) : conn_(std::move(conn)) {}
 TokenStore::~TokenStore() = default;
 
 absl::StatusOr<std::unique_ptr<TokenStore>> TokenStore::Open(const std::string& path,
                                                              absl::Duration busy_timeout) {
-  ConnectionOptions options;
+  sql::ConnectionOptions options;
   options.busy_timeout = busy_timeout;
-  const std::string op = Cat("open tokens of ", RedactedLocation(path));
-  if (absl::Status s = CheckLocation(path); !s.ok()) return s;
-  std::unique_ptr<Connection> conn;
-  if (IsPostgresUrl(path)) {
+  const std::string op = Cat("open tokens of ", sql::RedactedLocation(path));
+  if (absl::Status s = sql::CheckLocation(path); !s.ok()) return s;
+  std::unique_ptr<sql::Connection> conn;
+  if (sql::IsPostgresUrl(path)) {
     absl::StatusOr<std::unique_ptr<PgConnection>> pg = PgConnection::Open(path, options);
     if (!pg.ok()) return Annotate(op, pg.status());
     conn = *std::move(pg);
   } else {
-    absl::StatusOr<std::unique_ptr<SqliteConnection>> lite = SqliteConnection::Open(path, options);
+    absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> lite =
+        sql::SqliteConnection::Open(path, options);
     if (!lite.ok()) return Annotate(op, lite.status());
     // WAL, as Store::Open sets it (a property of the file), so that readers never block a write.
     if (absl::Status s = (*lite)->Exec("PRAGMA journal_mode = WAL"); !s.ok())
@@ -175,8 +176,9 @@ absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view de
   if (role == Role::kRobot) bound_device = device_id;
   IMUCAL_ASSIGN_OR_RETURN(
       std::optional<int64_t> id,
-      ReadRow(*conn_, kInsertToken, FirstColumnInt64, SqlBlob{HashView(HashTokenSecret(secret))},
-              RoleName(role), bound_device, label, Micros(out.token.created_at)));
+      sql::ReadRow(*conn_, kInsertToken, sql::FirstColumnInt64,
+                   sql::SqlBlob{HashView(HashTokenSecret(secret))}, RoleName(role), bound_device,
+                   label, Micros(out.token.created_at)));
   if (!id) return absl::InternalError("INSERT ... RETURNING id returned no row");
   out.token.id = *id;
   std::string detail = Cat("role ", RoleName(role));
@@ -190,17 +192,19 @@ absl::StatusOr<NewToken> TokenStore::InsertLocked(Role role, std::string_view de
 absl::StatusOr<NewToken> TokenStore::Create(Role role, std::string_view device_id,
                                             std::string_view label, std::string_view actor) {
   std::lock_guard lock(mu_);
-  return InTransaction("CreateToken", *conn_,
-                       [&](Connection&) { return InsertLocked(role, device_id, label, actor); });
+  return InTransaction("CreateToken", *conn_, [&](sql::Connection&) {
+    return InsertLocked(role, device_id, label, actor);
+  });
 }
 
 absl::StatusOr<std::optional<NewToken>> TokenStore::CreateFirstAdmin(std::string_view label,
                                                                      std::string_view actor) {
   std::lock_guard lock(mu_);
   return InTransaction(
-      "CreateFirstAdmin", *conn_, [&](Connection& conn) -> absl::StatusOr<std::optional<NewToken>> {
+      "CreateFirstAdmin", *conn_,
+      [&](sql::Connection& conn) -> absl::StatusOr<std::optional<NewToken>> {
         IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> count,
-                                ReadRow(conn, kCountValidAdmins, FirstColumnInt64));
+                                sql::ReadRow(conn, kCountValidAdmins, sql::FirstColumnInt64));
         if (count.value_or(0) > 0) return std::nullopt;
         IMUCAL_ASSIGN_OR_RETURN(NewToken created, InsertLocked(Role::kAdmin, "", label, actor));
         return created;
@@ -209,16 +213,16 @@ absl::StatusOr<std::optional<NewToken>> TokenStore::CreateFirstAdmin(std::string
 
 absl::StatusOr<std::vector<Token>> TokenStore::List(bool include_revoked) {
   std::lock_guard lock(mu_);
-  return Annotate("ListTokens", ReadRows(*conn_, kSelectTokens, ReadToken, include_revoked));
+  return Annotate("ListTokens", sql::ReadRows(*conn_, kSelectTokens, ReadToken, include_revoked));
 }
 
 absl::StatusOr<Token> TokenStore::Revoke(int64_t id, std::string_view actor) {
   std::lock_guard lock(mu_);
-  return InTransaction("RevokeToken", *conn_, [&](Connection& conn) -> absl::StatusOr<Token> {
+  return InTransaction("RevokeToken", *conn_, [&](sql::Connection& conn) -> absl::StatusOr<Token> {
     IMUCAL_ASSIGN_OR_RETURN(Token token, SelectById(conn, id));
     if (token.revoked()) return token;  // already revoked: nothing to do or to audit
     token.revoked_at = Now();
-    IMUCAL_RETURN_IF_ERROR(RunStatement(conn, kRevokeToken, id, Micros(*token.revoked_at)));
+    IMUCAL_RETURN_IF_ERROR(sql::RunStatement(conn, kRevokeToken, id, Micros(*token.revoked_at)));
     std::string detail = Cat("role ", RoleName(token.role));
     if (token.role == Role::kRobot) AppendTo(&detail, ", device ", token.device_id);
     IMUCAL_RETURN_IF_ERROR(AuditToken(conn, actor, "token.revoke", id, detail));
@@ -228,9 +232,10 @@ absl::StatusOr<Token> TokenStore::Revoke(int64_t id, std::string_view actor) {
 
 absl::StatusOr<Token> TokenStore::Lookup(const TokenHash& hash) {
   std::lock_guard lock(mu_);
-  IMUCAL_ASSIGN_OR_RETURN(std::optional<Token> token,
-                          Annotate("LookupToken", ReadRow(*conn_, kSelectTokenByHash, ReadToken,
-                                                          SqlBlob{HashView(hash)})));
+  IMUCAL_ASSIGN_OR_RETURN(
+      std::optional<Token> token,
+      Annotate("LookupToken",
+               sql::ReadRow(*conn_, kSelectTokenByHash, ReadToken, sql::SqlBlob{HashView(hash)})));
   if (!token) return absl::NotFoundError("no such token");
   return *std::move(token);
 }
@@ -245,9 +250,9 @@ absl::StatusOr<TokenStore::Changes> TokenStore::ChangesSince(int64_t after_id) {
   Changes out;
   out.last_id = after_id;
   if (after_id < 0) {
-    IMUCAL_ASSIGN_OR_RETURN(
-        std::optional<int64_t> last,
-        Annotate("TokenChanges", ReadRow(*conn_, kSelectLastTokenChange, FirstColumnInt64)));
+    IMUCAL_ASSIGN_OR_RETURN(std::optional<int64_t> last,
+                            Annotate("TokenChanges", sql::ReadRow(*conn_, kSelectLastTokenChange,
+                                                                  sql::FirstColumnInt64)));
     out.last_id = last.value_or(0);
     return out;
   }
@@ -257,9 +262,9 @@ absl::StatusOr<TokenStore::Changes> TokenStore::ChangesSince(int64_t after_id) {
   };
   IMUCAL_ASSIGN_OR_RETURN(
       std::vector<Change> changes,
-      Annotate("TokenChanges", ReadRows(
+      Annotate("TokenChanges", sql::ReadRows(
                                    *conn_, kSelectTokenChanges,
-                                   [](const Statement& st) -> absl::StatusOr<Change> {
+                                   [](const sql::Statement& st) -> absl::StatusOr<Change> {
                                      return Change{st.ColumnInt64(0), st.ColumnInt64(1)};
                                    },
                                    after_id)));

@@ -31,9 +31,11 @@
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
 
-namespace imucal::storage {
+namespace imucal::sql {
+class Connection;  // util/db.h
+}  // namespace imucal::sql
 
-class Connection;  // db.h
+namespace imucal::storage {
 
 enum class Role { kRobot, kTechnician, kAdmin };
 std::string_view RoleName(Role role);  // "robot", "technician", "admin"
@@ -105,12 +107,12 @@ class TokenStore {
   absl::StatusOr<Changes> ChangesSince(int64_t after_id);
 
  private:
-  explicit TokenStore(std::unique_ptr<Connection> conn);
+  explicit TokenStore(std::unique_ptr<sql::Connection> conn);
   absl::StatusOr<NewToken> InsertLocked(Role role, std::string_view device_id,
                                         std::string_view label, std::string_view actor);
 
   std::mutex mu_;
-  std::unique_ptr<Connection> conn_;  // guarded by mu_
+  std::unique_ptr<sql::Connection> conn_;  // guarded by mu_
 };
 
 }  // namespace imucal::storage

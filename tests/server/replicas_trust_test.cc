@@ -38,10 +38,10 @@
 #include "imucal/v1/imucal.grpc.pb.h"
 #include "server/server.h"
 #include "storage/pg_db.h"
-#include "storage/sqlite_db.h"
 #include "tests/client/imucald_process.h"
 #include "tests/pg_test_cluster.h"
 #include "tests/server/daemon_clients.h"
+#include "util/sqlite_db.h"
 
 namespace imucal::server {
 namespace {
@@ -351,7 +351,7 @@ TEST_F(TokenReplicasTest, ATokenRevokedBySqlInSqliteIsRefusedWithinASecond) {
   const std::string file = (dir_ / "imucal.db").string();
   ASSERT_NO_FATAL_FAILURE(StartServers(file, 2));
   ASSERT_NO_FATAL_FAILURE(ProvisionRobot());
-  auto conn = storage::SqliteConnection::Open(file, {});
+  auto conn = sql::SqliteConnection::Open(file, {});
   ASSERT_TRUE(conn.ok()) << conn.status();
   ExpectRevocationHonouredEverywhere("revoked by SQL in SQLite", [&] {
     const std::string sql =

@@ -31,7 +31,6 @@
 #include "server/convert.h"
 #include "server/status_util.h"
 #include "server/stream_registry.h"
-#include "storage/db.h"
 #include "storage/store.h"
 #include "storage/types.h"
 #include "tests/pg_test_cluster.h"
@@ -39,6 +38,7 @@
 #include "tests/server/tcp_proxy.h"
 #include "tests/server/watch.h"
 #include "tests/test_dir.h"
+#include "util/db.h"
 
 namespace imucal::server {
 namespace {
@@ -1774,8 +1774,7 @@ TEST(StatusUtilTest, MapsCodesOneToOneAndScrubsPaths) {
 TEST(StatusUtilTest, DatabaseErrorsKeepTheirCodeAndNotTheirText) {
   auto from_db = [](absl::StatusCode code, const std::string& text) {
     return storage::WithOperation(
-        "AppendBatch",
-        storage::WithOperation("step", storage::FromDatabase(absl::Status(code, text))));
+        "AppendBatch", storage::WithOperation("step", sql::FromDatabase(absl::Status(code, text))));
   };
   const grpc::Status down = ToGrpcStatus(from_db(
       absl::StatusCode::kUnavailable,

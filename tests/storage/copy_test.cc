@@ -24,12 +24,12 @@
 #include "gtest/gtest.h"
 #include "storage/migrations.h"
 #include "storage/pg_db.h"
-#include "storage/sqlite_db.h"
 #include "storage/store.h"
 #include "storage/tokens.h"
 #include "tests/pg_test_cluster.h"
 #include "tests/storage/site_fixture.h"
 #include "tests/storage/test_util.h"
+#include "util/sqlite_db.h"
 #include "util/str_util.h"
 
 namespace imucal::storage {
@@ -58,24 +58,24 @@ class CopyTest : public ::testing::Test {
     sqlite_path_ = TempDbPath("site");
   }
 
-  std::unique_ptr<Connection> OpenSqlite() {
-    auto conn = SqliteConnection::Open(sqlite_path_, {.read_only = true});
+  std::unique_ptr<sql::Connection> OpenSqlite() {
+    auto conn = sql::SqliteConnection::Open(sqlite_path_, {.read_only = true});
     EXPECT_TRUE(conn.ok()) << conn.status();
-    return conn.ok() ? std::unique_ptr<Connection>(*std::move(conn)) : nullptr;
+    return conn.ok() ? std::unique_ptr<sql::Connection>(*std::move(conn)) : nullptr;
   }
-  std::unique_ptr<Connection> OpenPg() {
+  std::unique_ptr<sql::Connection> OpenPg() {
     auto conn = PgConnection::Open(pg_->url(), {});
     EXPECT_TRUE(conn.ok()) << conn.status();
-    return conn.ok() ? std::unique_ptr<Connection>(*std::move(conn)) : nullptr;
+    return conn.ok() ? std::unique_ptr<sql::Connection>(*std::move(conn)) : nullptr;
   }
-  std::map<std::string, TableDump> Dump(Connection& conn) {
+  std::map<std::string, TableDump> Dump(sql::Connection& conn) {
     absl::StatusOr<std::map<std::string, TableDump>> dump = DumpTables(conn);
     EXPECT_TRUE(dump.ok()) << dump.status();
     return dump.ok() ? *dump : std::map<std::string, TableDump>{};
   }
   // Rows in every table of the destination (0 too when it has no tables yet).
   int64_t DestinationRows() {
-    std::unique_ptr<Connection> pg = OpenPg();
+    std::unique_ptr<sql::Connection> pg = OpenPg();
     if (SchemaVersion(*pg).value_or(0) == 0) return 0;
     int64_t rows = 0;
     for (const auto& [table, dump] : Dump(*pg)) rows += static_cast<int64_t>(dump.size());
@@ -91,8 +91,8 @@ class CopyTest : public ::testing::Test {
 TEST_F(CopyTest, TheTablesCoverTheSchemaOnBothBackends) {
   ASSERT_OK(Store::Open(sqlite_path_).status());
   ASSERT_OK(Store::Open(pg_->url()).status());
-  std::unique_ptr<Connection> lite = OpenSqlite();
-  std::unique_ptr<Connection> pg = OpenPg();
+  std::unique_ptr<sql::Connection> lite = OpenSqlite();
+  std::unique_ptr<sql::Connection> pg = OpenPg();
   ASSERT_EQ(DumpSpecs().size(), CopyTables().size());
   for (size_t i = 0; i < DumpSpecs().size(); ++i) {
     const DumpTableSpec& spec = DumpSpecs()[i];
@@ -118,8 +118,8 @@ TEST_F(CopyTest, EveryRowArrivesBitForBitAndTheSiteReadsTheSame) {
                             ::testing::Contains("verify tokens")));
 
   // Plain SELECTs on both sides: the same rows, value for value, bit for bit.
-  std::unique_ptr<Connection> lite = OpenSqlite();
-  std::unique_ptr<Connection> pg = OpenPg();
+  std::unique_ptr<sql::Connection> lite = OpenSqlite();
+  std::unique_ptr<sql::Connection> pg = OpenPg();
   const std::map<std::string, TableDump> source = Dump(*lite);
   const std::map<std::string, TableDump> dest = Dump(*pg);
   ASSERT_EQ(source.size(), CopyTables().size());
@@ -296,17 +296,19 @@ TEST_F(CopyTest, TheCopyIsOneSnapshotWhileAWriterWrites) {
   writer.join();
   ASSERT_OK(writer_error);
   ASSERT_OK(report.status());
-  std::unique_ptr<Connection> pg = OpenPg();
+  std::unique_ptr<sql::Connection> pg = OpenPg();
   const int64_t devices =
-      ReadRow(*pg, "SELECT count(*) FROM devices WHERE id LIKE 'robot-w-%'", FirstColumnInt64)
+      sql::ReadRow(*pg, "SELECT count(*) FROM devices WHERE id LIKE 'robot-w-%'",
+                   sql::FirstColumnInt64)
           .value()
           .value();
-  const int64_t audited = ReadRow(*pg,
-                                  "SELECT count(*) FROM audit_log WHERE action = 'device.create' "
-                                  "AND target LIKE 'device:robot-w-%'",
-                                  FirstColumnInt64)
-                              .value()
-                              .value();
+  const int64_t audited =
+      sql::ReadRow(*pg,
+                   "SELECT count(*) FROM audit_log WHERE action = 'device.create' "
+                   "AND target LIKE 'device:robot-w-%'",
+                   sql::FirstColumnInt64)
+          .value()
+          .value();
   EXPECT_EQ(audited, devices);
   EXPECT_LE(devices + 20, committed) << "the writes during the copy are not in it";
 }
@@ -314,7 +316,7 @@ TEST_F(CopyTest, TheCopyIsOneSnapshotWhileAWriterWrites) {
 TEST_F(CopyTest, ADestinationThatHoldsRowsIsRefusedAndLeftAsItWas) {
   ASSERT_OK(PopulateSite(sqlite_path_).status());
   ASSERT_OK(CopySqliteToPostgres(sqlite_path_, pg_->url()).status());
-  std::unique_ptr<Connection> pg = OpenPg();
+  std::unique_ptr<sql::Connection> pg = OpenPg();
   const std::map<std::string, TableDump> before = Dump(*pg);
   absl::Status again = CopySqliteToPostgres(sqlite_path_, pg_->url()).status();
   EXPECT_EQ(again.code(), absl::StatusCode::kFailedPrecondition) << again;
@@ -340,7 +342,7 @@ TEST_F(CopyTest, AMissingOrOlderSourceIsRefusedBeforeTheDestinationChanges) {
   EXPECT_EQ(SchemaVersion(*OpenPg()).value(), 0) << "not even migrated";
 
   {  // A file of schema version 4 (before solve leases).
-    auto conn = SqliteConnection::Open(sqlite_path_, {});
+    auto conn = sql::SqliteConnection::Open(sqlite_path_, {});
     ASSERT_OK(conn.status());
     ASSERT_OK(Migrate(**conn, Migrations().first(4)));
   }
@@ -388,7 +390,7 @@ TEST_F(CopyTest, ATableThatReadsBackDifferentRollsEverythingBack) {
 TEST_F(CopyTest, AValueOfTheWrongTypeInTheSourceIsRefusedNamingIt) {
   ASSERT_OK(PopulateSite(sqlite_path_).status());
   {
-    auto conn = SqliteConnection::Open(sqlite_path_, {});
+    auto conn = sql::SqliteConnection::Open(sqlite_path_, {});
     ASSERT_OK(conn.status());
     ASSERT_OK((*conn)->Exec("UPDATE audit_log SET time_us = 'yesterday' WHERE id = 3"));
   }

@@ -12,24 +12,24 @@
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "storage/pg_db.h"
-#include "storage/sqlite_db.h"
 #include "storage/store.h"
 #include "storage/tokens.h"
 #include "tests/pg_test_cluster.h"
 #include "tests/storage/test_util.h"
+#include "util/sqlite_db.h"
 
 namespace imucal::storage {
 namespace {
 
 using ::testing::HasSubstr;
 
-absl::StatusOr<std::unique_ptr<SqliteConnection>> OpenRaw(const std::string& path) {
-  return SqliteConnection::Open(path, ConnectionOptions{});
+absl::StatusOr<std::unique_ptr<sql::SqliteConnection>> OpenRaw(const std::string& path) {
+  return sql::SqliteConnection::Open(path, sql::ConnectionOptions{});
 }
 
 // One text value of a one-row query.
-absl::StatusOr<std::string> QueryText(Connection& conn, const char* sql) {
-  absl::StatusOr<ScopedStatement> st = conn.Prepare(sql);
+absl::StatusOr<std::string> QueryText(sql::Connection& conn, const char* sql) {
+  absl::StatusOr<sql::ScopedStatement> st = conn.Prepare(sql);
   if (!st.ok()) return st.status();
   absl::StatusOr<bool> row = (*st)->Step();
   if (!row.ok()) return row.status();
@@ -37,7 +37,7 @@ absl::StatusOr<std::string> QueryText(Connection& conn, const char* sql) {
   return (*st)->ColumnText(0);
 }
 
-int CountTables(Connection& conn) {
+int CountTables(sql::Connection& conn) {
   auto count = QueryText(conn, "SELECT COUNT(*) FROM sqlite_master WHERE type = 'table'");
   return count.ok() ? std::stoi(*count) : -1;
 }
@@ -260,7 +260,7 @@ TEST(MigrationsTest, ActiveVersionLookupUsesThePartialIndex) {
   ASSERT_OK(Store::Open(path).status());
   ASSERT_OK_AND_ASSIGN(auto conn, OpenRaw(path));
   // The same statement as store.cc's kSelectActiveVersion.
-  ASSERT_OK_AND_ASSIGN(ScopedStatement st,
+  ASSERT_OK_AND_ASSIGN(sql::ScopedStatement st,
                        conn->Prepare("EXPLAIN QUERY PLAN "
                                      "SELECT device_id, version, created_at_us, session_id, "
                                      "verdict, accel_rms, state, provenance, params_json FROM "
@@ -278,15 +278,15 @@ TEST(MigrationsTest, ActiveVersionLookupUsesThePartialIndex) {
 // ---- PostgreSQL: the same versions, on a real server (tests/pg_test_cluster.h) ---------------
 
 // table -> its columns in order, as one text: "devices(id,sensor_model,...) sessions(...)".
-std::string Columns(Connection& conn) {
+std::string Columns(sql::Connection& conn) {
   const char* sql =
-      conn.dialect() == Dialect::kPostgres
+      conn.dialect() == sql::Dialect::kPostgres
           ? "SELECT table_name, column_name FROM information_schema.columns WHERE table_schema = "
             "'public' AND table_name <> 'imucal_schema' AND NOT (table_name = 'sessions' AND "
             "column_name = 'rowid') ORDER BY table_name, ordinal_position"
           : "SELECT m.name, p.name FROM sqlite_master m, pragma_table_info(m.name) p WHERE "
             "m.type = 'table' ORDER BY m.name, p.cid";
-  auto rows = ReadRows(conn, sql, [](const Statement& st) {
+  auto rows = sql::ReadRows(conn, sql, [](const sql::Statement& st) {
     return std::pair(st.ColumnText(0), st.ColumnText(1));
   });
   if (!rows.ok()) return rows.status().ToString();
@@ -304,7 +304,7 @@ std::string Columns(Connection& conn) {
 }
 
 TEST(PgMigrationsTest, EveryVersionHasSQLitesTablesAndColumns) {
-  const auto pg_list = Migrations(Dialect::kPostgres);
+  const auto pg_list = Migrations(sql::Dialect::kPostgres);
   ASSERT_EQ(pg_list.size(), Migrations().size());
   for (size_t v = 1; v <= pg_list.size(); ++v) {
     EXPECT_EQ(pg_list[v - 1].version, static_cast<int>(v));
@@ -406,10 +406,10 @@ TEST(PgMigrationsTest, AMistypedUrlIsRefusedAndNoFileIsMade) {
     EXPECT_FALSE(std::filesystem::exists(url)) << url;
     EXPECT_FALSE(TokenStore::Open(url).ok()) << url;
   }
-  EXPECT_EQ(RedactedLocation("postgresql://u:pw@h/db?password=pw2&x=1"),
+  EXPECT_EQ(sql::RedactedLocation("postgresql://u:pw@h/db?password=pw2&x=1"),
             "postgresql://u:***@h/db?password=***&x=1");
-  EXPECT_EQ(RedactedLocation("host=h Password=pw dbname=d"), "host=h Password=*** dbname=d");
-  EXPECT_EQ(RedactedLocation("/var/lib/imucald/imucal.db"), "/var/lib/imucald/imucal.db");
+  EXPECT_EQ(sql::RedactedLocation("host=h Password=pw dbname=d"), "host=h Password=*** dbname=d");
+  EXPECT_EQ(sql::RedactedLocation("/var/lib/imucald/imucal.db"), "/var/lib/imucald/imucal.db");
 }
 
 }  // namespace

@@ -10,9 +10,9 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <optional>
 #include <ostream>
 #include <set>
-#include <optional>
 #include <string>
 #include <vector>
 
@@ -20,11 +20,11 @@
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
 #include "gtest/gtest.h"
-#include "storage/db.h"
 #include "storage/sample_codec.h"
 #include "storage/store.h"
 #include "storage/tokens.h"
 #include "tests/storage/test_util.h"
+#include "util/db.h"
 
 namespace imucal::storage {
 
@@ -167,7 +167,7 @@ inline const std::vector<DumpTableSpec>& DumpSpecs() {
   return specs;
 }
 
-inline DumpValue ReadValue(const Statement& st, int column, char type) {
+inline DumpValue ReadValue(const sql::Statement& st, int column, char type) {
   DumpValue v;
   if (st.ColumnIsNull(column)) return v;
   v.kind = type;
@@ -188,16 +188,16 @@ inline DumpValue ReadValue(const Statement& st, int column, char type) {
 }
 
 // Every table's rows, in key order, by table name.
-inline absl::StatusOr<std::map<std::string, TableDump>> DumpTables(Connection& conn) {
+inline absl::StatusOr<std::map<std::string, TableDump>> DumpTables(sql::Connection& conn) {
   std::map<std::string, TableDump> dump;
   for (const DumpTableSpec& spec : DumpSpecs()) {
-    const auto map_row = [&spec](const Statement& st) {
+    const auto map_row = [&spec](const sql::Statement& st) {
       DumpRow row;
       for (size_t i = 0; i < spec.columns.size(); ++i)
         row.push_back(ReadValue(st, static_cast<int>(i), spec.columns[i].second));
       return row;
     };
-    absl::StatusOr<std::vector<DumpRow>> rows = ReadRows(conn, spec.select, map_row);
+    absl::StatusOr<std::vector<DumpRow>> rows = sql::ReadRows(conn, spec.select, map_row);
     if (!rows.ok()) return rows.status();
     dump[spec.name] = *std::move(rows);
   }
@@ -205,13 +205,14 @@ inline absl::StatusOr<std::map<std::string, TableDump>> DumpTables(Connection& c
 }
 
 // The columns each backend's schema has for `table` (SQLite's implicit rowid is not listed).
-inline absl::StatusOr<std::set<std::string>> SchemaColumns(Connection& conn,
+inline absl::StatusOr<std::set<std::string>> SchemaColumns(sql::Connection& conn,
                                                            const std::string& table) {
-  const char* sql = conn.dialect() == Dialect::kSqlite
+  const char* sql = conn.dialect() == sql::Dialect::kSqlite
                         ? "SELECT name FROM pragma_table_info(?1)"
                         : "SELECT CAST(column_name AS TEXT) FROM information_schema.columns "
                           "WHERE table_schema = current_schema() AND table_name = ?1";
-  absl::StatusOr<std::vector<std::string>> names = ReadRows(conn, sql, FirstColumnText, table);
+  absl::StatusOr<std::vector<std::string>> names =
+      sql::ReadRows(conn, sql, sql::FirstColumnText, table);
   if (!names.ok()) return names.status();
   return std::set<std::string>(names->begin(), names->end());
 }

@@ -5,9 +5,9 @@
 #include <string>
 
 #include "gtest/gtest.h"
-#include "storage/sqlite_db.h"
 #include "storage/store.h"
 #include "tests/storage/test_util.h"
+#include "util/sqlite_db.h"
 
 namespace imucal::storage {
 namespace {
@@ -28,9 +28,9 @@ TEST(TokensTest, CreateStoresOnlyTheHashAndLookupFindsIt) {
   EXPECT_FALSE(found.revoked());
   EXPECT_TRUE(absl::IsNotFound(tokens->Lookup(HashTokenSecret(robot.secret + "x")).status()));
   // Nothing in the file holds the secret: the column is its 32-byte SHA-256.
-  ASSERT_OK_AND_ASSIGN(auto conn, SqliteConnection::Open(path, ConnectionOptions{}));
+  ASSERT_OK_AND_ASSIGN(auto conn, sql::SqliteConnection::Open(path, sql::ConnectionOptions{}));
   {
-    ASSERT_OK_AND_ASSIGN(ScopedStatement st,
+    ASSERT_OK_AND_ASSIGN(sql::ScopedStatement st,
                          conn->Prepare("SELECT secret_sha256, length(secret_sha256) FROM tokens"));
     ASSERT_OK_AND_ASSIGN(bool row, st->Step());
     ASSERT_TRUE(row);

@@ -1,4 +1,4 @@
-#include "storage/sqlite_db.h"
+#include "util/sqlite_db.h"
 
 #include <algorithm>
 #include <cmath>
@@ -6,7 +6,7 @@
 
 #include "util/str_util.h"
 
-namespace imucal::storage {
+namespace imucal::sql {
 namespace {
 
 absl::StatusCode CodeFor(int extended_code) {
@@ -55,7 +55,7 @@ absl::Status SqliteStatus(int extended_code, std::string_view context, sqlite3* 
 // ---- Statement -------------------------------------------------------------------------------
 
 absl::StatusOr<std::unique_ptr<SqliteStatement>> SqliteStatement::Prepare(sqlite3* db,
-                                                                         std::string_view sql) {
+                                                                          std::string_view sql) {
   if (sql.size() > static_cast<size_t>(std::numeric_limits<int>::max())) {
     return absl::InvalidArgumentError("SQL text too long");
   }
@@ -197,4 +197,4 @@ absl::Status SqliteConnection::Exec(const char* sql) {
   return status;
 }
 
-}  // namespace imucal::storage
+}  // namespace imucal::sql

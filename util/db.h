@@ -1,5 +1,7 @@
-// The store's database layer, the same for its two backends: SQLite (sqlite_db.h, the embedded
-// default) and PostgreSQL (pg_db.h, for several servers sharing one database).
+// imucal::sql, the database layer, the same for its two backends: SQLite (util/sqlite_db.h, the
+// embedded default, also what the ROS 2 bag reader opens a .db3 with) and PostgreSQL
+// (storage/pg_db.h, for several servers sharing one database). In util so that reading an
+// SQLite file needs no service store.
 //
 // - `Statement`: one prepared statement; binds copy their argument, a bind error is kept and
 //   returned by the next Step().
@@ -29,8 +31,8 @@
 //   out of space or memory                          -> ResourceExhausted
 //   a value out of range or too big                 -> InvalidArgument
 //   anything else                                   -> Internal
-#ifndef IMUCAL_STORAGE_DB_H_
-#define IMUCAL_STORAGE_DB_H_
+#ifndef IMUCAL_UTIL_DB_H_
+#define IMUCAL_UTIL_DB_H_
 
 #include <cstdint>
 #include <functional>
@@ -47,7 +49,7 @@
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
 
-namespace imucal::storage {
+namespace imucal::sql {
 
 enum class Dialect { kSqlite, kPostgres };
 
@@ -352,6 +354,6 @@ absl::Status RunStatement(Connection& conn, std::string_view sql, const Params&.
   return (*st)->Run();
 }
 
-}  // namespace imucal::storage
+}  // namespace imucal::sql
 
-#endif  // IMUCAL_STORAGE_DB_H_
+#endif  // IMUCAL_UTIL_DB_H_

@@ -1,4 +1,4 @@
-#include "storage/db.h"
+#include "util/db.h"
 
 #include <algorithm>
 #include <cctype>
@@ -6,7 +6,7 @@
 #include "absl/strings/cord.h"
 #include "util/str_util.h"
 
-namespace imucal::storage {
+namespace imucal::sql {
 
 bool IsPostgresUrl(std::string_view location) {
   return location.starts_with("postgresql://") || location.starts_with("postgres://");
@@ -20,7 +20,8 @@ std::string RedactedLocation(std::string_view location) {
   size_t start = std::string::npos;
   if (const size_t scheme = out.find("://"); scheme != std::string::npos) {
     start = scheme + 3;
-  } else if (const size_t colon = out.find(':'); colon != std::string::npos && colon > 0 &&
+  } else if (const size_t colon = out.find(':');
+             colon != std::string::npos && colon > 0 &&
              std::all_of(out.begin(), out.begin() + colon,
                          [](char c) { return std::isalnum(static_cast<unsigned char>(c)); })) {
     start = out.find_first_not_of('/', colon + 1);
@@ -56,10 +57,9 @@ absl::Status CheckLocation(std::string_view location) {
   for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
   if (location.find("://") == std::string_view::npos && !lower.starts_with("postgres"))
     return absl::OkStatus();
-  return absl::InvalidArgumentError(
-      Cat("'", RedactedLocation(location),
-          "' is neither a SQLite file path nor a PostgreSQL URL "
-          "(postgresql://USER[:PASSWORD]@HOST[:PORT]/DB)"));
+  return absl::InvalidArgumentError(Cat("'", RedactedLocation(location),
+                                        "' is neither a SQLite file path nor a PostgreSQL URL "
+                                        "(postgresql://USER[:PASSWORD]@HOST[:PORT]/DB)"));
 }
 
 absl::Status FromDatabase(absl::Status status) {
@@ -139,4 +139,4 @@ Transaction::~Transaction() {
   }
 }
 
-}  // namespace imucal::storage
+}  // namespace imucal::sql

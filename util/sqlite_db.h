@@ -10,8 +10,8 @@
 //   TOOBIG                             -> InvalidArgument
 //   INTERRUPT                          -> Cancelled
 //   anything else (ERROR, MISUSE, RANGE, ...) -> Internal
-#ifndef IMUCAL_STORAGE_SQLITE_DB_H_
-#define IMUCAL_STORAGE_SQLITE_DB_H_
+#ifndef IMUCAL_UTIL_SQLITE_DB_H_
+#define IMUCAL_UTIL_SQLITE_DB_H_
 
 #include <sqlite3.h>
 
@@ -21,9 +21,9 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "storage/db.h"
+#include "util/db.h"
 
-namespace imucal::storage {
+namespace imucal::sql {
 
 // `context` says what was being done ("AppendBatch"); `db` (may be null) supplies the message.
 absl::Status SqliteStatus(int extended_code, std::string_view context, sqlite3* db);
@@ -84,6 +84,6 @@ class SqliteConnection final : public Connection {
   sqlite3* db_;
 };
 
-}  // namespace imucal::storage
+}  // namespace imucal::sql
 
-#endif  // IMUCAL_STORAGE_SQLITE_DB_H_
+#endif  // IMUCAL_UTIL_SQLITE_DB_H_
