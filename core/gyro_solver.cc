@@ -20,6 +20,7 @@
 #include "ceres/types.h"
 #include "core/robust_covariance.h"
 #include "core/so3.h"
+#include "util/units.h"
 
 namespace imucal::core {
 namespace {
@@ -28,7 +29,6 @@ using Mat39 = Eigen::Matrix<double, 3, 9>;
 using Mat99 = Eigen::Matrix<double, 9, 9>;
 using Vec9 = Eigen::Matrix<double, 9, 1>;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr char kAxisNames[3] = {'x', 'y', 'z'};
 
 // Eigenvalues of J^T J below this fraction of the largest are numerically zero: the singular

@@ -6,6 +6,7 @@
 #include "Eigen/Geometry"
 #include "absl/strings/str_format.h"
 #include "core/so3.h"
+#include "util/units.h"
 
 namespace imucal::core {
 namespace {
@@ -16,10 +17,6 @@ constexpr double kUnitAgreeDeg = 10.0;
 constexpr double kUnitErrorRatio = 3.0;
 // A time gap: an interval between samples over this many median intervals (as the importers).
 constexpr double kGapFactor = 3.0;
-
-double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  return std::atan2(a.cross(b).norm(), a.dot(b)) * 180.0 / M_PI;
-}
 
 // The error (degrees) of the gravity direction at rest `b` predicted from rest `a` by the rates
 // between them read with `to_rad_s` (rad/s per input unit), the rests' mean rate removed as the
@@ -33,7 +30,7 @@ double PredictionErrorDeg(const Capture& cap, const StaticInterval& a, const Sta
     const Eigen::Vector3d w = to_rad_s * (0.5 * (cap.gyro[k] + cap.gyro[k + 1]) - bias);
     r = r * ExpAndRightJacobian(w * (cap.t_s[k + 1] - cap.t_s[k]), nullptr);
   }
-  return AngleDeg(r.transpose() * a.accel_mean, b.accel_mean);
+  return AngleBetweenDeg(r.transpose() * a.accel_mean, b.accel_mean);
 }
 
 // Whether rests a and b bound one recorded move: the same file, no time gap between them.
@@ -72,10 +69,10 @@ GyroUnitEvidence GyroUnitFromMoves(const Capture& capture,
   for (size_t i = 0; i + 1 < rests.size(); ++i) {
     const StaticInterval& a = rests[i];
     const StaticInterval& b = rests[i + 1];
-    if (AngleDeg(a.accel_mean, b.accel_mean) < kMinTiltForUnitDeg || !OneMove(capture, a, b))
+    if (AngleBetweenDeg(a.accel_mean, b.accel_mean) < kMinTiltForUnitDeg || !OneMove(capture, a, b))
       continue;
     as_rad.push_back(PredictionErrorDeg(capture, a, b, 1.0));
-    as_deg.push_back(PredictionErrorDeg(capture, a, b, M_PI / 180.0));
+    as_deg.push_back(PredictionErrorDeg(capture, a, b, kDegToRad));
   }
   out.moves = static_cast<int>(as_rad.size());
   if (as_rad.empty()) return out;

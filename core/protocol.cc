@@ -7,14 +7,11 @@
 #include "Eigen/Geometry"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
+#include "core/so3.h"
 #include "util/units.h"
 
 namespace imucal::core {
 namespace {
-
-double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  return kRadToDeg * std::atan2(a.cross(b).norm(), a.dot(b));
-}
 
 // Rotation angle (deg) and the angle (deg) between its axis and the vertical `up`.
 struct Turn {
@@ -47,14 +44,14 @@ PairCheck VerifyPair(const FacePose& a, const FacePose& b, const Eigen::Vector3d
   PairCheck p;
   const Face fa = ClassifyFace(a.up), fb = ClassifyFace(b.up);
   p.face = fa.Label();
-  p.tilt_deg = 0.5 * AngleDeg(a.up, b.up);
+  p.tilt_deg = 0.5 * AngleBetweenDeg(a.up, b.up);
   const Turn turn = TurnAbout(rotation, a.up);
   p.rotation_deg = turn.angle_deg;
   Eigen::Vector3d axis = Eigen::Vector3d::Zero();
   axis(fa.axis) = fa.sign;
   // Mirrored horizontal components: the pair's mean up is the face axis up to the (small)
   // installation misalignment; a pair that is not mirrored leaves the floor tilt in it.
-  const double misalignment_deg = AngleDeg((a.up + b.up).normalized(), axis);
+  const double misalignment_deg = AngleBetweenDeg((a.up + b.up).normalized(), axis);
   if (!(fa == fb)) {
     p.reason = absl::StrFormat("wrong face: %s was up, then %s; turn about the vertical only",
                                fa.Label(), fb.Label());

@@ -11,6 +11,7 @@
 
 #include "Eigen/Core"
 #include "Eigen/Geometry"
+#include "util/units.h"
 
 namespace imucal::core {
 
@@ -83,6 +84,12 @@ inline Eigen::Quaterniond ExpQuaternion(const Eigen::Vector3d& phi) {
     s = std::sin(0.5 * t) / t;
   }
   return Eigen::Quaterniond(w, s * phi.x(), s * phi.y(), s * phi.z());
+}
+
+// The angle between two vectors, deg (0-180), accurate at every angle (atan2 of the cross and
+// dot products, not acos).
+inline double AngleBetweenDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return kRadToDeg * std::atan2(a.cross(b).norm(), a.dot(b));
 }
 
 }  // namespace imucal::core

@@ -21,7 +21,6 @@ using nlohmann::json;
 constexpr double kW = 720, kH = 460;                                // canvas, px
 constexpr double kLeft = 80, kRight = 20, kTop = 40, kBottom = 80;  // margins, px
 constexpr double kMg = 9.80665e-3;                                  // m/s^2 per mg
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 std::string Escape(const std::string& s) {
   std::string out;

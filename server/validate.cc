@@ -6,6 +6,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/capture.h"
+#include "util/units.h"
 
 namespace imucal::server {
 namespace {
@@ -64,7 +65,7 @@ double AccelLimit(std::string_view unit) {
 
 double GyroLimit(std::string_view unit) {
   if (unit == "rad/s") return kMaxGyroRadS;
-  if (unit == "deg/s") return kMaxGyroRadS * 180.0 / M_PI;
+  if (unit == "deg/s") return kMaxGyroRadS * kRadToDeg;
   return kMaxCounts;
 }
 

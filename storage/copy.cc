@@ -584,8 +584,8 @@ absl::StatusOr<CopyReport> CopySqliteToPostgres(const std::string& sqlite_path,
     return absl::InvalidArgumentError("the source must be a SQLite file, not a URL");
   }
   if (!sql::IsPostgresUrl(pg_url)) {
-    return absl::InvalidArgumentError(
-        Cat("the destination must be a postgresql:// URL, got '", RedactedLocation(pg_url), "'"));
+    return absl::InvalidArgumentError(Cat("the destination must be a postgresql:// URL, got '",
+                                          sql::RedactedLocation(pg_url), "'"));
   }
   const std::string dest = sql::RedactedLocation(pg_url);
   IMUCAL_RETURN_IF_ERROR(CheckSource(sqlite_path));

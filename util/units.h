@@ -3,6 +3,7 @@
 #ifndef IMUCAL_UTIL_UNITS_H_
 #define IMUCAL_UTIL_UNITS_H_
 
+#include <limits>
 #include <numbers>
 
 namespace imucal {
@@ -14,6 +15,8 @@ inline constexpr double kDegToRad = kPi / 180.0;  // rad per deg
 // gravity a capture is fitted to when it does not state its local one (capture-format.md).
 inline constexpr double kStandardGravity = 9.80665;
 inline constexpr double kMgPerMs2 = kStandardGravity / 1e3;  // m/s^2 per mg
+// "Not determined": what a figure the data did not reach reads (reports write it as null).
+inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 }  // namespace imucal
 

@@ -15,8 +15,6 @@
 namespace imucal::core::pipeline {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
 double MsSince(std::chrono::steady_clock::time_point t0) {
   return 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -42,7 +40,7 @@ AccelVector TiltSensitivity(const FaceReferences& faces, double tilt_deg) {
   AccelVector out = AccelVector::Zero();
   const absl::StatusOr<AccelParams> base = FitKnownReferences(faces.means, faces.refs);
   if (!base.ok()) return AccelVector::Constant(kNaN);
-  const double t = tilt_deg * M_PI / 180.0;
+  const double t = tilt_deg * kDegToRad;
   for (size_t i = 0; i < faces.refs.size(); ++i) {
     const Eigen::Vector3d& ref = faces.refs[i];
     int axis = 0;
@@ -184,7 +182,7 @@ double PairMeanAngleError(const std::vector<PairCheck>& pairs) {
 AccelPriors FaceAnglePriors(ProtocolKind protocol, const std::vector<PairCheck>& pairs,
                             const FaceReferences& faces, const AccelParams& stage_one,
                             std::vector<std::string>* warnings) {
-  constexpr double kFacesOnceTiltRad = 1.0 * M_PI / 180.0;
+  constexpr double kFacesOnceTiltRad = 1.0 * kDegToRad;
   const double systematic =
       protocol == ProtocolKind::kSixFace ? PairMeanAngleError(pairs) : kFacesOnceTiltRad;
   double chi2 = kNaN;

@@ -15,8 +15,6 @@
 namespace imucal::core::pipeline {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
 std::string NotSearchedNote(size_t poses) {
   return absl::StrFormat(
       "effects not searched: the %d poses all go into the face references' fit, none is spare "

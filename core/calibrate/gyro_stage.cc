@@ -6,6 +6,7 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
+#include "core/so3.h"
 #include "util/units.h"
 
 namespace imucal::core::pipeline {
@@ -25,10 +26,6 @@ constexpr double kTurnVerticalDeg = 15.0;
 // angle plus 5 degrees, room for a rough scale off by 20 %) cannot be one recording: a cut.
 constexpr double kCutPathFactor = 1.25;
 constexpr double kCutSlackDeg = 5.0;
-
-double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  return kRadToDeg * std::atan2(a.cross(b).norm(), a.dot(b));
-}
 
 std::vector<GyroMove> MovesBetween(const std::vector<StaticInterval>& ivs,
                                    const std::vector<int>& used, const AccelParams& accel) {
@@ -70,7 +67,7 @@ std::vector<PlannedMove> PlanMoves(const Capture& cap, const std::vector<StaticI
       continue;
     }
     if (rough != nullptr) {
-      const double tilt = AngleDeg(m.up_before, m.up_after);
+      const double tilt = AngleBetweenDeg(m.up_before, m.up_after);
       const double path = PathAngle(cap, m.begin, m.end, *rough) * kRadToDeg;
       if (tilt > kCutPathFactor * path + kCutSlackDeg) {
         if (warnings)
@@ -111,7 +108,7 @@ std::vector<TurnCandidate> FindTurnCandidates(const Capture& cap,
     if (c.turn.begin >= c.turn.end || gaps.In(c.turn.begin, c.turn.end) >= 0) continue;
     const Eigen::Vector3d ua = accel.Apply(a.accel_mean).normalized();
     const Eigen::Vector3d ub = accel.Apply(b.accel_mean).normalized();
-    if (AngleDeg(ua, ub) > kTurnSameUpDeg) continue;
+    if (AngleBetweenDeg(ua, ub) > kTurnSameUpDeg) continue;
     c.raw_integral = IntegrateRawTurn(cap.t_s, cap.gyro, c.turn, go);
     double path = 0;
     for (size_t k = c.turn.begin; k < c.turn.end; ++k)
@@ -143,7 +140,8 @@ std::vector<TurnCandidate> AcceptTurns(const Capture& cap, std::vector<TurnCandi
     tr.t_start_s = cap.t_s[c.turn.begin];
     tr.t_end_s = cap.t_s[c.turn.end];
     tr.turns = k;
-    if (AngleDeg(v, c.up) <= kTurnVerticalDeg || AngleDeg(v, -c.up) <= kTurnVerticalDeg) {
+    if (AngleBetweenDeg(v, c.up) <= kTurnVerticalDeg ||
+        AngleBetweenDeg(v, -c.up) <= kTurnVerticalDeg) {
       c.turn.axis = v.dot(c.up) >= 0 ? c.up : Eigen::Vector3d(-c.up);
       const Face f = ClassifyFace(c.turn.axis);
       tr.axis = absl::StrFormat("%c%s (vertical)", "xyz"[f.axis], f.sign > 0 ? "" : " negative");

@@ -6,13 +6,10 @@
 
 #include "absl/strings/str_format.h"
 #include "core/protocol.h"
+#include "core/so3.h"
 
 namespace imucal::core::pipeline {
 namespace {
-
-double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  return std::atan2(a.cross(b).norm(), a.dot(b)) * 180.0 / M_PI;
-}
 
 std::string Where(const Capture& cap, const StaticInterval& s) {
   const int file = cap.FileOf(s.begin);
@@ -44,7 +41,8 @@ int DistinctOrientations(const std::vector<Eigen::Vector3d>& ups) {
   std::vector<Eigen::Vector3d> dirs;
   for (const Eigen::Vector3d& u : ups) {
     bool seen = false;
-    for (const Eigen::Vector3d& d : dirs) seen |= d == u || AngleDeg(d, u) <= kSameOrientationDeg;
+    for (const Eigen::Vector3d& d : dirs)
+      seen |= d == u || AngleBetweenDeg(d, u) <= kSameOrientationDeg;
     if (!seen) dirs.push_back(u);
   }
   return static_cast<int>(dirs.size());
@@ -63,7 +61,7 @@ std::vector<std::string> RepeatedOrientations(const Capture& cap,
         const StaticInterval& x = ivs[stops[a]];
         const StaticInterval& y = ivs[stops[b]];
         if (cap.FileOf(x.begin) == cap.FileOf(y.begin)) continue;
-        const double angle = AngleDeg(ups[stops[a]], ups[stops[b]]);
+        const double angle = AngleBetweenDeg(ups[stops[a]], ups[stops[b]]);
         if (angle > kRepeatedOrientationDeg) continue;
         const Face f = ClassifyFace(ups[stops[a]]);
         out.push_back(absl::StrFormat(

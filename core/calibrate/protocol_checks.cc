@@ -4,6 +4,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/calibrate/orientations.h"
+#include "core/so3.h"
 #include "core/validation.h"
 #include "util/units.h"
 
@@ -14,10 +15,6 @@ namespace {
 constexpr double kDuplicateDeg = 2.0;
 // ... and a move that turned less than this (along its path) did not re-place the robot.
 constexpr double kNotTurnedDeg = 10.0;
-
-double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  return kRadToDeg * std::atan2(a.cross(b).norm(), a.dot(b));
-}
 
 // The six-face pairs, checked with the rough gyroscope's turns (its few percent of scale error
 // are well inside the check's 20-degree tolerance).
@@ -89,7 +86,7 @@ void MarkDuplicates(const Capture& cap, const GyroParams& gyro, const TimeGaps& 
     if (!(*ivs)[i].used) continue;
     if (previous >= 0) {
       const size_t p = static_cast<size_t>(previous);
-      const double angle = AngleDeg(ups[i], ups[p]);
+      const double angle = AngleBetweenDeg(ups[i], ups[p]);
       // Without a gyroscope a re-placement in the same orientation cannot be told from none:
       // the poses count as one, which loses a repeat but never double-counts a rest.
       const double turned =

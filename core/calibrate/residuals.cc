@@ -15,8 +15,6 @@
 namespace imucal::core::pipeline {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
 std::vector<double> ToDeg(const std::vector<double>& rad) {
   std::vector<double> out;
   for (double x : rad) out.push_back(x * kRadToDeg);

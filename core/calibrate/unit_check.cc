@@ -8,6 +8,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/gyro_unit.h"
+#include "util/units.h"
 
 namespace imucal::core::pipeline {
 namespace {
@@ -99,7 +100,7 @@ std::optional<Refusal> CheckFittedUnits(const Capture& capture, const ParamSet& 
     const double fitted = params.gyro.matrix.diagonal().cwiseAbs().mean();
     if (auto r = CheckSensor("gyroscope", "gyro-unit", GyroUnitName(capture.gyro_unit),
                              capture.gyro_unit_source, NominalGyroToSi(capture.gyro_unit), fitted,
-                             {{"rad/s", 1.0}, {"deg/s", M_PI / 180.0}}))
+                             {{"rad/s", 1.0}, {"deg/s", kDegToRad}}))
       return r;
   }
   return std::nullopt;

@@ -7,11 +7,10 @@
 #include <limits>
 
 #include "Eigen/Core"
+#include "util/units.h"
 
 namespace imucal::core::effects {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr double kRadToDeg = 180.0 / M_PI;
 // A candidate whose column keeps less than this fraction of its norm once the current model's
 // columns are projected out is numerically in the model (a bias, a scale). Nearly collinear
 // ones stay: the F test judges whether the part the model lacks is significant. The moves'

@@ -23,6 +23,7 @@
 #include "core/effects/move_model.h"
 #include "core/math_guard.h"
 #include "core/so3.h"
+#include "util/units.h"
 
 namespace imucal::core::effects {
 namespace {
@@ -205,7 +206,7 @@ void SetDetectionBounds(const Model& model, const std::vector<Prepared>& moves,
       if (c.term.axis == axis && c.term.regressor == *form && c.perp.norm() > 0)
         b.coefficient = std::sqrt(lambda * s2) / c.perp.norm();
     b.from = absl::StrFormat("%d moves, up to %.0f deg/s about %c", static_cast<int>(moves.size()),
-                             fastest(axis) * 180.0 / M_PI, kAxes[axis]);
+                             fastest(axis) * kRadToDeg, kAxes[axis]);
     out->detection_bounds.push_back(std::move(b));
   }
 }

@@ -16,6 +16,7 @@
 #include "absl/strings/str_format.h"
 #include "core/effects/search.h"
 #include "util/str_util.h"
+#include "util/units.h"
 
 namespace imucal::core::effects {
 
@@ -312,7 +313,6 @@ namespace imucal::core {
 namespace {
 
 using effects::FThreshold;
-using effects::kRadToDeg;
 
 // A coefficient's unit as an engineer reads it, and the factor from SI to it.
 struct HumanUnit {
