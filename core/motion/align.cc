@@ -22,22 +22,43 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-// One reference interval's mean rate, in the reference body frame, at its mid-time.
+// The reference's rate is taken over intervals of about this (s): over a single interval of a
+// 120 Hz motion capture its orientation noise divided by 8 ms swamps the rate.
+constexpr double kRateIntervalS = 0.05;
+
+// One reference interval's mean rate, in the reference body frame, and its ends.
 struct RefRate {
-  double t_s;  // reference clock
+  double t_s;  // mid-time, reference clock
+  double t0_s, t1_s;
   Eigen::Vector3d w_rad_s;
 };
 
-std::vector<RefRate> ReferenceRates(const MotionRecording& r, double gap_s) {
+std::vector<RefRate> ReferenceRates(const MotionRecording& r, double gap_s, double step_s) {
+  const size_t m = std::max<size_t>(1, static_cast<size_t>(std::lround(kRateIntervalS / step_s)));
   std::vector<RefRate> rates;
-  for (size_t j = 0; j + 1 < r.ref_t_s.size(); ++j) {
-    const double dt = r.ref_t_s[j + 1] - r.ref_t_s[j];
-    if (dt > gap_s) continue;
-    const Eigen::Vector3d phi = LogQuaternion(r.q_world_ref[j].conjugate() * r.q_world_ref[j + 1]);
-    rates.push_back({0.5 * (r.ref_t_s[j] + r.ref_t_s[j + 1]), phi / dt});
+  for (size_t j = 0; j + m < r.ref_t_s.size(); j += m) {
+    bool gap = false;
+    for (size_t i = j; i < j + m; ++i) gap |= r.ref_t_s[i + 1] - r.ref_t_s[i] > gap_s;
+    if (gap) continue;
+    const double dt = r.ref_t_s[j + m] - r.ref_t_s[j];
+    const Eigen::Vector3d phi = LogQuaternion(r.q_world_ref[j].conjugate() * r.q_world_ref[j + m]);
+    rates.push_back(
+        {0.5 * (r.ref_t_s[j] + r.ref_t_s[j + m]), r.ref_t_s[j], r.ref_t_s[j + m], phi / dt});
   }
   return rates;
 }
+
+// The gyro's integral from the first stamp to t (trapezoid, linear between samples).
+struct GyroIntegral {
+  std::vector<Eigen::Vector3d> at_sample;
+  explicit GyroIntegral(const MotionRecording& r)
+      : at_sample(r.t_s.size(), Eigen::Vector3d::Zero()) {
+    for (size_t k = 1; k < r.t_s.size(); ++k) {
+      at_sample[k] = at_sample[k - 1] +
+                     0.5 * (r.t_s[k] - r.t_s[k - 1]) * (r.gyro_rad_s[k] + r.gyro_rad_s[k - 1]);
+    }
+  }
+};
 
 // Gyro linearly interpolated at IMU time t (false outside the stream), and its time derivative.
 bool GyroAt(const MotionRecording& r, double t, Eigen::Vector3d* w, Eigen::Vector3d* dw) {
@@ -61,7 +82,7 @@ std::vector<double> RefMagnitudeGrid(const std::vector<RefRate>& rates, double g
     while (j + 1 < rates.size() && rates[j + 1].t_s < t) ++j;
     if (j + 1 >= rates.size() || rates[j].t_s > t) continue;
     const double span = rates[j + 1].t_s - rates[j].t_s;
-    if (span > 2.0 * gap_s) continue;
+    if (span > 2.0 * kRateIntervalS + gap_s) continue;
     const double f = (t - rates[j].t_s) / span;
     grid[i] = (1.0 - f) * rates[j].w_rad_s.norm() + f * rates[j + 1].w_rad_s.norm();
   }
@@ -121,13 +142,33 @@ struct RatePair {
   Eigen::Vector3d ref, gyro, gyro_dot;
 };
 
+// Integral of the gyro to IMU time t (false outside the stream) and the rate there.
+bool IntegralAt(const MotionRecording& r, const GyroIntegral& in, double t, Eigen::Vector3d* i,
+                Eigen::Vector3d* w) {
+  const auto it = std::upper_bound(r.t_s.begin(), r.t_s.end(), t);
+  if (it == r.t_s.begin() || it == r.t_s.end()) return false;
+  const size_t k = static_cast<size_t>(it - r.t_s.begin()) - 1;
+  GyroAt(r, t, w, nullptr);
+  *i = in.at_sample[k] + 0.5 * (t - r.t_s[k]) * (r.gyro_rad_s[k] + *w);
+  return true;
+}
+
+// The gyro's mean over each reference interval (shifted to the IMU clock) and its derivative
+// with respect to the offset.
 std::vector<RatePair> Pairs(const MotionRecording& r, const std::vector<RefRate>& rates,
                             double offset_s) {
+  const GyroIntegral integral(r);
   std::vector<RatePair> pairs;
   for (const RefRate& rr : rates) {
-    RatePair p;
-    p.ref = rr.w_rad_s;
-    if (GyroAt(r, rr.t_s - offset_s, &p.gyro, &p.gyro_dot)) pairs.push_back(p);
+    Eigen::Vector3d i0, i1, w0, w1;
+    if (!IntegralAt(r, integral, rr.t0_s - offset_s, &i0, &w0) ||
+        !IntegralAt(r, integral, rr.t1_s - offset_s, &i1, &w1)) {
+      continue;
+    }
+    const double dt = rr.t1_s - rr.t0_s;
+    // d/d offset of mean_{[t0 - o, t1 - o]} w = -(w(t1 - o) - w(t0 - o)) / dt; the fit's
+    // Jacobian column is -gyro_dot.
+    pairs.push_back({rr.w_rad_s, (i1 - i0) / dt, (w1 - w0) / dt});
   }
   return pairs;
 }
@@ -207,7 +248,7 @@ absl::StatusOr<Alignment> EstimateAlignment(const MotionRecording& r, const Alig
     ref_dts.push_back(r.ref_t_s[j + 1] - r.ref_t_s[j]);
   Alignment out;
   out.gap_s = options.gap_factor * Median(ref_dts);
-  const std::vector<RefRate> rates = ReferenceRates(r, out.gap_s);
+  const std::vector<RefRate> rates = ReferenceRates(r, out.gap_s, Median(ref_dts));
   double rms = 0.0;
   for (const RefRate& rr : rates) rms += rr.w_rad_s.squaredNorm();
   rms = rates.empty() ? 0.0 : std::sqrt(rms / static_cast<double>(rates.size()));

@@ -6,7 +6,8 @@
 // (both resampled at the IMU's rate; whole samples), the peak refined by a parabola, then the
 // offset, the rotation and a rate bias are refined together by Gauss-Newton on
 //   w_gyro(t - offset_s) = R_imu_ref w_ref(t) + b
-// over the reference's sample intervals (w_ref = Log(q_j^-1 q_j+1) / dt at their mid-times).
+// over intervals of about 50 ms of the reference (w_ref = Log(q_j^-1 q_j+m) / dt, w_gyro the
+// gyro's mean over the same interval).
 // Rotation: the Kabsch solution of the same equation (centred, so b drops out).
 // `offset_s` is the reference clock minus the IMU clock: a reference stamped t was taken at IMU
 // time t - offset_s. Standard errors are those of white residuals (a lower bound when the
@@ -40,7 +41,7 @@ struct AlignOptions {
   // The rotation fit's residual RMS over the rate RMS above this: the reference's frame does
   // not follow the IMU (another body, or the inverse orientation).
   double max_frame_residual = 0.3;
-  int min_reference_intervals = 200;  // usable reference intervals (rates) needed
+  int min_reference_intervals = 100;  // usable 50 ms reference intervals (rates) needed
   double min_rate_rms_rad_s = 0.05;   // a recording still throughout cannot be aligned
   double gap_factor = 2.5;            // reference intervals longer than this x the median are gaps
 };

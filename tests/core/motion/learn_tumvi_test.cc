@@ -43,7 +43,14 @@ TEST(LearnTumVi, Rooms246FromRooms135) {
   std::printf("delay %.3f +- %.3f ms, odd %g %g %g (+- %g %g %g), taps %d\n", 1e3 * b.delay_s,
               1e3 * b.delay_std_error_s, b.odd_rate(0), b.odd_rate(1), b.odd_rate(2),
               b.odd_rate_std_error(0), b.odd_rate_std_error(1), b.odd_rate_std_error(2), b.taps);
+  // Measured (docs/motion.md): raw 2.69 / 1.65 / 0.95, static (C, b, G in motion on 1/3/5)
+  // 1.29 / 1.01 / 1.33, the gate refuses the block (room 5 held out gets worse), so learnt ==
+  // static. The aim (mean <= 0.7, each <= 0.9) is NOT reached; these bounds are the
+  // measured figures with a 15 % margin, so a regression fails.
+  const double kMaxStatic[] = {1.5, 1.2, 1.55};
+  const double kMaxRaw[] = {3.1, 1.9, 1.1};
   double mean_learnt = 0.0;
+  int index = 0;
   for (int room : {2, 4, 6}) {
     const Evaluation e = Evaluate(prepared[room - 1], *result, options);
     std::printf(
@@ -53,8 +60,13 @@ TEST(LearnTumVi, Rooms246FromRooms135) {
         e.raw.final_heading_deg, e.rest_bias.final_heading_deg, e.static_model.final_heading_deg,
         e.learnt.final_heading_deg, e.rest_note.c_str());
     mean_learnt += e.learnt.aoe_deg / 3.0;
+    EXPECT_LT(e.raw.aoe_deg, kMaxRaw[index]) << "room" << room;
+    EXPECT_LT(e.static_model.aoe_deg, kMaxStatic[index]) << "room" << room;
+    EXPECT_LE(e.learnt.aoe_deg, e.static_model.aoe_deg + 1e-9) << "room" << room;
+    ++index;
   }
   std::printf("mean learnt %.3f\n", mean_learnt);
+  EXPECT_LT(mean_learnt, 1.4);
 }
 
 }  // namespace
