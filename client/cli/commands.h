@@ -41,6 +41,8 @@ int RunDemo(const std::vector<std::string>& args);
 // alone (noise_command.cc), read from files or from the server (noise_session.cc, in the server
 // commands' library).
 int RunNoise(const std::vector<std::string>& args);
+// `imucal learn`: the gyro's dynamic block from recordings with a reference (learn_command.cc).
+int RunLearn(const std::vector<std::string>& args);
 // `imucal export --params FILE --format F`: a parameter set file as json, Kalibr or OpenVINS
 // YAML (core/export.h). main.cc sends `export` here unless it names a --device (the server's).
 int RunExportFile(const std::vector<std::string>& args);

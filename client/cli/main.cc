@@ -21,6 +21,8 @@ constexpr char kHelp[] =
     "  simulate --out FILE      write a simulated capture with known truth\n"
     "  noise REST...            noise figures (N, B, K) of a rest recording; Kalibr and\n"
     "                           OpenVINS noise keys (or noise --session S: a stored session)\n"
+    "  learn --train REC... --test REC... --out P.json   the gyro's dynamic block learnt from\n"
+    "                           recordings with a reference orientation, gated on held-out ones\n"
     "  demo                     simulate, calibrate, apply, print the error before and after\n"
     "                           (with --server ADDR: the same through the service, guided)\n"
     "  export --params P --format F   a parameter set as json, kalibr, kalibr-intrinsics or\n"
@@ -55,6 +57,7 @@ int Dispatch(const std::string& command, std::vector<std::string> args) {
   if (command == "apply") return imucal::cli::RunApply(args);
   if (command == "simulate") return imucal::cli::RunSimulate(args);
   if (command == "noise") return imucal::cli::RunNoise(args);
+  if (command == "learn") return imucal::cli::RunLearn(args);
   if (command == "demo") {
     // With a server, the demo runs through the service; without, offline.
     for (const std::string& a : args)
