@@ -23,15 +23,15 @@ constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 constexpr double kRestSpreadRadS = 0.015;
 constexpr double kRestMeanRadS = 0.1;
 
-double MedianStep(const std::vector<double>& t) {
+}  // namespace
+
+double MedianStepS(const std::vector<double>& t) {
   std::vector<double> d;
   for (size_t k = 0; k + 1 < t.size(); ++k) d.push_back(t[k + 1] - t[k]);
   if (d.empty()) return 0.0;
   std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
   return d[d.size() / 2];
 }
-
-}  // namespace
 
 void StaticOutputs(const MotionRecording& r, const ParamSet& params,
                    std::vector<Eigen::Vector3d>* w_s, std::vector<Eigen::Vector3d>* accel) {
@@ -53,7 +53,7 @@ std::vector<Eigen::Vector3d> CorrectedRates(const MotionRecording& r, const Para
   if (outside != nullptr) *outside = 0;
   if (!params.dynamic_gyro) return w_s;
   DynamicGyroState state(*params.dynamic_gyro);
-  const double gap_s = kImuGapFactor * MedianStep(r.t_s);
+  const double gap_s = kImuGapFactor * MedianStepS(r.t_s);
   std::vector<Eigen::Vector3d> out(w_s.size());
   for (size_t k = 0; k < w_s.size(); ++k) {
     if (k > 0 && r.t_s[k] - r.t_s[k - 1] > gap_s) state.Reset();
@@ -96,7 +96,7 @@ OrientationError CompareOrientation(const MotionRecording& r, const AlignedRefer
 
 std::optional<Eigen::Vector3d> FirstRestBias(const MotionRecording& r, double duration_s,
                                              std::string* note) {
-  const double step = MedianStep(r.t_s);
+  const double step = MedianStepS(r.t_s);
   const size_t n = step > 0 ? static_cast<size_t>(std::lround(duration_s / step)) : 0;
   if (n < 10 || r.t_s.size() < n) {
     *note = "no first rest: the recording is too short";

@@ -22,6 +22,9 @@
 
 namespace imucal::core::motion {
 
+// The median interval between successive time stamps (s); 0 for fewer than two.
+double MedianStepS(const std::vector<double>& t_s);
+
 // The static model's output w_s (rad/s) and the calibrated accelerometer (m/s^2) per sample.
 void StaticOutputs(const MotionRecording& recording, const ParamSet& params,
                    std::vector<Eigen::Vector3d>* w_s, std::vector<Eigen::Vector3d>* accel);

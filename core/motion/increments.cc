@@ -11,14 +11,6 @@
 namespace imucal::core::motion {
 namespace {
 
-double MedianStep(const std::vector<double>& t) {
-  std::vector<double> d;
-  for (size_t k = 0; k + 1 < t.size(); ++k) d.push_back(t[k + 1] - t[k]);
-  if (d.empty()) return 0.0;
-  std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
-  return d[d.size() / 2];
-}
-
 Eigen::Vector3d Phi(const MotionRecording& r, const std::vector<Eigen::Vector3d>& w, int j) {
   return 0.5 * (r.t_s[j + 1] - r.t_s[j]) * (w[j] + w[j + 1]);
 }
@@ -42,7 +34,7 @@ FitRecording PrepareFit(const MotionRecording& r, const AlignedReference& refere
   FitRecording fit;
   fit.recording = &r;
   fit.reference = reference;
-  const double step = MedianStep(r.t_s);
+  const double step = MedianStepS(r.t_s);
   fit.rate_hz = step > 0 ? 1.0 / step : 0.0;
   const int n = static_cast<int>(r.t_s.size());
   fit.segment_start.assign(n, 0);
