@@ -541,8 +541,8 @@ TEST(ExportTest, SaysTheDynamicGyroBlockIsLeftOut) {
     absl::StatusOr<std::string> a = ExportParams(with, f, ExportOptions());
     absl::StatusOr<std::string> b = ExportParams(without, f, ExportOptions());
     ASSERT_TRUE(a.ok() && b.ok()) << a.status() << b.status();
-    EXPECT_NE(a->find("NOT IN THIS FILE: the learnt dynamic gyro block (1 taps"),
-              std::string::npos) << *a;
+    EXPECT_NE(a->find("NOT IN THIS FILE: the learnt dynamic gyro block (1 taps"), std::string::npos)
+        << *a;
     EXPECT_EQ(WithoutComments(*a), WithoutComments(*b));
     EXPECT_EQ(b->find("dynamic gyro"), std::string::npos);
   }
