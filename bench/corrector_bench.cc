@@ -213,6 +213,41 @@ void BM_HandLoop(benchmark::State& state) {
   SetCounters(state);
 }
 
+// sdk::Stream (issue 27): the static model then a learnt dynamic gyro block of `taps` taps
+// (range(0); -1: no block, the Stream alone) at `dilation` (range(1)), per sample.
+imucal::core::ParamSet WithBlock(imucal::core::ParamSet p, int taps, int dilation) {
+  if (taps < 0) return p;
+  imucal::core::DynamicGyro b;
+  b.rate_hz = 200.0;
+  b.delay_s = 0.0026;
+  b.odd_rate = Eigen::Vector3d(1e-3, -1e-3, 5e-4);
+  b.taps = taps;
+  b.dilation = dilation;
+  for (int i = 0; i < 18 * taps; ++i) b.weights.push_back(1e-3 * ((i % 7) - 3));
+  b.envelope.max_abs_rate_rad_s = Eigen::Vector3d::Constant(1e9);
+  b.envelope.max_abs_accel_m_s2 = Eigen::Vector3d::Constant(1e9);
+  p.dynamic_gyro = b;
+  return p;
+}
+
+void BM_StreamApply(benchmark::State& state) {
+  const int taps = static_cast<int>(state.range(0));
+  const Corrector c = *Corrector::Create(
+      WithBlock(MakeParams(Kind::kLinear), taps, static_cast<int>(state.range(1))));
+  imucal::sdk::Stream stream = *c.NewStream(200.0);
+  std::vector<RawSample> in = MakeSamples(false);
+  std::vector<CalibratedSample> out(in.size());
+  for (auto _ : state) {
+    stream.Reset();  // each pass a fresh stream: its times start again
+    for (size_t i = 0; i < in.size(); ++i) stream.Apply(in[i], &out[i]);
+    benchmark::DoNotOptimize(out.data());
+    benchmark::ClobberMemory();
+  }
+  SetCounters(state);
+}
+
+BENCHMARK(BM_StreamApply)->Args({-1, 1})->Args({0, 1})->Args({8, 3})->Args({29, 16});
+
 BENCHMARK(BM_CorrectorApply<Kind::kLinear>);
 BENCHMARK(BM_CorrectorApplyBatch<Kind::kLinear>);
 BENCHMARK(BM_HandLoop<Kind::kLinear>);

@@ -459,6 +459,17 @@ std::vector<std::string> ExportNotes(const ParamSet& p, ExportFormat format,
   } else {
     notes.push_back("NOT IN THIS FILE: effects (none in this parameter set)");
   }
+  // The learnt dynamic gyro block (issue 27) needs the samples before each one: no static
+  // format holds it. Said as effects are, rather than refused: the static model exported is
+  // still a sound calibration, only the motion correction is missing.
+  if (p.dynamic_gyro) {
+    const DynamicGyro& b = *p.dynamic_gyro;
+    notes.push_back(Cat("NOT IN THIS FILE: the learnt dynamic gyro block (", b.taps,
+                        " taps, dilation ", b.dilation, ", delay ", Num(b.delay_s), " s, at ",
+                        Num(b.rate_hz),
+                        " Hz); this file holds the static model only: only imucal's SDK "
+                        "(sdk::Stream) applies the block"));
+  }
   auto user = [&](double v, const char* key) {
     if (std::isfinite(v))
       notes.push_back(Cat(key, " supplied to the export: ", Num(v),

@@ -14,6 +14,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/regressor.h"
+#include "formats/dynamic_gyro_json.h"
 #include "nlohmann/json.hpp"
 #include "util/status.h"
 
@@ -477,6 +478,15 @@ absl::Status ReadTermPriors(const Json& j, const std::string& path,
   return absl::OkStatus();
 }
 
+// Optional as a whole: only a parameter set with a learnt block has one (issue 27).
+absl::Status ReadDynamicGyro(const Json& j, const std::string& path,
+                             std::optional<core::DynamicGyro>* out) {
+  core::DynamicGyro block;
+  IMUCAL_RETURN_IF_ERROR(DynamicGyroFromJson(j, path, &block));
+  *out = std::move(block);
+  return absl::OkStatus();
+}
+
 absl::Status ReadSource(const Json& j, const std::string& path, core::ParamSet* out) {
   IMUCAL_RETURN_IF_ERROR(ExpectObject(j, path));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "session", kOptional, ReadString, &out->source_session));
@@ -530,6 +540,12 @@ absl::Status ReadParamSet(const Json& j, const std::string& path, core::ParamSet
   }
   IMUCAL_RETURN_IF_ERROR(
       Member(j, path, "term_priors", kOptional, ReadTermPriors, &out->term_priors));
+  IMUCAL_RETURN_IF_ERROR(
+      Member(j, path, "dynamic_gyro", kOptional, ReadDynamicGyro, &out->dynamic_gyro));
+  if (out->dynamic_gyro && !out->has_gyro) {
+    return PathError(Child(path, "dynamic_gyro"),
+                     "a dynamic gyro block in a parameter set without a \"gyro\" block");
+  }
   return Member(j, path, "source", kOptional, ReadSource, out);
 }
 
@@ -619,6 +635,8 @@ std::string ParamSetToJson(const core::ParamSet& params) {
     priors["accel_angle_sigma"] = Number(params.term_priors->accel_angle_rad);
     j["term_priors"] = std::move(priors);
   }
+  // Only when there is one: a parameter set without a block keeps its bytes.
+  if (params.dynamic_gyro) j["dynamic_gyro"] = DynamicGyroToJson(*params.dynamic_gyro);
   OrderedJson source = OrderedJson::object();
   source["session"] = params.source_session;
   source["software"] = params.software;

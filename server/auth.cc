@@ -64,6 +64,8 @@ constexpr RpcRule kRpcRules[] = {
      "the technician decides which version is active"},
     {Rpc::kExport, "/imucal.v1.ParameterService/Export", false, true, true,
      "the technician exports for other tools"},
+    {Rpc::kUploadParameters, "/imucal.v1.ParameterService/UploadParameters", false, true, true,
+     "the technician ships a parameter set made offline (imucal learn), as a new version"},
     {Rpc::kCreateToken, "/imucal.v1.AdminService/CreateToken", false, false, true,
      "tokens are the admin's"},
     {Rpc::kListTokens, "/imucal.v1.AdminService/ListTokens", false, false, true,

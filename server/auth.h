@@ -87,6 +87,7 @@ enum class Rpc {
   kPromote,
   kRollback,
   kExport,
+  kUploadParameters,
   kCreateToken,
   kListTokens,
   kRevokeToken,

@@ -9,6 +9,7 @@
 #include "core/export.h"
 #include "formats/params_json.h"
 #include "server/convert.h"
+#include "server/parameter_upload.h"
 #include "server/unary.h"
 #include "util/text_check.h"
 
@@ -73,6 +74,20 @@ absl::StatusOr<core::ExportOptions> ExportOptionsOf(const v1::ExportRequest& r) 
                                                    r.openvins_model(), "\" (kalibr or rpng)"));
   }
   return o;
+}
+
+// An uploaded document is at most what a request may carry (ServerOptions'
+// max_receive_message_bytes default); a parameter set with a 448-sample filter is ~100 KB.
+constexpr size_t kMaxUploadJsonBytes = 4 << 20;
+
+absl::Status ValidateUpload(const v1::UploadParametersRequest& r) {
+  if (absl::Status s = RequireDevice(r.device_id()); !s.ok()) return s;
+  if (r.json().empty()) return absl::InvalidArgumentError("json: required");
+  if (r.json().size() > kMaxUploadJsonBytes) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("json: ", r.json().size(), " bytes, at most ", kMaxUploadJsonBytes));
+  }
+  return ValidateReason(r.reason());
 }
 
 // A ParameterSet with served_from_cache only, serialised once.
@@ -279,6 +294,49 @@ grpc::ServerUnaryReactor* ParameterServiceImpl::Export(grpc::CallbackServerConte
   if (absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kExport); !who.ok())
     return FinishUnary(context, who.status());
   return FinishUnary(context, DoExport(*request, response));
+}
+
+}  // namespace imucal::server
+
+namespace imucal::server {
+
+absl::Status ParameterServiceImpl::DoUpload(const v1::UploadParametersRequest& request,
+                                            std::string_view actor,
+                                            v1::UploadParametersResponse* response) {
+  if (absl::Status s = ValidateUpload(request); !s.ok()) return s;
+  absl::StatusOr<storage::Device> device = store_->GetDevice(request.device_id());
+  if (!device.ok()) return device.status();
+  // Its messages name the document's own JSON paths and values, and the device: the client's.
+  absl::StatusOr<core::ParamSet> params = ParseUploadedParams(request.json(), *device);
+  if (!params.ok()) return EchoesRequest(params.status());
+  const core::VerdictResult verdict = JudgeUploadedParams(*params);
+  storage::ParamVersion version;
+  version.device_id = device->id;
+  version.verdict = ToStorage(verdict.verdict);
+  version.accel_rms = params->quality_accel_rms_m_s2;
+  version.state = ActivationOf(verdict.verdict);
+  version.provenance = UploadProvenance(*params, actor);
+  // The number is the store's, written into the document in the transaction that assigns it.
+  absl::StatusOr<storage::ParamVersion> stored = store_->AddVersion(
+      version, actor,
+      [&](int number, std::string* params_json, std::string*) {
+        params->version = number;
+        *params_json = formats::ParamSetToJson(*params);
+        return absl::OkStatus();
+      },
+      request.reason());
+  if (!stored.ok()) return stored.status();
+  *response->mutable_version() = ToProto(*stored, /*with_json=*/true, &crc_cache_);
+  for (const std::string& reason : verdict.reasons) response->add_reasons(reason);
+  return absl::OkStatus();
+}
+
+grpc::ServerUnaryReactor* ParameterServiceImpl::UploadParameters(
+    grpc::CallbackServerContext* context, const v1::UploadParametersRequest* request,
+    v1::UploadParametersResponse* response) {
+  absl::StatusOr<PrincipalRef> who = auth_->Authorize(*context, Rpc::kUploadParameters);
+  if (!who.ok()) return FinishUnary(context, who.status());
+  return FinishUnary(context, DoUpload(*request, (*who)->actor, response));
 }
 
 }  // namespace imucal::server

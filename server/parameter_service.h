@@ -1,12 +1,13 @@
 // ParameterService of imucal/v1/imucal.proto on the callback API: the robots' fetch of their
 // active parameters (the hot path, answered from ActiveParamCache), and the versions'
-// history, promotion, rollback and export. Store calls are short transactions (SQLite or
-// PostgreSQL, storage/store.h) run inline.
+// history, promotion, rollback, export, and the upload of a parameter set made offline. Store calls
+// are short transactions (SQLite or PostgreSQL, storage/store.h) run inline.
 #ifndef IMUCAL_SERVER_PARAMETER_SERVICE_H_
 #define IMUCAL_SERVER_PARAMETER_SERVICE_H_
 
 #include <memory>
 #include <string>
+#include <string_view>
 
 #include "grpcpp/grpcpp.h"
 #include "imucal/v1/imucal.grpc.pb.h"
@@ -26,7 +27,8 @@ using ParameterServiceBase = v1::ParameterService::WithRawCallbackMethod_GetActi
             v1::ParameterService::WithCallbackMethod_Promote<
                 v1::ParameterService::WithCallbackMethod_Rollback<
                     v1::ParameterService::WithCallbackMethod_Export<
-                        v1::ParameterService::Service>>>>>>;
+                        v1::ParameterService::WithCallbackMethod_UploadParameters<
+                            v1::ParameterService::Service>>>>>>>;
 
 class ParameterServiceImpl final : public ParameterServiceBase {
  public:
@@ -55,9 +57,15 @@ class ParameterServiceImpl final : public ParameterServiceBase {
   grpc::ServerUnaryReactor* Export(grpc::CallbackServerContext* context,
                                    const v1::ExportRequest* request,
                                    v1::ExportResponse* response) override;
+  grpc::ServerUnaryReactor* UploadParameters(grpc::CallbackServerContext* context,
+                                             const v1::UploadParametersRequest* request,
+                                             v1::UploadParametersResponse* response) override;
 
  private:
   absl::Status DoExport(const v1::ExportRequest& request, v1::ExportResponse* response);
+  // validate -> parse and judge (server/parameter_upload.h) -> store as the next version.
+  absl::Status DoUpload(const v1::UploadParametersRequest& request, std::string_view actor,
+                        v1::UploadParametersResponse* response);
   // The cached responses of the device's active version, filled from the store on a miss; the
   // last known ones (`from_cache` set) when the database cannot be reached.
   absl::StatusOr<std::shared_ptr<const ActiveParamCache::Entry>> ActiveEntry(

@@ -17,6 +17,7 @@
 #include "formats/report_json.h"
 #include "server/convert.h"
 #include "server/log.h"
+#include "server/parameter_upload.h"
 #include "server/status_util.h"
 #include "storage/sample_codec.h"
 #include "util/str_util.h"
@@ -112,13 +113,6 @@ v1::JobState ToJobState(storage::SolveState state) {
       return v1::JOB_STATE_FAILED;
   }
   return v1::JOB_STATE_UNSPECIFIED;
-}
-
-// The activation policy, the quality gate: only a passing solve becomes active on its own;
-// the others are candidates, for a person to promote.
-storage::VersionState ActivationOf(core::Verdict verdict) {
-  return verdict == core::Verdict::kPass ? storage::VersionState::kActive
-                                         : storage::VersionState::kCandidate;
 }
 
 }  // namespace

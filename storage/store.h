@@ -270,8 +270,10 @@ class Store {
   // verdict, accel_rms, provenance and state: kCandidate, or kActive when it passed the quality
   // gates (it becomes active at once and the previous active version is superseded).
   // `render`, when given, writes the documents once the number is known (RenderVersion).
+  // Audited as version.add, with `reason` (free text, as Promote's) when given.
   absl::StatusOr<ParamVersion> AddVersion(const ParamVersion& version, std::string_view actor,
-                                          const RenderVersion& render = nullptr);
+                                          const RenderVersion& render = nullptr,
+                                          std::string_view reason = "");
   // Candidate -> active; the previous active version becomes superseded. Promoting the active
   // version is a no-op; any other state is FailedPrecondition (use Rollback for older ones).
   absl::StatusOr<ParamVersion> Promote(std::string_view device_id, int version,

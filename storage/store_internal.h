@@ -138,10 +138,12 @@ absl::Status AbandonRunningSolve(sql::Connection& conn, std::string_view session
                                  std::string_view error);
 
 // store_versions.cc. AddVersion's checks and insert (activating it if v.state is kActive),
-// the documents written by `render` (if given) once the number is assigned.
+// the documents written by `render` (if given) once the number is assigned; `reason` (may be
+// empty) ends the audit row's detail.
 absl::StatusOr<ParamVersion> InsertVersion(sql::Connection& conn, const ParamVersion& v,
                                            std::string_view actor, absl::Time now,
-                                           const RenderVersion& render);
+                                           const RenderVersion& render,
+                                           std::string_view reason = "");
 
 // store_audit.cc. One audit_log row.
 absl::Status InsertAudit(sql::Connection& conn, absl::Time time, std::string_view actor,

@@ -142,7 +142,7 @@ absl::StatusOr<ParamVersion> ActivateAudited(sql::Connection& conn, std::string_
 
 absl::StatusOr<ParamVersion> InsertVersion(sql::Connection& conn, const ParamVersion& given,
                                            std::string_view actor, absl::Time now,
-                                           const RenderVersion& render) {
+                                           const RenderVersion& render, std::string_view reason) {
   ParamVersion v = given;
   IMUCAL_RETURN_IF_ERROR(ValidateNewVersion(v, /*documents=*/!render));
   IMUCAL_RETURN_IF_ERROR(LoadDevice(conn, v.device_id).status());
@@ -179,18 +179,18 @@ absl::StatusOr<ParamVersion> InsertVersion(sql::Connection& conn, const ParamVer
       conn, now, actor, "version.add", DeviceTarget(v.device_id),
       Cat("version ", number, " ", VersionStateName(v.state), ", verdict ", VerdictName(v.verdict),
           ", accel_rms ", v.accel_rms, v.session_id.empty() ? "" : Cat(", session ", v.session_id),
-          Displaced(displaced))));
+          Displaced(displaced), Reason(reason))));
   return LoadVersion(conn, v.device_id, number);
 }
 
-absl::StatusOr<ParamVersion> Store::AddVersion(const ParamVersion& version,
-                                               std::string_view actor,
-                                               const RenderVersion& render) {
+absl::StatusOr<ParamVersion> Store::AddVersion(const ParamVersion& version, std::string_view actor,
+                                               const RenderVersion& render,
+                                               std::string_view reason) {
   constexpr std::string_view kOp = "AddVersion";
   IMUCAL_RETURN_IF_ERROR(Annotate(kOp, NonEmpty(actor, "actor")));
   std::lock_guard lock(write_mu_);
   return NotifyIfActive(InTransaction(kOp, *writer_, [&](sql::Connection& conn) {
-    return InsertVersion(conn, version, actor, Now(), render);
+    return InsertVersion(conn, version, actor, Now(), render, reason);
   }));
 }
 

@@ -1,7 +1,9 @@
 // `imucal params`: a device's parameter versions (ParameterService): show, list, promote,
-// roll back.
+// roll back, and upload a parameter set made offline (e.g. by `imucal learn`) as a new version.
 #include <cstdio>
+#include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -10,7 +12,10 @@
 #include "client/cli/commands.h"
 #include "client/cli/json_text.h"
 #include "client/cli/server_common.h"
+#include "core/calibrate/verdict.h"
+#include "formats/params_json.h"
 #include "nlohmann/json.hpp"
+#include "util/file.h"
 
 namespace imucal::cli {
 
@@ -24,9 +29,12 @@ constexpr char kParamsHelp[] =
     "       imucal params list --device D [--json]\n"
     "       imucal params promote --device D --version N [--reason TEXT]\n"
     "       imucal params rollback --device D --to N [--reason TEXT]\n"
+    "       imucal params upload --device D --file P.json [--reason TEXT]\n"
     "  Shows a parameter version (default the active one; --json prints the \"imucal-params v1\"\n"
     "  document exactly as stored), lists the versions, makes a version active, or makes an\n"
-    "  earlier version active again.\n"
+    "  earlier version active again. upload stores an \"imucal-params v1\" file made offline\n"
+    "  (imucal learn's, with its dynamic_gyro block) as the device's next version, judged as a\n"
+    "  solve is: active at once on verdict pass, else a candidate to promote (exit 4 on fail).\n"
     "options:\n";
 
 void PrintParamHeader(const pb::ParameterSet& p) {
@@ -126,6 +134,41 @@ int ActivateParams(const Args& a, const Server& server, const std::string& verb,
   return kExitOk;
 }
 
+// `params upload`: the file checked here first (a malformed one is bad input, named by its
+// JSON path), then stored by the server, which judges it and says why it is not active.
+int UploadParams(const Args& a, const Server& server, const std::string& device) {
+  const std::optional<std::string> file = a.Get("file");
+  if (!file) return UsageError("params upload needs --file P.json", kParamsHelp);
+  absl::StatusOr<std::string> text = ReadFileBytes(*file);
+  absl::Status valid = text.status();
+  if (valid.ok()) valid = formats::ParamSetFromJson(*text).status();
+  if (!valid.ok()) {
+    std::fprintf(stderr, "imucal: %s: %s\n", file->c_str(), std::string(valid.message()).c_str());
+    return kExitBadInput;
+  }
+  pb::UploadParametersRequest req;
+  req.set_device_id(device);
+  req.set_json(*std::move(text));
+  req.set_reason(a.Get("reason").value_or(""));
+  pb::UploadParametersResponse out;
+  auto ctx = CallContext();
+  if (grpc::Status s = server.params->UploadParameters(ctx.get(), req, &out); !s.ok())
+    return RpcError(server, s);
+  const pb::ParameterSet& v = out.version();
+  if (a.Has("json")) {
+    pb::UploadParametersResponse header = out;
+    header.mutable_version()->clear_json();
+    std::printf("%s\n", ProtoJson(header).c_str());
+  } else {
+    std::printf("%s v%d stored: verdict %s, %s\n", v.device_id().c_str(), v.version(),
+                v.verdict().c_str(),
+                v.state() == pb::VERSION_STATE_ACTIVE ? "now active"
+                                                      : "a candidate (params promote to use it)");
+    for (const std::string& r : out.reasons()) std::printf("  - %s\n", r.c_str());
+  }
+  return ExitForVerdict(core::ParseVerdict(v.verdict()));
+}
+
 }  // namespace
 
 int RunParams(const std::vector<std::string>& argv) {
@@ -135,7 +178,7 @@ int RunParams(const std::vector<std::string>& argv) {
   const auto& pos = a->positional();
   auto device = a->Get("device");
   if (pos.size() != 1)
-    return UsageError("params needs get, list, promote or rollback", kParamsHelp);
+    return UsageError("params needs get, list, promote, rollback or upload", kParamsHelp);
   if (!device) return UsageError("params needs --device D", kParamsHelp);
   auto version = a->GetInt("version", 0);
   auto to = a->GetInt("to", 0);
@@ -147,6 +190,7 @@ int RunParams(const std::vector<std::string>& argv) {
   if (verb == "list") return ListParams(server, *device, as_json);
   if (verb == "promote" || verb == "rollback")
     return ActivateParams(*a, server, verb, *device, *version, *to);
+  if (verb == "upload") return UploadParams(*a, server, *device);
   return UsageError(absl::StrCat("params: unknown action '", verb, "'"), kParamsHelp);
 }
 

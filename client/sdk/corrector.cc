@@ -1,6 +1,8 @@
 #include "client/sdk/corrector.h"
 
+#include <algorithm>
 #include <cmath>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
@@ -11,6 +13,7 @@
 #include "core/correction.h"
 #include "core/model.h"
 #include "core/regressor.h"
+#include "formats/dynamic_gyro_json.h"
 #include "formats/params_json.h"
 
 namespace imucal::sdk {
@@ -73,6 +76,15 @@ absl::Status GyroParamsAreValid(const core::GyroParams& g) {
   return absl::OkStatus();
 }
 
+// The block's own checks are formats' (the reader's, shared), under the JSON path it has.
+absl::Status DynamicGyroIsValid(const core::ParamSet& params) {
+  if (!params.dynamic_gyro) return absl::OkStatus();
+  if (!params.has_gyro) {
+    return PathError("dynamic_gyro", "a dynamic gyro block in a parameter set without a gyroscope");
+  }
+  return formats::DynamicGyroIsValid(*params.dynamic_gyro, "dynamic_gyro");
+}
+
 }  // namespace
 
 absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
@@ -81,6 +93,7 @@ absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
   if (params.has_gyro) {
     if (absl::Status s = GyroParamsAreValid(params.gyro); !s.ok()) return s;
   }
+  if (absl::Status s = DynamicGyroIsValid(params); !s.ok()) return s;
   if (time_origin_s.has_value() && !std::isfinite(*time_origin_s)) {
     return absl::InvalidArgumentError("time origin: not finite");
   }
@@ -116,6 +129,9 @@ absl::StatusOr<Corrector> Corrector::Create(const core::ParamSet& params,
   }
   Corrector c(core::SampleCorrection(params, time_origin_s.value_or(0.0)));
   c.has_gyro_ = params.has_gyro;
+  if (params.dynamic_gyro) {
+    c.dynamic_gyro_ = std::make_shared<const core::DynamicGyro>(*params.dynamic_gyro);
+  }
   c.num_applied_effects_ = applied;
   c.needs_temperature_ = needs_temperature;
   c.needs_time_ = needs_time;
@@ -142,6 +158,61 @@ void Corrector::Apply(const RawSample& in, CalibratedSample* out) const noexcept
     out->gyro_rad_s[i] = c.gyro_rad_s(i);
   }
   out->effects_skipped = c.effects_skipped;
+}
+
+absl::StatusOr<Stream> Corrector::NewStream(double stream_rate_hz) const {
+  if (!(std::isfinite(stream_rate_hz) && stream_rate_hz > 0)) {
+    return absl::InvalidArgumentError("stream rate: must be a finite number > 0 (Hz)");
+  }
+  if (dynamic_gyro_ != nullptr &&
+      std::abs(stream_rate_hz / dynamic_gyro_->rate_hz - 1.0) > kStreamRateTolerance) {
+    return absl::InvalidArgumentError(
+        "stream rate " + std::to_string(stream_rate_hz) + " Hz but dynamic_gyro.rate_hz is " +
+        std::to_string(dynamic_gyro_->rate_hz) +
+        " Hz (within 2 %): the block's lags and delay are in samples of its rate");
+  }
+  return Stream(*this);
+}
+
+Stream::Stream(Corrector corrector) : corrector_(std::move(corrector)) {
+  const core::DynamicGyro* block = corrector_.dynamic_gyro();
+  if (block == nullptr) return;
+  state_.emplace(*block);  // the ring buffer, allocated once
+  period_s_ = 1.0 / block->rate_hz;
+  // The window's span, and never less than the two samples the delay term reads.
+  max_gap_s_ = std::max(block->WindowSamples(), 2) * period_s_;
+}
+
+void Stream::Reset() noexcept {
+  if (state_) state_->Reset();
+  prev_t_s_ = std::numeric_limits<double>::quiet_NaN();
+}
+
+void Stream::Apply(const RawSample& in, CalibratedSample* out) noexcept {
+  corrector_.Apply(in, out);
+  out->outside_envelope = false;
+  out->interval_off_rate = false;
+  if (!state_) return;
+  ++counts_.samples;
+  if (!std::isnan(prev_t_s_)) {
+    const double dt_s = in.t_s - prev_t_s_;
+    if (!(dt_s > 0) || dt_s > max_gap_s_) {  // time went back, or the window's past is gone
+      state_->Reset();
+      ++counts_.restarts;
+    } else if (std::abs(dt_s / period_s_ - 1.0) > Corrector::kStreamRateTolerance) {
+      out->interval_off_rate = true;
+      ++counts_.interval_off_rate;
+    }
+  }
+  prev_t_s_ = in.t_s;
+  const Eigen::Vector3d w_s(out->gyro_rad_s[0], out->gyro_rad_s[1], out->gyro_rad_s[2]);
+  const Eigen::Vector3d a(out->accel_m_s2[0], out->accel_m_s2[1], out->accel_m_s2[2]);
+  Eigen::Vector3d w;
+  if (!state_->Step(w_s, a, &w)) {
+    out->outside_envelope = true;
+    ++counts_.outside_envelope;
+  }
+  for (int i = 0; i < 3; ++i) out->gyro_rad_s[i] = w(i);
 }
 
 absl::Status Corrector::ApplyBatch(std::span<const RawSample> in,

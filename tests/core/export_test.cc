@@ -521,6 +521,33 @@ TEST(ExportTest, SaysWhatIsLeftOut) {
   EXPECT_NE(all.find("effect"), std::string::npos);
 }
 
+std::string WithoutComments(const std::string& text) {
+  std::string out, line;
+  for (std::istringstream in(text); std::getline(in, line);) {
+    if (line.rfind("#", 0) != 0) out += line + "\n";
+  }
+  return out;
+}
+
+// A learnt dynamic gyro block cannot be carried: every format says so and writes the static
+// model, the same numbers as without the block.
+TEST(ExportTest, SaysTheDynamicGyroBlockIsLeftOut) {
+  const ParamSet without = TestParams(AccelUnit::kMetersPerSecond2, GyroUnit::kRadPerSecond);
+  ParamSet with = without;
+  with.dynamic_gyro = DynamicGyro{.rate_hz = 200, .delay_s = 0.0026, .taps = 1, .dilation = 1};
+  with.dynamic_gyro->weights.assign(18, 1e-3);
+  for (ExportFormat f :
+       {ExportFormat::kKalibrImu, ExportFormat::kKalibrIntrinsics, ExportFormat::kOpenVins}) {
+    absl::StatusOr<std::string> a = ExportParams(with, f, ExportOptions());
+    absl::StatusOr<std::string> b = ExportParams(without, f, ExportOptions());
+    ASSERT_TRUE(a.ok() && b.ok()) << a.status() << b.status();
+    EXPECT_NE(a->find("NOT IN THIS FILE: the learnt dynamic gyro block (1 taps"), std::string::npos)
+        << *a;
+    EXPECT_EQ(WithoutComments(*a), WithoutComments(*b));
+    EXPECT_EQ(b->find("dynamic gyro"), std::string::npos);
+  }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Every exported file read back with yaml-cpp (a full YAML parser, not the subset reader above):
 // each number is the double the parameter set gives, to 1e-15 relative (the text is the shortest
