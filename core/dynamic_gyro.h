@@ -10,7 +10,8 @@
 // with x(k) = [w_s(k); a(k)] (6 channels) and W_l the 3x6 block of `weights` at lag l*dilation
 // samples. Before the window is full (the first (taps-1)*dilation samples of a stream) missing
 // lags read the oldest sample held. Header-only (Eigen and the standard library) so the SDK
-// needs no solver; DynamicGyroState is the one applier, used offline and by the SDK alike.
+// needs no solver; DynamicGyroState (core/dynamic_gyro_state.h) is the one applier, used
+// offline and by the SDK alike.
 #ifndef IMUCAL_CORE_DYNAMIC_GYRO_H_
 #define IMUCAL_CORE_DYNAMIC_GYRO_H_
 
@@ -59,66 +60,6 @@ struct DynamicGyro {
   std::string gate_reason;  // why it passed (the figures) -- a refused block is never shipped
 
   int WindowSamples() const { return taps > 0 ? (taps - 1) * dilation + 1 : 2; }
-};
-
-// The per-stream state of a DynamicGyro: a fixed ring buffer sized once at construction, so
-// Step allocates nothing. One per sample stream (not thread-safe; the block itself is shared).
-class DynamicGyroState {
- public:
-  explicit DynamicGyroState(const DynamicGyro& block)
-      : block_(&block), capacity_(block.WindowSamples()), ring_(6 * capacity_, 0.0) {}
-
-  // Restarts the stream (a gap in time, a new power-up): the window is empty again.
-  void Reset() { count_ = 0; }
-
-  // One sample in (static output w_s [rad/s], calibrated accel a [m/s^2]), the dynamic output
-  // out. Returns false when the sample lies outside the training envelope (the output is still
-  // computed). Allocation-free.
-  bool Step(const Eigen::Vector3d& w_s, const Eigen::Vector3d& a, Eigen::Vector3d* out) noexcept {
-    head_ = (count_ == 0) ? 0 : (head_ + 1) % capacity_;
-    double* slot = &ring_[6 * head_];
-    for (int c = 0; c < 3; ++c) {
-      slot[c] = w_s(c);
-      slot[3 + c] = a(c);
-    }
-    if (count_ < capacity_) ++count_;
-    const DynamicGyro& b = *block_;
-    const double* prev = Lag(1);
-    Eigen::Vector3d v;
-    for (int i = 0; i < 3; ++i) {
-      v(i) = w_s(i) + b.delay_s * b.rate_hz * (w_s(i) - prev[i]);
-      v(i) += b.odd_rate(i) * v(i) * std::abs(v(i));
-    }
-    for (int l = 0; l < b.taps; ++l) {
-      const double* x = Lag(l * b.dilation);
-      for (int i = 0; i < 3; ++i) {
-        const double* row = &b.weights[static_cast<size_t>(i) * 6 * b.taps + 6 * l];
-        double sum = 0.0;
-        for (int c = 0; c < 6; ++c) sum += row[c] * x[c];
-        v(i) += sum;
-      }
-    }
-    *out = v;
-    bool inside = true;
-    for (int i = 0; i < 3; ++i) {
-      inside &= std::abs(w_s(i)) <= b.envelope.max_abs_rate_rad_s(i);
-      inside &= std::abs(a(i)) <= b.envelope.max_abs_accel_m_s2(i);
-    }
-    return inside;
-  }
-
- private:
-  // The sample `lag` steps back, or the oldest held when the window is not yet full.
-  const double* Lag(int lag) const {
-    const int back = lag < count_ ? lag : count_ - 1;
-    return &ring_[6 * ((head_ - back + capacity_) % capacity_)];
-  }
-
-  const DynamicGyro* block_;
-  int capacity_;
-  std::vector<double> ring_;
-  int head_ = 0;
-  int count_ = 0;
 };
 
 }  // namespace imucal::core

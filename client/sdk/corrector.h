@@ -49,6 +49,7 @@
 #include "core/capture.h"
 #include "core/correction.h"
 #include "core/dynamic_gyro.h"
+#include "core/dynamic_gyro_state.h"
 #include "core/params.h"
 #include "core/regressor.h"
 

@@ -10,6 +10,7 @@
 #include "absl/strings/str_format.h"
 #include "core/correction.h"
 #include "core/dynamic_gyro.h"
+#include "core/dynamic_gyro_state.h"
 #include "core/so3.h"
 
 namespace imucal::core::motion {

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "Eigen/Core"
+#include "core/dynamic_gyro_state.h"
 #include "core/motion/align.h"
 #include "core/motion/recording.h"
 #include "core/params.h"

@@ -15,6 +15,7 @@
 #include "client/sdk/corrector.h"
 #include "core/correction.h"
 #include "core/dynamic_gyro.h"
+#include "core/dynamic_gyro_state.h"
 #include "core/params.h"
 #include "gtest/gtest.h"
 

@@ -13,6 +13,7 @@
 #include "client/sdk/corrector.h"
 #include "core/correction.h"
 #include "core/dynamic_gyro.h"
+#include "core/dynamic_gyro_state.h"
 #include "core/params.h"
 #include "formats/params_json.h"
 #include "grpcpp/grpcpp.h"
