@@ -10,27 +10,31 @@
 
 #include "Eigen/Core"
 #include "absl/status/status.h"
+#include "formats/json_fields.h"
 #include "util/status.h"
 
 namespace imucal::formats {
 namespace {
 
-using Json = nlohmann::ordered_json;
-
-constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
+using json_fields::Child;
+using json_fields::Element;
+using json_fields::kOptional;
+using json_fields::kRequired;
+using json_fields::Member;
+using json_fields::Null;
+using json_fields::Number;
+using json_fields::Numbers;
+using json_fields::PathError;
+using json_fields::ReadDouble;
+using json_fields::ReadInt;
+using json_fields::ReadString;
+using json_fields::Vec;
+using Json = json_fields::Json;
 // 3 output axes x 6 input channels per tap.
 constexpr int kWeightsPerTap = 18;
 
 // ---------------------------------------------------------------------------------------------
 // Writing
-
-Json Number(double v) { return std::isnan(v) ? Json(nullptr) : Json(v); }
-
-Json Vec(const Eigen::Vector3d& v) {
-  Json out = Json::array();
-  for (int i = 0; i < 3; ++i) out.push_back(Number(v(i)));
-  return out;
-}
 
 Json RecordingToJson(const core::DynamicGyroRecording& r) {
   Json out = Json::object();
@@ -45,55 +49,6 @@ Json RecordingToJson(const core::DynamicGyroRecording& r) {
 // ---------------------------------------------------------------------------------------------
 // Reading: every reader names the JSON path it reads in its error.
 
-absl::Status PathError(const std::string& path, const std::string& what) {
-  return absl::InvalidArgumentError(path + ": " + what);
-}
-
-std::string Child(const std::string& path, const char* key) { return path + "." + key; }
-
-std::string Element(const std::string& path, size_t index) {
-  return path + "[" + std::to_string(index) + "]";
-}
-
-enum class Null { kReject, kAsNan };
-
-absl::Status ReadDouble(const Json& j, const std::string& path, Null null, double* out) {
-  if (j.is_null() && null == Null::kAsNan) {
-    *out = kNan;
-    return absl::OkStatus();
-  }
-  if (!j.is_number()) {
-    return PathError(path,
-                     null == Null::kAsNan ? "expected a number or null" : "expected a number");
-  }
-  *out = j.get<double>();
-  return absl::OkStatus();
-}
-
-absl::Status ReadVec3(const Json& j, const std::string& path, Null null, Eigen::Vector3d* out) {
-  if (!j.is_array() || j.size() != 3) return PathError(path, "expected an array of 3 numbers");
-  for (size_t i = 0; i < 3; ++i) {
-    IMUCAL_RETURN_IF_ERROR(ReadDouble(j[i], Element(path, i), null, &(*out)(i)));
-  }
-  return absl::OkStatus();
-}
-
-absl::Status ReadInt(const Json& j, const std::string& path, int* out) {
-  if (!j.is_number_integer()) return PathError(path, "expected an integer");
-  const auto v = j.get<int64_t>();
-  if (v < std::numeric_limits<int>::min() || v > std::numeric_limits<int>::max()) {
-    return PathError(path, "integer out of range");
-  }
-  *out = static_cast<int>(v);
-  return absl::OkStatus();
-}
-
-absl::Status ReadString(const Json& j, const std::string& path, std::string* out) {
-  if (!j.is_string()) return PathError(path, "expected a string");
-  *out = j.get<std::string>();
-  return absl::OkStatus();
-}
-
 absl::Status ReadWeights(const Json& j, const std::string& path, std::vector<double>* out) {
   if (!j.is_array()) return PathError(path, "expected an array of numbers");
   out->assign(j.size(), 0.0);
@@ -101,30 +56,6 @@ absl::Status ReadWeights(const Json& j, const std::string& path, std::vector<dou
     IMUCAL_RETURN_IF_ERROR(ReadDouble(j[i], Element(path, i), Null::kReject, &(*out)[i]));
   }
   return absl::OkStatus();
-}
-
-// Reads obj[key] with `read` when present; a missing required member is an error, a missing
-// optional one leaves *out as it is.
-template <typename T, typename ReadFn>
-absl::Status Member(const Json& obj, const std::string& obj_path, const char* key, bool required,
-                    ReadFn read, T* out) {
-  const std::string path = Child(obj_path, key);
-  const auto it = obj.find(key);
-  if (it == obj.end()) return required ? PathError(path, "missing") : absl::OkStatus();
-  return read(*it, path, out);
-}
-
-constexpr bool kRequired = true;
-constexpr bool kOptional = false;
-
-auto Numbers(Null null) {
-  return [null](const Json& j, const std::string& path, auto* out) -> absl::Status {
-    if constexpr (std::is_same_v<std::remove_pointer_t<decltype(out)>, double>) {
-      return ReadDouble(j, path, null, out);
-    } else {
-      return ReadVec3(j, path, null, out);
-    }
-  };
 }
 
 absl::Status ReadEnvelope(const Json& j, const std::string& path, core::DynamicGyroEnvelope* out) {

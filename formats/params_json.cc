@@ -15,37 +15,37 @@
 #include "absl/status/statusor.h"
 #include "core/regressor.h"
 #include "formats/dynamic_gyro_json.h"
+#include "formats/json_fields.h"
 #include "nlohmann/json.hpp"
 #include "util/status.h"
+#include "util/units.h"
 
 namespace imucal::formats {
 namespace {
 
-// Ordered both ways: the output keeps the spec's key order, and an evidence object read back is
-// kept with its keys in the order written.
-using OrderedJson = nlohmann::ordered_json;
-using Json = OrderedJson;
-
-constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
+using json_fields::Child;
+using json_fields::Element;
+using json_fields::ExpectObject;
+using json_fields::kOptional;
+using json_fields::kRequired;
+using json_fields::Mat;
+using json_fields::Member;
+using json_fields::Null;
+using json_fields::Number;
+using json_fields::Numbers;
+using json_fields::PathError;
+using json_fields::ReadBool;
+using json_fields::ReadDouble;
+using json_fields::ReadInt;
+using json_fields::ReadString;
+using json_fields::ReadVec3;
+using json_fields::Vec;
+using Json = json_fields::Json;
+using OrderedJson = json_fields::Json;
 constexpr const char* kAxisNames[3] = {"x", "y", "z"};
 
 // ---------------------------------------------------------------------------------------------
 // Writing
-
-OrderedJson Number(double v) { return std::isnan(v) ? OrderedJson(nullptr) : OrderedJson(v); }
-
-OrderedJson Vec(const Eigen::Vector3d& v) {
-  OrderedJson out = OrderedJson::array();
-  for (int i = 0; i < 3; ++i) out.push_back(Number(v(i)));
-  return out;
-}
-
-// Row-major nested arrays: m[row][column].
-OrderedJson Mat(const Eigen::Matrix3d& m) {
-  OrderedJson out = OrderedJson::array();
-  for (int r = 0; r < 3; ++r) out.push_back(Vec(m.row(r).transpose()));
-  return out;
-}
 
 OrderedJson AccelModelFields(const core::AccelParams& a) {
   OrderedJson out = OrderedJson::object();
@@ -127,109 +127,6 @@ OrderedJson NoiseToJson(const core::NoiseFigures& n, bool has_gyro) {
 // ---------------------------------------------------------------------------------------------
 // Reading. Every reader takes the JSON path of the value it reads and names it in its error.
 
-absl::Status PathError(const std::string& path, const std::string& what) {
-  return absl::InvalidArgumentError(path + ": " + what);
-}
-
-std::string Child(const std::string& path, const char* key) {
-  return path.empty() ? std::string(key) : path + "." + key;
-}
-
-std::string Element(const std::string& path, size_t index) {
-  return path + "[" + std::to_string(index) + "]";
-}
-
-// Whether null is read as NaN (standard errors) or rejected (everything else).
-enum class Null { kReject, kAsNan };
-
-absl::Status ReadDouble(const Json& j, const std::string& path, Null null, double* out) {
-  if (j.is_null() && null == Null::kAsNan) {
-    *out = kNan;
-    return absl::OkStatus();
-  }
-  if (!j.is_number()) {
-    return PathError(path,
-                     null == Null::kAsNan ? "expected a number or null" : "expected a number");
-  }
-  *out = j.get<double>();
-  return absl::OkStatus();
-}
-
-absl::Status ReadVec3(const Json& j, const std::string& path, Null null, Eigen::Vector3d* out) {
-  if (!j.is_array() || j.size() != 3) return PathError(path, "expected an array of 3 numbers");
-  for (size_t i = 0; i < 3; ++i) {
-    IMUCAL_RETURN_IF_ERROR(ReadDouble(j[i], Element(path, i), null, &(*out)(i)));
-  }
-  return absl::OkStatus();
-}
-
-absl::Status ReadMat3(const Json& j, const std::string& path, Null null, Eigen::Matrix3d* out) {
-  if (!j.is_array() || j.size() != 3) {
-    return PathError(path, "expected 3 rows of 3 numbers (row-major)");
-  }
-  for (size_t r = 0; r < 3; ++r) {
-    Eigen::Vector3d row;
-    IMUCAL_RETURN_IF_ERROR(ReadVec3(j[r], Element(path, r), null, &row));
-    out->row(static_cast<Eigen::Index>(r)) = row.transpose();
-  }
-  return absl::OkStatus();
-}
-
-absl::Status ReadString(const Json& j, const std::string& path, std::string* out) {
-  if (!j.is_string()) return PathError(path, "expected a string");
-  *out = j.get<std::string>();
-  return absl::OkStatus();
-}
-
-absl::Status ReadBool(const Json& j, const std::string& path, bool* out) {
-  if (!j.is_boolean()) return PathError(path, "expected true or false");
-  *out = j.get<bool>();
-  return absl::OkStatus();
-}
-
-absl::Status ReadInt(const Json& j, const std::string& path, int* out) {
-  if (!j.is_number_integer()) return PathError(path, "expected an integer");
-  const auto v = j.get<int64_t>();
-  if (v < std::numeric_limits<int>::min() || v > std::numeric_limits<int>::max()) {
-    return PathError(path, "integer out of range");
-  }
-  *out = static_cast<int>(v);
-  return absl::OkStatus();
-}
-
-absl::Status ExpectObject(const Json& j, const std::string& path) {
-  return j.is_object() ? absl::OkStatus() : PathError(path, "expected an object");
-}
-
-// Reads obj[key] with `read` if present. A missing required member is an error; a missing
-// optional one leaves *out as it is.
-template <typename T, typename ReadFn>
-absl::Status Member(const Json& obj, const std::string& obj_path, const char* key, bool required,
-                    ReadFn read, T* out) {
-  const std::string path = Child(obj_path, key);
-  const auto it = obj.find(key);
-  if (it == obj.end()) return required ? PathError(path, "missing") : absl::OkStatus();
-  return read(*it, path, out);
-}
-
-constexpr bool kRequired = true;
-constexpr bool kOptional = false;
-
-// Binds the null policy so that the numeric readers fit Member().
-auto Numbers(Null null) {
-  return [null](const Json& j, const std::string& path, auto* out) -> absl::Status {
-    using T = std::remove_pointer_t<decltype(out)>;
-    if constexpr (std::is_same_v<T, double>) {
-      return ReadDouble(j, path, null, out);
-    } else if constexpr (std::is_same_v<T, Eigen::Vector3d>) {
-      return ReadVec3(j, path, null, out);
-    } else {
-      static_assert(std::is_same_v<T, Eigen::Matrix3d>);
-      return ReadMat3(j, path, null, out);
-    }
-  };
-}
-
 std::optional<core::AccelUnit> AccelUnitFromName(std::string_view name) {
   for (core::AccelUnit u :
        {core::AccelUnit::kMetersPerSecond2, core::AccelUnit::kG, core::AccelUnit::kCounts}) {
@@ -283,7 +180,7 @@ absl::Status ReadAccel(const Json& j, const std::string& path, core::ParamSet* o
   // Standard errors: unknown (NaN) unless stated.
   core::AccelParams& se = out->stderrs.accel;
   se.bias = se.scale = se.tri_angles = se.frame_angles = se.quadratic =
-      Eigen::Vector3d::Constant(kNan);
+      Eigen::Vector3d::Constant(kNaN);
   const std::string se_path = Child(path, "stderr");
   const auto it = j.find("stderr");
   if (it == j.end()) return absl::OkStatus();
@@ -301,8 +198,8 @@ absl::Status ReadGyro(const Json& j, const std::string& path, core::ParamSet* ou
                                 &out->gyro.accel_coupling));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "input_unit", kRequired, ReadGyroUnit, &out->gyro_unit));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "calibrated", kOptional, ReadBool, &out->gyro_calibrated));
-  out->stderrs.gyro_bias = Eigen::Vector3d::Constant(kNan);
-  out->stderrs.gyro_matrix = Eigen::Matrix3d::Constant(kNan);
+  out->stderrs.gyro_bias = Eigen::Vector3d::Constant(kNaN);
+  out->stderrs.gyro_matrix = Eigen::Matrix3d::Constant(kNaN);
   const std::string se_path = Child(path, "stderr");
   const auto it = j.find("stderr");
   if (it == j.end()) return absl::OkStatus();
@@ -371,7 +268,7 @@ absl::Status ReadEffect(const Json& j, const std::string& path, core::Effect* ou
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "regressor", kRequired, ReadRegressor, &out->regressor));
   IMUCAL_RETURN_IF_ERROR(
       Member(j, path, "coefficient", kRequired, Numbers(Null::kReject), &out->coefficient));
-  out->std_error = kNan;
+  out->std_error = kNaN;
   IMUCAL_RETURN_IF_ERROR(
       Member(j, path, "stderr", kOptional, Numbers(Null::kAsNan), &out->std_error));
   IMUCAL_RETURN_IF_ERROR(

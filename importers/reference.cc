@@ -115,7 +115,7 @@ std::optional<size_t> FindColumn(const std::vector<std::string_view>& header,
 
 // The columns of a delimited file with a header: time first (seconds or nanoseconds), then the
 // value columns in the order asked.
-struct Layout {
+struct ReferenceLayout {
   bool time_in_ns = false;
   size_t time = 0;
   std::vector<size_t> values;
@@ -123,11 +123,11 @@ struct Layout {
   size_t field_count = 0;
 };
 
-absl::StatusOr<Layout> FindLayout(const std::vector<std::string_view>& header,
-                                  std::string_view source,
-                                  const std::vector<std::vector<std::string_view>>& wanted,
-                                  bool suffix) {
-  Layout layout;
+absl::StatusOr<ReferenceLayout> FindLayout(const std::vector<std::string_view>& header,
+                                           std::string_view source,
+                                           const std::vector<std::vector<std::string_view>>& wanted,
+                                           bool suffix) {
+  ReferenceLayout layout;
   layout.field_count = header.size();
   if (auto t = FindColumn(header, {"Time", "time"}, false)) {
     layout.time = *t;
@@ -151,7 +151,7 @@ absl::StatusOr<Layout> FindLayout(const std::vector<std::string_view>& header,
 
 // Reads every data row of a delimited file: its time (ns) and the layout's values.
 template <typename Row>
-absl::Status ReadRows(LineCursor* lines, std::string_view source, const Layout& layout,
+absl::Status ReadRows(LineCursor* lines, std::string_view source, const ReferenceLayout& layout,
                       char separator, const Row& row) {
   std::string_view line;
   std::vector<double> values(layout.values.size());
@@ -226,14 +226,14 @@ absl::StatusOr<ImuStream> ParseImuStream(std::string_view text, std::string_view
     return out;
   }
   const std::vector<std::string_view> header = Split(first, ',');
-  absl::StatusOr<Layout> layout = FindLayout(header, source,
-                                             {{"angular_velocity.x"},
-                                              {"angular_velocity.y"},
-                                              {"angular_velocity.z"},
-                                              {"linear_acceleration.x"},
-                                              {"linear_acceleration.y"},
-                                              {"linear_acceleration.z"}},
-                                             true);
+  absl::StatusOr<ReferenceLayout> layout = FindLayout(header, source,
+                                                      {{"angular_velocity.x"},
+                                                       {"angular_velocity.y"},
+                                                       {"angular_velocity.z"},
+                                                       {"linear_acceleration.x"},
+                                                       {"linear_acceleration.y"},
+                                                       {"linear_acceleration.z"}},
+                                                      true);
   if (!layout.ok()) {
     return LineError(source, 1,
                      Cat("not an IMU file: ", layout.status().message(),
@@ -260,14 +260,14 @@ absl::StatusOr<ReferenceStream> ParseReferenceStream(std::string_view text,
   LineCursor lines(text);
   std::string_view first;
   if (!lines.Next(&first)) return LineError(source, 1, "empty file (no reference)");
-  Layout layout;
+  ReferenceLayout layout;
   char separator = ',';
   const bool euroc = first.find("q_RS_w") != std::string_view::npos;
   const bool ros = first.find("rotation.x") != std::string_view::npos ||
                    first.find("orientation.x") != std::string_view::npos;
   if (euroc || ros) {
     const std::vector<std::string_view> header = Split(first, ',');
-    absl::StatusOr<Layout> found =
+    absl::StatusOr<ReferenceLayout> found =
         euroc ? FindLayout(header, source, {{"q_RS_x"}, {"q_RS_y"}, {"q_RS_z"}, {"q_RS_w"}}, false)
               : FindLayout(header, source,
                            {{"rotation.x", "orientation.x"},

@@ -46,7 +46,7 @@ constexpr char kLearnHelp[] =
     "  --json           print one JSON object instead of the table\n"
     "  --plots DIR      orientation error over time per test recording (SVG)\n";
 
-int Usage(const std::string& message) {
+int LearnUsage(const std::string& message) {
   std::fprintf(stderr, "imucal learn: %s\n\n%s", message.c_str(), kLearnHelp);
   return kExitUsage;
 }
@@ -226,13 +226,13 @@ int RunLearnOn(const std::vector<core::motion::MotionRecording>& recordings, siz
 
 int RunLearn(const std::vector<std::string>& argv) {
   auto a = ParseCommandFlags("learn", SpreadLists(argv));
-  if (!a.ok()) return Usage(std::string(a.status().message()));
+  if (!a.ok()) return LearnUsage(std::string(a.status().message()));
   if (a->Has("help")) return std::printf("%s", kLearnHelp), kExitOk;
   const std::vector<std::string> train_specs = a->GetAll("train");
   const std::vector<std::string> test_specs = a->GetAll("test");
-  if (train_specs.empty()) return Usage("learn needs --train REC...");
-  if (!a->Get("out")) return Usage("learn needs --out P.json");
-  if (!a->positional().empty()) return Usage("unexpected '" + a->positional()[0] + "'");
+  if (train_specs.empty()) return LearnUsage("learn needs --train REC...");
+  if (!a->Get("out")) return LearnUsage("learn needs --out P.json");
+  if (!a->positional().empty()) return LearnUsage("unexpected '" + a->positional()[0] + "'");
   std::optional<core::ParamSet> start;
   if (auto path = a->Get("params")) {
     absl::StatusOr<std::string> text = ReadFileBytes(*path);
