@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "Eigen/LU"
 #include "absl/strings/str_format.h"
 #include "boost/math/distributions/normal.hpp"
 #include "boost/math/distributions/students_t.hpp"
@@ -17,6 +18,8 @@ namespace {
 constexpr double kRadToDeg = 180.0 / M_PI;
 constexpr double kDay_s = 86400.0;
 constexpr double kMaxScore = 8.0;  // normal scores are clamped here: one wild check adds <= 8 - k
+// The MAD's asymptotic efficiency for normal data (0.37): n differences weigh as 0.37 n checks.
+constexpr double kMadEfficiency = 0.37;
 
 struct Series {
   std::vector<double> x, se, t_s, temp_c;
@@ -40,14 +43,20 @@ void Across(const Eigen::Vector3d& u0, Eigen::Vector3d* ea, Eigen::Vector3d* eb)
   *eb = u0.cross(*ea).normalized();
 }
 
-Series SeriesOf(const std::vector<HealthCheck>& c, Quantity q, const Eigen::Vector3d& u0) {
+// fixed: the checks share one orientation (a dock); else along gravity is |f| - g (u0 would mix
+// orientations).
+Series SeriesOf(const std::vector<HealthCheck>& c, Quantity q, const Eigen::Vector3d& u0,
+                bool fixed) {
   Eigen::Vector3d ea, eb;
   Across(u0, &ea, &eb);
   Series s;
   for (const HealthCheck& h : c) {
     double x = 0, se = 0;
     const int gyro_axis = static_cast<int>(q) - static_cast<int>(Quantity::kGyroX);
-    if (q == Quantity::kAlongGravity) {
+    if (q == Quantity::kAlongGravity && !fixed) {
+      x = h.norm_minus_g_m_s2;
+      se = h.norm_minus_g_se_m_s2;
+    } else if (q == Quantity::kAlongGravity) {
       x = h.specific_force_m_s2.dot(u0) - h.gravity_m_s2;
       se = std::sqrt(
           u0.array().square().matrix().dot(h.specific_force_se_m_s2.array().square().matrix()));
@@ -67,36 +76,59 @@ Series SeriesOf(const std::vector<HealthCheck>& c, Quantity q, const Eigen::Vect
 }
 
 struct Learnt {
-  double baseline = 0, sigma = 0, nu = 0, score_scale = 0;
+  double baseline = 0, sigma = 0, nu = 0;
 };
 
 Learnt Learn(const Series& s, int learning, double prior_sigma, double prior_checks) {
-  const std::vector<double> head(s.x.begin(), s.x.begin() + learning);
   Learnt l;
-  l.baseline = Median(head);
+  l.baseline = Median(std::vector<double>(s.x.begin(), s.x.begin() + learning));
+  // The spread from every check's successive difference: a step or a wild check spoils one or
+  // two differences (the MAD ignores them), a ramp or a season hardly moves them.
+  std::vector<double> diff;
+  for (size_t i = 1; i < s.x.size(); ++i) diff.push_back(s.x[i] - s.x[i - 1]);
+  const double md = Median(diff);
   std::vector<double> dev;
-  for (double v : head) dev.push_back(std::abs(v - l.baseline));
-  const double mad = 1.4826 * Median(dev);
+  for (double v : diff) dev.push_back(std::abs(v - md));
+  const double mad = 1.4826 * Median(dev) / std::sqrt(2.0);
   const double se_median = Median(std::vector<double>(s.se.begin(), s.se.begin() + learning));
   const double prior = std::max(prior_sigma, se_median);
-  l.nu = prior_checks + learning - 1;
-  l.sigma = std::sqrt((prior_checks * prior * prior + (learning - 1) * mad * mad) / l.nu);
+  const double learnt = kMadEfficiency * static_cast<double>(diff.size());
+  l.nu = prior_checks + learnt;
+  l.sigma = std::sqrt((prior_checks * prior * prior + learnt * mad * mad) / l.nu);
   l.sigma = std::max(l.sigma, se_median);
-  l.score_scale = l.sigma * std::sqrt(1 + M_PI / (2.0 * learning));
   return l;
 }
 
-// Student-t (nu) residuals -> the normal score of the same tail probability.
-std::vector<double> Scores(const std::vector<double>& d, const Learnt& l) {
-  const boost::math::students_t t(l.nu);
-  const boost::math::normal n;
-  std::vector<double> z;
-  for (double v : d) {
-    const double r = v / l.score_scale;
-    const double tail = boost::math::cdf(boost::math::complement(t, std::abs(r)));
-    double g = tail > 1e-15 ? boost::math::quantile(boost::math::complement(n, tail)) : kMaxScore;
-    g = std::min(g, kMaxScore);
-    z.push_back(r < 0 ? -g : g);
+// The self-starting scores (Hawkins 1987) from check `from` on: check n is standardised by the
+// mean m and spread of the checks before it, the spread with the prior's nu0 pseudo-checks:
+//   sigma^2 = (nu0 s0^2 + sum (x_i - m)^2) / (nu0 + n - 1),   r = (x_n - m) / (sigma sqrt(1 + 1/n))
+// Student-t with nu0 + n - 1 degrees of freedom when nothing changed (the conjugate predictive),
+// and, unlike residuals from one fixed baseline, independent from check to check: an error of a
+// fixed baseline is in every later residual and a CUSUM adds it up. r is mapped to the normal
+// score with the same tail probability. Never under the check's own SE.
+std::vector<double> SelfStartingScores(const Series& s, int from, double prior_sigma,
+                                       double prior_checks) {
+  const boost::math::normal normal;
+  std::vector<double> z(s.x.size(), 0.0);
+  double sum = 0, sum_sq = 0;
+  const double shift = s.x.front();  // sums about the first value: no cancellation
+  for (int n = 0; n < static_cast<int>(s.x.size()); ++n) {
+    const double v = s.x[n] - shift;
+    if (n >= std::max(from, 2)) {
+      const double m = sum / n;
+      const double nu = prior_checks + n - 1;
+      const double var = (prior_checks * prior_sigma * prior_sigma + sum_sq - n * m * m) / nu;
+      const double sigma = std::max(std::sqrt(std::max(var, 0.0)), s.se[n]);
+      const double r = (v - m) / (sigma * std::sqrt(1.0 + 1.0 / n));
+      const boost::math::students_t t(nu);
+      const double tail = boost::math::cdf(boost::math::complement(t, std::abs(r)));
+      double g =
+          tail > 1e-15 ? boost::math::quantile(boost::math::complement(normal, tail)) : kMaxScore;
+      g = std::min(g, kMaxScore);
+      z[n] = r < 0 ? -g : g;
+    }
+    sum += v;
+    sum_sq += v * v;
   }
   return z;
 }
@@ -126,28 +158,31 @@ CusumRun RunCusum(const std::vector<double>& z, int from, double k, double h) {
   return r;
 }
 
-// Step against ramp over d[from..n) (module header); fills kind, onset, size, slope.
+// Step against ramp (module header): both with a level a of their own before change point j
+// (so the first checks' baseline error does not choose j), a + m after it (step) or
+// a + beta (t - t_(j-1)) after it (ramp), least squares, j from `from` on; fills kind, onset,
+// size, slope.
 void ClassifyChange(const Series& s, const std::vector<double>& d, int from, double sigma,
                     QuantityEvidence* e) {
   const int n = static_cast<int>(d.size());
   double best_step = INFINITY, best_ramp = INFINITY, step = 0, slope = 0;
   int step_at = e->onset_check, ramp_at = e->onset_check;
-  for (int j = from; j < n; ++j) {
-    double pre = 0, sum = 0, stt = 0, sdt = 0;
-    for (int i = from; i < j; ++i) pre += d[i] * d[i];
-    for (int i = j; i < n; ++i) sum += d[i];
-    const double m = sum / (n - j);
-    const double t0 = s.t_s[std::max(from, j - 1)];
-    double rss_step = pre, rss_ramp = pre;
+  for (int j = std::max(from, 2); j < n; ++j) {
+    double a = 0, pre = 0, m = 0;
+    for (int i = 0; i < j; ++i) a += d[i] / j;
+    for (int i = 0; i < j; ++i) pre += (d[i] - a) * (d[i] - a);
+    for (int i = j; i < n; ++i) m += (d[i] - a) / (n - j);
+    const double t0 = s.t_s[j - 1];
+    double stt = 0, sdt = 0, rss_step = pre, rss_ramp = pre;
     for (int i = j; i < n; ++i) {
       const double dt = (s.t_s[i] - t0) / kDay_s;
       stt += dt * dt;
-      sdt += d[i] * dt;
+      sdt += (d[i] - a) * dt;
     }
     const double beta = stt > 0 ? sdt / stt : 0;
     for (int i = j; i < n; ++i) {
-      rss_step += (d[i] - m) * (d[i] - m);
-      const double r = d[i] - beta * (s.t_s[i] - t0) / kDay_s;
+      rss_step += (d[i] - a - m) * (d[i] - a - m);
+      const double r = d[i] - a - beta * (s.t_s[i] - t0) / kDay_s;
       rss_ramp += r * r;
     }
     if (rss_step < best_step) best_step = rss_step, step = m, step_at = j;
@@ -239,13 +274,37 @@ double SiegmundArl0(double k, double h) {
   return (std::exp(a) - a - 1) / (2 * k * k);
 }
 
-double CusumThreshold(double k, double arl0) {
-  double lo = 0, hi = 100;
-  for (int i = 0; i < 200; ++i) {
-    const double mid = (lo + hi) / 2;
-    (SiegmundArl0(k, mid) < arl0 ? lo : hi) = mid;
+double CusumArl0(double k, double h) {
+  // Brook and Evans: the statistic on an atom at 0 and kBins cells of [0, h); from state s the
+  // next is max(0, s + z - k), z ~ N(0, 1). ARL = (I - P)^-1 1, read at the atom.
+  constexpr int kBins = 60;
+  const auto phi = [](double x) { return 0.5 * std::erfc(-x / std::sqrt(2.0)); };
+  const double w = h / kBins;
+  Eigen::MatrixXd a = Eigen::MatrixXd::Identity(kBins + 1, kBins + 1);
+  for (int i = 0; i <= kBins; ++i) {
+    const double s = i == 0 ? 0.0 : (i - 0.5) * w;
+    a(i, 0) -= phi(k - s);
+    for (int j = 1; j <= kBins; ++j) a(i, j) -= phi(j * w - s + k) - phi((j - 1) * w - s + k);
   }
-  return hi;
+  const Eigen::VectorXd arl = a.partialPivLu().solve(Eigen::VectorXd::Ones(kBins + 1));
+  return arl(0);
+}
+
+double CusumThreshold(double k, double arl0) {
+  // Siegmund's h to start, then the secant on log ARL(h) (nearly linear in h) to the chain's.
+  double h0 = 0, hi = 100;
+  for (int i = 0; i < 200; ++i) {
+    const double mid = (h0 + hi) / 2;
+    (SiegmundArl0(k, mid) < arl0 ? h0 : hi) = mid;
+  }
+  double h1 = h0 + 0.2;
+  double f0 = std::log(CusumArl0(k, h0) / arl0), f1 = std::log(CusumArl0(k, h1) / arl0);
+  for (int i = 0; i < 8 && std::abs(f1) > 1e-4 && f1 != f0; ++i) {
+    const double h2 = std::max(0.01, h1 - f1 * (h1 - h0) / (f1 - f0));
+    h0 = h1, f0 = f1, h1 = h2;
+    f1 = std::log(CusumArl0(k, h1) / arl0);
+  }
+  return h1;
 }
 
 DriftReference ReferenceFromParams(const ParamSet& params, double activated_s) {
@@ -281,7 +340,8 @@ QuantityEvidence Evaluate(const Series& s, Quantity q, double prior_sigma, doubl
   e.dof = l.nu;
   for (double v : s.x) e.residual.push_back(v - l.baseline);
   e.latest_change = e.residual.back();
-  CusumRun run = RunCusum(Scores(e.residual, l), L, dz.k, dz.h_alarm);
+  const CusumRun run =
+      RunCusum(SelfStartingScores(s, L, prior_sigma, opt.prior_checks), L, dz.k, dz.h_alarm);
   e.cusum = run.stat;
   e.statistic = run.stat.back();
   e.alarm_check = run.alarm;
@@ -301,7 +361,8 @@ QuantityEvidence Evaluate(const Series& s, Quantity q, double prior_sigma, doubl
   const Learnt la = Learn(adjusted, L, prior_sigma, opt.prior_checks);
   std::vector<double> d;
   for (double v : r) d.push_back(v - la.baseline);
-  const CusumRun adj = RunCusum(Scores(d, la), L, dz.k, dz.h_alarm);
+  const CusumRun adj =
+      RunCusum(SelfStartingScores(adjusted, L, prior_sigma, opt.prior_checks), L, dz.k, dz.h_alarm);
   e.temp_coefficient_per_c = c;
   e.temp_coefficient_se_per_c = c_se;
   if (adj.alarm < 0 && std::abs(c) > 3 * c_se) {
@@ -407,7 +468,8 @@ DriftAssessment AssessDrift(const std::vector<HealthCheck>& checks, const DriftR
       prior = options.gyro_spread_prior_rad_s;
       version_se = reference.gyro_bias_se_rad_s(q - static_cast<int>(Quantity::kGyroX));
     }
-    a.quantities[q] = Evaluate(SeriesOf(c, quantity, u0), quantity, prior, version_se, dz, options);
+    a.quantities[q] =
+        Evaluate(SeriesOf(c, quantity, u0, tilt), quantity, prior, version_se, dz, options);
   }
   double worst = -1;
   for (int q = 0; q < kNumQuantities; ++q) {

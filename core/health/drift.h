@@ -3,26 +3,31 @@
 //
 // QUANTITIES, one scalar series each, in physical units:
 //   along gravity   f . u0 - g [m/s^2]   (u0: the dock direction, else the learning checks' mean
-//                                         direction): an accel bias or scale change along g
+//                                         direction): an accel bias or scale change along g;
+//                                         |f| - g when the checks are not in one orientation
 //   tilt a, tilt b  (u - u0) . e_a, e_b [rad] (e_a, e_b across u0): the gravity direction at the
 //                   dock; a mounting rotation or an accel bias across g. Only when the checks are
 //                   taken in one orientation (DriftOptions::fixed_orientation).
 //   gyro x, y, z    the calibrated gyro at rest [rad/s]
 //
-// EACH UNIT JUDGED BY ITS OWN SCATTER. The first `learning_checks` checks after the version give
-// the baseline (their median) and the unit's check-to-check spread s (1.4826 MAD), combined with
-// a prior spread s0 worth `prior_checks` checks:
-//   sigma^2 = (nu0 s0^2 + (L - 1) s^2) / (nu0 + L - 1),  nu = nu0 + L - 1 degrees of freedom,
-// and never under the checks' own median SE (noise + Allan wander). For the gyro, s0 is the
-// fleet's median spread (core/health/fleet.h) or a default: a MEMS gyro's bias moves from one
-// power-up to the next by far more than its noise (the shared repeat set: 0.05-0.07 deg/s between
-// poses), so the noise would call every power-up a change. For the accelerometer and the tilt,
-// s0 is the larger of the checks' SE and a stated repeatability (a dock's placement, unmodelled
-// temperature). A later check's residual is
-//   z = (x - baseline) / (sigma sqrt(1 + pi / (2 L)))       (pi/2: a median's variance factor)
-// which is Student-t with nu degrees of freedom when nothing changed; it is mapped to the normal
-// score with the same tail probability, so the threshold below holds for a spread learnt from
-// few checks.
+// EACH UNIT JUDGED BY ITS OWN SCATTER, SELF-STARTING. Check n is scored against the checks before
+// it since the version (Hawkins's self-starting CUSUM): their mean m and their spread, with a
+// prior spread s0 worth nu0 = `prior_checks` checks:
+//   sigma^2 = (nu0 s0^2 + sum_{i<n} (x_i - m)^2) / (nu0 + n - 1)
+//   r = (x_n - m) / (sigma sqrt(1 + 1/n))
+// which is Student-t with nu0 + n - 1 degrees of freedom when nothing changed, and independent
+// from check to check. (Residuals from one baseline fixed by the first checks are not: the
+// baseline's error is in every later residual, and a CUSUM adds it up; with 8 learning checks
+// that made the false-alarm rate 6 times the stated one.) r is mapped to the normal score with
+// the same tail probability, so the threshold below holds from the first checks on. sigma is
+// never under the check's own SE (noise + Allan wander). For the gyro, s0 is the fleet's median
+// spread (core/health/fleet.h) or a default: a MEMS gyro's bias moves from one power-up to the
+// next by far more than its noise (the shared repeat set: 0.05-0.07 deg/s between poses), so the
+// noise would call every power-up a change. For the accelerometer and the tilt, s0 is a stated
+// repeatability (a dock's placement, unmodelled temperature). Scoring starts at check
+// `learning_checks`; the first ones also give the evidence's baseline (their median) and the
+// unit's spread for the evidence (1.4826 MAD of successive differences / sqrt 2: a step spoils
+// one difference, a ramp or a season hardly moves them).
 //
 // THE TEST: a two-sided CUSUM per quantity on the normal scores,
 //   S+ = max(0, S+ + z - k),  S- = max(0, S- - z - k),   k = design shift / 2 (sigmas),
@@ -30,7 +35,12 @@
 // statistics and c checks a month alarms falsely at most alpha per month (the union bound) when
 // each statistic's in-control average run length is ARL0 = C c / alpha checks, and Siegmund's
 // approximation for normal increments gives h from ARL0:
-//   ARL0 = (exp(2 k b) - 2 k b - 1) / (2 k^2),  b = h + 1.166.
+//   ARL0 = (exp(2 k b) - 2 k b - 1) / (2 k^2),  b = h + 1.166,
+// refined to the exact run length of the statistic's Markov chain (Brook and Evans 1972), since at
+// the k used here Siegmund's overstates ARL0 up to 1.8 times (h too low, alarms too often).
+// k = 1.5 (a 3-sigma design shift): the aim is a step of 5 spreads within 3 checks, which after
+// the learnt spread's uncertainty (the median baseline, the t tails) scores about 3.5-4, and at
+// that shift k = 1.5 detects within 3 checks more often than k = 2 or 2.5 at the same ARL0.
 // Recalibrate: a statistic reached h at the alpha of `false_alarms_per_device_month` (latched:
 // a shock does not heal); watch: a statistic is now at the h of `watch_alarms_per_device_month`,
 // or the learning checks disagree with the version's own figures (a bad calibration).
@@ -88,7 +98,7 @@ struct DriftOptions {
   double false_alarms_per_device_month = 0.01;  // recalibrate
   double watch_alarms_per_device_month = 0.2;   // watch
   double checks_per_day = 0;  // 0: from the checks' own spacing (1.5 with fewer than 4)
-  int learning_checks = 8;
+  int learning_checks = 5;
   bool fixed_orientation = true;  // the checks are taken at a dock: the tilt is tested
   double prior_checks = 6;        // nu0: the prior spread's weight, in checks
   // The prior check-to-check spreads (module header). Gyro: 0.04 deg/s per axis, the repeat
@@ -96,7 +106,7 @@ struct DriftOptions {
   double gyro_spread_prior_rad_s = 0.04 * M_PI / 180;
   double accel_spread_prior_m_s2 = 3e-3;  // 0.3 mg
   double tilt_spread_prior_rad = 0.02 * M_PI / 180;
-  double design_shift_sigmas = 5.0;  // the change the CUSUM is tuned to; k = half of it (<= 3)
+  double design_shift_sigmas = 3.0;  // the change the CUSUM is tuned to; k = half of it (<= 3)
   double min_temp_span_c = 5.0;
   double version_disagreement_sigmas = 5.0;
 };
@@ -139,9 +149,12 @@ struct DriftAssessment {
 DriftAssessment AssessDrift(const std::vector<HealthCheck>& checks, const DriftReference& reference,
                             const DriftOptions& options = {});
 
-// Siegmund's ARL0 of a one-sided CUSUM of N(0, 1) increments with reference k, threshold h; and
-// the h that gives `arl0` (bisection).
+// The in-control average run length of a one-sided CUSUM of N(0, 1) increments with reference k
+// and threshold h: Siegmund's approximation, and Brook and Evans's Markov chain (60 cells), which
+// the threshold uses: at k = 1.5-2.5 and ARL0 1e4-1e5 Siegmund's overstates it 1.1-1.8 times.
 double SiegmundArl0(double k, double h);
+double CusumArl0(double k, double h);
+// The h whose chain ARL0 is `arl0` (Siegmund's h refined by the secant on log ARL0).
 double CusumThreshold(double k, double arl0);
 
 }  // namespace imucal::core::health
