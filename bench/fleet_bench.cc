@@ -38,6 +38,7 @@ struct Flags {
   int units = 50;
   int clean_units = 0;  // units of the unchanged fleet (0: --units); their own seed stream
   bool verbose = false;
+  double accel_step_mg = 5, mounting_deg = 0.3, gyro_step_spreads = 5, scale_drift_ppm_day = 30;
   double days = 90;
   uint64_t seed = 1;
   double rest_s = 20;
@@ -216,12 +217,20 @@ int main(int argc, char** argv) {
   app.add_option("--rest-s", f.rest_s, "length of a dock rest, s");
   app.add_option("--clean-units", f.clean_units, "units of the unchanged fleet (0: --units)");
   app.add_flag("--verbose", f.verbose, "print every false alarm's summary");
+  app.add_option("--accel-step-mg", f.accel_step_mg, "accel bias step along gravity, mg");
+  app.add_option("--mounting-deg", f.mounting_deg, "mounting rotation, deg");
+  app.add_option("--gyro-step-spreads", f.gyro_step_spreads, "gyro step, unit spreads");
+  app.add_option("--scale-drift-ppm-day", f.scale_drift_ppm_day, "accel scale drift, ppm/day");
   imucal::bench::ParseBenchFlags(app, argc, argv);
   FleetSimOptions o;
   o.units = f.units;
   o.days = f.days;
   o.seed = f.seed;
   o.rest_s = f.rest_s;
+  o.accel_step_m_s2 = f.accel_step_mg * 1e-3 * imucal::core::kStandardGravity;
+  o.mounting_step_rad = f.mounting_deg * kDegS;
+  o.gyro_step_spreads = f.gyro_step_spreads;
+  o.scale_drift_per_day = f.scale_drift_ppm_day * 1e-6;
   MeasureMpu6050(&o);
   verbose = f.verbose;
   std::printf("%d units per row, %.0f days, one or two %.0f s dock rests a day, seed %llu\n",
