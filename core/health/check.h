@@ -77,7 +77,9 @@ struct HealthCheckOptions {
   // The dock's gravity direction in the body frame (unit); unset: the check's own.
   std::optional<Eigen::Vector3d> reference_gravity_dir_body;
   // The still detector (core/noise_rest.h) must find the record still over this much of it.
-  // Off only for a rest the detector has already found (a calibration's pose).
+  // Off for a rest the detector has already found (a calibration's pose). Not used on an
+  // accelerometer-only rest: without a gyroscope the detector cuts a white-noise rest into
+  // stretches of a few seconds; the variance test below judges it alone.
   bool use_still_detector = true;
   double min_still_fraction = 0.9;
   // var(x) / (var of successive differences / 2) above this on any calibrated axis: motion.
