@@ -123,6 +123,15 @@ TEST(HealthCheckTest, ANonRestIsRefusedWithTheReason) {
   ASSERT_FALSE(h.ok());
   EXPECT_EQ(h.status().code(), absl::StatusCode::kFailedPrecondition);
   EXPECT_NE(h.status().message().find("not a rest"), std::string::npos) << h.status();
+  // Without a gyroscope (the still detector is not used there) the variance test refuses it.
+  Capture accel_only = MakeRest(p, t, 1);
+  accel_only.has_gyro = false;
+  accel_only.gyro.clear();
+  ParamSet pa = p;
+  pa.has_gyro = false;
+  const absl::StatusOr<HealthCheck> ha = ComputeHealthCheck(accel_only, pa);
+  ASSERT_FALSE(ha.ok());
+  EXPECT_NE(ha.status().message().find("moved or vibrated"), std::string::npos) << ha.status();
 }
 
 TEST(HealthCheckTest, ASteadyTurnIsRefused) {

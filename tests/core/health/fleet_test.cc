@@ -7,6 +7,7 @@
 #include <random>
 #include <vector>
 
+#include "core/health/drift.h"
 #include "core/health/fleet_sim.h"
 
 namespace imucal::core::health {
@@ -98,6 +99,54 @@ TEST(FleetSimTest, DockRestsPassTheHealthCheckAndAreDeterministic) {
   // The dock's gravity is what the check sees, to the dock's jitter and the unit's residuals.
   EXPECT_LT(std::acos(h->gravity_dir_body.dot(a[1].dock_gravity_body.normalized())), 0.05 * kDeg);
   EXPECT_LT(h->gyro_bias_rad_s.cwiseAbs().maxCoeff(), 0.3 * kDeg);
+}
+
+TEST(FleetSimTest, AMountingStepOfASimulatedUnitIsFlaggedWithinThreeChecks) {
+  FleetSimOptions o;
+  o.units = 2;
+  o.days = 40;
+  o.change = FleetChange::kMountingStep;
+  o.change_start_min_d = o.change_start_max_d = 30;
+  for (const SimUnit& u : SimulateFleet(o)) {
+    std::vector<HealthCheck> checks;
+    int flagged_at = -1;
+    for (int c = 0; c < static_cast<int>(u.plan.size()) && flagged_at < 0; ++c) {
+      const absl::StatusOr<HealthCheck> h = ComputeHealthCheck(SimulateDockRest(u, c, o), u.params);
+      ASSERT_TRUE(h.ok()) << h.status();
+      checks.push_back(*h);
+      const DriftAssessment a = AssessDrift(checks, ReferenceFromParams(u.params, 0));
+      if (a.state == HealthState::kRecalibrate) {
+        flagged_at = c;
+        EXPECT_NE(a.summary.find("gravity direction"), std::string::npos) << a.summary;
+      }
+    }
+    ASSERT_GE(u.first_changed, 0);
+    EXPECT_GE(flagged_at, u.first_changed) << u.device;
+    EXPECT_LT(flagged_at, u.first_changed + 3) << u.device;
+  }
+}
+
+TEST(FleetSimTest, AnAccelerometerOnlyRestIsChecked) {
+  FleetSimOptions o;
+  o.units = 1;
+  o.days = 8;
+  const std::vector<SimUnit> units = SimulateFleet(o);
+  ParamSet p = units[0].params;
+  p.has_gyro = false;
+  std::vector<HealthCheck> checks;
+  for (int c = 0; c < static_cast<int>(units[0].plan.size()); ++c) {
+    Capture r = SimulateDockRest(units[0], c, o);
+    r.has_gyro = false;
+    r.gyro.clear();
+    const absl::StatusOr<HealthCheck> h = ComputeHealthCheck(r, p);
+    ASSERT_TRUE(h.ok()) << h.status();
+    EXPECT_FALSE(h->has_gyro);
+    checks.push_back(*h);
+  }
+  const DriftAssessment a = AssessDrift(checks, {});
+  EXPECT_EQ(a.state, HealthState::kOk) << a.summary;
+  EXPECT_FALSE(a.quantities[static_cast<int>(Quantity::kGyroX)].tested);
+  EXPECT_TRUE(a.quantities[static_cast<int>(Quantity::kTiltA)].tested);
 }
 
 }  // namespace
