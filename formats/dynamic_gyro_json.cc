@@ -12,6 +12,7 @@
 #include "absl/status/status.h"
 #include "formats/json_fields.h"
 #include "util/status.h"
+#include "util/units.h"
 
 namespace imucal::formats {
 namespace {
@@ -159,12 +160,12 @@ absl::Status DynamicGyroFromJson(const Json& j, const std::string& path, core::D
   core::DynamicGyro b;
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "rate_hz", kRequired, Numbers(Null::kReject), &b.rate_hz));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "delay_s", kOptional, Numbers(Null::kReject), &b.delay_s));
-  b.delay_std_error_s = kNan;
+  b.delay_std_error_s = kNaN;
   IMUCAL_RETURN_IF_ERROR(
       Member(j, path, "delay_stderr_s", kOptional, Numbers(Null::kAsNan), &b.delay_std_error_s));
   IMUCAL_RETURN_IF_ERROR(
       Member(j, path, "odd_rate_per_rad_s", kOptional, Numbers(Null::kReject), &b.odd_rate));
-  b.odd_rate_std_error = Eigen::Vector3d::Constant(kNan);
+  b.odd_rate_std_error = Eigen::Vector3d::Constant(kNaN);
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "odd_rate_stderr_per_rad_s", kOptional,
                                 Numbers(Null::kAsNan), &b.odd_rate_std_error));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "taps", kRequired, ReadInt, &b.taps));

@@ -446,8 +446,6 @@ absl::Status ReadParamSet(const Json& j, const std::string& path, core::ParamSet
   return Member(j, path, "source", kOptional, ReadSource, out);
 }
 
-#undef IMUCAL_RETURN_IF_ERROR
-
 }  // namespace
 
 std::string_view UnitName(core::AccelUnit unit) {
