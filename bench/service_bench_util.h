@@ -276,7 +276,7 @@ class PostgresCpu {
         storage::PgConnection::Open(url, {});
     if (!conn.ok()) return std::nullopt;
     absl::StatusOr<std::optional<int64_t>> backend =
-        sql::ReadRow(**conn, "SELECT CAST(pg_backend_pid() AS BIGINT)", storage::FirstColumnInt64);
+        sql::ReadRow(**conn, "SELECT CAST(pg_backend_pid() AS BIGINT)", sql::FirstColumnInt64);
     if (!backend.ok() || !backend->has_value()) return std::nullopt;
     const std::vector<std::string> f = ProcStatFields(static_cast<pid_t>(**backend));
     if (f.size() < 2) return std::nullopt;  // not a process of this machine

@@ -16,7 +16,6 @@ namespace imucal::core::health {
 namespace {
 
 constexpr double kRadToDeg = 180.0 / M_PI;
-constexpr double kDay_s = 86400.0;
 constexpr double kMaxScore = 8.0;  // normal scores are clamped here: one wild check adds <= 8 - k
 // The MAD's asymptotic efficiency for normal data (0.37): n differences weigh as 0.37 n checks.
 constexpr double kMadEfficiency = 0.37;
@@ -25,7 +24,7 @@ struct Series {
   std::vector<double> x, se, t_s, temp_c;
 };
 
-double Median(std::vector<double> v) {
+double MedianOrZero(std::vector<double> v) {
   if (v.empty()) return 0;
   const size_t mid = v.size() / 2;
   std::nth_element(v.begin(), v.begin() + static_cast<long>(mid), v.end());
@@ -81,16 +80,16 @@ struct Learnt {
 
 Learnt Learn(const Series& s, int learning, double prior_sigma, double prior_checks) {
   Learnt l;
-  l.baseline = Median(std::vector<double>(s.x.begin(), s.x.begin() + learning));
+  l.baseline = MedianOrZero(std::vector<double>(s.x.begin(), s.x.begin() + learning));
   // The spread from every check's successive difference: a step or a wild check spoils one or
   // two differences (the MAD ignores them), a ramp or a season hardly moves them.
   std::vector<double> diff;
   for (size_t i = 1; i < s.x.size(); ++i) diff.push_back(s.x[i] - s.x[i - 1]);
-  const double md = Median(diff);
+  const double md = MedianOrZero(diff);
   std::vector<double> dev;
   for (double v : diff) dev.push_back(std::abs(v - md));
-  const double mad = 1.4826 * Median(dev) / std::sqrt(2.0);
-  const double se_median = Median(std::vector<double>(s.se.begin(), s.se.begin() + learning));
+  const double mad = 1.4826 * MedianOrZero(dev) / std::sqrt(2.0);
+  const double se_median = MedianOrZero(std::vector<double>(s.se.begin(), s.se.begin() + learning));
   const double prior = std::max(prior_sigma, se_median);
   const double learnt = kMadEfficiency * static_cast<double>(diff.size());
   l.nu = prior_checks + learnt;

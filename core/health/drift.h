@@ -69,6 +69,9 @@
 
 namespace imucal::core::health {
 
+inline constexpr double kDay_s =
+    86400.0;  // s per day, the unit of drift rates and of the fleet simulator
+
 enum class HealthState { kOk, kWatch, kRecalibrate };
 const char* HealthStateName(HealthState state);  // "ok", "watch", "recalibrate"
 

@@ -7,11 +7,10 @@
 
 #include "Eigen/Geometry"
 #include "absl/strings/str_format.h"
+#include "core/health/drift.h"
 
 namespace imucal::core::health {
 namespace {
-
-constexpr double kDay_s = 86400.0;
 
 // Own uniform and Box-Muller draws (as core/simulator.h): the same seed gives the same fleet
 // with any standard library.
