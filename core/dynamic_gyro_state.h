@@ -5,6 +5,7 @@
 #ifndef IMUCAL_CORE_DYNAMIC_GYRO_STATE_H_
 #define IMUCAL_CORE_DYNAMIC_GYRO_STATE_H_
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <vector>
@@ -19,7 +20,10 @@ namespace imucal::core {
 class DynamicGyroState {
  public:
   explicit DynamicGyroState(const DynamicGyro& block)
-      : block_(&block), capacity_(block.WindowSamples()), ring_(12 * capacity_, 0.0) {}
+      // At least 2 samples: the delay term reads the previous sample even for a one-tap filter.
+      : block_(&block),
+        capacity_(std::max(2, block.WindowSamples())),
+        ring_(12 * static_cast<size_t>(capacity_), 0.0) {}
 
   // Restarts the stream (a gap in time, a new power-up): the window is empty again.
   void Reset() { count_ = 0; }

@@ -173,7 +173,7 @@ absl::Status DynamicGyroFromJson(const Json& j, const std::string& path, core::D
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "weights", kRequired, ReadWeights, &b.weights));
   IMUCAL_RETURN_IF_ERROR(
       Member(j, path, "ridge_lambda", kOptional, Numbers(Null::kReject), &b.ridge_lambda));
-  IMUCAL_RETURN_IF_ERROR(Member(j, path, "envelope", kOptional, ReadEnvelope, &b.envelope));
+  IMUCAL_RETURN_IF_ERROR(Member(j, path, "envelope", kRequired, ReadEnvelope, &b.envelope));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "training", kOptional, ReadTraining, &b.training));
   IMUCAL_RETURN_IF_ERROR(Member(j, path, "gate_reason", kOptional, ReadString, &b.gate_reason));
   IMUCAL_RETURN_IF_ERROR(DynamicGyroIsValid(b, path));

@@ -7,6 +7,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/motion/learn.h"
+#include "formats/params_check.h"
 #include "formats/params_json.h"
 
 namespace imucal::server {
@@ -35,21 +37,20 @@ HeldOut HeldOutOf(const core::DynamicGyro& block) {
   return h;
 }
 
-// Empty when the block has proven itself on held-out recordings; else why not.
+// Empty when the block has proven itself on held-out recordings by `imucal learn`'s own rule
+// (core::motion::JudgeHeldOut); else why not.
 std::string DynamicGyroGateFailure(const core::DynamicGyro& block) {
-  const HeldOut h = HeldOutOf(block);
-  if (h.count == 0) {
+  std::vector<core::DynamicGyroRecording> held_out;
+  for (const core::DynamicGyroRecording& r : block.training) {
+    if (std::isfinite(r.aoe_static_deg) && std::isfinite(r.aoe_learnt_deg)) held_out.push_back(r);
+  }
+  if (held_out.empty()) {
     return "dynamic_gyro: no recording it was held out of (training[].aoe_static_deg and "
            "aoe_learnt_deg): a learnt block must beat the static model on recordings it was not "
            "fitted on";
   }
-  if (!(h.learnt_deg < h.static_deg)) {
-    return absl::StrFormat(
-        "dynamic_gyro: held out of %d recording(s), its mean orientation error %.3g deg is not "
-        "below the static model's %.3g deg",
-        h.count, h.learnt_deg, h.static_deg);
-  }
-  return "";
+  const core::motion::HeldOutVerdict v = core::motion::JudgeHeldOut(held_out);
+  return v.passed ? "" : "dynamic_gyro: " + v.reason;
 }
 
 absl::Status UnitMismatch(const char* path, std::string_view stated, const storage::Device& d,
@@ -64,6 +65,8 @@ absl::StatusOr<core::ParamSet> ParseUploadedParams(std::string_view json,
                                                    const storage::Device& device) {
   absl::StatusOr<core::ParamSet> params = formats::ParamSetFromJson(json);
   if (!params.ok()) return params.status();
+  // What every robot's SDK would refuse is never stored (formats/params_check.h).
+  if (absl::Status s = formats::ModelIsApplicable(*params); !s.ok()) return s;
   if (params->device.empty()) params->device = device.id;
   if (params->device != device.id) {
     return absl::InvalidArgumentError(

@@ -30,8 +30,9 @@ inline storage::VersionState ActivationOf(core::Verdict verdict) {
 }
 
 // Parses `json` ("imucal-params v1") for `device`: InvalidArgument naming the JSON path when it
-// does not parse, is malformed, names another device, or expects other input units than the
-// device delivers. An empty "device" is set to the device's id.
+// does not parse, is malformed, could not be applied by a robot (formats::ModelIsApplicable: a
+// zero scale, a singular gyro matrix, ...), names another device, or expects other input units
+// than the device delivers. An empty "device" is set to the device's id.
 absl::StatusOr<core::ParamSet> ParseUploadedParams(std::string_view json,
                                                    const storage::Device& device);
 

@@ -347,7 +347,8 @@ class Store {
   std::mutex write_mu_;
   std::unique_ptr<sql::Connection> writer_;  // guarded by write_mu_
 
-  // Group commit (AppendBatchAsync) and background WAL checkpoints; both threads start with
+  // Group commit (AppendBatchAsync: a committer and an acker thread) and background WAL
+  // checkpoints; the three threads start with
   // the first AppendBatchAsync (a store that only writes synchronously keeps SQLite's automatic
   // checkpoint) and stop in the destructor after the submitted batches.
   struct PendingAppend;
@@ -367,7 +368,7 @@ class Store {
   std::thread committer_;
   // The committed groups' `done` callbacks run on an acker thread of their own, in commit
   // order, so the committer starts the next group's transaction while the last one's streams
-  // are acknowledged (on 2 cores the two overlap: ingest went from 0.65 to ... M samples/s).
+  // are acknowledged (on 2 cores the two overlap; docs/figures.md has the ingest figures).
   std::mutex ack_mu_;
   std::condition_variable ack_cv_;
   std::vector<CommittedGroup> committed_;  // guarded by ack_mu_

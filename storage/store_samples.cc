@@ -178,8 +178,17 @@ void Store::AppendBatchAsync(std::string session_id, int64_t seq, std::string pa
   std::call_once(threads_started_, [this] { StartBackgroundThreads(); });
   {
     std::lock_guard lock(commit_mu_);
-    pending_.push_back(
-        PendingAppend{std::move(session_id), seq, std::move(payload), *info, std::move(done)});
+    // Closing: the committer may have left (a callback on the acker can still submit), so the
+    // batch is answered here rather than left in pending_ with nobody to commit it.
+    if (!stopping_) {
+      pending_.push_back(
+          PendingAppend{std::move(session_id), seq, std::move(payload), *info, std::move(done)});
+      done = nullptr;
+    }
+  }
+  if (done) {
+    done(absl::UnavailableError("AppendBatch: the store is closing"));
+    return;
   }
   commit_cv_.notify_one();
 }

@@ -9,11 +9,10 @@
 #include "core/allan.h"
 #include "core/correction.h"
 #include "core/noise_rest.h"
+#include "util/units.h"
 
 namespace imucal::core::health {
 namespace {
-
-constexpr double kDegToRad = M_PI / 180.0;
 
 // The moments of one calibrated axis that the check needs.
 struct AxisStats {

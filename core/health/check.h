@@ -45,10 +45,9 @@
 #include "absl/status/statusor.h"
 #include "core/capture.h"
 #include "core/params.h"
+#include "util/units.h"
 
 namespace imucal::core::health {
-
-inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 // One health check: a row.
 struct HealthCheck {

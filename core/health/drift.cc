@@ -11,11 +11,11 @@
 #include "absl/strings/str_format.h"
 #include "boost/math/distributions/normal.hpp"
 #include "boost/math/distributions/students_t.hpp"
+#include "util/units.h"
 
 namespace imucal::core::health {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 constexpr double kMaxScore = 8.0;  // normal scores are clamped here: one wild check adds <= 8 - k
 // The MAD's asymptotic efficiency for normal data (0.37): n differences weigh as 0.37 n checks.
 constexpr double kMadEfficiency = 0.37;
@@ -347,7 +347,7 @@ QuantityEvidence Evaluate(const Series& s, Quantity q, double prior_sigma, doubl
   e.onset_check = run.onset;
   if (version_se > 0) {
     const double sd =
-        std::sqrt(version_se * version_se + l.sigma * l.sigma * (1 + M_PI / (2.0 * L)));
+        std::sqrt(version_se * version_se + l.sigma * l.sigma * (1 + kPi / (2.0 * L)));
     e.version_disagrees = std::abs(l.baseline) > opt.version_disagreement_sigmas * sd;
   }
   if (run.alarm < 0) return e;

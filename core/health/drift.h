@@ -66,6 +66,7 @@
 #include "Eigen/Core"
 #include "core/health/check.h"
 #include "core/params.h"
+#include "util/units.h"
 
 namespace imucal::core::health {
 
@@ -106,9 +107,9 @@ struct DriftOptions {
   double prior_checks = 6;        // nu0: the prior spread's weight, in checks
   // The prior check-to-check spreads (module header). Gyro: 0.04 deg/s per axis, the repeat
   // set's 0.05-0.07 deg/s between poses over sqrt(2); the fleet's median when known.
-  double gyro_spread_prior_rad_s = 0.04 * M_PI / 180;
+  double gyro_spread_prior_rad_s = 0.04 * kDegToRad;
   double accel_spread_prior_m_s2 = 3e-3;  // 0.3 mg
-  double tilt_spread_prior_rad = 0.02 * M_PI / 180;
+  double tilt_spread_prior_rad = 0.02 * kDegToRad;
   double design_shift_sigmas = 3.0;  // the change the CUSUM is tuned to; k = half of it (<= 3)
   double min_temp_span_c = 5.0;
   double version_disagreement_sigmas = 5.0;

@@ -137,7 +137,7 @@ std::vector<SimUnit> SimulateFleet(const FleetSimOptions& o) {
     // The dock: within 3 degrees of level, any heading.
     const Eigen::Vector3d tilt(rng.Uniform(-3, 3), rng.Uniform(-3, 3), 0);
     const Eigen::Matrix3d r_world_body =
-        (Eigen::AngleAxisd(tilt.norm() * M_PI / 180, tilt.normalized())).toRotationMatrix();
+        (Eigen::AngleAxisd(tilt.norm() * kDegToRad, tilt.normalized())).toRotationMatrix();
     u.dock_gravity_body = r_world_body.transpose() * Eigen::Vector3d(0, 0, kStandardGravity);
     u.gyro_spread_rad_s = rng.Uniform(o.gyro_spread_min_rad_s, o.gyro_spread_max_rad_s);
     u.gyro_offset_rad_s = u.gyro_spread_rad_s * rng.Normal3();

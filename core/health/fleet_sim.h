@@ -24,6 +24,7 @@
 #include "Eigen/Core"
 #include "core/capture.h"
 #include "core/params.h"
+#include "util/units.h"
 
 namespace imucal::core::health {
 
@@ -44,19 +45,19 @@ struct FleetSimOptions {
   double gyro_noise_density = 1.6e-4;                 // rad/s/sqrt(Hz)
   double accel_random_walk = 2e-4;                    // m/s^3/sqrt(Hz)
   double gyro_random_walk = 2e-5;                     // rad/s^2/sqrt(Hz)
-  double gyro_spread_min_rad_s = 0.025 * M_PI / 180;  // power-up to power-up, per axis
-  double gyro_spread_max_rad_s = 0.05 * M_PI / 180;
+  double gyro_spread_min_rad_s = 0.025 * kDegToRad;   // power-up to power-up, per axis
+  double gyro_spread_max_rad_s = 0.05 * kDegToRad;
   double accel_power_up_m_s2 = 1e-4 * kStandardGravity;  // 0.1 mg per axis
-  double dock_jitter_rad = 0.01 * M_PI / 180;            // the dock's placement repeatability
+  double dock_jitter_rad = 0.01 * kDegToRad;             // the dock's placement repeatability
   double temp_swing_c = 8;  // a check's temperature: the unit's mean +- this (uniform)
-  double gyro_tempco_rad_s_per_c = 0.003 * M_PI / 180;  // per axis, N(0, this)
+  double gyro_tempco_rad_s_per_c = 0.003 * kDegToRad;  // per axis, N(0, this)
   double accel_tempco_m_s2_per_c = 5e-5 * kStandardGravity;
   double tempco_stored_error = 0.05;  // the stored temperature effect is off by this fraction
   // The change and its size; it starts uniformly in [change_start_min_d, change_start_max_d].
   FleetChange change = FleetChange::kNone;
   double change_start_min_d = 20, change_start_max_d = 80;
   double accel_step_m_s2 = 5e-3 * kStandardGravity;  // 5 mg
-  double mounting_step_rad = 0.3 * M_PI / 180;
+  double mounting_step_rad = 0.3 * kDegToRad;
   double gyro_step_spreads = 5;
   double scale_drift_per_day = 3e-5;  // 30 ppm a day
 };

@@ -10,11 +10,10 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/so3.h"
+#include "util/units.h"
 
 namespace imucal::core::motion {
 namespace {
-
-constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 
 double Median(std::vector<double> v) {
   if (v.empty()) return 0.0;

@@ -12,11 +12,10 @@
 #include "core/dynamic_gyro.h"
 #include "core/dynamic_gyro_state.h"
 #include "core/so3.h"
+#include "util/units.h"
 
 namespace imucal::core::motion {
 namespace {
-
-constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 
 // A still interval: the gyro's spread about its mean below this (rad/s RMS, about 1 deg/s, well
 // above a MEMS gyro's noise at 200 Hz and well below hand-held motion) and its mean below

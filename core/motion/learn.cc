@@ -75,30 +75,9 @@ void LeaveOneOut(const std::vector<const PreparedRecording*>& training,
 }
 
 void Gate(const LearnOptions& options, LearnResult* result) {
-  if (result->held_out.size() < 2) {
-    result->gate_passed = false;
-    result->gate_reason = "refused: leave-one-recording-out needs at least 2 training recordings";
-    return;
-  }
-  double mean_static = 0.0, mean_learnt = 0.0;
-  std::string worse, figures;
-  for (const DynamicGyroRecording& r : result->held_out) {
-    mean_static += r.aoe_static_deg / static_cast<double>(result->held_out.size());
-    mean_learnt += r.aoe_learnt_deg / static_cast<double>(result->held_out.size());
-    figures += absl::StrFormat("%s%s %.3f -> %.3f", figures.empty() ? "" : ", ", r.name,
-                               r.aoe_static_deg, r.aoe_learnt_deg);
-    if (!(r.aoe_learnt_deg <= r.aoe_static_deg)) worse += (worse.empty() ? "" : ", ") + r.name;
-  }
-  const bool better = mean_learnt <= (1.0 - options.gate_margin) * mean_static;
-  result->gate_passed = better && worse.empty();
-  const std::string verdict =
-      result->gate_passed ? "passed"
-      : !better ? absl::StrFormat("refused: the mean held-out AOE does not fall by %.0f%%",
-                                  100 * options.gate_margin)
-                : "refused: worse than the static model on " + worse;
-  result->gate_reason = absl::StrFormat(
-      "%s (leave-one-recording-out AOE, static -> learnt, deg: %s; mean %.3f -> %.3f)", verdict,
-      figures, mean_static, mean_learnt);
+  const HeldOutVerdict v = JudgeHeldOut(result->held_out, options.gate_margin);
+  result->gate_passed = v.passed;
+  result->gate_reason = v.reason;
 }
 
 DynamicGyroEnvelope EnvelopeOf(const std::vector<const PreparedRecording*>& training,
@@ -195,6 +174,34 @@ Evaluation Evaluate(const PreparedRecording& p, const LearnResult& result,
   e.learnt =
       CompareOrientation(r, ref, CorrectedRates(r, result.learnt_params, &e.outside_envelope));
   return e;
+}
+
+HeldOutVerdict JudgeHeldOut(const std::vector<DynamicGyroRecording>& held_out, double gate_margin) {
+  HeldOutVerdict out;
+  if (held_out.size() < 2) {
+    out.reason = "refused: leave-one-recording-out needs at least 2 training recordings";
+    return out;
+  }
+  double mean_static = 0.0, mean_learnt = 0.0;
+  std::string worse, figures;
+  for (const DynamicGyroRecording& r : held_out) {
+    mean_static += r.aoe_static_deg / static_cast<double>(held_out.size());
+    mean_learnt += r.aoe_learnt_deg / static_cast<double>(held_out.size());
+    figures += absl::StrFormat("%s%s %.3f -> %.3f", figures.empty() ? "" : ", ", r.name,
+                               r.aoe_static_deg, r.aoe_learnt_deg);
+    if (!(r.aoe_learnt_deg <= r.aoe_static_deg)) worse += (worse.empty() ? "" : ", ") + r.name;
+  }
+  const bool better = mean_learnt <= (1.0 - gate_margin) * mean_static;
+  out.passed = better && worse.empty();
+  const std::string verdict =
+      out.passed ? "passed"
+      : !better  ? absl::StrFormat("refused: the mean held-out AOE does not fall by %.0f%%",
+                                   100 * gate_margin)
+                 : "refused: worse than the static model on " + worse;
+  out.reason = absl::StrFormat(
+      "%s (leave-one-recording-out AOE, static -> learnt, deg: %s; mean %.3f -> %.3f)", verdict,
+      figures, mean_static, mean_learnt);
+  return out;
 }
 
 }  // namespace imucal::core::motion

@@ -75,6 +75,16 @@ Evaluation Evaluate(const PreparedRecording& recording, const LearnResult& resul
 // The nominal parameter set: rad/s and m/s^2 in, identity, no bias.
 ParamSet NominalParams();
 
+// The gate on held-out figures, one rule for `imucal learn` and for the server that stores an
+// uploaded block: at least 2 recordings held out, the mean held-out AOE at least `gate_margin`
+// below the static model's, and no recording worse. The reason states the figures.
+struct HeldOutVerdict {
+  bool passed = false;
+  std::string reason;
+};
+HeldOutVerdict JudgeHeldOut(const std::vector<DynamicGyroRecording>& held_out,
+                            double gate_margin = 0.05);
+
 }  // namespace imucal::core::motion
 
 #endif  // IMUCAL_CORE_MOTION_LEARN_H_

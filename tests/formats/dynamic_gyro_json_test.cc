@@ -163,6 +163,7 @@ const Refusal kRefusals[] = {
      "dynamic_gyro.odd_rate_per_rad_s: expected an array of 3"},
     {"envelope negative", [](Json& b) { b["envelope"]["max_abs_rate_rad_s"][1] = -1.0; },
      "dynamic_gyro.envelope.max_abs_rate_rad_s[1]: negative"},
+    {"envelope missing", [](Json& b) { b.erase("envelope"); }, "dynamic_gyro.envelope: missing"},
     {"envelope missing member", [](Json& b) { b["envelope"].erase("max_abs_accel_m_s2"); },
      "dynamic_gyro.envelope.max_abs_accel_m_s2: missing"},
     {"ridge negative", [](Json& b) { b["ridge_lambda"] = -1; },
