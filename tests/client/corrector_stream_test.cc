@@ -18,19 +18,7 @@
 #include "core/dynamic_gyro_state.h"
 #include "core/params.h"
 #include "gtest/gtest.h"
-
-// Counts heap allocations in this binary, so that a test can show Stream::Apply makes none.
-namespace {
-std::atomic<int64_t> g_allocations{0};
-}  // namespace
-
-[[gnu::noinline]] void* operator new(std::size_t n) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
-  throw std::bad_alloc();
-}
-[[gnu::noinline]] void operator delete(void* p) noexcept { std::free(p); }
-[[gnu::noinline]] void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+#include "tests/allocation_counter.h"
 
 namespace imucal::sdk {
 namespace {
@@ -144,16 +132,16 @@ TEST(StreamTest, ApplyAllocatesNothingPerSample) {
   absl::StatusOr<Stream> stream = c->NewStream(kRateHz);
   ASSERT_TRUE(stream.ok()) << stream.status();
   CalibratedSample out;
-  const int64_t before = g_allocations.load();
+  const int64_t before = imucal::testing::AllocationCount();
   for (const RawSample& s : in) stream->Apply(s, &out);
   stream->Reset();
   for (const RawSample& s : in) stream->Apply(s, &out);
-  const int64_t allocations = g_allocations.load() - before;
+  const int64_t allocations = imucal::testing::AllocationCount() - before;
   EXPECT_EQ(allocations, 0) << "over " << 2 * kSamples << " samples";
   // The counter counts: making a stream allocates its ring buffer.
-  const int64_t at_new = g_allocations.load();
+  const int64_t at_new = imucal::testing::AllocationCount();
   ASSERT_TRUE(c->NewStream(kRateHz).ok());
-  EXPECT_GT(g_allocations.load(), at_new);
+  EXPECT_GT(imucal::testing::AllocationCount(), at_new);
 }
 
 TEST(StreamTest, AStreamOfAnotherRateIsRefused) {

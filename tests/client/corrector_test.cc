@@ -18,21 +18,7 @@
 #include "core/model.h"
 #include "core/params.h"
 #include "gtest/gtest.h"
-
-// Counts heap allocations in this binary, so that a test can show Apply makes none.
-namespace {
-std::atomic<int64_t> g_allocations{0};
-}  // namespace
-
-// noinline: GCC would otherwise inline malloc/free pairs across the replacement and warn
-// (-Wmismatched-new-delete) about its own view of them.
-[[gnu::noinline]] void* operator new(std::size_t n) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
-  throw std::bad_alloc();
-}
-[[gnu::noinline]] void operator delete(void* p) noexcept { std::free(p); }
-[[gnu::noinline]] void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+#include "tests/allocation_counter.h"
 
 namespace imucal::sdk {
 namespace {
@@ -435,13 +421,13 @@ TEST(CorrectorTest, ApplyDoesNotAllocate) {
   }
   std::vector<CalibratedSample> out(in.size());
   // The counter sees ordinary allocations (the replacement is in effect).
-  const int64_t probe = g_allocations.load();
+  const int64_t probe = imucal::testing::AllocationCount();
   auto heap = std::make_unique<std::vector<double>>(16);
-  ASSERT_GT(g_allocations.load(), probe);
-  const int64_t before = g_allocations.load();
+  ASSERT_GT(imucal::testing::AllocationCount(), probe);
+  const int64_t before = imucal::testing::AllocationCount();
   for (size_t i = 0; i < in.size(); ++i) c->Apply(in[i], &out[i]);
   const absl::Status batch = c->ApplyBatch(in, out);
-  const int64_t after = g_allocations.load();
+  const int64_t after = imucal::testing::AllocationCount();
   EXPECT_TRUE(batch.ok());
   EXPECT_EQ(after - before, 0);
 }
