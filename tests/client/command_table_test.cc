@@ -21,14 +21,23 @@ using Runner = int (*)(const std::vector<std::string>&);
 
 const std::map<std::string_view, Runner>& Runners() {
   static const std::map<std::string_view, Runner> runners = {
-      {"calibrate", RunCalibrate},  {"apply", RunApply},
-      {"simulate", RunSimulate},    {"noise", RunNoise},
-      {"demo", RunDemo},            {"demo-server", RunServerDemo},
-      {"export-file", RunExportFile}, {"export-server", RunExport},
-      {"devices", RunDevices},      {"session", RunSession},
-      {"upload", RunUpload},        {"guide", RunGuide},
-      {"solve", RunSolve},          {"report", RunReport},
-      {"params", RunParams},        {"admin", RunAdmin},
+      {"calibrate", RunCalibrate},
+      {"apply", RunApply},
+      {"simulate", RunSimulate},
+      {"noise", RunNoise},
+      {"learn", RunLearn},
+      {"demo", RunDemo},
+      {"demo-server", RunServerDemo},
+      {"export-file", RunExportFile},
+      {"export-server", RunExport},
+      {"devices", RunDevices},
+      {"session", RunSession},
+      {"upload", RunUpload},
+      {"guide", RunGuide},
+      {"solve", RunSolve},
+      {"report", RunReport},
+      {"params", RunParams},
+      {"admin", RunAdmin},
   };
   return runners;
 }
@@ -149,7 +158,7 @@ TEST(CommandTableTest, ZshCompletesCommandsActionsFlagsAndFiles) {
   const std::string commands = ZshComplete("imucal \"\"");
   for (const CommandSpec& c : CommandTable())
     EXPECT_NE(commands.find(std::string(c.word)), std::string::npos) << c.word;
-  EXPECT_EQ(ZshComplete("imucal params \"\""), "get list promote rollback\n");
+  EXPECT_EQ(ZshComplete("imucal params \"\""), "get list promote rollback upload\n");
   EXPECT_NE(ZshComplete("imucal solve --").find("--wait"), std::string::npos);
   EXPECT_EQ(ZshComplete("imucal calibrate --out \"\""), "FILES\n");
   EXPECT_EQ(ZshComplete("imucal calibrate \"\""), "FILES\n");
