@@ -10,15 +10,15 @@
 #include <cstdlib>
 #include <new>
 
-namespace imucal::testing {
+namespace imucal::test_support {
 inline std::atomic<int64_t> g_allocations{0};
 inline int64_t AllocationCount() { return g_allocations.load(std::memory_order_relaxed); }
-}  // namespace imucal::testing
+}  // namespace imucal::test_support
 
 // noinline: GCC would otherwise inline malloc/free pairs across the replacement and warn
 // (-Wmismatched-new-delete) about its own view of them.
 [[gnu::noinline]] void* operator new(std::size_t n) {
-  imucal::testing::g_allocations.fetch_add(1, std::memory_order_relaxed);
+  imucal::test_support::g_allocations.fetch_add(1, std::memory_order_relaxed);
   if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
   throw std::bad_alloc();
 }

@@ -132,16 +132,16 @@ TEST(StreamTest, ApplyAllocatesNothingPerSample) {
   absl::StatusOr<Stream> stream = c->NewStream(kRateHz);
   ASSERT_TRUE(stream.ok()) << stream.status();
   CalibratedSample out;
-  const int64_t before = imucal::testing::AllocationCount();
+  const int64_t before = imucal::test_support::AllocationCount();
   for (const RawSample& s : in) stream->Apply(s, &out);
   stream->Reset();
   for (const RawSample& s : in) stream->Apply(s, &out);
-  const int64_t allocations = imucal::testing::AllocationCount() - before;
+  const int64_t allocations = imucal::test_support::AllocationCount() - before;
   EXPECT_EQ(allocations, 0) << "over " << 2 * kSamples << " samples";
   // The counter counts: making a stream allocates its ring buffer.
-  const int64_t at_new = imucal::testing::AllocationCount();
+  const int64_t at_new = imucal::test_support::AllocationCount();
   ASSERT_TRUE(c->NewStream(kRateHz).ok());
-  EXPECT_GT(imucal::testing::AllocationCount(), at_new);
+  EXPECT_GT(imucal::test_support::AllocationCount(), at_new);
 }
 
 TEST(StreamTest, AStreamOfAnotherRateIsRefused) {

@@ -421,13 +421,13 @@ TEST(CorrectorTest, ApplyDoesNotAllocate) {
   }
   std::vector<CalibratedSample> out(in.size());
   // The counter sees ordinary allocations (the replacement is in effect).
-  const int64_t probe = imucal::testing::AllocationCount();
+  const int64_t probe = imucal::test_support::AllocationCount();
   auto heap = std::make_unique<std::vector<double>>(16);
-  ASSERT_GT(imucal::testing::AllocationCount(), probe);
-  const int64_t before = imucal::testing::AllocationCount();
+  ASSERT_GT(imucal::test_support::AllocationCount(), probe);
+  const int64_t before = imucal::test_support::AllocationCount();
   for (size_t i = 0; i < in.size(); ++i) c->Apply(in[i], &out[i]);
   const absl::Status batch = c->ApplyBatch(in, out);
-  const int64_t after = imucal::testing::AllocationCount();
+  const int64_t after = imucal::test_support::AllocationCount();
   EXPECT_TRUE(batch.ok());
   EXPECT_EQ(after - before, 0);
 }
