@@ -40,7 +40,7 @@ struct PreparedBatch {
   std::string payload;          // EncodeSamples(samples)
   std::vector<storage::ImuSample> samples;
   // The session's sample digest once this batch is stored (not for a retransmission); hashed
-  // here, off the store's acker thread.
+  // here, off the store's committer thread.
   formats::SampleDigest digest_after;
 };
 

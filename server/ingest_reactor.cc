@@ -43,7 +43,7 @@ std::string Named(const std::string& source) {
 // StreamSamples: read a batch, store it, ack it, read the next. One batch in flight per
 // stream, so reads and writes never overlap; any error ends the stream with its status after
 // everything acknowledged before it is stored. The store's group commit stores the batch: the
-// ack (and the batch's segmentation) follows on the store's acker thread once the
+// ack (and the batch's segmentation) follows on the store's committer thread once the
 // transaction holding it, shared with other streams' batches, has committed.
 //
 // Backpressure: the next StartRead follows the ack's OnWriteDone, which follows the commit, so

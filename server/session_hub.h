@@ -121,7 +121,7 @@ class SessionHub {
  public:
   explicit SessionHub(storage::Store* store) : store_(store) {}
   // Takes each live session's locks once before freeing it: a batch still being segmented or
-  // published (on the store's acker thread) finishes first. The server has drained its calls by
+  // published (on the store's committer thread) finishes first. The server has drained its calls by
   // then; the lock also shows that order to ThreadSanitizer, which cannot see it through gRPC.
   ~SessionHub();
 

@@ -40,12 +40,6 @@ Store::~Store() {
   commit_cv_.notify_all();
   checkpoint_cv_.notify_all();
   if (committer_.joinable()) committer_.join();  // after every submitted batch
-  {
-    std::lock_guard lock(ack_mu_);
-    ack_stopping_ = true;
-  }
-  ack_cv_.notify_all();
-  if (acker_.joinable()) acker_.join();  // after every committed batch's callback
   if (checkpoint_thread_.joinable()) checkpoint_thread_.join();
   checkpointer_.reset();  // before the writer, which checkpoints as the last one out
 }
@@ -215,7 +209,6 @@ void Store::ReleaseReader(sql::Connection* conn) {
 
 void Store::StartBackgroundThreads() {
   committer_ = std::thread([this] { CommitLoop(); });
-  acker_ = std::thread([this] { AckLoop(); });
   if (checkpointer_ == nullptr) return;  // PostgreSQL checkpoints by itself
   {
     // From now on the writer's commits no longer checkpoint (SQLite's automatic checkpoint is

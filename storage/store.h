@@ -168,8 +168,8 @@ class Store {
   // Group commit: AppendBatch, asynchronously, with the same checks and answers. Batches
   // submitted while a commit runs are written together in the next transaction (one COMMIT, and
   // under kFull one WAL sync, for many streams). `done` runs once that transaction committed
-  // (the batch is durable, as above) or failed, on the store's acker thread, in commit order (or at
-  // once, on the caller's, for a malformed batch); it must be quick and may call the store.
+  // (the batch is durable, as above) or failed, on the store's committer thread (or at once, on
+  // the caller's, for a malformed batch); it must be quick and may call the store.
   void AppendBatchAsync(std::string session_id, int64_t seq, std::string payload,
                         std::function<void(absl::StatusOr<BatchAck>)> done);
   // The session's batches with seq > after_seq, in seq order.
@@ -347,16 +347,13 @@ class Store {
   std::mutex write_mu_;
   std::unique_ptr<sql::Connection> writer_;  // guarded by write_mu_
 
-  // Group commit (AppendBatchAsync: a committer and an acker thread) and background WAL
-  // checkpoints; the three threads start with
+  // Group commit (AppendBatchAsync) and background WAL checkpoints; both threads start with
   // the first AppendBatchAsync (a store that only writes synchronously keeps SQLite's automatic
   // checkpoint) and stop in the destructor after the submitted batches.
   struct PendingAppend;
   static constexpr int kCheckpointPages = 4096;  // 16 MiB of WAL at 4 KiB pages
-  struct CommittedGroup;
   void StartBackgroundThreads();
   void CommitLoop();
-  void AckLoop();
   void CheckpointLoop();
   std::once_flag threads_started_;
   std::mutex commit_mu_;
@@ -366,14 +363,6 @@ class Store {
   bool stopping_ = false;               // guarded by commit_mu_
   std::atomic<int> wal_pages_{0};       // WAL pages written since the last checkpoint
   std::thread committer_;
-  // The committed groups' `done` callbacks run on an acker thread of their own, in commit
-  // order, so the committer starts the next group's transaction while the last one's streams
-  // are acknowledged (on 2 cores the two overlap; docs/figures.md has the ingest figures).
-  std::mutex ack_mu_;
-  std::condition_variable ack_cv_;
-  std::vector<CommittedGroup> committed_;  // guarded by ack_mu_
-  bool ack_stopping_ = false;              // guarded by ack_mu_
-  std::thread acker_;
   std::thread checkpoint_thread_;
   // Its own connection: never waits for writes. Null on PostgreSQL.
   std::unique_ptr<sql::SqliteConnection> checkpointer_;

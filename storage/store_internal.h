@@ -174,13 +174,6 @@ struct Store::PendingAppend {
   std::function<void(absl::StatusOr<BatchAck>)> done;
 };
 
-// A group the committer has committed (or failed): its batches' callbacks and answers, in
-// submission order, for the acker thread.
-struct Store::CommittedGroup {
-  std::vector<std::function<void(absl::StatusOr<BatchAck>)>> done;
-  std::vector<absl::StatusOr<BatchAck>> results;
-};
-
 }  // namespace imucal::storage
 
 #endif  // IMUCAL_STORAGE_STORE_INTERNAL_H_

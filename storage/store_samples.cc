@@ -1,5 +1,5 @@
 // Store: raw sample batches (store.h "Raw samples"): AppendBatch, the group commit of
-// AppendBatchAsync (its committer and acker threads), ReadBatches and ReadBatchPage.
+// AppendBatchAsync (its committer thread), ReadBatches and ReadBatchPage.
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -178,17 +178,8 @@ void Store::AppendBatchAsync(std::string session_id, int64_t seq, std::string pa
   std::call_once(threads_started_, [this] { StartBackgroundThreads(); });
   {
     std::lock_guard lock(commit_mu_);
-    // Closing: the committer may have left (a callback on the acker can still submit), so the
-    // batch is answered here rather than left in pending_ with nobody to commit it.
-    if (!stopping_) {
-      pending_.push_back(
-          PendingAppend{std::move(session_id), seq, std::move(payload), *info, std::move(done)});
-      done = nullptr;
-    }
-  }
-  if (done) {
-    done(absl::UnavailableError("AppendBatch: the store is closing"));
-    return;
+    pending_.push_back(
+        PendingAppend{std::move(session_id), seq, std::move(payload), *info, std::move(done)});
   }
   commit_cv_.notify_one();
 }
@@ -228,33 +219,8 @@ void Store::CommitLoop() {
           if (r.ok()) r = status;
       }
     }
-    CommittedGroup committed;
-    committed.done.reserve(group.size());
-    for (PendingAppend& p : group) committed.done.push_back(std::move(p.done));
-    committed.results = std::move(results);
-    results = {};
-    {
-      std::lock_guard lock(ack_mu_);
-      committed_.push_back(std::move(committed));
-    }
-    ack_cv_.notify_one();
+    for (size_t i = 0; i < group.size(); ++i) group[i].done(std::move(results[i]));
     group.clear();
-  }
-}
-
-void Store::AckLoop() {
-  std::vector<CommittedGroup> groups;
-  for (;;) {
-    {
-      std::unique_lock lock(ack_mu_);
-      ack_cv_.wait(lock, [this] { return !committed_.empty() || ack_stopping_; });
-      if (committed_.empty()) return;  // stopping, and every committed group is answered
-      groups.swap(committed_);
-    }
-    for (CommittedGroup& g : groups) {
-      for (size_t i = 0; i < g.done.size(); ++i) g.done[i](std::move(g.results[i]));
-    }
-    groups.clear();
   }
 }
 
