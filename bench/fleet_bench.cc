@@ -27,11 +27,11 @@
 #include "core/health/drift.h"
 #include "core/health/fleet_sim.h"
 #include "importers/registry.h"
+#include "util/units.h"
 
 namespace imucal::core::health {
 namespace {
 
-constexpr double kDegS = M_PI / 180;
 constexpr double kMonth_d = 30.0;
 
 struct Flags {
@@ -62,7 +62,7 @@ void MeasureMpu6050(FleetSimOptions* o) {
   AccelParams accel;
   GyroParams gyro;
   accel.scale = Eigen::Vector3d::Constant(kStandardGravity / 16384.0);  // +-2 g
-  gyro.matrix = Eigen::Matrix3d::Identity() * (kDegS / 131.0);          // +-250 deg/s
+  gyro.matrix = Eigen::Matrix3d::Identity() * (kDegToRad / 131.0);      // +-250 deg/s
   for (const Eigen::Vector3d& g : cap->gyro) gyro.bias += g / static_cast<double>(cap->size());
   const absl::StatusOr<NoiseAnalysis> n = ComputeNoise(*cap, 0, cap->size(), accel, gyro);
   if (!n.ok()) return;
@@ -190,8 +190,8 @@ void RunScenario(FleetChange change, const FleetSimOptions& base) {
         break;
       }
     RunUnit(kept, checks, &test);
-    RunBaseline(kept, checks, 0.1 * kDegS, &fixed1);
-    RunBaseline(kept, checks, 0.2 * kDegS, &fixed2);
+    RunBaseline(kept, checks, 0.1 * kDegToRad, &fixed1);
+    RunBaseline(kept, checks, 0.2 * kDegToRad, &fixed2);
   }
   test.Print(FleetChangeName(change));
   std::printf(" %5.1f%% / %5.1f%% | %5.2f | %5.1f%% / %5.1f%% | %5.2f | %d\n",
@@ -228,7 +228,7 @@ int main(int argc, char** argv) {
   o.seed = f.seed;
   o.rest_s = f.rest_s;
   o.accel_step_m_s2 = f.accel_step_mg * 1e-3 * imucal::core::kStandardGravity;
-  o.mounting_step_rad = f.mounting_deg * kDegS;
+  o.mounting_step_rad = f.mounting_deg * imucal::kDegToRad;
   o.gyro_step_spreads = f.gyro_step_spreads;
   o.scale_drift_per_day = f.scale_drift_ppm_day * 1e-6;
   MeasureMpu6050(&o);

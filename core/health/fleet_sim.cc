@@ -8,6 +8,7 @@
 #include "Eigen/Geometry"
 #include "absl/strings/str_format.h"
 #include "core/health/drift.h"
+#include "core/so3.h"
 
 namespace imucal::core::health {
 namespace {
@@ -136,8 +137,7 @@ std::vector<SimUnit> SimulateFleet(const FleetSimOptions& o) {
     }
     // The dock: within 3 degrees of level, any heading.
     const Eigen::Vector3d tilt(rng.Uniform(-3, 3), rng.Uniform(-3, 3), 0);
-    const Eigen::Matrix3d r_world_body =
-        (Eigen::AngleAxisd(tilt.norm() * kDegToRad, tilt.normalized())).toRotationMatrix();
+    const Eigen::Matrix3d r_world_body = ExpSo3<double>(kDegToRad * tilt);
     u.dock_gravity_body = r_world_body.transpose() * Eigen::Vector3d(0, 0, kStandardGravity);
     u.gyro_spread_rad_s = rng.Uniform(o.gyro_spread_min_rad_s, o.gyro_spread_max_rad_s);
     u.gyro_offset_rad_s = u.gyro_spread_rad_s * rng.Normal3();
@@ -166,7 +166,7 @@ Capture SimulateDockRest(const SimUnit& u, int check, const FleetSimOptions& o) 
   // The rest's constant part (calibrated units), before the stored effects are undone.
   Eigen::Vector3d f = u.dock_gravity_body;
   const Eigen::Vector3d jitter = o.dock_jitter_rad * rng.Normal3();
-  f = Eigen::AngleAxisd(jitter.norm(), jitter.normalized()).toRotationMatrix().transpose() * f;
+  f = ExpSo3<double>(jitter).transpose() * f;
   Eigen::Vector3d w = u.gyro_offset_rad_s + u.gyro_spread_rad_s * rng.Normal3();
   if (c.changed) {
     const double days = (c.t_s - u.change_t_s) / kDay_s;
@@ -175,10 +175,7 @@ Capture SimulateDockRest(const SimUnit& u, int check, const FleetSimOptions& o) 
         f += u.change_vector;
         break;
       case FleetChange::kMountingStep:
-        f = Eigen::AngleAxisd(u.change_vector.norm(), u.change_vector.normalized())
-                .toRotationMatrix()
-                .transpose() *
-            f;
+        f = ExpSo3<double>(u.change_vector).transpose() * f;
         break;
       case FleetChange::kGyroBiasStep:
         w += u.change_vector;

@@ -9,11 +9,10 @@
 #include <random>
 
 #include "Eigen/Geometry"
+#include "util/units.h"
 
 namespace imucal::core::health {
 namespace {
-
-constexpr double kDeg = M_PI / 180;
 
 ParamSet Params() {
   ParamSet p;
@@ -40,11 +39,11 @@ Capture MakeRest(const ParamSet& p, const Truth& t, uint64_t seed) {
   const int samples = static_cast<int>(t.duration_s * t.rate_hz);
   for (int i = 0; i < samples; ++i) {
     const double ts = 1000 + i / t.rate_hz;
-    const double angle = t.wobble_deg * kDeg * std::sin(2 * M_PI * 0.5 * ts);
+    const double angle = t.wobble_deg * kDegToRad * std::sin(2 * M_PI * 0.5 * ts);
     const Eigen::Matrix3d r = Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitX()).toRotationMatrix();
     const Eigen::Vector3d f = r * t.up_body * p.gravity_m_s2 + t.accel_error_m_s2 +
                               t.accel_sigma * Eigen::Vector3d(n(rng), n(rng), n(rng));
-    const double rate = t.wobble_deg * kDeg * 2 * M_PI * 0.5 * std::cos(2 * M_PI * 0.5 * ts);
+    const double rate = t.wobble_deg * kDegToRad * 2 * M_PI * 0.5 * std::cos(2 * M_PI * 0.5 * ts);
     const Eigen::Vector3d w = t.gyro_error_rad_s + rate * Eigen::Vector3d::UnitX() +
                               t.gyro_sigma * Eigen::Vector3d(n(rng), n(rng), n(rng));
     c.t_s.push_back(ts);
@@ -103,15 +102,15 @@ TEST(HealthCheckTest, AlongAReferenceDirectionSeesAMountingChange) {
   const ParamSet p = Params();
   Truth t;
   const Eigen::Vector3d dock = t.up_body;
-  t.up_body = Eigen::AngleAxisd(0.3 * kDeg, Eigen::Vector3d::UnitY()) * dock;
+  t.up_body = Eigen::AngleAxisd(0.3 * kDegToRad, Eigen::Vector3d::UnitY()) * dock;
   t.accel_error_m_s2.setZero();
   HealthCheckOptions o;
   o.reference_gravity_dir_body = dock;
   const absl::StatusOr<HealthCheck> h = ComputeHealthCheck(MakeRest(p, t, 3), p, o);
   ASSERT_TRUE(h.ok()) << h.status();
   const double angle = std::acos(h->gravity_dir_body.dot(dock));
-  EXPECT_NEAR(angle, 0.3 * kDeg, 5 * h->gravity_dir_se_rad);
-  EXPECT_NEAR(h->along_gravity_m_s2, p.gravity_m_s2 * (std::cos(0.3 * kDeg) - 1),
+  EXPECT_NEAR(angle, 0.3 * kDegToRad, 5 * h->gravity_dir_se_rad);
+  EXPECT_NEAR(h->along_gravity_m_s2, p.gravity_m_s2 * (std::cos(0.3 * kDegToRad) - 1),
               5 * h->along_gravity_se_m_s2);
 }
 
@@ -137,7 +136,7 @@ TEST(HealthCheckTest, ANonRestIsRefusedWithTheReason) {
 TEST(HealthCheckTest, ASteadyTurnIsRefused) {
   const ParamSet p = Params();
   Truth t;
-  t.gyro_error_rad_s = Eigen::Vector3d(0, 0, 20 * kDeg);  // turning at 20 deg/s about up
+  t.gyro_error_rad_s = Eigen::Vector3d(0, 0, 20 * kDegToRad);  // turning at 20 deg/s about up
   // The still detector finds no still stretch (the turn has no variance, but the gyroscope
   // turns more than a rest can); without it, the rate test refuses it.
   absl::StatusOr<HealthCheck> h = ComputeHealthCheck(MakeRest(p, t, 1), p);

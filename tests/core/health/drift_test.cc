@@ -10,18 +10,19 @@
 #include <random>
 #include <vector>
 
+#include "util/units.h"
+
 namespace imucal::core::health {
 namespace {
 
-constexpr double kDeg = M_PI / 180;
 constexpr double kDay = 86400;
 
 struct Sequence {
   int checks = 300;
   double per_day = 1.5;
-  double gyro_spread_rad_s = 0.04 * kDeg;  // the unit's own power-up spread
+  double gyro_spread_rad_s = 0.04 * kDegToRad;  // the unit's own power-up spread
   double accel_spread_m_s2 = 2e-3;
-  double tilt_spread_rad = 0.01 * kDeg;
+  double tilt_spread_rad = 0.01 * kDegToRad;
   // Changes: from check `at` on.
   int at = -1;
   Eigen::Vector3d gyro_step_rad_s = Eigen::Vector3d::Zero();
@@ -158,21 +159,21 @@ TEST(DriftTest, AChangeTheTemperatureExplainsIsNotFlagged) {
   s.t_lo = 18;
   s.t_hi = 22;
   s.temp_shift_c = 15;           // a warm season: the checks now span 18-37 degC
-  s.gyro_x_per_c = 0.02 * kDeg;  // 0.02 deg/s per degC that the stored effect misses
+  s.gyro_x_per_c = 0.02 * kDegToRad;  // 0.02 deg/s per degC that the stored effect misses
   const std::vector<HealthCheck> c = Make(s, 9);
   const DriftAssessment a = AssessDrift(c, {});
   EXPECT_NE(a.state, HealthState::kRecalibrate) << a.summary;
   EXPECT_EQ(a.quantities[static_cast<int>(Quantity::kGyroX)].kind, ChangeKind::kTemperature)
       << a.summary;
-  EXPECT_NEAR(a.quantities[static_cast<int>(Quantity::kGyroX)].temp_coefficient_per_c, 0.02 * kDeg,
-              0.005 * kDeg);
+  EXPECT_NEAR(a.quantities[static_cast<int>(Quantity::kGyroX)].temp_coefficient_per_c,
+              0.02 * kDegToRad, 0.005 * kDegToRad);
   // A step of that size without the warm season (nor a temperature dependence) is flagged.
   // (A step that comes exactly with a change of season is what the data cannot tell apart.)
   s.gyro_x_per_c = 0;
   s.temp_shift_c = 0;
   s.t_lo = 10;
   s.t_hi = 30;
-  s.gyro_step_rad_s = Eigen::Vector3d(0.3 * kDeg, 0, 0);
+  s.gyro_step_rad_s = Eigen::Vector3d(0.3 * kDegToRad, 0, 0);
   EXPECT_EQ(AssessDrift(Make(s, 9), {}).state, HealthState::kRecalibrate);
 }
 
@@ -192,9 +193,9 @@ TEST(DriftTest, LearningAndDeterminism) {
 
 TEST(DriftTest, TheVersionsOwnFiguresAreChecked) {
   std::vector<HealthCheck> c = Make(Sequence(), 4);
-  for (HealthCheck& h : c) h.gyro_bias_rad_s.y() += 0.5 * kDeg;  // the calibration was off
+  for (HealthCheck& h : c) h.gyro_bias_rad_s.y() += 0.5 * kDegToRad;  // the calibration was off
   DriftReference ref;
-  ref.gyro_bias_se_rad_s = Eigen::Vector3d::Constant(0.005 * kDeg);
+  ref.gyro_bias_se_rad_s = Eigen::Vector3d::Constant(0.005 * kDegToRad);
   const DriftAssessment a = AssessDrift({c.begin(), c.begin() + 20}, ref);
   EXPECT_EQ(a.state, HealthState::kWatch) << a.summary;
   EXPECT_TRUE(a.quantities[static_cast<int>(Quantity::kGyroY)].version_disagrees);

@@ -9,11 +9,10 @@
 
 #include "core/health/drift.h"
 #include "core/health/fleet_sim.h"
+#include "util/units.h"
 
 namespace imucal::core::health {
 namespace {
-
-constexpr double kDeg = M_PI / 180;
 
 std::vector<ParamSet> Siblings(int n, uint64_t seed) {
   std::mt19937_64 rng(seed);
@@ -70,8 +69,8 @@ TEST(FleetTest, AUnitWalkingAwayFromTheFleetIsFlagged) {
     for (int i = 0; i < 30; ++i) {
       HealthCheck h;
       h.norm_minus_g_m_s2 = 1e-3 * z(rng);
-      h.gyro_bias_rad_s = 0.04 * kDeg * Eigen::Vector3d(z(rng), z(rng), z(rng));
-      if (u == 7) h.gyro_bias_rad_s.y() += 0.02 * kDeg * i;  // walks 0.6 deg/s away
+      h.gyro_bias_rad_s = 0.04 * kDegToRad * Eigen::Vector3d(z(rng), z(rng), z(rng));
+      if (u == 7) h.gyro_bias_rad_s.y() += 0.02 * kDegToRad * i;  // walks 0.6 deg/s away
       uc.checks.push_back(h);
     }
     units.push_back(uc);
@@ -80,7 +79,7 @@ TEST(FleetTest, AUnitWalkingAwayFromTheFleetIsFlagged) {
   ASSERT_EQ(w.size(), 1u);
   EXPECT_EQ(w[0].device, "robot-7");
   EXPECT_EQ(w[0].quantity, "gyro bias y");
-  EXPECT_NEAR(FleetGyroSpread(units), 0.04 * kDeg, 0.01 * kDeg);
+  EXPECT_NEAR(FleetGyroSpread(units), 0.04 * kDegToRad, 0.01 * kDegToRad);
 }
 
 TEST(FleetSimTest, DockRestsPassTheHealthCheckAndAreDeterministic) {
@@ -97,8 +96,9 @@ TEST(FleetSimTest, DockRestsPassTheHealthCheckAndAreDeterministic) {
   const absl::StatusOr<HealthCheck> h = ComputeHealthCheck(r1, a[1].params);
   ASSERT_TRUE(h.ok()) << h.status();
   // The dock's gravity is what the check sees, to the dock's jitter and the unit's residuals.
-  EXPECT_LT(std::acos(h->gravity_dir_body.dot(a[1].dock_gravity_body.normalized())), 0.05 * kDeg);
-  EXPECT_LT(h->gyro_bias_rad_s.cwiseAbs().maxCoeff(), 0.3 * kDeg);
+  EXPECT_LT(std::acos(h->gravity_dir_body.dot(a[1].dock_gravity_body.normalized())),
+            0.05 * kDegToRad);
+  EXPECT_LT(h->gyro_bias_rad_s.cwiseAbs().maxCoeff(), 0.3 * kDegToRad);
 }
 
 TEST(FleetSimTest, AMountingStepOfASimulatedUnitIsFlaggedWithinThreeChecks) {

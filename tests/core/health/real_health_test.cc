@@ -22,11 +22,10 @@
 #include "core/health/drift.h"
 #include "importers/registry.h"
 #include "tests/core/real_captures.h"
+#include "util/units.h"
 
 namespace imucal::core::health {
 namespace {
-
-constexpr double kDeg = M_PI / 180;
 
 Capture Slice(const Capture& c, size_t begin, size_t end) {
   Capture s = c;
@@ -131,7 +130,7 @@ TEST(RealHealthTest, Mpu6050LongRestCutIntoDockChecksRaisesNoAlarm) {
   p.accel_unit = AccelUnit::kCounts;
   p.gyro_unit = GyroUnit::kCounts;
   p.accel.scale = Eigen::Vector3d::Constant(kStandardGravity / real_captures::kMpu6050CountsPerG);
-  p.gyro.matrix = Eigen::Matrix3d::Identity() * (kDeg / real_captures::kMpu6050CountsPerDegS);
+  p.gyro.matrix = Eigen::Matrix3d::Identity() * (kDegToRad / real_captures::kMpu6050CountsPerDegS);
   for (const Eigen::Vector3d& g : cap->gyro) p.gyro.bias += g / static_cast<double>(cap->size());
   std::vector<HealthCheck> checks;
   const size_t n = 1500;  // 15 s at 100 Hz
